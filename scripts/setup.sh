@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Installs every Debian package eprfarm needs to build, test, benchmark and deploy.
+# Idempotent: packages already present are left alone. Needs root (or sudo).
+set -euo pipefail
+
+PACKAGES=(
+  # toolchain
+  build-essential cmake ninja-build pkg-config git clang libclang-rt-14-dev
+  # rendering
+  libembree-dev libtbb-dev libosmesa6-dev libopenimageio-dev openimageio-tools
+  libtinyobjloader-dev
+  # services
+  libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libssl-dev
+  libcpp-httplib-dev
+  # utilities
+  libspdlog-dev libfmt-dev libcli11-dev nlohmann-json3-dev
+  # tests and benchmarks
+  libgtest-dev libgmock-dev libbenchmark-dev
+)
+# the Python packages are for scripts run with Debian's /usr/bin/python3
+PACKAGES+=(python3 python3-numpy python3-openimageio python3-prometheus-client)
+# reference renderer, charts, browser tests, deployment checks, network namespaces
+PACKAGES+=(blender gnuplot-nox chromium chromium-driver docker-compose iproute2 procps curl)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  [ -n "$p" ] || continue
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing ${#missing[@]} packages: ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+else
+  echo "setup: all packages present"
+fi
