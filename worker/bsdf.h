@@ -1,0 +1,80 @@
+// The two reflection models a scene may use (common/scene.h): Lambertian, and Lambertian plus a
+// normalised Phong lobe (the glossy material, only there to exercise the method's failure mode).
+// Directions are in world space and unit length; `n` is the geometric normal oriented to the side
+// the path arrived from, `wo` points back along the incoming ray.
+#pragma once
+
+#include "common/math.h"
+#include "common/sampling.h"
+#include "common/scene.h"
+
+namespace epr {
+
+struct BsdfSample {
+  Vec3 wi;
+  Vec3 weight;  // f * cos / pdf
+  bool valid = false;
+};
+
+class Bsdf {
+ public:
+  Bsdf(const Material& m, Vec3 kd, Vec3 n, Vec3 wo)
+      : kd_(kd), ks_(m.type == MaterialType::kGlossy ? m.ks : Vec3(0.f)), exponent_(m.exponent), n_(n), wo_(wo) {
+    const float ld = luminance(kd_), ls = luminance(ks_);
+    p_glossy_ = (ld + ls) > 0 ? ls / (ld + ls) : 0.f;
+  }
+
+  /// f(wo, wi), 1/sr.
+  Vec3 eval(const Vec3& wi) const {
+    if (dot(wi, n_) <= 0) return Vec3(0.f);
+    Vec3 f = kd_ * kInvPi;
+    if (p_glossy_ > 0) {
+      const float c = dot(reflect(wo_), wi);
+      if (c > 0) f += ks_ * ((exponent_ + 2) * 0.5f * kInvPi * std::pow(c, exponent_));
+    }
+    return f;
+  }
+
+  float pdf(const Vec3& wi) const {
+    const float cos_n = dot(wi, n_);
+    if (cos_n <= 0) return 0;
+    float p = (1 - p_glossy_) * cosine_hemisphere_pdf(cos_n);
+    if (p_glossy_ > 0) p += p_glossy_ * phong_lobe_pdf(dot(reflect(wo_), wi), exponent_);
+    return p;
+  }
+
+  /// u_lobe picks the lobe, u the direction inside it.
+  BsdfSample sample(float u_lobe, Vec2 u) const {
+    BsdfSample s;
+    if (p_glossy_ == 0) {
+      // Pure Lambertian: f cos / pdf = kd exactly.
+      s.wi = Frame::from_normal(n_).to_world(sample_cosine_hemisphere(u));
+      s.weight = kd_;
+      s.valid = dot(s.wi, n_) > 0;
+      return s;
+    }
+    if (u_lobe < p_glossy_)
+      s.wi = Frame::from_normal(reflect(wo_)).to_world(sample_phong_lobe(u, exponent_));
+    else
+      s.wi = Frame::from_normal(n_).to_world(sample_cosine_hemisphere(u));
+    const float p = pdf(s.wi);
+    if (!(p > 0)) return s;
+    s.weight = eval(s.wi) * (dot(s.wi, n_) / p);
+    s.valid = true;
+    return s;
+  }
+
+  bool glossy() const { return p_glossy_ > 0; }
+  /// Largest total reflectance, the albedo-based Russian roulette's survival probability.
+  float albedo() const { return max_component(kd_ + ks_); }
+
+ private:
+  Vec3 reflect(const Vec3& w) const { return n_ * (2 * dot(w, n_)) - w; }
+
+  Vec3 kd_, ks_;
+  float exponent_;
+  Vec3 n_, wo_;
+  float p_glossy_ = 0;
+};
+
+}  // namespace epr

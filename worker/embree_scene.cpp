@@ -1,0 +1,102 @@
+#include "worker/embree_scene.h"
+
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "common/log.h"
+
+namespace epr {
+namespace {
+
+void on_embree_error(void*, RTCError code, const char* message) {
+  logger("worker")->error("embree error {}: {}", int(code), message ? message : "");
+}
+
+}  // namespace
+
+EmbreeScene::EmbreeScene(const Scene& scene) : scene_(scene) {
+  device_ = rtcNewDevice(nullptr);
+  if (!device_) throw std::runtime_error("cannot create Embree device");
+  rtcSetDeviceErrorFunction(device_, on_embree_error, nullptr);
+
+  rtc_scene_ = rtcNewScene(device_);
+  rtcSetSceneFlags(rtc_scene_, RTC_SCENE_FLAG_ROBUST);
+  RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
+  auto* verts = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                            3 * sizeof(float), scene.positions.size()));
+  for (size_t i = 0; i < scene.positions.size(); ++i) {
+    verts[3 * i + 0] = scene.positions[i].x;
+    verts[3 * i + 1] = scene.positions[i].y;
+    verts[3 * i + 2] = scene.positions[i].z;
+  }
+  auto* idx = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                             3 * sizeof(uint32_t), scene.triangles.size()));
+  for (size_t i = 0; i < scene.triangles.size(); ++i)
+    for (int k = 0; k < 3; ++k) idx[3 * i + k] = scene.triangles[i][k];
+  rtcCommitGeometry(geom);
+  rtcAttachGeometry(rtc_scene_, geom);
+  rtcReleaseGeometry(geom);
+  rtcCommitScene(rtc_scene_);
+
+  // Step-off distance: relative to the scene's extent, so that metre- and kilometre-scale scenes
+  // both avoid self-intersection without light leaking through thin geometry.
+  const Bounds3 b = scene.bounds();
+  const float extent = std::max({std::abs(b.lo.x), std::abs(b.lo.y), std::abs(b.lo.z), std::abs(b.hi.x),
+                                 std::abs(b.hi.y), std::abs(b.hi.z), 1.f});
+  ray_epsilon_ = 2e-5f * extent;
+}
+
+EmbreeScene::~EmbreeScene() {
+  if (rtc_scene_) rtcReleaseScene(rtc_scene_);
+  if (device_) rtcReleaseDevice(device_);
+}
+
+bool EmbreeScene::intersect(const Ray& ray, float tnear, float tfar, Hit* hit) const {
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRayHit rh;
+  rh.ray.org_x = ray.origin.x;
+  rh.ray.org_y = ray.origin.y;
+  rh.ray.org_z = ray.origin.z;
+  rh.ray.dir_x = ray.dir.x;
+  rh.ray.dir_y = ray.dir.y;
+  rh.ray.dir_z = ray.dir.z;
+  rh.ray.tnear = tnear;
+  rh.ray.tfar = tfar;
+  rh.ray.time = 0;
+  rh.ray.mask = 0xffffffffu;
+  rh.ray.id = 0;
+  rh.ray.flags = 0;
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+  rtcIntersect1(rtc_scene_, &ctx, &rh);
+  if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  hit->t = rh.ray.tfar;
+  hit->prim = rh.hit.primID;
+  hit->u = rh.hit.u;
+  hit->v = rh.hit.v;
+  return true;
+}
+
+bool EmbreeScene::occluded(const Vec3& origin, const Vec3& dir, float tnear, float tfar) const {
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRay r;
+  r.org_x = origin.x;
+  r.org_y = origin.y;
+  r.org_z = origin.z;
+  r.dir_x = dir.x;
+  r.dir_y = dir.y;
+  r.dir_z = dir.z;
+  r.tnear = tnear;
+  r.tfar = tfar;
+  r.time = 0;
+  r.mask = 0xffffffffu;
+  r.id = 0;
+  r.flags = 0;
+  rtcOccluded1(rtc_scene_, &ctx, &r);
+  return r.tfar < 0;  // Embree sets tfar to -inf on a hit
+}
+
+}  // namespace epr

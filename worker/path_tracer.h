@@ -1,0 +1,81 @@
+// Unidirectional path tracer that records its eye-path vertices for reprojection (DESIGN.md section 1).
+//
+// Per vertex x_n: next event estimation (one shadow ray to a point on the emitters, chosen by area x
+// luminance of Ke), then a BSDF-sampled continuation and Russian roulette. Radiance is propagated
+// back once the path ends:
+//     R_N = D_N,  R_n = D_n + (f_n cos_n / pdf_n / q_n) R_{n+1},  pixel sample = Le(x_1) + R_1
+// Emission found by a BSDF-sampled ray after the first vertex is not added (NEE counts it). Every
+// x_n with n >= 2 is recorded with radiance Le(x_n) + R_n.
+//
+// Parameters: RussianRoulette (see below); the seed of the counter-based generator.
+// Determinism: a path depends only on (seed, pixel, sample index): same inputs, same bits.
+// Caveat: a hard depth cap (`max_depth`, default 1024) stops pathological paths; its bias is below
+// float precision for albedos < 0.95 with the paper's roulette.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "common/camera.h"
+#include "common/sampling.h"
+#include "common/vertex_record.h"
+#include "worker/embree_scene.h"
+
+namespace epr {
+
+struct RussianRoulette {
+  enum class Mode {
+    kPaper,   // survive with 1 - termination once depth >= start_depth (paper: 8 and 0.1)
+    kAlbedo,  // survive with the surface's largest albedo (clamped to [0.05, 1]) once depth >= start_depth
+    kOff,     // no roulette: every path stops at max_depth (biased: reprojected samples get darker)
+  };
+  Mode mode = Mode::kPaper;
+  int start_depth = 8;        // vertices traced before roulette starts
+  float termination = 0.1f;   // kPaper's termination probability
+  int max_depth = 1024;       // hard cap on path vertices
+
+  static RussianRoulette paper() { return {}; }
+  static RussianRoulette albedo() { return {Mode::kAlbedo, 3, 0.f, 1024}; }
+  static RussianRoulette off(int max_depth) { return {Mode::kOff, 0, 0.f, max_depth}; }
+};
+
+struct PathStats {
+  uint64_t paths = 0;
+  uint64_t vertices = 0;         // surface hits, all depths
+  uint64_t rays = 0;             // closest-hit plus shadow rays
+  uint64_t nonfinite_dropped = 0;  // samples that came out NaN or infinite (dropped, counted)
+
+  PathStats& operator+=(const PathStats& o) {
+    paths += o.paths; vertices += o.vertices; rays += o.rays; nonfinite_dropped += o.nonfinite_dropped;
+    return *this;
+  }
+};
+
+class PathTracer {
+ public:
+  PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr);
+
+  /// Traces path number `sample` of pixel (x, y); returns the pixel sample Le(x_1) + R_1. When
+  /// `vertices` is not null, appends one record per vertex x_n, n >= 2.
+  Vec3 trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats) const;
+
+  const Camera& camera() const { return camera_; }
+  const EmbreeScene& scene() const { return scene_; }
+
+ private:
+  struct LightSample {
+    Vec3 position, normal, le;
+    float pdf_area = 0;  // density w.r.t. area on the emitters, 1/m^2
+  };
+  bool sample_light(float u_select, Vec2 u, LightSample* out) const;
+  Vec3 albedo_at(const Material& m, uint32_t prim, float u, float v) const;
+
+  const EmbreeScene& scene_;
+  Camera camera_;
+  uint64_t seed_;
+  RussianRoulette rr_;
+  std::vector<uint32_t> emitters_;  // triangle indices
+  DiscreteDistribution emitter_distribution_;
+};
+
+}  // namespace epr

@@ -1,0 +1,105 @@
+#include "worker/tile_renderer.h"
+
+#include <chrono>
+#include <cmath>
+
+namespace epr {
+
+std::vector<TileRect> make_tiles(int width, int height, int tile_size) {
+  std::vector<TileRect> tiles;
+  for (int y = 0; y < height; y += tile_size)
+    for (int x = 0; x < width; x += tile_size)
+      tiles.push_back({x, y, std::min(width, x + tile_size), std::min(height, y + tile_size)});
+  return tiles;
+}
+
+TileStats& TileStats::operator+=(const TileStats& o) {
+  paths += o.paths;
+  vertices_recorded += o.vertices_recorded;
+  culled_frustum += o.culled_frustum;
+  culled_facing += o.culled_facing;
+  culled_glossy += o.culled_glossy;
+  exact_occluded += o.exact_occluded;
+  seconds += o.seconds;
+  return *this;
+}
+
+void TileRenderer::filter_vertices(std::vector<VertexRecord>& recs, size_t first, TileResult& out) const {
+  const Camera& cam = tracer_.camera();
+  const EmbreeScene& scene = tracer_.scene();
+  const int S = filter_.subpixels;
+  const float sw = float(cam.width() * S), sh = float(cam.height() * S);
+  size_t kept = first;
+  for (size_t i = first; i < recs.size(); ++i) {
+    const VertexRecord& r = recs[i];
+    if (!r.diffuse() && !filter_.reproject_glossy) {
+      ++out.stats.culled_glossy;
+      continue;
+    }
+    float rx, ry;
+    if (!cam.project(r.position, &rx, &ry)) {
+      ++out.stats.culled_frustum;
+      continue;
+    }
+    const float sx = rx * float(S), sy = ry * float(S);
+    if (!(sx >= 0 && sx < sw && sy >= 0 && sy < sh)) {
+      ++out.stats.culled_frustum;
+      continue;
+    }
+    const Vec3 to_eye = cam.eye() - r.position;
+    if (!(dot(r.normal, to_eye) > 0)) {
+      ++out.stats.culled_facing;
+      continue;
+    }
+    if (filter_.mode == VertexFilter::Mode::kExact) {
+      const float dist = length(to_eye);
+      const float eps = scene.ray_epsilon();
+      const Vec3 origin = r.position + r.normal * eps;
+      if (scene.occluded(origin, to_eye / dist, 0.f, dist - 2 * eps)) {
+        ++out.stats.exact_occluded;
+        continue;
+      }
+      const uint32_t subpixel = uint32_t(std::floor(sy)) * uint32_t(cam.width() * S) + uint32_t(std::floor(sx));
+      out.visible.push_back({subpixel, r.radiance});
+      continue;
+    }
+    recs[kept++] = r;
+  }
+  recs.resize(kept);
+}
+
+TileResult TileRenderer::render(const TileRequest& req) const {
+  const auto start = std::chrono::steady_clock::now();
+  TileResult out;
+  out.rect = req.rect;
+  const size_t n = size_t(req.rect.pixel_count());
+  out.path_sum.assign(n, Vec3(0.f));
+  out.path_count.assign(n, 0);
+  const bool record = filter_.mode != VertexFilter::Mode::kNone;
+  // Exact mode keeps records only until they are turned into VisibleSamples.
+  std::vector<VertexRecord> scratch;
+  std::vector<VertexRecord>& recs = filter_.mode == VertexFilter::Mode::kExact ? scratch : out.vertices;
+
+  size_t i = 0;
+  for (int y = req.rect.y0; y < req.rect.y1; ++y) {
+    for (int x = req.rect.x0; x < req.rect.x1; ++x, ++i) {
+      if (!req.skip.empty() && req.skip[i]) continue;
+      const uint32_t first = req.first_sample.empty() ? 0 : req.first_sample[i];
+      Vec3 sum(0.f);
+      for (int k = 0; k < req.paths_per_pixel; ++k) {
+        const size_t before = recs.size();
+        sum += tracer_.trace(x, y, first + uint32_t(k), record ? &recs : nullptr, &out.stats.paths);
+        out.stats.vertices_recorded += recs.size() - before;
+        if (filter_.mode == VertexFilter::Mode::kCull || filter_.mode == VertexFilter::Mode::kExact)
+          filter_vertices(recs, before, out);
+        if (filter_.mode == VertexFilter::Mode::kExact) recs.clear();
+      }
+      out.path_sum[i] = sum;
+      out.path_count[i] = uint32_t(req.paths_per_pixel);
+    }
+  }
+  out.stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return out;
+}
+
+}  // namespace epr
