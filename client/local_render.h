@@ -1,0 +1,43 @@
+// The embedded render: progressive rounds of eye paths traced in this process, reprojected into the
+// deep framebuffer, combined and skipped (DESIGN.md section 1), with the outputs written at the end.
+#pragma once
+
+#include <functional>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "client/render_options.h"
+#include "common/image.h"
+
+namespace epr {
+
+struct RoundProgress {
+  int round = 0;             // 1-based
+  double seconds = 0;        // since the render started
+  double mean_spp = 0;       // mean over pixels of M + M'
+  double min_spp = 0;
+  double mean_mprime = 0;    // mean reprojected samples per pixel
+  double pixels_active = 0;  // fraction of pixels that traced paths this round
+  double eta_seconds = -1;   // -1 when unknown
+};
+
+struct RenderOutputs {
+  Image combined;     // the image: path samples and reprojected samples combined
+  Image pathtrace;    // path samples only (sum / M)
+  Image reprojection; // L_rp per pixel (0 where M' = 0)
+  Image path_count;   // M per pixel (1 channel)
+  Image mprime;       // M' per pixel (1 channel)
+  nlohmann::json stats;
+};
+
+using ProgressCallback = std::function<void(const RoundProgress&)>;
+
+/// Renders `opts` to completion. Throws std::runtime_error (bad scene, no OSMesa, ...).
+RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& progress = {});
+
+/// Writes PREFIX.exr, PREFIX.png, PREFIX.json and, when reprojection ran, PREFIX.pathtrace.exr,
+/// PREFIX.reprojection.exr, PREFIX.samples.exr (M') and PREFIX.samples.png (M' heat map).
+void write_outputs(const std::string& prefix, const RenderOutputs& out);
+
+}  // namespace epr

@@ -1,0 +1,45 @@
+// Everything a render job is made of: scene, camera, image, sampling, method. Shared by the CLI's
+// `render` (embedded default) and `submit` (cluster) so both take the same flags.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "common/camera.h"
+#include "worker/path_tracer.h"
+
+namespace epr {
+
+enum class RenderMode { kPathTrace, kReproject, kSkip };
+enum class ReprojectMethod { kGl, kCpu, kExact };
+
+struct RenderOptions {
+  std::string scene = "builtin:cornell";  // OBJ path, scene JSON path or builtin:NAME[?k=v&...]
+  int width = 512, height = 512;         // pixels
+  int spp = 16;                          // target samples per pixel P (path samples + reprojected)
+  int paths_per_round = 1;               // k: paths per non-skipped pixel and round
+  uint64_t seed = 1;
+  std::string out = "render";            // output prefix
+  RenderMode mode = RenderMode::kPathTrace;
+  ReprojectMethod reproject = ReprojectMethod::kGl;
+  int subpixels = 4;                     // S: S x S subpixels per pixel in the deep framebuffer
+  float epsilon = 3e-4f;                 // plane-test tolerance as a fraction of the scene's bbox diagonal
+  int min_paths = 1;                     // a pixel is never skipped before it has this many real paths
+  bool reproject_glossy = false;         // failure-mode study only
+  RussianRoulette rr = RussianRoulette::paper();
+  int tile_size = 32;                    // pixels
+  int threads = 0;                       // 0: all cores
+  std::optional<Vec3> eye, look, up;     // camera overrides
+  std::optional<float> fov;              // vertical, degrees
+
+  /// Empty if the options are usable; otherwise the reason.
+  std::optional<std::string> validate() const;
+  /// The scene's camera with the overrides applied.
+  CameraSpec camera_for(const CameraSpec& scene_camera) const;
+};
+
+const char* to_string(RenderMode m);
+const char* to_string(ReprojectMethod m);
+
+}  // namespace epr
