@@ -7,7 +7,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "client/render_options.h"
+#include "common/render_options.h"
 #include "common/image.h"
 
 namespace epr {

@@ -7,7 +7,7 @@
 // Emission found by a BSDF-sampled ray after the first vertex is not added (NEE counts it). Every
 // x_n with n >= 2 is recorded with radiance Le(x_n) + R_n.
 //
-// Parameters: RussianRoulette (see below); the seed of the counter-based generator.
+// Parameters: RussianRoulette (common/render_options.h); the seed of the counter-based generator.
 // Determinism: a path depends only on (seed, pixel, sample index): same inputs, same bits.
 // Caveat: a hard depth cap (`max_depth`, default 1024) stops pathological paths; its bias is below
 // float precision for albedos < 0.95 with the paper's roulette.
@@ -17,27 +17,12 @@
 #include <vector>
 
 #include "common/camera.h"
+#include "common/render_options.h"
 #include "common/sampling.h"
 #include "common/vertex_record.h"
 #include "worker/embree_scene.h"
 
 namespace epr {
-
-struct RussianRoulette {
-  enum class Mode {
-    kPaper,   // survive with 1 - termination once depth >= start_depth (paper: 8 and 0.1)
-    kAlbedo,  // survive with the surface's largest albedo (clamped to [0.05, 1]) once depth >= start_depth
-    kOff,     // no roulette: every path stops at max_depth (biased: reprojected samples get darker)
-  };
-  Mode mode = Mode::kPaper;
-  int start_depth = 8;        // vertices traced before roulette starts
-  float termination = 0.1f;   // kPaper's termination probability
-  int max_depth = 1024;       // hard cap on path vertices
-
-  static RussianRoulette paper() { return {}; }
-  static RussianRoulette albedo() { return {Mode::kAlbedo, 3, 0.f, 1024}; }
-  static RussianRoulette off(int max_depth) { return {Mode::kOff, 0, 0.f, max_depth}; }
-};
 
 struct PathStats {
   uint64_t paths = 0;

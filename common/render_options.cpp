@@ -1,4 +1,4 @@
-#include "client/render_options.h"
+#include "common/render_options.h"
 
 #include <cmath>
 

@@ -1,0 +1,176 @@
+#include "wire/convert.h"
+
+#include <cmath>
+
+#include <fmt/format.h>
+
+namespace epr {
+
+Vec3 from_proto(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
+void to_proto(const Vec3& v, v1::Vec3* out) {
+  out->set_x(v.x);
+  out->set_y(v.y);
+  out->set_z(v.z);
+}
+
+CameraSpec from_proto(const v1::Camera& c) {
+  return {from_proto(c.eye()), from_proto(c.look()), from_proto(c.up()), c.fov_y_degrees()};
+}
+void to_proto(const CameraSpec& c, v1::Camera* out) {
+  to_proto(c.eye, out->mutable_eye());
+  to_proto(c.look, out->mutable_look());
+  to_proto(c.up, out->mutable_up());
+  out->set_fov_y_degrees(c.fov_y_degrees);
+}
+
+Bounds3 from_proto(const v1::Bounds3& b) { return {from_proto(b.lo()), from_proto(b.hi())}; }
+void to_proto(const Bounds3& b, v1::Bounds3* out) {
+  to_proto(b.lo, out->mutable_lo());
+  to_proto(b.hi, out->mutable_hi());
+}
+
+RussianRoulette from_proto(const v1::RussianRouletteSettings& rr) {
+  RussianRoulette r;
+  switch (rr.mode()) {
+    case v1::RUSSIAN_ROULETTE_MODE_ALBEDO: r = RussianRoulette::albedo(); break;
+    case v1::RUSSIAN_ROULETTE_MODE_OFF: r = RussianRoulette::off(8); break;
+    default: r = RussianRoulette::paper(); break;
+  }
+  if (rr.has_start_depth()) r.start_depth = int(rr.start_depth());
+  if (rr.has_termination_probability()) r.termination = rr.termination_probability();
+  if (rr.has_max_depth()) r.max_depth = int(std::min<uint32_t>(rr.max_depth(), 1u << 30));
+  return r;
+}
+void to_proto(const RussianRoulette& r, v1::RussianRouletteSettings* out) {
+  out->set_mode(r.mode == RussianRoulette::Mode::kAlbedo ? v1::RUSSIAN_ROULETTE_MODE_ALBEDO
+                : r.mode == RussianRoulette::Mode::kOff  ? v1::RUSSIAN_ROULETTE_MODE_OFF
+                                                         : v1::RUSSIAN_ROULETTE_MODE_PAPER);
+  out->set_start_depth(uint32_t(std::max(0, r.start_depth)));
+  out->set_termination_probability(r.termination);
+  out->set_max_depth(uint32_t(std::max(0, r.max_depth)));
+}
+
+namespace {
+v1::RenderMode to_proto_mode(RenderMode m) {
+  return m == RenderMode::kReproject ? v1::RENDER_MODE_RP : m == RenderMode::kSkip ? v1::RENDER_MODE_SKIP : v1::RENDER_MODE_PT;
+}
+v1::ReprojectionMethod to_proto_method(ReprojectMethod m) {
+  return m == ReprojectMethod::kCpu     ? v1::REPROJECTION_METHOD_CPU
+         : m == ReprojectMethod::kExact ? v1::REPROJECTION_METHOD_EXACT
+                                        : v1::REPROJECTION_METHOD_GL;
+}
+void to_proto_reprojection(const RenderOptions& o, v1::ReprojectionSettings* r) {
+  r->set_method(to_proto_method(o.reproject));
+  r->set_subpixels(uint32_t(o.subpixels));
+  r->set_epsilon_fraction(o.epsilon);
+  r->set_min_paths(uint32_t(o.min_paths));
+  r->set_reproject_glossy(o.reproject_glossy);
+}
+}  // namespace
+
+v1::JobSpec to_job_spec(const RenderOptions& o, const SceneBundleData& bundle, const CameraSpec& scene_camera) {
+  v1::JobSpec spec;
+  to_proto(bundle, spec.mutable_scene());
+  to_proto(o.camera_for(scene_camera), spec.mutable_camera());
+  spec.set_width(uint32_t(o.width));
+  spec.set_height(uint32_t(o.height));
+  spec.set_target_spp(uint32_t(o.spp));
+  spec.set_paths_per_round(uint32_t(o.paths_per_round));
+  spec.set_mode(to_proto_mode(o.mode));
+  to_proto_reprojection(o, spec.mutable_reprojection());
+  to_proto(o.rr, spec.mutable_russian_roulette());
+  spec.set_seed(o.seed);
+  spec.set_tile_size(uint32_t(o.tile_size));
+  return spec;
+}
+
+std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions* out, CameraSpec* camera) {
+  RenderOptions o;
+  // Reject values that would not survive the narrowing to int before validate() sees them.
+  constexpr uint32_t kMax = 1u << 24;
+  if (spec.width() > kMax || spec.height() > kMax || spec.target_spp() > kMax || spec.paths_per_round() > kMax ||
+      spec.tile_size() > kMax)
+    return "a size or sample count is absurdly large";
+  o.width = int(spec.width());
+  o.height = int(spec.height());
+  o.spp = int(spec.target_spp());
+  o.paths_per_round = spec.has_paths_per_round() ? int(spec.paths_per_round()) : 1;
+  switch (spec.mode()) {
+    case v1::RENDER_MODE_PT: o.mode = RenderMode::kPathTrace; break;
+    case v1::RENDER_MODE_RP: o.mode = RenderMode::kReproject; break;
+    case v1::RENDER_MODE_SKIP: o.mode = RenderMode::kSkip; break;
+    default: return fmt::format("unknown render mode {}", int(spec.mode()));
+  }
+  const auto& r = spec.reprojection();
+  switch (r.method()) {
+    case v1::REPROJECTION_METHOD_UNSPECIFIED:
+    case v1::REPROJECTION_METHOD_GL: o.reproject = ReprojectMethod::kGl; break;
+    case v1::REPROJECTION_METHOD_CPU: o.reproject = ReprojectMethod::kCpu; break;
+    case v1::REPROJECTION_METHOD_EXACT: o.reproject = ReprojectMethod::kExact; break;
+    default: return fmt::format("unknown reprojection method {}", int(r.method()));
+  }
+  if (r.has_subpixels()) {
+    if (r.subpixels() > 64) return "subpixels must be between 1 and 8";
+    o.subpixels = int(r.subpixels());
+  }
+  if (r.has_epsilon_fraction()) o.epsilon = r.epsilon_fraction();
+  if (r.has_min_paths()) {
+    if (r.min_paths() > kMax) return "min_paths is absurdly large";
+    o.min_paths = int(r.min_paths());
+  }
+  if (r.has_reproject_glossy()) o.reproject_glossy = r.reproject_glossy();
+  if (spec.has_russian_roulette()) {
+    const auto& rr = spec.russian_roulette();
+    if (rr.mode() < 0 || rr.mode() > v1::RUSSIAN_ROULETTE_MODE_OFF) return "unknown Russian roulette mode";
+    o.rr = from_proto(rr);
+    if (!std::isfinite(o.rr.termination) || o.rr.termination < 0 || o.rr.termination >= 1)
+      return "Russian roulette termination probability must be in [0, 1)";
+  }
+  o.seed = spec.seed();
+  if (spec.has_tile_size()) o.tile_size = int(spec.tile_size());
+  if (spec.has_time_budget_seconds() && !(spec.time_budget_seconds() > 0 && std::isfinite(spec.time_budget_seconds())))
+    return "time budget must be a positive number of seconds";
+  if (auto err = o.validate()) return err;
+  if (spec.has_camera()) {
+    const CameraSpec c = from_proto(spec.camera());
+    if (auto err = c.validate()) return *err;
+    *camera = c;
+  }
+  *out = o;
+  return std::nullopt;
+}
+
+void to_render_settings(const RenderOptions& o, const CameraSpec& camera, const Bounds3& codec_bounds,
+                        v1::RenderSettings* out) {
+  to_proto(camera, out->mutable_camera());
+  out->set_width(uint32_t(o.width));
+  out->set_height(uint32_t(o.height));
+  out->set_mode(to_proto_mode(o.mode));
+  to_proto_reprojection(o, out->mutable_reprojection());
+  to_proto(o.rr, out->mutable_russian_roulette());
+  to_proto(codec_bounds, out->mutable_codec_bounds());
+}
+
+SceneBundleData from_proto(const v1::SceneFiles& files) {
+  SceneBundleData b;
+  b.entry_path = files.entry_path();
+  for (const auto& f : files.files()) b.files.emplace_back(f.path(), f.data());
+  return b;
+}
+
+void to_proto(const SceneBundleData& b, v1::SceneBundle* out) {
+  if (!b.builtin.empty()) {
+    out->set_builtin(b.builtin);
+  } else {
+    auto* files = out->mutable_files();
+    files->set_entry_path(b.entry_path);
+    for (const auto& [path, data] : b.files) {
+      auto* f = files->add_files();
+      f->set_path(path);
+      f->set_data(data);
+    }
+  }
+  out->set_content_hash(content_hash(b));
+}
+
+}  // namespace epr

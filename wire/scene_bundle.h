@@ -1,0 +1,41 @@
+// Scenes as bytes: what a job carries so that workers need no shared file system (DESIGN.md
+// section 2). A bundle is the entry file plus every file it references (MTL libraries, textures, the
+// OBJ a scene JSON names), with relative '/'-separated paths; its content hash (proto/epr/v1/
+// scene.proto gives the canonical serialisation) is the cache key on master and workers.
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "common/scene.h"
+
+namespace epr {
+
+struct SceneBundleData {
+  std::string builtin;     // "builtin:NAME?..." for generated scenes; then files is empty
+  std::string entry_path;  // relative path of the file the loader starts from
+  std::vector<std::pair<std::string, std::string>> files;  // (relative path, bytes)
+
+  size_t total_bytes() const;
+};
+
+/// Reads `spec` (OBJ path, scene JSON path or builtin:NAME) and what it references.
+/// Throws SceneError naming the file when something cannot be read or escapes the scene folder.
+SceneBundleData bundle_scene(const std::string& spec);
+
+/// Lowercase hex SHA-256 over the canonical serialisation (files) or "epr-builtin-v1\n" + builtin.
+std::string content_hash(const SceneBundleData& bundle);
+std::string sha256_hex(const std::string& bytes);
+
+/// Checks a relative path: no leading '/', no '\', no empty, "." or ".." components, <= 1024 bytes.
+bool is_safe_relative_path(const std::string& path);
+
+/// Writes the bundle's files below `cache_root`/HASH/ (once; an existing complete copy is reused)
+/// and loads the scene. Built-ins are generated directly.
+Scene load_bundle(const SceneBundleData& bundle, const std::string& cache_root);
+
+/// The folder scenes are cached in: $EPR_CACHE_DIR, else $XDG_CACHE_HOME/eprfarm, else ~/.cache/eprfarm.
+std::string default_cache_root();
+
+}  // namespace epr
