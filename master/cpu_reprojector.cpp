@@ -1,0 +1,127 @@
+// See cpu_reprojector.h.
+#include "master/cpu_reprojector.h"
+
+#include <algorithm>
+#include <array>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+namespace epr {
+
+namespace {
+constexpr uint32_t kNone = 0xffffffffu;
+constexpr size_t kBlock = 4096;  // records per classification task
+}  // namespace
+
+CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings)
+    : settings_(settings),
+      params_(detail::make_kernel_params(camera, dfb.subpixels, settings.epsilon)),
+      subpixels_(dfb.subpixels) {
+  detail::validate_reprojector_inputs(camera, dfb, settings);
+  grid_ = detail::make_plane_grid(dfb);
+  cells_.resize(dfb.texel_count());
+  target_.resize(settings.batch_points);
+}
+
+template <class Radiance>
+void CpuReprojector::accumulate(size_t n, const Radiance& radiance_of) {
+  // Row ranges of the grid; each task owns one, so no two tasks touch the same cell.
+  const size_t cells = cells_.size();
+  const size_t ranges = std::clamp<size_t>(size_t(tbb::this_task_arena::max_concurrency()) * 2, 1, 64);
+  tbb::parallel_for(size_t(0), ranges, [&](size_t r) {
+    const uint32_t lo = uint32_t(cells * r / ranges), hi = uint32_t(cells * (r + 1) / ranges);
+    const uint32_t span = hi - lo;
+    for (size_t i = 0; i < n; ++i) {
+      const uint32_t t = target_[i];
+      if (t - lo >= span) continue;  // also skips kNone
+      const Vec3 L = radiance_of(i);
+      Cell& c = cells_[t];
+      c.r += L.x;
+      c.g += L.y;
+      c.b += L.z;
+      c.n += 1;
+    }
+  });
+}
+
+void CpuReprojector::reproject(std::span<const VertexRecord> records) {
+  for (size_t off = 0; off < records.size(); off += settings_.batch_points) {
+    const size_t n = std::min(settings_.batch_points, records.size() - off);
+    const VertexRecord* rec = records.data() + off;
+    const size_t blocks = (n + kBlock - 1) / kBlock;
+    // Per block: accepted, culled, backfacing, occluded, not_diffuse, invalid.
+    std::vector<std::array<uint32_t, 6>> block_counts(blocks);
+    tbb::parallel_for(size_t(0), blocks, [&](size_t b) {
+      std::array<uint32_t, 6> c{};
+      const size_t end = std::min(n, (b + 1) * kBlock);
+      for (size_t i = b * kBlock; i < end; ++i) {
+        const VertexRecord& r = rec[i];
+        target_[i] = kNone;
+        if (!r.diffuse() && !settings_.reproject_glossy) {
+          ++c[4];
+          continue;
+        }
+        if (!detail::record_is_finite(r)) {
+          ++c[5];
+          continue;
+        }
+        uint32_t sub = kNone;
+        const detail::Decision d = detail::classify(params_, grid_, r.position, r.normal, &sub);
+        ++c[size_t(d)];
+        if (d == detail::Decision::kAccepted) target_[i] = sub;
+      }
+      block_counts[b] = c;
+    });
+    for (const auto& c : block_counts) {
+      counts_.accepted += c[0];
+      counts_.culled += c[1];
+      counts_.backfacing += c[2];
+      counts_.occluded += c[2] + c[3];
+      counts_.not_diffuse += c[4];
+      counts_.invalid += c[5];
+    }
+    accumulate(n, [rec](size_t i) { return rec[i].radiance; });
+  }
+}
+
+void CpuReprojector::add_exact(std::span<const ExactSample> samples) {
+  for (size_t off = 0; off < samples.size(); off += settings_.batch_points) {
+    const size_t n = std::min(settings_.batch_points, samples.size() - off);
+    const ExactSample* s = samples.data() + off;
+    uint64_t valid = 0;
+    for (size_t i = 0; i < n; ++i) {
+      const bool ok = s[i].subpixel < cells_.size() && detail::finite_bits(s[i].radiance.x) &&
+                      detail::finite_bits(s[i].radiance.y) && detail::finite_bits(s[i].radiance.z);
+      target_[i] = ok ? s[i].subpixel : kNone;
+      valid += ok;
+    }
+    counts_.exact += valid;
+    counts_.invalid += n - valid;
+    accumulate(n, [s](size_t i) { return s[i].radiance; });
+  }
+}
+
+SubpixelAccumulation CpuReprojector::read() {
+  SubpixelAccumulation a;
+  a.width = grid_.width;
+  a.height = grid_.height;
+  a.subpixels = subpixels_;
+  a.sum.resize(3 * cells_.size());
+  a.count.resize(cells_.size());
+  tbb::parallel_for(size_t(0), cells_.size(), [&](size_t i) {
+    a.sum[3 * i] = cells_[i].r;
+    a.sum[3 * i + 1] = cells_[i].g;
+    a.sum[3 * i + 2] = cells_[i].b;
+    a.count[i] = cells_[i].n;
+  });
+  return a;
+}
+
+void CpuReprojector::reset() {
+  std::fill(cells_.begin(), cells_.end(), Cell{});
+  counts_ = {};
+}
+
+}  // namespace epr

@@ -1,0 +1,47 @@
+// The CPU reprojector ("cpu"): the reference for the GL back-end and the fallback without OSMesa.
+//
+// Each batch of ReprojectorSettings::batch_points records is processed in two parallel (TBB) passes:
+//   1. classify: every record's decision and target subpixel (reprojection_kernel.h), counts per block;
+//   2. accumulate: the subpixel grid is split into row ranges, one task per range scans the batch's
+//      targets and adds the radiance of those in its range -- no atomics, and every subpixel receives
+//      its samples in input order, so sums are deterministic whatever the thread count.
+// Memory: the grid (16 bytes per subpixel), the compact deep framebuffer (4 bytes per texel plus the
+// plane table) and 4 bytes per batch point of scratch.
+#pragma once
+
+#include <vector>
+
+#include "master/reprojection_kernel.h"
+#include "master/reprojector.h"
+
+namespace epr {
+
+class CpuReprojector final : public Reprojector {
+ public:
+  CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
+
+  void reproject(std::span<const VertexRecord> records) override;
+  void add_exact(std::span<const ExactSample> samples) override;
+  ReprojectionCounts counts() const override { return counts_; }
+  SubpixelAccumulation read() override;
+  void reset() override;
+  std::string_view backend() const override { return "cpu"; }
+
+ private:
+  struct Cell {
+    float r = 0, g = 0, b = 0;
+    uint32_t n = 0;
+  };
+  template <class Radiance>
+  void accumulate(size_t n, const Radiance& radiance_of);
+
+  ReprojectorSettings settings_;
+  detail::KernelParams params_;
+  detail::PlaneGrid grid_;
+  int subpixels_;
+  std::vector<Cell> cells_;
+  std::vector<uint32_t> target_;  // per batch point: subpixel index or kNone
+  ReprojectionCounts counts_;
+};
+
+}  // namespace epr

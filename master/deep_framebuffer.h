@@ -1,0 +1,83 @@
+// The deep framebuffer: what the camera sees, per subpixel texel, for the reprojection visibility test.
+//
+// Grid: width = S * image width, height = S * image height texels (S = subpixels per axis, default 4).
+// Texel (i, j) is sampled at its centre, raster position ((i + 0.5) / S, (j + 0.5) / S) of the image,
+// y pointing DOWN (row 0 is the top), exactly the convention of Camera::generate_ray/project. Texel
+// index = j * width + i, the same as the subpixel index used by the reprojectors and ExactSample.
+//
+// Per covered texel: the nearest triangle hit by the camera ray through the texel centre, the hit
+// point (world space, metres), and that triangle's plane as (unit geometric normal N, offset d) with
+// the plane = { x : dot(N, x) = d }. N is Scene::geometric_normal (right-hand rule on the corner
+// order, NOT flipped towards the camera) and d = dot(N, first corner), both computed once per
+// triangle on the CPU by plane_of(), so the GL and CPU builders store bit-identical planes: for an
+// axis-aligned triangle N is exactly (0, 0, +-1) (or a permutation) and d exactly the coordinate,
+// which is what makes the epsilon = 0 plane test exact for axis-aligned walls.
+//
+// Builders:
+//  - build_deep_framebuffer_gl: rasterises with OpenGL (OSMesa/llvmpipe), reversed-Z float depth.
+//  - build_deep_framebuffer_cpu: casts the texel-centre ray against every triangle whose screen
+//    bounding box contains the texel (TBB over row bands). Fallback for machines without OSMesa.
+// Both agree on which triangle covers a texel except where a triangle edge passes (nearly) through
+// the texel centre (GL uses the top-left fill rule, the CPU an inclusive barycentric test) and for
+// geometry closer to the eye than the near plane (GL clips at kNearPlane * scene diagonal).
+// Positions agree to float rounding (GL interpolates perspective-correctly, the CPU intersects).
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "common/camera.h"
+#include "common/math.h"
+#include "common/scene.h"
+
+namespace epr {
+
+class GlContext;
+
+struct DeepFramebuffer {
+  static constexpr uint32_t kNoTriangle = std::numeric_limits<uint32_t>::max();
+
+  int width = 0, height = 0;  // texels: S * image width, S * image height
+  int subpixels = 4;          // S
+  std::vector<float> position;      // 3 per texel: hit point, world space, metres (0 if uncovered)
+  std::vector<float> normal;        // 3 per texel: unit geometric face normal (0 if uncovered)
+  std::vector<float> plane_offset;  // 1 per texel: d = dot(normal, first triangle corner)
+  std::vector<uint8_t> covered;     // 1 per texel: 1 if a triangle covers the texel centre
+  std::vector<uint32_t> triangle;   // 1 per texel: index into Scene::triangles, kNoTriangle if uncovered
+
+  size_t texel_count() const { return size_t(width) * size_t(height); }
+  size_t index(int x, int y) const { return size_t(y) * size_t(width) + size_t(x); }
+  Vec3 position_at(size_t t) const { return {position[3 * t], position[3 * t + 1], position[3 * t + 2]}; }
+  Vec3 normal_at(size_t t) const { return {normal[3 * t], normal[3 * t + 1], normal[3 * t + 2]}; }
+  size_t covered_count() const;
+  /// Allocates all arrays for a width x height grid, everything uncovered.
+  void resize(int w, int h, int s);
+};
+
+/// A triangle's plane as stored in the deep framebuffer: unit normal and offset d = dot(n, corner 0).
+struct TrianglePlane {
+  Vec3 normal;
+  float offset = 0;
+};
+TrianglePlane plane_of(const Scene& scene, size_t triangle);
+
+/// Near clipping distance of the GL builder, as a fraction of the scene's bounding-box diagonal.
+inline constexpr float kNearPlane = 1e-5f;
+
+/// Rasterises `scene` (positions only) seen by `camera` at S x S texels per pixel with OpenGL.
+/// Must be called on the thread `gl` is current on. Throws GlUnavailable / std::runtime_error.
+DeepFramebuffer build_deep_framebuffer_gl(GlContext& gl, const Scene& scene, const Camera& camera, int subpixels = 4);
+
+/// The CPU equivalent (see the file comment for where it may differ from the GL one).
+DeepFramebuffer build_deep_framebuffer_cpu(const Scene& scene, const Camera& camera, int subpixels = 4);
+
+namespace detail {
+/// Throws std::invalid_argument unless 1 <= S <= 16 and the grid fits 16384 texels per axis.
+void check_deep_framebuffer_grid(const Camera& camera, int subpixels);
+}  // namespace detail
+
+/// "gl" if an OSMesa context can be created (then uses a private one), else "cpu".
+DeepFramebuffer build_deep_framebuffer(const Scene& scene, const Camera& camera, int subpixels = 4);
+
+}  // namespace epr

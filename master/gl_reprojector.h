@@ -1,0 +1,76 @@
+// The OpenGL reprojector ("gl"): a compute shader on OSMesa/llvmpipe (or any GL 4.5 driver with
+// GL_NV_shader_atomic_float).
+//
+// Data on the GL side:
+//   - upload ring: 2 slots of batch_points records in one persistently mapped, coherent buffer,
+//     36 bytes per record (position, normal, radiance as float32: lossless, so decisions are
+//     bit-identical to the CPU back-end). The CPU filters glossy (unless reproject_glossy) and
+//     non-finite records while copying; a fence per slot keeps the CPU from overwriting a batch the
+//     GPU still reads. Read in the shader through an RGB32F buffer texture (texelFetch): llvmpipe
+//     vectorises texel fetches but runs SSBO loads lane by lane, so this is ~3x faster.
+//   - compact deep framebuffer (reprojection_kernel.h): R32UI plane index per texel + RGBA32F plane
+//     table, both buffer textures.
+//   - accumulation: SSBO of {float r, g, b; uint n} per subpixel, updated with atomicAdd (float
+//     atomics from GL_NV_shader_atomic_float). Optionally prefetched by a vector gather through an
+//     RGBA32UI view (ReprojectorSettings::prefetch), which overlaps the cache misses of 8 lanes
+//     before the per-lane atomics serialise them.
+//   - counters: 4 uints per shader invocation (accepted, culled, backfacing, other occluded), written
+//     without atomics (each invocation owns its slots); summed on the CPU by counts().
+// Each batch is one glDispatchCompute of `workgroups` x `workgroup_size` invocations running a
+// grid-stride loop. llvmpipe's worker threads (LP_NUM_THREADS) run the workgroups.
+//
+// Limits (checked, std::runtime_error): the grid must fit GL_MAX_SHADER_STORAGE_BLOCK_SIZE
+// (llvmpipe: 128 MiB = 8M subpixels, e.g. 2048 x 4096) and GL_MAX_TEXTURE_BUFFER_SIZE texels.
+#pragma once
+
+#include <memory>
+
+#include "master/gl_context.h"
+#include "master/gl_program.h"
+#include "master/reprojection_kernel.h"
+#include "master/reprojector.h"
+
+namespace epr {
+
+class GlReprojector final : public Reprojector {
+ public:
+  /// Uses `ctx` (current on this thread; must outlive the reprojector).
+  GlReprojector(GlContext& ctx, const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
+  /// Creates and owns a context, current on the calling thread.
+  GlReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
+  ~GlReprojector() override;
+
+  void reproject(std::span<const VertexRecord> records) override;
+  void add_exact(std::span<const ExactSample> samples) override;
+  ReprojectionCounts counts() const override;
+  SubpixelAccumulation read() override;
+  void reset() override;
+  std::string_view backend() const override { return "gl"; }
+
+  GlContext& context() { return *ctx_; }
+
+ private:
+  void init(const Camera& camera, const DeepFramebuffer& dfb);
+  /// Waits until `slot` of the upload ring is free and returns its mapped bytes.
+  unsigned char* acquire_slot(int slot);
+  void dispatch(int slot, size_t count, bool exact);
+
+  std::unique_ptr<GlContext> owned_ctx_;
+  GlContext* ctx_;
+  ReprojectorSettings settings_;
+  detail::KernelParams params_;
+  int subpixels_ = 4, grid_w_ = 0, grid_h_ = 0;
+  size_t slot_bytes_ = 0;
+  size_t invocations_ = 0;
+
+  std::unique_ptr<GlProgram> reproject_prog_, exact_prog_;
+  std::unique_ptr<GlBuffer> ring_, texel_plane_buf_, planes_buf_, acc_buf_, counter_buf_;
+  std::unique_ptr<GlTexture> records_tex_, samples_tex_, texel_plane_tex_, planes_tex_, acc_view_tex_;
+  unsigned char* ring_map_ = nullptr;
+  GLsync fences_[2] = {nullptr, nullptr};
+  int next_slot_ = 0;
+  GLint loc_first_ = -1, loc_count_ = -1, loc_exact_first_ = -1, loc_exact_count_ = -1;
+  ReprojectionCounts cpu_counts_;  // not_diffuse, invalid, exact: decided on the CPU
+};
+
+}  // namespace epr

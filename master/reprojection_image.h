@@ -1,0 +1,40 @@
+// From the subpixel accumulation to pixels (DESIGN.md section 1, paper 4.2 and 3.4). Pure functions.
+//
+// Downsampling: for pixel p with subpixels s (S x S of them),
+//   mean(s)  = sum(s) / count(s)                      (subpixels with count 0 are skipped)
+//   L_rp(p)  = average of mean(s) over p's non-empty subpixels   (0 if all are empty)
+//   M'(p)    = sum of count(s)
+// Averaging per-subpixel means (not pooling all samples) is the paper's normalisation: a subpixel
+// hit by many reprojected points does not dominate its pixel.
+// Combination with the M path-traced samples of p (their radiance sum and count):
+//   L(p) = (path_sum(p) + M'(p) * L_rp(p)) / (M(p) + M'(p)),   0 if M + M' = 0.
+// Skip mask: pixel p traces no new path next round if M + M' >= P and M >= min_paths.
+//
+// Images are epr::Image (row 0 at the top, 3 channels, linear RGB radiance); counts are row-major
+// vectors of width * height pixels. Sizes are checked (std::invalid_argument).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "common/image.h"
+#include "master/reprojector.h"
+
+namespace epr {
+
+struct PixelReprojection {
+  Image radiance;               // L_rp, 3 channels, width x height pixels
+  std::vector<uint64_t> count;  // M', per pixel
+};
+
+/// Downsamples an S*W x S*H subpixel accumulation to W x H pixels.
+PixelReprojection downsample(const SubpixelAccumulation& acc);
+
+/// L(p) = (path_sum + M' L_rp) / (M + M'). `path_sum` is the sum (not the mean) of p's M path samples.
+Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& reprojected);
+
+/// 1 = skip pixel next round (M + M' >= target_samples and M >= min_paths), else 0.
+std::vector<uint8_t> skip_mask(const std::vector<uint32_t>& path_count, const std::vector<uint64_t>& reprojected_count,
+                               uint64_t target_samples, uint32_t min_paths = 1);
+
+}  // namespace epr

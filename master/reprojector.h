@@ -1,0 +1,130 @@
+// Reprojection of eye-path vertices into the subpixel grid (DESIGN.md section 1, paper 4.1-4.3).
+//
+// A Reprojector owns a per-subpixel accumulation (RGB radiance sum, sample count) over the grid of
+// the deep framebuffer it was made with: S*W x S*H subpixels, subpixel index = sy * (S*W) + sx with
+// integer subpixel coordinates sx, sy, y pointing DOWN (row 0 = top). Accumulation persists across
+// calls (progressive rounds) until reset(). Memory is the grid plus one fixed-size upload batch
+// (ReprojectorSettings::batch_points), independent of the number of points or rounds.
+//
+// Semantics of reproject(), identical in every back-end (see reprojection_kernel.h, mirrored by the
+// GLSL in gl_reprojector.cpp), evaluated in this order per VertexRecord:
+//   1. not diffuse (and reproject_glossy off)  -> counts.not_diffuse, skipped
+//   2. non-finite position, normal or radiance  -> counts.invalid, skipped
+//   3. Camera::project fails (not strictly in front of the eye) or the subpixel position
+//      (rx * S, ry * S) lies outside [0, S*W) x [0, S*H)  -> counts.culled
+//   4. dot(normal, eye - position) <= 0 (the point faces away from the camera on the side it was lit
+//      from; records' normals point towards the previous path vertex)  -> counts.occluded (and
+//      counts.backfacing): no light leaks through thin two-sided walls
+//   5. texel uncovered, or |dot(position, N_t) - d_t| > epsilon  -> counts.occluded
+//   6. otherwise accepted: subpixel (sum += radiance, count += 1)  -> counts.accepted
+// Exact mode (paper 4.3): add_exact() adds samples whose visibility a worker already decided with a
+// ray; a sample with subpixel index outside the grid or non-finite radiance counts as invalid.
+//
+// Epsilon is absolute, in metres (default_epsilon = 3e-4 x scene bounding-box diagonal, the paper's
+// 0.03 %). The plane test uses `<=`, so epsilon = 0 accepts a point only if its plane distance
+// computes to exactly 0: guaranteed for points on axis-aligned planes (whose stored normal is exactly
+// a unit axis and d exactly the coordinate, see deep_framebuffer.h); for tilted planes float rounding
+// of dot(P, N) usually makes it non-zero, so epsilon = 0 rejects most of their points.
+//
+// Decisions and per-subpixel counts are bit-identical between the "gl" and "cpu" back-ends (same
+// float operations, no FMA contraction: C++ is compiled with -ffp-contract=off, llvmpipe lowers
+// ffma and the GLSL marks the arithmetic `precise`). Radiance sums agree to float rounding: the GL
+// back-end adds with float atomics in an unspecified order; the CPU back-end adds in input order
+// (deterministic for a given call sequence).
+//
+// Threading: a Reprojector is not thread-safe; call it from one thread. The GL back-end must be used
+// on the thread its GlContext is current on (it checks and throws std::logic_error otherwise).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string_view>
+#include <vector>
+
+#include "common/camera.h"
+#include "common/math.h"
+#include "common/vertex_record.h"
+#include "master/deep_framebuffer.h"
+
+namespace epr {
+
+class GlContext;
+
+/// One exact-mode sample: its visibility to the camera was decided by a ray on the worker.
+/// `subpixel` = sy * (S*W) + sx (integer subpixel coordinates, y down) -- see subpixel_index().
+struct ExactSample {
+  uint32_t subpixel = 0;
+  Vec3 radiance;  // linear RGB, W / (m^2 sr)
+};
+static_assert(sizeof(ExactSample) == 16);
+
+/// The subpixel index of raster position (rx, ry) (pixels, y down) in a grid of S subpixels per
+/// axis over a width x height image, or UINT32_MAX if outside [0, S*W) x [0, S*H). Same arithmetic
+/// as the reprojectors: sx = rx * S, sy = ry * S, truncated.
+uint32_t subpixel_index(float rx, float ry, int subpixels, int width, int height);
+
+/// The paper's default: 0.03 % of the scene's bounding-box diagonal, in metres.
+inline float default_epsilon(const Bounds3& scene_bounds) { return 3e-4f * scene_bounds.diagonal_length(); }
+
+struct ReprojectorSettings {
+  float epsilon = 0;              // plane-distance tolerance, metres (>= 0); see default_epsilon()
+  bool reproject_glossy = false;  // also reproject records without the diffuse flag (biased: their
+                                  // radiance depends on the view direction)
+  // Upload batch (points per GL dispatch; also the CPU back-end's chunk). Bounded memory:
+  // GL keeps 2 batches of 36 bytes per point in flight.
+  size_t batch_points = size_t(1) << 18;
+  // GL compute tuning (ignored by "cpu"): invocations per workgroup and workgroups per dispatch
+  // (a grid-stride loop covers the batch), and whether to prefetch the accumulation cache line with a
+  // vector gather before the per-lane atomics (llvmpipe executes SSBO atomics lane by lane).
+  int workgroup_size = 32;
+  int workgroups = 16;
+  bool prefetch = true;
+};
+
+struct ReprojectionCounts {
+  uint64_t accepted = 0;
+  uint64_t occluded = 0;     // includes backfacing
+  uint64_t backfacing = 0;   // occluded because the point faces away from the camera
+  uint64_t culled = 0;       // behind the camera or outside the image
+  uint64_t not_diffuse = 0;  // skipped: glossy vertex (reproject_glossy off)
+  uint64_t invalid = 0;      // skipped: non-finite values; exact samples outside the grid
+  uint64_t exact = 0;        // exact samples added
+  uint64_t total() const { return accepted + occluded + culled + not_diffuse + invalid + exact; }
+  bool operator==(const ReprojectionCounts&) const = default;
+};
+
+/// Per-subpixel accumulation, read back from a Reprojector.
+struct SubpixelAccumulation {
+  int width = 0, height = 0;  // subpixels: S * image width, S * image height
+  int subpixels = 4;          // S
+  std::vector<float> sum;       // 3 per subpixel: RGB radiance sum
+  std::vector<uint32_t> count;  // 1 per subpixel: number of samples
+  size_t size() const { return size_t(width) * size_t(height); }
+};
+
+class Reprojector {
+ public:
+  virtual ~Reprojector() = default;
+  /// Reprojects eye-path vertices (DESIGN.md: x_n, n >= 2) and accumulates the accepted ones.
+  virtual void reproject(std::span<const VertexRecord> records) = 0;
+  /// Adds exact-mode samples directly to their subpixels.
+  virtual void add_exact(std::span<const ExactSample> samples) = 0;
+  virtual ReprojectionCounts counts() const = 0;
+  /// A copy of the accumulation (GL: read back, synchronising with outstanding work).
+  virtual SubpixelAccumulation read() = 0;
+  /// Zeroes the accumulation and the counts.
+  virtual void reset() = 0;
+  virtual std::string_view backend() const = 0;
+};
+
+/// `backend` = "cpu" or "gl". For "gl", `gl` is the context to use (must be current on the calling
+/// thread and outlive the reprojector); if null, the reprojector creates and owns a context, current
+/// on the calling thread. The deep framebuffer's grid defines S and the subpixel grid; `camera` must
+/// be the one it was built with. Throws std::invalid_argument (bad backend name, epsilon < 0 or not
+/// finite, grid mismatch) or GlUnavailable.
+std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Camera& camera,
+                                              const DeepFramebuffer& dfb, const ReprojectorSettings& settings,
+                                              GlContext* gl = nullptr);
+
+}  // namespace epr

@@ -1,0 +1,354 @@
+// Reprojectors: known answers for the geometric cases on both back-ends, and bit-identical decisions
+// and per-subpixel counts between "gl" and "cpu" on large random and real-like vertex sets.
+#include "master/reprojector.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+
+#include "master/cpu_reprojector.h"
+#include "master/gl_context.h"
+#include "master/gl_reprojector.h"
+#include "test_scenes.h"
+
+namespace epr {
+namespace {
+
+CameraSpec head_on() {
+  CameraSpec c;
+  c.eye = {0, 0, 3};
+  c.look = {0, 0, 0};
+  c.up = {0, 1, 0};
+  c.fov_y_degrees = 40;
+  return c;
+}
+
+Scene quads(std::initializer_list<float> depths, float half = 1) {
+  Scene s;
+  const uint32_t m = add_material(s, Material{});
+  for (float z : depths) add_quad(s, {-half, -half, z}, {half, -half, z}, {half, half, z}, {-half, half, z}, m);
+  return s;
+}
+
+VertexRecord rec(Vec3 p, Vec3 n, Vec3 L = Vec3(1, 2, 3), uint32_t flags = VertexRecord::kDiffuse) {
+  VertexRecord r;
+  r.position = p;
+  r.normal = n;
+  r.radiance = L;
+  r.flags = flags;
+  return r;
+}
+
+// ---- both back-ends: known answers ---------------------------------------------------------------
+
+class ReprojectorCase : public ::testing::TestWithParam<std::string> {
+ protected:
+  void SetUp() override {
+    if (GetParam() == "gl") {
+      if (!gl_available()) GTEST_SKIP() << "OSMesa unavailable";
+      ctx_ = std::make_unique<GlContext>();
+    }
+  }
+  std::unique_ptr<Reprojector> make(const Scene& scene, const Camera& cam, float eps, int S = 4,
+                                    ReprojectorSettings settings = {}) {
+    dfb_ = build_deep_framebuffer_cpu(scene, cam, S);
+    settings.epsilon = eps;
+    return make_reprojector(GetParam(), cam, dfb_, settings, ctx_.get());
+  }
+  std::unique_ptr<GlContext> ctx_;
+  DeepFramebuffer dfb_;
+};
+
+TEST_P(ReprojectorCase, PlaneSeenHeadOnAcceptsAllItsPointsEvenWithZeroEpsilon) {
+  const Scene scene = quads({0.f});
+  const Camera cam(head_on(), 64, 64);
+  for (float eps : {default_epsilon(scene.bounds()), 0.f}) {
+    auto r = make(scene, cam, eps);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<float> u(-0.9f, 0.9f);
+    std::vector<VertexRecord> pts;
+    for (int i = 0; i < 20000; ++i) pts.push_back(rec({u(rng), u(rng), 0.f}, {0, 0, 1}));
+    r->reproject(pts);
+    const ReprojectionCounts c = r->counts();
+    EXPECT_EQ(c.accepted, pts.size()) << "epsilon " << eps;
+    EXPECT_EQ(c.occluded + c.culled, 0u);
+    const SubpixelAccumulation a = r->read();
+    uint64_t total = 0;
+    double red = 0;
+    for (size_t i = 0; i < a.size(); ++i) total += a.count[i], red += a.sum[3 * i];
+    EXPECT_EQ(total, pts.size());
+    EXPECT_NEAR(red, double(pts.size()), 1e-3);
+  }
+}
+
+TEST_P(ReprojectorCase, PointBehindAWallIsOccluded) {
+  const Scene scene = quads({0.f, -1.f}, 2);  // wall at z = 0 hides the plane at z = -1
+  const Camera cam(head_on(), 64, 64);
+  auto r = make(scene, cam, default_epsilon(scene.bounds()));
+  const std::vector<VertexRecord> pts = {rec({0.1f, 0.2f, -1.f}, {0, 0, 1}), rec({0.1f, 0.2f, 0.f}, {0, 0, 1})};
+  r->reproject(pts);
+  const ReprojectionCounts c = r->counts();
+  EXPECT_EQ(c.occluded, 1u);
+  EXPECT_EQ(c.backfacing, 0u);
+  EXPECT_EQ(c.accepted, 1u);
+}
+
+TEST_P(ReprojectorCase, PointsOutsideTheFrustumOrBehindTheCameraAreCulled) {
+  const Scene scene = quads({0.f});
+  const Camera cam(head_on(), 64, 64);
+  auto r = make(scene, cam, 0.01f);
+  const std::vector<VertexRecord> pts = {
+      rec({0, 0, 5}, {0, 0, 1}),       // behind the eye
+      rec({0, 0, 3}, {0, 0, 1}),       // at the eye plane: not strictly in front
+      rec({10, 0, 0}, {0, 0, 1}),      // right of the frustum
+      rec({0, -10, 0}, {0, 0, 1}),     // below
+      rec({0, 0, 0}, {0, 0, 1}),       // visible: accepted
+  };
+  r->reproject(pts);
+  EXPECT_EQ(r->counts().culled, 4u);
+  EXPECT_EQ(r->counts().accepted, 1u);
+}
+
+TEST_P(ReprojectorCase, BackFacingPointOnThinTwoSidedWallDoesNotLeak) {
+  const Scene scene = quads({0.f});  // one quad, no thickness
+  const Camera cam(head_on(), 64, 64);
+  auto r = make(scene, cam, default_epsilon(scene.bounds()));
+  // Lit from behind the wall (normal towards -z, away from the eye) but exactly on the visible plane.
+  const std::vector<VertexRecord> pts = {rec({0.3f, 0.3f, 0.f}, {0, 0, -1}), rec({0.3f, 0.3f, 0.f}, {0, 0, 1})};
+  r->reproject(pts);
+  const ReprojectionCounts c = r->counts();
+  EXPECT_EQ(c.backfacing, 1u);
+  EXPECT_EQ(c.occluded, 1u);
+  EXPECT_EQ(c.accepted, 1u);
+  // Grazing: normal perpendicular to the view ray counts as back-facing (dot <= 0).
+  const Vec3 to_eye = cam.eye() - Vec3(0.3f, 0.3f, 0.f);
+  r->reproject(std::vector<VertexRecord>{rec({0.3f, 0.3f, 0.f}, normalize(Vec3(to_eye.z, 0, -to_eye.x)))});
+  EXPECT_EQ(r->counts().backfacing, 2u);
+}
+
+TEST_P(ReprojectorCase, EpsilonIsAbsolutePlaneDistance) {
+  const Scene scene = quads({0.f});
+  const Camera cam(head_on(), 64, 64);
+  const float eps = 1e-3f;
+  auto r = make(scene, cam, eps);
+  r->reproject(std::vector<VertexRecord>{rec({0.2f, 0.1f, 0.5f * eps}, {0, 0, 1}),
+                                         rec({0.2f, 0.1f, -0.9f * eps}, {0, 0, 1}),
+                                         rec({0.2f, 0.1f, 2.f * eps}, {0, 0, 1}),
+                                         rec({0.2f, 0.1f, -2.f * eps}, {0, 0, 1})});
+  EXPECT_EQ(r->counts().accepted, 2u);
+  EXPECT_EQ(r->counts().occluded, 2u);
+}
+
+TEST_P(ReprojectorCase, UncoveredTexelOccludes) {
+  const Scene scene = quads({0.f}, 0.5f);
+  const Camera cam(head_on(), 64, 64);
+  auto r = make(scene, cam, 1.f);  // huge epsilon: only coverage can reject
+  r->reproject(std::vector<VertexRecord>{rec({0.8f, 0.8f, 0.f}, {0, 0, 1})});
+  EXPECT_EQ(r->counts().occluded, 1u);
+}
+
+TEST_P(ReprojectorCase, SubpixelIndexIsRowMajorWithYDown) {
+  const Scene scene = quads({0.f}, 2);
+  const Camera cam(head_on(), 40, 30);
+  const int S = 4;
+  auto r = make(scene, cam, 1e-3f, S);
+  // The surface point under raster position (10.3, 20.7): bottom-left part of the image.
+  const Ray ray = cam.generate_ray(10.3f, 20.7f);
+  const Vec3 p = ray.origin + ray.dir * (-ray.origin.z / ray.dir.z);
+  const Vec3 on_plane(p.x, p.y, 0.f);
+  r->reproject(std::vector<VertexRecord>{rec(on_plane, {0, 0, 1}, {5, 6, 7})});
+  ASSERT_EQ(r->counts().accepted, 1u);
+  float rx, ry;
+  ASSERT_TRUE(cam.project(on_plane, &rx, &ry));
+  const uint32_t expect = subpixel_index(rx, ry, S, cam.width(), cam.height());
+  EXPECT_EQ(expect, uint32_t(std::floor(ry * S)) * uint32_t(S * 40) + uint32_t(std::floor(rx * S)));
+  EXPECT_EQ(expect / (S * 40), 82u);  // row floor(20.7 * 4): counted from the top
+  const SubpixelAccumulation a = r->read();
+  EXPECT_EQ(a.width, 160);
+  EXPECT_EQ(a.height, 120);
+  EXPECT_EQ(a.count[expect], 1u);
+  EXPECT_EQ(a.sum[3 * expect + 2], 7.f);
+}
+
+TEST_P(ReprojectorCase, AccumulatesAcrossCallsUntilReset) {
+  const Scene scene = quads({0.f});
+  const Camera cam(head_on(), 32, 32);
+  auto r = make(scene, cam, 1e-3f);
+  const std::vector<VertexRecord> pts = {rec({0, 0, 0}, {0, 0, 1}, {1, 1, 1})};
+  r->reproject(pts);
+  r->reproject(pts);
+  r->add_exact(std::vector<ExactSample>{{subpixel_index(16.f, 16.f, 4, 32, 32), {2, 2, 2}}});
+  SubpixelAccumulation a = r->read();
+  const uint32_t idx = subpixel_index(16.f, 16.f, 4, 32, 32);
+  // (0,0,0) projects to the image centre (16, 16): the same subpixel.
+  EXPECT_EQ(a.count[idx], 3u);
+  EXPECT_EQ(a.sum[3 * idx], 4.f);
+  EXPECT_EQ(r->counts().exact, 1u);
+  EXPECT_EQ(r->counts().accepted, 2u);
+  r->reset();
+  a = r->read();
+  EXPECT_EQ(a.count[idx], 0u);
+  EXPECT_EQ(a.sum[3 * idx], 0.f);
+  EXPECT_EQ(r->counts(), ReprojectionCounts{});
+}
+
+TEST_P(ReprojectorCase, GlossyInvalidAndOutOfGridInputsAreCountedAndSkipped) {
+  const Scene scene = quads({0.f});
+  const Camera cam(head_on(), 32, 32);
+  const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+  const std::vector<VertexRecord> pts = {rec({0, 0, 0}, {0, 0, 1}, {1, 1, 1}, 0),  // glossy
+                                         rec({0, 0, 0}, {0, 0, 1}, {nan, 1, 1}),
+                                         rec({inf, 0, 0}, {0, 0, 1}),
+                                         rec({0, 0, 0}, {0, nan, 1})};
+  const std::vector<ExactSample> ex = {{32 * 4 * 32 * 4, {1, 1, 1}}, {0, {inf, 0, 0}}, {5, {1, 1, 1}}};
+  {
+    auto r = make(scene, cam, 1e-3f);
+    r->reproject(pts);
+    r->add_exact(ex);
+    const ReprojectionCounts c = r->counts();
+    EXPECT_EQ(c.not_diffuse, 1u);
+    EXPECT_EQ(c.invalid, 3u + 2u);
+    EXPECT_EQ(c.exact, 1u);
+    EXPECT_EQ(c.accepted, 0u);
+    const SubpixelAccumulation a = r->read();
+    for (float v : a.sum) ASSERT_TRUE(std::isfinite(v));
+  }
+  ReprojectorSettings s;
+  s.reproject_glossy = true;
+  auto r = make(scene, cam, 1e-3f, 4, s);
+  r->reproject(pts);
+  EXPECT_EQ(r->counts().accepted, 1u);
+  EXPECT_EQ(r->counts().not_diffuse, 0u);
+}
+
+TEST_P(ReprojectorCase, ResultsDoNotDependOnBatchSize) {
+  const Scene scene = test::scene_named("cornell");
+  const Camera cam(scene.camera, 48, 48);
+  const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, cam, 4);
+  const auto pts = test::real_like_points(scene, dfb, cam, 10000, 3);
+  ReprojectorSettings small;
+  small.batch_points = 1024;
+  auto a = make(scene, cam, default_epsilon(scene.bounds()), 4, small);
+  a->reproject(pts);
+  auto b = make(scene, cam, default_epsilon(scene.bounds()));
+  b->reproject(pts);
+  EXPECT_EQ(a->counts(), b->counts());
+  EXPECT_EQ(a->read().count, b->read().count);
+  EXPECT_GT(a->counts().accepted, 1000u);
+}
+
+INSTANTIATE_TEST_SUITE_P(Backends, ReprojectorCase, ::testing::Values("cpu", "gl"));
+
+// ---- GL and CPU agree ----------------------------------------------------------------------------
+
+void expect_same(Reprojector& gl, Reprojector& cpu) {
+  const ReprojectionCounts cg = gl.counts(), cc = cpu.counts();
+  EXPECT_EQ(cg.accepted, cc.accepted);
+  EXPECT_EQ(cg.occluded, cc.occluded);
+  EXPECT_EQ(cg.backfacing, cc.backfacing);
+  EXPECT_EQ(cg.culled, cc.culled);
+  EXPECT_EQ(cg.not_diffuse, cc.not_diffuse);
+  EXPECT_EQ(cg.invalid, cc.invalid);
+  EXPECT_EQ(cg.exact, cc.exact);
+  const SubpixelAccumulation ag = gl.read(), ac = cpu.read();
+  ASSERT_EQ(ag.size(), ac.size());
+  size_t count_diff = 0, sum_diff = 0;
+  for (size_t i = 0; i < ag.size(); ++i) {
+    count_diff += ag.count[i] != ac.count[i];
+    for (int c = 0; c < 3; ++c) {
+      const float g = ag.sum[3 * i + c], r = ac.sum[3 * i + c];
+      sum_diff += !(std::fabs(g - r) <= 1e-5f * std::max(std::fabs(r), 1e-3f));
+    }
+  }
+  EXPECT_EQ(count_diff, 0u) << "subpixels whose counts differ";
+  EXPECT_EQ(sum_diff, 0u) << "radiance sums differing by more than float rounding";
+}
+
+class GlVersusCpu : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (!gl_available()) GTEST_SKIP() << "OSMesa unavailable";
+    ctx_ = std::make_unique<GlContext>();
+  }
+  void run(const std::string& scene_name, int w, int h, size_t n, uint32_t seed, float eps_scale) {
+    const Scene scene = test::scene_named(scene_name);
+    const Camera cam(scene.camera, w, h);
+    const DeepFramebuffer dfb = build_deep_framebuffer_gl(*ctx_, scene, cam, 4);
+    ReprojectorSettings s;
+    s.epsilon = default_epsilon(scene.bounds()) * eps_scale;
+    s.batch_points = 1 << 16;  // several batches and ring-slot reuse
+    GlReprojector gl(*ctx_, cam, dfb, s);
+    CpuReprojector cpu(cam, dfb, s);
+    std::mt19937 rng(seed);
+    // Round 1: real-like mix. Round 2: random points and points on subpixel boundaries. Round 3:
+    // exact samples.
+    const auto real = test::real_like_points(scene, dfb, cam, n, seed);
+    std::vector<VertexRecord> random;
+    test::add_random_points(scene, n / 2, rng, random);
+    test::add_boundary_points(dfb, cam, n / 4, rng, random);
+    std::vector<ExactSample> exact(n / 10);
+    std::uniform_int_distribution<uint32_t> sub(0, uint32_t(dfb.texel_count() - 1));
+    for (auto& e : exact) e = {sub(rng), {1.5f, 0.25f, 3.f}};
+    for (Reprojector* r : {static_cast<Reprojector*>(&gl), static_cast<Reprojector*>(&cpu)}) {
+      r->reproject(real);
+      r->reproject(random);
+      r->add_exact(exact);
+    }
+    const ReprojectionCounts c = cpu.counts();
+    EXPECT_GT(c.accepted, n / 4) << "the set must exercise acceptance";
+    EXPECT_GT(c.occluded - c.backfacing, n / 50) << "and plane/coverage occlusion";
+    EXPECT_GT(c.backfacing, n / 50);
+    EXPECT_GT(c.culled, n / 50);
+    expect_same(gl, cpu);
+  }
+  std::unique_ptr<GlContext> ctx_;
+};
+
+TEST_F(GlVersusCpu, CornellRealLikeAndRandomSets) { run("cornell", 128, 128, 400000, 11, 1.f); }
+TEST_F(GlVersusCpu, HallRealLikeAndRandomSets) { run("hall", 160, 90, 300000, 12, 1.f); }
+TEST_F(GlVersusCpu, CornellWithTinyEpsilon) { run("cornell", 96, 96, 200000, 13, 1e-3f); }
+
+TEST_F(GlVersusCpu, PrefetchAndWorkgroupShapeDoNotChangeResults) {
+  const Scene scene = test::scene_named("cornell");
+  const Camera cam(scene.camera, 64, 64);
+  const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, cam, 4);
+  const auto pts = test::real_like_points(scene, dfb, cam, 100000, 5);
+  ReprojectorSettings a;
+  a.epsilon = default_epsilon(scene.bounds());
+  ReprojectorSettings b = a;
+  b.prefetch = false;
+  b.workgroup_size = 64;
+  b.workgroups = 3;
+  GlReprojector ga(*ctx_, cam, dfb, a), gb(*ctx_, cam, dfb, b);
+  ga.reproject(pts);
+  gb.reproject(pts);
+  expect_same(ga, gb);
+}
+
+TEST(Reprojector, FactoryRejectsBadInput) {
+  const Scene scene = quads({0.f});
+  const Camera cam(head_on(), 16, 16);
+  const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, cam, 4);
+  ReprojectorSettings s;
+  s.epsilon = 0.001f;
+  EXPECT_THROW(make_reprojector("vulkan", cam, dfb, s), std::invalid_argument);
+  s.epsilon = -1;
+  EXPECT_THROW(make_reprojector("cpu", cam, dfb, s), std::invalid_argument);
+  s.epsilon = 0.001f;
+  EXPECT_THROW(make_reprojector("cpu", Camera(head_on(), 17, 16), dfb, s), std::invalid_argument);
+  EXPECT_NEAR(default_epsilon(scene.bounds()), 3e-4f * std::sqrt(8.f), 1e-7f);
+}
+
+TEST(Reprojector, SubpixelIndexConvention) {
+  EXPECT_EQ(subpixel_index(0.f, 0.f, 4, 10, 10), 0u);
+  EXPECT_EQ(subpixel_index(0.3f, 0.f, 4, 10, 10), 1u);
+  EXPECT_EQ(subpixel_index(0.f, 0.3f, 4, 10, 10), 40u);
+  EXPECT_EQ(subpixel_index(9.99f, 9.99f, 4, 10, 10), 40u * 40u - 1);
+  EXPECT_EQ(subpixel_index(10.f, 0.f, 4, 10, 10), UINT32_MAX);
+  EXPECT_EQ(subpixel_index(-0.01f, 0.f, 4, 10, 10), UINT32_MAX);
+}
+
+}  // namespace
+}  // namespace epr
