@@ -12,42 +12,67 @@
 
 #include "common/log.h"
 #include "common/scene_loader.h"
+#include "common/vertex_codec.h"
+#include "master/frame_state.h"
+#include "master/gl_context.h"
 #include "worker/tile_renderer.h"
 
 namespace epr {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+double since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
 
-// Per-pixel path accumulation in double, applied tile by tile in tile order so that the result does
-// not depend on which thread finished first.
-struct PathFilm {
-  int width, height;
-  std::vector<double> sum;      // rgb
-  std::vector<uint32_t> count;  // M
-
-  PathFilm(int w, int h) : width(w), height(h), sum(size_t(w) * size_t(h) * 3, 0.0), count(size_t(w) * size_t(h), 0) {}
-
-  void add(const TileResult& r) {
-    size_t i = 0;
-    for (int y = r.rect.y0; y < r.rect.y1; ++y)
-      for (int x = r.rect.x0; x < r.rect.x1; ++x, ++i) {
-        const size_t p = size_t(y) * size_t(width) + size_t(x);
-        sum[3 * p + 0] += r.path_sum[i].x;
-        sum[3 * p + 1] += r.path_sum[i].y;
-        sum[3 * p + 2] += r.path_sum[i].z;
-        count[p] += r.path_count[i];
-      }
-  }
-};
+VertexFilter filter_for(const RenderOptions& o) {
+  VertexFilter f;
+  f.subpixels = o.subpixels;
+  f.reproject_glossy = o.reproject_glossy;
+  if (o.mode == RenderMode::kPathTrace) f.mode = VertexFilter::Mode::kNone;
+  else if (o.reproject == ReprojectMethod::kExact) f.mode = VertexFilter::Mode::kExact;
+  else f.mode = VertexFilter::Mode::kCull;
+  return f;
+}
 
 }  // namespace
+
+nlohmann::json frame_statistics(const FrameState& frame, const RenderOptions& opts) {
+  const ReprojectionCounts c = frame.counts();
+  const double tested = double(c.accepted + c.occluded + c.culled);
+  auto pct = [&](uint64_t v) { return tested > 0 ? 100.0 * double(v) / tested : 0.0; };
+  const FrameProgress& p = frame.progress();
+  return {
+      {"mode", to_string(opts.mode)},
+      {"reproject", to_string(opts.reproject)},
+      {"subpixels", opts.subpixels},
+      {"epsilon_fraction", opts.epsilon},
+      {"rounds", p.round},
+      {"paths_traced", p.paths_traced},
+      {"paths_skipped", p.paths_skipped},
+      {"pixels_skipped", p.pixels_skipped},
+      {"mean_paths_per_pixel", p.mean_paths},
+      {"mean_reprojected_per_pixel", p.mean_reprojected},
+      {"mean_spp", p.mean_spp},
+      {"min_spp", p.min_spp},
+      {"reprojected_samples", c.accepted + c.exact},
+      {"accepted", c.accepted},
+      {"occluded", c.occluded},
+      {"backfacing", c.backfacing},
+      {"culled_master", c.culled},
+      {"not_diffuse", c.not_diffuse},
+      {"invalid", c.invalid},
+      {"exact_samples", c.exact},
+      {"accepted_percent", pct(c.accepted)},
+      {"occluded_percent", pct(c.occluded)},
+      {"culled_percent", pct(c.culled)},
+      {"seconds_reprojecting", frame.seconds_reprojecting()},
+  };
+}
 
 RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& progress) {
   if (auto err = opts.validate()) throw std::invalid_argument(*err);
   auto log = logger("client");
-  const auto t_start = Clock::now();
+  const auto t_start = std::chrono::steady_clock::now();
   std::unique_ptr<tbb::global_control> threads;
   if (opts.threads > 0)
     threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(opts.threads));
@@ -55,84 +80,117 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   const Scene scene = load_scene(opts.scene);
   const Camera camera(opts.camera_for(scene.camera), opts.width, opts.height);
   const double t_load = since(t_start);
-  const auto t_bvh = Clock::now();
+  const auto t_bvh = std::chrono::steady_clock::now();
   EmbreeScene embree(scene);
   const double seconds_bvh = since(t_bvh);
   log->info("scene {}: {} triangles, {} materials; BVH in {:.3f} s", scene.name, scene.triangle_count(),
             scene.materials.size(), seconds_bvh);
 
+  // The master's side, in this process: the GL context lives on this thread.
+  std::unique_ptr<GlContext> gl;
+  if (opts.mode != RenderMode::kPathTrace && opts.reproject == ReprojectMethod::kGl) gl = std::make_unique<GlContext>();
+  FrameState frame(opts, camera, scene, gl.get());
+  // Vertices cross the same 16-byte quantisation as on the wire, so that this render and a cluster's
+  // give the same M' (DESIGN.md: determinism).
+  const VertexCodec codec(scene.bounds());
+
   PathTracer tracer(embree, camera, opts.seed, opts.rr);
-  TileRenderer tile_renderer(tracer, {VertexFilter::Mode::kNone});
+  TileRenderer tile_renderer(tracer, filter_for(opts));
   const auto tiles = make_tiles(opts.width, opts.height, opts.tile_size);
-  PathFilm film(opts.width, opts.height);
   TileStats totals;
   double seconds_tracing = 0;
+  uint64_t codec_rejected = 0;
 
-  const auto t_render = Clock::now();
-  int round = 0;
-  for (int done = 0; done < opts.spp; ++round) {
-    const int k = std::min(opts.paths_per_round, opts.spp - done);
+  const auto t_render = std::chrono::steady_clock::now();
+  while (!frame.done()) {
+    const int k = frame.next_paths_per_pixel();
     std::vector<TileResult> results(tiles.size());
-    std::vector<uint32_t> first;
-    const auto t_round = Clock::now();
+    const auto t_round = std::chrono::steady_clock::now();
     tbb::parallel_for(size_t(0), tiles.size(), [&](size_t t) {
-      std::vector<uint32_t> first_sample(size_t(tiles[t].pixel_count()), uint32_t(done));
-      results[t] = tile_renderer.render({tiles[t], {}, first_sample, k});
+      const TileRect& r = tiles[t];
+      if (frame.tile_idle(r.x0, r.y0, r.x1, r.y1)) return;
+      std::vector<uint8_t> skip;
+      std::vector<uint32_t> first;
+      frame.tile_inputs(r.x0, r.y0, r.x1, r.y1, &skip, &first);
+      TileResult res = tile_renderer.render({r, skip, first, k});
+      // Quantise as the wire does; records the codec refuses are not sent.
+      size_t kept = 0;
+      for (const VertexRecord& v : res.vertices) {
+        PackedVertex pv;
+        if (codec.encode(v, &pv)) res.vertices[kept++] = codec.decode(pv);
+      }
+      res.vertices.resize(kept);
+      results[t] = std::move(res);
     });
     seconds_tracing += since(t_round);
-    for (const TileResult& r : results) {
-      film.add(r);
+    // Commit in tile order (fixed order: results do not depend on which thread finished first).
+    for (size_t t = 0; t < tiles.size(); ++t) {
+      TileResult& r = results[t];
+      if (r.path_sum.empty()) continue;
+      frame.add_paths(r.rect.x0, r.rect.y0, r.rect.x1, r.rect.y1, r.path_sum, r.path_count);
+      frame.reproject(r.vertices);
+      std::vector<ExactSample> exact(r.visible.size());
+      for (size_t i = 0; i < r.visible.size(); ++i) exact[i] = {r.visible[i].subpixel, r.visible[i].radiance};
+      frame.add_exact(exact);
       totals += r.stats;
+      codec_rejected += r.stats.vertices_recorded - r.stats.culled_frustum - r.stats.culled_facing -
+                        r.stats.culled_glossy - r.stats.exact_occluded - r.vertices.size() - r.visible.size();
     }
-    done += k;
+    frame.finish_round();
     if (progress) {
+      const FrameProgress& fp = frame.progress();
       RoundProgress p;
-      p.round = round + 1;
+      p.round = fp.round;
       p.seconds = since(t_start);
-      p.mean_spp = p.min_spp = done;
-      p.pixels_active = 1;
-      p.eta_seconds = since(t_render) / done * (opts.spp - done);
+      p.mean_spp = fp.mean_spp;
+      p.min_spp = fp.min_spp;
+      p.mean_mprime = fp.mean_reprojected;
+      p.pixels_active = double(fp.pixels_active) / (double(opts.width) * opts.height);
+      // Rounds left, at the mean pace so far (skipping makes later rounds cheaper: an upper bound).
+      const int rounds_left = (opts.spp - int(fp.mean_paths + 0.5) + opts.paths_per_round - 1) / opts.paths_per_round;
+      p.eta_seconds = frame.done() ? 0 : since(t_render) / fp.round * std::max(0, rounds_left);
       progress(p);
     }
   }
 
+  const FrameImages images = frame.images();
   RenderOutputs out;
-  out.combined = Image(opts.width, opts.height, 3);
-  out.path_count = Image(opts.width, opts.height, 1);
-  for (int y = 0; y < opts.height; ++y)
-    for (int x = 0; x < opts.width; ++x) {
-      const size_t p = size_t(y) * size_t(opts.width) + size_t(x);
-      const double m = film.count[p];
-      const Vec3 c = m > 0 ? Vec3(float(film.sum[3 * p] / m), float(film.sum[3 * p + 1] / m), float(film.sum[3 * p + 2] / m))
-                           : Vec3(0.f);
-      out.combined.set_rgb(x, y, c);
-      out.path_count.at(x, y)[0] = float(m);
-    }
-  out.pathtrace = out.combined;
+  out.combined = images.combined;
+  out.pathtrace = images.pathtrace;
+  out.path_count = images.path_count;
+  if (frame.reprojects()) {
+    out.reprojection = images.reprojection;
+    out.mprime = images.reprojected;
+  }
 
   const double seconds = since(t_start);
-  const double core_seconds = totals.seconds;
-  out.stats = {
+  out.stats = frame_statistics(frame, opts);
+  out.stats.update({
       {"scene", scene.name},
       {"triangles", scene.triangle_count()},
       {"width", opts.width},
       {"height", opts.height},
       {"spp", opts.spp},
-      {"mode", to_string(opts.mode)},
+      {"paths_per_round", opts.paths_per_round},
       {"seed", opts.seed},
-      {"rounds", round},
       {"paths", totals.paths.paths},
       {"vertices", totals.paths.vertices},
+      {"vertices_recorded", totals.vertices_recorded},
+      {"culled_frustum_worker", totals.culled_frustum},
+      {"culled_facing_worker", totals.culled_facing},
+      {"culled_glossy_worker", totals.culled_glossy},
+      {"exact_occluded", totals.exact_occluded},
+      {"codec_rejected", codec_rejected},
       {"rays", totals.paths.rays},
       {"nonfinite_dropped", totals.paths.nonfinite_dropped},
       {"seconds", seconds},
       {"seconds_load", t_load},
       {"seconds_bvh", seconds_bvh},
       {"seconds_tracing", seconds_tracing},
-      {"paths_per_second", totals.paths.paths / std::max(seconds_tracing, 1e-9)},
-      {"rays_per_second", totals.paths.rays / std::max(seconds_tracing, 1e-9)},
-      {"vertices_per_second_per_core", totals.paths.vertices / std::max(core_seconds, 1e-9)},
-  };
+      {"paths_per_second", double(totals.paths.paths) / std::max(seconds_tracing, 1e-9)},
+      {"rays_per_second", double(totals.paths.rays) / std::max(seconds_tracing, 1e-9)},
+      {"vertices_per_second_per_core", double(totals.paths.vertices) / std::max(totals.seconds, 1e-9)},
+  });
   return out;
 }
 

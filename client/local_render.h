@@ -9,6 +9,7 @@
 
 #include "common/render_options.h"
 #include "common/image.h"
+#include "master/frame_state.h"
 
 namespace epr {
 
@@ -33,7 +34,10 @@ struct RenderOutputs {
 
 using ProgressCallback = std::function<void(const RoundProgress&)>;
 
-/// Renders `opts` to completion. Throws std::runtime_error (bad scene, no OSMesa, ...).
+/// The statistics of a frame as JSON (reprojection counts and percentages, paths traced / skipped).
+nlohmann::json frame_statistics(const FrameState& frame, const RenderOptions& opts);
+
+/// Renders `opts` to completion in this process. Throws std::runtime_error (bad scene, no OSMesa, ...).
 RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& progress = {});
 
 /// Writes PREFIX.exr, PREFIX.png, PREFIX.json and, when reprojection ran, PREFIX.pathtrace.exr,

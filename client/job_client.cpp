@@ -1,0 +1,555 @@
+#include "client/job_client.h"
+
+#include <openssl/evp.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include "common/log.h"
+#include "common/scene_loader.h"
+#include "wire/convert.h"
+
+namespace epr {
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+constexpr size_t kChunkBytes = 1u << 20;  // UploadScene and FetchResult carry at most 1 MiB per message
+constexpr size_t kMaxNameBytes = 256;     // JobSpec.name
+
+std::string read_text_file(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(fmt::format("cannot read {} {}", what, path));
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::string random_hex(size_t bytes) {
+  std::random_device rd;
+  std::string s;
+  for (size_t i = 0; i < bytes; ++i) s += fmt::format("{:02x}", rd() & 0xff);
+  return s;
+}
+
+std::string seconds_text(std::chrono::milliseconds ms) { return fmt::format("{:g} s", ms.count() / 1000.0); }
+
+// "EXR", "STATS_IMAGE" ... for messages.
+std::string kind_name(v1::ResultKind kind) {
+  std::string n = v1::ResultKind_Name(kind);
+  const std::string prefix = "RESULT_KIND_";
+  return n.rfind(prefix, 0) == 0 ? n.substr(prefix.size()) : n;
+}
+
+// The name a job gets when the user gives none: the built-in's name or the scene file's name.
+std::string default_job_name(const std::string& scene) {
+  std::string n = scene.rfind("builtin:", 0) == 0 ? scene.substr(8) : fs::path(scene).filename().string();
+  if (n.size() > kMaxNameBytes) n.resize(kMaxNameBytes);
+  return n;
+}
+
+// Incremental SHA-256, so that result files are checked without holding them in memory.
+class Sha256 {
+ public:
+  Sha256() : ctx_(EVP_MD_CTX_new()) { EVP_DigestInit_ex(ctx_, EVP_sha256(), nullptr); }
+  ~Sha256() { EVP_MD_CTX_free(ctx_); }
+  Sha256(const Sha256&) = delete;
+  Sha256& operator=(const Sha256&) = delete;
+  void update(const std::string& bytes) { EVP_DigestUpdate(ctx_, bytes.data(), bytes.size()); }
+  std::string hex() {
+    unsigned char digest[EVP_MAX_MD_SIZE];
+    unsigned int len = 0;
+    EVP_DigestFinal_ex(ctx_, digest, &len);
+    std::string s;
+    for (unsigned int i = 0; i < len; ++i) s += fmt::format("{:02x}", digest[i]);
+    return s;
+  }
+
+ private:
+  EVP_MD_CTX* ctx_;
+};
+
+std::string lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return s;
+}
+
+// Where the statistics image and unknown kinds get their extension: from the header's media type,
+// falling back to the suggested file name.
+std::string extension_for(const v1::ResultHeader& h) {
+  if (h.media_type() == "image/x-exr" || h.media_type() == "image/aces") return ".exr";
+  if (h.media_type() == "image/png") return ".png";
+  if (h.media_type() == "application/json") return ".json";
+  const std::string ext = fs::path(h.suggested_filename()).extension().string();
+  const bool safe = !ext.empty() && ext.size() <= 8 &&
+                    std::all_of(ext.begin() + 1, ext.end(), [](unsigned char c) { return std::isalnum(c); });
+  return safe ? ext : ".bin";
+}
+
+}  // namespace
+
+// ---- errors and cancellation --------------------------------------------------------------------
+
+bool RpcError::unreachable() const {
+  return code() == grpc::StatusCode::UNAVAILABLE || code() == grpc::StatusCode::DEADLINE_EXCEEDED;
+}
+
+std::string status_code_name(grpc::StatusCode code) {
+  switch (code) {
+    case grpc::StatusCode::OK: return "OK";
+    case grpc::StatusCode::CANCELLED: return "CANCELLED";
+    case grpc::StatusCode::UNKNOWN: return "UNKNOWN";
+    case grpc::StatusCode::INVALID_ARGUMENT: return "INVALID_ARGUMENT";
+    case grpc::StatusCode::DEADLINE_EXCEEDED: return "DEADLINE_EXCEEDED";
+    case grpc::StatusCode::NOT_FOUND: return "NOT_FOUND";
+    case grpc::StatusCode::ALREADY_EXISTS: return "ALREADY_EXISTS";
+    case grpc::StatusCode::PERMISSION_DENIED: return "PERMISSION_DENIED";
+    case grpc::StatusCode::RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
+    case grpc::StatusCode::FAILED_PRECONDITION: return "FAILED_PRECONDITION";
+    case grpc::StatusCode::ABORTED: return "ABORTED";
+    case grpc::StatusCode::OUT_OF_RANGE: return "OUT_OF_RANGE";
+    case grpc::StatusCode::UNIMPLEMENTED: return "UNIMPLEMENTED";
+    case grpc::StatusCode::INTERNAL: return "INTERNAL";
+    case grpc::StatusCode::UNAVAILABLE: return "UNAVAILABLE";
+    case grpc::StatusCode::DATA_LOSS: return "DATA_LOSS";
+    case grpc::StatusCode::UNAUTHENTICATED: return "UNAUTHENTICATED";
+    default: return fmt::format("status {}", int(code));
+  }
+}
+
+std::string state_name(v1::JobState state) {
+  switch (state) {
+    case v1::JOB_STATE_QUEUED: return "QUEUED";
+    case v1::JOB_STATE_RUNNING: return "RUNNING";
+    case v1::JOB_STATE_DONE: return "DONE";
+    case v1::JOB_STATE_FAILED: return "FAILED";
+    case v1::JOB_STATE_CANCELLED: return "CANCELLED";
+    default: return "UNSPECIFIED";
+  }
+}
+
+bool is_terminal(v1::JobState state) {
+  return state == v1::JOB_STATE_DONE || state == v1::JOB_STATE_FAILED || state == v1::JOB_STATE_CANCELLED;
+}
+
+void CallCanceller::cancel() {
+  std::lock_guard lock(mu_);
+  cancelled_ = true;
+  if (active_) active_->TryCancel();
+}
+
+bool CallCanceller::cancelled() const {
+  std::lock_guard lock(mu_);
+  return cancelled_;
+}
+
+bool CallCanceller::attach(grpc::ClientContext* ctx) {
+  std::lock_guard lock(mu_);
+  if (cancelled_) return false;
+  active_ = ctx;
+  return true;
+}
+
+void CallCanceller::detach() {
+  std::lock_guard lock(mu_);
+  active_ = nullptr;
+}
+
+// ---- construction, deadlines, errors ------------------------------------------------------------
+
+JobClient::JobClient(const std::string& target, JobClientOptions options)
+    : target_(target), options_(std::move(options)) {
+  std::shared_ptr<grpc::ChannelCredentials> creds;
+  if (options_.tls || !options_.ca_file.empty()) {
+    grpc::SslCredentialsOptions ssl;
+    if (!options_.ca_file.empty()) ssl.pem_root_certs = read_text_file(options_.ca_file, "CA file");
+    creds = grpc::SslCredentials(ssl);
+  } else {
+    creds = grpc::InsecureChannelCredentials();
+  }
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);  // ListJobs pages of large statuses; results come chunked
+  args.SetUserAgentPrefix("epr");
+  channel_ = grpc::CreateCustomChannel(target_, creds, args);
+  stub_ = v1::JobService::NewStub(channel_);
+  if (!options_.token.empty() && !std::all_of(options_.token.begin(), options_.token.end(),
+                                              [](unsigned char c) { return c >= 0x21 && c <= 0x7e; }))
+    throw std::runtime_error("the bearer token must be printable ASCII without spaces");
+}
+
+JobClient::JobClient(std::shared_ptr<grpc::Channel> channel, const std::string& target, JobClientOptions options)
+    : target_(target), options_(std::move(options)), channel_(std::move(channel)),
+      stub_(v1::JobService::NewStub(channel_)) {}
+
+void JobClient::prepare(grpc::ClientContext* ctx, std::chrono::milliseconds timeout) const {
+  ctx->set_deadline(std::chrono::system_clock::now() + timeout);
+  if (!options_.token.empty()) ctx->AddMetadata("authorization", "Bearer " + options_.token);
+}
+
+void JobClient::fail(const grpc::Status& s, const std::string& call) const {
+  const std::string code = status_code_name(s.error_code());
+  const std::string detail = s.error_message().empty() ? code : code + ": " + s.error_message();
+  switch (s.error_code()) {
+    case grpc::StatusCode::UNAVAILABLE:
+      throw RpcError(s, fmt::format("cannot reach master at {} ({})", target_, detail));
+    case grpc::StatusCode::DEADLINE_EXCEEDED:
+      throw RpcError(s, fmt::format("master at {} did not answer {} in time ({})", target_, call, detail));
+    case grpc::StatusCode::CANCELLED:
+      throw RpcError(s, fmt::format("{} to master at {} was cancelled", call, target_));
+    default:
+      throw RpcError(s, fmt::format("master at {} refused {}: {}", target_, call, detail));
+  }
+}
+
+void JobClient::check_reachable() {
+  const auto deadline = std::chrono::system_clock::now() + options_.timeout;
+  grpc_connectivity_state state = channel_->GetState(/*try_to_connect=*/true);
+  while (state != GRPC_CHANNEL_READY) {
+    if (state == GRPC_CHANNEL_TRANSIENT_FAILURE || state == GRPC_CHANNEL_SHUTDOWN)
+      fail(grpc::Status(grpc::StatusCode::UNAVAILABLE, "connection failed"), "connect");
+    if (!channel_->WaitForStateChange(state, deadline))
+      throw RpcError(grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "no connection"),
+                     fmt::format("cannot reach master at {} (no connection within {})", target_,
+                                 seconds_text(options_.timeout)));
+    state = channel_->GetState(true);
+  }
+}
+
+// ---- submitting ---------------------------------------------------------------------------------
+
+v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, const SubmitOptions& submit) {
+  SceneBundleData bundle = bundle_scene(opts.scene);
+  const bool any_override = opts.eye || opts.look || opts.up || opts.fov;
+  const bool full_camera = opts.eye && opts.look && opts.up && opts.fov;
+  CameraSpec scene_camera;
+  if (any_override && !full_camera) scene_camera = load_scene(opts.scene).camera;  // to complete the overrides
+  if (any_override) {
+    if (auto err = opts.camera_for(scene_camera).validate()) throw std::invalid_argument("camera: " + *err);
+  }
+
+  const bool upload = bundle.builtin.empty() && bundle.total_bytes() > options_.inline_scene_limit;
+  v1::JobSpec spec;
+  if (upload) {
+    const std::string hash = upload_scene(bundle);
+    spec = to_job_spec(opts, SceneBundleData{}, scene_camera);
+    spec.mutable_scene()->Clear();
+    spec.mutable_scene()->set_uploaded_hash(hash);
+  } else {
+    spec = to_job_spec(opts, bundle, scene_camera);
+  }
+  if (!any_override) spec.clear_camera();  // the scene's own camera, chosen by the master
+
+  const std::string name = submit.name.empty() ? default_job_name(opts.scene) : submit.name;
+  if (name.size() > kMaxNameBytes)
+    throw std::invalid_argument(fmt::format("job name is {} bytes long, at most {}", name.size(), kMaxNameBytes));
+  spec.set_name(name);
+  spec.set_priority(submit.priority);
+  if (submit.time_budget_seconds) spec.set_time_budget_seconds(*submit.time_budget_seconds);
+  spec.set_request_id(submit.request_id.empty() ? random_hex(16) : submit.request_id);
+  return spec;
+}
+
+std::string JobClient::submit(const RenderOptions& opts, const SubmitOptions& submit_opts) {
+  return submit(make_job_spec(opts, submit_opts));
+}
+
+std::string JobClient::submit(const v1::JobSpec& spec) {
+  // With a request id the master deduplicates, so a call that timed out (and may have queued the job)
+  // is safe to repeat once.
+  const int attempts = spec.request_id().empty() ? 1 : 2;
+  for (int attempt = 1;; ++attempt) {
+    grpc::ClientContext ctx;
+    prepare(&ctx, options_.timeout);
+    v1::JobId id;
+    const grpc::Status s = stub_->SubmitJob(&ctx, spec, &id);
+    if (s.ok()) {
+      if (id.id().empty())
+        throw RpcError(grpc::Status(grpc::StatusCode::INTERNAL, "empty job id"),
+                       fmt::format("master at {} answered SubmitJob without a job id", target_));
+      return id.id();
+    }
+    if (s.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED && attempt < attempts) {
+      logger("client")->warn("SubmitJob to {} timed out; retrying with the same request id", target_);
+      continue;
+    }
+    fail(s, "SubmitJob");
+  }
+}
+
+std::string JobClient::upload_scene(const SceneBundleData& bundle) {
+  if (!bundle.builtin.empty()) throw std::invalid_argument("built-in scenes are not uploaded");
+  const std::string hash = content_hash(bundle);
+  check_reachable();
+  grpc::ClientContext ctx;
+  prepare(&ctx, options_.transfer_timeout);
+  v1::SceneRef ref;
+  auto writer = stub_->UploadScene(&ctx, &ref);
+
+  v1::SceneChunk chunk;
+  auto* manifest = chunk.mutable_manifest();
+  manifest->set_content_hash(hash);
+  manifest->set_entry_path(bundle.entry_path);
+  for (const auto& [path, data] : bundle.files) {
+    auto* f = manifest->add_files();
+    f->set_path(path);
+    f->set_size_bytes(data.size());
+  }
+  manifest->set_total_bytes(bundle.total_bytes());
+  // A false Write means the master has already answered (e.g. it knows the hash): stop sending and
+  // read its answer.
+  bool open = writer->Write(chunk);
+  for (size_t i = 0; open && i < bundle.files.size(); ++i) {
+    const std::string& data = bundle.files[i].second;
+    for (size_t offset = 0; open && offset < data.size(); offset += kChunkBytes) {
+      chunk.Clear();
+      auto* d = chunk.mutable_data();
+      d->set_file_index(uint32_t(i));
+      d->set_offset(offset);
+      d->set_data(data.substr(offset, kChunkBytes));
+      open = writer->Write(chunk);
+    }
+  }
+  if (open) writer->WritesDone();
+  const grpc::Status s = writer->Finish();
+  if (!s.ok()) fail(s, "UploadScene");
+  if (ref.content_hash() != hash)
+    throw RpcError(grpc::Status(grpc::StatusCode::DATA_LOSS, "hash mismatch"),
+                   fmt::format("master at {} stored the uploaded scene as {}, expected {}", target_,
+                               ref.content_hash(), hash));
+  logger("client")->info("uploaded scene {} ({} bytes) to {}", hash, bundle.total_bytes(), target_);
+  return hash;
+}
+
+// ---- unary queries ------------------------------------------------------------------------------
+
+v1::JobStatus JobClient::get(const std::string& job_id) {
+  grpc::ClientContext ctx;
+  prepare(&ctx, options_.timeout);
+  v1::JobId req;
+  req.set_id(job_id);
+  v1::JobStatus status;
+  const grpc::Status s = stub_->GetJob(&ctx, req, &status);
+  if (!s.ok()) fail(s, "GetJob");
+  return status;
+}
+
+std::vector<v1::JobStatus> JobClient::list(const std::vector<v1::JobState>& states, size_t limit) {
+  std::vector<v1::JobStatus> jobs;
+  v1::ListJobsRequest req;
+  for (v1::JobState st : states) req.add_states(st);
+  for (;;) {
+    req.set_page_size(limit ? uint32_t(std::min<size_t>(100, limit - jobs.size())) : 100);
+    grpc::ClientContext ctx;
+    prepare(&ctx, options_.timeout);
+    v1::ListJobsResponse resp;
+    const grpc::Status s = stub_->ListJobs(&ctx, req, &resp);
+    if (!s.ok()) fail(s, "ListJobs");
+    for (auto& j : *resp.mutable_jobs()) jobs.push_back(std::move(j));
+    if (limit && jobs.size() >= limit) {
+      jobs.resize(limit);
+      break;
+    }
+    // An empty or repeated token ends the listing (a repeated one would loop forever).
+    if (resp.next_page_token().empty() || resp.next_page_token() == req.page_token()) break;
+    req.set_page_token(resp.next_page_token());
+  }
+  return jobs;
+}
+
+v1::JobStatus JobClient::cancel(const std::string& job_id) {
+  grpc::ClientContext ctx;
+  prepare(&ctx, options_.timeout);
+  v1::JobId req;
+  req.set_id(job_id);
+  v1::JobStatus status;
+  const grpc::Status s = stub_->CancelJob(&ctx, req, &status);
+  if (!s.ok()) fail(s, "CancelJob");
+  return status;
+}
+
+// ---- watching -----------------------------------------------------------------------------------
+
+v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& on_status, uint32_t min_interval_ms,
+                               CallCanceller* canceller) {
+  v1::WatchJobRequest req;
+  req.set_job_id(job_id);
+  req.set_min_interval_ms(min_interval_ms);
+  check_reachable();  // the first call must not wait out watch_call_timeout on a silent address
+
+  std::optional<v1::JobStatus> last;
+  std::optional<Clock::time_point> lost_since;  // set while the master is away mid-watch
+  for (;;) {
+    grpc::ClientContext ctx;
+    auto timeout = options_.watch_call_timeout;
+    if (lost_since) {
+      // Wait for the master to come back, but only for what is left of the reconnect window.
+      ctx.set_wait_for_ready(true);
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+          *lost_since + options_.watch_reconnect_timeout - Clock::now());
+      timeout = std::max(std::chrono::milliseconds(1), std::min(timeout, left));
+    }
+    prepare(&ctx, timeout);
+    if (canceller && !canceller->attach(&ctx))
+      fail(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"), "WatchJob");
+
+    auto reader = stub_->WatchJob(&ctx, req);
+    v1::JobStatus st;
+    bool stopped = false;
+    try {
+      while (!stopped && reader->Read(&st)) {
+        last = st;
+        lost_since.reset();
+        stopped = !on_status(st);
+      }
+    } catch (...) {
+      ctx.TryCancel();
+      reader->Finish();
+      if (canceller) canceller->detach();
+      throw;
+    }
+    if (stopped) ctx.TryCancel();
+    const grpc::Status s = reader->Finish();
+    if (canceller) canceller->detach();
+    if (stopped || (last && is_terminal(last->state()))) return *last;
+    if (canceller && canceller->cancelled()) fail(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"), "WatchJob");
+
+    const auto code = s.error_code();
+    if (code == grpc::StatusCode::DEADLINE_EXCEEDED && last && !lost_since) continue;  // refresh the call
+    const bool went_away = s.ok() || code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::DEADLINE_EXCEEDED;
+    if (!last || !went_away) fail(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s, "WatchJob");
+    // The master went away after we saw the job (a restart: jobs resume from their checkpoint).
+    if (!lost_since) {
+      lost_since = Clock::now();
+      logger("client")->warn("lost the watch of job {} at {} ({}); reconnecting for up to {}", job_id, target_,
+                             status_code_name(code), seconds_text(options_.watch_reconnect_timeout));
+    } else if (Clock::now() - *lost_since >= options_.watch_reconnect_timeout) {
+      throw RpcError(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s,
+                     fmt::format("lost master at {} while watching job {} and could not reconnect within {} ({})",
+                                 target_, job_id, seconds_text(options_.watch_reconnect_timeout),
+                                 status_code_name(code)));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));  // no hot loop on a master that ends streams at once
+  }
+}
+
+// ---- results ------------------------------------------------------------------------------------
+
+FetchedFile JobClient::fetch_to(const std::string& job_id, v1::ResultKind kind,
+                                const std::function<std::string(const v1::ResultHeader&)>& path_for,
+                                bool allow_partial) {
+  static std::atomic<unsigned> counter{0};
+  const std::string call = fmt::format("FetchResult({})", kind_name(kind));
+  check_reachable();
+  grpc::ClientContext ctx;
+  prepare(&ctx, options_.transfer_timeout);
+  v1::ResultRequest req;
+  req.set_job_id(job_id);
+  req.set_kind(kind);
+  req.set_allow_partial(allow_partial);
+  auto reader = stub_->FetchResult(&ctx, req);
+
+  // A reply that breaks the stream's rules (proto/epr/v1/job_service.proto, FetchResult).
+  auto bad_stream = [&](const std::string& why) {
+    return RpcError(grpc::Status(grpc::StatusCode::DATA_LOSS, why),
+                    fmt::format("master at {} sent a bad {} stream for job {}: {}", target_, call, job_id, why));
+  };
+  v1::ResultChunk chunk;
+  if (!reader->Read(&chunk)) {
+    const grpc::Status s = reader->Finish();
+    if (!s.ok()) fail(s, call);
+    throw bad_stream("no header");
+  }
+  if (!chunk.has_header()) {
+    ctx.TryCancel();
+    reader->Finish();
+    throw bad_stream("the first message is not the header");
+  }
+  const v1::ResultHeader header = chunk.header();
+  FetchedFile file{kind, path_for(header), header.total_bytes(), header.round(), header.partial()};
+  const std::string tmp = fmt::format("{}.part-{}-{}", file.path, ::getpid(), counter++);
+
+  bool finished = false;
+  try {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
+    Sha256 sha;
+    uint64_t received = 0;
+    while (reader->Read(&chunk)) {
+      if (!chunk.has_data()) throw bad_stream("a second header");
+      const auto& d = chunk.data();
+      if (d.offset() != received) throw bad_stream(fmt::format("data at offset {}, expected {}", d.offset(), received));
+      if (d.data().size() > header.total_bytes() - received)
+        throw bad_stream(fmt::format("more than the {} bytes announced", header.total_bytes()));
+      out.write(d.data().data(), std::streamsize(d.data().size()));
+      if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
+      sha.update(d.data());
+      received += d.data().size();
+    }
+    finished = true;
+    const grpc::Status s = reader->Finish();
+    if (!s.ok()) fail(s, call);
+    out.close();
+    if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
+    if (received != header.total_bytes())
+      throw bad_stream(fmt::format("{} bytes received, {} announced", received, header.total_bytes()));
+    if (const std::string got = sha.hex(); got != lower(header.sha256()))
+      throw bad_stream(fmt::format("SHA-256 {} does not match the announced {}", got, header.sha256()));
+    fs::rename(tmp, file.path);
+  } catch (...) {
+    if (!finished) {
+      ctx.TryCancel();
+      reader->Finish();
+    }
+    std::error_code ec;
+    fs::remove(tmp, ec);
+    throw;
+  }
+  return file;
+}
+
+FetchedFile JobClient::fetch(const std::string& job_id, v1::ResultKind kind, const std::string& path,
+                             bool allow_partial) {
+  return fetch_to(job_id, kind, [&](const v1::ResultHeader&) { return path; }, allow_partial);
+}
+
+std::vector<FetchedFile> JobClient::fetch_all(const std::string& job_id, const std::string& prefix,
+                                              bool allow_partial) {
+  struct Output {
+    v1::ResultKind kind;
+    const char* suffix;  // nullptr: ".samples" + the extension of the media type
+  };
+  static const Output kOutputs[] = {
+      {v1::RESULT_KIND_EXR, ".exr"},
+      {v1::RESULT_KIND_PNG, ".png"},
+      {v1::RESULT_KIND_JSON, ".json"},
+      {v1::RESULT_KIND_PATH_TRACED_EXR, ".pathtrace.exr"},
+      {v1::RESULT_KIND_REPROJECTED_EXR, ".reprojection.exr"},
+      {v1::RESULT_KIND_STATS_IMAGE, nullptr},
+  };
+  std::vector<FetchedFile> files;
+  for (const Output& o : kOutputs) {
+    auto path_for = [&](const v1::ResultHeader& h) {
+      return prefix + (o.suffix ? std::string(o.suffix) : ".samples" + extension_for(h));
+    };
+    try {
+      files.push_back(fetch_to(job_id, o.kind, path_for, allow_partial));
+    } catch (const RpcError& e) {
+      const bool absent =
+          e.code() == grpc::StatusCode::NOT_FOUND || e.code() == grpc::StatusCode::FAILED_PRECONDITION;
+      if (o.kind == v1::RESULT_KIND_EXR || !absent) throw;
+      logger("client")->debug("job {} has no {} result: {}", job_id, kind_name(o.kind), e.what());
+    }
+  }
+  return files;
+}
+
+}  // namespace epr

@@ -1,0 +1,174 @@
+// JobClient: the client side of epr.v1.JobService (proto/epr/v1/job_service.proto), shared by the
+// `epr` cluster commands (submit, watch, get, list, cancel) and the embedded default `epr render`,
+// which submits to an in-process master over loopback.
+//
+// Every call has a deadline, so nothing hangs on a master that is down or silent:
+//   * unary calls (GetJob, ListJobs, CancelJob, SubmitJob): JobClientOptions::timeout;
+//   * streams whose length depends on data (UploadScene, FetchResult): transfer_timeout, after a
+//     reachability check bounded by `timeout`;
+//   * WatchJob has no natural end: each call runs for at most watch_call_timeout and is then
+//     re-issued (the master sends the current status first, so nothing is lost). If the master goes
+//     away mid-watch (restart: jobs resume from their checkpoint), the watch reconnects for up to
+//     watch_reconnect_timeout before it gives up. A CallCanceller stops it from another thread.
+//
+// Errors are thrown as RpcError, carrying the grpc::Status and a message that names the master,
+// e.g. "cannot reach master at localhost:50051 (UNAVAILABLE: failed to connect to all addresses)".
+// Local problems (a scene file that cannot be read, an output that cannot be written) are
+// SceneError and std::runtime_error.
+#pragma once
+
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <grpcpp/grpcpp.h>
+
+#include "common/render_options.h"
+#include "epr/v1/job_service.grpc.pb.h"
+#include "wire/scene_bundle.h"
+
+namespace epr {
+
+/// An error status from the master (or no answer from it), with a message for humans.
+class RpcError : public std::runtime_error {
+ public:
+  RpcError(grpc::Status status, const std::string& message)
+      : std::runtime_error(message), status_(std::move(status)) {}
+  const grpc::Status& status() const { return status_; }
+  grpc::StatusCode code() const { return status_.error_code(); }
+  /// True when the master could not be reached or did not answer in time (UNAVAILABLE,
+  /// DEADLINE_EXCEEDED), as opposed to an answer that refused the request.
+  bool unreachable() const;
+
+ private:
+  grpc::Status status_;
+};
+
+struct JobClientOptions {
+  bool tls = false;
+  std::string ca_file;  // PEM roots for TLS; empty: the system's roots
+  // Sent as "authorization: Bearer <token>" metadata on every call when not empty. Printable ASCII.
+  std::string token;
+  std::chrono::milliseconds timeout{10'000};                // unary calls and connection checks
+  std::chrono::milliseconds transfer_timeout{600'000};      // a whole upload or result download
+  std::chrono::milliseconds watch_call_timeout{300'000};    // one WatchJob call before re-issuing it
+  std::chrono::milliseconds watch_reconnect_timeout{60'000};  // master unreachable mid-watch: give up after
+  // File scenes up to this size travel inline in the JobSpec (the master's message limit is 4 MiB for
+  // the whole spec); larger ones are streamed with UploadScene first.
+  size_t inline_scene_limit = 3u << 20;
+};
+
+/// What a job is besides its RenderOptions.
+struct SubmitOptions {
+  std::string name;  // empty: derived from the scene ("cornell", "room.obj")
+  int32_t priority = 0;
+  std::optional<double> time_budget_seconds;
+  // Idempotency key (JobSpec.request_id); empty: a random one, so that a SubmitJob retried after a
+  // deadline does not queue the job twice.
+  std::string request_id;
+};
+
+/// Cancels a JobClient call from another thread (e.g. a watch when the user presses Ctrl-C). Once
+/// cancelled it stays cancelled: calls that use it afterwards fail at once with CANCELLED.
+class CallCanceller {
+ public:
+  void cancel();
+  bool cancelled() const;
+
+ private:
+  friend class JobClient;
+  // Registers the context of the call in flight; false if already cancelled.
+  bool attach(grpc::ClientContext* ctx);
+  void detach();
+
+  mutable std::mutex mu_;
+  grpc::ClientContext* active_ = nullptr;
+  bool cancelled_ = false;
+};
+
+/// One result file written by fetch.
+struct FetchedFile {
+  v1::ResultKind kind = v1::RESULT_KIND_UNSPECIFIED;
+  std::string path;
+  uint64_t bytes = 0;
+  uint32_t round = 0;    // the committed round the file reflects
+  bool partial = false;  // the job was not in a terminal state
+};
+
+using WatchCallback = std::function<bool(const v1::JobStatus&)>;  // false: stop watching
+
+class JobClient {
+ public:
+  /// target is "HOST:PORT" (e.g. "localhost:50051", "127.0.0.1:41234"). No connection is made yet.
+  /// Throws std::runtime_error if the CA file cannot be read or the token is not printable ASCII.
+  explicit JobClient(const std::string& target, JobClientOptions options = {});
+  /// Over an existing channel (e.g. an in-process one); `target` only names it in messages.
+  JobClient(std::shared_ptr<grpc::Channel> channel, const std::string& target, JobClientOptions options = {});
+
+  const std::string& target() const { return target_; }
+  const JobClientOptions& options() const { return options_; }
+
+  /// Throws RpcError unless a connection to the master is established within options().timeout.
+  /// Fails at once when the connection is refused.
+  void check_reachable();
+
+  /// The JobSpec for `opts` (scene: opts.scene). Built-ins go by name; files inline when small,
+  /// otherwise they are uploaded first and referred to by hash. The camera is left unset (the
+  /// scene's own) without overrides, taken from the overrides when they name all of eye, look, up
+  /// and fov, and otherwise completed from the scene loaded locally.
+  v1::JobSpec make_job_spec(const RenderOptions& opts, const SubmitOptions& submit = {});
+  /// Queues `opts` as a job; returns its id.
+  std::string submit(const RenderOptions& opts, const SubmitOptions& submit = {});
+  /// Queues a ready spec (retrying once after a deadline when spec.request_id is set); returns its id.
+  std::string submit(const v1::JobSpec& spec);
+  /// Streams a file scene to the master; returns its content hash (for SceneBundle.uploaded_hash).
+  std::string upload_scene(const SceneBundleData& bundle);
+
+  v1::JobStatus get(const std::string& job_id);
+  /// Jobs newest first (all pages), optionally only those in `states`; at most `limit` (0: all).
+  std::vector<v1::JobStatus> list(const std::vector<v1::JobState>& states = {}, size_t limit = 0);
+  /// The status after the call (unchanged for a job already in a terminal state).
+  v1::JobStatus cancel(const std::string& job_id);
+
+  /// Calls `on_status` with the job's status now and after every committed round and state change,
+  /// until the job reaches a terminal state or `on_status` returns false. Returns the last status
+  /// received. min_interval_ms spaces updates (state changes always come). Throws RpcError for an
+  /// unknown job, an unreachable master, or CANCELLED when `canceller` fires.
+  v1::JobStatus watch(const std::string& job_id, const WatchCallback& on_status, uint32_t min_interval_ms = 0,
+                      CallCanceller* canceller = nullptr);
+
+  /// Downloads one result to `path` atomically (temporary file beside it, then rename), checking the
+  /// offsets, total size and SHA-256 announced in the header. allow_partial: also a RUNNING job's
+  /// latest committed round.
+  FetchedFile fetch(const std::string& job_id, v1::ResultKind kind, const std::string& path,
+                    bool allow_partial = false);
+  /// Downloads every result the job has: PREFIX.exr (required), PREFIX.png, PREFIX.json,
+  /// PREFIX.pathtrace.exr, PREFIX.reprojection.exr and PREFIX.samples.EXT (the statistics image;
+  /// EXT from its media type). Kinds the master answers with NOT_FOUND or FAILED_PRECONDITION
+  /// (not produced by the job's mode) are skipped, except the EXR whose error is thrown.
+  std::vector<FetchedFile> fetch_all(const std::string& job_id, const std::string& prefix, bool allow_partial = false);
+
+ private:
+  void prepare(grpc::ClientContext* ctx, std::chrono::milliseconds timeout) const;
+  [[noreturn]] void fail(const grpc::Status& status, const std::string& call) const;
+  FetchedFile fetch_to(const std::string& job_id, v1::ResultKind kind,
+                       const std::function<std::string(const v1::ResultHeader&)>& path_for, bool allow_partial);
+
+  std::string target_;
+  JobClientOptions options_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::JobService::Stub> stub_;
+};
+
+/// "DONE", "RUNNING", ... for messages and tables.
+std::string state_name(v1::JobState state);
+bool is_terminal(v1::JobState state);
+/// "grpc status code name" e.g. "UNAVAILABLE".
+std::string status_code_name(grpc::StatusCode code);
+
+}  // namespace epr

@@ -1,0 +1,26 @@
+// The render flags shared by `epr render` (embedded) and `epr submit` (cluster), so that both take
+// the same job description (DESIGN.md section 2).
+#pragma once
+
+#include <map>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+#include "common/render_options.h"
+
+namespace epr {
+
+/// Which command the flags are for: kRemote leaves out what only a local render can use (--threads).
+enum class RenderFlagSet { kLocal, kRemote };
+
+/// Adds the positional SCENE and every render flag to `cmd`, writing into `o`. Flags that need more
+/// than a plain conversion land in `extra` as text; finish_options turns them into options.
+void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std::string>& extra,
+                      RenderFlagSet set = RenderFlagSet::kLocal);
+
+/// Applies the `extra` flags (camera overrides, Russian roulette) to `o`.
+/// Throws CLI::ValidationError naming the flag for malformed values.
+void finish_options(RenderOptions& o, const std::map<std::string, std::string>& extra);
+
+}  // namespace epr

@@ -1,0 +1,179 @@
+#include "master/frame_state.h"
+
+#include <algorithm>
+#include <chrono>
+#include <stdexcept>
+
+#include "master/deep_framebuffer.h"
+#include "master/gl_context.h"
+
+namespace epr {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// Adds the time spent in a scope to a counter.
+class ScopedTimer {
+ public:
+  explicit ScopedTimer(double* total) : total_(total), start_(Clock::now()) {}
+  ~ScopedTimer() { *total_ += std::chrono::duration<double>(Clock::now() - start_).count(); }
+
+ private:
+  double* total_;
+  Clock::time_point start_;
+};
+
+}  // namespace
+
+FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl)
+    : opts_(opts),
+      width_(opts.width),
+      height_(opts.height),
+      path_sum_(size_t(opts.width) * size_t(opts.height) * 3, 0.0),
+      path_count_(size_t(opts.width) * size_t(opts.height), 0),
+      mprime_(size_t(opts.width) * size_t(opts.height), 0),
+      reprojected_radiance_(opts.width, opts.height, 3),
+      skip_(size_t(opts.width) * size_t(opts.height), 0) {
+  if (camera.width() != width_ || camera.height() != height_) throw std::invalid_argument("camera and frame sizes differ");
+  if (opts.mode != RenderMode::kPathTrace) {
+    ScopedTimer t(&seconds_reprojecting_);
+    ReprojectorSettings rs;
+    rs.epsilon = opts.epsilon * scene.bounds().diagonal_length();
+    rs.reproject_glossy = opts.reproject_glossy;
+    // Exact mode decides visibility with rays on the workers; the accumulation is the same, so the
+    // CPU back-end (no GL needed) holds it.
+    const bool use_gl = opts.reproject == ReprojectMethod::kGl;
+    const DeepFramebuffer dfb = use_gl && gl ? build_deep_framebuffer_gl(*gl, scene, camera, opts.subpixels)
+                                : use_gl     ? build_deep_framebuffer(scene, camera, opts.subpixels)
+                                             : build_deep_framebuffer_cpu(scene, camera, opts.subpixels);
+    reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, dfb, rs, gl);
+  }
+  progress_.pixels_active = uint64_t(width_) * uint64_t(height_);
+}
+
+FrameState::~FrameState() = default;
+
+void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums, std::span<const uint32_t> counts) {
+  const size_t n = size_t(x1 - x0) * size_t(y1 - y0);
+  if (x0 < 0 || y0 < 0 || x1 > width_ || y1 > height_ || x0 >= x1 || y0 >= y1 || sums.size() != n || counts.size() != n)
+    throw std::invalid_argument("tile outside the frame or with the wrong number of pixels");
+  size_t i = 0;
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x, ++i) {
+      const size_t p = pixel(x, y);
+      path_sum_[3 * p + 0] += sums[i].x;
+      path_sum_[3 * p + 1] += sums[i].y;
+      path_sum_[3 * p + 2] += sums[i].z;
+      path_count_[p] += counts[i];
+    }
+}
+
+void FrameState::reproject(std::span<const VertexRecord> vertices) {
+  if (!reprojector_ || vertices.empty()) return;
+  ScopedTimer t(&seconds_reprojecting_);
+  reprojector_->reproject(vertices);
+}
+
+void FrameState::add_exact(std::span<const ExactSample> samples) {
+  if (!reprojector_ || samples.empty()) return;
+  ScopedTimer t(&seconds_reprojecting_);
+  reprojector_->add_exact(samples);
+}
+
+void FrameState::refresh_reprojection() {
+  if (!reprojector_) return;
+  ScopedTimer t(&seconds_reprojecting_);
+  PixelReprojection pr = downsample(reprojector_->read());
+  mprime_ = std::move(pr.count);
+  reprojected_radiance_ = std::move(pr.radiance);
+}
+
+int FrameState::next_paths_per_pixel() const {
+  return std::max(0, std::min(opts_.paths_per_round, opts_.spp - paths_done_));
+}
+
+bool FrameState::finish_round() {
+  paths_done_ += next_paths_per_pixel();
+  ++progress_.round;
+  const bool skipping = opts_.mode == RenderMode::kSkip;
+  // M' is needed every round for skipping; otherwise only for the last round and the images.
+  if (skipping || paths_done_ >= opts_.spp) refresh_reprojection();
+  const uint64_t target = uint64_t(opts_.spp);
+  uint64_t active = 0, skipped = 0, traced = 0;
+  double sum_spp = 0, sum_m = 0, sum_mp = 0, min_spp = 1e300;
+  for (size_t p = 0; p < skip_.size(); ++p) {
+    const uint64_t m = path_count_[p], mp = mprime_[p];
+    if (!skip_[p]) {
+      if (m >= target || (skipping && m + mp >= target && m >= uint64_t(opts_.min_paths))) {
+        skip_[p] = 1;
+        if (m < target) ++skipped;
+      }
+    }
+    active += !skip_[p];
+    traced += m;
+    sum_m += double(m);
+    sum_mp += double(mp);
+    sum_spp += double(m + mp);
+    min_spp = std::min(min_spp, double(m + mp));
+  }
+  const double n = double(skip_.size());
+  progress_.pixels_active = active;
+  progress_.pixels_skipped += skipped;
+  progress_.paths_traced = traced;
+  progress_.mean_paths = sum_m / n;
+  progress_.mean_reprojected = sum_mp / n;
+  progress_.mean_spp = sum_spp / n;
+  progress_.min_spp = min_spp;
+  done_ = active == 0 || paths_done_ >= opts_.spp;
+  // Paths a skipped pixel did not trace, against plain path tracing at P.
+  progress_.paths_skipped = done_ ? uint64_t(opts_.spp) * uint64_t(skip_.size()) - traced : 0;
+  return !done_;
+}
+
+void FrameState::tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t>* skip,
+                             std::vector<uint32_t>* first_sample) const {
+  skip->clear();
+  first_sample->clear();
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x) {
+      const size_t p = pixel(x, y);
+      skip->push_back(skip_[p]);
+      first_sample->push_back(path_count_[p]);
+    }
+}
+
+bool FrameState::tile_idle(int x0, int y0, int x1, int y1) const {
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x)
+      if (!skip_[pixel(x, y)]) return false;
+  return true;
+}
+
+ReprojectionCounts FrameState::counts() const { return reprojector_ ? reprojector_->counts() : ReprojectionCounts{}; }
+
+FrameImages FrameState::images() {
+  if (reprojector_ && opts_.mode != RenderMode::kSkip) refresh_reprojection();
+  FrameImages out;
+  Image sum(width_, height_, 3);
+  out.pathtrace = Image(width_, height_, 3);
+  out.path_count = Image(width_, height_, 1);
+  out.reprojected = Image(width_, height_, 1);
+  for (int y = 0; y < height_; ++y)
+    for (int x = 0; x < width_; ++x) {
+      const size_t p = pixel(x, y);
+      const double m = path_count_[p];
+      const Vec3 s{float(path_sum_[3 * p]), float(path_sum_[3 * p + 1]), float(path_sum_[3 * p + 2])};
+      sum.set_rgb(x, y, s);
+      out.pathtrace.set_rgb(x, y, m > 0 ? Vec3(float(path_sum_[3 * p] / m), float(path_sum_[3 * p + 1] / m),
+                                               float(path_sum_[3 * p + 2] / m))
+                                        : Vec3(0.f));
+      out.path_count.at(x, y)[0] = float(m);
+      out.reprojected.at(x, y)[0] = float(mprime_[p]);
+    }
+  out.reprojection = reprojected_radiance_;
+  PixelReprojection pr{reprojected_radiance_, mprime_};
+  out.combined = reprojector_ ? combine(sum, path_count_, pr) : out.pathtrace;
+  return out;
+}
+
+}  // namespace epr

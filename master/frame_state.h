@@ -1,0 +1,106 @@
+// The per-job image state of a progressive render (DESIGN.md section 1): the M path samples per
+// pixel, the reprojected subpixel accumulation, M' and the skip mask, round by round.
+//
+// Used in the same way by the in-process render and by the master's job manager: tile results are
+// applied (add_paths, then reproject / add_exact for their vertices), and when every tile of the
+// round is in, finish_round() downsamples, updates M' and the skip mask and opens the next round.
+//
+// Determinism: path sums are accumulated in double, one tile result per pixel per round, rounds in
+// order, so M and the path sums do not depend on the order tiles arrive in. M' (counts) is
+// order-independent; reprojected radiance sums agree to float rounding (GL adds atomically).
+// Threading: not thread-safe. With the GL back-end every call must come from the thread the
+// GlContext is current on (the master's reprojection thread).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "common/camera.h"
+#include "common/image.h"
+#include "common/render_options.h"
+#include "common/scene.h"
+#include "common/vertex_record.h"
+#include "master/reprojection_image.h"
+#include "master/reprojector.h"
+
+namespace epr {
+
+class GlContext;
+
+struct FrameProgress {
+  int round = 0;                 // rounds finished
+  double mean_spp = 0;           // mean over pixels of M + M'
+  double min_spp = 0;            // min over pixels of M + M'
+  double mean_paths = 0;         // mean M
+  double mean_reprojected = 0;   // mean M'
+  uint64_t pixels_active = 0;    // pixels that trace paths in the next round
+  uint64_t pixels_skipped = 0;   // pixels with M + M' >= P that trace no more (skip mode)
+  uint64_t paths_traced = 0;     // sum of M
+  uint64_t paths_skipped = 0;    // paths not traced because the pixel was skipped
+};
+
+struct FrameImages {
+  Image combined;      // (path_sum + M' L_rp) / (M + M')
+  Image pathtrace;     // path_sum / M
+  Image reprojection;  // L_rp
+  Image path_count;    // M, one channel
+  Image reprojected;   // M', one channel
+};
+
+class FrameState {
+ public:
+  /// `scene` supplies the triangles of the deep framebuffer (rp / skip modes only). `gl` is the
+  /// context for the "gl" reprojector; when null, "gl" uses a context of its own.
+  FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl = nullptr);
+  ~FrameState();
+
+  /// The path samples of one tile: sums and counts row-major over [x0, x1) x [y0, y1).
+  void add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums, std::span<const uint32_t> counts);
+  void reproject(std::span<const VertexRecord> vertices);
+  void add_exact(std::span<const ExactSample> samples);
+  /// Ends the round: M', skip mask and progress. Returns true if another round is needed.
+  bool finish_round();
+
+  bool done() const { return done_; }
+  int round() const { return progress_.round; }
+  /// Paths each active pixel traces in the next round (k, or fewer to land exactly on P).
+  int next_paths_per_pixel() const;
+  /// Inputs of a tile for the next round: skip (1 = trace nothing) and the first sample index per pixel.
+  void tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t>* skip, std::vector<uint32_t>* first_sample) const;
+  /// True if no pixel of the tile traces in the next round.
+  bool tile_idle(int x0, int y0, int x1, int y1) const;
+
+  const FrameProgress& progress() const { return progress_; }
+  ReprojectionCounts counts() const;
+  double seconds_reprojecting() const { return seconds_reprojecting_; }
+  bool reprojects() const { return reprojector_ != nullptr; }
+  /// The images as of the last finished round (reads the accumulation back when reprojecting).
+  FrameImages images();
+
+  int width() const { return width_; }
+  int height() const { return height_; }
+  const std::vector<uint32_t>& path_counts() const { return path_count_; }
+  const std::vector<double>& path_sums() const { return path_sum_; }
+  const std::vector<uint64_t>& reprojected_counts() const { return mprime_; }
+
+ private:
+  void refresh_reprojection();
+  size_t pixel(int x, int y) const { return size_t(y) * size_t(width_) + size_t(x); }
+
+  RenderOptions opts_;
+  int width_, height_;
+  std::unique_ptr<Reprojector> reprojector_;
+  std::vector<double> path_sum_;      // 3 per pixel
+  std::vector<uint32_t> path_count_;  // M
+  std::vector<uint64_t> mprime_;      // M' as of the last downsample
+  Image reprojected_radiance_;        // L_rp as of the last downsample
+  std::vector<uint8_t> skip_;         // 1 = no more paths for this pixel
+  int paths_done_ = 0;                // paths every active pixel has traced
+  bool done_ = false;
+  FrameProgress progress_;
+  double seconds_reprojecting_ = 0;
+};
+
+}  // namespace epr
