@@ -386,15 +386,16 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
   check_reachable();  // the first call must not wait out watch_call_timeout on a silent address
 
   std::optional<v1::JobStatus> last;
-  std::optional<Clock::time_point> lost_since;  // set while the master is away mid-watch
+  bool lost = false;            // the master went away mid-watch...
+  Clock::time_point lost_since;  // ...at this time
   for (;;) {
     grpc::ClientContext ctx;
     auto timeout = options_.watch_call_timeout;
-    if (lost_since) {
+    if (lost) {
       // Wait for the master to come back, but only for what is left of the reconnect window.
       ctx.set_wait_for_ready(true);
       const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
-          *lost_since + options_.watch_reconnect_timeout - Clock::now());
+          lost_since + options_.watch_reconnect_timeout - Clock::now());
       timeout = std::max(std::chrono::milliseconds(1), std::min(timeout, left));
     }
     prepare(&ctx, timeout);
@@ -407,7 +408,7 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
     try {
       while (!stopped && reader->Read(&st)) {
         last = st;
-        lost_since.reset();
+        lost = false;
         stopped = !on_status(st);
       }
     } catch (...) {
@@ -423,15 +424,16 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
     if (canceller && canceller->cancelled()) fail(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"), "WatchJob");
 
     const auto code = s.error_code();
-    if (code == grpc::StatusCode::DEADLINE_EXCEEDED && last && !lost_since) continue;  // refresh the call
+    if (code == grpc::StatusCode::DEADLINE_EXCEEDED && last && !lost) continue;  // refresh the call
     const bool went_away = s.ok() || code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::DEADLINE_EXCEEDED;
     if (!last || !went_away) fail(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s, "WatchJob");
     // The master went away after we saw the job (a restart: jobs resume from their checkpoint).
-    if (!lost_since) {
+    if (!lost) {
+      lost = true;
       lost_since = Clock::now();
       logger("client")->warn("lost the watch of job {} at {} ({}); reconnecting for up to {}", job_id, target_,
                              status_code_name(code), seconds_text(options_.watch_reconnect_timeout));
-    } else if (Clock::now() - *lost_since >= options_.watch_reconnect_timeout) {
+    } else if (Clock::now() - lost_since >= options_.watch_reconnect_timeout) {
       throw RpcError(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s,
                      fmt::format("lost master at {} while watching job {} and could not reconnect within {} ({})",
                                  target_, job_id, seconds_text(options_.watch_reconnect_timeout),
