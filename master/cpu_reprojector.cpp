@@ -12,7 +12,9 @@ namespace epr {
 
 namespace {
 constexpr uint32_t kNone = 0xffffffffu;
-constexpr size_t kBlock = 4096;  // records per classification task
+constexpr size_t kChunk = 32768;  // records per pass pair: the chunk's records stay in L2 for pass 2
+constexpr size_t kBlock = 2048;  // records per classification task (pass A's prefetches stay in L2)
+constexpr size_t kPrefetchDistance = 32;  // accumulation: cells prefetched this many targets ahead
 }  // namespace
 
 CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings)
@@ -22,7 +24,7 @@ CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb,
   detail::validate_reprojector_inputs(camera, dfb, settings);
   grid_ = detail::make_plane_grid(dfb);
   cells_.resize(dfb.texel_count());
-  target_.resize(settings.batch_points);
+  target_.resize(kChunk);
 }
 
 template <class Radiance>
@@ -34,6 +36,10 @@ void CpuReprojector::accumulate(size_t n, const Radiance& radiance_of) {
     const uint32_t lo = uint32_t(cells * r / ranges), hi = uint32_t(cells * (r + 1) / ranges);
     const uint32_t span = hi - lo;
     for (size_t i = 0; i < n; ++i) {
+      if (i + kPrefetchDistance < n) {
+        const uint32_t ahead = target_[i + kPrefetchDistance];
+        if (ahead - lo < span) __builtin_prefetch(&cells_[ahead], 1);
+      }
       const uint32_t t = target_[i];
       if (t - lo >= span) continue;  // also skips kNone
       const Vec3 L = radiance_of(i);
@@ -47,16 +53,18 @@ void CpuReprojector::accumulate(size_t n, const Radiance& radiance_of) {
 }
 
 void CpuReprojector::reproject(std::span<const VertexRecord> records) {
-  for (size_t off = 0; off < records.size(); off += settings_.batch_points) {
-    const size_t n = std::min(settings_.batch_points, records.size() - off);
+  for (size_t off = 0; off < records.size(); off += kChunk) {
+    const size_t n = std::min(kChunk, records.size() - off);
     const VertexRecord* rec = records.data() + off;
     const size_t blocks = (n + kBlock - 1) / kBlock;
     // Per block: accepted, culled, backfacing, occluded, not_diffuse, invalid.
     std::vector<std::array<uint32_t, 6>> block_counts(blocks);
     tbb::parallel_for(size_t(0), blocks, [&](size_t b) {
       std::array<uint32_t, 6> c{};
-      const size_t end = std::min(n, (b + 1) * kBlock);
-      for (size_t i = b * kBlock; i < end; ++i) {
+      const size_t begin = b * kBlock, end = std::min(n, (b + 1) * kBlock);
+      // Pass A: filter, project, face; candidates keep their texel in target_ and their
+      // deep-framebuffer entry is prefetched, so that pass B's random lookups overlap.
+      for (size_t i = begin; i < end; ++i) {
         const VertexRecord& r = rec[i];
         target_[i] = kNone;
         if (!r.diffuse() && !settings_.reproject_glossy) {
@@ -67,10 +75,22 @@ void CpuReprojector::reproject(std::span<const VertexRecord> records) {
           ++c[5];
           continue;
         }
-        uint32_t sub = kNone;
-        const detail::Decision d = detail::classify(params_, grid_, r.position, r.normal, &sub);
+        uint32_t texel = 0;
+        const detail::Decision d = detail::project_and_face(params_, r.position, r.normal, &texel);
+        if (d != detail::Decision::kAccepted) {
+          ++c[size_t(d)];
+          continue;
+        }
+        target_[i] = texel;
+        __builtin_prefetch(&grid_.texel_plane[texel]);
+      }
+      // Pass B: the plane test of the candidates.
+      for (size_t i = begin; i < end; ++i) {
+        const uint32_t texel = target_[i];
+        if (texel == kNone) continue;
+        const detail::Decision d = detail::plane_test(params_, grid_, rec[i].position, texel);
         ++c[size_t(d)];
-        if (d == detail::Decision::kAccepted) target_[i] = sub;
+        if (d != detail::Decision::kAccepted) target_[i] = kNone;
       }
       block_counts[b] = c;
     });
@@ -87,8 +107,8 @@ void CpuReprojector::reproject(std::span<const VertexRecord> records) {
 }
 
 void CpuReprojector::add_exact(std::span<const ExactSample> samples) {
-  for (size_t off = 0; off < samples.size(); off += settings_.batch_points) {
-    const size_t n = std::min(settings_.batch_points, samples.size() - off);
+  for (size_t off = 0; off < samples.size(); off += kChunk) {
+    const size_t n = std::min(kChunk, samples.size() - off);
     const ExactSample* s = samples.data() + off;
     uint64_t valid = 0;
     for (size_t i = 0; i < n; ++i) {

@@ -1,12 +1,17 @@
 // The CPU reprojector ("cpu"): the reference for the GL back-end and the fallback without OSMesa.
 //
-// Each batch of ReprojectorSettings::batch_points records is processed in two parallel (TBB) passes:
-//   1. classify: every record's decision and target subpixel (reprojection_kernel.h), counts per block;
+// Records are processed in chunks of 32768 (small enough for the chunk's records to stay in L2
+// between the passes; ReprojectorSettings::batch_points is only the GL upload batch), each in two
+// parallel (TBB) passes:
+//   1. classify: every record's decision and target subpixel (reprojection_kernel.h), counts per
+//      block; projection and facing first for a block of 2048, prefetching the deep-framebuffer
+//      entries, then the plane tests, so that the random lookups overlap instead of stalling;
 //   2. accumulate: the subpixel grid is split into row ranges, one task per range scans the batch's
 //      targets and adds the radiance of those in its range -- no atomics, and every subpixel receives
-//      its samples in input order, so sums are deterministic whatever the thread count.
+//      its samples in input order, so sums are deterministic whatever the thread count. Cells are
+//      prefetched a few targets ahead.
 // Memory: the grid (16 bytes per subpixel), the compact deep framebuffer (4 bytes per texel plus the
-// plane table) and 4 bytes per batch point of scratch.
+// plane table) and 128 KiB of scratch.
 #pragma once
 
 #include <vector>

@@ -22,7 +22,7 @@ constexpr const char* kReprojectShader = R"(
 layout(local_size_x = WORKGROUP_SIZE) in;
 
 uniform samplerBuffer records;       // RGB32F, 3 texels per record: position, normal, radiance
-uniform usamplerBuffer texel_plane;  // R32UI per texel: plane index, 0xffffffff if uncovered
+uniform usamplerBuffer texel_plane;  // R16UI or R32UI per texel: plane index, UNCOVERED if uncovered
 uniform samplerBuffer planes;        // RGBA32F per plane: N.xyz, d
 #if PREFETCH
 uniform usamplerBuffer cell_view;    // RGBA32UI view of `cells`, only read to warm the cache
@@ -64,14 +64,17 @@ void main() {
     precise float facing = n.x * ex + n.y * ey + n.z * ez;
     if (!(facing > 0.0)) { n_backfacing++; continue; }
     uint idx = uint(gy) * grid_wi + uint(gx);
+#if PREFETCH
+    // Issue the cell's cache miss as a vector gather now, next to the plane-index gather, so that
+    // both misses overlap; the atomics below then hit the cache. (The value is used so that the
+    // fetch is kept: a saturated count also stops accumulation.)
+    uint warm = texelFetch(cell_view, int(idx)).w;
+#endif
     uint plane = texelFetch(texel_plane, int(idx)).x;
 #if PREFETCH
-    // Issue the cell's cache miss as a vector gather now; the atomics below then hit the cache.
-    // (Uses the value so that the fetch is kept: a saturated count also stops accumulation.)
-    uint warm = texelFetch(cell_view, int(idx)).w;
     if (warm == 0xffffffffu) { n_occluded++; continue; }
 #endif
-    if (plane == 0xffffffffu) { n_occluded++; continue; }
+    if (plane == UNCOVERED) { n_occluded++; continue; }
     vec4 t = texelFetch(planes, int(plane));
     precise float dist = p.x * t.x + p.y * t.y + p.z * t.z - t.w;
     if (!(abs(dist) <= epsilon)) { n_occluded++; continue; }
@@ -113,9 +116,9 @@ void main() {
 constexpr size_t kRecordBytes = 36;  // 9 floats
 constexpr int kSlots = 2;
 
-std::string shader_source(const char* body, const ReprojectorSettings& s) {
-  return fmt::format("#version 450\n#define WORKGROUP_SIZE {}\n#define PREFETCH {}\n{}", s.workgroup_size,
-                     s.prefetch ? 1 : 0, body);
+std::string shader_source(const char* body, const ReprojectorSettings& s, bool narrow_planes) {
+  return fmt::format("#version 450\n#define WORKGROUP_SIZE {}\n#define PREFETCH {}\n#define UNCOVERED {}\n{}",
+                     s.workgroup_size, s.prefetch ? 1 : 0, narrow_planes ? "0xffffu" : "0xffffffffu", body);
 }
 
 }  // namespace
@@ -172,8 +175,12 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
   if (kSlots * settings_.batch_points * 3 > size_t(max_tbo))
     throw std::runtime_error(fmt::format("batch_points {} exceeds this GL's buffer-texture limit", settings_.batch_points));
 
-  reproject_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kReprojectShader, settings_));
-  exact_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kExactShader, settings_));
+  // Compact deep framebuffer; 16-bit plane indices when there are few enough planes (halves the
+  // largest randomly accessed array after the accumulation).
+  const detail::PlaneGrid grid = detail::make_plane_grid(dfb);
+  const bool narrow = grid.planes.size() / 4 < 0xffff;
+  reproject_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kReprojectShader, settings_, narrow));
+  exact_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kExactShader, settings_, narrow));
 
   // Upload ring, persistently mapped.
   const GLbitfield map_flags = GL_MAP_WRITE_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
@@ -186,12 +193,17 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
   samples_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
   gl.TextureBuffer(samples_tex_->id(), GL_RGBA32UI, ring_->id());
 
-  // Compact deep framebuffer.
-  const detail::PlaneGrid grid = detail::make_plane_grid(dfb);
   texel_plane_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  gl.NamedBufferStorage(texel_plane_buf_->id(), GLsizeiptr(cells * 4), grid.texel_plane.data(), 0);
   texel_plane_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-  gl.TextureBuffer(texel_plane_tex_->id(), GL_R32UI, texel_plane_buf_->id());
+  if (narrow) {
+    std::vector<uint16_t> narrow_index(cells);
+    for (size_t i = 0; i < cells; ++i) narrow_index[i] = uint16_t(grid.texel_plane[i]);  // kUncovered -> 0xffff
+    gl.NamedBufferStorage(texel_plane_buf_->id(), GLsizeiptr(cells * 2), narrow_index.data(), 0);
+    gl.TextureBuffer(texel_plane_tex_->id(), GL_R16UI, texel_plane_buf_->id());
+  } else {
+    gl.NamedBufferStorage(texel_plane_buf_->id(), GLsizeiptr(cells * 4), grid.texel_plane.data(), 0);
+    gl.TextureBuffer(texel_plane_tex_->id(), GL_R32UI, texel_plane_buf_->id());
+  }
   std::vector<float> planes = grid.planes;
   if (planes.empty()) planes.assign(4, 0.f);  // GL wants a non-empty buffer
   planes_buf_ = std::make_unique<GlBuffer>(*ctx_);

@@ -58,9 +58,10 @@ inline bool record_is_finite(const VertexRecord& r) {
          finite_bits(r.radiance.x) && finite_bits(r.radiance.y) && finite_bits(r.radiance.z);
 }
 
-/// Steps 3-6 for a finite record: the decision and, if accepted, the subpixel index.
+/// Steps 3-4 for a finite record: projection, culling and the facing test. Returns kAccepted for a
+/// candidate that still needs the deep-framebuffer test, with its texel (= subpixel) index.
 /// The projection is Camera::project's, expression for expression.
-inline Decision classify(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, const Vec3& n, uint32_t* subpixel) {
+inline Decision project_and_face(const KernelParams& k, const Vec3& p, const Vec3& n, uint32_t* texel) {
   const float dx = p.x - k.eye.x, dy = p.y - k.eye.y, dz = p.z - k.eye.z;
   const float z = dx * k.forward.x + dy * k.forward.y + dz * k.forward.z;
   if (!(z > 0)) return Decision::kCulled;
@@ -73,14 +74,27 @@ inline Decision classify(const KernelParams& k, const PlaneGrid& grid, const Vec
   const float ex = k.eye.x - p.x, ey = k.eye.y - p.y, ez = k.eye.z - p.z;
   const float facing = n.x * ex + n.y * ey + n.z * ez;
   if (!(facing > 0)) return Decision::kBackfacing;
-  const uint32_t idx = uint32_t(gy) * k.grid_wi + uint32_t(gx);
-  const uint32_t plane = grid.texel_plane[idx];
+  *texel = uint32_t(gy) * k.grid_wi + uint32_t(gx);
+  return Decision::kAccepted;
+}
+
+/// Steps 5-6: coverage and plane distance of a candidate at `texel`.
+inline Decision plane_test(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, uint32_t texel) {
+  const uint32_t plane = grid.texel_plane[texel];
   if (plane == PlaneGrid::kUncovered) return Decision::kOccluded;
   const float* t = &grid.planes[4 * size_t(plane)];
   const float dist = p.x * t[0] + p.y * t[1] + p.z * t[2] - t[3];
-  if (!(std::fabs(dist) <= k.epsilon)) return Decision::kOccluded;
-  *subpixel = idx;
-  return Decision::kAccepted;
+  return std::fabs(dist) <= k.epsilon ? Decision::kAccepted : Decision::kOccluded;
+}
+
+/// Steps 3-6 for a finite record: the decision and, if accepted, the subpixel index.
+inline Decision classify(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, const Vec3& n, uint32_t* subpixel) {
+  uint32_t texel = 0;
+  const Decision d = project_and_face(k, p, n, &texel);
+  if (d != Decision::kAccepted) return d;
+  const Decision e = plane_test(k, grid, p, texel);
+  if (e == Decision::kAccepted) *subpixel = texel;
+  return e;
 }
 
 }  // namespace epr::detail

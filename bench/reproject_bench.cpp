@@ -1,0 +1,199 @@
+// Reprojection throughput: the GL compute back-end (OSMesa/llvmpipe) against the CPU back-end (TBB),
+// side by side, on "real-like" vertex sets at 512 x 512 pixels, S = 4 (a 2048 x 2048 subpixel grid).
+//
+// Vertex sets (tests/master/test_scenes.h): points on the surfaces of a Cornell-like box and of a
+// hall-like scene (the built-ins when common/builtin_scenes.h exists), area-weighted, normals towards
+// the scene's inside; mixed with points jittered around visible deep-framebuffer texels and random
+// points in and around the scene. --vertices FILE reads raw VertexRecord arrays (40 bytes each, as in
+// common/vertex_record.h) instead, e.g. vertex sets dumped by the path tracer.
+//
+// Each figure is the median over --runs runs of: reset, reproject all points (in the back-end's
+// batches, upload included), read the counts back (GL: waits for the GPU). Printed per back-end:
+// wall-clock points/s and points per CPU-second of the whole process (robust when other processes
+// share the machine: divide by the cores you have for an idle-machine estimate). LP_NUM_THREADS is
+// read by llvmpipe once per process, so --lp-threads re-runs this program with each value.
+//
+//   reproject_bench [--runs 5] [--points 4000000] [--width 512] [--height 512] [-S 4]
+//                   [--lp-threads 1,2,4] [--cpu-threads 1,2] [--sweep] [--vertices FILE]
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <tbb/global_control.h>
+
+#include "master/deep_framebuffer.h"
+#include "master/gl_context.h"
+#include "master/reprojector.h"
+#include "tests/master/test_scenes.h"
+
+using namespace epr;
+
+namespace {
+
+double cpu_seconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+struct Figure {
+  double wall = 0, cpu = 0;  // points per wall second, points per CPU second (medians)
+  ReprojectionCounts counts;
+};
+
+Figure measure(Reprojector& r, const std::vector<VertexRecord>& pts, int runs) {
+  std::vector<double> wall, cpu;
+  Figure f;
+  r.reproject(std::span(pts.data(), std::min<size_t>(pts.size(), 1 << 16)));  // warm-up (JIT, page faults)
+  for (int i = 0; i < runs; ++i) {
+    r.reset();
+    const double c0 = cpu_seconds();
+    const auto t0 = std::chrono::steady_clock::now();
+    r.reproject(pts);
+    f.counts = r.counts();  // GL: synchronises
+    const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    wall.push_back(double(pts.size()) / dt);
+    cpu.push_back(double(pts.size()) / std::max(1e-9, cpu_seconds() - c0));
+  }
+  f.wall = median(wall);
+  f.cpu = median(cpu);
+  return f;
+}
+
+std::vector<VertexRecord> read_vertices(const std::string& path) {
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  if (!in) throw std::runtime_error("cannot open " + path);
+  const size_t bytes = size_t(in.tellg());
+  std::vector<VertexRecord> v(bytes / sizeof(VertexRecord));
+  in.seekg(0);
+  in.read(reinterpret_cast<char*>(v.data()), std::streamsize(v.size() * sizeof(VertexRecord)));
+  return v;
+}
+
+void print_counts(const ReprojectionCounts& c, size_t n) {
+  std::printf("    decisions: accepted %.1f%%, occluded %.1f%% (back-facing %.1f%%), culled %.1f%%, not diffuse %.1f%%\n",
+              100.0 * double(c.accepted) / double(n), 100.0 * double(c.occluded) / double(n),
+              100.0 * double(c.backfacing) / double(n), 100.0 * double(c.culled) / double(n),
+              100.0 * double(c.not_diffuse) / double(n));
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Reprojection throughput, GL (OSMesa) vs CPU"};
+  int runs = 5, width = 512, height = 512, S = 4;
+  size_t points = 4'000'000;
+  std::vector<int> lp_threads, cpu_threads = {1, 2};
+  bool sweep = false, gl_only = false;
+  std::string vertices, scene_filter;
+  app.add_option("--runs", runs, "runs per figure (median)");
+  app.add_option("--points", points, "points per vertex set");
+  app.add_option("--width", width);
+  app.add_option("--height", height);
+  app.add_option("-S,--subpixels", S);
+  app.add_option("--lp-threads", lp_threads, "re-run the GL figures with these LP_NUM_THREADS values")->delimiter(',');
+  app.add_option("--cpu-threads", cpu_threads, "TBB thread counts for the CPU back-end")->delimiter(',');
+  app.add_flag("--sweep", sweep, "also sweep GL workgroup shapes and prefetch");
+  app.add_flag("--gl-only", gl_only, "only the GL back-end (used by --lp-threads)");
+  app.add_option("--vertices", vertices, "raw VertexRecord file instead of generated sets (scene: --scene)");
+  app.add_option("--scene", scene_filter, "only this scene (cornell or hall)");
+  CLI11_PARSE(app, argc, argv);
+
+  if (!lp_threads.empty()) {
+    for (int t : lp_threads) {
+      std::printf("==== LP_NUM_THREADS=%d\n", t);
+      std::fflush(stdout);
+      std::string cmd = "LP_NUM_THREADS=" + std::to_string(t) + " /proc/" + std::to_string(getpid()) + "/exe --gl-only" +
+                        " --runs " + std::to_string(runs) + " --points " + std::to_string(points) + " --width " +
+                        std::to_string(width) + " --height " + std::to_string(height) + " -S " + std::to_string(S);
+      if (!scene_filter.empty()) cmd += " --scene " + scene_filter;
+      if (!vertices.empty()) cmd += " --vertices '" + vertices + "'";
+      if (std::system(cmd.c_str()) != 0) return 1;
+    }
+    return 0;
+  }
+
+  const char* lp = std::getenv("LP_NUM_THREADS");
+  double load[3] = {0, 0, 0};
+  getloadavg(load, 3);
+  std::printf("reproject_bench: %dx%d pixels, S=%d (%dx%d subpixels), %d runs, median; LP_NUM_THREADS=%s; "
+              "%ld cores; load average %.2f\n",
+              width, height, S, width * S, height * S, runs, lp ? lp : "(unset = cores)", sysconf(_SC_NPROCESSORS_ONLN),
+              load[0]);
+
+  std::unique_ptr<GlContext> ctx;
+  if (gl_available()) {
+    ctx = std::make_unique<GlContext>();
+    std::printf("GL: %s / %s\n", ctx->version().c_str(), ctx->renderer().c_str());
+  } else {
+    std::printf("GL: unavailable, CPU figures only\n");
+  }
+
+  for (const std::string name : {"cornell", "hall"}) {
+    if (!scene_filter.empty() && scene_filter != name) continue;
+    const Scene scene = test::scene_named(name);
+    const Camera cam(scene.camera, width, height);
+    const DeepFramebuffer dfb = ctx ? build_deep_framebuffer_gl(*ctx, scene, cam, S) : build_deep_framebuffer_cpu(scene, cam, S);
+    const std::vector<VertexRecord> pts =
+        vertices.empty() ? test::real_like_points(scene, dfb, cam, points, 42) : read_vertices(vertices);
+    ReprojectorSettings settings;
+    settings.epsilon = default_epsilon(scene.bounds());
+    std::printf("\n%s (%s, %zu triangles, %.1f%% of texels covered): %zu points\n", name.c_str(), scene.name.c_str(),
+                scene.triangle_count(), 100.0 * double(dfb.covered_count()) / double(dfb.texel_count()), pts.size());
+
+    Figure gl_fig;
+    if (ctx) {
+      auto gl = make_reprojector("gl", cam, dfb, settings, ctx.get());
+      gl_fig = measure(*gl, pts, runs);
+      std::printf("  gl  (wg %d x %d, prefetch %s): %7.2f M points/s wall, %7.2f M points/CPU-s\n", settings.workgroups,
+                  settings.workgroup_size, settings.prefetch ? "on" : "off", gl_fig.wall / 1e6, gl_fig.cpu / 1e6);
+      print_counts(gl_fig.counts, pts.size());
+      if (sweep) {
+        for (int wg : {8, 16, 32, 64, 128})
+          for (int groups : {4, 16, 64})
+            for (bool pf : {true, false}) {
+              ReprojectorSettings s = settings;
+              s.workgroup_size = wg;
+              s.workgroups = groups;
+              s.prefetch = pf;
+              auto r = make_reprojector("gl", cam, dfb, s, ctx.get());
+              const Figure f = measure(*r, pts, std::max(1, runs / 2));
+              std::printf("    sweep wg %3d x %3d prefetch %-3s: %7.2f M/s wall, %7.2f M/CPU-s\n", groups, wg,
+                          pf ? "on" : "off", f.wall / 1e6, f.cpu / 1e6);
+            }
+        for (size_t batch : {size_t(1) << 16, size_t(1) << 20}) {
+          ReprojectorSettings s = settings;
+          s.batch_points = batch;
+          auto r = make_reprojector("gl", cam, dfb, s, ctx.get());
+          const Figure f = measure(*r, pts, std::max(1, runs / 2));
+          std::printf("    sweep batch %zu: %7.2f M/s wall, %7.2f M/CPU-s\n", batch, f.wall / 1e6, f.cpu / 1e6);
+        }
+      }
+    }
+    if (gl_only) continue;
+    for (int threads : cpu_threads) {
+      tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(std::max(1, threads)));
+      auto cpu = make_reprojector("cpu", cam, dfb, settings);
+      const Figure f = measure(*cpu, pts, runs);
+      std::printf("  cpu (%d TBB thread%s):            %7.2f M points/s wall, %7.2f M points/CPU-s", threads,
+                  threads == 1 ? " " : "s", f.wall / 1e6, f.cpu / 1e6);
+      if (ctx) std::printf("   GL/CPU = %.2f", gl_fig.wall / f.wall);
+      std::printf("\n");
+      if (!ctx) print_counts(f.counts, pts.size());
+    }
+  }
+  return 0;
+}
