@@ -69,7 +69,7 @@ int main(int argc, char** argv) {
     if (!std::strcmp(argv[i], "--runs") && i + 1 < argc) runs = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--scene") && i + 1 < argc) scenes.push_back(argv[++i]);
   }
-  if (scenes.empty()) scenes = {"builtin:cornell", "builtin:hall?tess=HALL100K", "builtin:hall?tess=HALL300K"};
+  if (scenes.empty()) scenes = {"builtin:cornell", "builtin:hall?tess=11", "builtin:hall?tess=18"};
   std::printf("%-32s %10s %12s %12s %12s %12s %8s\n", "scene", "triangles", "raw rays/s", "pt rays/s",
               "pt verts/s", "pt paths/s", "ratio");
   for (const std::string& spec : scenes) {

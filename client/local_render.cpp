@@ -36,39 +36,6 @@ VertexFilter filter_for(const RenderOptions& o) {
 
 }  // namespace
 
-nlohmann::json frame_statistics(const FrameState& frame, const RenderOptions& opts) {
-  const ReprojectionCounts c = frame.counts();
-  const double tested = double(c.accepted + c.occluded + c.culled);
-  auto pct = [&](uint64_t v) { return tested > 0 ? 100.0 * double(v) / tested : 0.0; };
-  const FrameProgress& p = frame.progress();
-  return {
-      {"mode", to_string(opts.mode)},
-      {"reproject", to_string(opts.reproject)},
-      {"subpixels", opts.subpixels},
-      {"epsilon_fraction", opts.epsilon},
-      {"rounds", p.round},
-      {"paths_traced", p.paths_traced},
-      {"paths_skipped", p.paths_skipped},
-      {"pixels_skipped", p.pixels_skipped},
-      {"mean_paths_per_pixel", p.mean_paths},
-      {"mean_reprojected_per_pixel", p.mean_reprojected},
-      {"mean_spp", p.mean_spp},
-      {"min_spp", p.min_spp},
-      {"reprojected_samples", c.accepted + c.exact},
-      {"accepted", c.accepted},
-      {"occluded", c.occluded},
-      {"backfacing", c.backfacing},
-      {"culled_master", c.culled},
-      {"not_diffuse", c.not_diffuse},
-      {"invalid", c.invalid},
-      {"exact_samples", c.exact},
-      {"accepted_percent", pct(c.accepted)},
-      {"occluded_percent", pct(c.occluded)},
-      {"culled_percent", pct(c.culled)},
-      {"seconds_reprojecting", frame.seconds_reprojecting()},
-  };
-}
-
 RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& progress) {
   if (auto err = opts.validate()) throw std::invalid_argument(*err);
   auto log = logger("client");
@@ -158,13 +125,14 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   out.combined = images.combined;
   out.pathtrace = images.pathtrace;
   out.path_count = images.path_count;
+  out.counts = counts_image(images);
   if (frame.reprojects()) {
     out.reprojection = images.reprojection;
     out.mprime = images.reprojected;
   }
 
   const double seconds = since(t_start);
-  out.stats = frame_statistics(frame, opts);
+  out.stats = frame.statistics(opts);
   out.stats.update({
       {"scene", scene.name},
       {"triangles", scene.triangle_count()},
@@ -197,6 +165,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
 void write_outputs(const std::string& prefix, const RenderOutputs& out) {
   write_exr(prefix + ".exr", out.combined);
   write_png_srgb(prefix + ".png", out.combined);
+  if (out.counts.width > 0) write_exr(prefix + ".counts.exr", out.counts);
   if (out.mprime.width > 0) {
     write_exr(prefix + ".pathtrace.exr", out.pathtrace);
     write_exr(prefix + ".reprojection.exr", out.reprojection);

@@ -29,19 +29,17 @@ struct RenderOutputs {
   Image reprojection; // L_rp per pixel (0 where M' = 0)
   Image path_count;   // M per pixel (1 channel)
   Image mprime;       // M' per pixel (1 channel)
+  Image counts;       // M and M' per pixel (2 channels)
   nlohmann::json stats;
 };
 
 using ProgressCallback = std::function<void(const RoundProgress&)>;
 
-/// The statistics of a frame as JSON (reprojection counts and percentages, paths traced / skipped).
-nlohmann::json frame_statistics(const FrameState& frame, const RenderOptions& opts);
-
 /// Renders `opts` to completion in this process. Throws std::runtime_error (bad scene, no OSMesa, ...).
 RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& progress = {});
 
 /// Writes PREFIX.exr, PREFIX.png, PREFIX.json and, when reprojection ran, PREFIX.pathtrace.exr,
-/// PREFIX.reprojection.exr, PREFIX.samples.exr (M') and PREFIX.samples.png (M' heat map).
+/// PREFIX.reprojection.exr, PREFIX.samples.exr (M') and PREFIX.samples.png (M' heat map); always PREFIX.counts.exr (M, M').
 void write_outputs(const std::string& prefix, const RenderOutputs& out);
 
 }  // namespace epr

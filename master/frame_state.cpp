@@ -25,6 +25,16 @@ class ScopedTimer {
 
 }  // namespace
 
+Image counts_image(const FrameImages& images) {
+  Image out(images.path_count.width, images.path_count.height, 2);
+  for (int y = 0; y < out.height; ++y)
+    for (int x = 0; x < out.width; ++x) {
+      out.at(x, y)[0] = images.path_count.at(x, y)[0];
+      out.at(x, y)[1] = images.reprojected.width ? images.reprojected.at(x, y)[0] : 0.f;
+    }
+  return out;
+}
+
 FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl)
     : opts_(opts),
       width_(opts.width),
@@ -174,6 +184,39 @@ FrameImages FrameState::images() {
   PixelReprojection pr{reprojected_radiance_, mprime_};
   out.combined = reprojector_ ? combine(sum, path_count_, pr) : out.pathtrace;
   return out;
+}
+
+nlohmann::json FrameState::statistics(const RenderOptions& opts) const {
+  const ReprojectionCounts c = counts();
+  const double tested = double(c.accepted + c.occluded + c.culled);
+  auto pct = [&](uint64_t v) { return tested > 0 ? 100.0 * double(v) / tested : 0.0; };
+  const FrameProgress& p = progress();
+  return {
+      {"mode", to_string(opts.mode)},
+      {"reproject", to_string(opts.reproject)},
+      {"subpixels", opts.subpixels},
+      {"epsilon_fraction", opts.epsilon},
+      {"rounds", p.round},
+      {"paths_traced", p.paths_traced},
+      {"paths_skipped", p.paths_skipped},
+      {"pixels_skipped", p.pixels_skipped},
+      {"mean_paths_per_pixel", p.mean_paths},
+      {"mean_reprojected_per_pixel", p.mean_reprojected},
+      {"mean_spp", p.mean_spp},
+      {"min_spp", p.min_spp},
+      {"reprojected_samples", c.accepted + c.exact},
+      {"accepted", c.accepted},
+      {"occluded", c.occluded},
+      {"backfacing", c.backfacing},
+      {"culled_master", c.culled},
+      {"not_diffuse", c.not_diffuse},
+      {"invalid", c.invalid},
+      {"exact_samples", c.exact},
+      {"accepted_percent", pct(c.accepted)},
+      {"occluded_percent", pct(c.occluded)},
+      {"culled_percent", pct(c.culled)},
+      {"seconds_reprojecting", seconds_reprojecting()},
+  };
 }
 
 }  // namespace epr

@@ -17,6 +17,8 @@
 #include <span>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "common/camera.h"
 #include "common/image.h"
 #include "common/render_options.h"
@@ -49,6 +51,9 @@ struct FrameImages {
   Image reprojected;   // M', one channel
 };
 
+/// M and M' per pixel as one 2-channel image (the counts result).
+Image counts_image(const FrameImages& images);
+
 class FrameState {
  public:
   /// `scene` supplies the triangles of the deep framebuffer (rp / skip modes only). `gl` is the
@@ -76,6 +81,8 @@ class FrameState {
   ReprojectionCounts counts() const;
   double seconds_reprojecting() const { return seconds_reprojecting_; }
   bool reprojects() const { return reprojector_ != nullptr; }
+  /// Counts, percentages and timings as JSON (the statistics file of a render).
+  nlohmann::json statistics(const RenderOptions& opts) const;
   /// The images as of the last finished round (reads the accumulation back when reprojecting).
   FrameImages images();
 

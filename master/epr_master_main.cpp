@@ -1,0 +1,46 @@
+// epr-master: the reprojection master of an eprfarm cluster.
+#include <csignal>
+#include <cstdio>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+
+#include "common/log.h"
+#include "master/server/master_server.h"
+
+namespace {
+volatile std::sig_atomic_t g_stop = 0;
+void on_signal(int) { g_stop = 1; }
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"epr-master: job queue, tile leases and reprojection (OSMesa) for an eprfarm cluster"};
+  epr::MasterServerOptions o;
+  std::string log_level = "info";
+  app.add_option("--listen", o.listen, "gRPC listen address for clients and workers")->capture_default_str();
+  app.add_option("--state-dir", o.jobs.state_dir, "folder for results and the scene cache (default: a temp folder)");
+  app.add_option("--lease-timeout-ms", o.jobs.lease_timeout_ms, "a tile lease not extended for this long is re-queued")
+      ->capture_default_str();
+  app.add_option("--heartbeat-ms", o.jobs.heartbeat_interval_ms, "heartbeat interval asked of workers")->capture_default_str();
+  app.add_option("--reproject", o.jobs.reproject_backend_override, "force the reprojector: cpu (default: what each job asks)")
+      ->check(CLI::IsMember({"", "cpu"}));
+  app.add_option("--max-queued-vertices", o.jobs.max_queued_vertices, "back-pressure bound of the commit queue")
+      ->capture_default_str();
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+  epr::set_log_level(log_level);
+
+  std::signal(SIGTERM, on_signal);
+  std::signal(SIGINT, on_signal);
+  try {
+    epr::MasterServer server(o);
+    std::fprintf(stderr, "epr-master listening on port %d\n", server.port());
+    while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    server.shutdown();
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "epr-master: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,875 @@
+#include "master/server/job_manager.h"
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <set>
+
+#include <fmt/format.h>
+
+#include "common/log.h"
+#include "common/scene_loader.h"
+#include "master/gl_context.h"
+#include "worker/tile_renderer.h"
+
+namespace epr {
+namespace fs = std::filesystem;
+namespace {
+
+int64_t now_ms() {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+}  // namespace
+
+const char* to_string(JobState s) {
+  switch (s) {
+    case JobState::kQueued: return "queued";
+    case JobState::kRunning: return "running";
+    case JobState::kDone: return "done";
+    case JobState::kFailed: return "failed";
+    case JobState::kCancelled: return "cancelled";
+  }
+  return "?";
+}
+
+// ---- state ----------------------------------------------------------------------------------------
+
+struct JobManager::Job {
+  struct Slot {
+    enum class State { kPending, kLeased, kCommitted, kIdle } state = State::kPending;
+    std::set<uint64_t> leases;  // leases currently out for this tile
+    int64_t deadline_ms = 0;
+    bool re_leased = false;
+  };
+
+  std::string id;
+  uint64_t seq = 0;
+  JobRequest request;
+  JobState state = JobState::kQueued;
+  std::string error;
+  std::string scene_hash;
+  std::shared_ptr<const SceneBundleData> bundle;
+  uint64_t triangles = 0;
+  Bounds3 codec_bounds;
+
+  std::vector<TileRect> tiles;
+  std::vector<Slot> slots;
+  std::deque<uint32_t> pending;
+  std::vector<std::vector<uint8_t>> tile_skip;      // this round's inputs, per tile
+  std::vector<std::vector<uint32_t>> tile_first;    // this round's inputs, per tile
+  uint32_t round = 0;
+  uint32_t remaining = 0;  // tiles of the round not yet applied by the reprojection thread
+  int paths_per_pixel = 1;
+  bool round_open = false;
+
+  FrameProgress progress;
+  ReprojectionCounts counts;
+  uint64_t rays = 0, vertices_received = 0, non_finite = 0, worker_culled = 0;
+  uint64_t tiles_leased = 0, tiles_committed = 0, tiles_re_leased = 0, tiles_dropped = 0;
+  int64_t submitted_ms = 0, started_ms = 0, finished_ms = 0;
+  double seconds_tracing = 0, seconds_reprojecting = 0;
+  bool budget_exhausted = false;
+  uint64_t version = 0;
+  std::map<std::string, std::vector<unsigned char>> previews;  // layer -> PNG
+  int64_t last_preview_ms = 0;
+
+  // Reprojection thread only.
+  std::unique_ptr<Scene> scene;
+  std::unique_ptr<Camera> camera;
+  std::unique_ptr<FrameState> frame;
+};
+
+struct JobManager::Worker {
+  std::string id, name;
+  uint32_t threads = 1;
+  int64_t last_seen_ms = 0;
+  std::set<uint64_t> leases;
+  uint64_t tiles_committed = 0, paths = 0;
+  double seconds_tracing = 0;
+};
+
+struct JobManager::Task {
+  std::shared_ptr<Job> job;
+  uint32_t round = 0, tile_index = 0;
+  AssembledTile tile;
+};
+
+// ---- lifecycle ------------------------------------------------------------------------------------
+
+JobManager::JobManager(MasterOptions options) : options_(std::move(options)) {
+  state_dir_ = options_.state_dir.empty() ? (fs::temp_directory_path() / fmt::format("epr-master-{}", ::getpid())).string()
+                                          : options_.state_dir;
+  fs::create_directories(fs::path(state_dir_) / "jobs");
+  // Lease ids are never reused, not even across restarts: start from the clock.
+  next_lease_ = uint64_t(now_ms()) << 16;
+  reprojection_thread_ = std::thread([this] { reprojection_loop(); });
+  reaper_thread_ = std::thread([this] { reaper_loop(); });
+}
+
+JobManager::~JobManager() { shutdown(); }
+
+void JobManager::shutdown() {
+  {
+    std::lock_guard lock(mu_);
+    if (stopping_) return;
+    stopping_ = true;
+  }
+  work_cv_.notify_all();
+  if (reprojection_thread_.joinable()) reprojection_thread_.join();
+  if (reaper_thread_.joinable()) reaper_thread_.join();
+}
+
+bool JobManager::gl_ready() const {
+  std::lock_guard lock(mu_);
+  return gl_ready_;
+}
+
+std::string JobManager::job_dir(const Job& job) const { return (fs::path(state_dir_) / "jobs" / job.id).string(); }
+
+// ---- clients --------------------------------------------------------------------------------------
+
+JobManager::SubmitResult JobManager::submit(JobRequest req) {
+  auto invalid = [](std::string why) { return SubmitResult{"", std::move(why)}; };
+  if (auto err = req.options.validate()) return invalid(*err);
+  if (auto err = req.camera.validate()) return invalid(*err);
+  const SceneBundleData& b = req.bundle;
+  if (b.builtin.empty()) {
+    if (b.files.empty()) return invalid("the scene bundle is empty");
+    if (b.total_bytes() > options_.max_scene_bytes)
+      return invalid(fmt::format("the scene bundle has {} bytes, over the limit of {}", b.total_bytes(), options_.max_scene_bytes));
+    bool has_entry = false;
+    std::set<std::string> paths;
+    for (const auto& [path, data] : b.files) {
+      if (!is_safe_relative_path(path)) return invalid(fmt::format("scene file path '{}' is not a safe relative path", path));
+      if (!paths.insert(path).second) return invalid(fmt::format("scene file path '{}' appears twice", path));
+      has_entry |= path == b.entry_path;
+    }
+    if (!has_entry) return invalid(fmt::format("the scene's entry path '{}' is not among its files", b.entry_path));
+  } else if (b.builtin.rfind("builtin:", 0) != 0) {
+    return invalid("a built-in scene is named builtin:NAME");
+  }
+  if (req.options.width > options_.max_image_side || req.options.height > options_.max_image_side)
+    return invalid(fmt::format("image sides are limited to {} pixels", options_.max_image_side));
+  const std::string hash = content_hash(b);
+
+  std::shared_ptr<Job> job;
+  {
+    std::lock_guard lock(mu_);
+    if (!req.request_id.empty()) {
+      if (auto it = request_ids_.find(req.request_id); it != request_ids_.end()) return {it->second, ""};
+    }
+    job = std::make_shared<Job>();
+    job->seq = next_job_seq_++;
+    job->id = fmt::format("j{:06d}-{:04x}", job->seq, uint32_t(now_ms()) & 0xffff);
+    job->scene_hash = hash;
+    auto& cached = scenes_[hash];
+    if (!cached) cached = std::make_shared<const SceneBundleData>(std::move(req.bundle));
+    job->bundle = cached;
+    job->submitted_ms = now_ms();
+    job->tiles = make_tiles(req.options.width, req.options.height, req.options.tile_size);
+    job->request = std::move(req);
+    if (!job->request.request_id.empty()) request_ids_[job->request.request_id] = job->id;
+    jobs_[job->id] = job;
+    // Forget the oldest finished jobs beyond the limit.
+    while (jobs_.size() > size_t(options_.max_jobs)) {
+      auto oldest = std::find_if(jobs_.begin(), jobs_.end(), [](const auto& kv) {
+        return kv.second->state != JobState::kQueued && kv.second->state != JobState::kRunning;
+      });
+      if (oldest == jobs_.end()) break;
+      jobs_.erase(oldest);
+    }
+  }
+  logger("master")->info("job {} submitted: {} {}x{} spp {} mode {}", job->id, job->scene_hash.substr(0, 12),
+                         job->request.options.width, job->request.options.height, job->request.options.spp,
+                         to_string(job->request.options.mode));
+  work_cv_.notify_all();
+  notify(job);
+  return {job->id, ""};
+}
+
+JobSnapshot JobManager::snapshot(const Job& job) const {
+  JobSnapshot s;
+  s.id = job.id;
+  s.name = job.request.name;
+  s.error = job.error;
+  s.state = job.state;
+  s.priority = job.request.priority;
+  s.options = job.request.options;
+  s.camera = job.request.camera;
+  s.scene_hash = job.scene_hash;
+  s.scene_builtin = job.bundle->builtin;
+  s.scene_bytes = job.bundle->total_bytes();
+  s.triangles = job.triangles;
+  s.progress = job.progress;
+  s.counts = job.counts;
+  const auto& o = job.request.options;
+  s.rounds_planned = (o.spp + o.paths_per_round - 1) / o.paths_per_round;
+  s.rays_traced = job.rays;
+  s.vertices_received = job.vertices_received;
+  s.non_finite_dropped = job.non_finite;
+  s.worker_culled = job.worker_culled;
+  s.tiles_leased = job.tiles_leased;
+  s.tiles_committed = job.tiles_committed;
+  s.tiles_re_leased = job.tiles_re_leased;
+  s.tiles_dropped = job.tiles_dropped;
+  std::set<std::string> active_workers;
+  for (const auto& [wid, w] : workers_)
+    if (!w->leases.empty() && active_.get() == &job) active_workers.insert(wid);
+  s.workers_active = uint32_t(active_workers.size());
+  s.submitted_ms = job.submitted_ms;
+  s.started_ms = job.started_ms;
+  s.finished_ms = job.finished_ms;
+  const int64_t end = job.finished_ms ? job.finished_ms : now_ms();
+  s.seconds_elapsed = job.started_ms ? double(end - job.started_ms) / 1000.0 : 0.0;
+  if (job.state == JobState::kRunning && job.progress.round > 0) {
+    const double per_round = s.seconds_elapsed / job.progress.round;
+    const int left = (o.spp - int(job.progress.mean_paths + 0.5) + o.paths_per_round - 1) / o.paths_per_round;
+    s.eta_seconds = per_round * std::max(0, left);
+  } else if (job.state == JobState::kDone) {
+    s.eta_seconds = 0;
+  }
+  s.seconds_tracing = job.seconds_tracing;
+  s.seconds_reprojecting = job.seconds_reprojecting;
+  s.budget_exhausted = job.budget_exhausted;
+  s.version = job.version;
+  return s;
+}
+
+std::optional<JobSnapshot> JobManager::get(const std::string& id) const {
+  std::lock_guard lock(mu_);
+  auto it = jobs_.find(id);
+  if (it == jobs_.end()) return std::nullopt;
+  return snapshot(*it->second);
+}
+
+std::vector<JobSnapshot> JobManager::list() const {
+  std::lock_guard lock(mu_);
+  std::vector<JobSnapshot> out;
+  for (const auto& [id, job] : jobs_) out.push_back(snapshot(*job));
+  return out;
+}
+
+bool JobManager::cancel(const std::string& id) {
+  std::shared_ptr<Job> job;
+  {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(id);
+    if (it == jobs_.end()) return false;
+    job = it->second;
+    if (job->state == JobState::kQueued || job->state == JobState::kRunning) {
+      job->state = JobState::kCancelled;
+      job->finished_ms = now_ms();
+      job->round_open = false;
+      ++job->version;
+    }
+  }
+  work_cv_.notify_all();
+  notify(job);
+  return true;
+}
+
+uint64_t JobManager::watch(const std::string& id, std::function<void(const JobSnapshot&)> listener) {
+  std::lock_guard lock(mu_);
+  if (!jobs_.count(id)) return 0;
+  const uint64_t h = next_watch_++;
+  watchers_[h] = {id, std::move(listener)};
+  return h;
+}
+
+void JobManager::unwatch(uint64_t handle) {
+  std::lock_guard lock(mu_);
+  watchers_.erase(handle);
+}
+
+void JobManager::notify(const std::shared_ptr<Job>& job) {
+  std::vector<std::function<void(const JobSnapshot&)>> listeners;
+  JobSnapshot snap;
+  {
+    std::lock_guard lock(mu_);
+    snap = snapshot(*job);
+    for (const auto& [h, w] : watchers_)
+      if (w.first == job->id) listeners.push_back(w.second);
+  }
+  for (auto& l : listeners) l(snap);
+}
+
+std::optional<std::string> JobManager::result_path(const std::string& id, const std::string& kind) const {
+  std::string dir;
+  {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(id);
+    if (it == jobs_.end() || it->second->state != JobState::kDone) return std::nullopt;
+    dir = job_dir(*it->second);
+  }
+  static const std::map<std::string, std::string> files = {
+      {"exr", "combined.exr"},      {"png", "combined.png"},
+      {"samples.png", "samples.png"}, {"json", "stats.json"},
+      {"pathtrace.exr", "pathtrace.exr"}, {"reprojection.exr", "reprojection.exr"}, {"counts.exr", "counts.exr"}};
+  auto f = files.find(kind);
+  if (f == files.end()) return std::nullopt;
+  const fs::path p = fs::path(dir) / f->second;
+  if (!fs::exists(p)) return std::nullopt;
+  return p.string();
+}
+
+std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::string& id, const std::string& layer) const {
+  std::lock_guard lock(mu_);
+  auto it = jobs_.find(id);
+  if (it == jobs_.end()) return std::nullopt;
+  auto p = it->second->previews.find(layer);
+  if (p == it->second->previews.end()) return std::nullopt;
+  return p->second;
+}
+
+// ---- workers --------------------------------------------------------------------------------------
+
+std::string JobManager::register_worker(const std::string& name, uint32_t threads) {
+  std::lock_guard lock(mu_);
+  auto w = std::make_unique<Worker>();
+  w->id = fmt::format("w{}-{:04x}", next_worker_++, uint32_t(now_ms()) & 0xffff);
+  w->name = name;
+  w->threads = std::max(1u, threads);
+  w->last_seen_ms = now_ms();
+  const std::string id = w->id;
+  workers_[id] = std::move(w);
+  logger("master")->info("worker {} ({}, {} threads) registered", id, name, threads);
+  return id;
+}
+
+void JobManager::unregister_worker(const std::string& worker) {
+  std::lock_guard lock(mu_);
+  workers_.erase(worker);
+}
+
+std::optional<std::vector<std::pair<bool, int64_t>>> JobManager::heartbeat(const std::string& worker,
+                                                                         const std::vector<uint64_t>& leases) {
+  std::lock_guard lock(mu_);
+  auto wit = workers_.find(worker);
+  if (wit == workers_.end()) return std::nullopt;
+  wit->second->last_seen_ms = now_ms();
+  std::vector<std::pair<bool, int64_t>> out;
+  const int64_t deadline = now_ms() + options_.lease_timeout_ms;
+  for (uint64_t lease : leases) {
+    bool valid = false;
+    if (active_ && active_->state == JobState::kRunning) {
+      for (auto& slot : active_->slots)
+        if (slot.state == Job::Slot::State::kLeased && slot.leases.count(lease)) {
+          slot.deadline_ms = std::max(slot.deadline_ms, deadline);
+          valid = true;
+          break;
+        }
+    }
+    out.emplace_back(valid, valid ? deadline : 0);
+    if (!valid) wit->second->leases.erase(lease);
+  }
+  return out;
+}
+
+LeaseDecision JobManager::lease_tile(const std::string& worker) {
+  std::lock_guard lock(mu_);
+  auto wit = workers_.find(worker);
+  if (wit == workers_.end()) return UnknownWorker{};
+  Worker& w = *wit->second;
+  w.last_seen_ms = now_ms();
+  if (stopping_) return LeaseWait{1000};
+  // Back-pressure: the reprojection thread is behind.
+  if (queued_vertices_ > options_.max_queued_vertices) return LeaseWait{50};
+  Job* job = active_.get();
+  if (!job || job->state != JobState::kRunning || !job->round_open || job->pending.empty()) return LeaseWait{100};
+  const uint32_t t = job->pending.front();
+  job->pending.pop_front();
+  Job::Slot& slot = job->slots[t];
+  TileLeaseInfo info;
+  info.lease_id = next_lease_++;
+  slot.state = Job::Slot::State::kLeased;
+  slot.leases.insert(info.lease_id);
+  slot.deadline_ms = now_ms() + options_.lease_timeout_ms;
+  w.leases.insert(info.lease_id);
+  ++job->tiles_leased;
+  if (slot.re_leased) ++job->tiles_re_leased;
+  ++job->version;
+
+  info.job_id = job->id;
+  info.round = job->round;
+  info.tile_index = t;
+  info.rect = job->tiles[t];
+  info.skip = job->tile_skip[t];
+  info.first_sample = job->tile_first[t];
+  info.paths_per_pixel = uint32_t(job->paths_per_pixel);
+  info.seed = job->request.options.seed;
+  info.options = job->request.options;
+  info.camera = job->request.camera;
+  info.codec_bounds = job->codec_bounds;
+  info.scene_hash = job->scene_hash;
+  info.scene_builtin = job->bundle->builtin;
+  info.scene_bytes = job->bundle->total_bytes();
+  info.triangles = job->triangles;
+  info.deadline_ms = slot.deadline_ms;
+  return info;
+}
+
+void JobManager::return_leases(const std::string& worker, const std::vector<uint64_t>& leases) {
+  std::lock_guard lock(mu_);
+  auto wit = workers_.find(worker);
+  for (uint64_t lease : leases) {
+    if (wit != workers_.end()) wit->second->leases.erase(lease);
+    if (!active_) continue;
+    for (uint32_t t = 0; t < active_->slots.size(); ++t) {
+      auto& slot = active_->slots[t];
+      if (slot.state == Job::Slot::State::kLeased && slot.leases.erase(lease) && slot.leases.empty()) {
+        slot.state = Job::Slot::State::kPending;
+        slot.re_leased = true;
+        active_->pending.push_front(t);
+      }
+    }
+  }
+}
+
+std::vector<WorkerSnapshot> JobManager::workers() const {
+  std::lock_guard lock(mu_);
+  std::vector<WorkerSnapshot> out;
+  const int64_t now = now_ms();
+  for (const auto& [id, w] : workers_) {
+    WorkerSnapshot s;
+    s.id = id;
+    s.name = w->name;
+    s.threads = w->threads;
+    s.heartbeat_age_seconds = double(now - w->last_seen_ms) / 1000.0;
+    s.tiles_committed = w->tiles_committed;
+    s.paths_traced = w->paths;
+    s.paths_per_second = w->seconds_tracing > 0 ? double(w->paths) / w->seconds_tracing : 0.0;
+    s.leases_held = w->leases.size();
+    out.push_back(s);
+  }
+  return out;
+}
+
+std::string JobManager::add_scene(SceneBundleData bundle) {
+  const std::string hash = content_hash(bundle);
+  std::lock_guard lock(mu_);
+  auto& slot = scenes_[hash];
+  if (!slot) slot = std::make_shared<const SceneBundleData>(std::move(bundle));
+  return hash;
+}
+
+std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle) const {
+  const std::string cache = (fs::path(state_dir_) / "cache").string();
+  try {
+    const Scene s = load_bundle(bundle, cache);
+    if (s.triangle_count() == 0) return "the scene has no triangles";
+  } catch (const std::exception& e) {
+    // Name files as the client knows them, not by their place in the master's cache.
+    std::string msg = e.what();
+    const std::string prefix = (fs::path(cache) / "scenes" / content_hash(bundle)).string() + "/";
+    for (size_t p; (p = msg.find(prefix)) != std::string::npos;) msg.erase(p, prefix.size());
+    return msg;
+  }
+  return std::nullopt;
+}
+
+std::shared_ptr<const SceneBundleData> JobManager::scene(const std::string& hash) const {
+  std::lock_guard lock(mu_);
+  auto it = scenes_.find(hash);
+  return it == scenes_.end() ? nullptr : it->second;
+}
+
+std::variant<TileExpectation, std::string> JobManager::expect(const v1::TileResultHeader& h, bool* stale) const {
+  *stale = false;
+  std::lock_guard lock(mu_);
+  if (h.lease_id() == 0 || h.lease_id() >= next_lease_) return std::string("unknown lease id");
+  auto it = jobs_.find(h.job_id());
+  if (it == jobs_.end()) {
+    *stale = true;
+    return std::string("no such job (finished and forgotten, or never existed)");
+  }
+  const Job& job = *it->second;
+  if (job.state != JobState::kRunning || h.round() != job.round || !job.round_open) {
+    *stale = true;
+    return fmt::format("job {} is {} in round {}, the result is for round {}", job.id, to_string(job.state), job.round, h.round());
+  }
+  if (h.tile_index() >= job.tiles.size())
+    return fmt::format("tile index {} is outside the job's {} tiles", h.tile_index(), job.tiles.size());
+  const TileRect& r = job.tiles[h.tile_index()];
+  TileExpectation e;
+  e.job_id = job.id;
+  e.round = job.round;
+  e.tile_index = h.tile_index();
+  e.x0 = uint32_t(r.x0);
+  e.y0 = uint32_t(r.y0);
+  e.x1 = uint32_t(r.x1);
+  e.y1 = uint32_t(r.y1);
+  const RenderOptions& o = job.request.options;
+  e.image_width = uint32_t(o.width);
+  e.image_height = uint32_t(o.height);
+  e.subpixels = uint32_t(o.subpixels);
+  e.codec_bounds = job.codec_bounds;
+  e.payload = o.mode == RenderMode::kPathTrace       ? TileExpectation::Payload::kPathsOnly
+              : o.reproject == ReprojectMethod::kExact ? TileExpectation::Payload::kExactSamples
+                                                       : TileExpectation::Payload::kVertices;
+  e.paths_per_pixel = uint32_t(job.paths_per_pixel);
+  e.skip = job.tile_skip[h.tile_index()];
+  e.max_vertices_per_tile = std::max<uint64_t>(options_.max_queued_vertices, 1u << 20);
+  return e;
+}
+
+CommitOutcome JobManager::commit(const std::string& job_id, uint32_t round, uint32_t tile_index, AssembledTile tile) {
+  {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(job_id);
+    auto wit = workers_.find(tile.worker_id);
+    if (wit != workers_.end()) wit->second->leases.erase(tile.lease_id);
+    if (it == jobs_.end() || it->second->state != JobState::kRunning || it->second->round != round ||
+        tile_index >= it->second->slots.size()) {
+      if (it != jobs_.end()) ++it->second->tiles_dropped;
+      return CommitOutcome::kStale;
+    }
+    Job& job = *it->second;
+    Job::Slot& slot = job.slots[tile_index];
+    if (slot.state == Job::Slot::State::kCommitted || slot.state == Job::Slot::State::kIdle) {
+      ++job.tiles_dropped;
+      return CommitOutcome::kDuplicate;
+    }
+    if (slot.state == Job::Slot::State::kPending) {
+      // Its lease had expired and the tile went back to the queue: this result still wins.
+      job.pending.erase(std::remove(job.pending.begin(), job.pending.end(), tile_index), job.pending.end());
+    }
+    for (uint64_t l : slot.leases)
+      for (auto& [wid, w] : workers_) w->leases.erase(l);
+    slot.leases.clear();
+    slot.state = Job::Slot::State::kCommitted;
+    ++job.tiles_committed;
+    const auto& st = tile.worker_stats;
+    job.rays += st.rays_traced();
+    job.non_finite += st.non_finite_dropped() + tile.dropped_pixel_sums + tile.dropped_exact_samples;
+    job.worker_culled += st.culled_frustum() + st.culled_facing() + st.culled_not_diffuse() + st.exact_occluded();
+    job.vertices_received += tile.vertices.size() + tile.exact_samples.size();
+    job.seconds_tracing += st.seconds_tracing();
+    ++job.version;
+    if (wit != workers_.end()) {
+      ++wit->second->tiles_committed;
+      wit->second->paths += st.paths_traced();
+      wit->second->seconds_tracing += st.seconds_tracing();
+    }
+    auto task = std::make_unique<Task>();
+    task->job = it->second;
+    task->round = round;
+    task->tile_index = tile_index;
+    queued_vertices_ += tile.vertices.size() + tile.exact_samples.size();
+    task->tile = std::move(tile);
+    tasks_.push_back(std::move(task));
+  }
+  work_cv_.notify_all();
+  return CommitOutcome::kCommitted;
+}
+
+// ---- the reprojection thread ----------------------------------------------------------------------
+
+std::shared_ptr<JobManager::Job> JobManager::next_job() const {
+  std::shared_ptr<Job> best;
+  for (const auto& [id, job] : jobs_) {
+    if (job->state != JobState::kQueued) continue;
+    if (!best || job->request.priority > best->request.priority ||
+        (job->request.priority == best->request.priority && job->seq < best->seq))
+      best = job;
+  }
+  return best;
+}
+
+void JobManager::reprojection_loop() {
+  auto log = logger("master");
+  std::unique_ptr<GlContext> gl;
+  if (options_.reproject_backend_override != "cpu") {
+    try {
+      gl = std::make_unique<GlContext>();
+      log->info("reprojection context: {} / {}", gl->renderer(), gl->version());
+    } catch (const std::exception& e) {
+      log->warn("no OSMesa context ({}); jobs asking for GL reprojection will use the CPU reprojector", e.what());
+    }
+  }
+  {
+    std::lock_guard lock(mu_);
+    gl_ready_ = gl != nullptr;
+  }
+  for (;;) {
+    std::unique_ptr<Task> task;
+    std::shared_ptr<Job> to_start;
+    std::shared_ptr<Job> to_drop;
+    {
+      std::unique_lock lock(mu_);
+      work_cv_.wait(lock, [&] {
+        if (stopping_ || !tasks_.empty()) return true;
+        if (active_ && active_->state != JobState::kRunning && active_->state != JobState::kQueued) return true;
+        return !active_ && next_job() != nullptr;
+      });
+      if (stopping_) break;
+      if (active_ && (active_->state == JobState::kCancelled || active_->state == JobState::kFailed)) {
+        to_drop = active_;
+        active_.reset();
+      } else if (!tasks_.empty()) {
+        task = std::move(tasks_.front());
+        tasks_.pop_front();
+        queued_vertices_ -= task->tile.vertices.size() + task->tile.exact_samples.size();
+      } else if (!active_) {
+        active_ = next_job();
+        to_start = active_;
+      }
+    }
+    if (to_drop) {
+      to_drop->frame.reset();
+      to_drop->scene.reset();
+      notify(to_drop);
+      continue;
+    }
+    if (to_start) {
+      try {
+        to_start->frame.reset();
+        start_job(to_start, gl.get());
+      } catch (const std::exception& e) {
+        log->error("job {} failed to start: {}", to_start->id, e.what());
+        {
+          std::lock_guard lock(mu_);
+          to_start->state = JobState::kFailed;
+          to_start->error = e.what();
+          to_start->finished_ms = now_ms();
+          ++to_start->version;
+          active_.reset();
+        }
+        notify(to_start);
+      }
+      continue;
+    }
+    if (task) {
+      try {
+        apply_commit(*task);
+      } catch (const std::exception& e) {
+        log->error("job {}: commit failed: {}", task->job->id, e.what());
+        {
+          std::lock_guard lock(mu_);
+          task->job->state = JobState::kFailed;
+          task->job->error = e.what();
+          task->job->finished_ms = now_ms();
+          ++task->job->version;
+        }
+        work_cv_.notify_all();
+        notify(task->job);
+      }
+    }
+  }
+  std::lock_guard lock(mu_);
+  for (auto& [id, job] : jobs_) job->frame.reset();
+}
+
+void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
+  RenderOptions opts = job->request.options;
+  if (options_.reproject_backend_override == "cpu" || !gl)
+    if (opts.reproject == ReprojectMethod::kGl) opts.reproject = ReprojectMethod::kCpu;
+  job->scene = std::make_unique<Scene>(load_bundle(*job->bundle, (fs::path(state_dir_) / "cache").string()));
+  job->camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
+  job->frame = std::make_unique<FrameState>(opts, *job->camera, *job->scene, gl);
+  {
+    std::lock_guard lock(mu_);
+    job->triangles = job->scene->triangle_count();
+    job->codec_bounds = job->scene->bounds();
+    if (job->state != JobState::kQueued) return;  // cancelled meanwhile
+    job->state = JobState::kRunning;
+    job->started_ms = now_ms();
+    job->slots.assign(job->tiles.size(), {});
+    open_round(*job);
+  }
+  logger("master")->info("job {} running: {} triangles, {} tiles", job->id, job->triangles, job->tiles.size());
+  notify(job);
+}
+
+void JobManager::open_round(Job& job) {
+  job.paths_per_pixel = job.frame->next_paths_per_pixel();
+  job.pending.clear();
+  job.tile_skip.resize(job.tiles.size());
+  job.tile_first.resize(job.tiles.size());
+  job.remaining = 0;
+  for (uint32_t t = 0; t < job.tiles.size(); ++t) {
+    const TileRect& r = job.tiles[t];
+    auto& slot = job.slots[t];
+    slot = {};
+    if (job.frame->tile_idle(r.x0, r.y0, r.x1, r.y1)) {
+      slot.state = Job::Slot::State::kIdle;
+      job.tile_skip[t].clear();
+      job.tile_first[t].clear();
+      continue;
+    }
+    job.frame->tile_inputs(r.x0, r.y0, r.x1, r.y1, &job.tile_skip[t], &job.tile_first[t]);
+    job.pending.push_back(t);
+    ++job.remaining;
+  }
+  job.round_open = true;
+  ++job.version;
+}
+
+void JobManager::apply_commit(Task& task) {
+  Job& job = *task.job;
+  {
+    std::lock_guard lock(mu_);
+    if (job.state != JobState::kRunning || job.round != task.round) return;
+  }
+  AssembledTile& t = task.tile;
+  job.frame->add_paths(int(t.x0), int(t.y0), int(t.x1), int(t.y1), t.path_sum, t.path_count);
+  job.frame->reproject(t.vertices);
+  if (!t.exact_samples.empty()) {
+    std::vector<ExactSample> exact(t.exact_samples.size());
+    for (size_t i = 0; i < exact.size(); ++i) exact[i] = {t.exact_samples[i].first, t.exact_samples[i].second};
+    job.frame->add_exact(exact);
+  }
+  bool round_done;
+  {
+    std::lock_guard lock(mu_);
+    job.counts = job.frame->counts();
+    job.seconds_reprojecting = job.frame->seconds_reprojecting();
+    round_done = --job.remaining == 0;
+  }
+  if (round_done) close_round(task.job);
+}
+
+void JobManager::close_round(const std::shared_ptr<Job>& job) {
+  const bool more = job->frame->finish_round();
+  bool budget_over = false;
+  bool want_preview;
+  {
+    std::lock_guard lock(mu_);
+    job->progress = job->frame->progress();
+    job->counts = job->frame->counts();
+    job->seconds_reprojecting = job->frame->seconds_reprojecting();
+    job->round_open = false;
+    if (job->request.time_budget_seconds)
+      budget_over = double(now_ms() - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
+    want_preview = now_ms() - job->last_preview_ms >= 1000;
+  }
+  if (!more || budget_over) {
+    finish_job(job, budget_over && more);
+    return;
+  }
+  if (want_preview) {
+    auto previews = make_previews(*job->frame);
+    std::lock_guard lock(mu_);
+    job->previews = std::move(previews);
+    job->last_preview_ms = now_ms();
+  }
+  {
+    std::lock_guard lock(mu_);
+    if (job->state != JobState::kRunning) return;
+    ++job->round;
+    open_round(*job);
+  }
+  notify(job);
+}
+
+std::map<std::string, std::vector<unsigned char>> JobManager::make_previews(FrameState& frame) {
+  const FrameImages img = frame.images();
+  std::map<std::string, std::vector<unsigned char>> out;
+  out["combined"] = encode_png_srgb(img.combined);
+  out["pathtrace"] = encode_png_srgb(img.pathtrace);
+  if (frame.reprojects()) {
+    out["reprojection"] = encode_png_srgb(img.reprojection);
+    float max_m = 0;
+    for (float v : img.reprojected.data) max_m = std::max(max_m, v);
+    out["samples"] = encode_png_srgb(heat_map(img.reprojected, max_m));
+  }
+  return out;
+}
+
+void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) {
+  const std::string dir = job_dir(*job);
+  fs::create_directories(dir);
+  const FrameImages img = job->frame->images();
+  auto write = [&](const std::string& name, auto fn) {
+    const std::string tmp = dir + "/." + name + ".tmp";
+    fn(tmp);
+    fs::rename(tmp, dir + "/" + name);
+  };
+  write("combined.exr", [&](const std::string& p) { write_exr(p, img.combined); });
+  write("combined.png", [&](const std::string& p) { write_png_srgb(p, img.combined); });
+  write("pathtrace.exr", [&](const std::string& p) { write_exr(p, img.pathtrace); });
+  write("counts.exr", [&](const std::string& p) { write_exr(p, counts_image(img)); });
+  if (job->frame->reprojects()) {
+    write("reprojection.exr", [&](const std::string& p) { write_exr(p, img.reprojection); });
+    float max_m = 0;
+    for (float v : img.reprojected.data) max_m = std::max(max_m, v);
+    write("samples.png", [&](const std::string& p) { write_png_srgb(p, heat_map(img.reprojected, max_m)); });
+  }
+  auto previews = make_previews(*job->frame);
+  nlohmann::json stats = job->frame->statistics(job->request.options);
+  {
+    std::lock_guard lock(mu_);
+    job->previews = std::move(previews);
+    job->progress = job->frame->progress();
+    job->counts = job->frame->counts();
+    job->seconds_reprojecting = job->frame->seconds_reprojecting();
+    job->budget_exhausted = budget_exhausted;
+    job->finished_ms = now_ms();
+    job->state = JobState::kDone;
+    job->round_open = false;
+    ++job->version;
+    const JobSnapshot s = snapshot(*job);
+    stats.update({{"job", job->id},
+                  {"scene_hash", job->scene_hash},
+                  {"triangles", job->triangles},
+                  {"width", job->request.options.width},
+                  {"height", job->request.options.height},
+                  {"spp", job->request.options.spp},
+                  {"seed", job->request.options.seed},
+                  {"rays", s.rays_traced},
+                  {"vertices_received", s.vertices_received},
+                  {"culled_worker", s.worker_culled},
+                  {"nonfinite_dropped", s.non_finite_dropped},
+                  {"tiles_leased", s.tiles_leased},
+                  {"tiles_committed", s.tiles_committed},
+                  {"tiles_re_leased", s.tiles_re_leased},
+                  {"tiles_dropped", s.tiles_dropped},
+                  {"seconds", s.seconds_elapsed},
+                  {"seconds_tracing", s.seconds_tracing},
+                  {"budget_exhausted", budget_exhausted}});
+    active_.reset();
+  }
+  write("stats.json", [&](const std::string& p) { std::ofstream(p) << stats.dump(2) << "\n"; });
+  job->frame.reset();
+  job->scene.reset();
+  logger("master")->info("job {} done", job->id);
+  work_cv_.notify_all();
+  notify(job);
+}
+
+// ---- the reaper -----------------------------------------------------------------------------------
+
+void JobManager::reaper_loop() {
+  std::unique_lock lock(mu_);
+  while (!stopping_) {
+    work_cv_.wait_for(lock, std::chrono::milliseconds(200));
+    if (stopping_) break;
+    const int64_t now = now_ms();
+    if (active_ && active_->state == JobState::kRunning) {
+      Job& job = *active_;
+      for (uint32_t t = 0; t < job.slots.size(); ++t) {
+        auto& slot = job.slots[t];
+        if (slot.state == Job::Slot::State::kLeased && slot.deadline_ms < now) {
+          logger("master")->warn("job {} tile {}: lease expired, re-queued", job.id, t);
+          slot.state = Job::Slot::State::kPending;
+          slot.leases.clear();
+          slot.re_leased = true;
+          job.pending.push_front(t);
+          ++job.version;
+        }
+      }
+    }
+    for (auto it = workers_.begin(); it != workers_.end();) {
+      if (now - it->second->last_seen_ms > options_.worker_timeout_ms) {
+        logger("master")->warn("worker {} silent for {} ms: forgotten", it->first, now - it->second->last_seen_ms);
+        it = workers_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  }
+}
+
+}  // namespace epr

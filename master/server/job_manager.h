@@ -1,0 +1,215 @@
+// The master's domain logic: job queue, per-job round state machine, tile lease table, worker
+// registry and the commit pipeline into the reprojection thread (DESIGN.md section 2).
+//
+// Threads:
+//  - gRPC handlers call the public methods; each takes the manager's mutex briefly and never waits
+//    for tracing or reprojection work.
+//  - One reprojection thread owns the OSMesa context and every job's FrameState: it starts jobs
+//    (deep framebuffer), applies committed tiles in commit order, closes rounds (M', skip mask),
+//    opens the next round and writes results.
+//  - A reaper thread re-queues tiles whose lease deadline passed and forgets silent workers.
+// Back-pressure: committed tiles wait in a queue bounded in vertices; while it is over its bound,
+// LeaseTile answers Wait, so a fast worker cannot grow the master's memory (at most the bound plus
+// the tiles already leased).
+// Exactly once: a tile is committed by the first complete result for (job, round, tile); later or
+// duplicate results are dropped and counted. Commits of one round touch disjoint pixels, and rounds
+// are applied in order, so M and the path sums do not depend on arrival order.
+#pragma once
+
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <variant>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "common/render_options.h"
+#include "master/frame_state.h"
+#include "wire/scene_bundle.h"
+#include "wire/tile_result_stream.h"
+#include "worker/tile_renderer.h"
+
+namespace epr {
+
+class GlContext;
+
+struct MasterOptions {
+  std::string state_dir;                  // results (and later checkpoints); empty: a temp folder
+  std::string reproject_backend_override; // "cpu" forces the CPU reprojector (no OSMesa)
+  int lease_timeout_ms = 20000;           // a lease not extended by a heartbeat for this long expires
+  int heartbeat_interval_ms = 1000;       // asked of workers
+  int worker_timeout_ms = 10000;          // a worker silent this long is forgotten
+  uint64_t max_queued_vertices = 8u << 20;  // back-pressure bound of the commit queue
+  size_t max_scene_bytes = 256u << 20;
+  int max_image_side = 16384;
+  int max_jobs = 1000;                    // jobs kept (finished ones are forgotten oldest first)
+};
+
+enum class JobState { kQueued, kRunning, kDone, kFailed, kCancelled };
+const char* to_string(JobState s);
+
+struct JobRequest {
+  RenderOptions options;  // scene field unused: the bundle is the scene
+  CameraSpec camera;
+  SceneBundleData bundle;
+  std::string name;
+  int priority = 0;
+  std::optional<double> time_budget_seconds;
+  std::string request_id;  // idempotency key: a retried submit returns the first job
+};
+
+/// A consistent copy of a job's progress for status calls, watchers and the monitoring endpoint.
+struct JobSnapshot {
+  std::string id, name, error;
+  JobState state = JobState::kQueued;
+  int priority = 0;
+  RenderOptions options;
+  CameraSpec camera;
+  std::string scene_hash, scene_builtin;
+  uint64_t scene_bytes = 0, triangles = 0;
+  FrameProgress progress;
+  ReprojectionCounts counts;
+  int rounds_planned = 0;
+  uint64_t rays_traced = 0, vertices_received = 0, non_finite_dropped = 0;
+  uint64_t worker_culled = 0;  // culled by workers before sending (frustum, facing, glossy)
+  uint64_t tiles_leased = 0, tiles_committed = 0, tiles_re_leased = 0, tiles_dropped = 0;
+  uint32_t workers_active = 0;
+  int64_t submitted_ms = 0, started_ms = 0, finished_ms = 0;
+  double seconds_elapsed = 0, eta_seconds = -1, seconds_tracing = 0, seconds_reprojecting = 0;
+  bool budget_exhausted = false;
+  uint64_t version = 0;  // increases with every change
+};
+
+struct TileLeaseInfo {
+  uint64_t lease_id = 0;
+  std::string job_id;
+  uint32_t round = 0, tile_index = 0;
+  TileRect rect;
+  std::vector<uint8_t> skip;           // per tile pixel
+  std::vector<uint32_t> first_sample;  // per tile pixel
+  uint32_t paths_per_pixel = 1;
+  uint64_t seed = 0;
+  RenderOptions options;
+  CameraSpec camera;
+  Bounds3 codec_bounds;
+  std::string scene_hash, scene_builtin;
+  uint64_t scene_bytes = 0, triangles = 0;
+  int64_t deadline_ms = 0;
+};
+struct LeaseWait {
+  uint32_t retry_after_ms = 200;
+};
+struct UnknownWorker {};
+using LeaseDecision = std::variant<TileLeaseInfo, LeaseWait, UnknownWorker>;
+
+enum class CommitOutcome { kCommitted, kDuplicate, kStale };
+
+struct WorkerSnapshot {
+  std::string id, name;
+  uint32_t threads = 0;
+  double heartbeat_age_seconds = 0;
+  uint64_t tiles_committed = 0, paths_traced = 0;
+  double paths_per_second = 0;  // over its committed tiles' tracing time
+  size_t leases_held = 0;
+};
+
+class JobManager {
+ public:
+  explicit JobManager(MasterOptions options);
+  ~JobManager();
+  JobManager(const JobManager&) = delete;
+  JobManager& operator=(const JobManager&) = delete;
+
+  // ---- clients -----------------------------------------------------------------------------------
+  struct SubmitResult {
+    std::string id;     // the new (or, for a repeated request_id, the earlier) job
+    std::string error;  // non-empty: why the request is invalid (INVALID_ARGUMENT)
+  };
+  SubmitResult submit(JobRequest request);
+  std::optional<JobSnapshot> get(const std::string& id) const;
+  std::vector<JobSnapshot> list() const;
+  /// False if no such job.
+  bool cancel(const std::string& id);
+  /// Calls `listener` (from any thread, without the manager's mutex) whenever the job changes;
+  /// returns a handle for unwatch(), or 0 if no such job.
+  uint64_t watch(const std::string& id, std::function<void(const JobSnapshot&)> listener);
+  void unwatch(uint64_t handle);
+  /// Path of a finished result file ("exr", "png", "samples.png", "json", "pathtrace.exr",
+  /// "reprojection.exr"), if it exists.
+  std::optional<std::string> result_path(const std::string& id, const std::string& kind) const;
+  /// PNG of a layer ("combined", "pathtrace", "reprojection", "samples") after the last round.
+  std::optional<std::vector<unsigned char>> preview_png(const std::string& id, const std::string& layer) const;
+
+  // ---- workers -----------------------------------------------------------------------------------
+  std::string register_worker(const std::string& name, uint32_t threads);
+  /// Extends the listed leases; returns per lease whether it is still wanted and its deadline.
+  /// Nullopt for an unknown worker.
+  std::optional<std::vector<std::pair<bool, int64_t>>> heartbeat(const std::string& worker,
+                                                                  const std::vector<uint64_t>& leases);
+  LeaseDecision lease_tile(const std::string& worker);
+  void return_leases(const std::string& worker, const std::vector<uint64_t>& leases);
+  void unregister_worker(const std::string& worker);
+  std::vector<WorkerSnapshot> workers() const;
+  /// Stores an uploaded scene under its content hash.
+  std::string add_scene(SceneBundleData bundle);
+  /// Loads the scene to check it; the reason (naming file and line inside the bundle) if it is bad.
+  std::optional<std::string> check_scene(const SceneBundleData& bundle) const;
+  /// The scene files of a hash, for FetchScene.
+  std::shared_ptr<const SceneBundleData> scene(const std::string& hash) const;
+
+  /// What a SubmitTile stream with this header must contain, or why it cannot be accepted
+  /// (`stale` is set when the job or round moved on: the stream is drained and acknowledged as stale).
+  std::variant<TileExpectation, std::string> expect(const v1::TileResultHeader& header, bool* stale) const;
+  /// Commits a complete, checked tile result (never blocks on reprojection).
+  CommitOutcome commit(const std::string& job_id, uint32_t round, uint32_t tile_index, AssembledTile tile);
+
+  /// Stops the threads (idempotent); pending work is dropped.
+  void shutdown();
+  bool gl_ready() const;
+  const MasterOptions& options() const { return options_; }
+
+ private:
+  struct Job;
+  struct Worker;
+  struct Task;
+
+  void reprojection_loop();
+  void reaper_loop();
+  void start_job(const std::shared_ptr<Job>& job, GlContext* gl);
+  void apply_commit(Task& task);
+  void close_round(const std::shared_ptr<Job>& job);
+  void open_round(Job& job);  // with mu_ held
+  void finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted);
+  static std::map<std::string, std::vector<unsigned char>> make_previews(FrameState& frame);
+  void notify(const std::shared_ptr<Job>& job);
+  JobSnapshot snapshot(const Job& job) const;  // with mu_ held
+  std::shared_ptr<Job> next_job() const;        // with mu_ held
+  std::string job_dir(const Job& job) const;
+
+  MasterOptions options_;
+  mutable std::mutex mu_;
+  std::condition_variable work_cv_;
+  std::map<std::string, std::shared_ptr<Job>> jobs_;
+  std::map<std::string, std::string> request_ids_;
+  std::map<std::string, std::unique_ptr<Worker>> workers_;
+  std::map<std::string, std::shared_ptr<const SceneBundleData>> scenes_;
+  std::deque<std::unique_ptr<Task>> tasks_;
+  uint64_t queued_vertices_ = 0;
+  uint64_t next_job_seq_ = 1, next_lease_ = 1, next_worker_ = 1, next_watch_ = 1;
+  std::map<uint64_t, std::pair<std::string, std::function<void(const JobSnapshot&)>>> watchers_;
+  std::shared_ptr<Job> active_;  // the job whose tiles are being leased
+  bool stopping_ = false;
+  bool gl_ready_ = false;
+  std::string state_dir_;
+  std::thread reprojection_thread_, reaper_thread_;
+};
+
+}  // namespace epr

@@ -1,0 +1,331 @@
+#include "master/server/job_service.h"
+
+#include <atomic>
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+
+#include "common/log.h"
+#include "master/server/list_writer.h"
+#include "wire/convert.h"
+
+namespace epr {
+namespace {
+
+grpc::ServerUnaryReactor* finish(grpc::CallbackServerContext* ctx, grpc::Status status) {
+  auto* r = ctx->DefaultReactor();
+  r->Finish(std::move(status));
+  return r;
+}
+grpc::Status invalid(std::string why) { return {grpc::StatusCode::INVALID_ARGUMENT, std::move(why)}; }
+grpc::Status no_job(const std::string& id) { return {grpc::StatusCode::NOT_FOUND, fmt::format("no job '{}'", id)}; }
+
+v1::JobState to_proto(JobState s) {
+  switch (s) {
+    case JobState::kQueued: return v1::JOB_STATE_QUEUED;
+    case JobState::kRunning: return v1::JOB_STATE_RUNNING;
+    case JobState::kDone: return v1::JOB_STATE_DONE;
+    case JobState::kFailed: return v1::JOB_STATE_FAILED;
+    case JobState::kCancelled: return v1::JOB_STATE_CANCELLED;
+  }
+  return v1::JOB_STATE_UNSPECIFIED;
+}
+
+bool finished(JobState s) { return s == JobState::kDone || s == JobState::kFailed || s == JobState::kCancelled; }
+
+// Sends a status whenever the job changes, at most one write in flight; the newest status wins.
+class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
+ public:
+  JobWatcher(JobManager& jobs, const std::string& id, uint32_t min_interval_ms) : jobs_(jobs), min_interval_ms_(min_interval_ms) {
+    auto first = jobs_.get(id);
+    if (!first) {
+      Finish(no_job(id));
+      return;
+    }
+    handle_ = jobs_.watch(id, [this](const JobSnapshot& s) { offer(s); });
+    offer(*first);
+  }
+  void OnWriteDone(bool ok) override {
+    std::lock_guard lock(mu_);
+    writing_ = false;
+    if (!ok) return finish_locked(grpc::Status(grpc::StatusCode::CANCELLED, "client went away"));
+    if (last_written_final_) return finish_locked(grpc::Status::OK);
+    if (pending_) write_locked();
+  }
+  void OnCancel() override {
+    std::lock_guard lock(mu_);
+    finish_locked(grpc::Status(grpc::StatusCode::CANCELLED, "watch cancelled"));
+  }
+  void OnDone() override {
+    if (handle_) jobs_.unwatch(handle_);
+    delete this;
+  }
+
+ private:
+  void offer(const JobSnapshot& s) {
+    std::lock_guard lock(mu_);
+    if (finished_ || (have_written_ && s.version <= written_version_ && !finished(s.state))) return;
+    pending_ = s;
+    if (!writing_) write_locked();
+  }
+  void write_locked() {
+    const JobSnapshot s = *pending_;
+    pending_.reset();
+    const auto now = std::chrono::steady_clock::now();
+    if (min_interval_ms_ && have_written_ && !finished(s.state) &&
+        now - last_write_ < std::chrono::milliseconds(min_interval_ms_)) {
+      pending_ = s;  // sent with the next change or the final status
+      return;
+    }
+    to_proto(s, &out_);
+    written_version_ = s.version;
+    have_written_ = true;
+    last_written_final_ = finished(s.state);
+    last_write_ = now;
+    writing_ = true;
+    StartWrite(&out_);
+  }
+  void finish_locked(grpc::Status st) {
+    if (finished_) return;
+    finished_ = true;
+    Finish(std::move(st));
+  }
+
+  JobManager& jobs_;
+  uint32_t min_interval_ms_;
+  uint64_t handle_ = 0;
+  std::mutex mu_;
+  v1::JobStatus out_;
+  std::optional<JobSnapshot> pending_;
+  uint64_t written_version_ = 0;
+  bool have_written_ = false, writing_ = false, finished_ = false, last_written_final_ = false;
+  std::chrono::steady_clock::time_point last_write_;
+};
+
+// Receives an uploaded scene: manifest, then each file's bytes in order.
+class SceneUploader final : public grpc::ServerReadReactor<v1::SceneChunk> {
+ public:
+  SceneUploader(JobManager& jobs, v1::SceneRef* ref) : jobs_(jobs), ref_(ref) { StartRead(&chunk_); }
+  void OnReadDone(bool ok) override {
+    if (!ok) return end();
+    if (chunk_.has_manifest()) {
+      if (manifest_seen_) return Finish(invalid("the manifest must come once, first"));
+      manifest_seen_ = true;
+      const auto& m = chunk_.manifest();
+      if (m.total_bytes() > jobs_.options().max_scene_bytes)
+        return Finish(invalid(fmt::format("scene of {} bytes is over the limit of {}", m.total_bytes(), jobs_.options().max_scene_bytes)));
+      expected_hash_ = m.content_hash();
+      bundle_.entry_path = m.entry_path();
+      uint64_t sum = 0;
+      for (const auto& f : m.files()) {
+        if (!is_safe_relative_path(f.path())) return Finish(invalid(fmt::format("scene file path '{}' is not safe", f.path())));
+        sum += f.size_bytes();
+        sizes_.push_back(f.size_bytes());
+        bundle_.files.emplace_back(f.path(), std::string());
+      }
+      if (sum != m.total_bytes()) return Finish(invalid("the manifest's sizes do not add up to total_bytes"));
+    } else if (chunk_.has_data()) {
+      const auto& d = chunk_.data();
+      if (!manifest_seen_) return Finish(invalid("data before the manifest"));
+      if (d.file_index() >= bundle_.files.size()) return Finish(invalid("data for a file the manifest does not list"));
+      auto& file = bundle_.files[d.file_index()].second;
+      if (d.offset() != file.size()) return Finish(invalid("scene data must arrive in order without gaps"));
+      if (file.size() + d.data().size() > sizes_[d.file_index()]) return Finish(invalid("more data than the manifest announced"));
+      file += d.data();
+    }
+    StartRead(&chunk_);
+  }
+  void OnDone() override { delete this; }
+
+ private:
+  void end() {
+    if (!manifest_seen_) return Finish(invalid("no manifest"));
+    for (size_t i = 0; i < sizes_.size(); ++i)
+      if (bundle_.files[i].second.size() != sizes_[i]) return Finish(invalid(fmt::format("file '{}' is incomplete", bundle_.files[i].first)));
+    const std::string hash = content_hash(bundle_);
+    if (!expected_hash_.empty() && expected_hash_ != hash)
+      return Finish(invalid(fmt::format("content hash mismatch: announced {}, computed {}", expected_hash_, hash)));
+    ref_->set_content_hash(hash);
+    ref_->set_total_bytes(bundle_.total_bytes());
+    jobs_.add_scene(std::move(bundle_));
+    Finish(grpc::Status::OK);
+  }
+  JobManager& jobs_;
+  v1::SceneRef* ref_;
+  v1::SceneChunk chunk_;
+  SceneBundleData bundle_;
+  std::vector<uint64_t> sizes_;
+  std::string expected_hash_;
+  bool manifest_seen_ = false;
+};
+
+}  // namespace
+
+void to_proto(const JobSnapshot& s, v1::JobStatus* out) {
+  out->Clear();
+  out->set_id(s.id);
+  out->set_name(s.name);
+  out->set_state(to_proto(s.state));
+  out->set_error_message(s.error);
+  out->set_priority(s.priority);
+  to_render_settings(s.options, s.camera, Bounds3{}, out->mutable_effective());
+  out->mutable_effective()->clear_codec_bounds();
+  out->set_target_spp(uint32_t(s.options.spp));
+  out->set_paths_per_round(uint32_t(s.options.paths_per_round));
+  out->set_seed(s.options.seed);
+  out->mutable_scene()->set_content_hash(s.scene_hash);
+  out->mutable_scene()->set_builtin(s.scene_builtin);
+  out->mutable_scene()->set_total_bytes(s.scene_bytes);
+  out->mutable_scene()->set_triangle_count(s.triangles);
+  out->set_round(uint32_t(s.progress.round));
+  out->set_rounds_planned(uint32_t(s.rounds_planned));
+  out->set_spp_min(uint32_t(s.progress.min_spp));
+  out->set_spp_mean(s.progress.mean_spp);
+  out->set_paths_per_pixel_mean(s.progress.mean_paths);
+  out->set_reprojected_per_pixel_mean(s.progress.mean_reprojected);
+  out->set_pixels_skipped(uint32_t(s.progress.pixels_skipped));
+  out->set_paths_traced(s.progress.paths_traced);
+  out->set_paths_skipped(s.progress.paths_skipped);
+  out->set_rays_traced(s.rays_traced);
+  out->set_vertices_received(s.vertices_received);
+  out->set_vertices_accepted(s.counts.accepted + s.counts.exact);
+  out->set_vertices_occluded(s.counts.occluded);
+  out->set_vertices_culled(s.counts.culled + s.worker_culled);
+  out->set_vertices_not_diffuse(s.counts.not_diffuse);
+  out->set_non_finite_dropped(s.non_finite_dropped + s.counts.invalid);
+  out->set_tiles_leased(s.tiles_leased);
+  out->set_tiles_committed(s.tiles_committed);
+  out->set_tiles_re_leased(s.tiles_re_leased);
+  out->set_tiles_dropped(s.tiles_dropped);
+  out->set_workers_active(s.workers_active);
+  out->set_submitted_unix_ms(s.submitted_ms);
+  out->set_started_unix_ms(s.started_ms);
+  out->set_finished_unix_ms(s.finished_ms);
+  out->set_seconds_elapsed(s.seconds_elapsed);
+  out->set_eta_seconds(s.eta_seconds);
+  out->set_seconds_tracing(s.seconds_tracing);
+  out->set_seconds_reprojecting(s.seconds_reprojecting);
+  out->set_budget_exhausted(s.budget_exhausted);
+}
+
+grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
+                                                    v1::JobId* resp) {
+  JobRequest jr;
+  if (auto err = from_job_spec(*req, &jr.options, &jr.camera)) return finish(ctx, invalid(*err));
+  const auto& scene = req->scene();
+  switch (scene.source_case()) {
+    case v1::SceneBundle::kBuiltin: jr.bundle.builtin = scene.builtin(); break;
+    case v1::SceneBundle::kFiles:
+      jr.bundle = from_proto(scene.files());
+      if (!scene.content_hash().empty() && scene.content_hash() != content_hash(jr.bundle))
+        return finish(ctx, invalid("the scene's content_hash does not match its files"));
+      break;
+    case v1::SceneBundle::kUploadedHash: {
+      auto b = jobs_.scene(scene.uploaded_hash());
+      if (!b) return finish(ctx, {grpc::StatusCode::NOT_FOUND, fmt::format("no uploaded scene '{}'", scene.uploaded_hash())});
+      jr.bundle = *b;
+      break;
+    }
+    default: return finish(ctx, invalid("the job has no scene"));
+  }
+  if (!req->has_camera()) return finish(ctx, invalid("the job has no camera"));
+  if (req->name().size() > 256) return finish(ctx, invalid("job names are limited to 256 bytes"));
+  jr.name = req->name();
+  jr.priority = req->priority();
+  jr.request_id = req->request_id();
+  if (req->has_time_budget_seconds()) jr.time_budget_seconds = req->time_budget_seconds();
+  // Check the scene now so that a malformed file is an INVALID_ARGUMENT naming file and line,
+  // not a job that fails later.
+  if (auto err = jobs_.check_scene(jr.bundle)) return finish(ctx, invalid(*err));
+  const auto r = jobs_.submit(std::move(jr));
+  if (!r.error.empty()) return finish(ctx, invalid(r.error));
+  resp->set_id(r.id);
+  return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerReadReactor<v1::SceneChunk>* JobServiceImpl::UploadScene(grpc::CallbackServerContext*, v1::SceneRef* resp) {
+  return new SceneUploader(jobs_, resp);
+}
+
+grpc::ServerUnaryReactor* JobServiceImpl::GetJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) {
+  auto s = jobs_.get(req->id());
+  if (!s) return finish(ctx, no_job(req->id()));
+  to_proto(*s, resp);
+  return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerWriteReactor<v1::JobStatus>* JobServiceImpl::WatchJob(grpc::CallbackServerContext*, const v1::WatchJobRequest* req) {
+  return new JobWatcher(jobs_, req->job_id(), req->min_interval_ms());
+}
+
+grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* ctx, const v1::ListJobsRequest* req,
+                                                   v1::ListJobsResponse* resp) {
+  const size_t page = req->page_size() ? std::min<size_t>(req->page_size(), 1000) : 100;
+  size_t start = 0;
+  if (!req->page_token().empty()) {
+    try {
+      start = std::stoul(req->page_token());
+    } catch (const std::exception&) {
+      return finish(ctx, invalid("malformed page_token"));
+    }
+  }
+  std::vector<JobSnapshot> all = jobs_.list();
+  std::vector<JobSnapshot> selected;
+  for (auto& s : all)
+    if (req->states().empty() ||
+        std::find(req->states().begin(), req->states().end(), to_proto(s.state)) != req->states().end())
+      selected.push_back(std::move(s));
+  for (size_t i = start; i < selected.size() && i < start + page; ++i) to_proto(selected[i], resp->add_jobs());
+  if (start + page < selected.size()) resp->set_next_page_token(std::to_string(start + page));
+  return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* JobServiceImpl::CancelJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) {
+  if (!jobs_.cancel(req->id())) return finish(ctx, no_job(req->id()));
+  to_proto(*jobs_.get(req->id()), resp);
+  return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::CallbackServerContext*,
+                                                                       const v1::ResultRequest* req) {
+  using Writer = ListWriter<v1::ResultChunk>;
+  static const std::map<v1::ResultKind, std::pair<std::string, std::string>> kinds = {
+      {v1::RESULT_KIND_EXR, {"exr", "image/x-exr"}},
+      {v1::RESULT_KIND_PNG, {"png", "image/png"}},
+      {v1::RESULT_KIND_STATS_IMAGE, {"samples.png", "image/png"}},
+      {v1::RESULT_KIND_JSON, {"json", "application/json"}},
+      {v1::RESULT_KIND_PATH_TRACED_EXR, {"pathtrace.exr", "image/x-exr"}},
+      {v1::RESULT_KIND_REPROJECTED_EXR, {"reprojection.exr", "image/x-exr"}},
+      {v1::RESULT_KIND_COUNTS_EXR, {"counts.exr", "image/x-exr"}}};
+  auto k = kinds.find(req->kind());
+  if (k == kinds.end()) return new Writer({}, invalid("unknown result kind"));
+  auto snap = jobs_.get(req->job_id());
+  if (!snap) return new Writer({}, no_job(req->job_id()));
+  if (snap->state != JobState::kDone)
+    return new Writer({}, {grpc::StatusCode::FAILED_PRECONDITION, fmt::format("job {} is {}: results exist once it is done", snap->id, to_string(snap->state))});
+  auto path = jobs_.result_path(req->job_id(), k->second.first);
+  if (!path) return new Writer({}, {grpc::StatusCode::NOT_FOUND, fmt::format("job {} has no {} result (not produced in this mode)", snap->id, k->second.first)});
+  std::ifstream in(*path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const std::string bytes = ss.str();
+  std::vector<v1::ResultChunk> chunks(1);
+  auto* h = chunks[0].mutable_header();
+  h->set_kind(req->kind());
+  h->set_media_type(k->second.second);
+  h->set_suggested_filename(fmt::format("{}.{}", snap->id, k->second.first));
+  h->set_total_bytes(bytes.size());
+  h->set_sha256(sha256_hex(bytes));
+  h->set_round(uint32_t(snap->progress.round));
+  constexpr size_t kChunk = 1u << 20;
+  for (size_t off = 0; off < bytes.size(); off += kChunk) {
+    v1::ResultChunk c;
+    c.mutable_data()->set_offset(off);
+    c.mutable_data()->set_data(bytes.substr(off, kChunk));
+    chunks.push_back(std::move(c));
+  }
+  return new Writer(std::move(chunks));
+}
+
+}  // namespace epr

@@ -1,0 +1,48 @@
+// The master process in one object: JobManager plus the gRPC server with JobService, WorkerService
+// and the standard health service. `epr-master` is a thin main around it; `epr render` runs one
+// in-process on a loopback port, so a local render and a cluster use the same code paths.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include <grpcpp/grpcpp.h>
+
+#include "master/server/job_manager.h"
+
+namespace epr {
+
+struct MasterServerOptions {
+  std::string listen = "0.0.0.0:50051";  // gRPC address; port 0 picks a free port
+  MasterOptions jobs;
+  int max_message_bytes = 8 << 20;       // inline scenes in SubmitJob; tile chunks are <= 2 MiB
+};
+
+class JobServiceImpl;
+class WorkerServiceImpl;
+
+class MasterServer {
+ public:
+  /// Starts serving; throws std::runtime_error if the address cannot be bound.
+  explicit MasterServer(MasterServerOptions options);
+  ~MasterServer();
+
+  int port() const { return port_; }
+  /// "127.0.0.1:PORT"-style target for clients in this process or on this host.
+  std::string local_target() const;
+  JobManager& jobs() { return *jobs_; }
+  /// Stops accepting calls, cancels streams, stops the job manager. Idempotent.
+  void shutdown();
+  void wait();
+
+ private:
+  MasterServerOptions options_;
+  std::unique_ptr<JobManager> jobs_;
+  std::unique_ptr<JobServiceImpl> job_service_;
+  std::unique_ptr<WorkerServiceImpl> worker_service_;
+  std::unique_ptr<grpc::Server> server_;
+  int port_ = 0;
+  bool shut_down_ = false;
+};
+
+}  // namespace epr

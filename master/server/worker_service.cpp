@@ -1,0 +1,204 @@
+#include "master/server/worker_service.h"
+
+#include <fmt/format.h>
+
+#include "common/log.h"
+#include "master/server/list_writer.h"
+#include "wire/convert.h"
+
+namespace epr {
+namespace {
+
+grpc::ServerUnaryReactor* finish(grpc::CallbackServerContext* ctx, grpc::Status status) {
+  auto* r = ctx->DefaultReactor();
+  r->Finish(std::move(status));
+  return r;
+}
+
+grpc::Status invalid(std::string why) { return {grpc::StatusCode::INVALID_ARGUMENT, std::move(why)}; }
+grpc::Status unknown_worker(const std::string& id) {
+  return {grpc::StatusCode::NOT_FOUND, fmt::format("unknown worker id '{}': register again", id)};
+}
+
+// Reads one tile result chunk by chunk into a TileResultAssembler, then commits it.
+class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChunk> {
+ public:
+  SubmitTileReader(JobManager& jobs, v1::SubmitAck* ack) : jobs_(jobs), ack_(ack) { StartRead(&chunk_); }
+
+  void OnReadDone(bool ok) override {
+    if (!ok) return end_of_stream();
+    if (draining_) return StartRead(&chunk_);  // a stale result: read it to the end, then say so
+    if (!assembler_) {
+      if (chunk_.part_case() != v1::TileResultChunk::kHeader) return Finish(invalid("the first chunk must be the header"));
+      bool stale = false;
+      auto e = jobs_.expect(chunk_.header(), &stale);
+      if (auto* why = std::get_if<std::string>(&e)) {
+        if (!stale) return Finish(invalid(*why));
+        draining_ = true;
+        reason_ = *why;
+        return StartRead(&chunk_);
+      }
+      header_ = chunk_.header();
+      assembler_ = std::make_unique<TileResultAssembler>(std::get<TileExpectation>(std::move(e)));
+    }
+    if (auto err = assembler_->add(chunk_)) return Finish(invalid(*err));
+    StartRead(&chunk_);
+  }
+  void OnDone() override { delete this; }
+  void OnCancel() override {}
+
+ private:
+  void end_of_stream() {
+    if (draining_) {
+      ack_->set_accepted(false);
+      ack_->set_outcome(v1::SUBMIT_OUTCOME_STALE);
+      ack_->set_reason(reason_);
+      return Finish(grpc::Status::OK);
+    }
+    if (!assembler_ || !assembler_->complete())
+      return Finish(invalid("the stream ended before its trailer: nothing was committed"));
+    const CommitOutcome out = jobs_.commit(header_.job_id(), header_.round(), header_.tile_index(), assembler_->take());
+    ack_->set_accepted(out == CommitOutcome::kCommitted);
+    ack_->set_outcome(out == CommitOutcome::kCommitted   ? v1::SUBMIT_OUTCOME_COMMITTED
+                      : out == CommitOutcome::kDuplicate ? v1::SUBMIT_OUTCOME_DUPLICATE
+                                                         : v1::SUBMIT_OUTCOME_STALE);
+    if (out == CommitOutcome::kDuplicate) ack_->set_reason("the tile was already committed from another lease");
+    if (out == CommitOutcome::kStale) ack_->set_reason("the job or round moved on");
+    Finish(grpc::Status::OK);
+  }
+
+  JobManager& jobs_;
+  v1::SubmitAck* ack_;
+  v1::TileResultChunk chunk_;
+  v1::TileResultHeader header_;
+  std::unique_ptr<TileResultAssembler> assembler_;
+  bool draining_ = false;
+  std::string reason_;
+};
+
+}  // namespace
+
+std::vector<v1::SceneChunk> scene_chunks(const SceneBundleData& bundle) {
+  constexpr size_t kChunk = 1u << 20;
+  std::vector<v1::SceneChunk> out(1);
+  auto* m = out[0].mutable_manifest();
+  m->set_content_hash(content_hash(bundle));
+  m->set_entry_path(bundle.entry_path);
+  m->set_total_bytes(bundle.total_bytes());
+  for (size_t i = 0; i < bundle.files.size(); ++i) {
+    const auto& [path, data] = bundle.files[i];
+    auto* f = m->add_files();
+    f->set_path(path);
+    f->set_size_bytes(data.size());
+    for (size_t off = 0; off < data.size(); off += kChunk) {
+      v1::SceneChunk c;
+      auto* d = c.mutable_data();
+      d->set_file_index(uint32_t(i));
+      d->set_offset(off);
+      d->set_data(data.substr(off, kChunk));
+      out.push_back(std::move(c));
+    }
+  }
+  return out;
+}
+
+grpc::ServerUnaryReactor* WorkerServiceImpl::Register(grpc::CallbackServerContext* ctx, const v1::WorkerInfo* req,
+                                                      v1::RegisterResponse* resp) {
+  if (req->protocol_version() != v1::PROTOCOL_VERSION_V1)
+    return finish(ctx, {grpc::StatusCode::FAILED_PRECONDITION,
+                        fmt::format("this master speaks protocol version 1, the worker {}", int(req->protocol_version()))});
+  if (req->threads() < 1 || req->threads() > 4096) return finish(ctx, invalid("threads must be between 1 and 4096"));
+  if (req->name().size() > 256) return finish(ctx, invalid("worker names are limited to 256 bytes"));
+  resp->mutable_worker_id()->set_id(jobs_.register_worker(req->name(), req->threads()));
+  resp->set_heartbeat_interval_ms(uint32_t(jobs_.options().heartbeat_interval_ms));
+  resp->set_max_vertices_per_chunk(kMaxVerticesPerChunk);
+  resp->set_max_chunk_bytes(kMaxChunkBytes);
+  return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* WorkerServiceImpl::Heartbeat(grpc::CallbackServerContext* ctx, const v1::HeartbeatRequest* req,
+                                                       v1::HeartbeatResponse* resp) {
+  const std::vector<uint64_t> leases(req->lease_ids().begin(), req->lease_ids().end());
+  auto states = jobs_.heartbeat(req->worker_id().id(), leases);
+  if (!states) return finish(ctx, unknown_worker(req->worker_id().id()));
+  for (size_t i = 0; i < leases.size(); ++i) {
+    auto* s = resp->add_leases();
+    s->set_lease_id(leases[i]);
+    s->set_valid((*states)[i].first);
+    s->set_deadline_unix_ms((*states)[i].second);
+  }
+  return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerWriteReactor<v1::SceneChunk>* WorkerServiceImpl::FetchScene(grpc::CallbackServerContext* ctx,
+                                                                        const v1::FetchSceneRequest* req) {
+  auto bundle = jobs_.scene(req->content_hash());
+  if (!bundle || !bundle->builtin.empty()) {
+    return new ListWriter<v1::SceneChunk>(
+        {}, {grpc::StatusCode::NOT_FOUND, fmt::format("no file scene with hash '{}'", req->content_hash())});
+  }
+  return new ListWriter<v1::SceneChunk>(scene_chunks(*bundle));
+}
+
+grpc::ServerUnaryReactor* WorkerServiceImpl::LeaseTile(grpc::CallbackServerContext* ctx, const v1::LeaseRequest* req,
+                                                       v1::Lease* resp) {
+  LeaseDecision d = jobs_.lease_tile(req->worker_id().id());
+  if (std::holds_alternative<UnknownWorker>(d)) return finish(ctx, unknown_worker(req->worker_id().id()));
+  if (auto* w = std::get_if<LeaseWait>(&d)) {
+    resp->mutable_wait()->set_retry_after_ms(w->retry_after_ms);
+    return finish(ctx, grpc::Status::OK);
+  }
+  const TileLeaseInfo& t = std::get<TileLeaseInfo>(d);
+  auto* l = resp->mutable_tile();
+  l->set_lease_id(t.lease_id);
+  l->set_job_id(t.job_id);
+  l->set_round(t.round);
+  l->set_tile_index(t.tile_index);
+  l->mutable_rect()->set_x0(uint32_t(t.rect.x0));
+  l->mutable_rect()->set_y0(uint32_t(t.rect.y0));
+  l->mutable_rect()->set_x1(uint32_t(t.rect.x1));
+  l->mutable_rect()->set_y1(uint32_t(t.rect.y1));
+  const bool any_skip = std::any_of(t.skip.begin(), t.skip.end(), [](uint8_t s) { return s != 0; });
+  if (any_skip) {
+    std::string bits((t.skip.size() + 7) / 8, '\0');
+    for (size_t i = 0; i < t.skip.size(); ++i)
+      if (t.skip[i]) bits[i / 8] = char(uint8_t(bits[i / 8]) | uint8_t(1u << (i % 8)));
+    l->set_skip_bits(bits);
+  }
+  const bool uniform = std::all_of(t.first_sample.begin(), t.first_sample.end(),
+                                   [&](uint32_t f) { return f == t.first_sample.front(); });
+  if (uniform) {
+    l->set_uniform_first_sample_index(t.first_sample.empty() ? 0 : t.first_sample.front());
+  } else {
+    *l->mutable_first_sample_index() = {t.first_sample.begin(), t.first_sample.end()};
+  }
+  l->set_paths_per_pixel(t.paths_per_pixel);
+  l->set_seed(t.seed);
+  to_render_settings(t.options, t.camera, t.codec_bounds, l->mutable_settings());
+  l->mutable_scene()->set_content_hash(t.scene_hash);
+  l->mutable_scene()->set_builtin(t.scene_builtin);
+  l->mutable_scene()->set_total_bytes(t.scene_bytes);
+  l->mutable_scene()->set_triangle_count(t.triangles);
+  l->set_deadline_unix_ms(t.deadline_ms);
+  return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* WorkerServiceImpl::ReturnLease(grpc::CallbackServerContext* ctx,
+                                                         const v1::ReturnLeaseRequest* req, v1::ReturnLeaseResponse*) {
+  jobs_.return_leases(req->worker_id().id(), {req->lease_ids().begin(), req->lease_ids().end()});
+  logger("master")->info("worker {} returned {} lease(s): {}", req->worker_id().id(), req->lease_ids_size(), req->reason());
+  return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerReadReactor<v1::TileResultChunk>* WorkerServiceImpl::SubmitTile(grpc::CallbackServerContext*,
+                                                                            v1::SubmitAck* ack) {
+  return new SubmitTileReader(jobs_, ack);
+}
+
+grpc::ServerUnaryReactor* WorkerServiceImpl::Unregister(grpc::CallbackServerContext* ctx, const v1::WorkerId* req,
+                                                        v1::UnregisterResponse*) {
+  jobs_.unregister_worker(req->id());
+  return finish(ctx, grpc::Status::OK);
+}
+
+}  // namespace epr
