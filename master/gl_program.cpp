@@ -21,7 +21,13 @@ GlProgram::GlProgram(GlContext& ctx, const std::string& vertex_source, const std
   ctx.check_thread();
   id_ = ctx.gl().CreateProgram();
   const GLuint vs = compile(GL_VERTEX_SHADER, vertex_source);
-  const GLuint fs = compile(GL_FRAGMENT_SHADER, fragment_source);
+  GLuint fs = 0;
+  try {
+    fs = compile(GL_FRAGMENT_SHADER, fragment_source);
+  } catch (...) {
+    ctx.gl().DeleteShader(vs);
+    throw;
+  }
   ctx.gl().AttachShader(id_, vs);
   ctx.gl().AttachShader(id_, fs);
   link();

@@ -8,8 +8,10 @@
 //     non-finite records while copying; a fence per slot keeps the CPU from overwriting a batch the
 //     GPU still reads. Read in the shader through an RGB32F buffer texture (texelFetch): llvmpipe
 //     vectorises texel fetches but runs SSBO loads lane by lane, so this is ~3x faster.
-//   - compact deep framebuffer (reprojection_kernel.h): R32UI plane index per texel + RGBA32F plane
-//     table, both buffer textures.
+//   - compact deep framebuffer (reprojection_kernel.h): plane index per texel (R16UI when the
+//     frame shows fewer than 65535 distinct planes, else R32UI) + RGBA32F plane table, both buffer
+//     textures. The plane-index gather and the accumulation prefetch are issued back to back so
+//     that their cache misses overlap.
 //   - accumulation: SSBO of {float r, g, b; uint n} per subpixel, updated with atomicAdd (float
 //     atomics from GL_NV_shader_atomic_float). Optionally prefetched by a vector gather through an
 //     RGBA32UI view (ReprojectorSettings::prefetch), which overlaps the cache misses of 8 lanes
@@ -17,7 +19,11 @@
 //   - counters: 4 uints per shader invocation (accepted, culled, backfacing, other occluded), written
 //     without atomics (each invocation owns its slots); summed on the CPU by counts().
 // Each batch is one glDispatchCompute of `workgroups` x `workgroup_size` invocations running a
-// grid-stride loop. llvmpipe's worker threads (LP_NUM_THREADS) run the workgroups.
+// grid-stride loop. llvmpipe's worker threads (LP_NUM_THREADS) run the workgroups; llvmpipe
+// executes a dispatch synchronously, so the copy of the next batch does not overlap it (the copy is
+// ~4 % of the time). Throughput figures: bench/reproject_bench.cpp. On llvmpipe the cost is
+// dominated by the per-lane atomic loops (4 atomics per accepted point) and the two random
+// accesses per point (plane index, accumulation cell).
 //
 // Limits (checked, std::runtime_error): the grid must fit GL_MAX_SHADER_STORAGE_BLOCK_SIZE
 // (llvmpipe: 128 MiB = 8M subpixels, e.g. 2048 x 4096) and GL_MAX_TEXTURE_BUFFER_SIZE texels.

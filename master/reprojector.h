@@ -71,8 +71,8 @@ struct ReprojectorSettings {
   float epsilon = 0;              // plane-distance tolerance, metres (>= 0); see default_epsilon()
   bool reproject_glossy = false;  // also reproject records without the diffuse flag (biased: their
                                   // radiance depends on the view direction)
-  // Upload batch (points per GL dispatch; also the CPU back-end's chunk). Bounded memory:
-  // GL keeps 2 batches of 36 bytes per point in flight.
+  // GL upload batch: points per dispatch. Bounded memory: 2 batches of 36 bytes per point in
+  // flight (18 MiB at the default). The CPU back-end uses fixed 32768-point chunks instead.
   size_t batch_points = size_t(1) << 18;
   // GL compute tuning (ignored by "cpu"): invocations per workgroup and workgroups per dispatch
   // (a grid-stride loop covers the batch), and whether to prefetch the accumulation cache line with a
