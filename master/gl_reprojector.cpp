@@ -312,6 +312,8 @@ void GlReprojector::reproject(std::span<const VertexRecord> records) {
       ++n;
     }
     if (n) dispatch(slot, n, false);
+    points_since_fold_ += n;
+    if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
   }
 }
 
@@ -340,19 +342,30 @@ void GlReprojector::add_exact(std::span<const ExactSample> samples) {
   }
 }
 
-ReprojectionCounts GlReprojector::counts() const {
-  ctx_->check_thread();
+std::array<uint64_t, 4> GlReprojector::read_gpu_counters() const {
   std::vector<uint32_t> c(invocations_ * 4);
   ctx_->gl().GetNamedBufferSubData(counter_buf_->id(), 0, GLsizeiptr(c.size() * 4), c.data());
+  std::array<uint64_t, 4> sum{};
+  for (size_t i = 0; i < c.size(); ++i) sum[i % 4] += c[i];
+  return sum;
+}
+
+void GlReprojector::fold_counters() {
+  const std::array<uint64_t, 4> gpu = read_gpu_counters();
+  for (int k = 0; k < 4; ++k) folded_[size_t(k)] += gpu[size_t(k)];
+  const GLuint zero = 0;
+  ctx_->gl().ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+  points_since_fold_ = 0;
+}
+
+ReprojectionCounts GlReprojector::counts() const {
+  ctx_->check_thread();
+  const std::array<uint64_t, 4> gpu = read_gpu_counters();
   ReprojectionCounts r = cpu_counts_;
-  uint64_t other_occluded = 0;
-  for (size_t i = 0; i < invocations_; ++i) {
-    r.accepted += c[4 * i];
-    r.culled += c[4 * i + 1];
-    r.backfacing += c[4 * i + 2];
-    other_occluded += c[4 * i + 3];
-  }
-  r.occluded = r.backfacing + other_occluded;
+  r.accepted = folded_[0] + gpu[0];
+  r.culled = folded_[1] + gpu[1];
+  r.backfacing = folded_[2] + gpu[2];
+  r.occluded = r.backfacing + folded_[3] + gpu[3];
   return r;
 }
 
@@ -383,6 +396,8 @@ void GlReprojector::reset() {
   ctx_->gl().ClearNamedBufferData(acc_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
   ctx_->gl().ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
   cpu_counts_ = {};
+  folded_ = {};
+  points_since_fold_ = 0;
 }
 
 }  // namespace epr

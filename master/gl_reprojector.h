@@ -17,7 +17,9 @@
 //     RGBA32UI view (ReprojectorSettings::prefetch), which overlaps the cache misses of 8 lanes
 //     before the per-lane atomics serialise them.
 //   - counters: 4 uints per shader invocation (accepted, culled, backfacing, other occluded), written
-//     without atomics (each invocation owns its slots); summed on the CPU by counts().
+//     without atomics (each invocation owns its slots); summed on the CPU by counts(), and folded
+//     into 64-bit host totals every counter_fold_points (2^31) points so that no 32-bit slot can
+//     overflow.
 // Each batch is one glDispatchCompute of `workgroups` x `workgroup_size` invocations running a
 // grid-stride loop. llvmpipe's worker threads (LP_NUM_THREADS) run the workgroups; llvmpipe
 // executes a dispatch synchronously, so the copy of the next batch does not overlap it (the copy is
@@ -29,6 +31,7 @@
 // (llvmpipe: 128 MiB = 8M subpixels, e.g. 2048 x 4096) and GL_MAX_TEXTURE_BUFFER_SIZE texels.
 #pragma once
 
+#include <array>
 #include <memory>
 
 #include "master/gl_context.h"
@@ -76,7 +79,14 @@ class GlReprojector final : public Reprojector {
   GLsync fences_[2] = {nullptr, nullptr};
   int next_slot_ = 0;
   GLint loc_first_ = -1, loc_count_ = -1, loc_exact_first_ = -1, loc_exact_count_ = -1;
+  /// Sums of the GPU's per-invocation counters (accepted, culled, backfacing, occluded).
+  std::array<uint64_t, 4> read_gpu_counters() const;
+  /// Moves the GPU counters into folded_ (keeps the 32-bit GPU counters far from overflow).
+  void fold_counters();
+
   ReprojectionCounts cpu_counts_;  // not_diffuse, invalid, exact: decided on the CPU
+  std::array<uint64_t, 4> folded_{};
+  uint64_t points_since_fold_ = 0;
 };
 
 }  // namespace epr

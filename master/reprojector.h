@@ -80,6 +80,9 @@ struct ReprojectorSettings {
   int workgroup_size = 32;
   int workgroups = 16;
   bool prefetch = true;
+  // GL: the shader's 32-bit per-invocation counters are folded into 64-bit host totals after this
+  // many points (2^31 keeps every counter far from overflow; tests lower it).
+  uint64_t counter_fold_points = uint64_t(1) << 31;
 };
 
 struct ReprojectionCounts {

@@ -327,6 +327,27 @@ TEST_F(GlVersusCpu, PrefetchAndWorkgroupShapeDoNotChangeResults) {
   expect_same(ga, gb);
 }
 
+TEST_F(GlVersusCpu, CountsSurviveFoldingIntoHostTotals) {
+  const Scene scene = test::scene_named("cornell");
+  const Camera cam(scene.camera, 64, 64);
+  const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, cam, 4);
+  const auto pts = test::real_like_points(scene, dfb, cam, 50000, 8);
+  ReprojectorSettings s;
+  s.epsilon = default_epsilon(scene.bounds());
+  s.batch_points = 4096;
+  s.counter_fold_points = 5000;  // fold after every second batch
+  GlReprojector gl(*ctx_, cam, dfb, s);
+  CpuReprojector cpu(cam, dfb, s);
+  for (int round = 0; round < 3; ++round) {
+    gl.reproject(pts);
+    cpu.reproject(pts);
+  }
+  expect_same(gl, cpu);
+  EXPECT_EQ(gl.counts().total(), 3 * pts.size());
+  gl.reset();
+  EXPECT_EQ(gl.counts(), ReprojectionCounts{});
+}
+
 TEST(Reprojector, FactoryRejectsBadInput) {
   const Scene scene = quads({0.f});
   const Camera cam(head_on(), 16, 16);
