@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 
 #include "common/log.h"
+#include "common/builtin_scenes.h"
 #include "common/scene_loader.h"
 #include "wire/convert.h"
 
@@ -228,6 +229,7 @@ void JobClient::check_reachable() {
 
 v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, const SubmitOptions& submit) {
   SceneBundleData bundle = bundle_scene(opts.scene);
+  if (!bundle.builtin.empty()) parse_builtin_spec(bundle.builtin.substr(8));  // unknown names fail here, not on the master
   const bool any_override = opts.eye || opts.look || opts.up || opts.fov;
   const bool full_camera = opts.eye && opts.look && opts.up && opts.fov;
   CameraSpec scene_camera;
