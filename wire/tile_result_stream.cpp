@@ -33,9 +33,11 @@ bool finite_non_negative(const Vec3& v) { return is_finite(v) && v.x >= 0 && v.y
 TileResultWriter::TileResultWriter(const TileResult& result, TileResultIdentity identity, const Bounds3& codec_bounds,
                                    const TileResultLimits& limits)
     : result_(result) {
-  const VertexCodec codec(codec_bounds);
   EncodeCounts counts;
-  codec.encode_batch(result.vertices, &packed_, &counts);
+  if (!result.vertices.empty()) {  // path tracing sends no vertices and needs no usable bounds
+    const VertexCodec codec(codec_bounds);
+    codec.encode_batch(result.vertices, &packed_, &counts);
+  }
   const uint64_t vertex_count = packed_.size() / VertexCodec::kPackedBytes;
   const uint64_t codec_nonfinite = counts[EncodeError::kNonFiniteRadiance];
   const uint64_t codec_rejected = counts.rejected_total() - codec_nonfinite;

@@ -65,8 +65,8 @@ struct TileResultIdentity {
 ///     TileResultWriter w(result, id, codec_bounds, limits);
 ///     v1::TileResultChunk c;
 ///     while (w.next(&c)) stream->Write(c);
-/// `result` must outlive the writer. Throws std::invalid_argument if `codec_bounds` are unusable
-/// (VertexCodec's constructor).
+/// `result` must outlive the writer. Throws std::invalid_argument if the result has vertices and
+/// `codec_bounds` are unusable (VertexCodec's constructor).
 class TileResultWriter {
  public:
   TileResultWriter(const TileResult& result, TileResultIdentity identity, const Bounds3& codec_bounds,

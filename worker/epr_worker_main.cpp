@@ -1,0 +1,72 @@
+// epr-worker: a render farm worker. Connects to epr-master, leases tiles, traces them, streams the
+// results back, until SIGTERM / SIGINT (leases are given back) or the master's Shutdown.
+// A second signal while stopping exits at once.
+#include <pthread.h>
+#include <signal.h>
+
+#include <atomic>
+#include <cstdlib>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+
+#include "common/log.h"
+#include "worker/worker_node.h"
+
+int main(int argc, char** argv) {
+  epr::WorkerNodeOptions opts;
+  std::string log_level = "info";
+  CLI::App app{"epr-worker: traces tiles for an epr-master (eye path reprojection render farm)"};
+  app.add_option("--master", opts.master, "epr-master's gRPC address, HOST:PORT")->capture_default_str();
+  app.add_option("--threads", opts.threads, "tracing threads, 0 = all cores")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_option("--name", opts.name, "name shown on the master's dashboard (default HOSTNAME-PID)");
+  app.add_option("--cache-dir", opts.cache_dir, "scene cache folder")->capture_default_str();
+  app.add_option("--token-file", opts.token_file,
+                 "file holding the bearer token for the master (default: the EPR_TOKEN environment variable)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--max-backoff-ms", opts.max_backoff_ms, "longest wait between reconnection attempts, ms")
+      ->check(CLI::Range(10, 600000))
+      ->capture_default_str();
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))
+      ->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+  epr::set_log_level(log_level);
+  auto log = epr::logger("worker");
+
+  // Signals go to one thread that waits for them (sigwait), never to a handler: stop() takes locks.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);  // inherited by every thread started below
+
+  try {
+    epr::WorkerNode node(opts);
+    std::atomic<bool> done{false};
+    std::thread signal_thread([&] {
+      bool stopping = false;
+      while (!done) {
+        const timespec timeout{0, 200'000'000};
+        const int sig = sigtimedwait(&signals, nullptr, &timeout);
+        if (sig <= 0) continue;
+        if (stopping) {
+          log->warn("second signal: exiting without returning leases");
+          std::_Exit(128 + sig);
+        }
+        log->info("{}: returning leases and stopping (send it again to exit at once)", sig == SIGINT ? "SIGINT" : "SIGTERM");
+        stopping = true;
+        node.stop();
+      }
+    });
+    node.run();
+    done = true;
+    signal_thread.join();
+  } catch (const std::exception& e) {
+    log->error("{}", e.what());
+    return 1;
+  }
+  return 0;
+}

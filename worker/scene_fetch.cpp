@@ -1,0 +1,270 @@
+#include "worker/scene_fetch.h"
+
+#include <openssl/evp.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <set>
+#include <stdexcept>
+
+#include <fmt/format.h>
+
+#include "wire/scene_bundle.h"
+
+namespace epr {
+namespace fs = std::filesystem;
+namespace {
+
+constexpr const char* kCompleteMarker = ".complete";
+constexpr const char* kEntryFile = ".entry";
+
+fs::path scene_dir(const std::string& root, const std::string& hash) { return fs::path(root) / "scenes" / hash; }
+
+std::optional<std::string> read_small_file(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  if (!in) return std::nullopt;
+  std::string s((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  while (!s.empty() && (s.back() == '\n' || s.back() == '\r')) s.pop_back();
+  return s;
+}
+
+// Writes `data` to `path` through a temporary file and a rename (readers never see half of it).
+bool write_atomically(const fs::path& path, const std::string& data) {
+  std::random_device rd;
+  const fs::path tmp = path.string() + fmt::format(".tmp-{}-{:08x}", ::getpid(), rd());
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    out << data;
+    if (!out) return false;
+  }
+  std::error_code ec;
+  fs::rename(tmp, path, ec);
+  if (ec) fs::remove(tmp, ec);
+  return !ec;
+}
+
+// Streaming SHA-256 (the canonical serialisation of scene.proto is built piece by piece).
+class Sha256 {
+ public:
+  Sha256() : ctx_(EVP_MD_CTX_new()) { EVP_DigestInit_ex(ctx_, EVP_sha256(), nullptr); }
+  ~Sha256() { EVP_MD_CTX_free(ctx_); }
+  void update(const void* data, size_t n) { EVP_DigestUpdate(ctx_, data, n); }
+  void update(const std::string& s) { update(s.data(), s.size()); }
+  void update_u64le(uint64_t v) {
+    unsigned char b[8];
+    for (int i = 0; i < 8; ++i) b[i] = (unsigned char)((v >> (8 * i)) & 0xff);
+    update(b, 8);
+  }
+  std::string hex() {
+    unsigned char digest[EVP_MAX_MD_SIZE];
+    unsigned int len = 0;
+    EVP_DigestFinal_ex(ctx_, digest, &len);
+    std::string out;
+    for (unsigned int i = 0; i < len; ++i) out += fmt::format("{:02x}", digest[i]);
+    return out;
+  }
+
+ private:
+  EVP_MD_CTX* ctx_;
+};
+
+}  // namespace
+
+struct SceneReceiver::OpenFile {
+  std::ofstream out;
+};
+
+bool is_content_hash(const std::string& s) {
+  return s.size() == 64 && std::all_of(s.begin(), s.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'); });
+}
+
+std::optional<std::string> cached_scene_entry(const std::string& cache_root, const std::string& hash) {
+  if (!is_content_hash(hash)) return std::nullopt;
+  const fs::path dir = scene_dir(cache_root, hash);
+  std::error_code ec;
+  if (!fs::exists(dir / kCompleteMarker, ec)) return std::nullopt;
+  const auto entry = read_small_file(dir / kEntryFile);
+  if (!entry || !is_safe_relative_path(*entry) || !fs::is_regular_file(dir / *entry, ec)) return std::nullopt;
+  return (dir / *entry).string();
+}
+
+std::vector<std::string> cached_scene_hashes(const std::string& cache_root) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (fs::directory_iterator it(fs::path(cache_root) / "scenes", ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (is_content_hash(name) && fs::exists(it->path() / kCompleteMarker, ec)) out.push_back(name);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+SceneReceiver::SceneReceiver(std::string cache_root, std::string expected_hash, SceneFetchLimits limits)
+    : cache_root_(std::move(cache_root)), hash_(std::move(expected_hash)), limits_(limits) {
+  if (!is_content_hash(hash_)) throw std::invalid_argument(fmt::format("'{}' is not a scene content hash", hash_));
+}
+
+SceneReceiver::~SceneReceiver() {
+  out_.reset();
+  if (!tmp_dir_.empty()) {
+    std::error_code ec;
+    fs::remove_all(tmp_dir_, ec);
+  }
+}
+
+std::optional<std::string> SceneReceiver::fail(std::string reason) {
+  error_ = std::move(reason);
+  out_.reset();
+  return error_;
+}
+
+std::optional<std::string> SceneReceiver::add(const v1::SceneChunk& chunk) {
+  if (error_) return error_;
+  if (finished_) return fail("chunk after the end of the scene");
+  switch (chunk.part_case()) {
+    case v1::SceneChunk::kManifest:
+      if (have_manifest_) return fail("a second manifest");
+      return add_manifest(chunk.manifest());
+    case v1::SceneChunk::kData:
+      if (!have_manifest_) return fail("the first chunk must be the manifest");
+      return add_data(chunk.data());
+    default:
+      return fail("chunk without a part (unknown field?)");
+  }
+}
+
+std::optional<std::string> SceneReceiver::add_manifest(const v1::SceneManifest& m) {
+  if (m.content_hash() != hash_) return fail(fmt::format("manifest is for scene {}, asked for {}", m.content_hash(), hash_));
+  if (uint64_t(m.files_size()) > limits_.max_files)
+    return fail(fmt::format("{} files exceed the limit of {}", m.files_size(), limits_.max_files));
+  std::set<std::string> paths;
+  uint64_t total = 0;
+  for (const auto& f : m.files()) {
+    if (!is_safe_relative_path(f.path())) return fail(fmt::format("file path '{}' is not a safe relative path", f.path()));
+    if (f.path() == kCompleteMarker || f.path() == kEntryFile)
+      return fail(fmt::format("file path '{}' is reserved by the cache", f.path()));
+    if (!paths.insert(f.path()).second) return fail(fmt::format("file '{}' listed twice", f.path()));
+    if (f.size_bytes() > limits_.max_total_bytes || total + f.size_bytes() > limits_.max_total_bytes)
+      return fail(fmt::format("scene exceeds the size limit of {} bytes", limits_.max_total_bytes));
+    total += f.size_bytes();
+    files_.emplace_back(f.path(), f.size_bytes());
+  }
+  if (total != m.total_bytes()) return fail(fmt::format("total_bytes {} but the files add up to {}", m.total_bytes(), total));
+  if (!paths.count(m.entry_path())) return fail(fmt::format("entry path '{}' is not one of the files", m.entry_path()));
+  entry_path_ = m.entry_path();
+
+  // A private folder: unique per receiver, also between workers of one process.
+  std::random_device rd;
+  const uint64_t nonce = (uint64_t(rd()) << 32) ^ rd();
+  tmp_dir_ = (fs::path(cache_root_) / "scenes" / fmt::format(".tmp-{}-{}-{:016x}", hash_, ::getpid(), nonce)).string();
+  std::error_code ec;
+  fs::create_directories(tmp_dir_, ec);
+  if (ec) return fail(fmt::format("cannot create {}: {}", tmp_dir_, ec.message()));
+  // Every file exists from the start (empty files get no chunks); path clashes show up here.
+  for (const auto& [path, size] : files_) {
+    const fs::path p = fs::path(tmp_dir_) / path;
+    fs::create_directories(p.parent_path(), ec);
+    std::ofstream touch(p, std::ios::binary | std::ios::trunc);
+    if (ec || !touch) return fail(fmt::format("cannot create scene file '{}' in the cache", path));
+  }
+  have_manifest_ = true;
+  current_ = 0;
+  written_ = 0;
+  return std::nullopt;
+}
+
+std::optional<std::string> SceneReceiver::close_current() {
+  if (current_ >= files_.size()) return std::nullopt;
+  if (written_ != files_[current_].second)
+    return fail(fmt::format("file '{}' ended after {} of {} bytes", files_[current_].first, written_,
+                            files_[current_].second));
+  if (out_) {
+    out_->out.close();
+    const bool ok = !out_->out.fail();
+    out_.reset();
+    if (!ok) return fail(fmt::format("cannot write scene file '{}' in the cache", files_[current_].first));
+  }
+  ++current_;
+  written_ = 0;
+  return std::nullopt;
+}
+
+std::optional<std::string> SceneReceiver::add_data(const v1::SceneFileData& d) {
+  if (d.file_index() >= files_.size()) return fail(fmt::format("file_index {} outside the manifest", d.file_index()));
+  if (d.file_index() < current_) return fail(fmt::format("data for file {} after it was complete", d.file_index()));
+  while (current_ < d.file_index())
+    if (auto err = close_current()) return err;
+  const auto& [path, size] = files_[current_];
+  if (d.offset() != written_)
+    return fail(fmt::format("file '{}': data at offset {}, expected {}", path, d.offset(), written_));
+  if (d.data().size() > limits_.max_chunk_bytes)
+    return fail(fmt::format("data chunk of {} bytes exceeds {}", d.data().size(), limits_.max_chunk_bytes));
+  if (d.data().size() > size - written_) return fail(fmt::format("file '{}': more bytes than its size {}", path, size));
+  if (!out_) {
+    out_ = std::make_unique<OpenFile>();
+    out_->out.open(fs::path(tmp_dir_) / path, std::ios::binary | std::ios::trunc);
+    if (!out_->out) return fail(fmt::format("cannot write scene file '{}' in the cache", path));
+  }
+  out_->out.write(d.data().data(), std::streamsize(d.data().size()));
+  if (!out_->out) return fail(fmt::format("cannot write scene file '{}' in the cache", path));
+  written_ += d.data().size();
+  bytes_received_ += d.data().size();
+  return std::nullopt;
+}
+
+std::optional<std::string> SceneReceiver::finish(std::string* entry_file) {
+  if (error_) return error_;
+  if (!have_manifest_) return fail("no manifest");
+  if (finished_) return fail("finish() called twice");
+  while (current_ < files_.size())
+    if (auto err = close_current()) return err;
+
+  // Content hash over the canonical serialisation (scene.proto), files in ascending path order.
+  std::vector<std::pair<std::string, uint64_t>> sorted = files_;
+  std::sort(sorted.begin(), sorted.end());
+  Sha256 sha;
+  sha.update(std::string("epr-scene-v1\n"));
+  sha.update_u64le(entry_path_.size());
+  sha.update(entry_path_);
+  sha.update_u64le(sorted.size());
+  std::vector<char> buf(1 << 20);
+  for (const auto& [path, size] : sorted) {
+    sha.update_u64le(path.size());
+    sha.update(path);
+    sha.update_u64le(size);
+    std::ifstream in(fs::path(tmp_dir_) / path, std::ios::binary);
+    uint64_t read = 0;
+    while (in && read < size) {
+      in.read(buf.data(), std::streamsize(std::min<uint64_t>(buf.size(), size - read)));
+      sha.update(buf.data(), size_t(in.gcount()));
+      read += uint64_t(in.gcount());
+    }
+    if (read != size) return fail(fmt::format("cannot read back scene file '{}'", path));
+  }
+  const std::string got = sha.hex();
+  if (got != hash_) return fail(fmt::format("content hash mismatch: received {}, expected {}", got, hash_));
+
+  if (!write_atomically(fs::path(tmp_dir_) / kEntryFile, entry_path_ + "\n") ||
+      !write_atomically(fs::path(tmp_dir_) / kCompleteMarker, hash_ + "\n"))
+    return fail("cannot write the cache markers");
+  const fs::path dir = scene_dir(cache_root_, hash_);
+  std::error_code ec;
+  fs::rename(tmp_dir_, dir, ec);
+  if (ec) {
+    // Someone else's copy is already there (identical by hash); it may lack the entry file if
+    // load_bundle wrote it.
+    fs::remove_all(tmp_dir_, ec);
+    if (!fs::exists(dir / kCompleteMarker, ec)) return fail(fmt::format("cannot move the scene into {}", dir.string()));
+    if (!fs::exists(dir / kEntryFile, ec) && !write_atomically(dir / kEntryFile, entry_path_ + "\n"))
+      return fail("cannot write the cache's entry file");
+  }
+  tmp_dir_.clear();
+  finished_ = true;
+  *entry_file = (dir / entry_path_).string();
+  return std::nullopt;
+}
+
+}  // namespace epr

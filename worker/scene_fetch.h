@@ -1,0 +1,80 @@
+// The worker's scene cache: file scenes received with WorkerService.FetchScene, stored by content
+// hash in the layout wire/scene_bundle.cpp's load_bundle uses, so either can reuse the other's copy:
+//
+//   CACHE_ROOT/scenes/HASH/<the scene's files>   relative paths as in the manifest
+//   CACHE_ROOT/scenes/HASH/.complete             "HASH\n", written last: the folder is complete
+//   CACHE_ROOT/scenes/HASH/.entry                the entry path (this file adds it; load_bundle's
+//                                                copies lack it and are fetched again once to add it)
+//
+// SceneReceiver checks a SceneChunk stream (proto/epr/v1/scene.proto: a manifest, then every file's
+// bytes in manifest order, increasing offsets, no gaps), writes the files into a private temporary
+// folder as they arrive (memory stays at one chunk), verifies sizes and the content hash at the end
+// and renames the folder into place, so a crash or a bad stream never leaves half a scene behind. The
+// temporary folder name is unique per receiver, so several workers in one process (the embedded
+// render) can fetch the same scene at once: the first rename wins, the others discard their copy.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "epr/v1/scene.pb.h"
+
+namespace epr {
+
+struct SceneFetchLimits {
+  uint64_t max_total_bytes = 4ull << 30;  // sum of file sizes
+  uint64_t max_files = 100000;
+  uint64_t max_chunk_bytes = 1u << 20;    // SceneFileData.data, per the proto
+};
+
+/// The entry file of a complete cached scene ("CACHE_ROOT/scenes/HASH/ENTRY"), or nullopt if the
+/// scene is not cached or its entry path is unknown (copies written by load_bundle).
+std::optional<std::string> cached_scene_entry(const std::string& cache_root, const std::string& content_hash);
+
+/// Content hashes of the complete cached scenes (WorkerInfo.cached_scenes), sorted.
+std::vector<std::string> cached_scene_hashes(const std::string& cache_root);
+
+/// True for a lowercase hex SHA-256 (64 characters), the only form a cache folder name may take.
+bool is_content_hash(const std::string& s);
+
+class SceneReceiver {
+ public:
+  /// Throws std::invalid_argument unless `expected_hash` is a content hash.
+  SceneReceiver(std::string cache_root, std::string expected_hash, SceneFetchLimits limits = {});
+  ~SceneReceiver();  // removes the temporary folder unless finish() moved it into place
+  SceneReceiver(const SceneReceiver&) = delete;
+  SceneReceiver& operator=(const SceneReceiver&) = delete;
+
+  /// Empty if the chunk is acceptable, otherwise why not. Errors are final.
+  std::optional<std::string> add(const v1::SceneChunk& chunk);
+  /// After the last chunk: checks that every file is complete and the content hash matches, then
+  /// moves the scene into the cache. Sets `*entry_file` to the entry file's full path.
+  std::optional<std::string> finish(std::string* entry_file);
+
+  uint64_t bytes_received() const { return bytes_received_; }
+
+ private:
+  std::optional<std::string> fail(std::string reason);
+  std::optional<std::string> add_manifest(const v1::SceneManifest& m);
+  std::optional<std::string> add_data(const v1::SceneFileData& d);
+  /// Closes the current file after checking it is complete; advances to the next one.
+  std::optional<std::string> close_current();
+
+  std::string cache_root_, hash_;
+  SceneFetchLimits limits_;
+  std::string tmp_dir_;
+  bool have_manifest_ = false, finished_ = false;
+  std::optional<std::string> error_;
+  std::string entry_path_;
+  std::vector<std::pair<std::string, uint64_t>> files_;  // (path, size) in manifest order
+  size_t current_ = 0;       // file being written
+  uint64_t written_ = 0;     // bytes of the current file so far
+  uint64_t bytes_received_ = 0;
+  struct OpenFile;
+  std::unique_ptr<OpenFile> out_;
+};
+
+}  // namespace epr

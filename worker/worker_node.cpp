@@ -1,0 +1,692 @@
+#include "worker/worker_node.h"
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <random>
+#include <stdexcept>
+#include <thread>
+#include <vector>
+
+#include <fmt/format.h>
+#include <grpcpp/grpcpp.h>
+
+#include "common/log.h"
+#include "common/scene_loader.h"
+#include "epr/v1/worker_service.grpc.pb.h"
+#include "wire/tile_result_stream.h"
+#include "worker/backoff.h"
+#include "worker/job_cache.h"
+#include "worker/scene_fetch.h"
+#include "worker/tile_lease.h"
+
+#ifndef EPR_VERSION
+#define EPR_VERSION "0.0.0"
+#endif
+
+namespace epr {
+namespace {
+
+using namespace std::chrono_literals;
+using Millis = std::chrono::milliseconds;
+
+// Deadlines of the unary calls. FetchScene and SubmitTile scale with their size (kSlowLinkBytesPerSecond
+// on top of a fixed allowance), so a large scene or tile on a slow link is not cut off.
+constexpr Millis kRegisterDeadline = 10s;
+constexpr Millis kLeaseDeadline = 10s;
+constexpr Millis kReturnDeadline = 5s;
+constexpr Millis kLostReturnDeadline = 1s;  // best effort after the session broke
+constexpr Millis kUnregisterDeadline = 3s;
+constexpr Millis kFetchDeadlineBase = 60s;
+constexpr Millis kSubmitDeadlineBase = 30s;
+constexpr double kSlowLinkBytesPerSecond = 1e6;
+constexpr int kSubmitAttempts = 3;            // SubmitTile tries on UNAVAILABLE / DEADLINE_EXCEEDED
+constexpr int kMinWaitMs = 10, kMaxWaitMs = 60000;  // bounds on the master's Wait.retry_after_ms
+constexpr size_t kMaxFailingJobs = 256;         // job failure records kept
+
+Millis size_deadline(Millis base, double bytes) {
+  return base + Millis(int64_t(bytes / kSlowLinkBytesPerSecond * 1000.0));
+}
+
+std::string describe(const grpc::Status& s) {
+  static const char* const kNames[] = {"OK", "CANCELLED", "UNKNOWN", "INVALID_ARGUMENT", "DEADLINE_EXCEEDED",
+                                       "NOT_FOUND", "ALREADY_EXISTS", "PERMISSION_DENIED", "RESOURCE_EXHAUSTED",
+                                       "FAILED_PRECONDITION", "ABORTED", "OUT_OF_RANGE", "UNIMPLEMENTED",
+                                       "INTERNAL", "UNAVAILABLE", "DATA_LOSS", "UNAUTHENTICATED"};
+  const int code = int(s.error_code());
+  const char* name = code >= 0 && code <= 16 ? kNames[code] : "?";
+  return s.error_message().empty() ? std::string(name) : fmt::format("{}: {}", name, s.error_message());
+}
+
+std::string trim(std::string s) {
+  const auto not_space = [](unsigned char c) { return !std::isspace(c); };
+  s.erase(s.begin(), std::find_if(s.begin(), s.end(), not_space));
+  s.erase(std::find_if(s.rbegin(), s.rend(), not_space).base(), s.end());
+  return s;
+}
+
+// The bearer token: the first line of token_file, else $EPR_TOKEN, else none.
+std::string read_token(const std::string& token_file, spdlog::logger& log) {
+  if (token_file.empty()) {
+    const char* env = std::getenv("EPR_TOKEN");
+    return env ? trim(env) : std::string();
+  }
+  std::ifstream in(token_file);
+  std::string line;
+  if (!in || !std::getline(in, line)) throw std::runtime_error(fmt::format("cannot read token file {}", token_file));
+  struct stat st {};
+  if (::stat(token_file.c_str(), &st) == 0 && (st.st_mode & 077))
+    log.warn("token file {} is readable by other users (chmod 600 it)", token_file);
+  return trim(line);
+}
+
+std::string default_name() {
+  char host[256] = {};
+  if (::gethostname(host, sizeof host - 1) != 0) std::snprintf(host, sizeof host, "worker");
+  return fmt::format("{}-{}", host, ::getpid());
+}
+
+// One registration with the master: its worker id and limits, the channel, and what is in flight.
+struct Session {
+  struct Hold {
+    uint64_t lease_id = 0;
+    std::atomic<bool> abandoned{false};  // heartbeat said invalid: drop it without returning it
+  };
+
+  std::string worker_id;
+  uint32_t heartbeat_ms = 1000;
+  TileResultLimits limits;
+  std::shared_ptr<grpc::Channel> channel;
+  std::unique_ptr<v1::WorkerService::Stub> stub;
+
+  std::atomic<bool> ending{false};   // threads wind down (stop, or the session broke)
+  std::atomic<bool> lost{false};     // it broke: finished tiles are not submitted any more
+  std::atomic<bool> healthy{false};  // some call after Register succeeded (resets the backoff)
+
+  std::mutex mu;  // guards the members below
+  std::string end_reason;
+  std::map<uint64_t, std::shared_ptr<Hold>> held;
+  std::map<grpc::ClientContext*, bool> calls;  // in flight -> cancel on stop()
+
+  std::vector<uint64_t> held_ids(bool include_abandoned) {
+    std::lock_guard lock(mu);
+    std::vector<uint64_t> ids;
+    for (const auto& [id, h] : held)
+      if (include_abandoned || !h->abandoned) ids.push_back(id);
+    return ids;
+  }
+};
+
+}  // namespace
+
+struct WorkerNode::Impl {
+  explicit Impl(WorkerNodeOptions o)
+      : opts(std::move(o)),
+        log(logger("worker")),
+        token(read_token(opts.token_file, *log)),
+        name(opts.name.empty() ? default_name() : opts.name),
+        threads(opts.threads > 0 ? opts.threads : int(std::max(1u, std::thread::hardware_concurrency()))),
+        jobs(size_t(std::max(1, opts.max_cached_jobs)), [this](const v1::SceneRef& ref) { return load_scene_for(ref); }),
+        rng(std::random_device{}()) {}
+
+  WorkerNodeOptions opts;
+  std::shared_ptr<spdlog::logger> log;
+  std::string token;
+  std::string name;
+  int threads;
+  JobCache jobs;
+
+  std::mutex mu;  // guards the members below and orders session ends with waits
+  std::condition_variable cv;
+  std::atomic<bool> stopping{false};
+  std::string stop_reason;
+  bool running = false;
+  std::shared_ptr<Session> session;
+  grpc::ClientContext* register_call = nullptr;
+  std::map<std::string, int> job_failures;  // job id -> consecutive failures to prepare it
+  std::mt19937_64 rng;
+  std::string worker_id;
+
+  struct Counters {
+    std::atomic<uint64_t> registrations{0}, reconnects{0}, tiles_leased{0}, tiles_committed{0}, tiles_duplicate{0},
+        tiles_stale{0}, tiles_refused{0}, tiles_abandoned{0}, tiles_returned{0}, paths_traced{0}, vertices_sent{0},
+        exact_samples_sent{0}, scenes_fetched{0}, scene_bytes_fetched{0};
+    std::atomic<uint64_t> micros_tracing{0};
+  } counters;
+
+  // ---- plumbing --------------------------------------------------------------------------------
+
+  void prepare(grpc::ClientContext& ctx, Millis deadline) const {
+    ctx.set_deadline(std::chrono::system_clock::now() + deadline);
+    if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
+  }
+
+  // Registers a call of `s` so that stop() / the end of the session can cancel it.
+  class CallScope {
+   public:
+    CallScope(Impl& impl, Session& s, grpc::ClientContext& ctx, bool cancel_on_stop) : s_(s), ctx_(ctx) {
+      std::lock_guard lock(s.mu);
+      s.calls[&ctx] = cancel_on_stop;
+      if (s.lost || (cancel_on_stop && (s.ending || impl.stopping))) ctx.TryCancel();
+    }
+    ~CallScope() {
+      std::lock_guard lock(s_.mu);
+      s_.calls.erase(&ctx_);
+    }
+
+   private:
+    Session& s_;
+    grpc::ClientContext& ctx_;
+  };
+
+  // Waits up to `ms`; returns early (true) on stop or when `s` (if given) ends.
+  bool wait_for(const Session* s, int ms) {
+    std::unique_lock lock(mu);
+    return cv.wait_for(lock, Millis(ms), [&] { return stopping.load() || (s && s->ending.load()); });
+  }
+
+  // Ends session `s`. lost: it broke (cancel everything in flight); else: stopping (in-flight submits
+  // may finish).
+  void end_session(Session& s, const std::string& reason, bool lost) {
+    {
+      std::lock_guard lock(mu);
+      if (s.ending && !(lost && !s.lost)) return;
+      std::lock_guard slock(s.mu);
+      if (s.end_reason.empty()) s.end_reason = reason;
+      if (lost) s.lost = true;
+      s.ending = true;
+      for (auto& [ctx, cancel_on_stop] : s.calls)
+        if (lost || cancel_on_stop) ctx->TryCancel();
+    }
+    cv.notify_all();
+  }
+
+  void stop(const std::string& reason) {
+    std::shared_ptr<Session> s;
+    {
+      std::lock_guard lock(mu);
+      if (!stopping) stop_reason = reason;
+      stopping = true;
+      s = session;
+      if (register_call) register_call->TryCancel();
+    }
+    cv.notify_all();
+    if (s) end_session(*s, reason, /*lost=*/false);
+  }
+
+  std::shared_ptr<Session::Hold> hold(Session& s, uint64_t lease_id) {
+    auto h = std::make_shared<Session::Hold>();
+    h->lease_id = lease_id;
+    std::lock_guard lock(s.mu);
+    s.held[lease_id] = h;
+    return h;
+  }
+
+  void release(Session& s, uint64_t lease_id) {
+    std::lock_guard lock(s.mu);
+    s.held.erase(lease_id);
+  }
+
+  // Handles a failed call of the lease/heartbeat loops: the session is over unless it already is.
+  void call_failed(Session& s, const char* what, const grpc::Status& status) {
+    if (s.ending) return;  // our own cancellation
+    end_session(s, fmt::format("{}: {}", what, describe(status)), /*lost=*/true);
+  }
+
+  // ---- registration ------------------------------------------------------------------------------
+
+  std::shared_ptr<Session> connect(std::string* why) {
+    auto s = std::make_shared<Session>();
+    grpc::ChannelArguments args;
+    // The channel's own reconnection follows our backoff rather than gRPC's (up to 120 s) default.
+    args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, std::max(1, opts.min_backoff_ms));
+    args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, std::max(1, opts.min_backoff_ms));
+    args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, std::max(opts.min_backoff_ms, opts.max_backoff_ms));
+    s->channel = grpc::CreateCustomChannel(opts.master, grpc::InsecureChannelCredentials(), args);
+    s->stub = v1::WorkerService::NewStub(s->channel);
+
+    v1::WorkerInfo info;
+    info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
+    info.set_name(name);
+    info.set_threads(uint32_t(threads));
+    info.set_version(EPR_VERSION);
+    for (const auto& h : cached_scene_hashes(opts.cache_dir)) info.add_cached_scenes(h);
+
+    grpc::ClientContext ctx;
+    prepare(ctx, kRegisterDeadline);
+    {
+      std::lock_guard lock(mu);
+      if (stopping) return nullptr;
+      register_call = &ctx;
+    }
+    v1::RegisterResponse resp;
+    const grpc::Status status = s->stub->Register(&ctx, info, &resp);
+    {
+      std::lock_guard lock(mu);
+      register_call = nullptr;
+    }
+    if (!status.ok()) {
+      *why = describe(status);
+      if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION)
+        log->error("master {} does not speak protocol epr.v1: {}", opts.master, status.error_message());
+      return nullptr;
+    }
+    const std::string& id = resp.worker_id().id();
+    if (id.empty() || id.size() > 64) {
+      *why = "Register answered without a usable worker id";
+      return nullptr;
+    }
+    s->worker_id = id;
+    s->heartbeat_ms = std::clamp<uint32_t>(resp.heartbeat_interval_ms() ? resp.heartbeat_interval_ms() : 1000, 50, 60000);
+    if (resp.max_vertices_per_chunk()) s->limits.max_vertices_per_chunk = resp.max_vertices_per_chunk();
+    if (resp.max_chunk_bytes()) s->limits.max_chunk_bytes = resp.max_chunk_bytes();
+    return s;
+  }
+
+  // ---- scenes ------------------------------------------------------------------------------------
+
+  Scene load_scene_for(const v1::SceneRef& ref) {
+    if (!ref.builtin().empty()) {
+      SceneBundleData b;
+      b.builtin = ref.builtin();
+      if (content_hash(b) != ref.content_hash())
+        throw std::runtime_error(fmt::format("built-in scene '{}' does not have content hash {}", ref.builtin(),
+                                             ref.content_hash()));
+      return load_scene(ref.builtin());
+    }
+    if (!is_content_hash(ref.content_hash()))
+      throw std::runtime_error(fmt::format("scene reference '{}' is neither a built-in nor a content hash",
+                                           ref.content_hash()));
+    std::optional<std::string> entry = cached_scene_entry(opts.cache_dir, ref.content_hash());
+    if (!entry) entry = fetch_scene(ref);
+    return load_scene(*entry);
+  }
+
+  std::string fetch_scene(const v1::SceneRef& ref) {
+    std::shared_ptr<Session> s;
+    {
+      std::lock_guard lock(mu);
+      s = session;
+    }
+    if (!s || s->ending) throw std::runtime_error("no master session to fetch the scene from");
+    log->info("fetching scene {} ({} bytes) from the master", ref.content_hash(), ref.total_bytes());
+    v1::FetchSceneRequest req;
+    req.mutable_worker_id()->set_id(s->worker_id);
+    req.set_content_hash(ref.content_hash());
+    grpc::ClientContext ctx;
+    prepare(ctx, size_deadline(kFetchDeadlineBase, double(ref.total_bytes())));
+    CallScope scope(*this, *s, ctx, /*cancel_on_stop=*/true);
+    SceneReceiver rx(opts.cache_dir, ref.content_hash());
+    auto reader = s->stub->FetchScene(&ctx, req);
+    v1::SceneChunk chunk;
+    std::optional<std::string> err;
+    while (reader->Read(&chunk)) {
+      if ((err = rx.add(chunk))) {
+        ctx.TryCancel();
+        while (reader->Read(&chunk)) {
+        }
+        break;
+      }
+    }
+    const grpc::Status status = reader->Finish();
+    if (err) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), *err));
+    if (!status.ok()) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), describe(status)));
+    std::string entry;
+    if (auto e = rx.finish(&entry)) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), *e));
+    ++counters.scenes_fetched;
+    counters.scene_bytes_fetched += rx.bytes_received();
+    return entry;
+  }
+
+  // ---- leases --------------------------------------------------------------------------------------
+
+  // Gives leases back. A failure that means the session is gone ends it.
+  bool return_leases(Session& s, const std::vector<uint64_t>& ids, const std::string& reason) {
+    if (ids.empty()) return true;
+    v1::ReturnLeaseRequest req;
+    req.mutable_worker_id()->set_id(s.worker_id);
+    for (uint64_t id : ids) req.add_lease_ids(id);
+    req.set_reason(reason);
+    grpc::ClientContext ctx;
+    prepare(ctx, kReturnDeadline);
+    CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
+    v1::ReturnLeaseResponse resp;
+    const grpc::Status status = s.stub->ReturnLease(&ctx, req, &resp);
+    if (!status.ok()) {
+      call_failed(s, "ReturnLease", status);
+      return false;
+    }
+    counters.tiles_returned += ids.size();
+    return true;
+  }
+
+  // Delay before leasing again after a job could not be prepared; grows with repeated failures.
+  int job_failed(const std::string& job_id) {
+    std::lock_guard lock(mu);
+    if (job_failures.size() > kMaxFailingJobs) job_failures.clear();
+    const int n = job_failures[job_id]++;
+    const double u = std::uniform_real_distribution<double>(0.0, 1.0)(rng);
+    return backoff_delay_ms(n, 500, std::max(1000, opts.max_backoff_ms), u);
+  }
+
+  void job_ok(const std::string& job_id) {
+    std::lock_guard lock(mu);
+    job_failures.erase(job_id);
+  }
+
+  void process_tile(Session& s, const v1::TileLease& lease) {
+    ++counters.tiles_leased;
+    const uint64_t id = lease.lease_id();
+    auto h = hold(s, id);
+    log->debug("lease {}: job {} round {} tile {}", id, lease.job_id(), lease.round(), lease.tile_index());
+
+    LeasedTile tile;
+    if (auto err = unpack_tile_lease(lease, &tile)) {
+      log->error("lease {} (job {} tile {}) is unusable: {}", id, lease.job_id(), lease.tile_index(), *err);
+      if (return_leases(s, {id}, "unusable lease: " + *err)) release(s, id);
+      return;
+    }
+    std::shared_ptr<const JobContext> job;
+    try {
+      job = jobs.get(lease);
+    } catch (const std::exception& e) {
+      if (s.ending) return;  // interrupted (the lease stays held: returned on the way out)
+      const int delay = job_failed(lease.job_id());
+      log->error("job {}: cannot prepare its scene: {} (lease {} returned, leasing again in {} ms)", lease.job_id(),
+                 e.what(), id, delay);
+      if (return_leases(s, {id}, fmt::format("worker cannot prepare the job: {}", e.what()))) release(s, id);
+      wait_for(&s, delay);
+      return;
+    }
+    job_ok(lease.job_id());
+
+    const TileRenderer renderer(*job->tracer, tile.filter);
+    const auto result = render_leased_tile(renderer, tile, [&] { return s.ending.load() || h->abandoned.load(); });
+    if (result) {
+      counters.paths_traced += result->stats.paths.paths;
+      counters.micros_tracing += uint64_t(result->stats.seconds * 1e6);
+    }
+    if (h->abandoned) {
+      ++counters.tiles_abandoned;
+      log->debug("lease {} abandoned (the master no longer needs it)", id);
+      release(s, id);
+      return;
+    }
+    if (!result || s.lost) return;  // stopping or broken: the hold is returned on the way out
+    if (submit(s, lease, *job, *result, *h)) release(s, id);
+  }
+
+  // True once the master has answered for the tile (committed, dropped or refused); false if the
+  // result did not get through (the lease stays held and is returned on the way out).
+  bool submit(Session& s, const v1::TileLease& lease, const JobContext& job, const TileResult& result,
+              const Session::Hold& h) {
+    const TileResultIdentity identity{lease.lease_id(), lease.job_id(), lease.round(), lease.tile_index(), s.worker_id};
+    Backoff retry(200, 2000, lease.lease_id());
+    for (int attempt = 1;; ++attempt) {
+      TileResultWriter writer(result, identity, job.codec_bounds, s.limits);
+      const auto& head = writer.header();
+      const double bytes = 17.0 * head.pixel_count() + 16.0 * double(head.vertex_count()) +
+                           17.0 * double(head.exact_sample_count());
+      grpc::ClientContext ctx;
+      prepare(ctx, size_deadline(kSubmitDeadlineBase, bytes));
+      CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
+      v1::SubmitAck ack;
+      auto stream = s.stub->SubmitTile(&ctx, &ack);
+      v1::TileResultChunk chunk;
+      bool broken = false;
+      while (writer.next(&chunk)) {
+        if (!stream->Write(chunk)) {
+          broken = true;  // the master closed the stream; Finish() says why
+          break;
+        }
+        chunk.Clear();
+      }
+      if (!broken) stream->WritesDone();
+      const grpc::Status status = stream->Finish();
+      if (status.ok()) {
+        switch (ack.outcome()) {
+          case v1::SUBMIT_OUTCOME_COMMITTED:
+            ++counters.tiles_committed;
+            counters.vertices_sent += head.vertex_count();
+            counters.exact_samples_sent += head.exact_sample_count();
+            break;
+          case v1::SUBMIT_OUTCOME_DUPLICATE: ++counters.tiles_duplicate; break;
+          case v1::SUBMIT_OUTCOME_STALE: ++counters.tiles_stale; break;
+          default: break;
+        }
+        log->debug("lease {}: submitted, accepted={} {}", lease.lease_id(), ack.accepted(), ack.reason());
+        return true;
+      }
+      const auto code = status.error_code();
+      const bool transient = code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::DEADLINE_EXCEEDED;
+      if (transient && attempt < kSubmitAttempts && !s.lost && !h.abandoned) {
+        const int delay = retry.next_ms();
+        log->warn("lease {}: SubmitTile failed ({}), retrying in {} ms", lease.lease_id(), describe(status), delay);
+        if (wait_for(nullptr, delay) && stopping) return false;
+        continue;
+      }
+      if (code == grpc::StatusCode::INVALID_ARGUMENT || code == grpc::StatusCode::FAILED_PRECONDITION ||
+          code == grpc::StatusCode::RESOURCE_EXHAUSTED) {
+        // The master refused this result; the session is fine. A bug on one side: say so loudly.
+        ++counters.tiles_refused;
+        log->error("lease {} (job {} tile {}): the master refused the result: {}", lease.lease_id(), lease.job_id(),
+                   lease.tile_index(), describe(status));
+        return true;
+      }
+      call_failed(s, "SubmitTile", status);
+      return false;
+    }
+  }
+
+  // ---- the loops -----------------------------------------------------------------------------------
+
+  void heartbeat_loop(Session& s) {
+    while (!s.ending) {
+      if (wait_for(&s, int(s.heartbeat_ms))) break;
+      v1::HeartbeatRequest req;
+      req.mutable_worker_id()->set_id(s.worker_id);
+      for (uint64_t id : s.held_ids(/*include_abandoned=*/false)) req.add_lease_ids(id);
+      grpc::ClientContext ctx;
+      prepare(ctx, Millis(std::clamp<int64_t>(2 * int64_t(s.heartbeat_ms), 2000, 10000)));
+      CallScope scope(*this, s, ctx, /*cancel_on_stop=*/true);
+      v1::HeartbeatResponse resp;
+      const grpc::Status status = s.stub->Heartbeat(&ctx, req, &resp);
+      if (!status.ok()) {
+        call_failed(s, "Heartbeat", status);
+        break;
+      }
+      s.healthy = true;
+      std::lock_guard lock(s.mu);
+      for (const auto& state : resp.leases()) {
+        if (state.valid()) continue;
+        if (auto it = s.held.find(state.lease_id()); it != s.held.end()) it->second->abandoned = true;
+      }
+    }
+  }
+
+  void tracing_loop(Session& s) {
+    while (!s.ending) {
+      v1::LeaseRequest req;
+      req.mutable_worker_id()->set_id(s.worker_id);
+      grpc::ClientContext ctx;
+      prepare(ctx, kLeaseDeadline);
+      v1::Lease lease;
+      grpc::Status status;
+      {
+        CallScope scope(*this, s, ctx, /*cancel_on_stop=*/true);
+        status = s.stub->LeaseTile(&ctx, req, &lease);
+      }
+      if (!status.ok()) {
+        call_failed(s, "LeaseTile", status);
+        break;
+      }
+      s.healthy = true;
+      switch (lease.kind_case()) {
+        case v1::Lease::kTile: process_tile(s, lease.tile()); break;
+        case v1::Lease::kWait: wait_for(&s, std::clamp<int>(int(lease.wait().retry_after_ms()), kMinWaitMs, kMaxWaitMs)); break;
+        case v1::Lease::kShutdown:
+          log->info("the master asks the worker to shut down: {}", lease.shutdown().reason());
+          stop("master shutdown: " + lease.shutdown().reason());
+          return;
+        default:
+          log->warn("LeaseTile answered with neither a tile, a wait nor a shutdown");
+          wait_for(&s, 1000);
+          break;
+      }
+    }
+  }
+
+  // Runs one session until it ends; returns with every thread joined.
+  void run_session(const std::shared_ptr<Session>& s) {
+    {
+      std::lock_guard lock(mu);
+      session = s;
+      worker_id = s->worker_id;
+    }
+    ++counters.registrations;
+    log->info("registered with {} as {} ({} tracing threads, heartbeat every {} ms)", opts.master, s->worker_id,
+              threads, s->heartbeat_ms);
+    if (stopping) end_session(*s, stop_reason, /*lost=*/false);
+    std::thread heartbeat([&] { heartbeat_loop(*s); });
+    std::vector<std::thread> tracers;
+    for (int i = 0; i < threads; ++i) tracers.emplace_back([&] { tracing_loop(*s); });
+    {
+      std::unique_lock lock(mu);
+      cv.wait(lock, [&] { return s->ending || stopping; });
+    }
+    if (stopping) end_session(*s, "stopping", /*lost=*/false);
+    for (auto& t : tracers) t.join();
+    heartbeat.join();
+    {
+      std::lock_guard lock(mu);
+      session.reset();
+    }
+  }
+
+  // After a stop: give the leases back and leave.
+  void farewell(Session& s) {
+    const auto ids = s.held_ids(/*include_abandoned=*/false);
+    if (!ids.empty()) {
+      v1::ReturnLeaseRequest req;
+      req.mutable_worker_id()->set_id(s.worker_id);
+      for (uint64_t id : ids) req.add_lease_ids(id);
+      req.set_reason(stop_reason.empty() ? "worker stopping" : stop_reason);
+      grpc::ClientContext ctx;
+      prepare(ctx, kReturnDeadline);
+      v1::ReturnLeaseResponse resp;
+      const grpc::Status status = s.stub->ReturnLease(&ctx, req, &resp);
+      if (status.ok())
+        counters.tiles_returned += ids.size();
+      else
+        log->warn("could not return {} leases: {}", ids.size(), describe(status));
+    }
+    v1::WorkerId wid;
+    wid.set_id(s.worker_id);
+    grpc::ClientContext ctx;
+    prepare(ctx, kUnregisterDeadline);
+    v1::UnregisterResponse resp;
+    const grpc::Status status = s.stub->Unregister(&ctx, wid, &resp);
+    if (!status.ok()) log->debug("Unregister: {}", describe(status));
+    log->info("left {} ({} leases returned)", opts.master, ids.size());
+  }
+
+  // After the session broke: try to give the leases back (the master may still be there).
+  void salvage(Session& s) {
+    const auto ids = s.held_ids(/*include_abandoned=*/false);
+    if (ids.empty()) return;
+    v1::ReturnLeaseRequest req;
+    req.mutable_worker_id()->set_id(s.worker_id);
+    for (uint64_t id : ids) req.add_lease_ids(id);
+    req.set_reason("worker lost its session");
+    grpc::ClientContext ctx;
+    prepare(ctx, kLostReturnDeadline);
+    v1::ReturnLeaseResponse resp;
+    if (s.stub->ReturnLease(&ctx, req, &resp).ok()) counters.tiles_returned += ids.size();
+  }
+
+  void run() {
+    {
+      std::lock_guard lock(mu);
+      if (running) throw std::logic_error("WorkerNode::run() is already running");
+      running = true;
+    }
+    Backoff backoff(opts.min_backoff_ms, opts.max_backoff_ms, std::random_device{}());
+    while (!stopping) {
+      std::string why;
+      const std::shared_ptr<Session> s = connect(&why);
+      if (!s) {
+        if (stopping) break;
+        const int delay = backoff.next_ms();
+        log->warn("cannot register with {}: {}; retrying in {} ms", opts.master, why, delay);
+        wait_for(nullptr, delay);
+        continue;
+      }
+      run_session(s);
+      if (s->healthy) backoff.reset();
+      if (stopping && !s->lost) {
+        farewell(*s);
+        break;
+      }
+      salvage(*s);
+      if (stopping) break;
+      ++counters.reconnects;
+      const int delay = backoff.next_ms();
+      log->warn("lost the session with {} ({}); registering again in {} ms", opts.master, s->end_reason, delay);
+      wait_for(nullptr, delay);
+    }
+    {
+      std::lock_guard lock(mu);
+      running = false;
+      worker_id.clear();
+    }
+    cv.notify_all();
+  }
+};
+
+WorkerNode::WorkerNode(WorkerNodeOptions options) : impl_(std::make_unique<Impl>(std::move(options))) {}
+
+WorkerNode::~WorkerNode() {
+  impl_->stop("worker destroyed");
+  std::unique_lock lock(impl_->mu);
+  impl_->cv.wait(lock, [&] { return !impl_->running; });
+}
+
+void WorkerNode::run() { impl_->run(); }
+
+void WorkerNode::stop() { impl_->stop("stop requested"); }
+
+WorkerNodeStats WorkerNode::stats() const {
+  const auto& c = impl_->counters;
+  WorkerNodeStats s;
+  {
+    std::lock_guard lock(impl_->mu);
+    s.worker_id = impl_->worker_id;
+    s.registered = impl_->session != nullptr && !impl_->session->ending;
+  }
+  s.registrations = c.registrations;
+  s.reconnects = c.reconnects;
+  s.tiles_leased = c.tiles_leased;
+  s.tiles_committed = c.tiles_committed;
+  s.tiles_duplicate = c.tiles_duplicate;
+  s.tiles_stale = c.tiles_stale;
+  s.tiles_refused = c.tiles_refused;
+  s.tiles_abandoned = c.tiles_abandoned;
+  s.tiles_returned = c.tiles_returned;
+  s.paths_traced = c.paths_traced;
+  s.vertices_sent = c.vertices_sent;
+  s.exact_samples_sent = c.exact_samples_sent;
+  s.scenes_fetched = c.scenes_fetched;
+  s.scene_bytes_fetched = c.scene_bytes_fetched;
+  s.seconds_tracing = double(c.micros_tracing) * 1e-6;
+  return s;
+}
+
+}  // namespace epr

@@ -1,0 +1,94 @@
+// A worker of the farm: registers with epr-master's WorkerService, leases tiles, traces them and
+// streams the results back (proto/epr/v1/worker_service.proto; DESIGN.md section 2, "A round, end to
+// end", and section 4).
+//
+//   run():   Register ─▶ { heartbeat thread } + { T tracing threads: LeaseTile ─▶ trace ─▶ SubmitTile }*
+//
+// Parallelism: T tracing threads (options.threads, default all cores), each holding at most one
+// lease and tracing its tile single-threaded with TileRenderer. Tiles are the unit of work the master
+// balances across workers, so one tile per thread keeps every core busy without a second scheduler,
+// overlaps one thread's network I/O with the others' tracing, and gives deterministic results (each
+// tile's bits depend only on the lease). A round's last tiles may leave cores idle for up to one
+// tile's time; tiles are small (32 x 32 pixels by default), so that tail is short.
+//
+// Scenes: built-ins are generated locally from SceneRef.builtin; file scenes are fetched with
+// FetchScene once and cached on disk by content hash (worker/scene_fetch.h). Per-job state (scene,
+// BVH, camera, path tracer) is kept for the last few jobs (worker/job_cache.h).
+//
+// Failure handling: every RPC has a deadline. When the master is unreachable or answers an RPC with
+// an error (UNAVAILABLE, NOT_FOUND for an unknown worker id after a master restart, ...), the worker
+// abandons its session: it gives its leases back if it still can, waits with exponential backoff and
+// jitter (capped at max_backoff_ms) and registers again. It never exits on its own except on the
+// master's Shutdown. A lease the heartbeat reports invalid is abandoned between two strips of rows.
+// A job whose scene cannot be loaded gets its lease returned and the thread waits (with backoff)
+// before leasing again, so a broken job cannot make the worker spin.
+//
+// In-process use: no globals and no signal handling; any number of WorkerNodes may run in one
+// process (the embedded `epr render` runs a master and N nodes over loopback gRPC). epr-worker's main
+// installs the signal handling and calls stop().
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "wire/scene_bundle.h"
+
+namespace epr {
+
+struct WorkerNodeOptions {
+  std::string master = "localhost:50051";  // HOST:PORT of epr-master's gRPC endpoint
+  int threads = 0;                         // tracing threads; 0: std::thread::hardware_concurrency()
+  std::string name;                        // shown on dashboards; empty: "HOSTNAME-PID"
+  std::string cache_dir = default_cache_root();  // scene cache root (scenes/HASH/...)
+  /// Bearer token file (first line; surrounding whitespace ignored). Empty: the EPR_TOKEN environment
+  /// variable if set, else no token. Sent as "authorization: Bearer <token>" on every call.
+  std::string token_file;
+  int max_backoff_ms = 5000;  // cap of the reconnect backoff
+  int min_backoff_ms = 100;   // first reconnect delay (halved or kept, by the jitter)
+  int max_cached_jobs = 3;    // per-job tracing state kept (scenes and BVHs of older jobs are dropped)
+};
+
+struct WorkerNodeStats {
+  std::string worker_id;        // as assigned by the master at the last registration; empty if none
+  bool registered = false;      // a session with the master is up
+  uint64_t registrations = 0;   // successful Register calls
+  uint64_t reconnects = 0;      // sessions lost (master unreachable, restarted, ...)
+  uint64_t tiles_leased = 0;
+  uint64_t tiles_committed = 0;   // SubmitAck COMMITTED
+  uint64_t tiles_duplicate = 0;   // SubmitAck DUPLICATE
+  uint64_t tiles_stale = 0;       // SubmitAck STALE
+  uint64_t tiles_refused = 0;     // SubmitTile failed with an error status (INVALID_ARGUMENT, ...)
+  uint64_t tiles_abandoned = 0;   // heartbeat said the lease is no longer valid, or the session ended
+  uint64_t tiles_returned = 0;    // given back with ReturnLease (bad lease, scene failure, stop)
+  uint64_t paths_traced = 0;
+  uint64_t vertices_sent = 0;
+  uint64_t exact_samples_sent = 0;
+  uint64_t scenes_fetched = 0;
+  uint64_t scene_bytes_fetched = 0;
+  double seconds_tracing = 0;
+};
+
+class WorkerNode {
+ public:
+  /// Throws std::runtime_error if a token file is given but cannot be read.
+  explicit WorkerNode(WorkerNodeOptions options);
+  ~WorkerNode();  // stops and waits for run() if it is still running in another thread
+  WorkerNode(const WorkerNode&) = delete;
+  WorkerNode& operator=(const WorkerNode&) = delete;
+
+  /// Works until stop() or the master's Shutdown; then gives back the leases it holds (ReturnLease),
+  /// unregisters and returns. Call once.
+  void run();
+  /// Thread-safe and non-blocking (safe to call from any thread, not from a signal handler): makes
+  /// run() wind down — tracing is abandoned between strips, waits are interrupted — and return.
+  void stop();
+  WorkerNodeStats stats() const;
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace epr
