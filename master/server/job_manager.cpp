@@ -783,7 +783,7 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
   fs::create_directories(dir);
   const FrameImages img = job->frame->images();
   auto write = [&](const std::string& name, auto fn) {
-    const std::string tmp = dir + "/." + name + ".tmp";
+    const std::string tmp = dir + "/.tmp-" + name;  // keeps the extension OpenImageIO picks the format by
     fn(tmp);
     fs::rename(tmp, dir + "/" + name);
   };
