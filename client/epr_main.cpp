@@ -8,6 +8,7 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include "client/embedded_render.h"
 #include "client/local_render.h"
 #include "client/remote_commands.h"
 #include "client/render_flags.h"
@@ -30,7 +31,23 @@ void print_progress(const RoundProgress& p, int spp, bool tty) {
   std::fflush(stderr);
 }
 
-int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra) {
+void print_status(const v1::JobStatus& s, bool tty) {
+  const int width = 30;
+  const double target = std::max(1u, s.target_spp());
+  const double frac = std::min(1.0, s.spp_mean() / target);
+  const int filled = int(frac * width);
+  const std::string bar = std::string(size_t(filled), '#') + std::string(size_t(width - filled), '.');
+  const std::string eta = s.eta_seconds() >= 0 ? fmt::format("{:.0f}s", s.eta_seconds()) : "?";
+  const double pixels = double(s.effective().width()) * s.effective().height();
+  const std::string line =
+      fmt::format("[{}] round {:3d}  spp {:6.1f}/{} (min {})  M' {:5.1f}  skipped {:3.0f}%  {:6.1f}s  ETA {}", bar,
+                  s.round(), s.spp_mean(), s.target_spp(), s.spp_min(), s.reprojected_per_pixel_mean(),
+                  pixels > 0 ? 100.0 * s.pixels_skipped() / pixels : 0.0, s.seconds_elapsed(), eta);
+  std::fprintf(stderr, tty ? "\r%s" : "%s\n", line.c_str());
+  std::fflush(stderr);
+}
+
+int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra, bool single_process, int workers) {
   finish_options(o, extra);
   if (auto err = o.validate()) {
     std::fprintf(stderr, "epr render: %s\n", err->c_str());
@@ -38,11 +55,32 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
   }
   const bool tty = isatty(STDERR_FILENO);
   try {
-    const RenderOutputs out = render_local(o, [&](const RoundProgress& p) { print_progress(p, o.spp, tty); });
+    if (single_process) {
+      const RenderOutputs out = render_local(o, [&](const RoundProgress& p) { print_progress(p, o.spp, tty); });
+      if (tty) std::fprintf(stderr, "\n");
+      write_outputs(o.out, out);
+      std::fprintf(stderr, "wrote %s.exr, %s.png, %s.json (%.2f s, %.0f paths/s)\n", o.out.c_str(), o.out.c_str(),
+                   o.out.c_str(), out.stats.value("seconds", 0.0), out.stats.value("paths_per_second", 0.0));
+      return 0;
+    }
+    EmbeddedOptions eo;
+    eo.workers = workers;
+    const EmbeddedResult r = render_embedded(
+        o, eo, [&](const v1::JobStatus& s) { print_status(s, tty); },
+        [&](const std::string& target) {
+          std::fprintf(stderr, "master on %s with %d local worker(s)\n", target.c_str(), workers);
+        });
     if (tty) std::fprintf(stderr, "\n");
-    write_outputs(o.out, out);
-    std::fprintf(stderr, "wrote %s.exr, %s.png, %s.json (%.2f s, %.0f paths/s)\n", o.out.c_str(), o.out.c_str(),
-                 o.out.c_str(), out.stats.value("seconds", 0.0), out.stats.value("paths_per_second", 0.0));
+    if (r.status.state() != v1::JOB_STATE_DONE) {
+      std::fprintf(stderr, "epr render: the job ended %s: %s\n", v1::JobState_Name(r.status.state()).c_str(),
+                   r.status.error_message().c_str());
+      return 1;
+    }
+    std::string names;
+    for (const auto& f : r.files) names += (names.empty() ? "" : ", ") + f.path;
+    std::fprintf(stderr, "wrote %s (%.2f s, %llu paths, %llu skipped)\n", names.c_str(), r.status.seconds_elapsed(),
+                 static_cast<unsigned long long>(r.status.paths_traced()),
+                 static_cast<unsigned long long>(r.status.paths_skipped()));
   } catch (const std::exception& e) {
     if (tty) std::fprintf(stderr, "\n");
     std::fprintf(stderr, "epr render: %s\n", e.what());
@@ -64,6 +102,12 @@ int main(int argc, char** argv) {
   std::map<std::string, std::string> render_extra;
   CLI::App* render = app.add_subcommand("render", "render a scene on this machine (embedded master and workers)");
   add_render_flags(render, render_opts, render_extra);
+  bool single_process = false;
+  int local_workers = 1;
+  render->add_flag("--single-process", single_process,
+                   "trace and reproject in this process without gRPC (the reference the cluster must equal)");
+  render->add_option("--workers", local_workers, "local worker nodes (each uses all cores / workers)")
+      ->check(CLI::Range(1, 64))->capture_default_str();
   RemoteCommands remote(app);  // submit, watch, get, list, cancel
 
   try {
@@ -74,7 +118,7 @@ int main(int argc, char** argv) {
   set_log_level(log_level);
   if (auto code = remote.run()) return *code;
   try {
-    if (render->parsed()) return run_render(render_opts, render_extra);
+    if (render->parsed()) return run_render(render_opts, render_extra, single_process, local_workers);
   } catch (const CLI::ValidationError& e) {
     std::fprintf(stderr, "epr: %s\n", e.what());
     return 2;

@@ -1,0 +1,61 @@
+#include "client/embedded_render.h"
+
+#include <filesystem>
+#include <thread>
+
+#include "master/server/master_server.h"
+#include "worker/worker_node.h"
+
+namespace epr {
+
+EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
+                               const std::function<void(const v1::JobStatus&)>& on_status,
+                               const std::function<void(const std::string&)>& on_started) {
+  MasterServerOptions mo;
+  mo.listen = "127.0.0.1:0";
+  mo.jobs.state_dir = embedded.state_dir;
+  MasterServer master(mo);
+  EmbeddedResult result;
+  result.master_target = master.local_target();
+  if (on_started) on_started(result.master_target);
+
+  const int n = std::max(1, embedded.workers);
+  const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
+  const int threads = embedded.worker_threads > 0 ? embedded.worker_threads
+                      : opts.threads > 0          ? opts.threads
+                                                  : std::max(1, cores / n);
+  std::vector<std::unique_ptr<WorkerNode>> nodes;
+  std::vector<std::thread> runners;
+  for (int i = 0; i < n; ++i) {
+    WorkerNodeOptions wo;
+    wo.master = result.master_target;
+    wo.threads = threads;
+    wo.name = "local-" + std::to_string(i);
+    nodes.push_back(std::make_unique<WorkerNode>(wo));
+    runners.emplace_back([node = nodes.back().get()] { node->run(); });
+  }
+  auto stop_workers = [&] {
+    for (auto& node : nodes) node->stop();
+    for (auto& t : runners)
+      if (t.joinable()) t.join();
+  };
+
+  try {
+    JobClient client(result.master_target);
+    const std::string id = client.submit(opts);
+    result.status = client.watch(id, [&](const v1::JobStatus& s) {
+      if (on_status) on_status(s);
+      return true;
+    });
+    if (result.status.state() == v1::JOB_STATE_DONE) result.files = client.fetch_all(id, opts.out);
+  } catch (...) {
+    stop_workers();
+    master.shutdown();
+    throw;
+  }
+  stop_workers();
+  master.shutdown();
+  return result;
+}
+
+}  // namespace epr

@@ -1,0 +1,33 @@
+// The embedded default (DESIGN.md section 2): `epr render` starts a master in this process on a
+// loopback port, plus local workers connected to it over real gRPC, submits the job with the same
+// client a cluster user has, watches it and fetches the outputs. Same code paths as a cluster.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "client/job_client.h"
+#include "common/render_options.h"
+
+namespace epr {
+
+struct EmbeddedOptions {
+  int workers = 1;          // worker nodes in this process
+  int worker_threads = 0;   // tracing threads per worker; 0: all cores / workers
+  std::string state_dir;    // the master's state folder; empty: a temporary one
+};
+
+struct EmbeddedResult {
+  v1::JobStatus status;              // the final status
+  std::vector<FetchedFile> files;    // what was written under the output prefix
+  std::string master_target;         // the loopback address the master listened on
+};
+
+/// Renders `opts` to completion and writes the outputs under opts.out. `on_status` is called with
+/// every progress update (from the watch stream); `on_started` once the master is up.
+EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
+                               const std::function<void(const v1::JobStatus&)>& on_status = {},
+                               const std::function<void(const std::string& master_target)>& on_started = {});
+
+}  // namespace epr
