@@ -6,4 +6,4 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release
 cmake --build build -j "$(nproc)"
-build/client/epr render builtin:cornell --out cornell "$@"
+build/client/epr render builtin:cornell --spp 64 --mode skip --out cornell "$@"
