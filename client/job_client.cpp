@@ -230,13 +230,14 @@ void JobClient::check_reachable() {
 v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, const SubmitOptions& submit) {
   SceneBundleData bundle = bundle_scene(opts.scene);
   if (!bundle.builtin.empty()) parse_builtin_spec(bundle.builtin.substr(8));  // unknown names fail here, not on the master
-  const bool any_override = opts.eye || opts.look || opts.up || opts.fov;
+  // The job names its camera explicitly (the master requires one): the overrides, completed from the
+  // scene's own camera unless they give all of it. OBJ files carry no camera (scene_loader.h: they
+  // get CameraSpec's default), so only built-ins and scene JSON files are loaded for it.
   const bool full_camera = opts.eye && opts.look && opts.up && opts.fov;
+  const std::string ext = lower(fs::path(opts.scene).extension().string());
   CameraSpec scene_camera;
-  if (any_override && !full_camera) scene_camera = load_scene(opts.scene).camera;  // to complete the overrides
-  if (any_override) {
-    if (auto err = opts.camera_for(scene_camera).validate()) throw std::invalid_argument("camera: " + *err);
-  }
+  if (!full_camera && (ext != ".obj" || !bundle.builtin.empty())) scene_camera = load_scene(opts.scene).camera;
+  if (auto err = opts.camera_for(scene_camera).validate()) throw std::invalid_argument("camera: " + *err);
 
   const bool upload = bundle.builtin.empty() && bundle.total_bytes() > options_.inline_scene_limit;
   v1::JobSpec spec;
@@ -248,7 +249,6 @@ v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, const SubmitOpti
   } else {
     spec = to_job_spec(opts, bundle, scene_camera);
   }
-  if (!any_override) spec.clear_camera();  // the scene's own camera, chosen by the master
 
   const std::string name = submit.name.empty() ? default_job_name(opts.scene) : submit.name;
   if (name.size() > kMaxNameBytes)
@@ -537,6 +537,7 @@ std::vector<FetchedFile> JobClient::fetch_all(const std::string& job_id, const s
       {v1::RESULT_KIND_JSON, ".json"},
       {v1::RESULT_KIND_PATH_TRACED_EXR, ".pathtrace.exr"},
       {v1::RESULT_KIND_REPROJECTED_EXR, ".reprojection.exr"},
+      {v1::RESULT_KIND_COUNTS_EXR, ".counts.exr"},
       {v1::RESULT_KIND_STATS_IMAGE, nullptr},
   };
   std::vector<FetchedFile> files;

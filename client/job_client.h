@@ -118,9 +118,10 @@ class JobClient {
   void check_reachable();
 
   /// The JobSpec for `opts` (scene: opts.scene). Built-ins go by name; files inline when small,
-  /// otherwise they are uploaded first and referred to by hash. The camera is left unset (the
-  /// scene's own) without overrides, taken from the overrides when they name all of eye, look, up
-  /// and fov, and otherwise completed from the scene loaded locally.
+  /// otherwise they are uploaded first and referred to by hash. The camera is always set: the
+  /// overrides when they name all of eye, look, up and fov, otherwise the scene's own camera (built-ins
+  /// and scene JSON files are loaded locally for it) with the overrides applied. Throws SceneError for
+  /// unreadable scenes or unknown built-ins, std::invalid_argument for a bad camera or name.
   v1::JobSpec make_job_spec(const RenderOptions& opts, const SubmitOptions& submit = {});
   /// Queues `opts` as a job; returns its id.
   std::string submit(const RenderOptions& opts, const SubmitOptions& submit = {});
@@ -148,8 +149,8 @@ class JobClient {
   FetchedFile fetch(const std::string& job_id, v1::ResultKind kind, const std::string& path,
                     bool allow_partial = false);
   /// Downloads every result the job has: PREFIX.exr (required), PREFIX.png, PREFIX.json,
-  /// PREFIX.pathtrace.exr, PREFIX.reprojection.exr and PREFIX.samples.EXT (the statistics image;
-  /// EXT from its media type). Kinds the master answers with NOT_FOUND or FAILED_PRECONDITION
+  /// PREFIX.pathtrace.exr, PREFIX.reprojection.exr, PREFIX.counts.exr (M, M') and PREFIX.samples.EXT
+  /// (the statistics image; EXT from its media type, .png from today's master). Kinds the master answers with NOT_FOUND or FAILED_PRECONDITION
   /// (not produced by the job's mode) are skipped, except the EXR whose error is thrown.
   std::vector<FetchedFile> fetch_all(const std::string& job_id, const std::string& prefix, bool allow_partial = false);
 

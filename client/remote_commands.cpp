@@ -191,8 +191,14 @@ int follow_job(JobClient& client, const std::string& job_id, const FollowOptions
   // A cancelled job keeps the results of its last committed round.
   const bool has_results = last.state() == v1::JOB_STATE_DONE || last.round() > 0;
   if (options.fetch && has_results) {
-    const auto files = client.fetch_all(job_id, options.out_prefix);
-    std::fprintf(stderr, "wrote %s\n", join_paths(files).c_str());
+    try {
+      const auto files = client.fetch_all(job_id, options.out_prefix);
+      std::fprintf(stderr, "wrote %s\n", join_paths(files).c_str());
+    } catch (const RpcError& e) {
+      if (last.state() == v1::JOB_STATE_DONE) throw;
+      // The contract keeps a cancelled job's last round fetchable; a master may still refuse it.
+      std::fprintf(stderr, "no results fetched for the cancelled job: %s\n", e.what());
+    }
   }
   return last.state() == v1::JOB_STATE_DONE ? kExitOk : kExitJobFailed;
 }

@@ -182,7 +182,7 @@ class JobSpecTest : public ::testing::Test {
   fs::path dir_;
 };
 
-TEST_F(JobSpecTest, BuiltinWithoutOverridesLeavesTheCameraToTheScene) {
+TEST_F(JobSpecTest, BuiltinWithoutOverridesSendsTheScenesOwnCamera) {
   RenderOptions o;
   o.scene = "builtin:hall?tess=2";
   o.width = 320;
@@ -196,7 +196,12 @@ TEST_F(JobSpecTest, BuiltinWithoutOverridesLeavesTheCameraToTheScene) {
   s.time_budget_seconds = 30;
   const v1::JobSpec spec = client_.make_job_spec(o, s);
   EXPECT_EQ(spec.scene().builtin(), "builtin:hall?tess=2");
-  EXPECT_FALSE(spec.has_camera());
+  const CameraSpec own = load_scene("builtin:hall?tess=2").camera;
+  ASSERT_TRUE(spec.has_camera());
+  EXPECT_FLOAT_EQ(spec.camera().eye().x(), own.eye.x);
+  EXPECT_FLOAT_EQ(spec.camera().eye().z(), own.eye.z);
+  EXPECT_FLOAT_EQ(spec.camera().look().z(), own.look.z);
+  EXPECT_FLOAT_EQ(spec.camera().fov_y_degrees(), own.fov_y_degrees);
   EXPECT_EQ(spec.name(), "hall?tess=2");
   EXPECT_EQ(spec.width(), 320u);
   EXPECT_EQ(spec.height(), 200u);
@@ -251,6 +256,8 @@ TEST_F(JobSpecTest, SmallFileSceneTravelsInlineWithItsHash) {
   ASSERT_EQ(spec.scene().files().files_size(), 2);
   EXPECT_EQ(spec.scene().content_hash(), content_hash(bundle_scene(o.scene)));
   EXPECT_EQ(spec.name(), "floor.obj");
+  ASSERT_TRUE(spec.has_camera());  // an OBJ's camera is CameraSpec's default
+  EXPECT_FLOAT_EQ(spec.camera().eye().z(), CameraSpec{}.eye.z);
 }
 
 TEST_F(JobSpecTest, LargeFileSceneIsUploadedFirst) {
