@@ -19,7 +19,7 @@ Backoff::Backoff(int initial_ms, int max_ms, uint64_t seed) : initial_ms_(initia
 int Backoff::next_ms() {
   const double u = std::uniform_real_distribution<double>(0.0, 1.0)(rng_);
   const int delay = backoff_delay_ms(attempt_, initial_ms_, max_ms_, u);
-  attempt_ = std::min(attempt_ + 1, 64);
+  if (attempt_ < (1 << 30)) ++attempt_;
   return delay;
 }
 

@@ -521,7 +521,9 @@ struct WorkerNode::Impl {
       v1::Lease lease;
       grpc::Status status;
       {
-        CallScope scope(*this, s, ctx, /*cancel_on_stop=*/true);
+        // Not cancelled by stop(): the master answers at once, and a cancelled call whose lease was
+        // already granted would leave that lease to expire instead of being returned.
+        CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
         status = s.stub->LeaseTile(&ctx, req, &lease);
       }
       if (!status.ok()) {
@@ -625,7 +627,10 @@ struct WorkerNode::Impl {
       if (!s) {
         if (stopping) break;
         const int delay = backoff.next_ms();
-        log->warn("cannot register with {}: {}; retrying in {} ms", opts.master, why, delay);
+        // Warn on attempts 1, 2, 4, 8, ...: a master that stays away does not flood the log.
+        const int attempt = backoff.attempts();
+        log->log((attempt & (attempt - 1)) == 0 ? spdlog::level::warn : spdlog::level::debug,
+                 "cannot register with {}: {}; retrying in {} ms", opts.master, why, delay);
         wait_for(nullptr, delay);
         continue;
       }

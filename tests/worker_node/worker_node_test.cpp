@@ -1,0 +1,286 @@
+// WorkerNodes against a real in-process MasterServer over loopback gRPC (no fakes): whole jobs give
+// the same per-pixel counts and path-traced sums as the single-process render whatever the number of
+// workers; file scenes are fetched once and then served from the disk cache; a worker that starts
+// before its master, or whose master restarts, registers (again) by itself; stop() gives the leases
+// back so another worker finishes the job with nothing lost or counted twice.
+#include "worker/worker_node.h"
+
+#include <gtest/gtest.h>
+
+#include <grpcpp/grpcpp.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include "client/local_render.h"
+#include "common/image.h"
+#include "epr/v1/job_service.grpc.pb.h"
+#include "master/server/master_server.h"
+#include "wire/convert.h"
+#include "wire/scene_bundle.h"
+
+namespace epr {
+namespace {
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+const std::string kCornellObj = EPR_SOURCE_DIR "/../shared/scenes/cornell-box/CornellBox-Original.obj";
+
+// A WorkerNode running on its own thread.
+class RunningNode {
+ public:
+  explicit RunningNode(WorkerNodeOptions o) : node_(std::move(o)), thread_([this] { node_.run(); }) {}
+  ~RunningNode() { stop(); }
+  /// Stops the node and waits for run() to return; the time it took.
+  std::chrono::duration<double> stop() {
+    const auto start = std::chrono::steady_clock::now();
+    node_.stop();
+    if (thread_.joinable()) thread_.join();
+    return std::chrono::steady_clock::now() - start;
+  }
+  WorkerNodeStats stats() const { return node_.stats(); }
+
+ private:
+  WorkerNode node_;
+  std::thread thread_;
+};
+
+class WorkerNodeTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    cache_ = fs::path(::testing::TempDir()) /
+             ("epr-worker-node-" + std::to_string(::getpid()) + "-" +
+              ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(cache_);
+    start_master("127.0.0.1:0");
+  }
+  void TearDown() override {
+    if (master_) master_->shutdown();
+    fs::remove_all(cache_);
+  }
+
+  // lease_timeout_ms: how long a lease that is neither extended nor returned stays out.
+  void start_master(const std::string& listen, int lease_timeout_ms = 20000) {
+    if (master_) master_->shutdown();
+    MasterServerOptions o;
+    o.listen = listen;
+    o.jobs.lease_timeout_ms = lease_timeout_ms;
+    o.jobs.worker_timeout_ms = std::max(10000, lease_timeout_ms);
+    o.jobs.state_dir = (cache_ / ("master-" + std::to_string(++masters_started_))).string();
+    master_ = std::make_unique<MasterServer>(o);
+    channel_ = grpc::CreateChannel(master_->local_target(), grpc::InsecureChannelCredentials());
+    jobs_ = v1::JobService::NewStub(channel_);
+  }
+
+  WorkerNodeOptions node_options(int threads = 1) const {
+    WorkerNodeOptions o;
+    o.master = master_ ? master_->local_target() : "127.0.0.1:1";
+    o.threads = threads;
+    o.name = "test-node";
+    o.cache_dir = (cache_ / "worker-cache").string();
+    o.max_backoff_ms = 300;
+    o.min_backoff_ms = 20;
+    return o;
+  }
+
+  static RenderOptions cornell_options(RenderMode mode, ReprojectMethod method = ReprojectMethod::kCpu, int size = 32,
+                                       int spp = 6, int k = 2) {
+    RenderOptions o;
+    o.width = o.height = size;
+    o.spp = spp;
+    o.paths_per_round = k;
+    o.mode = mode;
+    o.reproject = method;
+    o.tile_size = 16;
+    o.scene = "builtin:cornell";
+    return o;
+  }
+
+  std::string submit(const RenderOptions& o, const SceneBundleData& bundle) {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + 10s);
+    v1::JobId id;
+    const v1::JobSpec spec = to_job_spec(o, bundle, CameraSpec{});
+    const grpc::Status st = jobs_->SubmitJob(&ctx, spec, &id);
+    EXPECT_TRUE(st.ok()) << st.error_message();
+    return id.id();
+  }
+
+  v1::JobStatus status(const std::string& id) {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + 10s);
+    v1::JobId req;
+    req.set_id(id);
+    v1::JobStatus st;
+    jobs_->GetJob(&ctx, req, &st);
+    return st;
+  }
+
+  // Waits until the job is in a terminal state (or `timeout`); returns its last status.
+  v1::JobStatus wait_done(const std::string& id, std::chrono::seconds timeout = 120s) {
+    const auto until = std::chrono::steady_clock::now() + timeout;
+    v1::JobStatus st;
+    while (std::chrono::steady_clock::now() < until) {
+      st = status(id);
+      if (st.state() == v1::JOB_STATE_DONE || st.state() == v1::JOB_STATE_FAILED ||
+          st.state() == v1::JOB_STATE_CANCELLED)
+        break;
+      std::this_thread::sleep_for(20ms);
+    }
+    return st;
+  }
+
+  Image fetch_image(const std::string& id, v1::ResultKind kind) {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + 10s);
+    v1::ResultRequest req;
+    req.set_job_id(id);
+    req.set_kind(kind);
+    auto reader = jobs_->FetchResult(&ctx, req);
+    v1::ResultChunk c;
+    std::string bytes;
+    while (reader->Read(&c))
+      if (c.has_data()) bytes += c.data().data();
+    EXPECT_TRUE(reader->Finish().ok());
+    const std::string path = (cache_ / ("result-" + std::to_string(++fetches_) + ".exr")).string();
+    std::ofstream(path, std::ios::binary) << bytes;
+    return read_image(path);
+  }
+
+  // The job's M / M' and path-traced sums must equal the single-process render's, bit for bit.
+  void expect_same_as_local(const std::string& id, const RenderOptions& o) {
+    const RenderOutputs local = render_local(o);
+    const Image counts = fetch_image(id, v1::RESULT_KIND_COUNTS_EXR);
+    const Image pathtrace = fetch_image(id, v1::RESULT_KIND_PATH_TRACED_EXR);
+    ASSERT_EQ(counts.data.size(), local.counts.data.size());
+    EXPECT_EQ(counts.data, local.counts.data) << "M and M' must be identical";
+    EXPECT_EQ(pathtrace.data, local.pathtrace.data) << "path-traced sums must be identical";
+  }
+
+  fs::path cache_;
+  int masters_started_ = 0, fetches_ = 0;
+  std::unique_ptr<MasterServer> master_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::JobService::Stub> jobs_;
+};
+
+TEST_F(WorkerNodeTest, TwoNodesRenderASkipJobLikeTheSingleProcessRender) {
+  const RenderOptions o = cornell_options(RenderMode::kSkip);
+  const std::string id = submit(o, bundle_scene(o.scene));
+  RunningNode a(node_options(1)), b(node_options(2));
+  const v1::JobStatus st = wait_done(id);
+  ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
+  a.stop();
+  b.stop();
+  const WorkerNodeStats sa = a.stats(), sb = b.stats();
+  EXPECT_EQ(sa.tiles_committed + sb.tiles_committed, st.tiles_committed());
+  EXPECT_GT(sa.vertices_sent + sb.vertices_sent, 0u);
+  EXPECT_EQ(sa.tiles_refused + sb.tiles_refused, 0u);
+  EXPECT_EQ(sa.registrations, 1u);
+  expect_same_as_local(id, o);
+}
+
+TEST_F(WorkerNodeTest, ExactModeJobLikeTheSingleProcessRender) {
+  const RenderOptions o = cornell_options(RenderMode::kReproject, ReprojectMethod::kExact, 32, 4, 2);
+  const std::string id = submit(o, bundle_scene(o.scene));
+  RunningNode a(node_options(2));
+  const v1::JobStatus st = wait_done(id);
+  ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
+  a.stop();
+  EXPECT_GT(a.stats().exact_samples_sent, 0u);
+  EXPECT_EQ(a.stats().vertices_sent, 0u);
+  expect_same_as_local(id, o);
+}
+
+TEST_F(WorkerNodeTest, FileScenesAreFetchedOnceThenServedFromTheCache) {
+  RenderOptions o = cornell_options(RenderMode::kPathTrace, ReprojectMethod::kCpu, 24, 2, 1);
+  o.scene = kCornellObj;
+  const SceneBundleData bundle = bundle_scene(kCornellObj);
+  {
+    const std::string id = submit(o, bundle);
+    RunningNode a(node_options(2));
+    const v1::JobStatus st = wait_done(id);
+    ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
+    a.stop();
+    EXPECT_EQ(a.stats().scenes_fetched, 1u);  // two threads, one fetch
+    EXPECT_EQ(a.stats().scene_bytes_fetched, bundle.total_bytes());
+    expect_same_as_local(id, o);
+  }
+  EXPECT_TRUE(fs::exists(fs::path(node_options().cache_dir) / "scenes" / content_hash(bundle) / ".complete"));
+  // A new worker process (same cache folder) and a new job on the same scene: no fetch.
+  o.seed = 5;
+  const std::string id = submit(o, bundle);
+  RunningNode b(node_options(1));
+  ASSERT_EQ(wait_done(id).state(), v1::JOB_STATE_DONE);
+  b.stop();
+  EXPECT_EQ(b.stats().scenes_fetched, 0u);
+  EXPECT_GT(b.stats().tiles_committed, 0u);
+}
+
+TEST_F(WorkerNodeTest, WorkerWaitsForItsMasterAndSurvivesARestart) {
+  const int port = master_->port();
+  const std::string target = master_->local_target();
+  master_->shutdown();
+  master_.reset();
+
+  // The worker starts while nobody listens: it keeps trying, with backoff, without crashing.
+  WorkerNodeOptions wo = node_options(2);
+  wo.master = target;
+  RunningNode node(wo);
+  std::this_thread::sleep_for(800ms);
+  EXPECT_EQ(node.stats().registrations, 0u);
+  EXPECT_FALSE(node.stats().registered);
+
+  start_master("127.0.0.1:" + std::to_string(port));
+  const RenderOptions o = cornell_options(RenderMode::kSkip);
+  const std::string first = submit(o, bundle_scene(o.scene));
+  ASSERT_EQ(wait_done(first).state(), v1::JOB_STATE_DONE);
+  EXPECT_GE(node.stats().registrations, 1u);
+  expect_same_as_local(first, o);
+
+  // The master restarts (a new process would forget every worker id): the worker registers again.
+  const uint64_t registrations = node.stats().registrations;
+  master_->shutdown();
+  master_.reset();
+  std::this_thread::sleep_for(300ms);
+  start_master("127.0.0.1:" + std::to_string(port));
+  const RenderOptions o2 = cornell_options(RenderMode::kReproject, ReprojectMethod::kCpu, 32, 4, 1);
+  const std::string second = submit(o2, bundle_scene(o2.scene));
+  const v1::JobStatus st = wait_done(second);
+  ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
+  EXPECT_GT(node.stats().registrations, registrations);
+  EXPECT_GE(node.stats().reconnects, 1u);
+  expect_same_as_local(second, o2);
+}
+
+TEST_F(WorkerNodeTest, StopReturnsLeasesAndAnotherWorkerFinishes) {
+  // Leases that are not returned would stay out for ten minutes: the job can only finish in time if
+  // stop() really gives them back.
+  start_master("127.0.0.1:0", 600'000);
+  // Big enough that the first worker is stopped in the middle of it.
+  const RenderOptions o = cornell_options(RenderMode::kPathTrace, ReprojectMethod::kCpu, 128, 32, 1);
+  const std::string id = submit(o, bundle_scene(o.scene));
+  auto first = std::make_unique<RunningNode>(node_options(2));
+  const auto until = std::chrono::steady_clock::now() + 60s;
+  while (first->stats().tiles_committed < 20 && std::chrono::steady_clock::now() < until) std::this_thread::sleep_for(5ms);
+  ASSERT_GE(first->stats().tiles_committed, 20u);
+  const auto took = first->stop();
+  EXPECT_LT(took.count(), 5.0) << "stop() must not wait for lease deadlines";
+  const WorkerNodeStats s1 = first->stats();
+  EXPECT_FALSE(s1.registered);
+  ASSERT_NE(status(id).state(), v1::JOB_STATE_DONE) << "make the job larger: it finished before stop()";
+  // The stopped worker unregistered: the master no longer lists it.
+  for (const auto& w : master_->jobs().workers()) EXPECT_NE(w.id, s1.worker_id);
+
+  RunningNode second(node_options(2));
+  const v1::JobStatus st = wait_done(id, 100s);
+  ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
+  second.stop();
+  EXPECT_EQ(s1.tiles_committed + second.stats().tiles_committed, st.tiles_committed());
+  expect_same_as_local(id, o);
+}
+
+}  // namespace
+}  // namespace epr
