@@ -1,10 +1,10 @@
 #include "wire/tile_result_stream.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
-
-#include <fmt/format.h>
 
 #include "worker/tile_renderer.h"
 
@@ -180,8 +180,8 @@ TileResultAssembler::TileResultAssembler(TileExpectation expected)
     : expected_(std::move(expected)), codec_(expected_.codec_bounds) {
   const auto& e = expected_;
   if (!(e.x0 < e.x1 && e.y0 < e.y1 && e.x1 <= e.image_width && e.y1 <= e.image_height))
-    throw std::invalid_argument(fmt::format("tile [{}, {}) x [{}, {}) is empty or outside the {}x{} image", e.x0,
-                                            e.x1, e.y0, e.y1, e.image_width, e.image_height));
+    throw std::invalid_argument(fmt::format("tile [{}, {}) x [{}, {}) is empty or outside the {}x{} image", e.x0, e.x1,
+                                            e.y0, e.y1, e.image_width, e.image_height));
   if (e.subpixels < 1) throw std::invalid_argument("subpixels must be >= 1");
   const uint64_t n = uint64_t(e.x1 - e.x0) * (e.y1 - e.y0);
   if (n > UINT32_MAX) throw std::invalid_argument("tile too large");
@@ -205,11 +205,16 @@ std::optional<std::string> TileResultAssembler::add(const v1::TileResultChunk& c
   if (chunk.part_case() == v1::TileResultChunk::PART_NOT_SET) return fail("chunk without a part (unknown field?)");
   if (!header_seen_) return fail("the first chunk must be the header");
   switch (chunk.part_case()) {
-    case v1::TileResultChunk::kPixels: return add_pixels(chunk.pixels());
-    case v1::TileResultChunk::kVertices: return add_vertices(chunk.vertices());
-    case v1::TileResultChunk::kExactSamples: return add_exact(chunk.exact_samples());
-    case v1::TileResultChunk::kTrailer: return add_trailer(chunk.trailer());
-    default: return fail("chunk of an unknown kind");
+    case v1::TileResultChunk::kPixels:
+      return add_pixels(chunk.pixels());
+    case v1::TileResultChunk::kVertices:
+      return add_vertices(chunk.vertices());
+    case v1::TileResultChunk::kExactSamples:
+      return add_exact(chunk.exact_samples());
+    case v1::TileResultChunk::kTrailer:
+      return add_trailer(chunk.trailer());
+    default:
+      return fail("chunk of an unknown kind");
   }
 }
 
@@ -232,7 +237,8 @@ std::optional<std::string> TileResultAssembler::add_header(const v1::TileResultH
   if (h.exact_sample_count() > 0 && e.payload != TileExpectation::Payload::kExactSamples)
     return fail(fmt::format("{} exact samples announced for a job that is not in exact mode", h.exact_sample_count()));
   if (e.max_vertices_per_tile > 0 && h.vertex_count() > e.max_vertices_per_tile)
-    return fail(fmt::format("vertex_count {} exceeds the per-tile limit {}", h.vertex_count(), e.max_vertices_per_tile));
+    return fail(
+        fmt::format("vertex_count {} exceeds the per-tile limit {}", h.vertex_count(), e.max_vertices_per_tile));
   if (e.max_vertices_per_tile > 0 && h.exact_sample_count() > e.max_vertices_per_tile)
     return fail(fmt::format("exact_sample_count {} exceeds the per-tile limit {}", h.exact_sample_count(),
                             e.max_vertices_per_tile));
@@ -316,7 +322,8 @@ std::optional<std::string> TileResultAssembler::add_exact(const v1::ExactSamples
     return fail(fmt::format("ExactSamples has {} radiance values for {} samples", s.radiance_size(), n));
   const uint64_t received = tile_.exact_samples.size() + tile_.dropped_exact_samples;
   if (received + n > header_.exact_sample_count())
-    return fail(fmt::format("more exact samples than the header's exact_sample_count {}", header_.exact_sample_count()));
+    return fail(
+        fmt::format("more exact samples than the header's exact_sample_count {}", header_.exact_sample_count()));
   const uint64_t S = expected_.subpixels;
   const uint64_t subpixels = S * expected_.image_width * S * expected_.image_height;
   for (uint64_t k = 0; k < n; ++k)
@@ -337,8 +344,8 @@ std::optional<std::string> TileResultAssembler::add_trailer(const v1::TileResult
   if (pixels_covered_ != pixel_count_)
     return fail(fmt::format("trailer after {} of the tile's {} pixels", pixels_covered_, pixel_count_));
   if (tile_.vertices.size() != header_.vertex_count())
-    return fail(fmt::format("trailer after {} of the {} vertices announced", tile_.vertices.size(),
-                            header_.vertex_count()));
+    return fail(
+        fmt::format("trailer after {} of the {} vertices announced", tile_.vertices.size(), header_.vertex_count()));
   const uint64_t exact = tile_.exact_samples.size() + tile_.dropped_exact_samples;
   if (exact != header_.exact_sample_count())
     return fail(fmt::format("trailer after {} of the {} exact samples announced", exact, header_.exact_sample_count()));

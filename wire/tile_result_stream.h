@@ -88,8 +88,8 @@ class TileResultWriter {
   const TileResult& result_;
   v1::TileResultHeader header_;
   v1::TileWorkerStats stats_;
-  std::string packed_;                  // accepted vertices, 16 bytes each, in record order
-  std::vector<uint32_t> exact_kept_;    // indices into result.visible of the samples sent
+  std::string packed_;                // accepted vertices, 16 bytes each, in record order
+  std::vector<uint32_t> exact_kept_;  // indices into result.visible of the samples sent
   uint32_t pixels_per_chunk_ = 1, vertices_per_chunk_ = 1, exact_per_chunk_ = 1;
   Phase phase_ = Phase::kHeader;
   size_t cursor_ = 0;  // next pixel / vertex / exact sample of the current phase
@@ -112,7 +112,7 @@ struct TileExpectation {
   std::string job_id;
   uint32_t round = 0;
   uint32_t tile_index = 0;
-  uint32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // the tile, raster space, pixels, upper bounds exclusive
+  uint32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;     // the tile, raster space, pixels, upper bounds exclusive
   uint32_t image_width = 0, image_height = 0;  // pixels
   uint32_t subpixels = 4;                      // S, for the range of exact-sample subpixel indices
   Bounds3 codec_bounds;                        // bit-identical to the lease's RenderSettings.codec_bounds
@@ -131,14 +131,14 @@ struct TileExpectation {
 struct AssembledTile {
   uint64_t lease_id = 0;
   std::string worker_id;
-  uint32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // raster space, pixels, upper bounds exclusive
-  std::vector<Vec3> path_sum;               // per tile pixel, row-major; linear RGB, finite, >= 0
-  std::vector<uint32_t> path_count;         // per tile pixel, row-major
-  std::vector<VertexRecord> vertices;       // decoded with the job's VertexCodec
+  uint32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;               // raster space, pixels, upper bounds exclusive
+  std::vector<Vec3> path_sum;                            // per tile pixel, row-major; linear RGB, finite, >= 0
+  std::vector<uint32_t> path_count;                      // per tile pixel, row-major
+  std::vector<VertexRecord> vertices;                    // decoded with the job's VertexCodec
   std::vector<std::pair<uint32_t, Vec3>> exact_samples;  // (subpixel, radiance), finite, >= 0
-  v1::TileWorkerStats worker_stats;         // as the worker reported them
-  uint64_t dropped_pixel_sums = 0;          // non-finite or negative sums set to 0 (counts kept)
-  uint64_t dropped_exact_samples = 0;       // non-finite or negative exact samples left out
+  v1::TileWorkerStats worker_stats;                      // as the worker reported them
+  uint64_t dropped_pixel_sums = 0;                       // non-finite or negative sums set to 0 (counts kept)
+  uint64_t dropped_exact_samples = 0;                    // non-finite or negative exact samples left out
 };
 
 /// Checks a SubmitTile stream chunk by chunk and rebuilds the tile. Usage in the service: read the

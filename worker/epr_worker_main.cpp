@@ -4,11 +4,10 @@
 #include <pthread.h>
 #include <signal.h>
 
+#include <CLI/CLI.hpp>
 #include <atomic>
 #include <cstdlib>
 #include <thread>
-
-#include <CLI/CLI.hpp>
 
 #include "common/log.h"
 #include "worker/worker_node.h"
@@ -56,7 +55,8 @@ int main(int argc, char** argv) {
           log->warn("second signal: exiting without returning leases");
           std::_Exit(128 + sig);
         }
-        log->info("{}: returning leases and stopping (send it again to exit at once)", sig == SIGINT ? "SIGINT" : "SIGTERM");
+        log->info("{}: returning leases and stopping (send it again to exit at once)",
+                  sig == SIGINT ? "SIGINT" : "SIGTERM");
         stopping = true;
         node.stop();
       }

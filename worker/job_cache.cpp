@@ -1,9 +1,9 @@
 #include "worker/job_cache.h"
 
+#include <google/protobuf/util/message_differencer.h>
+
 #include <future>
 #include <stdexcept>
-
-#include <google/protobuf/util/message_differencer.h>
 
 #include "wire/convert.h"
 #include "worker/tile_lease.h"
@@ -22,7 +22,8 @@ bool JobContext::matches(const v1::TileLease& lease) const {
          google::protobuf::util::MessageDifferencer::Equals(lease.settings(), settings);
 }
 
-JobCache::JobCache(size_t max_jobs, SceneLoader loader) : max_jobs_(std::max<size_t>(1, max_jobs)), loader_(std::move(loader)) {}
+JobCache::JobCache(size_t max_jobs, SceneLoader loader)
+    : max_jobs_(std::max<size_t>(1, max_jobs)), loader_(std::move(loader)) {}
 
 size_t JobCache::size() const {
   std::lock_guard lock(mu_);
@@ -115,7 +116,8 @@ std::shared_ptr<const JobContext> JobCache::build(const v1::TileLease& lease) {
   ctx->codec_bounds = from_proto(s.codec_bounds());
   ctx->scene = scene_for(lease.scene());
   ctx->camera = Camera(from_proto(s.camera()), int(s.width()), int(s.height()));
-  ctx->tracer = std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed, from_proto(s.russian_roulette()));
+  ctx->tracer =
+      std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed, from_proto(s.russian_roulette()));
   return ctx;
 }
 

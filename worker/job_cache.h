@@ -75,7 +75,7 @@ class JobCache {
   const size_t max_jobs_;
   const SceneLoader loader_;
   mutable std::mutex mu_;
-  std::list<std::shared_ptr<Entry>> jobs_;  // most recently used first
+  std::list<std::shared_ptr<Entry>> jobs_;                          // most recently used first
   std::map<std::string, std::weak_ptr<const LoadedScene>> scenes_;  // by content hash
   uint64_t scene_loads_ = 0;
 };

@@ -1,5 +1,6 @@
 #include "worker/scene_fetch.h"
 
+#include <fmt/format.h>
 #include <openssl/evp.h>
 #include <unistd.h>
 
@@ -9,8 +10,6 @@
 #include <random>
 #include <set>
 #include <stdexcept>
-
-#include <fmt/format.h>
 
 #include "wire/scene_bundle.h"
 
@@ -78,7 +77,8 @@ struct SceneReceiver::OpenFile {
 };
 
 bool is_content_hash(const std::string& s) {
-  return s.size() == 64 && std::all_of(s.begin(), s.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'); });
+  return s.size() == 64 &&
+         std::all_of(s.begin(), s.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'); });
 }
 
 std::optional<std::string> cached_scene_entry(const std::string& cache_root, const std::string& hash) {
@@ -137,13 +137,15 @@ std::optional<std::string> SceneReceiver::add(const v1::SceneChunk& chunk) {
 }
 
 std::optional<std::string> SceneReceiver::add_manifest(const v1::SceneManifest& m) {
-  if (m.content_hash() != hash_) return fail(fmt::format("manifest is for scene {}, asked for {}", m.content_hash(), hash_));
+  if (m.content_hash() != hash_)
+    return fail(fmt::format("manifest is for scene {}, asked for {}", m.content_hash(), hash_));
   if (uint64_t(m.files_size()) > limits_.max_files)
     return fail(fmt::format("{} files exceed the limit of {}", m.files_size(), limits_.max_files));
   std::set<std::string> paths;
   uint64_t total = 0;
   for (const auto& f : m.files()) {
-    if (!is_safe_relative_path(f.path())) return fail(fmt::format("file path '{}' is not a safe relative path", f.path()));
+    if (!is_safe_relative_path(f.path()))
+      return fail(fmt::format("file path '{}' is not a safe relative path", f.path()));
     if (f.path() == kCompleteMarker || f.path() == kEntryFile)
       return fail(fmt::format("file path '{}' is reserved by the cache", f.path()));
     if (!paths.insert(f.path()).second) return fail(fmt::format("file '{}' listed twice", f.path()));
@@ -152,7 +154,8 @@ std::optional<std::string> SceneReceiver::add_manifest(const v1::SceneManifest& 
     total += f.size_bytes();
     files_.emplace_back(f.path(), f.size_bytes());
   }
-  if (total != m.total_bytes()) return fail(fmt::format("total_bytes {} but the files add up to {}", m.total_bytes(), total));
+  if (total != m.total_bytes())
+    return fail(fmt::format("total_bytes {} but the files add up to {}", m.total_bytes(), total));
   if (!paths.count(m.entry_path())) return fail(fmt::format("entry path '{}' is not one of the files", m.entry_path()));
   entry_path_ = m.entry_path();
 
@@ -179,8 +182,8 @@ std::optional<std::string> SceneReceiver::add_manifest(const v1::SceneManifest& 
 std::optional<std::string> SceneReceiver::close_current() {
   if (current_ >= files_.size()) return std::nullopt;
   if (written_ != files_[current_].second)
-    return fail(fmt::format("file '{}' ended after {} of {} bytes", files_[current_].first, written_,
-                            files_[current_].second));
+    return fail(
+        fmt::format("file '{}' ended after {} of {} bytes", files_[current_].first, written_, files_[current_].second));
   if (out_) {
     out_->out.close();
     const bool ok = !out_->out.fail();

@@ -27,7 +27,7 @@ namespace epr {
 struct SceneFetchLimits {
   uint64_t max_total_bytes = 4ull << 30;  // sum of file sizes
   uint64_t max_files = 100000;
-  uint64_t max_chunk_bytes = 1u << 20;    // SceneFileData.data, per the proto
+  uint64_t max_chunk_bytes = 1u << 20;  // SceneFileData.data, per the proto
 };
 
 /// The entry file of a complete cached scene ("CACHE_ROOT/scenes/HASH/ENTRY"), or nullopt if the
@@ -70,8 +70,8 @@ class SceneReceiver {
   std::optional<std::string> error_;
   std::string entry_path_;
   std::vector<std::pair<std::string, uint64_t>> files_;  // (path, size) in manifest order
-  size_t current_ = 0;       // file being written
-  uint64_t written_ = 0;     // bytes of the current file so far
+  size_t current_ = 0;                                   // file being written
+  uint64_t written_ = 0;                                 // bytes of the current file so far
   uint64_t bytes_received_ = 0;
   struct OpenFile;
   std::unique_ptr<OpenFile> out_;

@@ -1,10 +1,10 @@
 #include "worker/tile_lease.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
-
-#include <fmt/format.h>
 
 #include "common/vertex_codec.h"
 #include "wire/convert.h"
@@ -12,10 +12,10 @@
 namespace epr {
 namespace {
 
-constexpr uint32_t kMaxSide = 16384;                 // JobSpec width / height range
-constexpr uint32_t kMaxPathsPerPixel = 1u << 20;     // JobSpec target_spp range
-constexpr int kMaxDepth = 100000;                    // RenderOptions::validate's --max-depth range
-constexpr uint32_t kMaxSubpixels = 16;               // ReprojectionSettings.subpixels range
+constexpr uint32_t kMaxSide = 16384;              // JobSpec width / height range
+constexpr uint32_t kMaxPathsPerPixel = 1u << 20;  // JobSpec target_spp range
+constexpr int kMaxDepth = 100000;                 // RenderOptions::validate's --max-depth range
+constexpr uint32_t kMaxSubpixels = 16;            // ReprojectionSettings.subpixels range
 
 }  // namespace
 

@@ -55,8 +55,8 @@ struct LeasedTile {
 std::optional<std::string> unpack_tile_lease(const v1::TileLease& lease, LeasedTile* out);
 
 /// Renders the tile in strips of whole rows of about `strip_paths` paths, asking `cancelled` between
-/// strips; nullopt if it said yes. Bit-identical to rendering the tile in one call (the renderer is deterministic per pixel and
-/// sample, and strips are concatenated in row-major order); stats.seconds is the sum over strips.
+/// strips; nullopt if it said yes. Bit-identical to rendering the tile in one call (the renderer is deterministic per
+/// pixel and sample, and strips are concatenated in row-major order); stats.seconds is the sum over strips.
 std::optional<TileResult> render_leased_tile(const TileRenderer& renderer, const LeasedTile& tile,
                                              const std::function<bool()>& cancelled, int strip_paths = 4096);
 

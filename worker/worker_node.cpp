@@ -1,5 +1,7 @@
 #include "worker/worker_node.h"
 
+#include <fmt/format.h>
+#include <grpcpp/grpcpp.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -15,9 +17,6 @@
 #include <stdexcept>
 #include <thread>
 #include <vector>
-
-#include <fmt/format.h>
-#include <grpcpp/grpcpp.h>
 
 #include "common/log.h"
 #include "common/scene_loader.h"
@@ -48,19 +47,20 @@ constexpr Millis kUnregisterDeadline = 3s;
 constexpr Millis kFetchDeadlineBase = 60s;
 constexpr Millis kSubmitDeadlineBase = 30s;
 constexpr double kSlowLinkBytesPerSecond = 1e6;
-constexpr int kSubmitAttempts = 3;            // SubmitTile tries on UNAVAILABLE / DEADLINE_EXCEEDED
+constexpr int kSubmitAttempts = 3;                  // SubmitTile tries on UNAVAILABLE / DEADLINE_EXCEEDED
 constexpr int kMinWaitMs = 10, kMaxWaitMs = 60000;  // bounds on the master's Wait.retry_after_ms
-constexpr size_t kMaxFailingJobs = 256;         // job failure records kept
+constexpr size_t kMaxFailingJobs = 256;             // job failure records kept
 
 Millis size_deadline(Millis base, double bytes) {
   return base + Millis(int64_t(bytes / kSlowLinkBytesPerSecond * 1000.0));
 }
 
 std::string describe(const grpc::Status& s) {
-  static const char* const kNames[] = {"OK", "CANCELLED", "UNKNOWN", "INVALID_ARGUMENT", "DEADLINE_EXCEEDED",
-                                       "NOT_FOUND", "ALREADY_EXISTS", "PERMISSION_DENIED", "RESOURCE_EXHAUSTED",
-                                       "FAILED_PRECONDITION", "ABORTED", "OUT_OF_RANGE", "UNIMPLEMENTED",
-                                       "INTERNAL", "UNAVAILABLE", "DATA_LOSS", "UNAUTHENTICATED"};
+  static const char* const kNames[] = {
+      "OK",        "CANCELLED",      "UNKNOWN",           "INVALID_ARGUMENT",   "DEADLINE_EXCEEDED",
+      "NOT_FOUND", "ALREADY_EXISTS", "PERMISSION_DENIED", "RESOURCE_EXHAUSTED", "FAILED_PRECONDITION",
+      "ABORTED",   "OUT_OF_RANGE",   "UNIMPLEMENTED",     "INTERNAL",           "UNAVAILABLE",
+      "DATA_LOSS", "UNAUTHENTICATED"};
   const int code = int(s.error_code());
   const char* name = code >= 0 && code <= 16 ? kNames[code] : "?";
   return s.error_message().empty() ? std::string(name) : fmt::format("{}: {}", name, s.error_message());
@@ -134,7 +134,8 @@ struct WorkerNode::Impl {
         token(read_token(opts.token_file, *log)),
         name(opts.name.empty() ? default_name() : opts.name),
         threads(opts.threads > 0 ? opts.threads : int(std::max(1u, std::thread::hardware_concurrency()))),
-        jobs(size_t(std::max(1, opts.max_cached_jobs)), [this](const v1::SceneRef& ref) { return load_scene_for(ref); }),
+        jobs(size_t(std::max(1, opts.max_cached_jobs)),
+             [this](const v1::SceneRef& ref) { return load_scene_for(ref); }),
         rng(std::random_device{}()) {}
 
   WorkerNodeOptions opts;
@@ -285,7 +286,8 @@ struct WorkerNode::Impl {
       return nullptr;
     }
     s->worker_id = id;
-    s->heartbeat_ms = std::clamp<uint32_t>(resp.heartbeat_interval_ms() ? resp.heartbeat_interval_ms() : 1000, 50, 60000);
+    s->heartbeat_ms =
+        std::clamp<uint32_t>(resp.heartbeat_interval_ms() ? resp.heartbeat_interval_ms() : 1000, 50, 60000);
     if (resp.max_vertices_per_chunk()) s->limits.max_vertices_per_chunk = resp.max_vertices_per_chunk();
     if (resp.max_chunk_bytes()) s->limits.max_chunk_bytes = resp.max_chunk_bytes();
     return s;
@@ -298,13 +300,13 @@ struct WorkerNode::Impl {
       SceneBundleData b;
       b.builtin = ref.builtin();
       if (content_hash(b) != ref.content_hash())
-        throw std::runtime_error(fmt::format("built-in scene '{}' does not have content hash {}", ref.builtin(),
-                                             ref.content_hash()));
+        throw std::runtime_error(
+            fmt::format("built-in scene '{}' does not have content hash {}", ref.builtin(), ref.content_hash()));
       return load_scene(ref.builtin());
     }
     if (!is_content_hash(ref.content_hash()))
-      throw std::runtime_error(fmt::format("scene reference '{}' is neither a built-in nor a content hash",
-                                           ref.content_hash()));
+      throw std::runtime_error(
+          fmt::format("scene reference '{}' is neither a built-in nor a content hash", ref.content_hash()));
     std::optional<std::string> entry = cached_scene_entry(opts.cache_dir, ref.content_hash());
     if (!entry) entry = fetch_scene(ref);
     return load_scene(*entry);
@@ -390,8 +392,12 @@ struct WorkerNode::Impl {
 
     LeasedTile tile;
     if (auto err = unpack_tile_lease(lease, &tile)) {
-      log->error("lease {} (job {} tile {}) is unusable: {}", id, lease.job_id(), lease.tile_index(), *err);
+      // A master bug: the tile would come straight back, so wait before leasing again.
+      const int delay = job_failed(lease.job_id());
+      log->error("lease {} (job {} tile {}) is unusable: {} (returned, leasing again in {} ms)", id, lease.job_id(),
+                 lease.tile_index(), *err, delay);
       if (return_leases(s, {id}, "unusable lease: " + *err)) release(s, id);
+      wait_for(&s, delay);
       return;
     }
     std::shared_ptr<const JobContext> job;
@@ -433,8 +439,8 @@ struct WorkerNode::Impl {
     for (int attempt = 1;; ++attempt) {
       TileResultWriter writer(result, identity, job.codec_bounds, s.limits);
       const auto& head = writer.header();
-      const double bytes = 17.0 * head.pixel_count() + 16.0 * double(head.vertex_count()) +
-                           17.0 * double(head.exact_sample_count());
+      const double bytes =
+          17.0 * head.pixel_count() + 16.0 * double(head.vertex_count()) + 17.0 * double(head.exact_sample_count());
       grpc::ClientContext ctx;
       prepare(ctx, size_deadline(kSubmitDeadlineBase, bytes));
       CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
@@ -458,9 +464,14 @@ struct WorkerNode::Impl {
             counters.vertices_sent += head.vertex_count();
             counters.exact_samples_sent += head.exact_sample_count();
             break;
-          case v1::SUBMIT_OUTCOME_DUPLICATE: ++counters.tiles_duplicate; break;
-          case v1::SUBMIT_OUTCOME_STALE: ++counters.tiles_stale; break;
-          default: break;
+          case v1::SUBMIT_OUTCOME_DUPLICATE:
+            ++counters.tiles_duplicate;
+            break;
+          case v1::SUBMIT_OUTCOME_STALE:
+            ++counters.tiles_stale;
+            break;
+          default:
+            break;
         }
         log->debug("lease {}: submitted, accepted={} {}", lease.lease_id(), ack.accepted(), ack.reason());
         return true;
@@ -532,8 +543,12 @@ struct WorkerNode::Impl {
       }
       s.healthy = true;
       switch (lease.kind_case()) {
-        case v1::Lease::kTile: process_tile(s, lease.tile()); break;
-        case v1::Lease::kWait: wait_for(&s, std::clamp<int>(int(lease.wait().retry_after_ms()), kMinWaitMs, kMaxWaitMs)); break;
+        case v1::Lease::kTile:
+          process_tile(s, lease.tile());
+          break;
+        case v1::Lease::kWait:
+          wait_for(&s, std::clamp<int>(int(lease.wait().retry_after_ms()), kMinWaitMs, kMaxWaitMs));
+          break;
         case v1::Lease::kShutdown:
           log->info("the master asks the worker to shut down: {}", lease.shutdown().reason());
           stop("master shutdown: " + lease.shutdown().reason());

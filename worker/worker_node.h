@@ -37,9 +37,9 @@
 namespace epr {
 
 struct WorkerNodeOptions {
-  std::string master = "localhost:50051";  // HOST:PORT of epr-master's gRPC endpoint
-  int threads = 0;                         // tracing threads; 0: std::thread::hardware_concurrency()
-  std::string name;                        // shown on dashboards; empty: "HOSTNAME-PID"
+  std::string master = "localhost:50051";        // HOST:PORT of epr-master's gRPC endpoint
+  int threads = 0;                               // tracing threads; 0: std::thread::hardware_concurrency()
+  std::string name;                              // shown on dashboards; empty: "HOSTNAME-PID"
   std::string cache_dir = default_cache_root();  // scene cache root (scenes/HASH/...)
   /// Bearer token file (first line; surrounding whitespace ignored). Empty: the EPR_TOKEN environment
   /// variable if set, else no token. Sent as "authorization: Bearer <token>" on every call.
@@ -50,17 +50,17 @@ struct WorkerNodeOptions {
 };
 
 struct WorkerNodeStats {
-  std::string worker_id;        // as assigned by the master at the last registration; empty if none
-  bool registered = false;      // a session with the master is up
-  uint64_t registrations = 0;   // successful Register calls
-  uint64_t reconnects = 0;      // sessions lost (master unreachable, restarted, ...)
+  std::string worker_id;       // as assigned by the master at the last registration; empty if none
+  bool registered = false;     // a session with the master is up
+  uint64_t registrations = 0;  // successful Register calls
+  uint64_t reconnects = 0;     // sessions lost (master unreachable, restarted, ...)
   uint64_t tiles_leased = 0;
-  uint64_t tiles_committed = 0;   // SubmitAck COMMITTED
-  uint64_t tiles_duplicate = 0;   // SubmitAck DUPLICATE
-  uint64_t tiles_stale = 0;       // SubmitAck STALE
-  uint64_t tiles_refused = 0;     // SubmitTile failed with an error status (INVALID_ARGUMENT, ...)
-  uint64_t tiles_abandoned = 0;   // heartbeat said the lease is no longer valid, or the session ended
-  uint64_t tiles_returned = 0;    // given back with ReturnLease (bad lease, scene failure, stop)
+  uint64_t tiles_committed = 0;  // SubmitAck COMMITTED
+  uint64_t tiles_duplicate = 0;  // SubmitAck DUPLICATE
+  uint64_t tiles_stale = 0;      // SubmitAck STALE
+  uint64_t tiles_refused = 0;    // SubmitTile failed with an error status (INVALID_ARGUMENT, ...)
+  uint64_t tiles_abandoned = 0;  // heartbeat said the lease is no longer valid, or the session ended
+  uint64_t tiles_returned = 0;   // given back with ReturnLease (bad lease, scene failure, stop)
   uint64_t paths_traced = 0;
   uint64_t vertices_sent = 0;
   uint64_t exact_samples_sent = 0;

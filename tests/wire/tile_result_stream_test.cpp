@@ -238,8 +238,8 @@ TileResult big_tile() {
 TEST(TileResultStream, BigTileRespectsTheChunkLimits) {
   const TileResult r = big_tile();
   const Bounds3 bounds{Vec3(0.f), Vec3(1.f)};
-  for (const TileResultLimits limits : {TileResultLimits{65536, 2u << 20}, TileResultLimits{100'000, 256 * 1024},
-                                        TileResultLimits{1000, 2u << 20}}) {
+  for (const TileResultLimits limits :
+       {TileResultLimits{65536, 2u << 20}, TileResultLimits{100'000, 256 * 1024}, TileResultLimits{1000, 2u << 20}}) {
     SCOPED_TRACE(testing::Message() << limits.max_vertices_per_chunk << " vertices, " << limits.max_chunk_bytes
                                     << " bytes");
     TileResultWriter w(r, identity(), bounds, limits);
@@ -285,11 +285,11 @@ TEST(TileResultStream, WriterDropsWhatTheCodecRefusesAndCountsIt) {
   r.stats.paths.nonfinite_dropped = 2;
   const Vec3 up(0, 1, 0);
   r.vertices = {
-      {Vec3(0.5f), up, Vec3(1.f), VertexRecord::kDiffuse},            // fine
-      {Vec3(50.f), up, Vec3(1.f), VertexRecord::kDiffuse},            // outside the bounds
-      {Vec3(0.5f), Vec3(0.f), Vec3(1.f), VertexRecord::kDiffuse},     // bad normal
-      {Vec3(0.5f), up, Vec3(kInf, 0, 0), VertexRecord::kDiffuse},     // non-finite radiance
-      {Vec3(0.25f), up, Vec3(2.f), 0},                                // fine, glossy
+      {Vec3(0.5f), up, Vec3(1.f), VertexRecord::kDiffuse},         // fine
+      {Vec3(50.f), up, Vec3(1.f), VertexRecord::kDiffuse},         // outside the bounds
+      {Vec3(0.5f), Vec3(0.f), Vec3(1.f), VertexRecord::kDiffuse},  // bad normal
+      {Vec3(0.5f), up, Vec3(kInf, 0, 0), VertexRecord::kDiffuse},  // non-finite radiance
+      {Vec3(0.25f), up, Vec3(2.f), 0},                             // fine, glossy
   };
   r.visible = {{3, Vec3(1.f)}, {4, Vec3(kNaN)}, {5, Vec3(-1.f, 0, 0)}};
   const Bounds3 bounds{Vec3(0.f), Vec3(1.f)};
@@ -330,8 +330,8 @@ struct SmallStream {
     EXPECT_EQ(chunks.size(), 4u);
   }
   TileExpectation expected(bool exact = false) const {
-    TileExpectation e = expectation(rect, exact ? TileExpectation::Payload::kExactSamples
-                                                : TileExpectation::Payload::kVertices, bounds);
+    TileExpectation e = expectation(
+        rect, exact ? TileExpectation::Payload::kExactSamples : TileExpectation::Payload::kVertices, bounds);
     return e;
   }
 };
@@ -354,8 +354,7 @@ struct Violation {
 
 TEST(TileResultStream, EveryViolationIsRefusedWithAReason) {
   const std::vector<Violation> violations = {
-      {"header not first", "first chunk must be the header",
-       [](auto& c, auto&) { std::swap(c[0], c[1]); }},
+      {"header not first", "first chunk must be the header", [](auto& c, auto&) { std::swap(c[0], c[1]); }},
       {"header twice", "second header", [](auto& c, auto&) { c.insert(c.begin() + 1, c[0]); }},
       {"wrong job", "job_id", [](auto& c, auto&) { c[0].mutable_header()->set_job_id("job-2"); }},
       {"wrong round", "round", [](auto& c, auto&) { c[0].mutable_header()->set_round(4); }},
@@ -367,8 +366,7 @@ TEST(TileResultStream, EveryViolationIsRefusedWithAReason) {
        [](auto& c, auto&) { c[0].mutable_header()->set_vertex_encoding(v1::VERTEX_ENCODING_UNSPECIFIED); }},
       {"first_pixel out of range", "outside the tile",
        [](auto& c, auto&) { c[1].mutable_pixels()->set_first_pixel(8); }},
-      {"pixel run past the end", "outside the tile",
-       [](auto& c, auto&) { c[1].mutable_pixels()->set_first_pixel(1); }},
+      {"pixel run past the end", "outside the tile", [](auto& c, auto&) { c[1].mutable_pixels()->set_first_pixel(1); }},
       {"first_pixel overflow", "outside the tile",
        [](auto& c, auto&) { c[1].mutable_pixels()->set_first_pixel(0xffffffffu); }},
       {"radiance count", "radiance values", [](auto& c, auto&) { c[1].mutable_pixels()->add_radiance_sum(1.f); }},
@@ -485,9 +483,9 @@ TEST(TileResultStream, NonFiniteRadianceIsDroppedAndCounted) {
   {
     SmallStream s;
     auto* px = s.chunks[1].mutable_pixels();
-    px->set_radiance_sum(3 * 2 + 1, kNaN);   // pixel 2
-    px->set_radiance_sum(3 * 5 + 0, kInf);   // pixel 5
-    px->set_radiance_sum(3 * 6 + 2, -1.f);   // pixel 6: negative radiance
+    px->set_radiance_sum(3 * 2 + 1, kNaN);  // pixel 2
+    px->set_radiance_sum(3 * 5 + 0, kInf);  // pixel 5
+    px->set_radiance_sum(3 * 6 + 2, -1.f);  // pixel 6: negative radiance
     const AssembledTile t = assemble(s.chunks, s.expected());
     EXPECT_EQ(t.dropped_pixel_sums, 3u);
     for (int i : {2, 5, 6}) {

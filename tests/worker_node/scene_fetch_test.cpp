@@ -133,7 +133,8 @@ TEST(SceneFetch, ConcurrentFetchesOfOneSceneDoNotCollide) {
   std::vector<std::optional<std::string>> errors(4);
   std::vector<std::string> entries(4);
   for (int i = 0; i < 4; ++i)
-    threads.emplace_back([&, i] { errors[size_t(i)] = receive(dir.str(), content_hash(b), chunks, &entries[size_t(i)]); });
+    threads.emplace_back(
+        [&, i] { errors[size_t(i)] = receive(dir.str(), content_hash(b), chunks, &entries[size_t(i)]); });
   for (auto& t : threads) t.join();
   for (int i = 0; i < 4; ++i) {
     EXPECT_FALSE(errors[size_t(i)]) << *errors[size_t(i)];
@@ -154,7 +155,8 @@ TEST(SceneFetch, MalformedStreamsAreRefusedAndLeaveNothingBehind) {
       {"unsafe path", [](Chunks& c) { c[0].mutable_manifest()->mutable_files(0)->set_path("../evil.mtl"); }},
       {"absolute path", [](Chunks& c) { c[0].mutable_manifest()->mutable_files(0)->set_path("/etc/evil"); }},
       {"reserved name", [](Chunks& c) { c[0].mutable_manifest()->mutable_files(0)->set_path(".complete"); }},
-      {"duplicate path", [](Chunks& c) {
+      {"duplicate path",
+       [](Chunks& c) {
          auto* m = c[0].mutable_manifest();
          m->mutable_files(1)->set_path(m->files(0).path());
        }},

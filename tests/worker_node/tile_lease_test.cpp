@@ -130,14 +130,18 @@ TEST(TileLease, RefusesLeasesThatCannotBeTraced) {
       {"image too large", [](auto& l) { l.mutable_settings()->set_width(100000); }},
       {"unknown mode", [](auto& l) { l.mutable_settings()->set_mode(v1::RenderMode(9)); }},
       {"unspecified mode", [](auto& l) { l.mutable_settings()->set_mode(v1::RENDER_MODE_UNSPECIFIED); }},
-      {"unknown method", [](auto& l) { l.mutable_settings()->mutable_reprojection()->set_method(v1::ReprojectionMethod(7)); }},
+      {"unknown method",
+       [](auto& l) { l.mutable_settings()->mutable_reprojection()->set_method(v1::ReprojectionMethod(7)); }},
       {"subpixels 0", [](auto& l) { l.mutable_settings()->mutable_reprojection()->set_subpixels(0); }},
       {"subpixels 17", [](auto& l) { l.mutable_settings()->mutable_reprojection()->set_subpixels(17); }},
       {"NaN codec bounds", [=](auto& l) { l.mutable_settings()->mutable_codec_bounds()->mutable_lo()->set_x(nan); }},
-      {"inverted codec bounds", [](auto& l) { l.mutable_settings()->mutable_codec_bounds()->mutable_lo()->set_x(5.f); }},
-      {"camera eye == look", [](auto& l) { *l.mutable_settings()->mutable_camera()->mutable_eye() = l.settings().camera().look(); }},
+      {"inverted codec bounds",
+       [](auto& l) { l.mutable_settings()->mutable_codec_bounds()->mutable_lo()->set_x(5.f); }},
+      {"camera eye == look",
+       [](auto& l) { *l.mutable_settings()->mutable_camera()->mutable_eye() = l.settings().camera().look(); }},
       {"NaN fov", [=](auto& l) { l.mutable_settings()->mutable_camera()->set_fov_y_degrees(nan); }},
-      {"termination 1", [](auto& l) { l.mutable_settings()->mutable_russian_roulette()->set_termination_probability(1.f); }},
+      {"termination 1",
+       [](auto& l) { l.mutable_settings()->mutable_russian_roulette()->set_termination_probability(1.f); }},
       {"max_depth 0", [](auto& l) { l.mutable_settings()->mutable_russian_roulette()->set_max_depth(0); }},
   };
   for (const auto& [name, mutate] : cases) {
@@ -170,7 +174,13 @@ TEST(TileLease, StripsAreBitIdenticalToOneCall) {
     const TileRenderer renderer(tracer, t.filter);
     const TileResult whole = renderer.render(t.request());
     int strips = 0;
-    const auto parts = render_leased_tile(renderer, t, [&] { ++strips; return false; }, /*strip_paths=*/100);
+    const auto parts = render_leased_tile(
+        renderer, t,
+        [&] {
+          ++strips;
+          return false;
+        },
+        /*strip_paths=*/100);
     ASSERT_TRUE(parts);
     EXPECT_GT(strips, 5);
     ASSERT_EQ(parts->path_sum.size(), whole.path_sum.size());
@@ -186,7 +196,8 @@ TEST(TileLease, StripsAreBitIdenticalToOneCall) {
 
     // Cancelled after the second strip: no result.
     int calls = 0;
-    EXPECT_FALSE(render_leased_tile(renderer, t, [&] { return ++calls > 2; }, 100));
+    EXPECT_FALSE(render_leased_tile(
+        renderer, t, [&] { return ++calls > 2; }, 100));
     EXPECT_EQ(calls, 3);
   }
 }

@@ -5,9 +5,8 @@
 // back so another worker finishes the job with nothing lost or counted twice.
 #include "worker/worker_node.h"
 
-#include <gtest/gtest.h>
-
 #include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -50,9 +49,8 @@ class RunningNode {
 class WorkerNodeTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    cache_ = fs::path(::testing::TempDir()) /
-             ("epr-worker-node-" + std::to_string(::getpid()) + "-" +
-              ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    cache_ = fs::path(::testing::TempDir()) / ("epr-worker-node-" + std::to_string(::getpid()) + "-" +
+                                               ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(cache_);
     start_master("127.0.0.1:0");
   }
@@ -264,7 +262,8 @@ TEST_F(WorkerNodeTest, StopReturnsLeasesAndAnotherWorkerFinishes) {
   const std::string id = submit(o, bundle_scene(o.scene));
   auto first = std::make_unique<RunningNode>(node_options(2));
   const auto until = std::chrono::steady_clock::now() + 60s;
-  while (first->stats().tiles_committed < 20 && std::chrono::steady_clock::now() < until) std::this_thread::sleep_for(5ms);
+  while (first->stats().tiles_committed < 20 && std::chrono::steady_clock::now() < until)
+    std::this_thread::sleep_for(5ms);
   ASSERT_GE(first->stats().tiles_committed, 20u);
   const auto took = first->stop();
   EXPECT_LT(took.count(), 5.0) << "stop() must not wait for lease deadlines";
