@@ -1,5 +1,6 @@
 #include "client/job_client.h"
 
+#include <fmt/format.h>
 #include <openssl/evp.h>
 #include <unistd.h>
 
@@ -11,10 +12,8 @@
 #include <sstream>
 #include <thread>
 
-#include <fmt/format.h>
-
-#include "common/log.h"
 #include "common/builtin_scenes.h"
+#include "common/log.h"
 #include "common/scene_loader.h"
 #include "wire/convert.h"
 
@@ -106,35 +105,59 @@ bool RpcError::unreachable() const {
 
 std::string status_code_name(grpc::StatusCode code) {
   switch (code) {
-    case grpc::StatusCode::OK: return "OK";
-    case grpc::StatusCode::CANCELLED: return "CANCELLED";
-    case grpc::StatusCode::UNKNOWN: return "UNKNOWN";
-    case grpc::StatusCode::INVALID_ARGUMENT: return "INVALID_ARGUMENT";
-    case grpc::StatusCode::DEADLINE_EXCEEDED: return "DEADLINE_EXCEEDED";
-    case grpc::StatusCode::NOT_FOUND: return "NOT_FOUND";
-    case grpc::StatusCode::ALREADY_EXISTS: return "ALREADY_EXISTS";
-    case grpc::StatusCode::PERMISSION_DENIED: return "PERMISSION_DENIED";
-    case grpc::StatusCode::RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
-    case grpc::StatusCode::FAILED_PRECONDITION: return "FAILED_PRECONDITION";
-    case grpc::StatusCode::ABORTED: return "ABORTED";
-    case grpc::StatusCode::OUT_OF_RANGE: return "OUT_OF_RANGE";
-    case grpc::StatusCode::UNIMPLEMENTED: return "UNIMPLEMENTED";
-    case grpc::StatusCode::INTERNAL: return "INTERNAL";
-    case grpc::StatusCode::UNAVAILABLE: return "UNAVAILABLE";
-    case grpc::StatusCode::DATA_LOSS: return "DATA_LOSS";
-    case grpc::StatusCode::UNAUTHENTICATED: return "UNAUTHENTICATED";
-    default: return fmt::format("status {}", int(code));
+    case grpc::StatusCode::OK:
+      return "OK";
+    case grpc::StatusCode::CANCELLED:
+      return "CANCELLED";
+    case grpc::StatusCode::UNKNOWN:
+      return "UNKNOWN";
+    case grpc::StatusCode::INVALID_ARGUMENT:
+      return "INVALID_ARGUMENT";
+    case grpc::StatusCode::DEADLINE_EXCEEDED:
+      return "DEADLINE_EXCEEDED";
+    case grpc::StatusCode::NOT_FOUND:
+      return "NOT_FOUND";
+    case grpc::StatusCode::ALREADY_EXISTS:
+      return "ALREADY_EXISTS";
+    case grpc::StatusCode::PERMISSION_DENIED:
+      return "PERMISSION_DENIED";
+    case grpc::StatusCode::RESOURCE_EXHAUSTED:
+      return "RESOURCE_EXHAUSTED";
+    case grpc::StatusCode::FAILED_PRECONDITION:
+      return "FAILED_PRECONDITION";
+    case grpc::StatusCode::ABORTED:
+      return "ABORTED";
+    case grpc::StatusCode::OUT_OF_RANGE:
+      return "OUT_OF_RANGE";
+    case grpc::StatusCode::UNIMPLEMENTED:
+      return "UNIMPLEMENTED";
+    case grpc::StatusCode::INTERNAL:
+      return "INTERNAL";
+    case grpc::StatusCode::UNAVAILABLE:
+      return "UNAVAILABLE";
+    case grpc::StatusCode::DATA_LOSS:
+      return "DATA_LOSS";
+    case grpc::StatusCode::UNAUTHENTICATED:
+      return "UNAUTHENTICATED";
+    default:
+      return fmt::format("status {}", int(code));
   }
 }
 
 std::string state_name(v1::JobState state) {
   switch (state) {
-    case v1::JOB_STATE_QUEUED: return "QUEUED";
-    case v1::JOB_STATE_RUNNING: return "RUNNING";
-    case v1::JOB_STATE_DONE: return "DONE";
-    case v1::JOB_STATE_FAILED: return "FAILED";
-    case v1::JOB_STATE_CANCELLED: return "CANCELLED";
-    default: return "UNSPECIFIED";
+    case v1::JOB_STATE_QUEUED:
+      return "QUEUED";
+    case v1::JOB_STATE_RUNNING:
+      return "RUNNING";
+    case v1::JOB_STATE_DONE:
+      return "DONE";
+    case v1::JOB_STATE_FAILED:
+      return "FAILED";
+    case v1::JOB_STATE_CANCELLED:
+      return "CANCELLED";
+    default:
+      return "UNSPECIFIED";
   }
 }
 
@@ -188,7 +211,9 @@ JobClient::JobClient(const std::string& target, JobClientOptions options)
 }
 
 JobClient::JobClient(std::shared_ptr<grpc::Channel> channel, const std::string& target, JobClientOptions options)
-    : target_(target), options_(std::move(options)), channel_(std::move(channel)),
+    : target_(target),
+      options_(std::move(options)),
+      channel_(std::move(channel)),
       stub_(v1::JobService::NewStub(channel_)) {}
 
 void JobClient::prepare(grpc::ClientContext* ctx, std::chrono::milliseconds timeout) const {
@@ -218,9 +243,9 @@ void JobClient::check_reachable() {
     if (state == GRPC_CHANNEL_TRANSIENT_FAILURE || state == GRPC_CHANNEL_SHUTDOWN)
       fail(grpc::Status(grpc::StatusCode::UNAVAILABLE, "connection failed"), "connect");
     if (!channel_->WaitForStateChange(state, deadline))
-      throw RpcError(grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "no connection"),
-                     fmt::format("cannot reach master at {} (no connection within {})", target_,
-                                 seconds_text(options_.timeout)));
+      throw RpcError(
+          grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "no connection"),
+          fmt::format("cannot reach master at {} (no connection within {})", target_, seconds_text(options_.timeout)));
     state = channel_->GetState(true);
   }
 }
@@ -229,7 +254,8 @@ void JobClient::check_reachable() {
 
 v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, const SubmitOptions& submit) {
   SceneBundleData bundle = bundle_scene(opts.scene);
-  if (!bundle.builtin.empty()) parse_builtin_spec(bundle.builtin.substr(8));  // unknown names fail here, not on the master
+  if (!bundle.builtin.empty())
+    parse_builtin_spec(bundle.builtin.substr(8));  // unknown names fail here, not on the master
   // The job names its camera explicitly (the master requires one): the overrides, completed from the
   // scene's own camera unless they give all of it. OBJ files carry no camera (scene_loader.h: they
   // get CameraSpec's default), so only built-ins and scene JSON files are loaded for it.
@@ -324,9 +350,9 @@ std::string JobClient::upload_scene(const SceneBundleData& bundle) {
   const grpc::Status s = writer->Finish();
   if (!s.ok()) fail(s, "UploadScene");
   if (ref.content_hash() != hash)
-    throw RpcError(grpc::Status(grpc::StatusCode::DATA_LOSS, "hash mismatch"),
-                   fmt::format("master at {} stored the uploaded scene as {}, expected {}", target_,
-                               ref.content_hash(), hash));
+    throw RpcError(
+        grpc::Status(grpc::StatusCode::DATA_LOSS, "hash mismatch"),
+        fmt::format("master at {} stored the uploaded scene as {}, expected {}", target_, ref.content_hash(), hash));
   logger("client")->info("uploaded scene {} ({} bytes) to {}", hash, bundle.total_bytes(), target_);
   return hash;
 }
@@ -388,7 +414,7 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
   check_reachable();  // the first call must not wait out watch_call_timeout on a silent address
 
   std::optional<v1::JobStatus> last;
-  bool lost = false;            // the master went away mid-watch...
+  bool lost = false;             // the master went away mid-watch...
   Clock::time_point lost_since;  // ...at this time
   for (;;) {
     grpc::ClientContext ctx;
@@ -401,8 +427,7 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
       timeout = std::max(std::chrono::milliseconds(1), std::min(timeout, left));
     }
     prepare(&ctx, timeout);
-    if (canceller && !canceller->attach(&ctx))
-      fail(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"), "WatchJob");
+    if (canceller && !canceller->attach(&ctx)) fail(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"), "WatchJob");
 
     auto reader = stub_->WatchJob(&ctx, req);
     v1::JobStatus st;
@@ -427,8 +452,10 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
 
     const auto code = s.error_code();
     if (code == grpc::StatusCode::DEADLINE_EXCEEDED && last && !lost) continue;  // refresh the call
-    const bool went_away = s.ok() || code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::DEADLINE_EXCEEDED;
-    if (!last || !went_away) fail(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s, "WatchJob");
+    const bool went_away =
+        s.ok() || code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::DEADLINE_EXCEEDED;
+    if (!last || !went_away)
+      fail(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s, "WatchJob");
     // The master went away after we saw the job (a restart: jobs resume from their checkpoint).
     if (!lost) {
       lost = true;
@@ -436,10 +463,10 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
       logger("client")->warn("lost the watch of job {} at {} ({}); reconnecting for up to {}", job_id, target_,
                              status_code_name(code), seconds_text(options_.watch_reconnect_timeout));
     } else if (Clock::now() - lost_since >= options_.watch_reconnect_timeout) {
-      throw RpcError(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s,
-                     fmt::format("lost master at {} while watching job {} and could not reconnect within {} ({})",
-                                 target_, job_id, seconds_text(options_.watch_reconnect_timeout),
-                                 status_code_name(code)));
+      throw RpcError(
+          s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s,
+          fmt::format("lost master at {} while watching job {} and could not reconnect within {} ({})", target_, job_id,
+                      seconds_text(options_.watch_reconnect_timeout), status_code_name(code)));
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(200));  // no hot loop on a master that ends streams at once
   }
@@ -522,7 +549,8 @@ FetchedFile JobClient::fetch_to(const std::string& job_id, v1::ResultKind kind,
 
 FetchedFile JobClient::fetch(const std::string& job_id, v1::ResultKind kind, const std::string& path,
                              bool allow_partial) {
-  return fetch_to(job_id, kind, [&](const v1::ResultHeader&) { return path; }, allow_partial);
+  return fetch_to(
+      job_id, kind, [&](const v1::ResultHeader&) { return path; }, allow_partial);
 }
 
 std::vector<FetchedFile> JobClient::fetch_all(const std::string& job_id, const std::string& prefix,
@@ -548,8 +576,7 @@ std::vector<FetchedFile> JobClient::fetch_all(const std::string& job_id, const s
     try {
       files.push_back(fetch_to(job_id, o.kind, path_for, allow_partial));
     } catch (const RpcError& e) {
-      const bool absent =
-          e.code() == grpc::StatusCode::NOT_FOUND || e.code() == grpc::StatusCode::FAILED_PRECONDITION;
+      const bool absent = e.code() == grpc::StatusCode::NOT_FOUND || e.code() == grpc::StatusCode::FAILED_PRECONDITION;
       if (o.kind == v1::RESULT_KIND_EXR || !absent) throw;
       logger("client")->debug("job {} has no {} result: {}", job_id, kind_name(o.kind), e.what());
     }

@@ -17,6 +17,8 @@
 // SceneError and std::runtime_error.
 #pragma once
 
+#include <grpcpp/grpcpp.h>
+
 #include <chrono>
 #include <functional>
 #include <memory>
@@ -25,8 +27,6 @@
 #include <stdexcept>
 #include <string>
 #include <vector>
-
-#include <grpcpp/grpcpp.h>
 
 #include "common/render_options.h"
 #include "epr/v1/job_service.grpc.pb.h"
@@ -37,8 +37,7 @@ namespace epr {
 /// An error status from the master (or no answer from it), with a message for humans.
 class RpcError : public std::runtime_error {
  public:
-  RpcError(grpc::Status status, const std::string& message)
-      : std::runtime_error(message), status_(std::move(status)) {}
+  RpcError(grpc::Status status, const std::string& message) : std::runtime_error(message), status_(std::move(status)) {}
   const grpc::Status& status() const { return status_; }
   grpc::StatusCode code() const { return status_.error_code(); }
   /// True when the master could not be reached or did not answer in time (UNAVAILABLE,
@@ -54,9 +53,9 @@ struct JobClientOptions {
   std::string ca_file;  // PEM roots for TLS; empty: the system's roots
   // Sent as "authorization: Bearer <token>" metadata on every call when not empty. Printable ASCII.
   std::string token;
-  std::chrono::milliseconds timeout{10'000};                // unary calls and connection checks
-  std::chrono::milliseconds transfer_timeout{600'000};      // a whole upload or result download
-  std::chrono::milliseconds watch_call_timeout{300'000};    // one WatchJob call before re-issuing it
+  std::chrono::milliseconds timeout{10'000};                  // unary calls and connection checks
+  std::chrono::milliseconds transfer_timeout{600'000};        // a whole upload or result download
+  std::chrono::milliseconds watch_call_timeout{300'000};      // one WatchJob call before re-issuing it
   std::chrono::milliseconds watch_reconnect_timeout{60'000};  // master unreachable mid-watch: give up after
   // File scenes up to this size travel inline in the JobSpec (the master's message limit is 4 MiB for
   // the whole spec); larger ones are streamed with UploadScene first.
@@ -150,8 +149,8 @@ class JobClient {
                     bool allow_partial = false);
   /// Downloads every result the job has: PREFIX.exr (required), PREFIX.png, PREFIX.json,
   /// PREFIX.pathtrace.exr, PREFIX.reprojection.exr, PREFIX.counts.exr (M, M') and PREFIX.samples.EXT
-  /// (the statistics image; EXT from its media type, .png from today's master). Kinds the master answers with NOT_FOUND or FAILED_PRECONDITION
-  /// (not produced by the job's mode) are skipped, except the EXR whose error is thrown.
+  /// (the statistics image; EXT from its media type, .png from today's master). Kinds the master answers with NOT_FOUND
+  /// or FAILED_PRECONDITION (not produced by the job's mode) are skipped, except the EXR whose error is thrown.
   std::vector<FetchedFile> fetch_all(const std::string& job_id, const std::string& prefix, bool allow_partial = false);
 
  private:

@@ -1,5 +1,7 @@
 #include "client/remote_commands.h"
 
+#include <fmt/format.h>
+#include <google/protobuf/util/json_util.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -10,9 +12,6 @@
 #include <functional>
 #include <map>
 #include <sstream>
-
-#include <fmt/format.h>
-#include <google/protobuf/util/json_util.h>
 
 #include "client/render_flags.h"
 #include "common/scene_loader.h"
@@ -148,16 +147,21 @@ std::string progress_line(const v1::JobStatus& s, int bar_width) {
     default:
       return fmt::format("job {} {}", s.id(), state_name(s.state()));
   }
-  const uint32_t target = std::max<uint32_t>(1, s.target_spp());
-  const double frac = s.state() == v1::JOB_STATE_DONE ? 1.0 : std::clamp(s.spp_mean() / target, 0.0, 1.0);
+  // Completion: SKIP ends when every pixel has M + M' >= P, so its slowest pixel measures it; PT and
+  // RP run exactly rounds_planned rounds (their M + M' overshoots P long before the end in RP).
+  const double target = std::max<uint32_t>(1, s.target_spp());
+  double frac = s.rounds_planned() ? double(s.round()) / s.rounds_planned() : s.spp_mean() / target;
+  if (s.effective().mode() == v1::RENDER_MODE_SKIP) frac = s.spp_min() / target;
+  if (s.state() == v1::JOB_STATE_DONE) frac = 1.0;
+  frac = std::clamp(frac, 0.0, 1.0);
   const int filled = int(frac * bar_width);
   const std::string bar = std::string(size_t(filled), '#') + std::string(size_t(bar_width - filled), '.');
   const uint64_t pixels = uint64_t(s.effective().width()) * s.effective().height();
   const std::string skipped = pixels ? fmt::format("{:3.0f}%", 100.0 * s.pixels_skipped() / double(pixels)) : "  ?";
   const std::string eta = s.eta_seconds() >= 0 ? duration_text(s.eta_seconds()) : "?";
   return fmt::format("[{}] round {:>7}  spp {:6.1f}/{} (min {})  M' {:5.1f}  skipped {}  {:>7}  ETA {}", bar,
-                     rounds_text(s), s.spp_mean(), s.target_spp(), s.spp_min(), s.reprojected_per_pixel_mean(),
-                     skipped, duration_text(s.seconds_elapsed()), eta);
+                     rounds_text(s), s.spp_mean(), s.target_spp(), s.spp_min(), s.reprojected_per_pixel_mean(), skipped,
+                     duration_text(s.seconds_elapsed()), eta);
 }
 
 int follow_job(JobClient& client, const std::string& job_id, const FollowOptions& options) {
@@ -239,9 +243,11 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
   State& s = *s_;
   s.submit = app.add_subcommand("submit", "send a render job to a master (prints the job id)");
   add_render_flags(s.submit, s.render, s.render_extra, RenderFlagSet::kRemote);
-  s.submit->add_option("--priority", s.submit_opts.priority, "scheduling priority, higher first")->capture_default_str();
+  s.submit->add_option("--priority", s.submit_opts.priority, "scheduling priority, higher first")
+      ->capture_default_str();
   s.submit->add_option("--name", s.submit_opts.name, "job name for listings (default: the scene's name)");
-  s.submit->add_option("--time-budget", s.time_budget, "wall-clock budget in seconds: the job ends DONE when it runs out")
+  s.submit
+      ->add_option("--time-budget", s.time_budget, "wall-clock budget in seconds: the job ends DONE when it runs out")
       ->check(CLI::PositiveNumber);
   s.submit->add_flag("--wait", s.wait, "follow the job with a progress line and fetch its results to --out at the end");
   add_connection_flags(s.submit, s.submit_conn);
@@ -321,7 +327,9 @@ int RemoteCommands::State::run_get() {
     return kExitJobFailed;
   }
   if (!is_terminal(status.state()) && !get_partial) {
-    std::fprintf(stderr, "epr get: job %s is %s (round %s): its results exist once it ends; --partial fetches the latest committed round\n",
+    std::fprintf(stderr,
+                 "epr get: job %s is %s (round %s): its results exist once it ends; --partial fetches the latest "
+                 "committed round\n",
                  get_job.c_str(), state_name(status.state()).c_str(), rounds_text(status).c_str());
     return kExitJobFailed;
   }

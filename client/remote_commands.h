@@ -11,11 +11,10 @@
 // for unary calls. Exit codes: see ExitCode.
 #pragma once
 
+#include <CLI/CLI.hpp>
 #include <memory>
 #include <optional>
 #include <string>
-
-#include <CLI/CLI.hpp>
 
 #include "client/job_client.h"
 
@@ -47,11 +46,12 @@ class RemoteCommands {
 };
 
 /// "[####......] round  3/16  spp  12.0/64 (min 8)  M'  4.0  skipped  12%  12.3s  ETA 20s" for a
-/// RUNNING job; a short line for the other states.
+/// RUNNING job; a short line for the other states. The bar shows rounds done (PT, RP) or the
+/// slowest pixel's M + M' against P (SKIP, whose end that is).
 std::string progress_line(const v1::JobStatus& status, int bar_width = 30);
 
 struct FollowOptions {
-  bool fetch = true;             // fetch the results once the job is DONE (or CANCELLED after a round)
+  bool fetch = true;  // fetch the results once the job is DONE (or CANCELLED after a round)
   std::string out_prefix = "render";
   uint32_t min_interval_ms = 0;  // 0: 200 ms on a terminal, 1000 ms otherwise
 };

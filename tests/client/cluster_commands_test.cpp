@@ -3,23 +3,21 @@
 // pixels, a few samples), so each test takes about a second. Skipped when the executables are not
 // in the build tree (set EPR_MASTER_BIN / EPR_WORKER_BIN / EPR_BIN to point elsewhere).
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
-
-#include <gtest/gtest.h>
 
 #include <array>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <regex>
 #include <set>
 #include <sstream>
 #include <thread>
-
-#include <nlohmann/json.hpp>
 
 #include "client/job_client.h"
 #include "client/remote_commands.h"
@@ -104,17 +102,18 @@ class ClusterTest : public ::testing::Test {
                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
-    master_ = std::make_unique<Process>(
-        std::vector<std::string>{master_bin_, "--listen", "127.0.0.1:0", "--reproject", "cpu", "--state-dir",
-                                 (dir_ / "state").string()},
-        dir_ / "master.log");
+    master_ = std::make_unique<Process>(std::vector<std::string>{master_bin_, "--listen", "127.0.0.1:0", "--reproject",
+                                                                 "cpu", "--state-dir", (dir_ / "state").string()},
+                                        dir_ / "master.log");
     // The master prints its port once it listens.
     const std::regex listening("listening on port ([0-9]+)");
     for (auto t0 = Clock::now(); seconds_since(t0) < 30 && target_.empty();) {
       std::smatch m;
       const std::string log = read_file(dir_ / "master.log");
-      if (std::regex_search(log, m, listening)) target_ = "127.0.0.1:" + m[1].str();
-      else std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      if (std::regex_search(log, m, listening))
+        target_ = "127.0.0.1:" + m[1].str();
+      else
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
     ASSERT_FALSE(target_.empty()) << "epr-master did not start:\n" << read_file(dir_ / "master.log");
   }
@@ -126,10 +125,9 @@ class ClusterTest : public ::testing::Test {
   }
 
   void start_worker() {
-    worker_ = std::make_unique<Process>(
-        std::vector<std::string>{worker_bin_, "--master", target_, "--threads", "2", "--cache-dir",
-                                 (dir_ / "cache").string()},
-        dir_ / "worker.log");
+    worker_ = std::make_unique<Process>(std::vector<std::string>{worker_bin_, "--master", target_, "--threads", "2",
+                                                                 "--cache-dir", (dir_ / "cache").string()},
+                                        dir_ / "worker.log");
   }
 
   JobClientOptions client_options() const {
@@ -304,7 +302,13 @@ TEST_F(ClusterTest, CallCancellerStopsAWatchFromAnotherThread) {
   std::optional<grpc::StatusCode> code;
   std::thread watcher([&] {
     try {
-      client.watch(id, [&](const v1::JobStatus&) { ++updates; return true; }, 0, &canceller);
+      client.watch(
+          id,
+          [&](const v1::JobStatus&) {
+            ++updates;
+            return true;
+          },
+          0, &canceller);
     } catch (const RpcError& e) {
       code = e.code();
     }
@@ -331,7 +335,10 @@ TEST_F(ClusterTest, WatchGivesUpWithinTheReconnectWindowWhenTheMasterDies) {
   Clock::time_point failed_at;
   std::thread watcher([&] {
     try {
-      client.watch(id, [&](const v1::JobStatus&) { ++updates; return true; });
+      client.watch(id, [&](const v1::JobStatus&) {
+        ++updates;
+        return true;
+      });
     } catch (const RpcError& e) {
       error = e.what();
       unreachable = e.unreachable();
@@ -357,7 +364,8 @@ TEST_F(ClusterTest, CliSubmitWaitThenListGetAndWatch) {
   const std::string prefix = (dir_ / "cli").string();
   const CliRun submit =
       epr("submit builtin:cornell --width 32 --height 32 --spp 4 --paths-per-round 2 --tile 16 --mode rp "
-          "--reproject cpu --name cli-job --wait --out " + prefix);
+          "--reproject cpu --name cli-job --wait --out " +
+          prefix);
   ASSERT_EQ(submit.exit_code, kExitOk) << submit.err;
   std::smatch m;
   ASSERT_TRUE(std::regex_match(submit.out, m, std::regex("([A-Za-z0-9_-]{1,64})\n"))) << "stdout: " << submit.out;

@@ -5,12 +5,11 @@
 #include "client/job_client.h"
 
 #include <arpa/inet.h>
+#include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
-
-#include <gtest/gtest.h>
 
 #include <array>
 #include <chrono>
@@ -145,7 +144,9 @@ TEST(JobClient, CancellerStopsAWatchBeforeItStarts) {
   EXPECT_TRUE(canceller.cancelled());
   // Not reachable either way; what matters is that a cancelled canceller never waits.
   const auto t0 = Clock::now();
-  EXPECT_THROW(client.watch("job-1", [](const v1::JobStatus&) { return true; }, 0, &canceller), RpcError);
+  EXPECT_THROW(client.watch(
+                   "job-1", [](const v1::JobStatus&) { return true; }, 0, &canceller),
+               RpcError);
   EXPECT_LT(seconds_since(t0), 2.0);
 }
 
@@ -289,10 +290,11 @@ TEST(ProgressLine, ShowsRoundSamplesSkippedAndTimes) {
   v1::JobStatus s;
   s.set_id("j1");
   s.set_state(v1::JOB_STATE_RUNNING);
+  s.mutable_effective()->set_mode(v1::RENDER_MODE_RP);
   s.mutable_effective()->set_width(100);
   s.mutable_effective()->set_height(50);
   s.set_target_spp(64);
-  s.set_round(3);
+  s.set_round(8);
   s.set_rounds_planned(16);
   s.set_spp_mean(32.0);
   s.set_spp_min(8);
@@ -302,12 +304,18 @@ TEST(ProgressLine, ShowsRoundSamplesSkippedAndTimes) {
   s.set_eta_seconds(12);
   const std::string line = progress_line(s, 10);
   EXPECT_NE(line.find("[#####.....]"), std::string::npos) << line;
-  EXPECT_NE(line.find("round    3/16"), std::string::npos) << line;
+  EXPECT_NE(line.find("round    8/16"), std::string::npos) << line;  // the bar: 8 of 16 rounds
   EXPECT_NE(line.find("spp   32.0/64 (min 8)"), std::string::npos) << line;
   EXPECT_NE(line.find("M'   4.5"), std::string::npos) << line;
   EXPECT_NE(line.find("skipped  25%"), std::string::npos) << line;
   EXPECT_NE(line.find("1m15s"), std::string::npos) << line;
   EXPECT_NE(line.find("ETA 12.0s"), std::string::npos) << line;
+  // SKIP: the slowest pixel, 8 of 64 samples, is what is left to do.
+  s.mutable_effective()->set_mode(v1::RENDER_MODE_SKIP);
+  EXPECT_NE(progress_line(s, 8).find("[#.......]"), std::string::npos) << progress_line(s, 8);
+  s.set_state(v1::JOB_STATE_DONE);
+  EXPECT_NE(progress_line(s, 8).find("[########]"), std::string::npos) << progress_line(s, 8);
+  s.set_state(v1::JOB_STATE_RUNNING);
   s.set_eta_seconds(-1);
   EXPECT_NE(progress_line(s).find("ETA ?"), std::string::npos);
   s.set_state(v1::JOB_STATE_QUEUED);
