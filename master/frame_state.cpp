@@ -93,6 +93,7 @@ void FrameState::add_exact(std::span<const ExactSample> samples) {
 void FrameState::refresh_reprojection() {
   if (!reprojector_) return;
   ScopedTimer t(&seconds_reprojecting_);
+  ScopedTimer d(&seconds_downsampling_);
   PixelReprojection pr = downsample(reprojector_->read());
   mprime_ = std::move(pr.count);
   reprojected_radiance_ = std::move(pr.radiance);
@@ -216,6 +217,7 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts) const {
       {"occluded_percent", pct(c.occluded)},
       {"culled_percent", pct(c.culled)},
       {"seconds_reprojecting", seconds_reprojecting()},
+      {"seconds_downsampling", seconds_downsampling()},
   };
 }
 

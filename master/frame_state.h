@@ -80,6 +80,8 @@ class FrameState {
   const FrameProgress& progress() const { return progress_; }
   ReprojectionCounts counts() const;
   double seconds_reprojecting() const { return seconds_reprojecting_; }
+  /// Part of seconds_reprojecting(): reading the accumulation back and downsampling it.
+  double seconds_downsampling() const { return seconds_downsampling_; }
   bool reprojects() const { return reprojector_ != nullptr; }
   /// Counts, percentages and timings as JSON (the statistics file of a render).
   nlohmann::json statistics(const RenderOptions& opts) const;
@@ -108,6 +110,7 @@ class FrameState {
   bool done_ = false;
   FrameProgress progress_;
   double seconds_reprojecting_ = 0;
+  double seconds_downsampling_ = 0;
 };
 
 }  // namespace epr

@@ -64,6 +64,8 @@ struct JobManager::Job {
   uint32_t remaining = 0;  // tiles of the round not yet applied by the reprojection thread
   int paths_per_pixel = 1;
   bool round_open = false;
+  int64_t round_opened_ms = 0;              // for the round duration histogram
+  double reprojecting_at_round_open = 0;    // seconds_reprojecting when the round opened
 
   FrameProgress progress;
   ReprojectionCounts counts;
@@ -125,6 +127,11 @@ void JobManager::shutdown() {
 bool JobManager::gl_ready() const {
   std::lock_guard lock(mu_);
   return gl_ready_;
+}
+
+DurationHistograms JobManager::histograms() const {
+  std::lock_guard lock(mu_);
+  return histograms_;
 }
 
 std::string JobManager::job_dir(const Job& job) const { return (fs::path(state_dir_) / "jobs" / job.id).string(); }
@@ -376,9 +383,13 @@ LeaseDecision JobManager::lease_tile(const std::string& worker) {
   w.last_seen_ms = now_ms();
   if (stopping_) return LeaseWait{1000};
   // Back-pressure: the reprojection thread is behind.
-  if (queued_vertices_ > options_.max_queued_vertices) return LeaseWait{50};
+  if (queued_vertices_ > options_.max_queued_vertices) return LeaseWait{20};
   Job* job = active_.get();
-  if (!job || job->state != JobState::kRunning || !job->round_open || job->pending.empty()) return LeaseWait{100};
+  // No job: poll slowly. A running job between rounds (its last tiles are out or being reprojected):
+  // the next round opens within milliseconds, so ask again soon; a long wait here idles every core
+  // at every round barrier.
+  if (!job || job->state != JobState::kRunning) return LeaseWait{job ? 20u : 200u};
+  if (!job->round_open || job->pending.empty()) return LeaseWait{5};
   const uint32_t t = job->pending.front();
   job->pending.pop_front();
   Job::Slot& slot = job->slots[t];
@@ -704,6 +715,8 @@ void JobManager::open_round(Job& job) {
     ++job.remaining;
   }
   job.round_open = true;
+  job.round_opened_ms = now_ms();
+  job.reprojecting_at_round_open = job.frame->seconds_reprojecting();  // not the deep framebuffer build
   ++job.version;
 }
 
@@ -741,6 +754,8 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     job->counts = job->frame->counts();
     job->seconds_reprojecting = job->frame->seconds_reprojecting();
     job->round_open = false;
+    histograms_.round.observe(double(now_ms() - job->round_opened_ms) / 1000.0);
+    histograms_.reprojection.observe(job->seconds_reprojecting - job->reprojecting_at_round_open);
     if (job->request.time_budget_seconds)
       budget_over = double(now_ms() - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
     want_preview = now_ms() - job->last_preview_ms >= 1000;
