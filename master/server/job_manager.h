@@ -33,6 +33,7 @@
 
 #include "common/render_options.h"
 #include "master/frame_state.h"
+#include "master/server/duration_histogram.h"
 #include "wire/scene_bundle.h"
 #include "wire/tile_result_stream.h"
 #include "worker/tile_renderer.h"
@@ -174,6 +175,8 @@ class JobManager {
   /// Stops the threads (idempotent); pending work is dropped.
   void shutdown();
   bool gl_ready() const;
+  /// Round and reprojection durations of every round closed so far (for /metrics).
+  DurationHistograms histograms() const;
   const MasterOptions& options() const { return options_; }
 
  private:
@@ -208,6 +211,7 @@ class JobManager {
   std::shared_ptr<Job> active_;  // the job whose tiles are being leased
   bool stopping_ = false;
   bool gl_ready_ = false;
+  DurationHistograms histograms_;
   std::string state_dir_;
   std::thread reprojection_thread_, reaper_thread_;
 };
