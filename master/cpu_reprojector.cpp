@@ -1,6 +1,8 @@
 // See cpu_reprojector.h.
 #include "master/cpu_reprojector.h"
 
+#include "master/reprojection_image.h"
+
 #include <algorithm>
 #include <array>
 
@@ -137,6 +139,12 @@ SubpixelAccumulation CpuReprojector::read() {
     a.count[i] = cells_[i].n;
   });
   return a;
+}
+
+PixelReprojection CpuReprojector::downsample_pixels() {
+  static_assert(sizeof(Cell) == sizeof(AccumulationCell));
+  const std::span<const AccumulationCell> cells(reinterpret_cast<const AccumulationCell*>(cells_.data()), cells_.size());
+  return downsample_cells(cells, grid_.width, grid_.height, subpixels_);
 }
 
 void CpuReprojector::reset() {

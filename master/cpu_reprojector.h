@@ -29,6 +29,7 @@ class CpuReprojector final : public Reprojector {
   void add_exact(std::span<const ExactSample> samples) override;
   ReprojectionCounts counts() const override { return counts_; }
   SubpixelAccumulation read() override;
+  PixelReprojection downsample_pixels() override;
   void reset() override;
   std::string_view backend() const override { return "cpu"; }
 

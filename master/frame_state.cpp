@@ -94,7 +94,7 @@ void FrameState::refresh_reprojection() {
   if (!reprojector_) return;
   ScopedTimer t(&seconds_reprojecting_);
   ScopedTimer d(&seconds_downsampling_);
-  PixelReprojection pr = downsample(reprojector_->read());
+  PixelReprojection pr = reprojector_->downsample_pixels();
   mprime_ = std::move(pr.count);
   reprojected_radiance_ = std::move(pr.radiance);
 }

@@ -11,6 +11,7 @@
 #include <fmt/format.h>
 
 #include "common/log.h"
+#include "master/reprojection_image.h"
 
 namespace epr {
 
@@ -113,6 +114,36 @@ void main() {
 }
 )";
 
+// Downsampling next to the accumulation: one invocation per pixel averages the means of its non-empty
+// subpixels and sums their counts (reprojection_image.h), so a round's end reads back W x H pixels
+// instead of the whole S*W x S*H grid (16x less for S = 4).
+constexpr const char* kDownsampleShader = R"(
+layout(local_size_x = 64) in;
+struct Cell { float r, g, b; uint n; };
+layout(std430, binding = 0) readonly buffer Accumulation { Cell cells[]; };
+layout(std430, binding = 2) writeonly buffer Pixels { vec4 pixels[]; };
+uniform uint image_w;
+uniform uint image_h;
+uniform uint subpixels;
+uniform uint grid_w;
+void main() {
+  uint p = gl_GlobalInvocationID.x;
+  if (p >= image_w * image_h) return;
+  uint x = p % image_w, y = p / image_w;
+  vec3 mean = vec3(0.0);
+  uint total = 0u, non_empty = 0u;
+  for (uint j = 0u; j < subpixels; ++j)
+    for (uint i = 0u; i < subpixels; ++i) {
+      Cell c = cells[(y * subpixels + j) * grid_w + x * subpixels + i];
+      if (c.n == 0u) continue;
+      mean += vec3(c.r, c.g, c.b) / float(c.n);
+      total += c.n;
+      non_empty += 1u;
+    }
+  pixels[p] = vec4(non_empty > 0u ? mean / float(non_empty) : vec3(0.0), uintBitsToFloat(total));
+}
+)";
+
 constexpr size_t kRecordBytes = 36;  // 9 floats
 constexpr int kSlots = 2;
 
@@ -140,8 +171,8 @@ GlReprojector::~GlReprojector() {
   } catch (const std::exception&) {
     // GL objects can only be deleted where the context is current; leak them rather than crash.
     logger("master")->error("GlReprojector destroyed on a thread its GL context is not current on; GL objects leak");
-    for (auto* p : {&reproject_prog_, &exact_prog_}) (void)p->release();
-    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &acc_buf_, &counter_buf_}) (void)p->release();
+    for (auto* p : {&reproject_prog_, &exact_prog_, &downsample_prog_}) (void)p->release();
+    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &acc_buf_, &counter_buf_, &pixels_buf_}) (void)p->release();
     for (auto* p : {&records_tex_, &samples_tex_, &texel_plane_tex_, &planes_tex_, &acc_view_tex_}) (void)p->release();
     (void)owned_ctx_.release();
     return;
@@ -388,6 +419,42 @@ SubpixelAccumulation GlReprojector::read() {
     std::memcpy(&a.count[i], &raw[4 * i + 3], 4);
   }
   return a;
+}
+
+PixelReprojection GlReprojector::downsample_pixels() {
+  ctx_->check_thread();
+  const auto& gl = ctx_->gl();
+  const int W = grid_w_ / subpixels_, H = grid_h_ / subpixels_;
+  const size_t pixels = size_t(W) * size_t(H);
+  if (!downsample_prog_) {
+    downsample_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kDownsampleShader, settings_, true));
+    pixels_buf_ = std::make_unique<GlBuffer>(*ctx_);
+    gl.NamedBufferStorage(pixels_buf_->id(), GLsizeiptr(pixels * 16), nullptr, GL_DYNAMIC_STORAGE_BIT);
+  }
+  const GLuint p = downsample_prog_->id();
+  gl.UseProgram(p);
+  gl.ProgramUniform1ui(p, downsample_prog_->uniform("image_w"), GLuint(W));
+  gl.ProgramUniform1ui(p, downsample_prog_->uniform("image_h"), GLuint(H));
+  gl.ProgramUniform1ui(p, downsample_prog_->uniform("subpixels"), GLuint(subpixels_));
+  gl.ProgramUniform1ui(p, downsample_prog_->uniform("grid_w"), GLuint(grid_w_));
+  gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, acc_buf_->id());
+  gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, pixels_buf_->id());
+  gl.DispatchCompute(GLuint((pixels + 63) / 64), 1, 1);
+  gl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+  gl.UseProgram(0);
+  std::vector<float> raw(4 * pixels);
+  gl.GetNamedBufferSubData(pixels_buf_->id(), 0, GLsizeiptr(raw.size() * 4), raw.data());
+  ctx_->check_error("GlReprojector::downsample_pixels");
+  PixelReprojection out{Image(W, H, 3), std::vector<uint64_t>(pixels, 0)};
+  for (size_t i = 0; i < pixels; ++i) {
+    out.radiance.data[3 * i] = raw[4 * i];
+    out.radiance.data[3 * i + 1] = raw[4 * i + 1];
+    out.radiance.data[3 * i + 2] = raw[4 * i + 2];
+    uint32_t n;
+    std::memcpy(&n, &raw[4 * i + 3], 4);
+    out.count[i] = n;
+  }
+  return out;
 }
 
 void GlReprojector::reset() {

@@ -53,6 +53,7 @@ class GlReprojector final : public Reprojector {
   void add_exact(std::span<const ExactSample> samples) override;
   ReprojectionCounts counts() const override;
   SubpixelAccumulation read() override;
+  PixelReprojection downsample_pixels() override;
   void reset() override;
   std::string_view backend() const override { return "gl"; }
 
@@ -72,7 +73,8 @@ class GlReprojector final : public Reprojector {
   size_t slot_bytes_ = 0;
   size_t invocations_ = 0;
 
-  std::unique_ptr<GlProgram> reproject_prog_, exact_prog_;
+  std::unique_ptr<GlProgram> reproject_prog_, exact_prog_, downsample_prog_;
+  std::unique_ptr<GlBuffer> pixels_buf_;  // W x H vec4: L_rp, M' (uint bits); created on first use
   std::unique_ptr<GlBuffer> ring_, texel_plane_buf_, planes_buf_, acc_buf_, counter_buf_;
   std::unique_ptr<GlTexture> records_tex_, samples_tex_, texel_plane_tex_, planes_tex_, acc_view_tex_;
   unsigned char* ring_map_ = nullptr;

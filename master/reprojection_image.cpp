@@ -8,12 +8,12 @@
 
 namespace epr {
 
-PixelReprojection downsample(const SubpixelAccumulation& acc) {
-  const int S = acc.subpixels;
-  if (S < 1 || acc.width % S != 0 || acc.height % S != 0 || acc.sum.size() != 3 * acc.size() ||
-      acc.count.size() != acc.size())
-    throw std::invalid_argument("downsample: malformed subpixel accumulation");
-  const int W = acc.width / S, H = acc.height / S;
+namespace {
+
+// The downsampling of one pixel, for any storage of the cells: `cell(s)` returns subpixel s.
+template <class CellAt>
+PixelReprojection downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell) {
+  const int W = grid_w / S, H = grid_h / S;
   PixelReprojection out{Image(W, H, 3), std::vector<uint64_t>(size_t(W) * size_t(H), 0)};
   tbb::parallel_for(0, H, [&](int y) {
     for (int x = 0; x < W; ++x) {
@@ -22,11 +22,13 @@ PixelReprojection downsample(const SubpixelAccumulation& acc) {
       int non_empty = 0;
       for (int j = 0; j < S; ++j)
         for (int i = 0; i < S; ++i) {
-          const size_t s = size_t(y * S + j) * size_t(acc.width) + size_t(x * S + i);
-          const uint32_t n = acc.count[s];
-          if (n == 0) continue;
-          for (int c = 0; c < 3; ++c) mean[c] += double(acc.sum[3 * s + c]) / double(n);
-          total += n;
+          const size_t s = size_t(y * S + j) * size_t(grid_w) + size_t(x * S + i);
+          const AccumulationCell c = cell(s);
+          if (c.n == 0) continue;
+          mean[0] += double(c.r) / double(c.n);
+          mean[1] += double(c.g) / double(c.n);
+          mean[2] += double(c.b) / double(c.n);
+          total += c.n;
           ++non_empty;
         }
       if (non_empty) out.radiance.set_rgb(x, y, Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty), float(mean[2] / non_empty)));
@@ -34,6 +36,24 @@ PixelReprojection downsample(const SubpixelAccumulation& acc) {
     }
   });
   return out;
+}
+
+}  // namespace
+
+PixelReprojection downsample(const SubpixelAccumulation& acc) {
+  const int S = acc.subpixels;
+  if (S < 1 || acc.width % S != 0 || acc.height % S != 0 || acc.sum.size() != 3 * acc.size() ||
+      acc.count.size() != acc.size())
+    throw std::invalid_argument("downsample: malformed subpixel accumulation");
+  return downsample_impl(acc.width, acc.height, S, [&](size_t s) {
+    return AccumulationCell{acc.sum[3 * s], acc.sum[3 * s + 1], acc.sum[3 * s + 2], acc.count[s]};
+  });
+}
+
+PixelReprojection downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int S) {
+  if (S < 1 || grid_w % S != 0 || grid_h % S != 0 || cells.size() != size_t(grid_w) * size_t(grid_h))
+    throw std::invalid_argument("downsample_cells: malformed subpixel grid");
+  return downsample_impl(grid_w, grid_h, S, [&](size_t s) { return cells[s]; });
 }
 
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp) {

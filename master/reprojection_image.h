@@ -14,6 +14,8 @@
 // vectors of width * height pixels. Sizes are checked (std::invalid_argument).
 #pragma once
 
+#include <span>
+
 #include <cstdint>
 #include <vector>
 
@@ -29,6 +31,17 @@ struct PixelReprojection {
 
 /// Downsamples an S*W x S*H subpixel accumulation to W x H pixels.
 PixelReprojection downsample(const SubpixelAccumulation& acc);
+
+/// One subpixel of an accumulation as the back-ends store it: RGB radiance sum and sample count.
+struct AccumulationCell {
+  float r = 0, g = 0, b = 0;
+  uint32_t n = 0;
+};
+static_assert(sizeof(AccumulationCell) == 16);
+
+/// The same downsampling straight from a back-end's cells (grid_w x grid_h subpixels, S per axis),
+/// without copying the grid first.
+PixelReprojection downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int subpixels);
 
 /// L(p) = (path_sum + M' L_rp) / (M + M'). `path_sum` is the sum (not the mean) of p's M path samples.
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& reprojected);

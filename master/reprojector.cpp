@@ -1,6 +1,8 @@
 // Shared pieces of the reprojectors and the back-end factory. See reprojector.h.
 #include "master/reprojector.h"
 
+#include "master/reprojection_image.h"
+
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -101,5 +103,7 @@ std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Ca
   }
   throw std::invalid_argument(fmt::format("unknown reprojector back-end '{}' (expected 'gl' or 'cpu')", backend));
 }
+
+PixelReprojection Reprojector::downsample_pixels() { return downsample(read()); }
 
 }  // namespace epr

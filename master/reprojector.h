@@ -50,6 +50,7 @@
 namespace epr {
 
 class GlContext;
+struct PixelReprojection;
 
 /// One exact-mode sample: its visibility to the camera was decided by a ray on the worker.
 /// `subpixel` = sy * (S*W) + sx (integer subpixel coordinates, y down) -- see subpixel_index().
@@ -116,6 +117,10 @@ class Reprojector {
   virtual ReprojectionCounts counts() const = 0;
   /// A copy of the accumulation (GL: read back, synchronising with outstanding work).
   virtual SubpixelAccumulation read() = 0;
+  /// L_rp and M' per pixel (reprojection_image.h's downsample of read()), computed where the
+  /// accumulation lives so that a round's end does not copy the whole subpixel grid: GL runs a
+  /// compute pass and reads back only W x H pixels; the CPU back-end reads its cells in place.
+  virtual PixelReprojection downsample_pixels();
   /// Zeroes the accumulation and the counts.
   virtual void reset() = 0;
   virtual std::string_view backend() const = 0;
