@@ -1,0 +1,218 @@
+#include "master/server/monitoring.h"
+
+#include <httplib.h>
+
+#include <atomic>
+#include <set>
+#include <stdexcept>
+#include <string_view>
+#include <thread>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "common/log.h"
+#include "master/server/job_manager.h"
+#include "master/server/monitoring_format.h"
+
+namespace epr {
+
+/// master/server/dashboard.html, compiled in by CMake (embed_text.cmake).
+std::string_view dashboard_html();
+
+namespace {
+
+using json = nlohmann::json;
+
+void send_json(httplib::Response& res, int status, const json& body) {
+  res.status = status;
+  res.set_header("Cache-Control", "no-store");
+  res.set_content(body.dump(), "application/json");
+}
+
+void send_error(httplib::Response& res, int status, const std::string& error, const std::string& reason = {}) {
+  json body{{"error", error}};
+  if (!reason.empty()) body["reason"] = reason;
+  send_json(res, status, body);
+}
+
+json workers_json(const JobManager& jobs) {
+  json out = json::array();
+  for (const auto& w : jobs.workers()) out.push_back(to_json(w));
+  return out;
+}
+
+// A short strong validator of the image bytes (FNV-1a, 64 bit).
+std::string etag_of(const std::vector<unsigned char>& bytes) {
+  uint64_t h = 1469598103934665603ull;
+  for (unsigned char b : bytes) h = (h ^ b) * 1099511628211ull;
+  return fmt::format("\"{:016x}\"", h);
+}
+
+const std::set<std::string> kLayers = {"combined", "pathtrace", "reprojection", "samples"};
+
+}  // namespace
+
+std::optional<std::pair<std::string, int>> parse_host_port(const std::string& address) {
+  const size_t colon = address.rfind(':');
+  if (colon == std::string::npos || colon + 1 >= address.size()) return std::nullopt;
+  std::string host = address.substr(0, colon);
+  const std::string port_text = address.substr(colon + 1);
+  if (port_text.size() > 5 || port_text.find_first_not_of("0123456789") != std::string::npos) return std::nullopt;
+  const int port = std::stoi(port_text);
+  if (port > 65535) return std::nullopt;
+  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+  else if (host.find(':') != std::string::npos) return std::nullopt;  // an unbracketed IPv6 address
+  if (host.empty()) host = "0.0.0.0";
+  return std::make_pair(host, port);
+}
+
+struct MonitoringServer::Impl {
+  JobManager& jobs;
+  MonitoringOptions options;
+  httplib::Server http;
+  std::thread thread;
+  std::string host;
+  int port = 0;
+  FarmTotalsTracker totals;
+  std::atomic<bool> listen_returned{false};
+  std::mutex stop_mu;
+  bool stopped = false;
+
+  Impl(JobManager& j, MonitoringOptions o) : jobs(j), options(std::move(o)) {}
+  void routes();
+  void image(const httplib::Request& req, httplib::Response& res);
+};
+
+void MonitoringServer::Impl::routes() {
+  http.set_pre_routing_handler([](const httplib::Request& req, httplib::Response& res) {
+    if (req.method == "GET" || req.method == "HEAD") return httplib::Server::HandlerResponse::Unhandled;
+    res.set_header("Allow", "GET, HEAD");
+    send_error(res, 405, fmt::format("the monitoring endpoint is read-only ({} is not allowed)", req.method));
+    return httplib::Server::HandlerResponse::Handled;
+  });
+  http.set_error_handler([](const httplib::Request&, httplib::Response& res) {
+    if (res.body.empty()) send_error(res, res.status, res.status == 404 ? "not found" : fmt::format("HTTP {}", res.status));
+  });
+  http.set_exception_handler([](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
+    std::string what = "unknown exception";
+    try {
+      std::rethrow_exception(ep);
+    } catch (const std::exception& e) {
+      what = e.what();
+    } catch (...) {
+    }
+    logger("master")->error("monitoring: {} {}: {}", req.method, req.path, what);
+    send_error(res, 500, "internal error");
+  });
+
+  http.Get("/", [](const httplib::Request&, httplib::Response& res) {
+    res.set_header("Cache-Control", "no-cache");
+    res.set_content(std::string(dashboard_html()), "text/html; charset=utf-8");
+  });
+  http.Get("/healthz", [](const httplib::Request&, httplib::Response& res) { send_json(res, 200, {{"status", "ok"}}); });
+  http.Get("/readyz", [this](const httplib::Request&, httplib::Response& res) {
+    const bool gl = jobs.gl_ready();
+    const bool ready = gl || options.cpu_reprojector;
+    json body{{"ready", ready}, {"osmesa", gl}, {"reprojector", gl ? "gl" : "cpu"}};
+    if (!ready) body["reason"] = "the OSMesa context is not up (yet)";
+    send_json(res, ready ? 200 : 503, body);
+  });
+  http.Get("/api/v1/jobs", [this](const httplib::Request&, httplib::Response& res) {
+    json list = json::array();
+    for (const auto& s : jobs.list()) list.push_back(to_json(s));
+    send_json(res, 200, {{"jobs", std::move(list)}, {"workers", workers_json(jobs)}, {"osmesa", jobs.gl_ready()}});
+  });
+  http.Get("/api/v1/workers", [this](const httplib::Request&, httplib::Response& res) {
+    send_json(res, 200, {{"workers", workers_json(jobs)}});
+  });
+  http.Get(R"(/api/v1/jobs/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
+    const std::string id = req.matches[1];
+    auto s = jobs.get(id);
+    if (!s) return send_error(res, 404, fmt::format("no job '{}'", id), "no_job");
+    json body = to_json(*s);
+    body["workers"] = workers_json(jobs);
+    send_json(res, 200, body);
+  });
+  http.Get(R"(/api/v1/jobs/([^/]+)/image\.png)", [this](const httplib::Request& req, httplib::Response& res) { image(req, res); });
+  http.Get("/metrics", [this](const httplib::Request&, httplib::Response& res) {
+    MetricsInput in;
+    in.jobs = jobs.list();
+    in.workers = jobs.workers();
+    in.histograms = jobs.histograms();
+    in.gl_ready = jobs.gl_ready();
+    in.totals = totals.update(in.jobs);
+    res.set_header("Cache-Control", "no-store");
+    res.set_content(prometheus_text(in), "text/plain; version=0.0.4; charset=utf-8");
+  });
+}
+
+void MonitoringServer::Impl::image(const httplib::Request& req, httplib::Response& res) {
+  const std::string id = req.matches[1];
+  const std::string layer = req.has_param("layer") ? req.get_param_value("layer") : "combined";
+  if (!kLayers.count(layer))
+    return send_error(res, 400, fmt::format("unknown layer '{}' (combined, pathtrace, reprojection or samples)", layer),
+                      "bad_layer");
+  auto s = jobs.get(id);
+  if (!s) return send_error(res, 404, fmt::format("no job '{}'", id), "no_job");
+  auto png = jobs.preview_png(id, layer);
+  if (!png) {
+    const bool reprojects = s->options.mode != RenderMode::kPathTrace;
+    const bool pending = reprojects || layer == "combined" || layer == "pathtrace";
+    if (pending) return send_error(res, 404, fmt::format("job {} has no preview yet (its first round has not closed)", id), "pending");
+    return send_error(res, 404, fmt::format("job {} does not reproject: it has no '{}' layer", id, layer), "layer_unavailable");
+  }
+  const std::string etag = etag_of(*png);
+  res.set_header("ETag", etag);
+  res.set_header("Cache-Control", "no-cache");
+  if (req.get_header_value("If-None-Match") == etag) {
+    res.status = 304;
+    return;
+  }
+  res.set_content(reinterpret_cast<const char*>(png->data()), png->size(), "image/png");
+}
+
+MonitoringServer::MonitoringServer(JobManager& jobs, MonitoringOptions options)
+    : impl_(std::make_unique<Impl>(jobs, std::move(options))) {
+  auto hp = parse_host_port(impl_->options.listen);
+  if (!hp) throw std::runtime_error(fmt::format("monitoring address '{}' is not HOST:PORT", impl_->options.listen));
+  impl_->host = hp->first;
+  const int threads = std::max(1, impl_->options.threads);
+  impl_->http.new_task_queue = [threads] { return new httplib::ThreadPool(size_t(threads)); };
+  impl_->http.set_payload_max_length(64 << 10);  // nothing is uploaded here
+  impl_->http.set_read_timeout(5, 0);
+  impl_->http.set_write_timeout(5, 0);
+  impl_->routes();
+  impl_->port = hp->second == 0 ? impl_->http.bind_to_any_port(impl_->host)
+                                : (impl_->http.bind_to_port(impl_->host, hp->second) ? hp->second : -1);
+  if (impl_->port <= 0)
+    throw std::runtime_error(fmt::format("cannot serve HTTP on {} (address in use or invalid?)", impl_->options.listen));
+  impl_->thread = std::thread([impl = impl_.get()] {
+    if (!impl->http.listen_after_bind()) logger("master")->error("monitoring: the HTTP listener stopped with an error");
+    impl->listen_returned = true;
+  });
+  // stop() only interrupts a server that is running: wait until it is, so stop() cannot be lost.
+  while (!impl_->http.is_running() && !impl_->listen_returned) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  logger("master")->info("monitoring on {}", url());
+}
+
+MonitoringServer::~MonitoringServer() { stop(); }
+
+int MonitoringServer::port() const { return impl_->port; }
+
+std::string MonitoringServer::url() const {
+  std::string host = impl_->host;
+  if (host == "0.0.0.0" || host == "::" || host.empty()) host = "127.0.0.1";
+  if (host.find(':') != std::string::npos) host = "[" + host + "]";
+  return fmt::format("http://{}:{}/", host, impl_->port);
+}
+
+void MonitoringServer::stop() {
+  std::lock_guard lock(impl_->stop_mu);
+  if (impl_->stopped) return;
+  impl_->stopped = true;
+  impl_->http.stop();
+  if (impl_->thread.joinable()) impl_->thread.join();
+}
+
+}  // namespace epr
