@@ -7,6 +7,7 @@
 
 #include "common/log.h"
 #include "master/server/job_service.h"
+#include "master/server/monitoring.h"
 #include "master/server/worker_service.h"
 
 namespace epr {
@@ -28,6 +29,18 @@ MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(opt
     jobs_->shutdown();
     throw std::runtime_error(fmt::format("cannot listen on {} (address in use or invalid?)", options_.listen));
   }
+  if (!options_.http_listen.empty()) {
+    MonitoringOptions mo;
+    mo.listen = options_.http_listen;
+    mo.cpu_reprojector = options_.jobs.reproject_backend_override == "cpu";
+    try {
+      monitoring_ = std::make_unique<MonitoringServer>(*jobs_, mo);
+    } catch (...) {
+      server_->Shutdown();
+      jobs_->shutdown();
+      throw;
+    }
+  }
   server_->GetHealthCheckService()->SetServingStatus(true);
   logger("master")->info("master listening on {} (port {})", options_.listen, port_);
 }
@@ -36,9 +49,14 @@ MasterServer::~MasterServer() { shutdown(); }
 
 std::string MasterServer::local_target() const { return fmt::format("127.0.0.1:{}", port_); }
 
+int MasterServer::http_port() const { return monitoring_ ? monitoring_->port() : 0; }
+
+std::string MasterServer::dashboard_url() const { return monitoring_ ? monitoring_->url() : ""; }
+
 void MasterServer::shutdown() {
   if (shut_down_) return;
   shut_down_ = true;
+  if (monitoring_) monitoring_->stop();
   server_->GetHealthCheckService()->SetServingStatus(false);
   server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
   jobs_->shutdown();

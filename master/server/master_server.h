@@ -16,9 +16,11 @@ struct MasterServerOptions {
   std::string listen = "0.0.0.0:50051";  // gRPC address; port 0 picks a free port
   MasterOptions jobs;
   int max_message_bytes = 8 << 20;       // inline scenes in SubmitJob; tile chunks are <= 2 MiB
+  std::string http_listen;               // monitoring HTTP HOST:PORT (master/server/monitoring.h); empty: none
 };
 
 class JobServiceImpl;
+class MonitoringServer;
 class WorkerServiceImpl;
 
 class MasterServer {
@@ -28,6 +30,9 @@ class MasterServer {
   ~MasterServer();
 
   int port() const { return port_; }
+  /// The monitoring endpoint's port and dashboard URL ("http://127.0.0.1:PORT/"); 0 and "" if disabled.
+  int http_port() const;
+  std::string dashboard_url() const;
   /// "127.0.0.1:PORT"-style target for clients in this process or on this host.
   std::string local_target() const;
   JobManager& jobs() { return *jobs_; }
@@ -41,6 +46,7 @@ class MasterServer {
   std::unique_ptr<JobServiceImpl> job_service_;
   std::unique_ptr<WorkerServiceImpl> worker_service_;
   std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<MonitoringServer> monitoring_;
   int port_ = 0;
   bool shut_down_ = false;
 };
