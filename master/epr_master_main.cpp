@@ -18,6 +18,9 @@ int main(int argc, char** argv) {
   epr::MasterServerOptions o;
   std::string log_level = "info";
   app.add_option("--listen", o.listen, "gRPC listen address for clients and workers")->capture_default_str();
+  o.http_listen = "0.0.0.0:8080";
+  app.add_option("--http", o.http_listen, "monitoring HTTP address HOST:PORT (dashboard, JSON, /metrics); \"\" disables it")
+      ->capture_default_str();
   app.add_option("--state-dir", o.jobs.state_dir, "folder for results and the scene cache (default: a temp folder)");
   app.add_option("--lease-timeout-ms", o.jobs.lease_timeout_ms, "a tile lease not extended for this long is re-queued")
       ->capture_default_str();
@@ -36,6 +39,7 @@ int main(int argc, char** argv) {
   try {
     epr::MasterServer server(o);
     std::fprintf(stderr, "epr-master listening on port %d\n", server.port());
+    if (server.http_port()) std::fprintf(stderr, "dashboard: %s\n", server.dashboard_url().c_str());
     while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
     server.shutdown();
   } catch (const std::exception& e) {
