@@ -102,7 +102,7 @@ class ClusterTest : public ::testing::Test {
                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
-    master_ = std::make_unique<Process>(std::vector<std::string>{master_bin_, "--listen", "127.0.0.1:0", "--reproject",
+    master_ = std::make_unique<Process>(std::vector<std::string>{master_bin_, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--reproject",
                                                                  "cpu", "--state-dir", (dir_ / "state").string()},
                                         dir_ / "master.log");
     // The master prints its port once it listens.
