@@ -29,11 +29,27 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"", "cpu"}));
   app.add_option("--max-queued-vertices", o.jobs.max_queued_vertices, "back-pressure bound of the commit queue")
       ->capture_default_str();
+  std::string token_file;
+  app.add_option("--token-file", token_file,
+                 "file holding the bearer token clients and workers must send (else $EPR_TOKEN; none: no check)");
+  app.add_option("--tls-cert", o.tls_cert_file, "PEM certificate chain: serve gRPC over TLS");
+  app.add_option("--tls-key", o.tls_key_file, "PEM private key of --tls-cert");
+  app.add_option("--tls-client-ca", o.tls_client_ca_file, "PEM CA: require client certificates that chain to it");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   epr::set_log_level(log_level);
 
+  if ((o.tls_cert_file.empty()) != (o.tls_key_file.empty())) {
+    std::fprintf(stderr, "epr-master: --tls-cert and --tls-key go together\n");
+    return 2;
+  }
+  try {
+    if (auto token = epr::configured_token(token_file)) o.token = *token;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "epr-master: %s\n", e.what());
+    return 2;
+  }
   std::signal(SIGTERM, on_signal);
   std::signal(SIGINT, on_signal);
   try {

@@ -22,6 +22,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--name", opts.name, "name shown on the master's dashboard (default HOSTNAME-PID)");
   app.add_option("--cache-dir", opts.cache_dir, "scene cache folder")->capture_default_str();
+  app.add_flag("--tls", opts.tls, "connect to the master over TLS");
+  app.add_option("--ca-file", opts.ca_file, "PEM roots that sign the master's certificate (default: the system's)");
+  app.add_option("--tls-cert", opts.cert_file, "PEM client certificate, for masters that require one");
+  app.add_option("--tls-key", opts.key_file, "PEM key of --tls-cert");
   app.add_option("--token-file", opts.token_file,
                  "file holding the bearer token for the master (default: the EPR_TOKEN environment variable)")
       ->check(CLI::ExistingFile);

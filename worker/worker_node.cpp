@@ -1,5 +1,7 @@
 #include "worker/worker_node.h"
 
+#include <sstream>
+
 #include <fmt/format.h>
 #include <grpcpp/grpcpp.h>
 #include <sys/stat.h>
@@ -244,6 +246,23 @@ struct WorkerNode::Impl {
 
   // ---- registration ------------------------------------------------------------------------------
 
+  std::shared_ptr<grpc::ChannelCredentials> credentials() const {
+    if (!opts.tls) return grpc::InsecureChannelCredentials();
+    auto read = [](const std::string& path) {
+      if (path.empty()) return std::string();
+      std::ifstream in(path);
+      if (!in) throw std::runtime_error("cannot read '" + path + "'");
+      std::stringstream ss;
+      ss << in.rdbuf();
+      return ss.str();
+    };
+    grpc::SslCredentialsOptions ssl;
+    ssl.pem_root_certs = read(opts.ca_file);
+    ssl.pem_cert_chain = read(opts.cert_file);
+    ssl.pem_private_key = read(opts.key_file);
+    return grpc::SslCredentials(ssl);
+  }
+
   std::shared_ptr<Session> connect(std::string* why) {
     auto s = std::make_shared<Session>();
     grpc::ChannelArguments args;
@@ -251,7 +270,7 @@ struct WorkerNode::Impl {
     args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, std::max(1, opts.min_backoff_ms));
     args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, std::max(1, opts.min_backoff_ms));
     args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, std::max(opts.min_backoff_ms, opts.max_backoff_ms));
-    s->channel = grpc::CreateCustomChannel(opts.master, grpc::InsecureChannelCredentials(), args);
+    s->channel = grpc::CreateCustomChannel(opts.master, credentials(), args);
     s->stub = v1::WorkerService::NewStub(s->channel);
 
     v1::WorkerInfo info;

@@ -44,6 +44,10 @@ struct WorkerNodeOptions {
   /// Bearer token file (first line; surrounding whitespace ignored). Empty: the EPR_TOKEN environment
   /// variable if set, else no token. Sent as "authorization: Bearer <token>" on every call.
   std::string token_file;
+  /// TLS to the master (plaintext when false). ca_file: PEM roots (empty: the system's); cert and key:
+  /// a client certificate for masters that require one.
+  bool tls = false;
+  std::string ca_file, cert_file, key_file;
   int max_backoff_ms = 5000;  // cap of the reconnect backoff
   int min_backoff_ms = 100;   // first reconnect delay (halved or kept, by the jitter)
   int max_cached_jobs = 3;    // per-job tracing state kept (scenes and BVHs of older jobs are dropped)

@@ -211,6 +211,7 @@ void to_proto(const JobSnapshot& s, v1::JobStatus* out) {
 
 grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
                                                     v1::JobId* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   JobRequest jr;
   if (auto err = from_job_spec(*req, &jr.options, &jr.camera)) return finish(ctx, invalid(*err));
   const auto& scene = req->scene();
@@ -244,23 +245,27 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
   return finish(ctx, grpc::Status::OK);
 }
 
-grpc::ServerReadReactor<v1::SceneChunk>* JobServiceImpl::UploadScene(grpc::CallbackServerContext*, v1::SceneRef* resp) {
+grpc::ServerReadReactor<v1::SceneChunk>* JobServiceImpl::UploadScene(grpc::CallbackServerContext* ctx, v1::SceneRef* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return new RefusingReader<v1::SceneChunk>(st);
   return new SceneUploader(jobs_, resp);
 }
 
 grpc::ServerUnaryReactor* JobServiceImpl::GetJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   auto s = jobs_.get(req->id());
   if (!s) return finish(ctx, no_job(req->id()));
   to_proto(*s, resp);
   return finish(ctx, grpc::Status::OK);
 }
 
-grpc::ServerWriteReactor<v1::JobStatus>* JobServiceImpl::WatchJob(grpc::CallbackServerContext*, const v1::WatchJobRequest* req) {
+grpc::ServerWriteReactor<v1::JobStatus>* JobServiceImpl::WatchJob(grpc::CallbackServerContext* ctx, const v1::WatchJobRequest* req) {
+  if (auto st = auth_.check(ctx); !st.ok()) return new ListWriter<v1::JobStatus>({}, st);
   return new JobWatcher(jobs_, req->job_id(), req->min_interval_ms());
 }
 
 grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* ctx, const v1::ListJobsRequest* req,
                                                    v1::ListJobsResponse* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   const size_t page = req->page_size() ? std::min<size_t>(req->page_size(), 1000) : 100;
   size_t start = 0;
   if (!req->page_token().empty()) {
@@ -282,14 +287,16 @@ grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* 
 }
 
 grpc::ServerUnaryReactor* JobServiceImpl::CancelJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   if (!jobs_.cancel(req->id())) return finish(ctx, no_job(req->id()));
   to_proto(*jobs_.get(req->id()), resp);
   return finish(ctx, grpc::Status::OK);
 }
 
-grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::CallbackServerContext*,
+grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::CallbackServerContext* ctx,
                                                                        const v1::ResultRequest* req) {
   using Writer = ListWriter<v1::ResultChunk>;
+  if (auto st = auth_.check(ctx); !st.ok()) return new Writer({}, st);
   static const std::map<v1::ResultKind, std::pair<std::string, std::string>> kinds = {
       {v1::RESULT_KIND_EXR, {"exr", "image/x-exr"}},
       {v1::RESULT_KIND_PNG, {"png", "image/png"}},

@@ -5,6 +5,9 @@
 
 #include <fmt/format.h>
 
+#include <fstream>
+#include <sstream>
+
 #include "common/log.h"
 #include "master/server/job_service.h"
 #include "master/server/monitoring.h"
@@ -13,13 +16,31 @@
 namespace epr {
 
 MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(options)) {
+  auth_ = TokenAuth(options_.token);
+  std::shared_ptr<grpc::ServerCredentials> creds = grpc::InsecureServerCredentials();
+  if (!options_.tls_cert_file.empty() || !options_.tls_key_file.empty()) {
+    auto read = [](const std::string& path) {
+      std::ifstream in(path);
+      if (!in) throw std::runtime_error(fmt::format("cannot read '{}'", path));
+      std::stringstream ss;
+      ss << in.rdbuf();
+      return ss.str();
+    };
+    grpc::SslServerCredentialsOptions ssl;
+    ssl.pem_key_cert_pairs.push_back({read(options_.tls_key_file), read(options_.tls_cert_file)});
+    if (!options_.tls_client_ca_file.empty()) {
+      ssl.pem_root_certs = read(options_.tls_client_ca_file);
+      ssl.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
+    }
+    creds = grpc::SslServerCredentials(ssl);
+  }
   jobs_ = std::make_unique<JobManager>(options_.jobs);
-  job_service_ = std::make_unique<JobServiceImpl>(*jobs_);
-  worker_service_ = std::make_unique<WorkerServiceImpl>(*jobs_);
+  job_service_ = std::make_unique<JobServiceImpl>(*jobs_, auth_);
+  worker_service_ = std::make_unique<WorkerServiceImpl>(*jobs_, auth_);
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  builder.AddListeningPort(options_.listen, grpc::InsecureServerCredentials(), &port_);
+  builder.AddListeningPort(options_.listen, creds, &port_);
   builder.RegisterService(job_service_.get());
   builder.RegisterService(worker_service_.get());
   builder.SetMaxReceiveMessageSize(options_.max_message_bytes);
@@ -42,7 +63,8 @@ MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(opt
     }
   }
   server_->GetHealthCheckService()->SetServingStatus(true);
-  logger("master")->info("master listening on {} (port {})", options_.listen, port_);
+  logger("master")->info("master listening on {} (port {}){}{}", options_.listen, port_,
+                         options_.tls_cert_file.empty() ? "" : ", TLS", auth_.enabled() ? ", bearer token required" : "");
 }
 
 MasterServer::~MasterServer() { shutdown(); }

@@ -8,6 +8,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include "master/server/auth.h"
 #include "master/server/job_manager.h"
 
 namespace epr {
@@ -17,6 +18,10 @@ struct MasterServerOptions {
   MasterOptions jobs;
   int max_message_bytes = 8 << 20;       // inline scenes in SubmitJob; tile chunks are <= 2 MiB
   std::string http_listen;               // monitoring HTTP HOST:PORT (master/server/monitoring.h); empty: none
+  std::string token;                     // bearer token required from clients and workers; empty: none
+  // TLS (all empty: plaintext). PEM files: the server's certificate chain and key, and optionally the
+  // CA that client certificates must chain to (then clients without a valid certificate are refused).
+  std::string tls_cert_file, tls_key_file, tls_client_ca_file;
 };
 
 class JobServiceImpl;
@@ -42,6 +47,7 @@ class MasterServer {
 
  private:
   MasterServerOptions options_;
+  TokenAuth auth_;
   std::unique_ptr<JobManager> jobs_;
   std::unique_ptr<JobServiceImpl> job_service_;
   std::unique_ptr<WorkerServiceImpl> worker_service_;

@@ -104,6 +104,7 @@ std::vector<v1::SceneChunk> scene_chunks(const SceneBundleData& bundle) {
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::Register(grpc::CallbackServerContext* ctx, const v1::WorkerInfo* req,
                                                       v1::RegisterResponse* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   if (req->protocol_version() != v1::PROTOCOL_VERSION_V1)
     return finish(ctx, {grpc::StatusCode::FAILED_PRECONDITION,
                         fmt::format("this master speaks protocol version 1, the worker {}", int(req->protocol_version()))});
@@ -118,6 +119,7 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::Register(grpc::CallbackServerContex
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::Heartbeat(grpc::CallbackServerContext* ctx, const v1::HeartbeatRequest* req,
                                                        v1::HeartbeatResponse* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   const std::vector<uint64_t> leases(req->lease_ids().begin(), req->lease_ids().end());
   auto states = jobs_.heartbeat(req->worker_id().id(), leases);
   if (!states) return finish(ctx, unknown_worker(req->worker_id().id()));
@@ -132,6 +134,7 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::Heartbeat(grpc::CallbackServerConte
 
 grpc::ServerWriteReactor<v1::SceneChunk>* WorkerServiceImpl::FetchScene(grpc::CallbackServerContext* ctx,
                                                                         const v1::FetchSceneRequest* req) {
+  if (auto st = auth_.check(ctx); !st.ok()) return new ListWriter<v1::SceneChunk>({}, st);
   auto bundle = jobs_.scene(req->content_hash());
   if (!bundle || !bundle->builtin.empty()) {
     return new ListWriter<v1::SceneChunk>(
@@ -142,6 +145,7 @@ grpc::ServerWriteReactor<v1::SceneChunk>* WorkerServiceImpl::FetchScene(grpc::Ca
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::LeaseTile(grpc::CallbackServerContext* ctx, const v1::LeaseRequest* req,
                                                        v1::Lease* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   LeaseDecision d = jobs_.lease_tile(req->worker_id().id());
   if (std::holds_alternative<UnknownWorker>(d)) return finish(ctx, unknown_worker(req->worker_id().id()));
   if (auto* w = std::get_if<LeaseWait>(&d)) {
@@ -185,18 +189,21 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::LeaseTile(grpc::CallbackServerConte
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::ReturnLease(grpc::CallbackServerContext* ctx,
                                                          const v1::ReturnLeaseRequest* req, v1::ReturnLeaseResponse*) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   jobs_.return_leases(req->worker_id().id(), {req->lease_ids().begin(), req->lease_ids().end()});
   logger("master")->info("worker {} returned {} lease(s): {}", req->worker_id().id(), req->lease_ids_size(), req->reason());
   return finish(ctx, grpc::Status::OK);
 }
 
-grpc::ServerReadReactor<v1::TileResultChunk>* WorkerServiceImpl::SubmitTile(grpc::CallbackServerContext*,
+grpc::ServerReadReactor<v1::TileResultChunk>* WorkerServiceImpl::SubmitTile(grpc::CallbackServerContext* ctx,
                                                                             v1::SubmitAck* ack) {
+  if (auto st = auth_.check(ctx); !st.ok()) return new RefusingReader<v1::TileResultChunk>(st);
   return new SubmitTileReader(jobs_, ack);
 }
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::Unregister(grpc::CallbackServerContext* ctx, const v1::WorkerId* req,
                                                         v1::UnregisterResponse*) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   jobs_.unregister_worker(req->id());
   return finish(ctx, grpc::Status::OK);
 }
