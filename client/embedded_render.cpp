@@ -10,14 +10,16 @@ namespace epr {
 
 EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
                                const std::function<void(const v1::JobStatus&)>& on_status,
-                               const std::function<void(const std::string&)>& on_started) {
+                               const std::function<void(const std::string&, const std::string&)>& on_started) {
   MasterServerOptions mo;
   mo.listen = "127.0.0.1:0";
   mo.jobs.state_dir = embedded.state_dir;
+  mo.http_listen = embedded.http_listen;
   MasterServer master(mo);
   EmbeddedResult result;
   result.master_target = master.local_target();
-  if (on_started) on_started(result.master_target);
+  result.dashboard_url = master.dashboard_url();
+  if (on_started) on_started(result.master_target, result.dashboard_url);
 
   const int n = std::max(1, embedded.workers);
   const int cores = int(std::max(1u, std::thread::hardware_concurrency()));

@@ -16,18 +16,21 @@ struct EmbeddedOptions {
   int workers = 1;          // worker nodes in this process
   int worker_threads = 0;   // tracing threads per worker; 0: all cores / workers
   std::string state_dir;    // the master's state folder; empty: a temporary one
+  std::string http_listen = "127.0.0.1:0";  // the master's monitoring endpoint (dashboard); empty: none
 };
 
 struct EmbeddedResult {
   v1::JobStatus status;              // the final status
   std::vector<FetchedFile> files;    // what was written under the output prefix
   std::string master_target;         // the loopback address the master listened on
+  std::string dashboard_url;         // "http://127.0.0.1:PORT/" while the render runs; empty if disabled
 };
 
 /// Renders `opts` to completion and writes the outputs under opts.out. `on_status` is called with
-/// every progress update (from the watch stream); `on_started` once the master is up.
+/// every progress update (from the watch stream); `on_started` once the master is up (with its gRPC
+/// target and the dashboard URL, empty if disabled).
 EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
                                const std::function<void(const v1::JobStatus&)>& on_status = {},
-                               const std::function<void(const std::string& master_target)>& on_started = {});
+                               const std::function<void(const std::string& master_target, const std::string& dashboard_url)>& on_started = {});
 
 }  // namespace epr

@@ -47,7 +47,8 @@ void print_status(const v1::JobStatus& s, bool tty) {
   std::fflush(stderr);
 }
 
-int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra, bool single_process, int workers) {
+int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra, bool single_process, int workers,
+               const std::string& http) {
   finish_options(o, extra);
   if (auto err = o.validate()) {
     std::fprintf(stderr, "epr render: %s\n", err->c_str());
@@ -65,10 +66,12 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
     }
     EmbeddedOptions eo;
     eo.workers = workers;
+    eo.http_listen = http;
     const EmbeddedResult r = render_embedded(
         o, eo, [&](const v1::JobStatus& s) { print_status(s, tty); },
-        [&](const std::string& target) {
+        [&](const std::string& target, const std::string& dashboard) {
           std::fprintf(stderr, "master on %s with %d local worker(s)\n", target.c_str(), workers);
+          if (!dashboard.empty()) std::fprintf(stderr, "dashboard: %s\n", dashboard.c_str());
         });
     if (tty) std::fprintf(stderr, "\n");
     if (r.status.state() != v1::JOB_STATE_DONE) {
@@ -108,6 +111,9 @@ int main(int argc, char** argv) {
                    "trace and reproject in this process without gRPC (the reference the cluster must equal)");
   render->add_option("--workers", local_workers, "local worker nodes (each uses all cores / workers)")
       ->check(CLI::Range(1, 64))->capture_default_str();
+  std::string render_http = "127.0.0.1:0";
+  render->add_option("--http", render_http, "the embedded master's dashboard address HOST:PORT (port 0: a free one; \"\" disables it)")
+      ->capture_default_str();
   RemoteCommands remote(app);  // submit, watch, get, list, cancel
 
   try {
@@ -118,7 +124,7 @@ int main(int argc, char** argv) {
   set_log_level(log_level);
   if (auto code = remote.run()) return *code;
   try {
-    if (render->parsed()) return run_render(render_opts, render_extra, single_process, local_workers);
+    if (render->parsed()) return run_render(render_opts, render_extra, single_process, local_workers, render_http);
   } catch (const CLI::ValidationError& e) {
     std::fprintf(stderr, "epr: %s\n", e.what());
     return 2;
