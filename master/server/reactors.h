@@ -1,13 +1,24 @@
-// A server-streaming reactor that writes a precomputed list of messages, one at a time (each
-// OnWriteDone starts the next write), then finishes with the given status. Never blocks.
+// Small reactors and helpers shared by the master's callback-API services. None of them blocks.
 #pragma once
 
+#include <string>
 #include <vector>
 
 #include <grpcpp/grpcpp.h>
 
 namespace epr {
 
+/// Ends a unary call with `status` through the context's default reactor.
+inline grpc::ServerUnaryReactor* finish(grpc::CallbackServerContext* ctx, grpc::Status status) {
+  auto* r = ctx->DefaultReactor();
+  r->Finish(std::move(status));
+  return r;
+}
+
+inline grpc::Status invalid(std::string why) { return {grpc::StatusCode::INVALID_ARGUMENT, std::move(why)}; }
+
+/// A server-streaming reactor that writes a precomputed list of messages, one at a time (each
+/// OnWriteDone starts the next write), then finishes with the given status.
 template <typename Message>
 class ListWriter final : public grpc::ServerWriteReactor<Message> {
  public:

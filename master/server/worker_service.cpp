@@ -3,19 +3,12 @@
 #include <fmt/format.h>
 
 #include "common/log.h"
-#include "master/server/list_writer.h"
+#include "master/server/reactors.h"
 #include "wire/convert.h"
 
 namespace epr {
 namespace {
 
-grpc::ServerUnaryReactor* finish(grpc::CallbackServerContext* ctx, grpc::Status status) {
-  auto* r = ctx->DefaultReactor();
-  r->Finish(std::move(status));
-  return r;
-}
-
-grpc::Status invalid(std::string why) { return {grpc::StatusCode::INVALID_ARGUMENT, std::move(why)}; }
 grpc::Status unknown_worker(const std::string& id) {
   return {grpc::StatusCode::NOT_FOUND, fmt::format("unknown worker id '{}': register again", id)};
 }
