@@ -180,6 +180,12 @@ MonitoringServer::MonitoringServer(JobManager& jobs, MonitoringOptions options)
   const int threads = std::max(1, impl_->options.threads);
   impl_->http.new_task_queue = [threads] { return new httplib::ThreadPool(size_t(threads)); };
   impl_->http.set_payload_max_length(64 << 10);  // nothing is uploaded here
+  // cpp-httplib's default sets SO_REUSEPORT, which lets a second master bind the same port and take
+  // half of the requests; SO_REUSEADDR alone allows a quick restart but refuses a port in use.
+  impl_->http.set_socket_options([](socket_t sock) {
+    int yes = 1;
+    setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof(yes));
+  });
   impl_->http.set_read_timeout(5, 0);
   impl_->http.set_write_timeout(5, 0);
   impl_->routes();
