@@ -18,7 +18,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
 )
 # the Python packages are for scripts run with Debian's /usr/bin/python3
-PACKAGES+=(python3 python3-numpy python3-openimageio python3-prometheus-client)
+PACKAGES+=(python3 python3-numpy python3-openimageio python3-prometheus-client python3-yaml python3-grpcio)
 # reference renderer, charts, browser tests, deployment checks, network namespaces
 PACKAGES+=(blender gnuplot-nox chromium chromium-driver docker-compose iproute2 procps curl)
 

@@ -1,0 +1,362 @@
+#!/usr/bin/env bash
+# The docker-compose cluster without Docker: the real epr-master, epr-worker and epr programs on five
+# "hosts" -- Linux network namespaces on a private bridge -- started with the environment, commands,
+# secrets and health checks that `docker-compose config` prints for deploy/docker-compose.yml, through
+# the images' own entrypoint (deploy/docker-entrypoint.sh) and health check (deploy/epr-health).
+#
+#   netns_cluster_test.sh --epr BIN --master BIN --worker BIN
+#
+# Topology (nothing outside it is touched: no interface, address or route in the caller's namespace):
+#   <id>-sw      a bridge br0, one veth port per host
+#   <id>-master  the compose file's master address (10.231.0.10), named "master" in every host's
+#                /etc/hosts (via /etc/netns/<ns>/hosts, which `ip netns exec` mounts over /etc/hosts)
+#   <id>-w1..w3  workers, 10.231.0.21-23 (compose gives scaled workers dynamic addresses)
+#   <id>-client  the client, 10.231.0.100
+# The compose variables the test sets, as a user would: EPR_LEASE_TIMEOUT_MS=2000 (a killed worker's
+# tile is re-queued quickly), EPR_HEARTBEAT_MS=500, EPR_LOG_LEVEL=debug (the workers log their
+# leases), EPR_TOKEN_PATH (a token made for the run). Processes run as nobody, as the images run as
+# uid 10001; a container's paths (/var/lib/eprfarm, /run/secrets/...) live under a per-host folder.
+#
+# The test: the master's and the client's health checks pass; the client submits a job; one worker
+# host's processes are killed while that worker holds a lease; the job still ends DONE, the master
+# re-queued the dead worker's tile, and PREFIX.counts.exr (M, M' per pixel) and PREFIX.pathtrace.exr
+# equal those of `epr render --single-process` with the same flags (bit-identical by design).
+#
+# Exit 0 passed, 1 failed, 77 skipped (not root, no `ip netns`, or docker-compose / python3-yaml
+# missing outside CI) -- a skip always says why. Cleans up namespaces and processes on any exit.
+set -uo pipefail
+
+SKIP=77
+here="$(cd "$(dirname "$0")" && pwd)"
+src="$(cd "$here/../.." && pwd)"
+EPR_BIN="" MASTER_BIN="" WORKER_BIN=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --epr) EPR_BIN="$2"; shift 2 ;;
+    --master) MASTER_BIN="$2"; shift 2 ;;
+    --worker) WORKER_BIN="$2"; shift 2 ;;
+    *) echo "usage: $0 --epr BIN --master BIN --worker BIN" >&2; exit 2 ;;
+  esac
+done
+for b in "$EPR_BIN" "$MASTER_BIN" "$WORKER_BIN"; do
+  [ -x "$b" ] || { echo "netns_cluster_test: not an executable: '$b'" >&2; exit 2; }
+done
+
+log() { echo "[netns $(date +%T)] $*" >&2; }
+skip() { echo "SKIPPED: netns cluster test: $*" >&2; exit "$SKIP"; }
+# A missing tool that scripts/setup.sh installs is a failure in CI, a skip elsewhere.
+need_tool() {
+  if [ -n "${CI:-}" ]; then echo "FAILED: netns cluster test: $1 (scripts/setup.sh installs it)" >&2; exit 1; fi
+  skip "$1 (scripts/setup.sh installs it)"
+}
+
+PY=/usr/bin/python3
+[ "$(id -u)" -eq 0 ] || skip "needs root to create network namespaces (run as root, or in CI)"
+command -v ip >/dev/null || skip "no ip command (iproute2)"
+command -v docker-compose >/dev/null || need_tool "docker-compose is not installed"
+"$PY" -c 'import yaml' 2>/dev/null || need_tool "python3-yaml is not installed"
+"$PY" -c 'import grpc' 2>/dev/null || need_tool "python3-grpcio (for epr-health) is not installed"
+
+# Namespaces left by an earlier run that was killed before its clean-up (e.g. a ctest timeout):
+# eprt<PID>-* whose PID is gone. Their processes are ended first.
+for ns in $(ip netns list 2>/dev/null | awk '{print $1}' | grep -E '^eprt[0-9]+-' || true); do
+  owner="${ns#eprt}"
+  owner="${owner%%-*}"
+  [ -d "/proc/$owner" ] && continue
+  pids="$(ip netns pids "$ns" 2>/dev/null)"
+  [ -z "$pids" ] || kill -KILL $pids 2>/dev/null
+  ip netns del "$ns" 2>/dev/null && echo "removed the stale namespace $ns" >&2
+  rm -rf "/etc/netns/$ns"
+done
+
+id="eprt$$"
+probe="$id-probe"
+ip netns add "$probe" 2>/dev/null || skip "cannot create a network namespace (ip netns add failed: no CAP_SYS_ADMIN?)"
+ip -n "$probe" link add br0 type bridge 2>/dev/null || { ip netns del "$probe"; skip "cannot create a bridge in a namespace"; }
+ip netns del "$probe"
+
+tmp="$(mktemp -d /tmp/epr-netns.XXXXXX)"
+chmod 0755 "$tmp"
+hosts=(sw master w1 w2 w3 client)
+failed=0
+
+cleanup() {
+  local ns pids
+  for h in "${hosts[@]}"; do
+    ns="$id-$h"
+    pids="$(ip netns pids "$ns" 2>/dev/null)"
+    [ -z "$pids" ] || kill -CONT $pids 2>/dev/null
+    [ -z "$pids" ] || kill -KILL $pids 2>/dev/null
+  done
+  for _ in $(seq 50); do  # until the killed processes are gone (at most 5 s)
+    pids=""
+    for h in "${hosts[@]}"; do pids+="$(ip netns pids "$id-$h" 2>/dev/null)"; done
+    [ -n "$pids" ] || break
+    sleep 0.1
+  done
+  for h in "${hosts[@]}"; do
+    ip netns del "$id-$h" 2>/dev/null
+    rm -rf "/etc/netns/$id-$h"
+  done
+  if [ "$failed" -ne 0 ] || [ -n "${EPR_KEEP_NETNS_TMP:-}" ]; then
+    for f in "$tmp"/*.log; do
+      [ -f "$f" ] || continue
+      echo "---- $(basename "$f") (last 40 lines)" >&2
+      tail -n 40 "$f" >&2
+    done
+  fi
+  if [ -n "${EPR_KEEP_NETNS_TMP:-}" ]; then echo "kept $tmp" >&2; else rm -rf "$tmp"; fi
+}
+trap cleanup EXIT
+trap 'failed=1; exit 1' INT TERM
+
+fail() {
+  failed=1
+  echo "FAILED: netns cluster test: $*" >&2
+  exit 1
+}
+
+# wait_for SECONDS CMD...: retries CMD every 0.5 s until it succeeds.
+wait_for() {
+  local deadline=$((SECONDS + $1))
+  shift
+  until "$@"; do
+    [ "$SECONDS" -lt "$deadline" ] || return 1
+    sleep 0.5
+  done
+}
+
+# ---- the compose file, resolved ------------------------------------------------------------------
+mkdir -p "$tmp/secrets"
+head -c 24 /dev/urandom | od -An -tx1 | tr -d ' \n' > "$tmp/secrets/epr_token"
+compose_vars=(EPR_LEASE_TIMEOUT_MS=2000 EPR_HEARTBEAT_MS=500 EPR_LOG_LEVEL=debug
+              EPR_TOKEN_PATH="$tmp/secrets/epr_token" EPR_OUT_DIR="$tmp/out")
+env -i PATH="/usr/bin:/bin" HOME="$tmp" "${compose_vars[@]}" \
+  docker-compose -f "$src/deploy/docker-compose.yml" config > "$tmp/compose.yml" 2> "$tmp/compose-config.log" ||
+  fail "docker-compose config rejected deploy/docker-compose.yml: $(cat "$tmp/compose-config.log")"
+
+# bin/: the names the images have on PATH, pointing at the built programs and the deploy scripts.
+mkdir -p "$tmp/bin"
+ln -s "$(readlink -f "$MASTER_BIN")" "$tmp/bin/epr-master"
+ln -s "$(readlink -f "$WORKER_BIN")" "$tmp/bin/epr-worker"
+ln -s "$(readlink -f "$EPR_BIN")" "$tmp/bin/epr"
+ln -s "$src/deploy/docker-entrypoint.sh" "$tmp/bin/epr-entrypoint"
+ln -s "$src/deploy/epr-health" "$tmp/bin/epr-health"
+
+# Run as nobody (the images run as uid 10001) when nobody can reach the programs; else as root.
+as_user=(setpriv --reuid=65534 --regid=65534 --clear-groups --)
+if ! "${as_user[@]}" test -x "$tmp/bin/epr-master" -a -r "$src/deploy/docker-entrypoint.sh" 2>/dev/null; then
+  log "nobody cannot run the programs here; running them as root"
+  as_user=()
+fi
+
+# service_config SERVICE HOST: loads SVC_* for the service into this shell, with HOST's root folder.
+service_config() {
+  local root="$tmp/hosts/$2"
+  local out
+  out="$("$PY" "$here/compose_hosts.py" "$tmp/compose.yml" "$src/deploy/Dockerfile" "$1" "$root")" ||
+    fail "cannot read service $1 from the compose file"
+  eval "$out"
+  mkdir -p "$root/home"
+  local s
+  for s in "${SVC_SECRETS[@]}"; do
+    install -D -m 0400 "${s%%=*}" "${s#*=}"
+  done
+  [ ${#as_user[@]} -eq 0 ] || chown -R 65534:65534 "$root"
+}
+
+"$PY" "$here/compose_hosts.py" "$tmp/compose.yml" "$src/deploy/Dockerfile" --check-scalable worker ||
+  fail "the compose file's worker service cannot be scaled with --scale worker=N"
+
+service_config master master
+master_addr="$SVC_ADDR"
+subnet="$SVC_SUBNET"
+[ -n "$master_addr" ] && [ -n "$subnet" ] || fail "the compose file gives the master no fixed address on a subnet"
+prefix_len="${subnet#*/}"
+net_base="${subnet%/*}"
+net_base="${net_base%.*}"
+declare -A addr=([master]="$master_addr" [w1]="$net_base.21" [w2]="$net_base.22" [w3]="$net_base.23"
+                 [client]="$net_base.100")
+log "subnet $subnet, master $master_addr, workers ${addr[w1]}-${addr[w3]}, client ${addr[client]}"
+
+# ---- the hosts -------------------------------------------------------------------------------------
+sw="$id-sw"
+ip netns add "$sw" || fail "ip netns add $sw"
+ip -n "$sw" link add br0 type bridge
+ip -n "$sw" link set br0 up
+# The bridge's own address (.1, Docker's gateway address) serves DNS for the service names, as
+# Docker's embedded DNS does in a compose network.
+dns_addr="$net_base.1"
+ip -n "$sw" addr add "$dns_addr/$prefix_len" dev br0
+ip -n "$sw" link set lo up
+ip netns exec "$sw" "$PY" "$here/tiny_dns.py" "$dns_addr" "master=$master_addr" > "$tmp/dns.log" 2>&1 &
+disown $!  # servers are ended by the clean-up, without job-control noise
+for h in master w1 w2 w3 client; do
+  ns="$id-$h"
+  ip netns add "$ns" || fail "ip netns add $ns"
+  ip -n "$sw" link add "p-$h" type veth peer name eth0 netns "$ns" || fail "veth for $h"
+  ip -n "$sw" link set "p-$h" master br0
+  ip -n "$sw" link set "p-$h" up
+  ip -n "$ns" link set lo up
+  ip -n "$ns" addr add "${addr[$h]}/$prefix_len" dev eth0
+  ip -n "$ns" link set eth0 up
+  # A container's /etc/hosts and /etc/resolv.conf: other services are found through DNS only; no
+  # resolver outside the namespaces is asked.
+  mkdir -p "/etc/netns/$ns"
+  printf '127.0.0.1 localhost\n::1 localhost\n%s %s\n' "${addr[$h]}" "$h" > "/etc/netns/$ns/hosts"
+  printf 'nameserver %s\noptions timeout:1 attempts:2\n' "$dns_addr" > "/etc/netns/$ns/resolv.conf"
+done
+wait_for 20 grep -q ready "$tmp/dns.log" || fail "the DNS stand-in did not start: $(cat "$tmp/dns.log")"
+
+# on HOST CMD...: runs CMD in HOST's namespace with the service environment loaded by service_config
+# (and nothing else from this shell's environment), as the images' user.
+on() {
+  local h="$1"
+  shift
+  ip netns exec "$id-$h" env -i PATH="$tmp/bin:/usr/bin:/bin" HOME="$tmp/hosts/$h/home" \
+    "${SVC_ENV[@]}" "${as_user[@]}" "$@"
+}
+
+start=$SECONDS
+# ---- master ----------------------------------------------------------------------------------------
+service_config master master
+master_health=("${SVC_HEALTH[@]}")
+master_env=("${SVC_ENV[@]}")
+on master "${SVC_CMD[@]}" > "$tmp/master.log" 2>&1 &
+disown $!
+[ ${#master_health[@]} -gt 0 ] || fail "the compose file's master has no health check"
+SVC_ENV=("${master_env[@]}")
+wait_for 60 on master "${master_health[@]}" 2>> "$tmp/health.log" ||
+  fail "the master's compose health check (${master_health[*]}) never passed"
+log "master healthy: ${master_health[*]}"
+
+# ---- client host: the master by name, across the bridge ---------------------------------------------
+service_config client client
+client_env=("${SVC_ENV[@]}")
+client_cmd=("${SVC_CMD[@]}")
+master_target="$(printf '%s\n' "${client_env[@]}" | sed -n 's/^EPR_MASTER=//p')"
+[ -n "$master_target" ] || fail "the compose file's client has no EPR_MASTER"
+on client epr-health grpc "$master_target" 2>> "$tmp/health.log" ||
+  fail "gRPC health of $master_target from the client host"
+http_port="$(printf '%s\n' "${master_env[@]}" | sed -n 's/^EPR_HTTP=.*://p')"
+[ -n "$http_port" ] || fail "the compose file's master has no EPR_HTTP port"
+on client epr-health http "http://master:$http_port/healthz" 2>> "$tmp/health.log" ||
+  fail "HTTP /healthz of the master from the client host"
+# The compose secret is the master's token too: a call without it is refused.
+if on client env -u EPR_TOKEN_FILE epr list --master "$master_target" > /dev/null 2> "$tmp/no-token.log"; then
+  fail "the master accepted a client without the token"
+fi
+grep -qi "UNAUTHENTICATED\|token" "$tmp/no-token.log" || fail "no-token call failed otherwise: $(cat "$tmp/no-token.log")"
+log "client host: gRPC health of $master_target and http://master:$http_port/healthz pass; no token, no service"
+
+# ---- workers -----------------------------------------------------------------------------------------
+for w in w1 w2 w3; do
+  service_config worker "$w"
+  worker_health=("${SVC_HEALTH[@]}")
+  on "$w" "${SVC_CMD[@]}" > "$tmp/$w.log" 2>&1 &
+  disown $!
+done
+registered() { [ "$(grep -c "registered with" "$tmp"/w[123].log 2>/dev/null | awk -F: '{s += $2} END {print s}')" -ge 3 ]; }
+wait_for 60 registered || fail "the three workers did not register with the master"
+for w in w1 w2 w3; do
+  on "$w" "${worker_health[@]}" 2>> "$tmp/health.log" || fail "worker health check (${worker_health[*]}) on $w"
+done
+log "3 workers registered; worker health check passes: ${worker_health[*]}"
+
+# ---- the job ---------------------------------------------------------------------------------------
+job=(builtin:cornell --width 64 --height 64 --spp 16 --paths-per-round 4 --tile 16 --mode skip
+     --reproject cpu --min-paths 1 --seed 11)
+SVC_ENV=("${client_env[@]}")
+out_dir="$tmp/hosts/client/out"
+mkdir -p "$out_dir"
+[ ${#as_user[@]} -eq 0 ] || chown 65534:65534 "$out_dir"
+# client_cmd is the compose client's entrypoint + command (epr-entrypoint client list); keep the
+# entrypoint, give our own command, as `docker-compose run client submit ...` does.
+entry=("${client_cmd[@]:0:2}")
+
+# Kill w2's host while it holds a lease of a tile it cannot have finished. Before the submission,
+# w1 and w3 are frozen (SIGSTOP) and w2 is throttled: it runs in slices of microseconds (SIGCONT then
+# SIGSTOP at once), and after each slice its log is read. The first lease it logs was taken at most
+# one slice ago, far less than tracing the tile takes (1024 paths in round 0), so the master has no
+# result for it. Then w2's processes are killed and w1, w3 go on: round 0 cannot end before the dead
+# lease expires (EPR_LEASE_TIMEOUT_MS), so the job is mid-way, and the tile must be traced again.
+victim="$id-w2"
+victim_pids="$(ip netns pids "$victim")"
+others="$(ip netns pids "$id-w1") $(ip netns pids "$id-w3")"
+[ -n "$victim_pids" ] || fail "the victim worker host has no processes"
+kill -STOP $others $victim_pids
+on client "${entry[@]}" submit "${job[@]}" --wait --out "$out_dir/cluster" \
+  > "$tmp/client.out" 2> "$tmp/client.log" &
+client_pid=$!
+open_lease() {
+  awk '/lease [0-9]+: job [^ ]+ round [0-9]+ tile [0-9]+/ { for (i = 1; i <= NF; i++) if ($i == "lease") { id = $(i + 1); sub(":", "", id); open[id] = $NF } }
+       /lease [0-9]+: submitted/ { for (i = 1; i <= NF; i++) if ($i == "lease") { id = $(i + 1); sub(":", "", id); delete open[id] } }
+       END { for (id in open) { print open[id]; exit } }' "$tmp/w2.log"
+}
+held_tile=""
+deadline=$((SECONDS + 120))
+while [ "$SECONDS" -lt "$deadline" ] && kill -0 "$client_pid" 2>/dev/null; do
+  kill -CONT $victim_pids
+  kill -STOP $victim_pids
+  held_tile="$(open_lease)"
+  [ -z "$held_tile" ] || break
+done
+if [ -z "$held_tile" ]; then
+  kill -CONT $others $victim_pids
+  fail "worker w2 never held a lease while the job ran"
+fi
+kill -KILL $victim_pids
+kill -CONT $others
+job_id="$(head -n 1 "$tmp/client.out")"
+[ -n "$job_id" ] || fail "the client printed no job id"
+log "killed worker host w2 (pids $victim_pids) holding tile $held_tile of job $job_id"
+sleep 0.2
+[ -z "$(ip netns pids "$victim")" ] || fail "w2's processes survived SIGKILL"
+
+deadline=$((SECONDS + 300))
+while kill -0 "$client_pid" 2>/dev/null; do
+  [ "$SECONDS" -lt "$deadline" ] || fail "the job did not end within 300 s of the kill"
+  sleep 0.5
+done
+wait "$client_pid"
+rc=$?
+[ "$rc" -eq 0 ] || fail "epr submit --wait exited $rc"
+log "job done after $((SECONDS - start)) s in all: $(tail -n 2 "$tmp/client.log" | tr '\n' ' ')"
+
+# ---- what the master saw -------------------------------------------------------------------------------
+# Mid-job: the master re-queued the dead worker's tile while the job ran, i.e. before "job ... done".
+requeued_line="$(grep -n "job $job_id tile $held_tile: lease expired, re-queued" "$tmp/master.log" | head -n 1 | cut -d: -f1)"
+done_line="$(grep -n "job $job_id done" "$tmp/master.log" | head -n 1 | cut -d: -f1)"
+[ -n "$requeued_line" ] || fail "the master never re-queued tile $held_tile of the killed worker"
+[ -n "$done_line" ] && [ "$requeued_line" -lt "$done_line" ] ||
+  fail "the master did not re-queue tile $held_tile before the job ended"
+re_leased="$("$PY" -c 'import json,sys; print(json.load(open(sys.argv[1])).get("tiles_re_leased", 0))' "$out_dir/cluster.json")"
+[ "$re_leased" -ge 1 ] || fail "cluster.json says tiles_re_leased=$re_leased"
+
+# ---- against the undisturbed reference -------------------------------------------------------------------
+"$EPR_BIN" render "${job[@]}" --single-process --out "$tmp/ref" > "$tmp/reference.log" 2>&1 ||
+  fail "epr render --single-process failed"
+for kind in counts pathtrace; do
+  a="$out_dir/cluster.$kind.exr" b="$tmp/ref.$kind.exr"
+  [ -s "$a" ] || fail "the cluster run wrote no $(basename "$a")"
+  if cmp -s "$a" "$b"; then
+    log "$kind.exr: byte-identical to the single-process reference"
+    continue
+  fi
+  # Not the same bytes (e.g. metadata): the same pixels, then, exactly.
+  "$PY" - "$a" "$b" <<'EOF' || fail "$kind.exr differs from the single-process reference"
+import sys
+import OpenImageIO as oiio
+a, b = (oiio.ImageBuf(p) for p in sys.argv[1:3])
+pa, pb = a.get_pixels(oiio.FLOAT), b.get_pixels(oiio.FLOAT)
+if pa is None or pb is None or pa.shape != pb.shape:
+    sys.exit(f"cannot compare: shapes {getattr(pa, 'shape', None)} vs {getattr(pb, 'shape', None)}")
+diff = (pa != pb)
+if diff.any():
+    sys.exit(f"{int(diff.sum())} of {diff.size} values differ")
+print(f"{sys.argv[1]}: same {pa.shape} pixels as the reference (bytes differ)", file=sys.stderr)
+EOF
+done
+
+log "passed in $((SECONDS - start)) s"
+echo "netns cluster: 1 passed, 0 failed"
