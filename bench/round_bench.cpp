@@ -1,0 +1,465 @@
+// Round overhead of the embedded default (DESIGN.md section 3: "reprojection + transport overhead a
+// small fraction of a round"; bar <= 10 % of a round's wall time outside tracing).
+//
+// Part 1, the default: render_embedded (in-process master + one WorkerNode with one tracing thread
+// per core, over loopback gRPC) on --scene at --size, P = --spp, for pt and skip and k = paths per
+// round in --ppr. Overhead = 1 - (sum of the workers' tile tracing seconds / tracing threads) / the
+// job's wall time (JobStatus: seconds_tracing, seconds_elapsed = first round opened .. job done).
+//
+// Part 2, where the rest goes: the same jobs on a MasterServer with bench workers instead of a
+// WorkerNode (bench_worker.h: the same lease / trace / TileResultWriter / SubmitTile steps, with
+// render_leased_tile as WorkerNode uses, but retrying 1 ms after a Wait instead of the master's
+// retry_after_ms = 100). Each bench thread's wall time is split into tracing, encode + submit, lease
+// round trips and waiting for the next round (Wait answers), so the overhead is attributed directly.
+//
+// Part 3, the master's per-round work on its own (reprojection thread, workers idle meanwhile):
+// FrameState::finish_round for pt and skip (skip reads the accumulation back and downsamples every
+// round), FrameState::images() plus four PNG encodes (JobManager::make_previews, at most once a
+// second in close_round), and the LeaseTile round trip on loopback.
+//
+// Wall figures are distorted when other processes share the machine; the load average is printed
+// with each figure and CPU seconds beside wall seconds.
+//
+//   round_bench [--scene builtin:cornell] [--size 512] [--spp 16] [--ppr 1,2,4] [--modes pt,skip]
+//               [--threads 0] [--no-bench-workers]
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+
+#include "bench/bench_worker.h"
+#include "client/embedded_render.h"
+#include "client/job_client.h"
+#include "common/image.h"
+#include "common/log.h"
+#include "common/scene_loader.h"
+#include "master/frame_state.h"
+#include "master/gl_context.h"
+#include "master/server/master_server.h"
+#include "wire/convert.h"
+#include "worker/tile_lease.h"
+#include "worker/tile_renderer.h"
+
+using namespace epr;
+using namespace epr::bench;
+using Clock = std::chrono::steady_clock;
+namespace fs = std::filesystem;
+
+namespace {
+
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+struct JobFigures {
+  double elapsed = 0;   // master: job started .. done, seconds
+  double tracing = 0;   // sum of worker tile tracing seconds
+  double reproj = 0;    // master seconds in the reprojector (incl. deep framebuffer build)
+  double wall = 0;      // the whole call (setup, outputs, fetch)
+  double cpu = 0;       // process CPU seconds of the whole call
+  int rounds = 0, threads = 0;
+  double median_round = 0;  // seconds between round updates (watch stream)
+  double load = 0;
+  double overhead() const { return 1 - tracing / threads / elapsed; }
+};
+
+RenderOptions options(const std::string& scene, int size, int spp, RenderMode mode, int ppr) {
+  RenderOptions o;
+  o.scene = scene;
+  o.width = o.height = size;
+  o.spp = spp;
+  o.mode = mode;
+  o.paths_per_round = ppr;
+  o.seed = 1;
+  return o;
+}
+
+JobFigures run_embedded(const RenderOptions& o, int threads, const fs::path& tmp) {
+  RenderOptions opts = o;
+  opts.out = (tmp / "embedded").string();
+  EmbeddedOptions eo;
+  eo.workers = 1;
+  eo.worker_threads = threads;
+  eo.state_dir = (tmp / "state").string();
+  std::vector<std::pair<uint32_t, Clock::time_point>> rounds;
+  const double c0 = process_cpu_seconds();
+  const auto t0 = Clock::now();
+  const EmbeddedResult r = render_embedded(opts, eo, [&](const v1::JobStatus& s) {
+    if (rounds.empty() || rounds.back().first != s.round()) rounds.emplace_back(s.round(), Clock::now());
+  });
+  JobFigures f;
+  f.wall = since(t0);
+  f.cpu = process_cpu_seconds() - c0;
+  f.elapsed = r.status.seconds_elapsed();
+  f.tracing = r.status.seconds_tracing();
+  f.reproj = r.status.seconds_reprojecting();
+  f.rounds = int(r.status.round());
+  f.threads = threads;
+  std::vector<double> d;
+  for (size_t i = 1; i < rounds.size(); ++i)
+    if (rounds[i].first == rounds[i - 1].first + 1)
+      d.push_back(std::chrono::duration<double>(rounds[i].second - rounds[i - 1].second).count());
+  f.median_round = median(d);
+  f.load = load_average();
+  fs::remove_all(eo.state_dir);
+  return f;
+}
+
+// ---- bench workers that trace for real --------------------------------------------------------------
+
+struct ThreadSplit {
+  double tracing = 0, submit = 0, lease = 0, waiting = 0, total = 0;  // wall seconds
+  double tracing_cpu = 0, submit_cpu = 0, lease_cpu = 0;               // the thread's CPU seconds
+  uint64_t tiles = 0, waits = 0;
+  ThreadSplit& operator+=(const ThreadSplit& o) {
+    tracing += o.tracing; submit += o.submit; lease += o.lease; waiting += o.waiting; total += o.total;
+    tracing_cpu += o.tracing_cpu; submit_cpu += o.submit_cpu; lease_cpu += o.lease_cpu;
+    tiles += o.tiles; waits += o.waits;
+    return *this;
+  }
+};
+
+struct Tracer {
+  explicit Tracer(const v1::TileLease& l)
+      : scene(load_scene(l.scene().builtin())),
+        embree(scene),
+        camera(from_proto(l.settings().camera()), int(l.settings().width()), int(l.settings().height())),
+        tracer(embree, camera, l.seed(), from_proto(l.settings().russian_roulette())),
+        codec_bounds(from_proto(l.settings().codec_bounds())) {}
+  Scene scene;
+  EmbreeScene embree;
+  Camera camera;
+  PathTracer tracer;
+  Bounds3 codec_bounds;
+};
+
+struct BenchJob {
+  JobFigures fig;
+  ThreadSplit split;  // summed over threads
+};
+
+BenchJob run_bench_workers(const RenderOptions& o, int threads, const fs::path& tmp) {
+  MasterServerOptions mo;
+  mo.listen = "127.0.0.1:0";
+  mo.jobs.state_dir = (tmp / "state").string();
+  MasterServer master(mo);
+  for (int i = 0; i < 200 && !master.jobs().gl_ready(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  std::vector<std::unique_ptr<BenchWorker>> workers;
+  for (int i = 0; i < threads; ++i)
+    workers.push_back(std::make_unique<BenchWorker>(master.local_target(), "bench-" + std::to_string(i), 1));
+  const double c0 = process_cpu_seconds();
+  const auto t0 = Clock::now();
+  JobClient client(master.local_target());
+  const std::string id = client.submit(o);
+  std::atomic<bool> done{false};
+  std::mutex mu;
+  std::unique_ptr<Tracer> tracer;  // built by the first lease, shared (read-only) by the threads
+  BenchJob out;
+  std::vector<std::thread> pool;
+  for (int i = 0; i < threads; ++i)
+    pool.emplace_back([&, i] {
+      BenchWorker& w = *workers[size_t(i)];
+      ThreadSplit s;
+      // The split runs from the thread's first lease of a tile to the end of its last submit; waiting
+      // counts only when another tile followed (not the wait for the job's end and its output files).
+      Clock::time_point first{}, last{};
+      bool started = false;
+      double pending_wait = 0;
+      uint64_t pending_waits = 0;
+      while (!done) {
+        auto ls = Clock::now();
+        const double lc = thread_cpu_seconds();
+        auto l = w.lease();
+        const double lt = since(ls), lct = thread_cpu_seconds() - lc;
+        if (std::holds_alternative<uint32_t>(l)) {
+          std::this_thread::sleep_for(std::chrono::milliseconds(1));
+          pending_wait += since(ls);
+          ++pending_waits;
+          continue;
+        }
+        if (!started) {
+          started = true;
+          first = ls;
+        } else {
+          s.waiting += pending_wait;
+          s.waits += pending_waits;
+        }
+        pending_wait = 0;
+        pending_waits = 0;
+        s.lease += lt;
+        s.lease_cpu += lct;
+        const v1::TileLease& lease = std::get<v1::TileLease>(l);
+        {
+          std::lock_guard lock(mu);
+          if (!tracer) tracer = std::make_unique<Tracer>(lease);
+        }
+        LeasedTile tile;
+        if (auto err = unpack_tile_lease(lease, &tile)) throw std::runtime_error("bad lease: " + *err);
+        const auto tt = Clock::now();
+        const double tc = thread_cpu_seconds();
+        const TileRenderer renderer(tracer->tracer, tile.filter);
+        const auto result = render_leased_tile(renderer, tile, {});
+        s.tracing += since(tt);
+        s.tracing_cpu += thread_cpu_seconds() - tc;
+        const auto st = Clock::now();
+        const double sc = thread_cpu_seconds();
+        TileResultWriter writer(*result, {lease.lease_id(), lease.job_id(), lease.round(), lease.tile_index(), w.id()},
+                                tracer->codec_bounds, w.limits());
+        w.submit(writer);
+        last = Clock::now();
+        s.submit += std::chrono::duration<double>(last - st).count();
+        s.submit_cpu += thread_cpu_seconds() - sc;
+        ++s.tiles;
+      }
+      if (started) s.total = std::chrono::duration<double>(last - first).count();
+      std::lock_guard lock(mu);
+      out.split += s;
+    });
+  std::vector<std::pair<int, Clock::time_point>> rounds;
+  for (;;) {
+    auto snap = master.jobs().get(id);
+    if (!snap) throw std::runtime_error("job vanished");
+    if (rounds.empty() || rounds.back().first != snap->progress.round) rounds.emplace_back(snap->progress.round, Clock::now());
+    if (snap->state == JobState::kDone) {
+      out.fig.elapsed = snap->seconds_elapsed;
+      out.fig.tracing = snap->seconds_tracing;
+      out.fig.reproj = snap->seconds_reprojecting;
+      out.fig.rounds = snap->progress.round;
+      break;
+    }
+    if (snap->state != JobState::kRunning && snap->state != JobState::kQueued)
+      throw std::runtime_error("job ended " + std::string(to_string(snap->state)) + ": " + snap->error);
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  done = true;
+  for (auto& t : pool) t.join();
+  out.fig.wall = since(t0);
+  out.fig.cpu = process_cpu_seconds() - c0;
+  out.fig.threads = threads;
+  std::vector<double> d;
+  for (size_t i = 1; i < rounds.size(); ++i)
+    d.push_back(std::chrono::duration<double>(rounds[i].second - rounds[i - 1].second).count());
+  out.fig.median_round = median(d);
+  out.fig.load = load_average();
+  workers.clear();
+  master.shutdown();
+  fs::remove_all(mo.jobs.state_dir);
+  return out;
+}
+
+// ---- the master's per-round work, offline ------------------------------------------------------------
+
+struct MasterRoundCosts {
+  double finish_round = 0, finish_round_cpu = 0;  // seconds per call (median), wall and process CPU
+  double previews = 0, previews_cpu = 0;          // images() + 4 PNG encodes
+  double reproject_round = 0;                     // reprojecting one round's vertices (rp/skip), wall
+};
+
+MasterRoundCosts master_round_costs(const std::string& spec, int size, RenderMode mode, ReprojectMethod method,
+                                    int runs) {
+  RenderOptions o = options(spec, size, 1'000'000, mode, 1);
+  o.reproject = method;
+  o.min_paths = 1'000'000;  // never skip: every round does the same work
+  const Scene scene = load_scene(spec);
+  const Camera cam(scene.camera, size, size);
+  EmbreeScene es(scene);
+  PathTracer tracer(es, cam, 1, RussianRoulette::paper());
+  VertexFilter filter;
+  filter.mode = mode == RenderMode::kPathTrace ? VertexFilter::Mode::kNone : VertexFilter::Mode::kCull;
+  TileRenderer renderer(tracer, filter);
+  const auto tiles = make_tiles(size, size, 32);
+  std::vector<TileResult> results;
+  for (const TileRect& r : tiles) results.push_back(renderer.render({r, {}, {}, 1}));
+  std::unique_ptr<GlContext> gl;
+  if (mode != RenderMode::kPathTrace && method == ReprojectMethod::kGl) gl = std::make_unique<GlContext>();
+  FrameState frame(o, cam, scene, gl.get());
+  MasterRoundCosts c;
+  std::vector<double> fr, frc, pv, pvc, rp;
+  for (int i = 0; i < runs; ++i) {
+    const auto t0 = Clock::now();
+    for (const TileResult& r : results) {
+      frame.add_paths(r.rect.x0, r.rect.y0, r.rect.x1, r.rect.y1, r.path_sum, r.path_count);
+      frame.reproject(r.vertices);
+    }
+    (void)frame.counts();
+    rp.push_back(since(t0));
+    double c1 = process_cpu_seconds();
+    auto t1 = Clock::now();
+    frame.finish_round();
+    fr.push_back(since(t1));
+    frc.push_back(process_cpu_seconds() - c1);
+    c1 = process_cpu_seconds();
+    t1 = Clock::now();
+    const FrameImages img = frame.images();
+    size_t bytes = encode_png_srgb(img.combined).size() + encode_png_srgb(img.pathtrace).size();
+    if (frame.reprojects()) {
+      bytes += encode_png_srgb(img.reprojection).size();
+      bytes += encode_png_srgb(heat_map(img.reprojected, 16.f)).size();
+    }
+    pv.push_back(since(t1));
+    pvc.push_back(process_cpu_seconds() - c1);
+    if (bytes == 0) std::fprintf(stderr, "empty previews\n");
+  }
+  c.finish_round = median(fr);
+  c.finish_round_cpu = median(frc);
+  c.previews = median(pv);
+  c.previews_cpu = median(pvc);
+  c.reproject_round = median(rp);
+  return c;
+}
+
+// LeaseTile round trip on loopback (the master answers Wait: no job), median over `n` calls.
+std::pair<double, double> lease_rtt(int n) {
+  MasterServerOptions mo;
+  mo.listen = "127.0.0.1:0";
+  mo.jobs.state_dir = (fs::temp_directory_path() / ("round_bench_rtt_" + std::to_string(::getpid()))).string();
+  MasterServer master(mo);
+  std::vector<double> t;
+  double cpu = 0;
+  {
+    BenchWorker w(master.local_target(), "rtt", 1);
+    for (int i = 0; i < 20; ++i) (void)w.lease();
+    const double c0 = process_cpu_seconds();
+    for (int i = 0; i < n; ++i) {
+      const auto t0 = Clock::now();
+      (void)w.lease();
+      t.push_back(since(t0));
+    }
+    cpu = (process_cpu_seconds() - c0) / n;
+  }
+  master.shutdown();
+  fs::remove_all(mo.jobs.state_dir);
+  return {median(t), cpu};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Round overhead of the embedded default"};
+  std::string scene = "builtin:cornell";
+  int size = 512, spp = 16, threads = 0, runs = 5;
+  std::vector<int> pprs = {1, 2, 4};
+  std::vector<std::string> modes = {"pt", "skip"};
+  bool no_bench_workers = false, no_embedded = false;
+  app.add_option("--scene", scene);
+  app.add_option("--size", size, "image side, pixels");
+  app.add_option("--spp", spp, "P");
+  app.add_option("--ppr", pprs, "paths per round (k) values")->delimiter(',');
+  app.add_option("--modes", modes, "pt, skip, rp")->delimiter(',');
+  app.add_option("--threads", threads, "tracing threads (0: all cores)");
+  app.add_option("--runs", runs, "runs of the offline per-round measurements (median)");
+  app.add_flag("--no-bench-workers", no_bench_workers, "only the embedded default (part 1)");
+  app.add_flag("--no-embedded", no_embedded, "skip part 1");
+  CLI11_PARSE(app, argc, argv);
+  set_log_level("warn");
+  if (threads <= 0) threads = int(std::max(1u, std::thread::hardware_concurrency()));
+  const fs::path tmp = fs::temp_directory_path() / ("round_bench_" + std::to_string(::getpid()));
+  fs::create_directories(tmp);
+  auto mode_of = [](const std::string& m) {
+    return m == "skip" ? RenderMode::kSkip : m == "rp" ? RenderMode::kReproject : RenderMode::kPathTrace;
+  };
+
+  std::printf("round_bench: %s %dx%d, P=%d, %d tracing threads, %u hardware threads, load average %.2f\n",
+              scene.c_str(), size, size, spp, threads, std::thread::hardware_concurrency(), load_average());
+  std::fflush(stdout);
+
+  struct Row {
+    std::string mode;
+    int ppr;
+    JobFigures emb;
+    BenchJob bench;
+  };
+  std::vector<Row> rows;
+  for (const std::string& m : modes)
+    for (int k : pprs) {
+      Row row{m, k, {}, {}};
+      const RenderOptions o = options(scene, size, spp, mode_of(m), k);
+      if (!no_embedded) {
+        row.emb = run_embedded(o, threads, tmp);
+        std::printf("  embedded     %-4s k=%d: %2d rounds, job %.2f s (call %.2f s, %.2f CPU-s), tracing %.2f s / %d "
+                    "threads -> overhead %.1f%%, load %.2f\n",
+                    m.c_str(), k, row.emb.rounds, row.emb.elapsed, row.emb.wall, row.emb.cpu, row.emb.tracing,
+                    threads, 100 * row.emb.overhead(), row.emb.load);
+        std::fflush(stdout);
+      }
+      if (!no_bench_workers) {
+        row.bench = run_bench_workers(o, threads, tmp);
+        const JobFigures& f = row.bench.fig;
+        std::printf("  bench worker %-4s k=%d: %2d rounds, job %.2f s (%.2f CPU-s), tracing %.2f s / %d threads -> "
+                    "overhead %.1f%%, load %.2f\n",
+                    m.c_str(), k, f.rounds, f.elapsed, f.cpu, f.tracing, threads, 100 * f.overhead(), f.load);
+        std::fflush(stdout);
+      }
+      rows.push_back(row);
+    }
+
+  std::printf("\n==== Part 1+2: share of the job's wall time outside tracing (bar <= 10%%)\n");
+  std::printf("%-5s %3s | %6s %8s %8s %9s %9s | %8s %9s %9s | %8s %8s %8s %8s %8s | %6s\n", "mode", "k", "rounds",
+              "emb s", "emb ovh", "ovh/round", "round s", "bench s", "bench ovh", "ovh/round", "trace", "submit",
+              "lease", "wait", "other", "load");
+  for (const Row& r : rows) {
+    const JobFigures& e = r.emb;
+    const JobFigures& b = r.bench.fig;
+    const ThreadSplit& s = r.bench.split;
+    auto share = [&](double x) { return s.total > 0 ? 100 * x / s.total : 0.0; };
+    std::printf("%-5s %3d | %6d %8.2f %7.1f%% %7.1fms %8.3fs | %8.2f %8.1f%% %7.1fms | %7.1f%% %7.1f%% %7.1f%% %7.1f%% "
+                "%7.1f%% | %6.2f\n",
+                r.mode.c_str(), r.ppr, e.rounds ? e.rounds : b.rounds, e.elapsed, 100 * (e.elapsed ? e.overhead() : 0),
+                e.rounds ? 1e3 * (e.elapsed - e.tracing / e.threads) / e.rounds : 0.0, e.median_round, b.elapsed,
+                100 * (b.elapsed ? b.overhead() : 0), b.rounds ? 1e3 * (b.elapsed - b.tracing / b.threads) / b.rounds : 0.0,
+                share(s.tracing), share(s.submit), share(s.lease), share(s.waiting),
+                share(s.total - s.tracing - s.submit - s.lease - s.waiting), e.load ? e.load : b.load);
+  }
+  std::printf("\nbench workers, per tile (thread CPU): ");
+  for (const Row& r : rows) {
+    const ThreadSplit& s = r.bench.split;
+    if (!s.tiles) continue;
+    std::printf("%s k=%d: trace %.2f ms, submit %.2f ms, lease %.2f ms; ", r.mode.c_str(), r.ppr,
+                1e3 * s.tracing_cpu / double(s.tiles), 1e3 * s.submit_cpu / double(s.tiles),
+                1e3 * s.lease_cpu / double(s.tiles));
+  }
+  std::printf("\n");
+  std::printf("(emb: render_embedded with WorkerNode; bench: bench workers retrying 1 ms after a Wait. ovh = 1 - "
+              "tracing / threads / job wall; ovh/round = (job wall - tracing / threads) / rounds; round s: median "
+              "wall between round updates; trace/submit/lease/wait/other: shares of the bench threads' wall time from "
+              "their first tile -- submit includes encoding, wait = Wait answers and the 1 ms sleeps after them)\n");
+  std::fflush(stdout);
+
+  std::printf("\n==== Part 3: the master's per-round work on its own (%dx%d, median of %d), load %.2f\n", size, size,
+              runs, load_average());
+  std::printf("%-5s %-4s | %12s %12s | %12s %12s | %14s\n", "mode", "rp", "finish_round", "CPU", "previews", "CPU",
+              "reproject round");
+  for (const std::string& m : modes) {
+    std::vector<ReprojectMethod> methods = {ReprojectMethod::kGl};
+    if (m != "pt") methods.push_back(ReprojectMethod::kCpu);
+    for (ReprojectMethod rm : methods) {
+      const MasterRoundCosts c = master_round_costs(scene, size, mode_of(m), rm, runs);
+      std::printf("%-5s %-4s | %10.1fms %10.1fms | %10.1fms %10.1fms | %12.1fms\n", m.c_str(),
+                  m == "pt" ? "-" : to_string(rm), 1e3 * c.finish_round, 1e3 * c.finish_round_cpu, 1e3 * c.previews,
+                  1e3 * c.previews_cpu, 1e3 * c.reproject_round);
+      std::fflush(stdout);
+    }
+  }
+  const auto [rtt, rtt_cpu] = lease_rtt(2000);
+  std::printf("LeaseTile round trip on loopback: %.0f us median wall, %.0f us process CPU per call (client + "
+              "master)\n",
+              1e6 * rtt, 1e6 * rtt_cpu);
+  std::printf("(finish_round: M', skip mask and progress -- skip mode reads the accumulation back and downsamples "
+              "every round; previews: FrameState::images() + 4 PNG encodes, as JobManager::make_previews does at most "
+              "once a second inside close_round; reproject round: add_paths + reproject of one round's tiles)\n");
+  fs::remove_all(tmp);
+  std::printf("load average at end %.2f\n", load_average());
+  return 0;
+}
