@@ -66,7 +66,7 @@ for ns in $(ip netns list 2>/dev/null | awk '{print $1}' | grep -E '^eprt[0-9]+-
   pids="$(ip netns pids "$ns" 2>/dev/null)"
   [ -z "$pids" ] || kill -KILL $pids 2>/dev/null
   ip netns del "$ns" 2>/dev/null && echo "removed the stale namespace $ns" >&2
-  rm -rf "/etc/netns/$ns"
+  rm -rf "/etc/netns/$ns" /tmp/epr-netns."$owner".*
 done
 
 id="eprt$$"
@@ -75,7 +75,7 @@ ip netns add "$probe" 2>/dev/null || skip "cannot create a network namespace (ip
 ip -n "$probe" link add br0 type bridge 2>/dev/null || { ip netns del "$probe"; skip "cannot create a bridge in a namespace"; }
 ip netns del "$probe"
 
-tmp="$(mktemp -d /tmp/epr-netns.XXXXXX)"
+tmp="$(mktemp -d "/tmp/epr-netns.$$.XXXXXX")"
 chmod 0755 "$tmp"
 hosts=(sw master w1 w2 w3 client)
 failed=0
@@ -98,6 +98,7 @@ cleanup() {
     ip netns del "$id-$h" 2>/dev/null
     rm -rf "/etc/netns/$id-$h"
   done
+  rmdir /etc/netns 2>/dev/null
   if [ "$failed" -ne 0 ] || [ -n "${EPR_KEEP_NETNS_TMP:-}" ]; then
     for f in "$tmp"/*.log; do
       [ -f "$f" ] || continue
@@ -258,10 +259,13 @@ for w in w1 w2 w3; do
 done
 registered() { [ "$(grep -c "registered with" "$tmp"/w[123].log 2>/dev/null | awk -F: '{s += $2} END {print s}')" -ge 3 ]; }
 wait_for 60 registered || fail "the three workers did not register with the master"
+# The compose check (the process is alive) and the Kubernetes readiness check (the master answers,
+# by name, from this host) on every worker host.
 for w in w1 w2 w3; do
   on "$w" "${worker_health[@]}" 2>> "$tmp/health.log" || fail "worker health check (${worker_health[*]}) on $w"
+  on "$w" epr-health worker --ready 2>> "$tmp/health.log" || fail "worker readiness check on $w"
 done
-log "3 workers registered; worker health check passes: ${worker_health[*]}"
+log "3 workers registered; on each: ${worker_health[*]}, epr-health worker --ready"
 
 # ---- the job ---------------------------------------------------------------------------------------
 job=(builtin:cornell --width 64 --height 64 --spp 16 --paths-per-round 4 --tile 16 --mode skip
