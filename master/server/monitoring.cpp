@@ -1,15 +1,14 @@
 #include "master/server/monitoring.h"
 
+#include <fmt/format.h>
 #include <httplib.h>
 
 #include <atomic>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <stdexcept>
 #include <string_view>
 #include <thread>
-
-#include <fmt/format.h>
-#include <nlohmann/json.hpp>
 
 #include "common/log.h"
 #include "master/server/job_manager.h"
@@ -61,8 +60,10 @@ std::optional<std::pair<std::string, int>> parse_host_port(const std::string& ad
   if (port_text.size() > 5 || port_text.find_first_not_of("0123456789") != std::string::npos) return std::nullopt;
   const int port = std::stoi(port_text);
   if (port > 65535) return std::nullopt;
-  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
-  else if (host.find(':') != std::string::npos) return std::nullopt;  // an unbracketed IPv6 address
+  if (host.size() >= 2 && host.front() == '[' && host.back() == ']')
+    host = host.substr(1, host.size() - 2);
+  else if (host.find(':') != std::string::npos)
+    return std::nullopt;  // an unbracketed IPv6 address
   if (host.empty()) host = "0.0.0.0";
   return std::make_pair(host, port);
 }
@@ -92,7 +93,8 @@ void MonitoringServer::Impl::routes() {
     return httplib::Server::HandlerResponse::Handled;
   });
   http.set_error_handler([](const httplib::Request&, httplib::Response& res) {
-    if (res.body.empty()) send_error(res, res.status, res.status == 404 ? "not found" : fmt::format("HTTP {}", res.status));
+    if (res.body.empty())
+      send_error(res, res.status, res.status == 404 ? "not found" : fmt::format("HTTP {}", res.status));
   });
   http.set_exception_handler([](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
     std::string what = "unknown exception";
@@ -110,7 +112,9 @@ void MonitoringServer::Impl::routes() {
     res.set_header("Cache-Control", "no-cache");
     res.set_content(std::string(dashboard_html()), "text/html; charset=utf-8");
   });
-  http.Get("/healthz", [](const httplib::Request&, httplib::Response& res) { send_json(res, 200, {{"status", "ok"}}); });
+  http.Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
+    send_json(res, 200, {{"status", "ok"}});
+  });
   http.Get("/readyz", [this](const httplib::Request&, httplib::Response& res) {
     const bool gl = jobs.gl_ready();
     const bool ready = gl || options.cpu_reprojector;
@@ -134,7 +138,8 @@ void MonitoringServer::Impl::routes() {
     body["workers"] = workers_json(jobs);
     send_json(res, 200, body);
   });
-  http.Get(R"(/api/v1/jobs/([^/]+)/image\.png)", [this](const httplib::Request& req, httplib::Response& res) { image(req, res); });
+  http.Get(R"(/api/v1/jobs/([^/]+)/image\.png)",
+           [this](const httplib::Request& req, httplib::Response& res) { image(req, res); });
   http.Get("/metrics", [this](const httplib::Request&, httplib::Response& res) {
     MetricsInput in;
     in.jobs = jobs.list();
@@ -159,8 +164,11 @@ void MonitoringServer::Impl::image(const httplib::Request& req, httplib::Respons
   if (!png) {
     const bool reprojects = s->options.mode != RenderMode::kPathTrace;
     const bool pending = reprojects || layer == "combined" || layer == "pathtrace";
-    if (pending) return send_error(res, 404, fmt::format("job {} has no preview yet (its first round has not closed)", id), "pending");
-    return send_error(res, 404, fmt::format("job {} does not reproject: it has no '{}' layer", id, layer), "layer_unavailable");
+    if (pending)
+      return send_error(res, 404, fmt::format("job {} has no preview yet (its first round has not closed)", id),
+                        "pending");
+    return send_error(res, 404, fmt::format("job {} does not reproject: it has no '{}' layer", id, layer),
+                      "layer_unavailable");
   }
   const std::string etag = etag_of(*png);
   res.set_header("ETag", etag);
@@ -192,13 +200,15 @@ MonitoringServer::MonitoringServer(JobManager& jobs, MonitoringOptions options)
   impl_->port = hp->second == 0 ? impl_->http.bind_to_any_port(impl_->host)
                                 : (impl_->http.bind_to_port(impl_->host, hp->second) ? hp->second : -1);
   if (impl_->port <= 0)
-    throw std::runtime_error(fmt::format("cannot serve HTTP on {} (address in use or invalid?)", impl_->options.listen));
+    throw std::runtime_error(
+        fmt::format("cannot serve HTTP on {} (address in use or invalid?)", impl_->options.listen));
   impl_->thread = std::thread([impl = impl_.get()] {
     if (!impl->http.listen_after_bind()) logger("master")->error("monitoring: the HTTP listener stopped with an error");
     impl->listen_returned = true;
   });
   // stop() only interrupts a server that is running: wait until it is, so stop() cannot be lost.
-  while (!impl_->http.is_running() && !impl_->listen_returned) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  while (!impl_->http.is_running() && !impl_->listen_returned)
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
   logger("master")->info("monitoring on {}", url());
 }
 

@@ -1,12 +1,12 @@
 #include "master/server/monitoring_format.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <initializer_list>
 #include <set>
 #include <utility>
-
-#include <fmt/format.h>
 
 namespace epr {
 namespace {
@@ -41,7 +41,8 @@ json to_json(const JobSnapshot& s) {
       {"state", to_string(s.state)},
       {"error", s.error},
       {"priority", s.priority},
-      {"scene", {{"builtin", s.scene_builtin}, {"hash", s.scene_hash}, {"bytes", s.scene_bytes}, {"triangles", s.triangles}}},
+      {"scene",
+       {{"builtin", s.scene_builtin}, {"hash", s.scene_hash}, {"bytes", s.scene_bytes}, {"triangles", s.triangles}}},
       {"settings",
        {{"width", o.width},
         {"height", o.height},
@@ -90,7 +91,10 @@ json to_json(const JobSnapshot& s) {
         {"reprojecting_seconds", s.seconds_reprojecting},
         {"tracing_percent", busy > 0 ? 100.0 * s.seconds_tracing / busy : 0.0}}},
       {"tiles",
-       {{"leased", s.tiles_leased}, {"committed", s.tiles_committed}, {"re_leased", s.tiles_re_leased}, {"dropped", s.tiles_dropped}}},
+       {{"leased", s.tiles_leased},
+        {"committed", s.tiles_committed},
+        {"re_leased", s.tiles_re_leased},
+        {"dropped", s.tiles_dropped}}},
       {"workers_active", s.workers_active},
       {"version", s.version},
   };
@@ -176,10 +180,14 @@ std::string escape_label(const std::string& v) {
   std::string out;
   out.reserve(v.size());
   for (char ch : v) {
-    if (ch == '\\') out += "\\\\";
-    else if (ch == '"') out += "\\\"";
-    else if (ch == '\n') out += "\\n";
-    else out += ch;
+    if (ch == '\\')
+      out += "\\\\";
+    else if (ch == '"')
+      out += "\\\"";
+    else if (ch == '\n')
+      out += "\\n";
+    else
+      out += ch;
   }
   return out;
 }
@@ -239,8 +247,10 @@ class Exposition {
 std::vector<const JobSnapshot*> labelled_jobs(const std::vector<JobSnapshot>& jobs) {
   std::vector<const JobSnapshot*> finished, out;
   for (const auto& s : jobs) {
-    if (s.state == JobState::kQueued || s.state == JobState::kRunning) out.push_back(&s);
-    else finished.push_back(&s);
+    if (s.state == JobState::kQueued || s.state == JobState::kRunning)
+      out.push_back(&s);
+    else
+      finished.push_back(&s);
   }
   std::sort(finished.begin(), finished.end(), [](auto* a, auto* b) { return a->finished_ms > b->finished_ms; });
   if (finished.size() > kRecentFinishedJobs) finished.resize(kRecentFinishedJobs);
@@ -251,17 +261,20 @@ std::vector<const JobSnapshot*> labelled_jobs(const std::vector<JobSnapshot>& jo
 
 void write_farm(Exposition& e, const MetricsInput& in) {
   const FarmTotals& t = in.totals;
-  e.single("epr_osmesa_ready", "gauge", "1 if the master's OSMesa (GL) reprojection context is up.", double(in.gl_ready ? 1 : 0));
+  e.single("epr_osmesa_ready", "gauge", "1 if the master's OSMesa (GL) reprojection context is up.",
+           double(in.gl_ready ? 1 : 0));
 
   e.family("epr_jobs", "gauge", "Jobs the master holds, by state.");
-  for (JobState st : {JobState::kQueued, JobState::kRunning, JobState::kDone, JobState::kFailed, JobState::kCancelled}) {
+  for (JobState st :
+       {JobState::kQueued, JobState::kRunning, JobState::kDone, JobState::kFailed, JobState::kCancelled}) {
     const auto n = std::count_if(in.jobs.begin(), in.jobs.end(), [&](const JobSnapshot& s) { return s.state == st; });
     e.sample("epr_jobs", {{"state", to_string(st)}}, uint64_t(n));
   }
   e.single("epr_jobs_submitted_total", "counter", "Jobs accepted since the master started.", t.jobs);
   e.single("epr_rounds_total", "counter", "Rounds finished, over all jobs.", t.rounds);
   e.single("epr_eye_paths_traced_total", "counter", "Eye paths traced by workers (sum of M).", t.paths_traced);
-  e.single("epr_eye_paths_skipped_total", "counter", "Eye paths not traced because the pixel was skipped.", t.paths_skipped);
+  e.single("epr_eye_paths_skipped_total", "counter", "Eye paths not traced because the pixel was skipped.",
+           t.paths_skipped);
   e.single("epr_rays_traced_total", "counter", "Rays traced by workers (camera, bounce, shadow, exact visibility).",
            t.rays_traced);
   e.single("epr_vertices_received_total", "counter", "Path vertices and exact samples received from workers.",
@@ -269,21 +282,28 @@ void write_farm(Exposition& e, const MetricsInput& in) {
   e.family("epr_reprojection_vertices_total", "counter",
            "Reprojection decisions by outcome (culled includes vertices culled on workers; accepted includes exact "
            "samples).");
-  const std::pair<const char*, uint64_t> outcomes[] = {
-      {"accepted", t.accepted}, {"occluded", t.occluded}, {"culled", t.culled}, {"not_diffuse", t.not_diffuse}, {"invalid", t.invalid}};
+  const std::pair<const char*, uint64_t> outcomes[] = {{"accepted", t.accepted},
+                                                       {"occluded", t.occluded},
+                                                       {"culled", t.culled},
+                                                       {"not_diffuse", t.not_diffuse},
+                                                       {"invalid", t.invalid}};
   for (const auto& [name, v] : outcomes) e.sample("epr_reprojection_vertices_total", {{"outcome", name}}, v);
   e.single("epr_non_finite_dropped_total", "counter", "Non-finite radiance values dropped (pixel sums, samples).",
            t.non_finite_dropped);
   e.single("epr_tiles_leased_total", "counter", "Tile leases granted (including re-leases).", t.tiles_leased);
   e.single("epr_tiles_committed_total", "counter", "Tile results committed (exactly once per job, round, tile).",
            t.tiles_committed);
-  e.single("epr_tiles_re_leased_total", "counter", "Leases granted for tiles whose earlier lease expired.", t.tiles_re_leased);
+  e.single("epr_tiles_re_leased_total", "counter", "Leases granted for tiles whose earlier lease expired.",
+           t.tiles_re_leased);
   e.single("epr_tiles_dropped_total", "counter", "Tile results dropped as duplicate or stale.", t.tiles_dropped);
-  e.single("epr_tracing_seconds_total", "counter", "Worker thread time spent tracing committed tiles.", t.seconds_tracing);
-  e.single("epr_reprojection_seconds_total", "counter", "Master time spent reprojecting (deep framebuffer, reprojection, downsampling).",
-           t.seconds_reprojecting);
-  e.histogram("epr_round_duration_seconds", "Wall time of a round, from opening it to closing it.", in.histograms.round);
-  e.histogram("epr_round_reprojection_seconds", "Master reprojection time within one round.", in.histograms.reprojection);
+  e.single("epr_tracing_seconds_total", "counter", "Worker thread time spent tracing committed tiles.",
+           t.seconds_tracing);
+  e.single("epr_reprojection_seconds_total", "counter",
+           "Master time spent reprojecting (deep framebuffer, reprojection, downsampling).", t.seconds_reprojecting);
+  e.histogram("epr_round_duration_seconds", "Wall time of a round, from opening it to closing it.",
+              in.histograms.round);
+  e.histogram("epr_round_reprojection_seconds", "Master reprojection time within one round.",
+              in.histograms.reprojection);
 }
 
 void write_workers(Exposition& e, const std::vector<WorkerSnapshot>& workers) {
@@ -300,7 +320,8 @@ void write_workers(Exposition& e, const std::vector<WorkerSnapshot>& workers) {
              [](const WorkerSnapshot& w) { return w.heartbeat_age_seconds; });
   per_worker("epr_worker_paths_per_second", "gauge", "Eye paths per second of the worker's tracing time.",
              [](const WorkerSnapshot& w) { return w.paths_per_second; });
-  per_worker("epr_worker_leases", "gauge", "Tile leases the worker holds.", [](const WorkerSnapshot& w) { return uint64_t(w.leases_held); });
+  per_worker("epr_worker_leases", "gauge", "Tile leases the worker holds.",
+             [](const WorkerSnapshot& w) { return uint64_t(w.leases_held); });
   per_worker("epr_worker_eye_paths_traced_total", "counter", "Eye paths in the worker's committed tiles.",
              [](const WorkerSnapshot& w) { return w.paths_traced; });
   per_worker("epr_worker_tiles_committed_total", "counter", "Tiles the worker committed.",
@@ -315,36 +336,53 @@ void write_jobs(Exposition& e, const std::vector<JobSnapshot>& all) {
   };
   e.family("epr_job_info", "gauge", "A job (value 1) with its name, scene and mode.");
   for (const JobSnapshot* s : jobs)
-    e.sample("epr_job_info", {{"job", s->id}, {"name", s->name}, {"scene", s->scene_builtin.empty() ? s->scene_hash.substr(0, 12) : s->scene_builtin},
-                              {"mode", to_string(s->options.mode)}},
+    e.sample("epr_job_info",
+             {{"job", s->id},
+              {"name", s->name},
+              {"scene", s->scene_builtin.empty() ? s->scene_hash.substr(0, 12) : s->scene_builtin},
+              {"mode", to_string(s->options.mode)}},
              uint64_t(1));
   e.family("epr_job_state", "gauge", "1 for the job's current state, 0 for the others.");
   for (const JobSnapshot* s : jobs)
-    for (JobState st : {JobState::kQueued, JobState::kRunning, JobState::kDone, JobState::kFailed, JobState::kCancelled})
+    for (JobState st :
+         {JobState::kQueued, JobState::kRunning, JobState::kDone, JobState::kFailed, JobState::kCancelled})
       e.sample("epr_job_state", {{"job", s->id}, {"state", to_string(st)}}, uint64_t(s->state == st ? 1 : 0));
-  per_job("epr_job_round", "gauge", "Rounds the job has finished.", [](const JobSnapshot& s) { return uint64_t(std::max(0, s.progress.round)); });
-  per_job("epr_job_rounds_planned", "gauge", "Rounds needed without pixel skipping.", [](const JobSnapshot& s) { return uint64_t(std::max(0, s.rounds_planned)); });
-  per_job("epr_job_progress_ratio", "gauge", "Mean samples per pixel over the target (0..1).", [](const JobSnapshot& s) { return progress_fraction(s); });
-  per_job("epr_job_spp_mean", "gauge", "Mean samples per pixel (M + M').", [](const JobSnapshot& s) { return s.progress.mean_spp; });
-  per_job("epr_job_spp_min", "gauge", "Minimum samples per pixel (M + M').", [](const JobSnapshot& s) { return s.progress.min_spp; });
-  per_job("epr_job_spp_target", "gauge", "Target samples per pixel P.", [](const JobSnapshot& s) { return uint64_t(std::max(0, s.options.spp)); });
+  per_job("epr_job_round", "gauge", "Rounds the job has finished.",
+          [](const JobSnapshot& s) { return uint64_t(std::max(0, s.progress.round)); });
+  per_job("epr_job_rounds_planned", "gauge", "Rounds needed without pixel skipping.",
+          [](const JobSnapshot& s) { return uint64_t(std::max(0, s.rounds_planned)); });
+  per_job("epr_job_progress_ratio", "gauge", "Mean samples per pixel over the target (0..1).",
+          [](const JobSnapshot& s) { return progress_fraction(s); });
+  per_job("epr_job_spp_mean", "gauge", "Mean samples per pixel (M + M').",
+          [](const JobSnapshot& s) { return s.progress.mean_spp; });
+  per_job("epr_job_spp_min", "gauge", "Minimum samples per pixel (M + M').",
+          [](const JobSnapshot& s) { return s.progress.min_spp; });
+  per_job("epr_job_spp_target", "gauge", "Target samples per pixel P.",
+          [](const JobSnapshot& s) { return uint64_t(std::max(0, s.options.spp)); });
   per_job("epr_job_elapsed_seconds", "gauge", "Seconds since the job started (to its end once finished).",
           [](const JobSnapshot& s) { return s.seconds_elapsed; });
   e.family("epr_job_eta_seconds", "gauge", "Estimated seconds to completion (absent while unknown).");
   for (const JobSnapshot* s : jobs)
     if (s->eta_seconds >= 0) e.sample("epr_job_eta_seconds", {{"job", s->id}}, s->eta_seconds);
-  per_job("epr_job_eye_paths_traced_total", "counter", "Eye paths traced for the job.", [](const JobSnapshot& s) { return s.progress.paths_traced; });
-  per_job("epr_job_eye_paths_skipped_total", "counter", "Eye paths the job skipped.", [](const JobSnapshot& s) { return s.progress.paths_skipped; });
+  per_job("epr_job_eye_paths_traced_total", "counter", "Eye paths traced for the job.",
+          [](const JobSnapshot& s) { return s.progress.paths_traced; });
+  per_job("epr_job_eye_paths_skipped_total", "counter", "Eye paths the job skipped.",
+          [](const JobSnapshot& s) { return s.progress.paths_skipped; });
   per_job("epr_job_vertices_received_total", "counter", "Vertices and exact samples received for the job.",
           [](const JobSnapshot& s) { return s.vertices_received; });
   e.family("epr_job_reprojection_vertices_total", "counter", "The job's reprojection decisions by outcome.");
   for (const JobSnapshot* s : jobs) {
     const FarmTotals t = FarmTotals::of(*s);
-    const std::pair<const char*, uint64_t> outcomes[] = {
-        {"accepted", t.accepted}, {"occluded", t.occluded}, {"culled", t.culled}, {"not_diffuse", t.not_diffuse}, {"invalid", t.invalid}};
-    for (const auto& [name, v] : outcomes) e.sample("epr_job_reprojection_vertices_total", {{"job", s->id}, {"outcome", name}}, v);
+    const std::pair<const char*, uint64_t> outcomes[] = {{"accepted", t.accepted},
+                                                         {"occluded", t.occluded},
+                                                         {"culled", t.culled},
+                                                         {"not_diffuse", t.not_diffuse},
+                                                         {"invalid", t.invalid}};
+    for (const auto& [name, v] : outcomes)
+      e.sample("epr_job_reprojection_vertices_total", {{"job", s->id}, {"outcome", name}}, v);
   }
-  per_job("epr_job_tiles_committed_total", "counter", "Tiles committed for the job.", [](const JobSnapshot& s) { return s.tiles_committed; });
+  per_job("epr_job_tiles_committed_total", "counter", "Tiles committed for the job.",
+          [](const JobSnapshot& s) { return s.tiles_committed; });
   per_job("epr_job_tiles_re_leased_total", "counter", "Tiles of the job re-leased after a lease expired.",
           [](const JobSnapshot& s) { return s.tiles_re_leased; });
   per_job("epr_job_tracing_seconds_total", "counter", "Worker thread time spent tracing the job's tiles.",

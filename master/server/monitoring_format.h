@@ -12,10 +12,9 @@
 
 #include <map>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "master/server/duration_histogram.h"
 #include "master/server/job_manager.h"

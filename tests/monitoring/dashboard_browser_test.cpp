@@ -22,12 +22,18 @@ std::string base64_decode(const std::string& in) {
   int bits = 0;
   for (char c : in) {
     int v;
-    if (c >= 'A' && c <= 'Z') v = c - 'A';
-    else if (c >= 'a' && c <= 'z') v = c - 'a' + 26;
-    else if (c >= '0' && c <= '9') v = c - '0' + 52;
-    else if (c == '+') v = 62;
-    else if (c == '/') v = 63;
-    else continue;  // padding, line breaks
+    if (c >= 'A' && c <= 'Z')
+      v = c - 'A';
+    else if (c >= 'a' && c <= 'z')
+      v = c - 'a' + 26;
+    else if (c >= '0' && c <= '9')
+      v = c - '0' + 52;
+    else if (c == '+')
+      v = 62;
+    else if (c == '/')
+      v = 63;
+    else
+      continue;  // padding, line breaks
     acc = (acc << 6) | uint32_t(v);
     bits += 6;
     if (bits >= 8) {
@@ -43,17 +49,27 @@ class Browser {
  public:
   explicit Browser(const fs::path& dir) : profile_(dir / "profile") {
     fs::create_directories(profile_);
-    driver_ = std::make_unique<ChildProcess>(std::vector<std::string>{kChromedriver, "--port=0"}, dir / "chromedriver.log");
+    driver_ =
+        std::make_unique<ChildProcess>(std::vector<std::string>{kChromedriver, "--port=0"}, dir / "chromedriver.log");
     const std::string port = driver_->wait_for_output(std::regex("started successfully on port ([0-9]+)"), 30);
     if (port.empty()) throw std::runtime_error("chromedriver did not start: " + driver_->output());
     http_ = std::make_unique<httplib::Client>("127.0.0.1", std::stoi(port));
     http_->set_read_timeout(120, 0);
-    const json args = {"--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                       "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                       "--user-data-dir=" + profile_.string(), "--window-size=1400,1250", "--hide-scrollbars"};
-    const json caps = {{"capabilities",
-                        {{"alwaysMatch",
-                          {{"browserName", "chrome"}, {"goog:chromeOptions", {{"binary", kChromium}, {"args", args}}}}}}}};
+    const json args = {"--headless",
+                       "--no-sandbox",
+                       "--disable-gpu",
+                       "--disable-quic",
+                       "--no-first-run",
+                       "--disable-background-networking",
+                       "--disable-component-update",
+                       "--disable-sync",
+                       "--user-data-dir=" + profile_.string(),
+                       "--window-size=1400,1250",
+                       "--hide-scrollbars"};
+    const json caps = {
+        {"capabilities",
+         {{"alwaysMatch",
+           {{"browserName", "chrome"}, {"goog:chromeOptions", {{"binary", kChromium}, {"args", args}}}}}}}};
     session_ = call("POST", "/session", caps)["sessionId"].get<std::string>();
   }
   ~Browser() {
@@ -64,7 +80,9 @@ class Browser {
   }
 
   void open(const std::string& url) { call("POST", path("/url"), {{"url", url}}); }
-  json eval(const std::string& script) { return call("POST", path("/execute/sync"), {{"script", script}, {"args", json::array()}}); }
+  json eval(const std::string& script) {
+    return call("POST", path("/execute/sync"), {{"script", script}, {"args", json::array()}});
+  }
   json state() { return eval("return window.eprDashboard || null;"); }
   void screenshot(const fs::path& file) {
     const std::string png = base64_decode(call("GET", path("/screenshot"), nullptr).get<std::string>());
@@ -74,13 +92,19 @@ class Browser {
   /// Waits until `predicate(state())` holds; the last state for messages.
   template <typename F>
   bool wait_state(F predicate, double seconds, json* last) {
-    return wait_for([&] { *last = state(); return !last->is_null() && predicate(*last); }, seconds);
+    return wait_for(
+        [&] {
+          *last = state();
+          return !last->is_null() && predicate(*last);
+        },
+        seconds);
   }
 
  private:
   std::string path(const std::string& tail) const { return "/session/" + session_ + tail; }
   json call(const std::string& method, const std::string& p, const json& body) {
-    httplib::Result r = method == "GET" ? http_->Get(p.c_str()) : http_->Post(p.c_str(), body.dump(), "application/json");
+    httplib::Result r =
+        method == "GET" ? http_->Get(p.c_str()) : http_->Post(p.c_str(), body.dump(), "application/json");
     if (!r) throw std::runtime_error("WebDriver " + p + ": " + httplib::to_string(r.error()));
     json out = json::parse(r->body);
     if (r->status != 200) throw std::runtime_error("WebDriver " + p + ": " + r->body);
@@ -119,14 +143,17 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   json s;
   // Before the first round: the job is listed and selected, and the preview is a placeholder.
   ManualWorker worker(master->local_target());
-  ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["jobId"] == id && st["polls"].get<int>() >= 1; }, 30, &s)) << s;
+  ASSERT_TRUE(
+      browser->wait_state([&](const json& st) { return st["jobId"] == id && st["polls"].get<int>() >= 1; }, 30, &s))
+      << s;
   EXPECT_EQ(s["previewLoads"], 0);
   EXPECT_EQ(browser->eval("return document.getElementById('preview-ph').hidden;"), false);
 
   // Round 0 closes: the page shows round 1 and loads a preview.
   worker.work_available();
   ASSERT_TRUE(wait_for([&] { return round_of() >= 1; }, 30));
-  ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["round"].get<int>() >= 1 && st["previewLoads"].get<int>() >= 1; }, 30, &s))
+  ASSERT_TRUE(browser->wait_state(
+      [&](const json& st) { return st["round"].get<int>() >= 1 && st["previewLoads"].get<int>() >= 1; }, 30, &s))
       << s;
   const std::string digest1 = s["previewDigest"];
   const double spp1 = s["meanSpp"];
@@ -137,7 +164,8 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   std::this_thread::sleep_for(std::chrono::milliseconds(1100));
   worker.work_available();
   ASSERT_TRUE(wait_for([&] { return round_of() >= 2; }, 30));
-  ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["round"].get<int>() >= 2 && st["previewDigest"] != digest1; }, 30, &s))
+  ASSERT_TRUE(browser->wait_state(
+      [&](const json& st) { return st["round"].get<int>() >= 2 && st["previewDigest"] != digest1; }, 30, &s))
       << "the preview did not change between rounds: " << s;
   EXPECT_GT(s["meanSpp"].get<double>(), spp1);
   EXPECT_EQ(s["errors"], 0);
@@ -164,11 +192,13 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   browser->eval("document.querySelector('#layers [data-layer=combined]').click(); return null;");
 
   // Finish the job: the page ends at done, 100 %.
-  ASSERT_TRUE(wait_for([&] {
-    worker.work_available();
-    const auto snap = master->jobs().get(id);
-    return snap->state == JobState::kDone;
-  }, 120));
+  ASSERT_TRUE(wait_for(
+      [&] {
+        worker.work_available();
+        const auto snap = master->jobs().get(id);
+        return snap->state == JobState::kDone;
+      },
+      120));
   ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["state"] == "done"; }, 30, &s)) << s;
   EXPECT_EQ(browser->eval("return parseFloat(document.querySelector('#j-bar > div').style.width);"), 100);
   EXPECT_EQ(s["errors"], 0);

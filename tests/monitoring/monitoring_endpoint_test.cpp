@@ -82,13 +82,15 @@ TEST(MonitoringReadiness, ReadyzReportsTheOsmesaContext) {
   auto http = http_client(*master);
   json body;
   int status = 0;
-  wait_for([&] {
-    auto r = http.Get("/readyz");
-    if (!r) return false;
-    status = r->status;
-    body = json::parse(r->body);
-    return status == 200;
-  }, 30);
+  wait_for(
+      [&] {
+        auto r = http.Get("/readyz");
+        if (!r) return false;
+        status = r->status;
+        body = json::parse(r->body);
+        return status == 200;
+      },
+      30);
   if (master->jobs().gl_ready()) {
     EXPECT_EQ(status, 200) << body;
     EXPECT_EQ(body["osmesa"], true);
@@ -109,13 +111,33 @@ TEST_F(MonitoringEndpointTest, JobJsonMatchesTheFinalStateGrpcAndStatsJson) {
   ASSERT_TRUE(j.is_object());
 
   // Every documented field is there.
-  for (const char* key : {"id", "name", "state", "error", "scene", "settings", "round", "rounds_planned", "progress",
-                          "elapsed_seconds", "eta_seconds", "spp", "pixels", "eye_paths", "rays_traced",
-                          "vertices_received", "reprojection", "non_finite_dropped", "time", "tiles", "workers_active",
+  for (const char* key : {"id",
+                          "name",
+                          "state",
+                          "error",
+                          "scene",
+                          "settings",
+                          "round",
+                          "rounds_planned",
+                          "progress",
+                          "elapsed_seconds",
+                          "eta_seconds",
+                          "spp",
+                          "pixels",
+                          "eye_paths",
+                          "rays_traced",
+                          "vertices_received",
+                          "reprojection",
+                          "non_finite_dropped",
+                          "time",
+                          "tiles",
+                          "workers_active",
                           "workers"})
     EXPECT_TRUE(j.contains(key)) << key;
-  for (const char* key : {"min", "mean", "target", "paths_mean", "reprojected_mean"}) EXPECT_TRUE(j["spp"].contains(key)) << key;
-  for (const char* key : {"considered", "accepted", "occluded", "culled", "accepted_percent", "occluded_percent", "culled_percent"})
+  for (const char* key : {"min", "mean", "target", "paths_mean", "reprojected_mean"})
+    EXPECT_TRUE(j["spp"].contains(key)) << key;
+  for (const char* key :
+       {"considered", "accepted", "occluded", "culled", "accepted_percent", "occluded_percent", "culled_percent"})
     EXPECT_TRUE(j["reprojection"].contains(key)) << key;
   for (const char* key : {"leased", "committed", "re_leased", "dropped"}) EXPECT_TRUE(j["tiles"].contains(key)) << key;
   for (const char* key : {"tracing_seconds", "reprojecting_seconds"}) EXPECT_TRUE(j["time"].contains(key)) << key;
@@ -137,10 +159,13 @@ TEST_F(MonitoringEndpointTest, JobJsonMatchesTheFinalStateGrpcAndStatsJson) {
   EXPECT_EQ(rp["considered"].get<uint64_t>(), rp["accepted"].get<uint64_t>() + rp["occluded"].get<uint64_t>() +
                                                   rp["culled"].get<uint64_t>() + rp["not_diffuse"].get<uint64_t>() +
                                                   rp["invalid"].get<uint64_t>());
-  EXPECT_EQ(rp["considered"].get<uint64_t>(), j["vertices_received"].get<uint64_t>() + rp["culled_by_workers"].get<uint64_t>());
+  EXPECT_EQ(rp["considered"].get<uint64_t>(),
+            j["vertices_received"].get<uint64_t>() + rp["culled_by_workers"].get<uint64_t>());
   EXPECT_GT(rp["accepted_percent"].get<double>(), 0.0);
-  EXPECT_NEAR(rp["accepted_percent"].get<double>() + rp["occluded_percent"].get<double>() + rp["culled_percent"].get<double>(),
-              100.0 - 100.0 * (rp["not_diffuse"].get<double>() + rp["invalid"].get<double>()) / rp["considered"].get<double>(), 1e-9);
+  EXPECT_NEAR(
+      rp["accepted_percent"].get<double>() + rp["occluded_percent"].get<double>() + rp["culled_percent"].get<double>(),
+      100.0 - 100.0 * (rp["not_diffuse"].get<double>() + rp["invalid"].get<double>()) / rp["considered"].get<double>(),
+      1e-9);
   EXPECT_EQ(j["tiles"]["committed"], j["tiles"]["leased"]);  // nothing failed
   EXPECT_EQ(j["tiles"]["re_leased"], 0);
   EXPECT_EQ(j["tiles"]["dropped"], 0);
@@ -263,8 +288,9 @@ TEST_F(MonitoringEndpointTest, RefusesWrites) {
   const std::string id = client_->submit(small_job());
   ASSERT_TRUE(wait_for([&] { return master_->jobs().get(id)->state == JobState::kRunning; }, 30));
   auto http = http_client(*master_);
-  for (const std::string& path : std::vector<std::string>{"/", "/api/v1/jobs", "/api/v1/jobs/" + id, "/api/v1/jobs/" + id + "/image.png",
-                                                          "/metrics", "/healthz", "/nowhere"}) {
+  for (const std::string& path :
+       std::vector<std::string>{"/", "/api/v1/jobs", "/api/v1/jobs/" + id, "/api/v1/jobs/" + id + "/image.png",
+                                "/metrics", "/healthz", "/nowhere"}) {
     SCOPED_TRACE(path);
     std::vector<httplib::Result> results;
     results.push_back(http.Post(path.c_str(), "{\"state\":\"cancelled\"}", "application/json"));
@@ -339,11 +365,13 @@ TEST_F(MonitoringEndpointTest, MetricsParseAndCountersIncreaseOverARender) {
   // Scrape while the job renders: every counter sample only ever grows.
   start_worker();
   std::vector<json> scrapes{before};
-  wait_for([&] {
-    scrapes.push_back(scrape());
-    auto s = master_->jobs().get(id);
-    return s && s->state == JobState::kDone;
-  }, 120);
+  wait_for(
+      [&] {
+        scrapes.push_back(scrape());
+        auto s = master_->jobs().get(id);
+        return s && s->state == JobState::kDone;
+      },
+      120);
   scrapes.push_back(scrape());
   ASSERT_EQ(master_->jobs().get(id)->state, JobState::kDone);
   std::map<std::string, double> last;
@@ -361,9 +389,10 @@ TEST_F(MonitoringEndpointTest, MetricsParseAndCountersIncreaseOverARender) {
 
   const json& after = scrapes.back();
   const json j = get_json(http, "/api/v1/jobs/" + id);
-  for (const char* counter : {"epr_rounds_total", "epr_eye_paths_traced_total", "epr_eye_paths_skipped_total",
-                              "epr_rays_traced_total", "epr_vertices_received_total", "epr_tiles_leased_total",
-                              "epr_tiles_committed_total", "epr_tracing_seconds_total", "epr_reprojection_seconds_total"})
+  for (const char* counter :
+       {"epr_rounds_total", "epr_eye_paths_traced_total", "epr_eye_paths_skipped_total", "epr_rays_traced_total",
+        "epr_vertices_received_total", "epr_tiles_leased_total", "epr_tiles_committed_total",
+        "epr_tracing_seconds_total", "epr_reprojection_seconds_total"})
     EXPECT_GT(sample(after, counter), sample(before, counter)) << counter;
   EXPECT_GT(sample(after, "epr_reprojection_vertices_total", {{"outcome", "accepted"}}), 0.0);
   // Counters agree with the JSON (one source of truth).
@@ -389,12 +418,14 @@ TEST_F(MonitoringEndpointTest, MetricsParseAndCountersIncreaseOverARender) {
       }
     EXPECT_GE(sample(after, h + "_sum"), 0.0);
   }
-  EXPECT_LE(sample(after, "epr_round_reprojection_seconds_sum"), sample(after, "epr_reprojection_seconds_total") + 1e-9);
+  EXPECT_LE(sample(after, "epr_round_reprojection_seconds_sum"),
+            sample(after, "epr_reprojection_seconds_total") + 1e-9);
   // The worker's series.
   const auto workers = master_->jobs().workers();
   ASSERT_EQ(workers.size(), 1u);
   EXPECT_EQ(sample(after, "epr_worker_info", {{"worker", workers[0].id}, {"name", "monitoring-test"}}), 1.0);
-  EXPECT_EQ(sample(after, "epr_worker_eye_paths_traced_total", {{"worker", workers[0].id}}), j["eye_paths"]["traced"].get<double>());
+  EXPECT_EQ(sample(after, "epr_worker_eye_paths_traced_total", {{"worker", workers[0].id}}),
+            j["eye_paths"]["traced"].get<double>());
 }
 
 // ---- epr render -----------------------------------------------------------------------------------
@@ -402,7 +433,8 @@ TEST_F(MonitoringEndpointTest, MetricsParseAndCountersIncreaseOverARender) {
 TEST(EprRenderDashboard, PrintsAWorkingDashboardUrl) {
   const fs::path dir = scratch_dir("epr-render");
   // Long enough (a few seconds) that the dashboard can be asked while the render runs.
-  const std::string cmd = std::string(EPR_CLIENT_BIN) + " render builtin:cornell --width 96 --height 96 --spp 256 --mode pt --out " +
+  const std::string cmd = std::string(EPR_CLIENT_BIN) +
+                          " render builtin:cornell --width 96 --height 96 --spp 256 --mode pt --out " +
                           (dir / "r").string() + " 2>&1";
   FILE* p = popen(cmd.c_str(), "r");
   ASSERT_NE(p, nullptr);
@@ -426,7 +458,8 @@ TEST(EprRenderDashboard, PrintsAWorkingDashboardUrl) {
   EXPECT_GE(jobs_listed, 0);
 
   // --http "" disables it.
-  const std::string quiet = std::string(EPR_CLIENT_BIN) + " render builtin:cornell --width 16 --height 16 --spp 1 --http '' --out " +
+  const std::string quiet = std::string(EPR_CLIENT_BIN) +
+                            " render builtin:cornell --width 16 --height 16 --spp 1 --http '' --out " +
                             (dir / "q").string() + " 2>&1";
   FILE* q = popen(quiet.c_str(), "r");
   ASSERT_NE(q, nullptr);

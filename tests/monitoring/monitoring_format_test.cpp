@@ -1,15 +1,15 @@
 // monitoring_format and monitoring.h's pure parts without a server: address parsing, histogram
 // buckets, farm totals that stay monotone when the master forgets finished jobs, label escaping and
 // bounded per-job series.
+#include "master/server/monitoring_format.h"
+
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <set>
 
-#include <fmt/format.h>
-
 #include "master/server/monitoring.h"
-#include "master/server/monitoring_format.h"
 #include "monitoring_helpers.h"
 
 namespace epr::monitoring_test {
@@ -40,8 +40,8 @@ TEST(DurationHistogram, BucketsAreUpperBoundsAndTheRestGoesToInf) {
   DurationHistogram h;
   h.observe(0.005);  // on a bound: that bucket
   h.observe(0.3);
-  h.observe(1e4);    // above every bound: only in the count
-  h.observe(-1);     // a clock step: clamped to 0
+  h.observe(1e4);  // above every bound: only in the count
+  h.observe(-1);   // a clock step: clamped to 0
   EXPECT_EQ(h.count, 4u);
   EXPECT_EQ(h.buckets[0], 2u);
   EXPECT_EQ(h.buckets[6], 1u);  // 0.5

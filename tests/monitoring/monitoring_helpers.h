@@ -3,8 +3,8 @@
 // python3-prometheus-client, PNG header checks, and a child process with its output in a file.
 #pragma once
 
+#include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
-
 #include <httplib.h>
 #include <signal.h>
 #include <spawn.h>
@@ -15,14 +15,12 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <regex>
 #include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <grpcpp/grpcpp.h>
-#include <nlohmann/json.hpp>
 
 #include "client/job_client.h"
 #include "epr/v1/worker_service.grpc.pb.h"
@@ -105,8 +103,8 @@ inline std::pair<uint32_t, uint32_t> png_size(const std::string& bytes) {
   static const std::string sig("\x89PNG\r\n\x1a\n", 8);
   if (bytes.size() < 33 || bytes.compare(0, 8, sig) != 0 || bytes.compare(12, 4, "IHDR") != 0) return {0, 0};
   auto be32 = [&](size_t at) {
-    return uint32_t(uint8_t(bytes[at])) << 24 | uint32_t(uint8_t(bytes[at + 1])) << 16 | uint32_t(uint8_t(bytes[at + 2])) << 8 |
-           uint32_t(uint8_t(bytes[at + 3]));
+    return uint32_t(uint8_t(bytes[at])) << 24 | uint32_t(uint8_t(bytes[at + 1])) << 16 |
+           uint32_t(uint8_t(bytes[at + 2])) << 8 | uint32_t(uint8_t(bytes[at + 3]));
   };
   return {be32(16), be32(20)};
 }
@@ -236,7 +234,8 @@ class ManualWorker {
     const TileRect rect{int(t.rect().x0()), int(t.rect().y0()), int(t.rect().x1()), int(t.rect().y1())};
     const size_t n = size_t(rect.pixel_count());
     std::vector<uint8_t> skip(n, 0);
-    for (size_t i = 0; i < n && i / 8 < t.skip_bits().size(); ++i) skip[i] = (uint8_t(t.skip_bits()[i / 8]) >> (i % 8)) & 1;
+    for (size_t i = 0; i < n && i / 8 < t.skip_bits().size(); ++i)
+      skip[i] = (uint8_t(t.skip_bits()[i / 8]) >> (i % 8)) & 1;
     std::vector<uint32_t> first(n, t.uniform_first_sample_index());
     for (int i = 0; i < t.first_sample_index_size(); ++i) first[size_t(i)] = t.first_sample_index(i);
     const TileResult result = tr.render({rect, skip, first, int(t.paths_per_pixel())});
@@ -287,7 +286,12 @@ class ChildProcess {
   std::string wait_for_output(const std::regex& pattern, double seconds) const {
     std::smatch m;
     std::string out;
-    wait_for([&] { out = output(); return std::regex_search(out, m, pattern); }, seconds);
+    wait_for(
+        [&] {
+          out = output();
+          return std::regex_search(out, m, pattern);
+        },
+        seconds);
     if (m.empty()) return "";
     return m.size() > 1 ? m[1].str() : m[0].str();
   }
