@@ -184,7 +184,9 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   // Switching the layer loads the M' heat map.
   const std::string before_switch = s["previewDigest"];
   browser->eval("document.querySelector('#layers [data-layer=samples]').click(); return null;");
-  ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["previewDigest"] != before_switch; }, 30, &s)) << s;
+  ASSERT_TRUE(browser->wait_state(
+      [&](const json& st) { return st["previewDigest"] != before_switch && st["previewLayer"] == "samples"; }, 30, &s))
+      << s;
   EXPECT_NE(browser->eval("return document.getElementById('preview-size').textContent;").get<std::string>().find("M′"),
             std::string::npos);
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
