@@ -1,0 +1,597 @@
+// The real programs on loopback, no mocks: an epr-master process, epr-worker processes and the `epr`
+// client. A job rendered by the cluster must equal `epr render --single-process` of the same job
+// (DESIGN.md section 2, "Determinism"): per-pixel counts M and M' and the path-traced estimate
+// bit-identical, the combined image equal up to float rounding — whatever the number of workers,
+// whether a worker joins mid-job or is killed with SIGKILL (section 4). Also: a job whose pixels are
+// all skipped ends, and bad arguments or an unreachable master give a quick, clear failure.
+//
+// Jobs are small (Cornell box or furnace, 48x48 to 96x96, skip mode so that reprojection and
+// skipping both run) and every worker traces with one thread: the file takes about a minute on two
+// cores. Each test gets a temp folder with every process's stdout/stderr; it is kept, and the logs'
+// tails printed, when the test fails. Workers log at debug level: their lease lines say which
+// worker committed which tile, the only per-worker record the system keeps.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/image.h"
+#include "process.h"
+
+namespace epr::testing {
+namespace {
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using Args = std::vector<std::string>;
+
+const std::string kEpr = EPR_CLIENT_BIN;
+const std::string kMaster = EPR_MASTER_BIN;
+const std::string kWorker = EPR_WORKER_BIN;
+
+// ---- jobs ----------------------------------------------------------------------------------------
+
+// The default: about a second of tracing for one worker, in 36 tiles per round and 4 rounds, with
+// reprojection and pixel skipping (most pixels stop after the first round).
+struct Job {
+  std::string scene = "builtin:cornell";
+  int size = 96;  // width = height, pixels
+  int spp = 32;   // P
+  int k = 8;      // paths per round
+  int tile = 16;
+  int min_paths = 8;
+  uint64_t seed = 7;
+
+  // The flags shared by `epr render` and `epr submit`. CPU reprojection on both sides, so that the
+  // master's --reproject cpu does not change the job.
+  Args flags() const {
+    return {scene,
+            "--width",
+            std::to_string(size),
+            "--height",
+            std::to_string(size),
+            "--spp",
+            std::to_string(spp),
+            "--paths-per-round",
+            std::to_string(k),
+            "--tile",
+            std::to_string(tile),
+            "--mode",
+            "skip",
+            "--reproject",
+            "cpu",
+            "--min-paths",
+            std::to_string(min_paths),
+            "--seed",
+            std::to_string(seed)};
+  }
+};
+
+// A job that keeps one single-threaded worker busy for several seconds: the first `full_rounds`
+// rounds trace every pixel (min-paths), then skipping thins the work out until round 16.
+Job long_job(int k, int full_rounds) {
+  Job job;
+  job.size = 96;
+  job.spp = 128;
+  job.k = k;
+  job.min_paths = k * full_rounds;
+  job.tile = 32;
+  return job;
+}
+
+// ---- image comparison ------------------------------------------------------------------------------
+
+struct Images {
+  Image counts, pathtrace, combined;
+  nlohmann::json stats;
+};
+
+Images load_outputs(const std::string& prefix) {
+  Images im;
+  im.counts = read_image(prefix + ".counts.exr");
+  im.pathtrace = read_image(prefix + ".pathtrace.exr");
+  im.combined = read_image(prefix + ".exr");
+  im.stats = nlohmann::json::parse(read_text(prefix + ".json"));
+  return im;
+}
+
+// "" when a and b are bit-identical, otherwise how many values differ and where the first one is.
+std::string exact_difference(const Image& a, const Image& b) {
+  if (a.width != b.width || a.height != b.height || a.channels != b.channels)
+    return "shapes differ: " + std::to_string(a.width) + "x" + std::to_string(a.height) + "x" +
+           std::to_string(a.channels) + " vs " + std::to_string(b.width) + "x" + std::to_string(b.height) + "x" +
+           std::to_string(b.channels);
+  size_t n = 0, first = 0;
+  for (size_t i = 0; i < a.data.size(); ++i)
+    if (std::memcmp(&a.data[i], &b.data[i], sizeof(float)) != 0 && n++ == 0) first = i;
+  if (n == 0) return "";
+  const size_t px = first / size_t(a.channels);
+  std::ostringstream ss;
+  ss << n << " of " << a.data.size() << " values differ; first at pixel (" << px % size_t(a.width) << ", "
+     << px / size_t(a.width) << ") channel " << first % size_t(a.channels) << ": " << a.data[first] << " vs "
+     << b.data[first];
+  return ss.str();
+}
+
+// "" when every value agrees within `rel` relative or `abs` absolute difference.
+std::string close_difference(const Image& a, const Image& b, float rel, float abs) {
+  if (a.data.size() != b.data.size() || a.width != b.width) return "shapes differ";
+  size_t n = 0, first = 0;
+  for (size_t i = 0; i < a.data.size(); ++i) {
+    const float x = a.data[i], y = b.data[i];
+    const bool ok = std::isfinite(x) && std::isfinite(y) &&
+                    (std::fabs(x - y) <= abs || std::fabs(x - y) <= rel * std::max(std::fabs(x), std::fabs(y)));
+    if (!ok && n++ == 0) first = i;
+  }
+  if (n == 0) return "";
+  const size_t px = first / size_t(a.channels);
+  std::ostringstream ss;
+  ss << n << " values differ; first at pixel (" << px % size_t(a.width) << ", " << px / size_t(a.width)
+     << "): " << a.data[first] << " vs " << b.data[first];
+  return ss.str();
+}
+
+// Per-pixel M (channel 0) and M' (channel 1) of a counts image.
+struct Counts {
+  uint64_t pixels = 0, m_sum = 0, mprime_sum = 0, m_below_target = 0, m_max = 0;
+  uint64_t m_min = ~uint64_t(0), effective_min = ~uint64_t(0);
+};
+
+Counts summarize(const Image& counts, int target) {
+  Counts c;
+  for (int y = 0; y < counts.height; ++y)
+    for (int x = 0; x < counts.width; ++x) {
+      const uint64_t m = uint64_t(counts.at(x, y)[0]), mp = uint64_t(counts.at(x, y)[1]);
+      ++c.pixels;
+      c.m_sum += m;
+      c.mprime_sum += mp;
+      c.m_below_target += m < uint64_t(target);
+      c.m_min = std::min(c.m_min, m);
+      c.m_max = std::max(c.m_max, m);
+      c.effective_min = std::min(c.effective_min, m + mp);
+    }
+  return c;
+}
+
+// ---- the fixture -----------------------------------------------------------------------------------
+
+class ClusterTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    static int n = 0;  // --gtest_repeat runs a test again in the same process
+    dir_ = fs::temp_directory_path() /
+           ("epr-cluster-" + std::to_string(::getpid()) + "-" + info->name() + "-" + std::to_string(++n));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+
+  void TearDown() override {
+    // Workers first: they return their leases to a master that is still there.
+    for (auto& w : workers_) w->stop();
+    if (master_) master_->stop();
+    if (HasFailure()) {
+      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
+      auto tail = [](const std::string& name, const std::string& text) {
+        const size_t from = text.size() > 3000 ? text.size() - 3000 : 0;
+        std::fprintf(stderr, "---- %s (last %zu bytes) ----\n%s\n", name.c_str(), text.size() - from,
+                     text.substr(from).c_str());
+      };
+      if (master_) tail("epr-master", master_->err());
+      for (auto& w : workers_) tail(w->name() + " " + std::to_string(w->pid()), w->err());
+    } else {
+      workers_.clear();
+      master_.reset();
+      fs::remove_all(dir_);
+    }
+  }
+
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  // Starts epr-master on a free loopback port and waits until it says which.
+  void start_master(Args extra = {}) {
+    Args argv{kMaster, "--listen", "127.0.0.1:0", "--state-dir", path("master-state")};
+    // Monitoring on a free port as well: the default 0.0.0.0:8080 collides between tests run in parallel.
+    argv.insert(argv.end(), {"--http", "127.0.0.1:0", "--reproject", "cpu", "--log-level", "info"});
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    master_ = std::make_unique<Process>(argv, dir_ / "master");
+    const std::regex listening("epr-master listening on port ([0-9]+)");
+    std::smatch m;
+    std::string err;
+    const bool up = wait_until(
+        [&] {
+          err = master_->err();
+          return std::regex_search(err, m, listening) || !master_->running();
+        },
+        10s);
+    ASSERT_TRUE(up && master_->running() && m.size() == 2) << "epr-master did not start:\n" << err;
+    address_ = "127.0.0.1:" + m[1].str();
+  }
+
+  // Starts an epr-worker with one tracing thread. Debug logs name every lease and its outcome.
+  Process& start_worker(const std::string& name) {
+    workers_.push_back(std::make_unique<Process>(Args{kWorker, "--master", address_, "--threads", "1", "--name", name,
+                                                      "--cache-dir", path("cache-" + name), "--log-level", "debug"},
+                                                 dir_ / name));
+    return *workers_.back();
+  }
+
+  // Runs `epr ARGS...` to the end (killed after `timeout`).
+  RunResult epr(Args args, Millis timeout = 60s) {
+    args.insert(args.begin(), kEpr);
+    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
+  }
+
+  // `epr render --single-process` of the job into PREFIX.*: the reference.
+  void render_single_process(const Job& job, const std::string& prefix) {
+    Args args{"render"};
+    const Args f = job.flags();
+    args.insert(args.end(), f.begin(), f.end());
+    args.insert(args.end(), {"--single-process", "--threads", "2", "--out", prefix});
+    const RunResult r = epr(args, 120s);
+    ASSERT_EQ(r.code, 0) << "epr render --single-process failed:\n" << r.err;
+  }
+
+  // `epr submit --wait --out PREFIX`: queues the job, follows it and fetches its results.
+  void submit_and_wait(const Job& job, const std::string& prefix, std::string* id = nullptr) {
+    Args args{"submit"};
+    const Args f = job.flags();
+    args.insert(args.end(), f.begin(), f.end());
+    args.insert(args.end(), {"--master", address_, "--wait", "--out", prefix});
+    const RunResult r = epr(args, 120s);
+    ASSERT_FALSE(r.timed_out) << "epr submit --wait did not return within 120 s:\n" << r.err;
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.err.find("DONE"), std::string::npos) << r.err;
+    if (id) *id = r.out.substr(0, r.out.find('\n'));
+  }
+
+  // `epr submit` without --wait: the job id.
+  std::string submit(const Job& job) {
+    Args args{"submit"};
+    const Args f = job.flags();
+    args.insert(args.end(), f.begin(), f.end());
+    args.insert(args.end(), {"--master", address_});
+    const RunResult r = epr(args, 30s);
+    EXPECT_EQ(r.code, 0) << r.err;
+    return r.out.substr(0, r.out.find('\n'));
+  }
+
+  // `epr get JOB --json`: the job's status as the master reports it.
+  nlohmann::json status(const std::string& id) {
+    const RunResult r = epr({"get", id, "--json", "--master", address_}, 20s);
+    EXPECT_EQ(r.code, 0) << r.err;
+    try {
+      return nlohmann::json::parse(r.out);
+    } catch (const std::exception& e) {
+      ADD_FAILURE() << "epr get --json printed no JSON (" << e.what() << "):\n" << r.out << r.err;
+      return {};
+    }
+  }
+
+  // `epr watch JOB` until the job ends, then `epr get JOB --out PREFIX`.
+  void watch_and_get(const std::string& id, const std::string& prefix) {
+    const RunResult w = epr({"watch", id, "--master", address_}, 120s);
+    ASSERT_FALSE(w.timed_out) << "the job did not end within 120 s:\n" << w.err;
+    ASSERT_EQ(w.code, 0) << w.err;
+    const RunResult g = epr({"get", id, "--out", prefix, "--master", address_}, 30s);
+    ASSERT_EQ(g.code, 0) << g.err;
+  }
+
+  // Cluster result PREFIX.* against the single-process reference REF.*: M, M' and the path-traced
+  // estimate bit-identical, the combined image within float rounding.
+  void expect_equal_to_reference(const std::string& prefix, const std::string& ref) {
+    const Images a = load_outputs(prefix), b = load_outputs(ref);
+    ASSERT_EQ(a.counts.channels, 2) << "counts.exr holds M and M'";
+    EXPECT_EQ(exact_difference(a.counts, b.counts), "") << "M and M' per pixel";
+    EXPECT_EQ(exact_difference(a.pathtrace, b.pathtrace), "") << "path-traced estimate (sum / M)";
+    EXPECT_EQ(close_difference(a.combined, b.combined, 1e-4f, 1e-5f), "") << "combined image";
+  }
+
+  // Tiles the worker's log says the master committed for `job_id` (needs --log-level debug):
+  // "lease N: job J round R tile T" when leased, "lease N: submitted, accepted=true" when committed.
+  static size_t tiles_committed(const Process& worker, const std::string& job_id) {
+    const std::string log = worker.err();
+    const std::regex leased("lease ([0-9]+): job (\\S+) round"), committed("lease ([0-9]+): submitted, accepted=true");
+    std::map<std::string, std::string> job_of;
+    for (auto it = std::sregex_iterator(log.begin(), log.end(), leased); it != std::sregex_iterator(); ++it)
+      job_of[(*it)[1]] = (*it)[2];
+    size_t n = 0;
+    for (auto it = std::sregex_iterator(log.begin(), log.end(), committed); it != std::sregex_iterator(); ++it)
+      n += job_of[(*it)[1]] == job_id;
+    return n;
+  }
+
+  // Waits until the master has registered `n` workers (its log says so for each).
+  void wait_for_workers(size_t n) {
+    ASSERT_TRUE(wait_until([&] { return count_of(master_->err(), ") registered") >= n; }, 30s))
+        << n << " workers did not register within 30 s";
+  }
+
+  // Waits until the worker has leased a tile of round `round` or later of some job; reading the
+  // worker's log is far cheaper than asking the master through another `epr` process.
+  static bool wait_for_round(const Process& worker, int round, Millis timeout) {
+    const std::regex leased("lease [0-9]+: job \\S+ round ([0-9]+) tile");
+    return wait_until(
+        [&] {
+          const std::string log = worker.err();
+          for (auto it = std::sregex_iterator(log.begin(), log.end(), leased); it != std::sregex_iterator(); ++it)
+            if (std::stoi((*it)[1]) >= round) return true;
+          return false;
+        },
+        timeout);
+  }
+
+  fs::path dir_;
+  std::unique_ptr<Process> master_;
+  std::vector<std::unique_ptr<Process>> workers_;
+  std::string address_;
+  int runs_ = 0;
+};
+
+// ---- 1. a cluster equals the single-process render ---------------------------------------------------
+
+TEST_F(ClusterTest, ThreeWorkersEqualSingleProcessRender) {
+  const Job job;
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  for (const char* name : {"w1", "w2", "w3"}) start_worker(name);
+  ASSERT_NO_FATAL_FAILURE(wait_for_workers(3));
+  std::string id;
+  ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("cluster"), &id));
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("ref")));
+  expect_equal_to_reference(path("cluster"), path("ref"));
+
+  // The comparison means something: paths were traced, reprojection added samples, pixels were
+  // skipped before P, and more than one worker took part.
+  const Counts c = summarize(read_image(path("cluster.counts.exr")), job.spp);
+  EXPECT_EQ(c.pixels, uint64_t(job.size * job.size));
+  EXPECT_GT(c.m_sum, 0u);
+  EXPECT_GT(c.mprime_sum, 0u);
+  EXPECT_GT(c.m_below_target, 0u) << "no pixel was skipped: skip mode not exercised";
+  size_t workers_with_tiles = 0, tiles = 0;
+  for (auto& w : workers_) {
+    const size_t n = tiles_committed(*w, id);
+    workers_with_tiles += n > 0;
+    tiles += n;
+  }
+  EXPECT_GE(workers_with_tiles, 2u) << "the work was not shared";
+  const auto stats = load_outputs(path("cluster")).stats;
+  EXPECT_EQ(tiles, stats.value("tiles_committed", uint64_t(0))) << "workers' commits against the master's count";
+}
+
+// ---- 2. the number of workers does not change the result ----------------------------------------------
+
+TEST_F(ClusterTest, OneTwoAndFourWorkersGiveIdenticalCountsAndPathSums) {
+  // One master, jobs one after the other; workers are added between them.
+  const Job job;
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  std::map<int, std::string> ids;
+  for (int n : {1, 2, 4}) {
+    while (int(workers_.size()) < n) start_worker("w" + std::to_string(workers_.size() + 1));
+    ASSERT_NO_FATAL_FAILURE(wait_for_workers(size_t(n)));
+    ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("n" + std::to_string(n)), &ids[n]));
+  }
+  for (int n : {2, 4}) {
+    const Images a = load_outputs(path("n1")), b = load_outputs(path("n" + std::to_string(n)));
+    EXPECT_EQ(exact_difference(a.counts, b.counts), "") << "M and M', 1 vs " << n << " workers";
+    EXPECT_EQ(exact_difference(a.pathtrace, b.pathtrace), "") << "path sums, 1 vs " << n << " workers";
+    EXPECT_EQ(close_difference(a.combined, b.combined, 1e-4f, 1e-5f), "") << "combined, 1 vs " << n << " workers";
+  }
+  // The runs differ in who traced what: with four workers the tiles were spread over several.
+  size_t workers_with_tiles = 0;
+  for (auto& w : workers_) workers_with_tiles += tiles_committed(*w, ids[4]) > 0;
+  EXPECT_GE(workers_with_tiles, 2u);
+  EXPECT_EQ(tiles_committed(*workers_[0], ids[1]), load_outputs(path("n1")).stats.value("tiles_committed", 0u));
+  const Counts c = summarize(read_image(path("n1.counts.exr")), job.spp);
+  EXPECT_GT(c.mprime_sum, 0u);
+  EXPECT_GT(c.m_below_target, 0u);
+}
+
+// ---- 3. a worker that joins mid-job gets work ------------------------------------------------------------
+
+TEST_F(ClusterTest, WorkerJoiningMidJobGetsWork) {
+  const Job job = long_job(8, 12);  // several seconds for one worker
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  Process& early = start_worker("early");
+  ASSERT_NO_FATAL_FAILURE(wait_for_workers(1));
+  const std::string id = submit(job);
+  ASSERT_FALSE(id.empty());
+  ASSERT_TRUE(wait_for_round(early, 1, 60s)) << "the job did not reach its second round";
+  Process& late = start_worker("late");
+  ASSERT_NO_FATAL_FAILURE(wait_for_workers(2));
+  ASSERT_NO_FATAL_FAILURE(watch_and_get(id, path("cluster")));
+
+  // It registered after round 1 had begun, so every tile it committed was taken mid-job.
+  EXPECT_GT(tiles_committed(late, id), 0u) << "the worker that joined mid-job committed no tile";
+  EXPECT_GT(tiles_committed(early, id), 0u);
+  const auto stats = load_outputs(path("cluster")).stats;
+  EXPECT_EQ(tiles_committed(early, id) + tiles_committed(late, id), stats.value("tiles_committed", 0u));
+
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("ref")));
+  expect_equal_to_reference(path("cluster"), path("ref"));
+}
+
+// ---- 4. a job whose pixels are all skipped ends ------------------------------------------------------------
+
+TEST_F(ClusterTest, JobEndsWhenReprojectionSkipsEveryPixel) {
+  // The furnace (a closed box seen from inside, no background, every surface diffuse) gives every
+  // pixel reprojected samples. With P = 32, k = 4 and min-paths 12, reprojection brings most pixels
+  // to P by the time they have traced min-paths; the rest follow within a few rounds. The job must
+  // end as soon as no pixel is left (no empty rounds, no hang), before P / k rounds.
+  Job job;
+  job.scene = "builtin:furnace";
+  job.size = 48;
+  job.spp = 32;
+  job.k = 4;
+  job.min_paths = 12;
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  start_worker("w1");
+  start_worker("w2");
+  std::string id;
+  ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("cluster"), &id));
+  const auto st = status(id);
+  EXPECT_EQ(st.value("state", ""), "JOB_STATE_DONE");
+
+  const Images out = load_outputs(path("cluster"));
+  const Counts c = summarize(out.counts, job.spp);
+  EXPECT_GE(c.effective_min, uint64_t(job.spp)) << "a pixel ended below P samples (M + M')";
+  EXPECT_GE(c.m_min, uint64_t(job.min_paths)) << "a pixel was skipped before min-paths";
+  EXPECT_LT(c.m_max, uint64_t(job.spp)) << "a pixel traced P paths: not every pixel was skipped";
+  uint64_t at_min_paths = 0;
+  for (int y = 0; y < out.counts.height; ++y)
+    for (int x = 0; x < out.counts.width; ++x) at_min_paths += out.counts.at(x, y)[0] == float(job.min_paths);
+  EXPECT_GT(at_min_paths, c.pixels / 2) << "most pixels should stop tracing at min-paths";
+  EXPECT_LT(out.stats.value("rounds", 99), job.spp / job.k) << "the job ran as many rounds as without skipping";
+  EXPECT_EQ(st.value("round", 0), out.stats.value("rounds", -1));
+
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("ref")));
+  expect_equal_to_reference(path("cluster"), path("ref"));
+}
+
+TEST_F(ClusterTest, OneSamplePerPixelIsOneRound) {
+  Job job;
+  job.size = 48;
+  job.spp = 1;
+  job.k = 1;
+  job.min_paths = 1;
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  start_worker("w1");
+  std::string id;
+  ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("cluster"), &id));
+  EXPECT_EQ(status(id).value("state", ""), "JOB_STATE_DONE");
+  const Images out = load_outputs(path("cluster"));
+  EXPECT_EQ(out.stats.value("rounds", 0), 1);
+  const Counts c = summarize(out.counts, job.spp);
+  EXPECT_EQ(c.m_min, 1u);
+  EXPECT_EQ(c.m_max, 1u) << "every pixel traces exactly one path";
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("ref")));
+  expect_equal_to_reference(path("cluster"), path("ref"));
+}
+
+// ---- 5. a worker killed with SIGKILL loses nothing ---------------------------------------------------------
+
+// Milliseconds since local midnight: what spdlog's "[YYYY-mm-dd HH:MM:SS.mmm]" stamps count.
+int64_t local_ms_of_day() {
+  const auto now = std::chrono::system_clock::now();
+  const time_t t = std::chrono::system_clock::to_time_t(now);
+  tm local{};
+  localtime_r(&t, &local);
+  const int64_t ms = std::chrono::duration_cast<std::chrono::milliseconds>(now.time_since_epoch()).count() % 1000;
+  return ((local.tm_hour * 60 + local.tm_min) * 60 + local.tm_sec) * 1000 + ms;
+}
+
+TEST_F(ClusterTest, WorkerKilledMidJobLosesNothing) {
+  // Tiles of 32x32 pixels x 16 paths take a single thread 50 ms or more in the first rounds.
+  const Job job = long_job(16, 4);
+  ASSERT_NO_FATAL_FAILURE(start_master({"--lease-timeout-ms", "1500", "--heartbeat-ms", "300"}));
+  Process& victim = start_worker("victim");
+  Process& survivor = start_worker("survivor");
+  ASSERT_NO_FATAL_FAILURE(wait_for_workers(2));
+  const std::string id = submit(job);
+  ASSERT_FALSE(id.empty());
+  ASSERT_TRUE(wait_for_round(victim, 1, 60s)) << "the victim never reached round 1";
+
+  // Kill the victim in the middle of tracing a tile: watch its log closely and kill it as soon as
+  // its newest line is a lease taken less than 15 ms ago. No tile of the first rounds is traced that
+  // fast, so the tile's result cannot have reached the master.
+  const std::regex lease_line(
+      "\\[\\d{4}-\\d\\d-\\d\\d (\\d\\d):(\\d\\d):(\\d\\d)\\.(\\d{3})\\] \\[worker\\] \\[debug\\] "
+      "lease [0-9]+: job \\S+ round ([0-9]+) tile ([0-9]+)\\s*$");
+  std::string held_tile, held_round;
+  bool killed = false;
+  uintmax_t seen_bytes = 0;
+  for (const auto end = std::chrono::steady_clock::now() + 30s; !killed && std::chrono::steady_clock::now() < end;
+       std::this_thread::sleep_for(1ms)) {
+    std::error_code ec;
+    const uintmax_t bytes = fs::file_size(victim.err_path(), ec);
+    if (ec || bytes == seen_bytes) continue;
+    seen_bytes = bytes;
+    std::string log = victim.err();
+    log.resize(log.rfind('\n') == std::string::npos ? 0 : log.rfind('\n'));  // whole lines only
+    const std::string last = log.substr(log.rfind('\n') == std::string::npos ? 0 : log.rfind('\n') + 1);
+    std::smatch m;
+    if (!std::regex_search(last, m, lease_line) || std::stoi(m[5]) >= 4) continue;
+    const int64_t stamp =
+        ((std::stoll(m[1]) * 60 + std::stoll(m[2])) * 60 + std::stoll(m[3])) * 1000 + std::stoll(m[4]);
+    if ((local_ms_of_day() - stamp + 86'400'000) % 86'400'000 >= 15) continue;
+    victim.signal(SIGKILL);
+    killed = true;
+    held_round = m[5];
+    held_tile = m[6];
+  }
+  ASSERT_TRUE(killed) << "never caught the victim at the start of a tile";
+  ASSERT_EQ(victim.wait_for(5s), 128 + SIGKILL);
+
+  ASSERT_NO_FATAL_FAILURE(watch_and_get(id, path("cluster")));
+  // The master's side: the dead worker's lease ran out, the tile was traced again by the survivor.
+  EXPECT_NE(master_->err().find("job " + id + " tile " + held_tile + ": lease expired, re-queued"), std::string::npos)
+      << "the victim was killed holding round " << held_round << " tile " << held_tile;
+  const auto stats = load_outputs(path("cluster")).stats;
+  EXPECT_GE(stats.value("tiles_re_leased", 0u), 1u);
+  EXPECT_NE(survivor.err().find("round " + held_round + " tile " + held_tile + "\n"), std::string::npos)
+      << "the survivor did not trace the victim's tile";
+  EXPECT_EQ(tiles_committed(victim, id) + tiles_committed(survivor, id), stats.value("tiles_committed", 0u))
+      << "tiles committed by the workers against the master's count";
+
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("ref")));
+  expect_equal_to_reference(path("cluster"), path("ref"));
+}
+
+// ---- 6. bad arguments and an unreachable master ------------------------------------------------------------
+
+TEST_F(ClusterTest, UnreachableMasterFailsQuicklyNamingTheAddress) {
+  const RunResult r =
+      epr({"submit", "builtin:cornell", "--width", "16", "--height", "16", "--master", "127.0.0.1:1"}, 30s);
+  EXPECT_FALSE(r.timed_out);
+  EXPECT_NE(r.code, 0);
+  EXPECT_LT(r.seconds, 12.0) << "epr submit took " << r.seconds << " s to give up";
+  EXPECT_NE(r.err.find("127.0.0.1:1"), std::string::npos) << r.err;
+  EXPECT_TRUE(r.out.empty()) << "no job id may be printed: " << r.out;
+}
+
+TEST_F(ClusterTest, UnknownSceneIsRefusedWithAClearMessage) {
+  const RunResult local = epr({"render", "builtin:nope", "--width", "16", "--height", "16", "--out", path("x")}, 30s);
+  EXPECT_FALSE(local.timed_out);
+  EXPECT_NE(local.code, 0);
+  EXPECT_NE(local.err.find("nope"), std::string::npos) << local.err;
+  EXPECT_FALSE(fs::exists(path("x.exr")));
+
+  const RunResult single =
+      epr({"render", "builtin:nope", "--single-process", "--width", "16", "--height", "16", "--out", path("y")}, 30s);
+  EXPECT_NE(single.code, 0);
+  EXPECT_NE(single.err.find("nope"), std::string::npos) << single.err;
+}
+
+TEST_F(ClusterTest, BadRequestsToARunningMasterFailWithReasons) {
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  const RunResult spp = epr({"submit", "builtin:cornell", "--spp", "0", "--master", address_}, 30s);
+  EXPECT_NE(spp.code, 0);
+  EXPECT_NE(spp.err.find("spp"), std::string::npos) << spp.err;
+
+  const RunResult scene = epr({"submit", "builtin:nope", "--master", address_}, 30s);
+  EXPECT_NE(scene.code, 0);
+  EXPECT_NE(scene.err.find("nope"), std::string::npos) << scene.err;
+
+  const RunResult get = epr({"get", "no-such-job", "--out", path("z"), "--master", address_}, 30s);
+  EXPECT_NE(get.code, 0);
+  EXPECT_NE(get.err.find("no-such-job"), std::string::npos) << get.err;
+
+  const RunResult list = epr({"list", "--master", address_}, 30s);
+  EXPECT_EQ(list.code, 0) << list.err;
+  EXPECT_EQ(count_of(list.out, "\n"), 1u) << "nothing was queued: " << list.out;
+  EXPECT_TRUE(master_->running()) << "the master survived the bad requests";
+}
+
+}  // namespace
+}  // namespace epr::testing

@@ -1,0 +1,76 @@
+// Child processes for the multi-process tests: spawned with stdout and stderr going to files, waited
+// for with a deadline, and always gone when their Process object is (SIGTERM, then SIGKILL).
+#pragma once
+
+#include <sys/types.h>
+
+#include <chrono>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace epr::testing {
+
+using Millis = std::chrono::milliseconds;
+
+/// A running (or finished) child process. Not copyable; the destructor ends and reaps it.
+class Process {
+ public:
+  /// Starts argv[0] (a path) with argv and this process's environment; stdin is /dev/null, stdout
+  /// goes to `log_prefix`.out and stderr to `log_prefix`.err. The child gets SIGKILL if this process
+  /// dies first. Throws std::runtime_error if the program cannot be started.
+  Process(std::vector<std::string> argv, const std::filesystem::path& log_prefix);
+  ~Process();
+  Process(const Process&) = delete;
+  Process& operator=(const Process&) = delete;
+
+  pid_t pid() const { return pid_; }
+  const std::string& name() const { return name_; }
+  /// True while the child has not exited (reaps it if it has).
+  bool running();
+  /// Waits up to `timeout` for the child to exit. Its exit code (128 + signal if killed by one), or
+  /// nullopt if it is still running at the deadline.
+  std::optional<int> wait_for(Millis timeout);
+  /// Sends `sig` (no-op once the child has been reaped).
+  void signal(int sig);
+  /// SIGTERM, up to `grace` for the child to exit, then SIGKILL; returns the exit code.
+  int stop(Millis grace = Millis(5000));
+  /// Exit code once reaped.
+  std::optional<int> exit_code() const { return exit_code_; }
+
+  std::string out() const;  // everything written to stdout so far
+  std::string err() const;  // everything written to stderr so far
+  const std::filesystem::path& err_path() const { return err_path_; }
+
+ private:
+  bool reap(bool block);
+
+  std::string name_;
+  std::filesystem::path out_path_, err_path_;
+  pid_t pid_ = -1;
+  std::optional<int> exit_code_;
+};
+
+/// What a program that ran to the end left behind.
+struct RunResult {
+  int code = -1;  // exit code, 128 + signal if killed
+  bool timed_out = false;
+  double seconds = 0;  // wall clock
+  std::string out, err;
+};
+
+/// Runs argv to completion (killed at `timeout`, then timed_out is set).
+RunResult run_process(std::vector<std::string> argv, const std::filesystem::path& log_prefix, Millis timeout);
+
+/// Polls `done` every 20 ms until it returns true or `timeout` passes; returns its last answer.
+bool wait_until(const std::function<bool()>& done, Millis timeout);
+
+/// Whole file as text ("" if it does not exist).
+std::string read_text(const std::filesystem::path& path);
+
+/// Occurrences of `needle` in `haystack`.
+size_t count_of(const std::string& haystack, const std::string& needle);
+
+}  // namespace epr::testing
