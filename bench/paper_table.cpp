@@ -21,7 +21,10 @@
 // each; r = (a + b) / 2) and cached as EXR under --cache keyed by scene, size, spp and seed (not
 // committed: bench/.gitignore). The halves give the reference's own noise: E[(a - b)^2] / 4 is the
 // variance of r, so "floor" = mean (a - b)^2 / 4 / (r^2 + 0.01) is what the reference adds to every
-// rMSE; the table prints rMSE - floor (an estimate of the error against the true image) and the floor.
+// rMSE; the table prints rMSE - floor (an estimate of the error against the true image) and the floor,
+// for the full mean and for the mean without the largest --trim (1 %) of per-pixel terms (NEE
+// fireflies next to the Cornell box's light dominate the full mean). pt is also rendered at P/4 and
+// P/2; a log-log fit of its trimmed error gives the spp, hence CPU time, at which pt matches skip.
 // Test renders use seed 1; the reference seeds differ, so their noise is independent.
 //
 // Time: wall seconds and process CPU seconds (getrusage) of each render; CPU seconds are what
@@ -29,7 +32,7 @@
 // average is printed before and after.
 //
 //   paper_table [--size 256] [--spp 64] [--rp-spp 16] [--ref-spp 1024] [--scene builtin:cornell ...]
-//               [--cache DIR] [--no-embedded] [--threads 0]
+//               [--cache DIR] [--no-embedded] [--threads 0] [--trim 0.01]
 #include <sys/resource.h>
 
 #include <algorithm>
@@ -103,7 +106,9 @@ std::vector<double> rel_sq_errors(const Image& x, const Image& ref) {
   return e;
 }
 
-// Mean of the terms, and the mean without the largest 0.1 % (fireflies make the full mean unstable).
+// Mean of the terms, and the mean without the largest g_trim share of pixels (fireflies -- the NEE
+// 1/d^2 singularity next to the Cornell box's light -- make the full mean unstable).
+double g_trim = 0.01;
 struct ErrorMeans {
   double full = 0, trimmed = 0;
   ErrorMeans operator-(const ErrorMeans& o) const { return {full - o.full, trimmed - o.trimmed}; }
@@ -112,7 +117,7 @@ ErrorMeans means(std::vector<double> e) {
   ErrorMeans m;
   for (double v : e) m.full += v;
   m.full /= double(e.size());
-  const size_t keep = e.size() - e.size() / 1000;
+  const size_t keep = e.size() - size_t(double(e.size()) * g_trim);
   std::nth_element(e.begin(), e.begin() + ptrdiff_t(keep), e.end());
   for (size_t i = 0; i < keep; ++i) m.trimmed += e[i];
   m.trimmed /= double(keep);
@@ -218,7 +223,25 @@ struct Row {
   double eq_wall = 0, eq_cpu = 0;
   ErrorMeans skip_err, pt_err, eq_err, floor;
   double vertices_per_path = 0, paths_per_cpu_s_pt = 0;
+  std::vector<std::pair<int, double>> pt_curve;  // (spp, trimmed rMSE) of plain path tracing
+  double fit_slope = 0, fit_spp = 0;             // log-log fit of the curve; spp where pt reaches skip's error
 };
+
+// Least-squares line through (log spp, log err); the spp at which it reaches `target`.
+void fit_curve(Row& r, double target) {
+  double sx = 0, sy = 0, sxx = 0, sxy = 0;
+  int n = 0;
+  for (const auto& [spp, err] : r.pt_curve) {
+    if (!(err > 0)) continue;
+    const double x = std::log(double(spp)), y = std::log(err);
+    sx += x; sy += y; sxx += x * x; sxy += x * y;
+    ++n;
+  }
+  if (n < 2 || !(target > 0)) return;
+  const double b = (n * sxy - sx * sy) / (n * sxx - sx * sx), a = (sy - b * sx) / n;
+  r.fit_slope = b;
+  r.fit_spp = std::exp((std::log(target) - a) / b);
+}
 
 }  // namespace
 
@@ -237,6 +260,7 @@ int main(int argc, char** argv) {
   app.add_option("-S,--subpixels", subpixels);
   app.add_option("--threads", threads, "tracing threads (0: all cores)");
   app.add_flag("--no-embedded", no_embedded, "skip the embedded (gRPC) comparison");
+  app.add_option("--trim", g_trim, "share of the largest per-pixel errors left out of the trimmed rMSE");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
 
@@ -324,6 +348,17 @@ int main(int argc, char** argv) {
     row.eq_err = means(rel_sq_errors(eq.out.combined, ref.image)) - ref.floor;
     std::printf("  pt   P=%-3d %6.1f s wall %6.1f CPU-s  (same CPU time as skip)\n", row.eq_spp, eq.wall, eq.cpu);
     std::fflush(stdout);
+    // pt's error curve: P/4, P/2, the equal-time spp and P, for the spp at which pt matches skip.
+    row.pt_curve = {{spp, row.pt_err.trimmed}, {row.eq_spp, row.eq_err.trimmed}};
+    for (int q : {spp / 4, spp / 2}) {
+      if (q < 1 || q == row.eq_spp || q == spp) continue;
+      pt.spp = q;
+      const Run c = run_local(pt);
+      row.pt_curve.emplace_back(q, (means(rel_sq_errors(c.out.combined, ref.image)) - ref.floor).trimmed);
+      std::printf("  pt   P=%-3d %6.1f s wall %6.1f CPU-s  (error curve)\n", q, c.wall, c.cpu);
+      std::fflush(stdout);
+    }
+    fit_curve(row, row.skip_err.trimmed);
     rows.push_back(row);
   }
 
@@ -343,26 +378,31 @@ int main(int argc, char** argv) {
               "reprojector creation inside the overhead; ns/v: the rest per vertex received)\n");
 
   std::printf("\n==== Pixel skipping (P=%d) against path tracing: time\n", spp);
-  std::printf("%-12s | %7s %8s %8s | %8s %8s | %5s %8s %8s | %11s\n", "scene", "traced", "skip s", "CPU-s", "pt s",
-              "CPU-s", "eq N", "s", "CPU-s", "skip/pt CPU");
+  std::printf("%-12s | %7s %8s %8s | %8s %8s | %5s %8s %8s | %11s | %9s %12s\n", "scene", "traced", "skip s",
+              "CPU-s", "pt s", "CPU-s", "eq N", "s", "CPU-s", "skip/pt CPU", "pt v/path", "pt paths/CPU-s");
   for (const Row& r : rows)
-    std::printf("%-12s | %6.1f%% %8.1f %8.1f | %8.1f %8.1f | %5d %8.1f %8.1f | %11.2f\n", r.scene.c_str(),
-                r.skip_share, r.skip_wall, r.skip_cpu, r.pt_wall, r.pt_cpu, r.eq_spp, r.eq_wall, r.eq_cpu,
-                r.skip_cpu / r.pt_cpu);
-  std::printf("\n==== Error: rMSE x 1e3 against the reference (its floor subtracted); full mean / without the "
-              "largest 0.1%% of pixels\n");
-  std::printf("%-12s | %19s | %19s | %19s | %19s | %9s %9s\n", "scene", "skip P", "pt P", "pt same CPU", "ref floor",
-              "eq/skip", "skip/pt*");
+    std::printf("%-12s | %6.1f%% %8.1f %8.1f | %8.1f %8.1f | %5d %8.1f %8.1f | %11.2f | %9.2f %12.3g\n",
+                r.scene.c_str(), r.skip_share, r.skip_wall, r.skip_cpu, r.pt_wall, r.pt_cpu, r.eq_spp, r.eq_wall,
+                r.eq_cpu, r.skip_cpu / r.pt_cpu, r.vertices_per_path, r.paths_per_cpu_s_pt);
+  std::printf("(pt v/path: surface vertices per path, x_1 included; pt paths/CPU-s: paths per process CPU-second of "
+              "the whole pt render)\n");
+  std::printf("\n==== Error: rMSE x 1e3 against the reference (its floor subtracted): full mean / without the "
+              "largest %.1f%% of pixels\n",
+              100 * g_trim);
+  std::printf("%-12s | %19s | %19s | %19s | %19s | %7s %7s | %6s %7s %9s\n", "scene", "skip P", "pt P", "pt same CPU",
+              "ref floor", "pt/skip", "eq/skip", "slope", "pt N*", "skip/pt*");
   for (const Row& r : rows) {
-    // pt's error falls as 1/spp: it reaches skip's (trimmed) rMSE after pt_cpu x rMSE_pt / rMSE_skip CPU-s.
-    const double pt_cpu_equal_error = r.pt_cpu * r.pt_err.trimmed / std::max(1e-12, r.skip_err.trimmed);
-    std::printf("%-12s | %9.3f %9.3f | %9.3f %9.3f | %9.3f %9.3f | %9.4f %9.4f | %9.2f %9.2f\n", r.scene.c_str(),
-                1e3 * r.skip_err.full, 1e3 * r.skip_err.trimmed, 1e3 * r.pt_err.full, 1e3 * r.pt_err.trimmed,
-                1e3 * r.eq_err.full, 1e3 * r.eq_err.trimmed, 1e3 * r.floor.full, 1e3 * r.floor.trimmed,
-                r.eq_err.trimmed / std::max(1e-12, r.skip_err.trimmed), r.skip_cpu / pt_cpu_equal_error);
+    const double pt_cpu_star = r.pt_cpu * r.fit_spp / spp;  // pt's CPU time is linear in spp
+    std::printf("%-12s | %9.3f %9.3f | %9.3f %9.3f | %9.3f %9.3f | %9.4f %9.4f | %7.2f %7.2f | %6.2f %7.1f %9.2f\n",
+                r.scene.c_str(), 1e3 * r.skip_err.full, 1e3 * r.skip_err.trimmed, 1e3 * r.pt_err.full,
+                1e3 * r.pt_err.trimmed, 1e3 * r.eq_err.full, 1e3 * r.eq_err.trimmed, 1e3 * r.floor.full,
+                1e3 * r.floor.trimmed, r.pt_err.trimmed / std::max(1e-12, r.skip_err.trimmed),
+                r.eq_err.trimmed / std::max(1e-12, r.skip_err.trimmed), r.fit_slope, r.fit_spp,
+                pt_cpu_star > 0 ? r.skip_cpu / pt_cpu_star : 0.0);
   }
-  std::printf("(eq/skip: trimmed rMSE of pt at equal CPU time over skip's; skip/pt*: skip's CPU time over the CPU time "
-              "pt needs for skip's trimmed rMSE, assuming rMSE ~ 1/spp -- the paper's claim is ~0.5)\n");
+  std::printf("(trimmed errors: pt/skip, eq/skip = pt's error at P and at equal CPU time over skip's; slope: log-log "
+              "fit of pt's trimmed error over spp (P/4, P/2, eq N, P; -1 for pure variance); pt N*: the spp at which "
+              "the fit reaches skip's error; skip/pt*: skip's CPU time over pt's at N* -- the paper's claim: ~0.5)\n");
 
   if (!no_embedded && !scenes.empty()) {
     std::printf("\n==== Distributed overhead: %s, local (one process, direct calls) vs embedded (in-process "

@@ -75,8 +75,11 @@ struct JobFigures {
   double overhead() const { return 1 - tracing / threads / elapsed; }
 };
 
+int g_tile_size = 32;  // --tile
+
 RenderOptions options(const std::string& scene, int size, int spp, RenderMode mode, int ppr) {
   RenderOptions o;
+  o.tile_size = g_tile_size;
   o.scene = scene;
   o.width = o.height = size;
   o.spp = spp;
@@ -352,7 +355,7 @@ int main(int argc, char** argv) {
   int size = 512, spp = 16, threads = 0, runs = 5;
   std::vector<int> pprs = {1, 2, 4};
   std::vector<std::string> modes = {"pt", "skip"};
-  bool no_bench_workers = false, no_embedded = false;
+  bool no_bench_workers = false, no_embedded = false, no_master_costs = false;
   app.add_option("--scene", scene);
   app.add_option("--size", size, "image side, pixels");
   app.add_option("--spp", spp, "P");
@@ -360,8 +363,10 @@ int main(int argc, char** argv) {
   app.add_option("--modes", modes, "pt, skip, rp")->delimiter(',');
   app.add_option("--threads", threads, "tracing threads (0: all cores)");
   app.add_option("--runs", runs, "runs of the offline per-round measurements (median)");
+  app.add_option("--tile", g_tile_size, "tile size of the jobs, pixels");
   app.add_flag("--no-bench-workers", no_bench_workers, "only the embedded default (part 1)");
   app.add_flag("--no-embedded", no_embedded, "skip part 1");
+  app.add_flag("--no-master-costs", no_master_costs, "skip part 3 (e.g. when profiling part 1 with perf)");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
   if (threads <= 0) threads = int(std::max(1u, std::thread::hardware_concurrency()));
@@ -371,8 +376,9 @@ int main(int argc, char** argv) {
     return m == "skip" ? RenderMode::kSkip : m == "rp" ? RenderMode::kReproject : RenderMode::kPathTrace;
   };
 
-  std::printf("round_bench: %s %dx%d, P=%d, %d tracing threads, %u hardware threads, load average %.2f\n",
-              scene.c_str(), size, size, spp, threads, std::thread::hardware_concurrency(), load_average());
+  std::printf("round_bench: %s %dx%d, P=%d, tiles %dx%d, %d tracing threads, %u hardware threads, load average "
+              "%.2f\n",
+              scene.c_str(), size, size, spp, g_tile_size, g_tile_size, threads, std::thread::hardware_concurrency(), load_average());
   std::fflush(stdout);
 
   struct Row {
@@ -422,6 +428,22 @@ int main(int argc, char** argv) {
                 share(s.tracing), share(s.submit), share(s.lease), share(s.waiting),
                 share(s.total - s.tracing - s.submit - s.lease - s.waiting), e.load ? e.load : b.load);
   }
+  std::printf("\n==== CPU view (robust to load): share of the process's CPU time not spent tracing\n");
+  std::printf("%-5s %3s | %9s %9s %9s | %9s %9s | %11s %11s\n", "mode", "k", "trace CPU", "emb CPU", "emb ovh",
+              "bench CPU", "bench ovh", "trace/round", "tiles");
+  for (const Row& r : rows) {
+    const double tc = r.bench.split.tracing_cpu;
+    if (tc <= 0) continue;
+    const int rounds = r.bench.fig.rounds;
+    std::printf("%-5s %3d | %9.2f %9.2f %8.1f%% %9.2f %8.1f%% | %9.1fms %11llu\n", r.mode.c_str(), r.ppr, tc,
+                r.emb.cpu, r.emb.cpu > 0 ? 100 * (1 - tc / r.emb.cpu) : 0.0, r.bench.fig.cpu,
+                100 * (1 - tc / r.bench.fig.cpu), rounds ? 1e3 * tc / threads / rounds : 0.0,
+                (unsigned long long)r.bench.split.tiles);
+  }
+  std::printf("(trace CPU: thread CPU seconds inside render_leased_tile, summed over the bench threads -- the same "
+              "paths as the embedded job, which is deterministic; emb/bench CPU: process CPU seconds of the whole "
+              "call / job; trace/round: trace CPU / threads / rounds = a round's tracing wall time on an idle machine)\n");
+
   std::printf("\nbench workers, per tile (thread CPU): ");
   for (const Row& r : rows) {
     const ThreadSplit& s = r.bench.split;
@@ -437,6 +459,10 @@ int main(int argc, char** argv) {
               "their first tile -- submit includes encoding, wait = Wait answers and the 1 ms sleeps after them)\n");
   std::fflush(stdout);
 
+  if (no_master_costs) {
+    fs::remove_all(tmp);
+    return 0;
+  }
   std::printf("\n==== Part 3: the master's per-round work on its own (%dx%d, median of %d), load %.2f\n", size, size,
               runs, load_average());
   std::printf("%-5s %-4s | %12s %12s | %12s %12s | %14s\n", "mode", "rp", "finish_round", "CPU", "previews", "CPU",

@@ -12,7 +12,7 @@
 // rays) against the raw loop's, which separates "Embree is slower on path rays" from "the tracer
 // spends time outside Embree".
 //
-//   trace_bench [--runs 5] [--scene SPEC ...] [--size 128] [--spp 4] [--rays 400000]
+//   trace_bench [--runs 5] [--scene SPEC ...] [--size 128] [--spp 4] [--rays 400000] [--profile-pt]
 #include <time.h>
 
 #include <algorithm>
@@ -101,6 +101,8 @@ int main(int argc, char** argv) {
   app.add_option("--size", size, "image side of the traced frame, pixels");
   app.add_option("--spp", spp, "paths per pixel");
   app.add_option("--rays", nrays, "rays in the raw loop");
+  bool profile_pt = false;
+  app.add_flag("--profile-pt", profile_pt, "only run the path tracer, --runs times (for perf record)");
   CLI11_PARSE(app, argc, argv);
   if (scenes.empty()) scenes = {"builtin:cornell", "builtin:hall?tess=11", "builtin:hall?tess=18"};
 
@@ -118,6 +120,10 @@ int main(int argc, char** argv) {
     EmbreeScene es(scene);
     const Camera cam(scene.camera, size, size);
     trace(es, cam, 1, 99);  // warm-up: page faults, caches
+    if (profile_pt) {
+      for (int r = 0; r < runs; ++r) trace(es, cam, spp, uint64_t(r) + 1);
+      continue;
+    }
     std::vector<double> raw_w, raw_c, rays_w, rays_c, verts_w, verts_c, ratio_w, ratio_c, vpp, rpp;
     for (int r = 0; r < runs; ++r) {
       const Timing raw = raw_rays(es, scene.bounds(), nrays, uint64_t(r) + 1);
