@@ -350,8 +350,9 @@ TEST_F(MonitoringEndpointTest, MetricsParseAndCountersIncreaseOverARender) {
     EXPECT_FALSE(f["help"].get<std::string>().empty());
     EXPECT_EQ(name.rfind("epr_", 0), 0u);
     for (const char* unit : {"_ms", "milliseconds", "_kb", "_mb"}) EXPECT_EQ(name.find(unit), std::string::npos);
-    if (f["type"] == "counter")
+    if (f["type"] == "counter") {
       for (const auto& s : f["samples"]) EXPECT_EQ(s[0], name + "_total");
+    }
   }
   for (const char* h : {"epr_round_duration_seconds", "epr_round_reprojection_seconds"}) {
     ASSERT_TRUE(before.contains(h)) << h;
@@ -382,7 +383,9 @@ TEST_F(MonitoringEndpointTest, MetricsParseAndCountersIncreaseOverARender) {
       for (const auto& s : f["samples"]) {
         const std::string key = s[0].get<std::string>() + s[1].dump();
         const double v = s[2].get<double>();
-        if (last.count(key)) EXPECT_GE(v, last[key]) << key << " went down";
+        if (last.count(key)) {
+          EXPECT_GE(v, last[key]) << key << " went down";
+        }
         last[key] = v;
       }
     }

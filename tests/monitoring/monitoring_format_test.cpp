@@ -25,7 +25,9 @@ TEST(ParseHostPort, AcceptsHostPortAndBracketedV6) {
 }
 
 TEST(MonitoringServer, RefusesAnAddressInUseAndAMalformedOne) {
-  JobManager jobs(MasterOptions{.reproject_backend_override = "cpu"});
+  MasterOptions options;
+  options.reproject_backend_override = "cpu";
+  JobManager jobs(options);
   MonitoringServer first(jobs, {.listen = "127.0.0.1:0"});
   ASSERT_GT(first.port(), 0);
   EXPECT_EQ(first.url(), "http://127.0.0.1:" + std::to_string(first.port()) + "/");
