@@ -97,7 +97,7 @@ class ClusterTest : public ::testing::Test {
     worker_bin_ = build_binary("EPR_WORKER_BIN", "worker", "epr-worker");
     epr_bin_ = build_binary("EPR_BIN", "client", "epr");
     for (const auto& b : {master_bin_, worker_bin_, epr_bin_})
-      if (!fs::exists(b)) GTEST_SKIP() << b << " not built";
+      ASSERT_TRUE(fs::exists(b)) << b << " not built";
     dir_ = fs::temp_directory_path() / ("epr-cluster-test-" + std::to_string(::getpid()) + "-" +
                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);

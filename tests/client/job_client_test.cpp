@@ -365,7 +365,7 @@ CliRun run_epr(const std::string& args, const std::string& env = "") {
 class EprCli : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!fs::exists(epr_binary())) GTEST_SKIP() << "epr binary not found at " << epr_binary() << " (set EPR_BIN)";
+    ASSERT_TRUE(fs::exists(epr_binary())) << "epr binary not found at " << epr_binary() << " (set EPR_BIN)";
   }
 };
 

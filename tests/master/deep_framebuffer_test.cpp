@@ -67,7 +67,7 @@ void expect_interior_agreement(const DeepFramebuffer& gl, const DeepFramebuffer&
 class DeepFramebufferGl : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!gl_available()) GTEST_SKIP() << "OSMesa unavailable";
+    ASSERT_TRUE(gl_available()) << "OSMesa unavailable: run scripts/setup.sh (libosmesa6)";
     ctx_ = std::make_unique<GlContext>();
   }
   std::unique_ptr<GlContext> ctx_;

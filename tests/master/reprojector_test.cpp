@@ -47,7 +47,7 @@ class ReprojectorCase : public ::testing::TestWithParam<std::string> {
  protected:
   void SetUp() override {
     if (GetParam() == "gl") {
-      if (!gl_available()) GTEST_SKIP() << "OSMesa unavailable";
+      ASSERT_TRUE(gl_available()) << "OSMesa unavailable: run scripts/setup.sh (libosmesa6)";
       ctx_ = std::make_unique<GlContext>();
     }
   }
@@ -269,7 +269,7 @@ void expect_same(Reprojector& gl, Reprojector& cpu) {
 class GlVersusCpu : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!gl_available()) GTEST_SKIP() << "OSMesa unavailable";
+    ASSERT_TRUE(gl_available()) << "OSMesa unavailable: run scripts/setup.sh (libosmesa6)";
     ctx_ = std::make_unique<GlContext>();
   }
   void run(const std::string& scene_name, int w, int h, size_t n, uint32_t seed, float eps_scale) {

@@ -121,7 +121,7 @@ class Browser {
 fs::path artefact_dir() { return fs::path(EPR_ARTEFACT_DIR); }
 
 TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
-  if (!fs::exists(kChromium) || !fs::exists(kChromedriver)) GTEST_SKIP() << "Chromium or chromedriver not installed";
+  ASSERT_TRUE(fs::exists(kChromium) && fs::exists(kChromedriver)) << "Chromium or chromedriver not installed: run scripts/setup.sh";
   const fs::path dir = scratch_dir("browser");
   auto master = start_master();
   JobClient client(master->local_target());
