@@ -1,7 +1,6 @@
 #include "client/job_client.h"
 
 #include <fmt/format.h>
-#include <openssl/evp.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -16,6 +15,7 @@
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "wire/convert.h"
+#include "wire/sha256.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -56,27 +56,6 @@ std::string default_job_name(const std::string& scene) {
   if (n.size() > kMaxNameBytes) n.resize(kMaxNameBytes);
   return n;
 }
-
-// Incremental SHA-256, so that result files are checked without holding them in memory.
-class Sha256 {
- public:
-  Sha256() : ctx_(EVP_MD_CTX_new()) { EVP_DigestInit_ex(ctx_, EVP_sha256(), nullptr); }
-  ~Sha256() { EVP_MD_CTX_free(ctx_); }
-  Sha256(const Sha256&) = delete;
-  Sha256& operator=(const Sha256&) = delete;
-  void update(const std::string& bytes) { EVP_DigestUpdate(ctx_, bytes.data(), bytes.size()); }
-  std::string hex() {
-    unsigned char digest[EVP_MAX_MD_SIZE];
-    unsigned int len = 0;
-    EVP_DigestFinal_ex(ctx_, digest, &len);
-    std::string s;
-    for (unsigned int i = 0; i < len; ++i) s += fmt::format("{:02x}", digest[i]);
-    return s;
-  }
-
- private:
-  EVP_MD_CTX* ctx_;
-};
 
 std::string lower(std::string s) {
   std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return char(std::tolower(c)); });
@@ -359,15 +338,23 @@ std::string JobClient::upload_scene(const SceneBundleData& bundle) {
 
 // ---- unary queries ------------------------------------------------------------------------------
 
-v1::JobStatus JobClient::get(const std::string& job_id) {
-  grpc::ClientContext ctx;
-  prepare(&ctx, options_.timeout);
+// GetJob and CancelJob: a JobId in, the job's status out.
+template <class Call>
+v1::JobStatus JobClient::job_id_call(const std::string& job_id, const char* what, Call&& call) const {
   v1::JobId req;
   req.set_id(job_id);
   v1::JobStatus status;
-  const grpc::Status s = stub_->GetJob(&ctx, req, &status);
-  if (!s.ok()) fail(s, "GetJob");
+  const grpc::Status s = call(req, &status);
+  if (!s.ok()) fail(s, what);
   return status;
+}
+
+v1::JobStatus JobClient::get(const std::string& job_id) {
+  grpc::ClientContext ctx;
+  prepare(&ctx, options_.timeout);
+  return job_id_call(job_id, "GetJob", [&](const v1::JobId& req, v1::JobStatus* out) {
+    return stub_->GetJob(&ctx, req, out);
+  });
 }
 
 std::vector<v1::JobStatus> JobClient::list(const std::vector<v1::JobState>& states, size_t limit) {
@@ -396,12 +383,9 @@ std::vector<v1::JobStatus> JobClient::list(const std::vector<v1::JobState>& stat
 v1::JobStatus JobClient::cancel(const std::string& job_id) {
   grpc::ClientContext ctx;
   prepare(&ctx, options_.timeout);
-  v1::JobId req;
-  req.set_id(job_id);
-  v1::JobStatus status;
-  const grpc::Status s = stub_->CancelJob(&ctx, req, &status);
-  if (!s.ok()) fail(s, "CancelJob");
-  return status;
+  return job_id_call(job_id, "CancelJob", [&](const v1::JobId& req, v1::JobStatus* out) {
+    return stub_->CancelJob(&ctx, req, out);
+  });
 }
 
 // ---- watching -----------------------------------------------------------------------------------

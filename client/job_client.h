@@ -156,6 +156,8 @@ class JobClient {
  private:
   void prepare(grpc::ClientContext* ctx, std::chrono::milliseconds timeout) const;
   [[noreturn]] void fail(const grpc::Status& status, const std::string& call) const;
+  template <class Call>
+  v1::JobStatus job_id_call(const std::string& job_id, const char* what, Call&& call) const;
   FetchedFile fetch_to(const std::string& job_id, v1::ResultKind kind,
                        const std::function<std::string(const v1::ResultHeader&)>& path_for, bool allow_partial);
 

@@ -1,6 +1,5 @@
 #include "wire/scene_bundle.h"
 
-#include <openssl/evp.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -111,15 +110,6 @@ SceneBundleData bundle_scene(const std::string& spec) {
   b.entry_path = entry.filename().string();
   std::sort(b.files.begin(), b.files.end());
   return b;
-}
-
-std::string sha256_hex(const std::string& bytes) {
-  unsigned char digest[EVP_MAX_MD_SIZE];
-  unsigned int len = 0;
-  EVP_Digest(bytes.data(), bytes.size(), digest, &len, EVP_sha256(), nullptr);
-  std::string hex;
-  for (unsigned int i = 0; i < len; ++i) hex += fmt::format("{:02x}", digest[i]);
-  return hex;
 }
 
 std::string content_hash(const SceneBundleData& b) {

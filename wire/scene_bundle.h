@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "common/scene.h"
+#include "wire/sha256.h"
 
 namespace epr {
 
@@ -26,7 +27,6 @@ SceneBundleData bundle_scene(const std::string& spec);
 
 /// Lowercase hex SHA-256 over the canonical serialisation (files) or "epr-builtin-v1\n" + builtin.
 std::string content_hash(const SceneBundleData& bundle);
-std::string sha256_hex(const std::string& bytes);
 
 /// Checks a relative path: no leading '/', no '\', no empty, "." or ".." components, <= 1024 bytes.
 bool is_safe_relative_path(const std::string& path);

@@ -1,7 +1,6 @@
 #include "worker/scene_fetch.h"
 
 #include <fmt/format.h>
-#include <openssl/evp.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -12,6 +11,7 @@
 #include <stdexcept>
 
 #include "wire/scene_bundle.h"
+#include "wire/sha256.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -44,31 +44,6 @@ bool write_atomically(const fs::path& path, const std::string& data) {
   if (ec) fs::remove(tmp, ec);
   return !ec;
 }
-
-// Streaming SHA-256 (the canonical serialisation of scene.proto is built piece by piece).
-class Sha256 {
- public:
-  Sha256() : ctx_(EVP_MD_CTX_new()) { EVP_DigestInit_ex(ctx_, EVP_sha256(), nullptr); }
-  ~Sha256() { EVP_MD_CTX_free(ctx_); }
-  void update(const void* data, size_t n) { EVP_DigestUpdate(ctx_, data, n); }
-  void update(const std::string& s) { update(s.data(), s.size()); }
-  void update_u64le(uint64_t v) {
-    unsigned char b[8];
-    for (int i = 0; i < 8; ++i) b[i] = (unsigned char)((v >> (8 * i)) & 0xff);
-    update(b, 8);
-  }
-  std::string hex() {
-    unsigned char digest[EVP_MAX_MD_SIZE];
-    unsigned int len = 0;
-    EVP_DigestFinal_ex(ctx_, digest, &len);
-    std::string out;
-    for (unsigned int i = 0; i < len; ++i) out += fmt::format("{:02x}", digest[i]);
-    return out;
-  }
-
- private:
-  EVP_MD_CTX* ctx_;
-};
 
 }  // namespace
 
