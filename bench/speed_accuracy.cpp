@@ -31,8 +31,9 @@
 // --cycles DIR scores DIR/SCENE_WxH/times.csv (written by cycles_sweep.py) into OUT/csv/SCENE_WxH_cycles.csv.
 //
 // OUT/summary.json and OUT/tables.md: vertex fates and reprojection overhead (rp), share of eye paths
-// traced (skip), converged errors, and the CPU / wall time from which on each mode (and Cycles) stays at
-// or below plain path tracing's error at P = 64 and P = 256 (log-log interpolation between rounds).
+// traced (skip), converged errors, and the CPU time at which each mode (and Cycles) reaches plain path
+// tracing's error at P = 64 and P = 256, first and for good, as a ratio to path tracing's CPU time there
+// (bench/charts/tables.py writes the same tables from the CSVs for docs/RESULTS.md).
 // OUT/strip/: the equal-time images (pt, rp, skip at half of pt's CPU time for P = --strip-p) and skip's M'.
 #include <sys/resource.h>
 
@@ -294,21 +295,34 @@ void write_csv(const fs::path& file, const std::vector<Sample>& samples) {
 // The error column a table uses: trimmed or full relative MSE (reference noise subtracted).
 double metric(const Sample& s, bool trimmed) { return trimmed ? s.err.rel_trim : s.err.rel; }
 
-// The time (CPU or wall) from which on the curve's error stays at or below `target`: the last
-// crossing, interpolating log(error) linearly in log(time) between its two rounds (the full metric
-// jumps up whenever a firefly lands, so the first crossing would flatter a noisy curve); nullopt if
-// the last round is still above the target.
-std::optional<double> time_to(const std::vector<Sample>& s, double target, bool use_cpu, bool trimmed) {
-  if (!(target > 0) || s.empty() || !(metric(s.back(), trimmed) <= target)) return std::nullopt;
-  size_t i = s.size() - 1;
-  while (i > 0 && metric(s[i - 1], trimmed) <= target) --i;
-  const double t1 = use_cpu ? s[i].cpu : s[i].wall;
-  if (i == 0) return t1;
-  const double t0 = use_cpu ? s[i - 1].cpu : s[i - 1].wall;
-  const double e0 = metric(s[i - 1], trimmed), e1 = metric(s[i], trimmed);
+// log(time) at which log(error) crosses `target` on the segment between rounds a and b.
+double crossing(const Sample& a, const Sample& b, double target, bool use_cpu, bool trimmed) {
+  const double t0 = use_cpu ? a.cpu : a.wall, t1 = use_cpu ? b.cpu : b.wall;
+  const double e0 = metric(a, trimmed), e1 = metric(b, trimmed);
   if (!(e0 > 0) || !(e1 > 0) || !(t0 > 0) || e0 == e1) return t1;
   const double f = (std::log(target) - std::log(e0)) / (std::log(e1) - std::log(e0));
   return std::exp(std::log(t0) + f * (std::log(t1) - std::log(t0)));
+}
+
+// When a curve reaches `target`, read two ways because the curves are noisy (a firefly raises the
+// full metric for a while): `first`, the first round at or below it (optimistic), and `stays`, the
+// round from which on every later round stays at or below it (pessimistic); both interpolated
+// log-log between rounds, nullopt if not reached.
+struct Reach {
+  std::optional<double> first, stays;
+};
+
+Reach time_to(const std::vector<Sample>& s, double target, bool use_cpu, bool trimmed) {
+  Reach r;
+  if (!(target > 0) || s.empty()) return r;
+  for (size_t i = 0; i < s.size() && !r.first; ++i)
+    if (metric(s[i], trimmed) <= target)
+      r.first = i == 0 ? (use_cpu ? s[0].cpu : s[0].wall) : crossing(s[i - 1], s[i], target, use_cpu, trimmed);
+  if (!(metric(s.back(), trimmed) <= target)) return r;
+  size_t i = s.size() - 1;
+  while (i > 0 && metric(s[i - 1], trimmed) <= target) --i;
+  r.stays = i == 0 ? (use_cpu ? s[0].cpu : s[0].wall) : crossing(s[i - 1], s[i], target, use_cpu, trimmed);
+  return r;
 }
 
 double num(const json& j, const char* key) { return j.contains(key) && j[key].is_number() ? j[key].get<double>() : 0.0; }
@@ -390,11 +404,9 @@ void export_obj(const std::string& spec, const fs::path& dir) {
 // Tables
 // ---------------------------------------------------------------------------------------------------
 
-std::string fmt_time(std::optional<double> t) { return t ? fmt::format("{:.1f}", *t) : "not reached"; }
+std::string fmt_time(std::optional<double> t) { return t ? fmt::format("{:.3g}", *t) : "-"; }
 
-std::string fmt_ratio(std::optional<double> t, std::optional<double> pt) {
-  return t && pt && *pt > 0 ? fmt::format("{:.2f}", *t / *pt) : "-";
-}
+std::string fmt_ratio(std::optional<double> t, double pt) { return t && pt > 0 ? fmt::format("{:.2f}", *t / pt) : "-"; }
 
 }  // namespace
 
@@ -585,27 +597,32 @@ int main(int argc, char** argv) {
       const char* name = trimmed ? "rel_mse_trim" : "rel_mse";
       md << (trimmed ? "Trimmed relative MSE (without the 1 % largest pixel terms):\n\n"
                      : "Full relative MSE (every pixel, fireflies included):\n\n");
-      md << "| mode | final error | wall s | CPU-s |";
-      for (int t : targets) md << fmt::format(" CPU-s to pt@{} | x pt | wall s to pt@{} | x pt |", t, t);
+      md << "| mode | final error | CPU-s | wall s |";
+      for (int t : targets) md << fmt::format(" to pt@{}: CPU-s first / stays | x pt first / stays |", t);
       md << "\n|---|---|---|---|";
-      for (size_t i = 0; i < targets.size(); ++i) md << "---|---|---|---|";
+      for (size_t i = 0; i < targets.size(); ++i) md << "---|---|";
       md << "\n";
       for (const auto& [m, s] : curves) {
         const Sample& last = s->back();
-        md << fmt::format("| {} | {:.4g} | {:.1f} | {:.1f} |", m, metric(last, trimmed), last.wall, last.cpu);
+        md << fmt::format("| {} | {:.4g} | {:.1f} | {:.1f} |", m, metric(last, trimmed), last.cpu, last.wall);
         for (int t : targets) {
-          double target = -1;
+          // The target and the time it is compared with: plain path tracing's error and CPU time at round t.
+          const Sample* base = nullptr;
           for (const Sample& p : runs["pt"].samples)
-            if (p.round == t) target = metric(p, trimmed);
-          const auto c = time_to(*s, target, true, trimmed), w = time_to(*s, target, false, trimmed);
-          const auto pc = time_to(runs["pt"].samples, target, true, trimmed);
-          const auto pw = time_to(runs["pt"].samples, target, false, trimmed);
-          md << fmt::format(" {} | {} | {} | {} |", fmt_time(c), fmt_ratio(c, pc), fmt_time(w), fmt_ratio(w, pw));
-          tte[name][m][std::to_string(t)] = {{"target", target},
-                                             {"cpu_s", c ? json(*c) : json(nullptr)},
-                                             {"wall_s", w ? json(*w) : json(nullptr)},
-                                             {"pt_cpu_s", pc ? json(*pc) : json(nullptr)},
-                                             {"pt_wall_s", pw ? json(*pw) : json(nullptr)}};
+            if (p.round == t) base = &p;
+          if (!base) {
+            md << " - | - |";
+            continue;
+          }
+          const Reach c = time_to(*s, metric(*base, trimmed), true, trimmed);
+          const Reach w = time_to(*s, metric(*base, trimmed), false, trimmed);
+          md << fmt::format(" {} / {} | {} / {} |", fmt_time(c.first), fmt_time(c.stays), fmt_ratio(c.first, base->cpu),
+                            fmt_ratio(c.stays, base->cpu));
+          auto opt = [](std::optional<double> v) { return v ? json(*v) : json(nullptr); };
+          tte[name][m][std::to_string(t)] = {{"target", metric(*base, trimmed)}, {"pt_cpu_s", base->cpu},
+                                             {"pt_wall_s", base->wall},         {"cpu_s_first", opt(c.first)},
+                                             {"cpu_s_stays", opt(c.stays)},     {"wall_s_first", opt(w.first)},
+                                             {"wall_s_stays", opt(w.stays)}};
         }
         md << "\n";
       }

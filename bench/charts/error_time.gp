@@ -24,6 +24,6 @@ do for [t in 'png svg'] {
   if (t eq 'svg') { set terminal svg size 720,480 font 'DejaVu Sans,10'; set output out.'.svg' }
   plot for [i=1:words(present)] file(word(present,i)) \
        using (column(xcol)):(column(ycol) > 0 ? column(ycol) : 1/0) \
-       with linespoints pt 7 ps 0.35 lw 1.5 lc rgb color(word(present,i)) title word(present,i)
+       with linespoints pt 7 ps 0.35 pi (word(present,i) eq 'cycles' ? 1 : 8) lw 1.5 lc rgb color(word(present,i)) title word(present,i)
   unset output
 }
