@@ -116,6 +116,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
       // Rounds left, at the mean pace so far (skipping makes later rounds cheaper: an upper bound).
       const int rounds_left = (opts.spp - int(fp.mean_paths + 0.5) + opts.paths_per_round - 1) / opts.paths_per_round;
       p.eta_seconds = frame.done() ? 0 : since(t_render) / fp.round * std::max(0, rounds_left);
+      p.frame = &frame;
       progress(p);
     }
   }

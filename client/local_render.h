@@ -21,6 +21,7 @@ struct RoundProgress {
   double mean_mprime = 0;    // mean reprojected samples per pixel
   double pixels_active = 0;  // fraction of pixels that traced paths this round
   double eta_seconds = -1;   // -1 when unknown
+  FrameState* frame = nullptr;  // render_local only: the frame after this round (e.g. to read images())
 };
 
 struct RenderOutputs {

@@ -1,0 +1,126 @@
+#!/usr/bin/python3
+"""Markdown tables for docs/RESULTS.md from a scripts/bench.sh output folder (OUT/{main,big}).
+
+    /usr/bin/python3 bench/charts/tables.py OUT > OUT/results_tables.md
+
+Per scene: the paper-style row (vertex fates and reprojection overhead of rp, share of eye paths
+traced by skip), then for the trimmed and the full relative MSE: each mode's (and Cycles') final
+error and time, and the CPU seconds it needs to reach plain path tracing's error at P = T, as a
+ratio to path tracing's own CPU seconds at round T. Two readings of "reach", because the error
+curves are noisy (a firefly raises the full metric for a while):
+  first  the first round at or below the target (optimistic for a noisy curve),
+  stays  the round from which on every later round stays at or below it (pessimistic);
+both interpolated log-log between rounds. "-" = not reached within the run.
+"""
+import csv
+import json
+import math
+import os
+import sys
+
+MODES = ["pt", "rp", "skip", "exact", "cycles"]
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+def interp(r0, r1, target, key, tcol):
+    e0, e1, t0, t1 = r0[key], r1[key], r0[tcol], r1[tcol]
+    if not (e0 > 0 and e1 > 0 and t0 > 0) or e0 == e1:
+        return t1
+    f = (math.log(target) - math.log(e0)) / (math.log(e1) - math.log(e0))
+    return math.exp(math.log(t0) + f * (math.log(t1) - math.log(t0)))
+
+
+def first_time(rows, target, key, tcol="cpu_s"):
+    for i, r in enumerate(rows):
+        if r[key] <= target:
+            return r[tcol] if i == 0 else interp(rows[i - 1], r, target, key, tcol)
+    return None
+
+
+def stays_time(rows, target, key, tcol="cpu_s"):
+    if not rows or not rows[-1][key] <= target:
+        return None
+    i = len(rows) - 1
+    while i > 0 and rows[i - 1][key] <= target:
+        i -= 1
+    return rows[i][tcol] if i == 0 else interp(rows[i - 1], rows[i], target, key, tcol)
+
+
+def f3(x):
+    return "-" if x is None else ("%.3g" % x)
+
+
+def ratio(x, base):
+    return "-" if x is None or not base else "%.2f" % (x / base)
+
+
+def scene_tables(part_dir, js, targets, out):
+    tag = js["tag"]
+    curves = {}
+    for m in MODES:
+        p = os.path.join(part_dir, "csv", "%s_%s.csv" % (tag, m))
+        if os.path.isfile(p):
+            curves[m] = read_csv(p)
+    pt = curves["pt"]
+    size = int(tag.split("_")[-1].split("x")[0])
+    spp = max(int(r["round"]) for r in pt)
+    out.append("#### %s (%d triangles)\n" % (tag, js["triangles"]))
+    if "fates" in js:
+        fa = js["fates"]
+        skip = js["modes"].get("skip")
+        share = "%.1f %%" % (100.0 * skip["paths_traced"] / (spp * size * size)) if skip else "-"
+        out.append("| accepted | occluded | culled | reprojection overhead (rp, GL) | eye paths traced (skip, P = %d) |" % spp)
+        out.append("|---|---|---|---|---|")
+        out.append("| %.1f %% | %.1f %% | %.1f %% | %.1f %% | %s |\n"
+                   % (fa["accepted"], fa["occluded"], fa["culled"], fa["overhead"], share))
+    for key, label in (("rel_mse_trim", "trimmed relative MSE"), ("rel_mse", "full relative MSE (fireflies included)")):
+        head = "| %s | final | CPU-s | wall s |" % label
+        sep = "|---|---|---|---|"
+        for t in targets:
+            head += " to pt@%d: CPU-s first / stays | x pt first / stays |" % t
+            sep += "---|---|"
+        out.append(head)
+        out.append(sep)
+        base = {t: next((r for r in pt if int(r["round"]) == t), None) for t in targets}
+        for m, rows in curves.items():
+            last = rows[-1]
+            line = "| %s | %.3g | %.1f | %.1f |" % (m, last[key], last["cpu_s"], last["wall_s"])
+            for t in targets:
+                b = base[t]
+                if b is None:
+                    line += " - | - |"
+                    continue
+                fi, st = first_time(rows, b[key], key), stays_time(rows, b[key], key)
+                line += " %s / %s | %s / %s |" % (f3(fi), f3(st), ratio(fi, b["cpu_s"]), ratio(st, b["cpu_s"]))
+            out.append(line)
+        out.append("")
+    out.append("")
+
+
+def main():
+    if len(sys.argv) != 2:
+        raise SystemExit(__doc__)
+    root = sys.argv[1]
+    out = []
+    for part, targets in (("main", [64, 256]), ("big", None)):
+        d = os.path.join(root, part)
+        if not os.path.isfile(os.path.join(d, "summary.json")):
+            continue
+        summary = json.load(open(os.path.join(d, "summary.json")))
+        tg = targets or [summary["spp"]]
+        wall, cpu = summary.get("wall_s"), summary.get("cpu_s")
+        out.append("### %s: %dx%d, P = %d, reference %d spp; load average %.1f at the start, %.1f at the end%s%s\n"
+                   % (part, summary["size"], summary["size"], summary["spp"], summary["ref_spp"],
+                      summary["load_start"], summary.get("load_end", float("nan")),
+                      "; %.0f s wall" % wall if wall else "", "; %.0f CPU-s" % cpu if cpu else ""))
+        for js in summary["scenes"]:
+            scene_tables(d, js, tg, out)
+    print("\n".join(out))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,644 @@
+// Speed against accuracy: progressive renders of the built-in scenes in every mode, with the error
+// against a converged path-traced reference after every round, plus Blender Cycles' renders of the
+// same scenes scored against the same reference. Driven by scripts/bench.sh (docs/RESULTS.md).
+//
+// Modes (one single-process render each, client/local_render.h, tracer on --threads threads):
+//   pt     plain path tracing                      (RenderMode::kPathTrace)
+//   rp     path tracing plus reprojection (GL)     (RenderMode::kReproject, ReprojectMethod::kGl)
+//   skip   reprojection plus pixel skipping (GL)   (RenderMode::kSkip, ReprojectMethod::kGl)
+//   exact  reprojection with visibility rays       (RenderMode::kReproject, ReprojectMethod::kExact)
+//
+// Per run, OUT/csv/SCENE_WxH_MODE.csv has one row per round:
+//   round, wall_s, cpu_s, eye_paths, reprojected_samples, mean_spp, rel_mse, rel_mse_trim, rmse,
+//   rel_mse_raw, rel_mse_trim_raw, rmse_raw
+// wall_s / cpu_s: seconds since the render started (scene load and BVH included) -- wall clock and
+// process CPU (getrusage) -- with the time this harness spends reading the images and scoring them
+// left out. eye_paths = sum of M, reprojected_samples = sum of M' over the pixels.
+//
+// Error (same metric as paper_table): relative MSE, mean over pixels and channels of
+//   (x - r)^2 / (r^2 + 0.01); rel_mse_trim leaves out the 1 % (--trim) largest per-pixel terms (NEE
+// fireflies); rmse = sqrt(mean (x - r)^2). The reference r is path tracing at --ref-spp rendered as two
+// independent halves a, b (seeds 1000001, 1000002); (a - b)^2 / 4 estimates r's own variance per pixel
+// and its contribution (the "floor") is subtracted from every figure (the *_raw columns keep it).
+// References are cached as EXR under --cache, the file name carrying a hash of everything that shapes
+// the image (scene, size, spp, seed, roulette, renderer version tag). A missing reference at W x H is
+// derived from a cached one at 2W x 2H by 2 x 2 box averaging when one exists (the pixel filter is a
+// one-pixel box, so the result is a reference at W x H with 4x the samples); otherwise it is rendered.
+//
+// --list-references prints the cache file names of the references for the given settings.
+// --export-obj DIR writes each scene as DIR/NAME.obj + NAME.mtl (Kd, Ke; glossy lobes are not
+// exported) and DIR/NAME.camera (eye, look, up, vertical fov) for scripts/cycles_sweep.py, and exits.
+// --cycles DIR scores DIR/SCENE_WxH/times.csv (written by cycles_sweep.py) into OUT/csv/SCENE_WxH_cycles.csv.
+//
+// OUT/summary.json and OUT/tables.md: vertex fates and reprojection overhead (rp), share of eye paths
+// traced (skip), converged errors, and the CPU time at which each mode (and Cycles) reaches plain path
+// tracing's error at P = 64 and P = 256, first and for good, as a ratio to path tracing's CPU time there
+// (bench/charts/tables.py writes the same tables from the CSVs for docs/RESULTS.md).
+// OUT/strip/: the equal-time images (pt, rp, skip at half of pt's CPU time for P = --strip-p) and skip's M'.
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "client/local_render.h"
+#include "common/builtin_scenes.h"
+#include "common/image.h"
+#include "common/log.h"
+#include "common/scene_loader.h"
+#include "master/frame_state.h"
+
+#ifndef EPR_SOURCE_DIR
+#define EPR_SOURCE_DIR "."
+#endif
+
+using namespace epr;
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+constexpr float kRelEps = 0.01f;            // the rMSE denominator's offset (radiance^2)
+constexpr const char* kRendererTag = "pt-v1";  // bump when the path tracer's image changes
+
+double cpu_seconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+double load1() {
+  double l[3] = {0, 0, 0};
+  getloadavg(l, 3);
+  return l[0];
+}
+
+std::string scene_name(const std::string& spec) {
+  std::string s = spec.substr(spec.find(':') + 1);
+  for (char& ch : s)
+    if (!std::isalnum(static_cast<unsigned char>(ch))) ch = '_';
+  return s;
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Error metric
+// ---------------------------------------------------------------------------------------------------
+
+double g_trim = 0.01;
+
+struct Errors {
+  double rel = 0, rel_trim = 0, mse = 0;
+  Errors operator-(const Errors& o) const { return {rel - o.rel, rel_trim - o.rel_trim, mse - o.mse}; }
+};
+
+Errors errors(const Image& x, const Image& ref) {
+  if (x.width != ref.width || x.height != ref.height)
+    throw std::runtime_error(fmt::format("image is {}x{}, reference {}x{}", x.width, x.height, ref.width, ref.height));
+  const size_t n = size_t(ref.width) * size_t(ref.height);
+  std::vector<double> e(n, 0.0);
+  Errors out;
+  for (size_t p = 0; p < n; ++p)
+    for (int c = 0; c < 3; ++c) {
+      const double r = ref.data[p * size_t(ref.channels) + size_t(c)];
+      const double d = double(x.data[p * size_t(x.channels) + size_t(c)]) - r;
+      e[p] += d * d / (r * r + kRelEps) / 3;
+      out.mse += d * d / 3;
+    }
+  out.mse /= double(n);
+  for (double v : e) out.rel += v;
+  out.rel /= double(n);
+  const size_t keep = n - size_t(double(n) * g_trim);
+  std::nth_element(e.begin(), e.begin() + ptrdiff_t(keep), e.end());
+  for (size_t i = 0; i < keep; ++i) out.rel_trim += e[i];
+  out.rel_trim /= double(keep);
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Cached reference
+// ---------------------------------------------------------------------------------------------------
+
+struct Reference {
+  Image image;   // (a + b) / 2
+  Errors floor;  // of (a - b)^2 / 4: what the reference's own noise adds to every figure
+};
+
+uint64_t fnv1a(const std::string& s) {
+  uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : s) h = (h ^ c) * 1099511628211ull;
+  return h;
+}
+
+std::string reference_file(const RenderOptions& o, int w, int h, int spp, uint64_t seed) {
+  const std::string key = fmt::format("{}|{}|{}x{}|spp={}|seed={}|rr={},{},{},{}", kRendererTag, o.scene, w, h, spp,
+                                      seed, int(o.rr.mode), o.rr.start_depth, o.rr.termination, o.rr.max_depth);
+  return fmt::format("ref_{}_{}x{}_pt{}_seed{}_{:016x}.exr", scene_name(o.scene), w, h, spp, seed, fnv1a(key));
+}
+
+Image downsample2(const Image& a) {
+  Image out(a.width / 2, a.height / 2, 3);
+  for (int y = 0; y < out.height; ++y)
+    for (int x = 0; x < out.width; ++x)
+      out.set_rgb(x, y, (a.rgb(2 * x, 2 * y) + a.rgb(2 * x + 1, 2 * y) + a.rgb(2 * x, 2 * y + 1) +
+                         a.rgb(2 * x + 1, 2 * y + 1)) *
+                            0.25f);
+  return out;
+}
+
+void write_atomic(const fs::path& file, const Image& img) {
+  fs::create_directories(file.parent_path());
+  const fs::path tmp = file.parent_path() / ("." + file.filename().string());
+  write_exr(tmp.string(), img);
+  fs::rename(tmp, file);
+}
+
+Image cached_half(const RenderOptions& base, int spp, uint64_t seed, const fs::path& cache) {
+  const fs::path file = cache / reference_file(base, base.width, base.height, spp, seed);
+  if (fs::exists(file)) return read_image(file.string());
+  const fs::path twice = cache / reference_file(base, 2 * base.width, 2 * base.height, spp, seed);
+  if (fs::exists(twice)) {
+    std::printf("  reference %s: 2x2 box average of %s\n", file.filename().c_str(), twice.filename().c_str());
+    const Image img = downsample2(read_image(twice.string()));
+    write_atomic(file, img);
+    return img;
+  }
+  RenderOptions o = base;
+  o.mode = RenderMode::kPathTrace;
+  o.spp = spp;
+  o.seed = seed;
+  o.paths_per_round = std::min(spp, 16);  // fewer round barriers; the sample indices are the same
+  std::printf("  rendering reference %s (pt, %d spp) ...\n", file.filename().c_str(), spp);
+  std::fflush(stdout);
+  const double c0 = cpu_seconds();
+  const auto t0 = std::chrono::steady_clock::now();
+  const RenderOutputs out = render_local(o);
+  std::printf("  ... %.1f s wall, %.1f CPU-s\n",
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), cpu_seconds() - c0);
+  write_atomic(file, out.combined);
+  return out.combined;
+}
+
+Reference reference(const RenderOptions& base, int spp, const fs::path& cache) {
+  const int half = std::max(1, spp / 2);
+  const Image a = cached_half(base, half, 1000001, cache);
+  const Image b = cached_half(base, half, 1000002, cache);
+  Reference ref;
+  ref.image = Image(a.width, a.height, 3);
+  for (int y = 0; y < a.height; ++y)
+    for (int x = 0; x < a.width; ++x) ref.image.set_rgb(x, y, (a.rgb(x, y) + b.rgb(x, y)) * 0.5f);
+  ref.floor = errors(a, ref.image);  // (a - r)^2 = (a - b)^2 / 4
+  return ref;
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Runs
+// ---------------------------------------------------------------------------------------------------
+
+struct Sample {
+  int round = 0;
+  double wall = 0, cpu = 0, eye_paths = 0, reprojected = 0, mean_spp = 0;
+  Errors raw, err;  // err = raw - floor
+};
+
+struct Snapshot {
+  double cpu = 0;
+  int round = 0;
+  Image combined, mprime;
+};
+
+struct Run {
+  std::string mode;
+  std::vector<Sample> samples;
+  json stats;
+  double eval_reprojecting = 0;  // seconds_reprojecting spent refreshing L_rp for this harness's reads
+  std::vector<Snapshot> snapshots;
+};
+
+struct ModeSpec {
+  RenderMode mode;
+  ReprojectMethod reproject;
+};
+
+ModeSpec mode_spec(const std::string& m) {
+  if (m == "pt") return {RenderMode::kPathTrace, ReprojectMethod::kGl};
+  if (m == "rp") return {RenderMode::kReproject, ReprojectMethod::kGl};
+  if (m == "skip") return {RenderMode::kSkip, ReprojectMethod::kGl};
+  if (m == "exact") return {RenderMode::kReproject, ReprojectMethod::kExact};
+  throw std::invalid_argument("unknown mode '" + m + "' (pt, rp, skip, exact)");
+}
+
+// keep_snapshot(round, cpu): whether to keep this round's image for the equal-time strip.
+Run run_mode(const RenderOptions& base, const std::string& mode, const Reference& ref,
+             const std::function<bool(int, double)>& keep_snapshot) {
+  RenderOptions o = base;
+  const ModeSpec ms = mode_spec(mode);
+  o.mode = ms.mode;
+  o.reproject = ms.reproject;
+  Run run;
+  run.mode = mode;
+  const double pixels = double(o.width) * o.height;
+  double excluded_wall = 0, excluded_cpu = 0;
+  const double c0 = cpu_seconds();
+  const auto t0 = std::chrono::steady_clock::now();
+  auto callback = [&](const RoundProgress& p) {
+    const auto t_in = std::chrono::steady_clock::now();
+    const double c_in = cpu_seconds();
+    Sample s;
+    s.round = p.round;
+    s.wall = std::chrono::duration<double>(t_in - t0).count() - excluded_wall;
+    s.cpu = c_in - c0 - excluded_cpu;
+    const FrameProgress& fp = p.frame->progress();
+    s.eye_paths = double(fp.paths_traced);
+    s.reprojected = fp.mean_reprojected * pixels;
+    s.mean_spp = fp.mean_spp;
+    const double rp0 = p.frame->seconds_reprojecting();
+    FrameImages img = p.frame->images();
+    run.eval_reprojecting += p.frame->seconds_reprojecting() - rp0;
+    s.raw = errors(img.combined, ref.image);
+    s.err = s.raw - ref.floor;
+    run.samples.push_back(s);
+    if (keep_snapshot && keep_snapshot(s.round, s.cpu))
+      run.snapshots.push_back({s.cpu, s.round, std::move(img.combined), std::move(img.reprojected)});
+    excluded_wall += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_in).count();
+    excluded_cpu += cpu_seconds() - c_in;
+  };
+  const RenderOutputs out = render_local(o, callback);
+  run.stats = out.stats;
+  return run;
+}
+
+void write_csv(const fs::path& file, const std::vector<Sample>& samples) {
+  std::ofstream f(file);
+  if (!f) throw std::runtime_error("cannot write " + file.string());
+  f << "round,wall_s,cpu_s,eye_paths,reprojected_samples,mean_spp,rel_mse,rel_mse_trim,rmse,rel_mse_raw,"
+       "rel_mse_trim_raw,rmse_raw\n";
+  for (const Sample& s : samples)
+    f << fmt::format("{},{:.4f},{:.4f},{:.0f},{:.0f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}\n", s.round, s.wall,
+                     s.cpu, s.eye_paths, s.reprojected, s.mean_spp, s.err.rel, s.err.rel_trim,
+                     std::sqrt(std::max(0.0, s.err.mse)), s.raw.rel, s.raw.rel_trim, std::sqrt(s.raw.mse));
+}
+
+// The error column a table uses: trimmed or full relative MSE (reference noise subtracted).
+double metric(const Sample& s, bool trimmed) { return trimmed ? s.err.rel_trim : s.err.rel; }
+
+// log(time) at which log(error) crosses `target` on the segment between rounds a and b.
+double crossing(const Sample& a, const Sample& b, double target, bool use_cpu, bool trimmed) {
+  const double t0 = use_cpu ? a.cpu : a.wall, t1 = use_cpu ? b.cpu : b.wall;
+  const double e0 = metric(a, trimmed), e1 = metric(b, trimmed);
+  if (!(e0 > 0) || !(e1 > 0) || !(t0 > 0) || e0 == e1) return t1;
+  const double f = (std::log(target) - std::log(e0)) / (std::log(e1) - std::log(e0));
+  return std::exp(std::log(t0) + f * (std::log(t1) - std::log(t0)));
+}
+
+// When a curve reaches `target`, read two ways because the curves are noisy (a firefly raises the
+// full metric for a while): `first`, the first round at or below it (optimistic), and `stays`, the
+// round from which on every later round stays at or below it (pessimistic); both interpolated
+// log-log between rounds, nullopt if not reached.
+struct Reach {
+  std::optional<double> first, stays;
+};
+
+Reach time_to(const std::vector<Sample>& s, double target, bool use_cpu, bool trimmed) {
+  Reach r;
+  if (!(target > 0) || s.empty()) return r;
+  for (size_t i = 0; i < s.size() && !r.first; ++i)
+    if (metric(s[i], trimmed) <= target)
+      r.first = i == 0 ? (use_cpu ? s[0].cpu : s[0].wall) : crossing(s[i - 1], s[i], target, use_cpu, trimmed);
+  if (!(metric(s.back(), trimmed) <= target)) return r;
+  size_t i = s.size() - 1;
+  while (i > 0 && metric(s[i - 1], trimmed) <= target) --i;
+  r.stays = i == 0 ? (use_cpu ? s[0].cpu : s[0].wall) : crossing(s[i - 1], s[i], target, use_cpu, trimmed);
+  return r;
+}
+
+double num(const json& j, const char* key) { return j.contains(key) && j[key].is_number() ? j[key].get<double>() : 0.0; }
+
+// ---------------------------------------------------------------------------------------------------
+// Cycles
+// ---------------------------------------------------------------------------------------------------
+
+// DIR/SCENE_WxH/times.csv: spp,wall_s,cpu_s,file (one render per row, file relative to the folder).
+// cycles_sweep.py may still be running (scripts/bench.sh runs it alongside): wait for its "done" file.
+std::vector<Sample> score_cycles(const fs::path& dir, const Reference& ref) {
+  std::vector<Sample> out;
+  if (!fs::exists(dir)) return out;
+  for (int waited = 0; !fs::exists(dir / "done"); waited += 5) {
+    if (waited % 60 == 0) std::printf("  waiting for %s/done (Cycles still rendering)\n", dir.c_str());
+    std::fflush(stdout);
+    std::this_thread::sleep_for(std::chrono::seconds(5));
+  }
+  std::ifstream f(dir / "times.csv");
+  if (!f) return out;
+  std::string line;
+  std::getline(f, line);  // header
+  while (std::getline(f, line)) {
+    std::stringstream ss(line);
+    std::string spp, wall, cpu, file;
+    if (!std::getline(ss, spp, ',') || !std::getline(ss, wall, ',') || !std::getline(ss, cpu, ',') ||
+        !std::getline(ss, file))
+      throw std::runtime_error((dir / "times.csv").string() + ": bad line '" + line + "'");
+    Sample s;
+    s.round = std::stoi(spp);
+    s.wall = std::stod(wall);
+    s.cpu = std::stod(cpu);
+    s.mean_spp = s.round;
+    s.eye_paths = double(s.round) * ref.image.width * ref.image.height;
+    s.raw = errors(read_image((dir / file).string()), ref.image);
+    s.err = s.raw - ref.floor;
+    out.push_back(s);
+  }
+  std::sort(out.begin(), out.end(), [](const Sample& a, const Sample& b) { return a.round < b.round; });
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------------
+// OBJ export
+// ---------------------------------------------------------------------------------------------------
+
+void export_obj(const std::string& spec, const fs::path& dir) {
+  const Scene s = load_scene(spec);
+  const std::string name = scene_name(spec);
+  fs::create_directories(dir);
+  std::ofstream mtl(dir / (name + ".mtl")), obj(dir / (name + ".obj")), cam(dir / (name + ".camera"));
+  if (!mtl || !obj || !cam) throw std::runtime_error("cannot write to " + dir.string());
+  mtl << "# " << spec << ": Kd and Ke only (glossy lobes are not exported)\n";
+  for (size_t m = 0; m < s.materials.size(); ++m) {
+    const Material& mat = s.materials[m];
+    mtl << fmt::format("newmtl m{}_{}\nKd {:.9g} {:.9g} {:.9g}\nKe {:.9g} {:.9g} {:.9g}\n", m, mat.name, mat.kd.x,
+                       mat.kd.y, mat.kd.z, mat.ke.x, mat.ke.y, mat.ke.z);
+    if (!mat.diffuse()) mtl << "# glossy: Ks " << mat.ks.x << " exponent " << mat.exponent << " dropped\n";
+  }
+  obj << "# " << spec << " (" << s.triangle_count() << " triangles)\nmtllib " << name << ".mtl\n";
+  for (const Vec3& p : s.positions) obj << fmt::format("v {:.9g} {:.9g} {:.9g}\n", p.x, p.y, p.z);
+  uint32_t current = ~0u;
+  for (size_t t = 0; t < s.triangles.size(); ++t) {
+    if (s.material_of[t] != current) {
+      current = s.material_of[t];
+      obj << "usemtl m" << current << "_" << s.materials[current].name << "\n";
+    }
+    const auto& tri = s.triangles[t];
+    obj << "f " << tri[0] + 1 << " " << tri[1] + 1 << " " << tri[2] + 1 << "\n";
+  }
+  const CameraSpec& c = s.camera;
+  cam << fmt::format("--eye={:.9g},{:.9g},{:.9g} --look={:.9g},{:.9g},{:.9g} --up={:.9g},{:.9g},{:.9g} --fov={:.9g}\n",
+                     c.eye.x, c.eye.y, c.eye.z, c.look.x, c.look.y, c.look.z, c.up.x, c.up.y, c.up.z, c.fov_y_degrees);
+  std::printf("exported %s: %zu triangles, %zu materials -> %s\n", spec.c_str(), s.triangle_count(),
+              s.materials.size(), (dir / (name + ".obj")).c_str());
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Tables
+// ---------------------------------------------------------------------------------------------------
+
+std::string fmt_time(std::optional<double> t) { return t ? fmt::format("{:.3g}", *t) : "-"; }
+
+std::string fmt_ratio(std::optional<double> t, double pt) { return t && pt > 0 ? fmt::format("{:.2f}", *t / pt) : "-"; }
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Error against time for every mode and built-in scene, against a cached path-traced reference"};
+  int size = 128, spp = 256, ref_spp = 1024, threads = 0, subpixels = 4, strip_p = 64;
+  std::vector<std::string> scenes = {"builtin:cornell", "builtin:conference", "builtin:hall", "builtin:wall",
+                                     "builtin:glossy"};
+  std::vector<std::string> modes = {"pt", "rp", "skip", "exact"};
+  std::vector<int> targets = {64, 256};
+  std::string cache = std::string(EPR_SOURCE_DIR) + "/bench/cache", out_dir = "bench_out", export_dir, cycles_dir;
+  bool no_strip = false, list_references = false;
+  app.add_option("--size", size, "image side, pixels");
+  app.add_option("--spp", spp, "P: samples per pixel of every run");
+  app.add_option("--ref-spp", ref_spp, "reference spp (two cached halves of ref-spp/2)");
+  app.add_option("--scene", scenes, "scene specs (builtin:NAME[?tess=N])");
+  app.add_option("--mode", modes, "modes: pt, rp, skip, exact (pt is always run first)");
+  app.add_option("--target", targets, "the P of plain path tracing whose error the time-to-error columns use");
+  app.add_option("--cache", cache, "reference cache folder");
+  app.add_option("--out", out_dir, "output folder (csv/, strip/, summary.json, tables.md)");
+  app.add_option("--cycles", cycles_dir, "folder of cycles_sweep.py results to score (SCENE_WxH/times.csv)");
+  app.add_option("--export-obj", export_dir, "write the scenes as OBJ+MTL+camera into this folder and exit");
+  app.add_option("-S,--subpixels", subpixels);
+  app.add_option("--threads", threads, "tracing threads (0: all cores)");
+  app.add_option("--strip-p", strip_p, "equal-time strip at half of pt's CPU time for this P");
+  app.add_flag("--no-strip", no_strip, "no equal-time images");
+  app.add_flag("--list-references", list_references, "print the reference cache file names and exit");
+  app.add_option("--trim", g_trim, "share of the largest per-pixel errors left out of rel_mse_trim");
+  CLI11_PARSE(app, argc, argv);
+  set_log_level("warn");
+
+  if (!export_dir.empty()) {
+    for (const std::string& s : scenes) export_obj(s, export_dir);
+    return 0;
+  }
+  if (list_references) {
+    for (const std::string& s : scenes) {
+      RenderOptions o;
+      o.scene = s;
+      for (uint64_t seed : {1000001u, 1000002u})
+        std::printf("%s\n", (fs::path(cache) / reference_file(o, size, size, std::max(1, ref_spp / 2), seed)).c_str());
+    }
+    return 0;
+  }
+  // pt first: its error at the target P and its CPU time for the strip are needed by the others.
+  modes.erase(std::remove(modes.begin(), modes.end(), "pt"), modes.end());
+  modes.insert(modes.begin(), "pt");
+  for (const std::string& m : modes) (void)mode_spec(m);
+
+  const fs::path out(out_dir);
+  fs::create_directories(out / "csv");
+  if (!no_strip) fs::create_directories(out / "strip");
+  const auto w_start = std::chrono::steady_clock::now();
+  const double c_start = cpu_seconds();
+  json summary = {{"size", size},
+                  {"spp", spp},
+                  {"ref_spp", ref_spp},
+                  {"subpixels", subpixels},
+                  {"threads", threads},
+                  {"hardware_threads", std::thread::hardware_concurrency()},
+                  {"trim", g_trim},
+                  {"load_start", load1()},
+                  {"scenes", json::array()}};
+  std::printf("speed_accuracy: %dx%d, P=%d, reference %d spp, %u hardware threads, tracer threads %s, load %.2f\n",
+              size, size, spp, ref_spp, std::thread::hardware_concurrency(),
+              threads > 0 ? std::to_string(threads).c_str() : "all", load1());
+  std::fflush(stdout);
+
+  std::ofstream md(out / "tables.md");
+  for (const std::string& spec : scenes) {
+    RenderOptions base;
+    base.scene = spec;
+    base.width = base.height = size;
+    base.spp = spp;
+    base.subpixels = subpixels;
+    base.threads = threads;
+    base.seed = 1;
+    const std::string tag = fmt::format("{}_{}x{}", scene_name(spec), size, size);
+    std::printf("\n== %s, load %.2f\n", tag.c_str(), load1());
+    std::fflush(stdout);
+    const Reference ref = reference(base, ref_spp, cache);
+    json js = {{"scene", spec},
+               {"tag", tag},
+               {"triangles", load_scene(spec).triangle_count()},
+               {"floor", {{"rel_mse", ref.floor.rel}, {"rel_mse_trim", ref.floor.rel_trim}, {"mse", ref.floor.mse}}},
+               {"load_start", load1()},
+               {"modes", json::object()}};
+
+    std::map<std::string, Run> runs;
+    double strip_cpu = -1;  // half of pt's CPU time at P = strip_p
+    for (const std::string& mode : modes) {
+      std::function<bool(int, double)> keep;
+      if (!no_strip && (mode == "pt" || mode == "skip" || mode == "rp")) {
+        if (mode == "pt") keep = [&](int round, double) { return round <= strip_p; };
+        else keep = [&](int, double cpu) { return cpu <= 1.5 * strip_cpu; };
+      }
+      const double l0 = load1();
+      Run run = run_mode(base, mode, ref, keep);
+      const Sample& last = run.samples.back();
+      std::printf("  %-5s %4d rounds  %7.1f s wall %7.1f CPU-s  paths %.3g  M' %.3g  rMSE(trim) %.4g  load %.2f\n",
+                  mode.c_str(), last.round, last.wall, last.cpu, last.eye_paths, last.reprojected, last.err.rel_trim,
+                  load1());
+      std::fflush(stdout);
+      write_csv(out / "csv" / (tag + "_" + mode + ".csv"), run.samples);
+      if (mode == "pt") {
+        for (const Sample& s : run.samples)
+          if (s.round == strip_p) strip_cpu = 0.5 * s.cpu;
+      }
+      json stats = run.stats;
+      stats["seconds_reprojecting_harness_reads"] = run.eval_reprojecting;
+      stats["load_before"] = l0;
+      stats["load_after"] = load1();
+      stats["final_wall_s"] = last.wall;
+      stats["final_cpu_s"] = last.cpu;
+      stats["final_rel_mse"] = last.err.rel;
+      stats["final_rel_mse_trim"] = last.err.rel_trim;
+      stats["final_rmse"] = std::sqrt(std::max(0.0, last.err.mse));
+      js["modes"][mode] = stats;
+      runs[mode] = std::move(run);
+    }
+
+    // Equal-time strip: the last round each run finished within strip_cpu.
+    if (!no_strip && strip_cpu > 0) {
+      json strip = {{"cpu_s", strip_cpu}};
+      for (const std::string mode : {"pt", "rp", "skip"}) {
+        if (!runs.count(mode)) continue;
+        const Snapshot* best = nullptr;
+        for (const Snapshot& s : runs[mode].snapshots)
+          if (s.cpu <= strip_cpu) best = &s;
+        if (!best && !runs[mode].snapshots.empty()) best = &runs[mode].snapshots.front();
+        if (!best) continue;
+        write_exr((out / "strip" / (tag + "_" + mode + ".exr")).string(), best->combined);
+        strip[mode] = {{"round", best->round}, {"cpu_s", best->cpu},
+                       {"rel_mse_trim", (errors(best->combined, ref.image) - ref.floor).rel_trim}};
+        if (mode == "skip") {
+          float max_m = 0;
+          for (float v : best->mprime.data) max_m = std::max(max_m, v);
+          write_png_srgb((out / "strip" / (tag + "_skip_mprime.png")).string(), heat_map(best->mprime, max_m));
+          strip["mprime_max"] = max_m;
+        }
+      }
+      write_exr((out / "strip" / (tag + "_reference.exr")).string(), ref.image);
+      js["strip"] = strip;
+      for (auto& [m, r] : runs) r.snapshots.clear();
+    }
+
+    std::vector<Sample> cycles;
+    if (!cycles_dir.empty()) {
+      cycles = score_cycles(fs::path(cycles_dir) / tag, ref);
+      if (!cycles.empty()) {
+        write_csv(out / "csv" / (tag + "_cycles.csv"), cycles);
+        json cj = json::array();
+        for (const Sample& s : cycles)
+          cj.push_back({{"spp", s.round}, {"wall_s", s.wall}, {"cpu_s", s.cpu}, {"rel_mse_trim", s.err.rel_trim},
+                        {"rel_mse", s.err.rel}});
+        js["cycles"] = cj;
+        std::printf("  cycles: %zu renders scored\n", cycles.size());
+      }
+    }
+
+    // ---- tables
+    const json& rp = js["modes"].contains("rp") ? js["modes"]["rp"] : json::object();
+    md << "### " << tag << " (" << js["triangles"].get<size_t>() << " triangles)\n\n";
+    if (!rp.empty()) {
+      const double rec = std::max(1.0, num(rp, "vertices_recorded"));
+      const double worker = num(rp, "culled_frustum_worker") + num(rp, "culled_facing_worker") +
+                            num(rp, "culled_glossy_worker");
+      const double tracing = std::max(1e-9, num(rp, "seconds_tracing"));
+      const double reproj = num(rp, "seconds_reprojecting") - num(rp, "seconds_reprojecting_harness_reads");
+      md << fmt::format(
+          "| accepted | occluded | culled | reprojection overhead (rp, GL) | eye paths traced (skip) |\n|---|---|---|---|---|\n"
+          "| {:.1f} % | {:.1f} % | {:.1f} % | {:.1f} % | {} |\n\n",
+          100 * num(rp, "accepted") / rec, 100 * num(rp, "occluded") / rec,
+          100 * (num(rp, "culled_master") + worker) / rec, 100 * reproj / tracing,
+          js["modes"].contains("skip")
+              ? fmt::format("{:.1f} %", 100 * num(js["modes"]["skip"], "paths_traced") / (double(spp) * size * size))
+              : "-");
+      js["fates"] = {{"accepted", 100 * num(rp, "accepted") / rec},
+                     {"occluded", 100 * num(rp, "occluded") / rec},
+                     {"culled", 100 * (num(rp, "culled_master") + worker) / rec},
+                     {"overhead", 100 * reproj / tracing}};
+    }
+    std::vector<std::pair<std::string, const std::vector<Sample>*>> curves;
+    for (const std::string& m : modes) curves.emplace_back(m, &runs[m].samples);
+    if (!cycles.empty()) curves.emplace_back("cycles", &cycles);
+    json tte = json::object();
+    for (const bool trimmed : {true, false}) {
+      const char* name = trimmed ? "rel_mse_trim" : "rel_mse";
+      md << (trimmed ? "Trimmed relative MSE (without the 1 % largest pixel terms):\n\n"
+                     : "Full relative MSE (every pixel, fireflies included):\n\n");
+      md << "| mode | final error | CPU-s | wall s |";
+      for (int t : targets) md << fmt::format(" to pt@{}: CPU-s first / stays | x pt first / stays |", t);
+      md << "\n|---|---|---|---|";
+      for (size_t i = 0; i < targets.size(); ++i) md << "---|---|";
+      md << "\n";
+      for (const auto& [m, s] : curves) {
+        const Sample& last = s->back();
+        md << fmt::format("| {} | {:.4g} | {:.1f} | {:.1f} |", m, metric(last, trimmed), last.cpu, last.wall);
+        for (int t : targets) {
+          // The target and the time it is compared with: plain path tracing's error and CPU time at round t.
+          const Sample* base = nullptr;
+          for (const Sample& p : runs["pt"].samples)
+            if (p.round == t) base = &p;
+          if (!base) {
+            md << " - | - |";
+            continue;
+          }
+          const Reach c = time_to(*s, metric(*base, trimmed), true, trimmed);
+          const Reach w = time_to(*s, metric(*base, trimmed), false, trimmed);
+          md << fmt::format(" {} / {} | {} / {} |", fmt_time(c.first), fmt_time(c.stays), fmt_ratio(c.first, base->cpu),
+                            fmt_ratio(c.stays, base->cpu));
+          auto opt = [](std::optional<double> v) { return v ? json(*v) : json(nullptr); };
+          tte[name][m][std::to_string(t)] = {{"target", metric(*base, trimmed)}, {"pt_cpu_s", base->cpu},
+                                             {"pt_wall_s", base->wall},         {"cpu_s_first", opt(c.first)},
+                                             {"cpu_s_stays", opt(c.stays)},     {"wall_s_first", opt(w.first)},
+                                             {"wall_s_stays", opt(w.stays)}};
+        }
+        md << "\n";
+      }
+      md << "\n";
+    }
+    md.flush();
+    js["time_to_error"] = tte;
+    js["load_end"] = load1();
+    summary["scenes"].push_back(js);
+    std::ofstream(out / "summary.json") << summary.dump(2) << "\n";
+  }
+  summary["load_end"] = load1();
+  summary["wall_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - w_start).count();
+  summary["cpu_s"] = cpu_seconds() - c_start;
+  std::ofstream(out / "summary.json") << summary.dump(2) << "\n";
+  std::printf("\n(total %.0f s wall, %.0f CPU-s; load at end %.2f) -> %s\n", summary["wall_s"].get<double>(),
+              summary["cpu_s"].get<double>(), load1(), out.c_str());
+  return 0;
+}
