@@ -9,10 +9,12 @@
 // (same seed, same P), so their errors compare at equal path count. Errors are the relative MSE
 //     rMSE = mean over pixels of mean_c (x_c - r_c)^2 / (r_c^2 + 0.01)
 // without the largest 1 % of pixel terms (NEE fireflies next to emitters dominate the full mean),
-// against a path-traced reference rendered here with 256 paths per pixel (16 P; its own noise adds
-// about 1/16 of pt's error to both sides) and a different seed, or against the analytic radiance
-// (furnace). Seeds are fixed: every figure quoted in a comment is what these renders give, and the
-// margins leave room for the seed-to-seed spread measured over seeds 1 - 4 (quoted where it matters).
+// against a path-traced reference rendered here with 128 paths per pixel (8 P; its own noise adds
+// about 1/8 of pt's error to both sides, which moves every ratio a little towards 1) and a different
+// seed -- 256 for the glossy scene, the noisiest -- or against the analytic radiance (furnace).
+// Seeds are fixed. The figures quoted in comments were measured over seeds 1 - 3 against 256-path
+// references; against the 128-path ones the seed-1 ratios move by at most 0.05 towards 1 (grazing
+// floor 0.10 -> 0.15), and every margin leaves room for the seed-to-seed spread.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -23,6 +25,7 @@
 #include <limits>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "client/local_render.h"
@@ -37,7 +40,7 @@ namespace {
 
 constexpr int kSize = 64;
 constexpr int kSpp = 16;
-constexpr int kRefSpp = 256;
+constexpr int kRefSpp = 128;
 
 RenderOptions options(const std::string& scene, RenderMode mode, uint64_t seed = 1) {
   RenderOptions o;
@@ -68,17 +71,18 @@ RenderOutputs render(const RenderOptions& o) {
   return out;
 }
 
-/// Converged path tracing of o.scene (kRefSpp paths per pixel, the paper's roulette, its own seed),
-/// rendered once per scene and kept for the other tests.
-const Image& reference(const RenderOptions& opts) {
-  static std::map<std::string, Image> cache;
-  auto it = cache.find(opts.scene);
+/// Converged path tracing of o.scene (`spp` paths per pixel, the paper's roulette, its own seed),
+/// rendered once per scene and kept for the other tests of the process.
+const Image& reference(const RenderOptions& opts, int spp = kRefSpp) {
+  static std::map<std::pair<std::string, int>, Image> cache;
+  const auto key = std::make_pair(opts.scene, spp);
+  auto it = cache.find(key);
   if (it != cache.end()) return it->second;
   RenderOptions o = options(opts.scene, RenderMode::kPathTrace);
-  o.spp = kRefSpp;
+  o.spp = spp;
   o.paths_per_round = 32;
   o.seed = 9001;
-  return cache.emplace(opts.scene, render(o).combined).first->second;
+  return cache.emplace(key, render(o).combined).first->second;
 }
 
 using Mask = std::vector<uint8_t>;  // per pixel, row-major; non-zero: in the region
@@ -275,7 +279,7 @@ TEST(FailureModes, GlossyVerticesAreCulledByDefaultAndForcingThemBiasesTheGlossy
   const PixelProbe probe(scene);
   const Mask glossy = probe.where_all([](const Probe& p) { return p.hit && !p.material->diffuse(); });
   ASSERT_GT(count(glossy), 200u) << "the tall glossy box must fill a region of the image";
-  const Image& ref = reference(rp(scene));
+  const Image& ref = reference(rp(scene), 256);
   const RenderOutputs ptr = render(pt(scene));
   const RenderOutputs def = render(rp(scene));
   RenderOptions forced_opts = rp(scene);
