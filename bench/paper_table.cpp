@@ -47,6 +47,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "bench_reference.h"
 #include "client/embedded_render.h"
 #include "client/local_render.h"
 #include "common/image.h"
@@ -60,118 +61,10 @@
 #endif
 
 using namespace epr;
+using namespace epr::bench;
 namespace fs = std::filesystem;
 
 namespace {
-
-constexpr float kRelEps = 0.01f;  // the rMSE denominator's offset (radiance^2)
-
-double cpu_seconds() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-}
-
-double load1() {
-  double l[3] = {0, 0, 0};
-  getloadavg(l, 3);
-  return l[0];
-}
-
-struct Run {
-  RenderOutputs out;
-  double wall = 0, cpu = 0;
-};
-
-Run run_local(const RenderOptions& o) {
-  Run r;
-  const double c0 = cpu_seconds();
-  const auto t0 = std::chrono::steady_clock::now();
-  r.out = render_local(o);
-  r.wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  r.cpu = cpu_seconds() - c0;
-  return r;
-}
-
-// Per-pixel error terms (mean over the three channels of (x - r)^2 / (r^2 + eps)).
-std::vector<double> rel_sq_errors(const Image& x, const Image& ref) {
-  const size_t n = size_t(ref.width) * size_t(ref.height);
-  std::vector<double> e(n, 0.0);
-  for (size_t p = 0; p < n; ++p)
-    for (int c = 0; c < 3; ++c) {
-      const double r = ref.data[p * size_t(ref.channels) + size_t(c)];
-      const double d = double(x.data[p * size_t(x.channels) + size_t(c)]) - r;
-      e[p] += d * d / (r * r + kRelEps) / 3;
-    }
-  return e;
-}
-
-// Mean of the terms, and the mean without the largest g_trim share of pixels (fireflies -- the NEE
-// 1/d^2 singularity next to the Cornell box's light -- make the full mean unstable).
-double g_trim = 0.01;
-struct ErrorMeans {
-  double full = 0, trimmed = 0;
-  ErrorMeans operator-(const ErrorMeans& o) const { return {full - o.full, trimmed - o.trimmed}; }
-};
-ErrorMeans means(std::vector<double> e) {
-  ErrorMeans m;
-  for (double v : e) m.full += v;
-  m.full /= double(e.size());
-  const size_t keep = e.size() - size_t(double(e.size()) * g_trim);
-  std::nth_element(e.begin(), e.begin() + ptrdiff_t(keep), e.end());
-  for (size_t i = 0; i < keep; ++i) m.trimmed += e[i];
-  m.trimmed /= double(keep);
-  return m;
-}
-
-struct Reference {
-  Image image;         // (a + b) / 2
-  ErrorMeans floor;    // of (a - b)^2 / 4 / (r^2 + eps): the reference's own contribution to rMSE
-  double cpu = 0;      // seconds spent rendering it in this run (0 when cached)
-};
-
-std::string cache_key(const std::string& scene, int w, int h, int spp, uint64_t seed) {
-  std::string s = scene;
-  for (char& ch : s)
-    if (!std::isalnum(static_cast<unsigned char>(ch))) ch = '_';
-  return s + "_" + std::to_string(w) + "x" + std::to_string(h) + "_pt" + std::to_string(spp) + "_seed" +
-         std::to_string(seed) + ".exr";
-}
-
-Image cached_pt(const RenderOptions& base, int spp, uint64_t seed, const fs::path& cache, double* cpu) {
-  const fs::path file = cache / cache_key(base.scene, base.width, base.height, spp, seed);
-  if (fs::exists(file)) return read_image(file.string());
-  RenderOptions o = base;
-  o.mode = RenderMode::kPathTrace;
-  o.spp = spp;
-  o.seed = seed;
-  o.paths_per_round = std::min(spp, 16);  // fewer round barriers; sample indices are the same
-  std::printf("  rendering reference %s (pt, %d spp) ...\n", file.filename().c_str(), spp);
-  std::fflush(stdout);
-  Run r = run_local(o);
-  *cpu += r.cpu;
-  fs::create_directories(cache);
-  write_exr((cache / ("." + file.filename().string())).string(), r.out.combined);
-  fs::rename(cache / ("." + file.filename().string()), file);
-  std::printf("  ... %.1f s wall, %.1f CPU-s\n", r.wall, r.cpu);
-  return r.out.combined;
-}
-
-Reference reference(const RenderOptions& base, int spp, const fs::path& cache) {
-  Reference ref;
-  const int half = std::max(1, spp / 2);
-  const Image a = cached_pt(base, half, 1000001, cache, &ref.cpu);
-  const Image b = cached_pt(base, half, 1000002, cache, &ref.cpu);
-  ref.image = Image(a.width, a.height, 3);
-  const size_t n = size_t(a.width) * size_t(a.height);
-  for (size_t p = 0; p < n; ++p)
-    for (int c = 0; c < 3; ++c)
-      ref.image.data[p * 3 + size_t(c)] =
-          0.5f * (a.data[p * size_t(a.channels) + size_t(c)] + b.data[p * size_t(b.channels) + size_t(c)]);
-  // (a - r)^2 = (a - b)^2 / 4: the per-pixel variance estimate of r.
-  ref.floor = means(rel_sq_errors(a, ref.image));
-  return ref;
-}
 
 // The one-time part of seconds_reprojecting: FrameState's constructor (deep framebuffer build,
 // reprojector and its GL programs), measured on its own with the same options.
@@ -188,7 +81,6 @@ double setup_seconds(const RenderOptions& o) {
   return frame.seconds_reprojecting();
 }
 
-double num(const nlohmann::json& j, const char* key) { return j.contains(key) ? j[key].get<double>() : 0.0; }
 
 // Vertex fates of an rp render, as fractions of the vertices recorded.
 struct Fates {

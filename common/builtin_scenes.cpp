@@ -341,6 +341,64 @@ void build_furnace(Builder& b, float albedo, float emission) {
   b.scene().camera = CameraSpec{{0.4f, -0.3f, 0.4f}, {-1.f, 1.f, -1.f}, {0, 1, 0}, 60.f};
 }
 
+// ---------------------------------------------------------------------------------------------------
+// Failure-mode study scenes (docs/FAILURE_MODES.md): thinwall, hiddenlight, grazing
+// ---------------------------------------------------------------------------------------------------
+
+void build_thinwall(Builder& b) {
+  const uint32_t white = b.material("white", {0.75f, 0.75f, 0.75f});
+  const uint32_t partition = b.material("partition", {0.75f, 0.75f, 0.75f});
+  const uint32_t light = b.material("light", {0.8f, 0.8f, 0.8f}, {12.f, 12.f, 12.f});
+  // Two 2 x 2 x 2 m rooms side by side, open at the front (z = 1), sharing one partition: a single
+  // quad at x = 0 (zero thickness, two-sided). The light hangs in the left room; light leaving the
+  // left room's open front travels to +z for ever, so the right room receives none at all.
+  for (float side : {-1.f, 1.f}) {
+    const Vec3 lo(side < 0 ? -2.f : 0.f, 0.f, -1.f), hi(side < 0 ? 0.f : 2.f, 2.f, 1.f);
+    box_face(b, lo, hi, 1, false, true, white);     // floor
+    box_face(b, lo, hi, 1, true, true, white);      // ceiling
+    box_face(b, lo, hi, 2, false, true, white);     // back wall
+    box_face(b, lo, hi, 0, side > 0, true, white);  // outer side wall
+  }
+  b.quad({0.f, 0.f, 1.f}, {0.f, 0.f, -1.f}, {0.f, 2.f, -1.f}, {0.f, 2.f, 1.f}, partition);  // faces +x
+  horizontal_quad(b, -1.4f, -0.6f, -0.4f, 0.4f, 1.99f, false, light);
+  // From the right, in front of the rooms: the dark room with the partition's right side, and the lit
+  // room through its open front (the partition's lit side faces away from the camera).
+  b.scene().camera = CameraSpec{{1.5f, 1.0f, 4.f}, {-0.5f, 1.0f, 0.f}, {0, 1, 0}, 55.f};
+}
+
+void build_hiddenlight(Builder& b) {
+  const uint32_t walls = b.material("wall", {0.7f, 0.7f, 0.7f});
+  const uint32_t tray = b.material("tray", {0.5f, 0.5f, 0.5f});
+  const uint32_t light = b.material("light", {0.8f, 0.8f, 0.8f}, {40.f, 38.f, 34.f});
+  // Closed 4 x 3 x 4 m room. The only emitter lies inside an open-top tray (single-layer quads, 20 cm
+  // deep) hanging 40 cm under the ceiling: it lights the ceiling and the upper walls, and everything
+  // the camera sees is lit only indirectly. No camera ray can reach the emitter.
+  box(b, {-2.f, 0.f, -2.f}, {2.f, 3.f, 2.f}, walls, kAllFaces, /*inward=*/true);
+  box(b, {-0.5f, 2.4f, -0.5f}, {0.5f, 2.6f, 0.5f}, tray, kXLo | kXHi | kYLo | kZLo | kZHi);
+  horizontal_quad(b, -0.4f, 0.4f, -0.4f, 0.4f, 2.45f, true, light);
+  b.scene().camera = CameraSpec{{0.f, 1.2f, 1.9f}, {0.f, 1.5f, -2.f}, {0, 1, 0}, 60.f};
+}
+
+void build_grazing(Builder& b) {
+  const uint32_t floor = b.material("floor", {0.6f, 0.6f, 0.6f});
+  const uint32_t walls = b.material("wall", {0.65f, 0.6f, 0.55f});
+  const uint32_t blocks = b.material("block", {0.3f, 0.45f, 0.7f});
+  const uint32_t light = b.material("light", {0.8f, 0.8f, 0.8f}, {10.f, 10.f, 10.f});
+  // A closed corridor 6 x 3 x 22 m; the camera 50 cm above the floor looks down its length, so the
+  // far floor is seen at grazing angles (below 3 degrees beyond 9.5 m, 1.3 degrees at the far end),
+  // and three blocks give silhouettes against the far floor and walls.
+  const Vec3 lo(-3.f, 0.f, -20.f), hi(3.f, 3.f, 2.f);
+  box_face(b, lo, hi, 1, false, true, floor);
+  box_face(b, lo, hi, 1, true, true, walls);
+  for (int axis : {0, 2})
+    for (bool at_hi : {false, true}) box_face(b, lo, hi, axis, at_hi, true, walls);
+  for (float z : {-2.f, -8.f, -14.f}) horizontal_quad(b, -1.f, 1.f, z - 1.f, z + 1.f, 2.99f, false, light);
+  box(b, {-1.5f, 0.f, -5.f}, {-0.5f, 0.4f, -4.f}, blocks, kAllFaces & ~kYLo);
+  box(b, {0.3f, 0.f, -9.f}, {1.1f, 0.8f, -8.5f}, blocks, kAllFaces & ~kYLo);
+  box(b, {-0.4f, 0.f, -15.f}, {0.4f, 0.05f, -13.f}, blocks, kAllFaces & ~kYLo);
+  b.scene().camera = CameraSpec{{0.2f, 0.5f, 1.5f}, {0.f, 0.f, -20.f}, {0, 1, 0}, 40.f};
+}
+
 void build(Builder& b, const BuiltinSpec& spec) {
   if (spec.name == "cornell") return build_cornell(b);
   if (spec.name == "glossy") return build_glossy(b);
@@ -348,6 +406,9 @@ void build(Builder& b, const BuiltinSpec& spec) {
   if (spec.name == "hall") return build_hall_view(b);
   if (spec.name == "wall") return build_wall(b);
   if (spec.name == "furnace") return build_furnace(b, spec.albedo, spec.emission);
+  if (spec.name == "thinwall") return build_thinwall(b);
+  if (spec.name == "hiddenlight") return build_hiddenlight(b);
+  if (spec.name == "grazing") return build_grazing(b);
   throw SceneError(fmt::format("unknown built-in scene '{}'", spec.name));
 }
 
@@ -373,7 +434,8 @@ BuiltinSpec parse_spec(const std::string& text, bool* has_tess) {
   BuiltinSpec spec;
   const size_t q = rest.find('?');
   spec.name = std::string(rest.substr(0, q));
-  const auto names = builtin_scene_names();
+  auto names = builtin_scene_names();
+  for (std::string& study : study_scene_names()) names.push_back(std::move(study));
   if (std::find(names.begin(), names.end(), spec.name) == names.end())
     bad_spec(text, fmt::format("unknown built-in scene '{}' (known: {})", spec.name, fmt::join(names, ", ")));
   *has_tess = false;
@@ -434,6 +496,8 @@ BuiltinSpec parse_builtin_spec(const std::string& text) {
 std::vector<std::string> builtin_scene_names() {
   return {"cornell", "conference", "hall", "wall", "glossy", "furnace"};
 }
+
+std::vector<std::string> study_scene_names() { return {"thinwall", "hiddenlight", "grazing"}; }
 
 size_t builtin_triangle_count(const BuiltinSpec& spec) {
   if (spec.tessellation < 1 || spec.tessellation > kMaxTessellation)

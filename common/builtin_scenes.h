@@ -13,6 +13,14 @@
 //   furnace     closed 2 m box, every face kd = albedo, ke = emission, normals inward: the radiance
 //               is emission / (1 - albedo) everywhere.
 //
+// Scenes of the failure-mode study (docs/FAILURE_MODES.md), minimal and not among the six above:
+//   thinwall    two rooms open at the front sharing a zero-thickness two-sided partition; the light
+//               is in the left room, the right room receives no light at all (light leak test).
+//   hiddenlight closed room lit only by an emitter inside an open-top tray under the ceiling: no
+//               camera ray reaches the emitter, everything visible is lit indirectly.
+//   grazing     long closed corridor seen from 15 cm above the floor (grazing angles) with three
+//               blocks whose silhouettes stand against the far floor and walls.
+//
 // Names take parameters as "NAME?key=value&key=value":
 //   tess=N        (all)      every quad becomes N x N cells (2 N^2 triangles), 1 <= N <= 4096
 //   albedo=A      (furnace)  0 <= A < 1, default 0.5
@@ -48,6 +56,9 @@ struct BuiltinSpec {
 BuiltinSpec parse_builtin_spec(const std::string& text);
 
 std::vector<std::string> builtin_scene_names();  // cornell, conference, hall, wall, glossy, furnace
+/// The failure-mode study's scenes (thinwall, hiddenlight, grazing): accepted by the parser and
+/// make_builtin_scene like the six, listed apart.
+std::vector<std::string> study_scene_names();
 
 /// Triangle count of the scene that make_builtin_scene would build, computed without building it.
 size_t builtin_triangle_count(const BuiltinSpec& spec);
