@@ -463,7 +463,8 @@ LeaseDecision JobManager::lease_tile(const std::string& worker) {
 }
 
 std::optional<uint32_t> JobManager::speculative_tile(Job& job, const std::string& worker, int64_t now) {
-  if (options_.speculative_factor <= 0) return std::nullopt;
+  // Nothing to compare with before the first commit (of this round or the previous one).
+  if (options_.speculative_factor <= 0 || job.tile_ms.empty()) return std::nullopt;
   // The longest-running tile not yet copied and not held by this worker.
   std::optional<uint32_t> best;
   int64_t best_age = -1;
@@ -481,7 +482,7 @@ std::optional<uint32_t> JobManager::speculative_tile(Job& job, const std::string
       best_age = now - since;
     }
   }
-  if (!best || best_age <= options_.speculative_floor_ms || job.tile_ms.empty()) return std::nullopt;
+  if (!best || best_age <= options_.speculative_floor_ms) return std::nullopt;
   std::vector<int64_t> times = job.tile_ms;
   std::nth_element(times.begin(), times.begin() + ptrdiff_t(times.size() / 2), times.end());
   const double median = double(times[times.size() / 2]);
