@@ -1029,8 +1029,11 @@ void JobManager::reaper_loop() {
         for (const auto& [id, h] : slot.holds)
           if (h.deadline_ms < now) expired.emplace_back(id, h.worker);
         for (const auto& [id, worker] : expired) {
-          logger("master")->warn("job {} tile {}: lease {} of worker {} expired{}", job->id, t, id, worker,
-                                 slot.leases.size() == 1 ? ", re-queued" : "");
+          if (slot.leases.size() == 1)
+            logger("master")->warn("job {} tile {}: lease expired, re-queued (lease {}, worker {})", job->id, t, id, worker);
+          else
+            logger("master")->warn("job {} tile {}: lease {} of worker {} expired; another lease of the tile is still out",
+                                   job->id, t, id, worker);
           if (auto wit = workers_.find(worker); wit != workers_.end()) wit->second->leases.erase(id);
           release_lease(*job, t, id);
           count_failure(job, worker, LeaseFailure::kExpired,
