@@ -80,9 +80,12 @@ int main(int argc, char** argv) {
       std::smatch m;
       std::string err;
       if (!epr::testing::wait_until(
-              [&] { return std::regex_search(err = master.err(), m, listening) || !master.running(); }, 30s) ||
+              [&] { return std::regex_search(err = master.err(), m, listening) || !master.running(); }, 120s) ||
           !master.running()) {
-        std::fprintf(stderr, "epr-master did not start:\n%s\n", err.c_str());
+        std::fprintf(stderr, "epr-master did not start (%s):\n%s\n",
+                     master.running() ? "no port within 120 s"
+                                      : ("exit code " + std::to_string(master.exit_code().value_or(-1))).c_str(),
+                     err.c_str());
         return 1;
       }
       const std::string target = "127.0.0.1:" + m[1].str();
@@ -117,18 +120,24 @@ int main(int argc, char** argv) {
       wo.cache_dir = (dir / "cache").string();
       epr::WorkerNode node(wo);
       std::thread node_thread([&] { node.run(); });
+      bool ok = true;
       for (const std::string& id : ids) {
-        for (;;) {
+        while (ok) {
           grpc::ClientContext ctx;
           ctx.set_deadline(std::chrono::system_clock::now() + 30s);
           epr::v1::JobId req;
           req.set_id(id);
           epr::v1::JobStatus s;
-          if (!stub->GetJob(&ctx, req, &s).ok()) return 1;
+          if (const grpc::Status st = stub->GetJob(&ctx, req, &s); !st.ok()) {
+            std::fprintf(stderr, "GetJob %s: %s\n", id.c_str(), st.error_message().c_str());
+            ok = false;
+            break;
+          }
           if (s.state() == epr::v1::JOB_STATE_DONE) break;
           if (s.state() == epr::v1::JOB_STATE_FAILED || s.state() == epr::v1::JOB_STATE_CANCELLED) {
             std::fprintf(stderr, "job %s ended: %s\n", id.c_str(), s.error_message().c_str());
-            return 1;
+            ok = false;
+            break;
           }
           std::this_thread::sleep_for(50ms);
         }
@@ -138,6 +147,7 @@ int main(int argc, char** argv) {
       node.stop();
       node_thread.join();
       master.stop();
+      if (!ok) return 1;
       std::printf("%6d %5d %10llu %14.1f %12.1f %9.1f %7.2f\n", side, n, (unsigned long long)side * side * n,
                   double(hwm) / (1 << 20), double(rss) / (1 << 20), seconds, epr::bench::load_average());
       std::fflush(stdout);

@@ -46,6 +46,7 @@ struct JobManager::Job {
     struct Hold {
       std::string worker;
       int64_t since_ms = 0, deadline_ms = 0;
+      int64_t seen_ms = 0;  // leased or last extended by a heartbeat
     };
     std::map<uint64_t, Hold> holds;  // who holds each lease of `leases`, since and until when
     bool speculated = false;         // a speculative copy went out this round
@@ -390,7 +391,10 @@ std::optional<std::vector<std::pair<bool, int64_t>>> JobManager::heartbeat(const
       for (auto& slot : active_->slots)
         if (slot.state == Job::Slot::State::kLeased && slot.leases.count(lease)) {
           slot.deadline_ms = std::max(slot.deadline_ms, deadline);
-          if (auto h = slot.holds.find(lease); h != slot.holds.end()) h->second.deadline_ms = deadline;
+          if (auto h = slot.holds.find(lease); h != slot.holds.end()) {
+            h->second.deadline_ms = deadline;
+            h->second.seen_ms = now_ms();
+          }
           valid = true;
           break;
         }
@@ -430,7 +434,7 @@ LeaseDecision JobManager::lease_tile(const std::string& worker) {
   slot.state = Job::Slot::State::kLeased;
   slot.leases.insert(info.lease_id);
   slot.issued.insert(info.lease_id);
-  slot.holds[info.lease_id] = {worker, now, now + options_.lease_timeout_ms};
+  slot.holds[info.lease_id] = {worker, now, now + options_.lease_timeout_ms, now};
   slot.deadline_ms = std::max(slot.deadline_ms, now + options_.lease_timeout_ms);
   w.leases.insert(info.lease_id);
   ++job->tiles_leased;
@@ -465,19 +469,22 @@ LeaseDecision JobManager::lease_tile(const std::string& worker) {
 std::optional<uint32_t> JobManager::speculative_tile(Job& job, const std::string& worker, int64_t now) {
   // Nothing to compare with before the first commit (of this round or the previous one).
   if (options_.speculative_factor <= 0 || job.tile_ms.empty()) return std::nullopt;
-  // The longest-running tile not yet copied and not held by this worker.
+  // The longest-running tile not yet copied and not held by this worker, whose holder is alive (its
+  // heartbeat extended the lease lately): a dead worker's tile comes back when its lease expires.
+  const int64_t alive_ms = int64_t(options_.heartbeat_interval_ms) * 3 / 2;
   std::optional<uint32_t> best;
   int64_t best_age = -1;
   for (uint32_t t = 0; t < job.slots.size(); ++t) {
     const Job::Slot& slot = job.slots[t];
     if (slot.state != Job::Slot::State::kLeased || slot.speculated || slot.holds.empty()) continue;
     int64_t since = now;
-    bool own = false;
+    bool own = false, alive = false;
     for (const auto& [id, h] : slot.holds) {
       since = std::min(since, h.since_ms);
       own |= h.worker == worker;
+      alive |= now - h.seen_ms <= alive_ms;
     }
-    if (!own && now - since > best_age) {
+    if (!own && alive && now - since > best_age) {
       best = t;
       best_age = now - since;
     }

@@ -61,7 +61,9 @@ struct MasterOptions {
   // Speculative re-lease: once a round has no unleased tile left, an idle worker gets a copy of the
   // tile whose lease has run longest, if it has run longer than speculative_factor x the median tile
   // time of the round so far (of the previous round while none of this one is committed) and at least
-  // speculative_floor_ms. At most one copy per tile and round. speculative_factor <= 0: never.
+  // speculative_floor_ms, and its holder is alive (a heartbeat extended the lease within 1.5 heartbeat
+  // intervals; a dead worker's tile comes back by expiry). At most one copy per tile and round.
+  // speculative_factor <= 0: never.
   double speculative_factor = 2.0;
   int speculative_floor_ms = 1000;
   // A worker that fails this many tiles of a job (lease expired without a result, result refused as

@@ -1,7 +1,8 @@
 // Slow and failing workers against a real in-process master over loopback gRPC:
 //  - a worker that stalls on its tile does not hold the round hostage: an idle WorkerNode gets a
 //    speculative copy, the first complete result wins, the staller is told "not wanted" and its late
-//    result is dropped and counted; the image is bit-identical to the undisturbed render;
+//    result is dropped and counted; the image is bit-identical to the undisturbed render; a dead
+//    worker's tile (no heartbeat) is not copied but comes back when its lease expires;
 //  - a worker that keeps failing tiles is blocked for the job after 3 failures while a good worker
 //    finishes it; a job every registered worker is blocked for fails with the reason;
 //  - a file scene no worker can load (a WorkerNode whose scene cache cannot be written) fails its job
@@ -101,6 +102,34 @@ TEST_F(LeaseTest, NoSpeculativeCopyBeforeTheThresholdNorWhenDisabled) {
   const v1::JobStatus st = wait_done(id);
   ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
   EXPECT_EQ(st.tiles_speculative(), 0u);
+}
+
+TEST_F(LeaseTest, DeadHoldersTileComesBackByExpiryNotByACopy) {
+  MasterOptions mo;
+  mo.lease_timeout_ms = 1500;
+  mo.heartbeat_interval_ms = 200;  // a holder silent for 300 ms is not alive for speculation
+  mo.worker_timeout_ms = 60000;
+  mo.speculative_floor_ms = 300;
+  start(mo);
+  const RenderOptions o = cornell(RenderMode::kPathTrace, 32, 2, 1);  // 4 tiles per round
+  const std::string id = submit(o, bundle_scene(o.scene));
+  WireWorker dead(channel_, "dead"), live(channel_, "live");
+  auto held = dead.lease_wait();  // never heartbeated, never submitted
+  ASSERT_TRUE(held);
+  std::optional<v1::TileLease> t;
+  int tiles = 0;
+  while ((t = live.lease_wait())) {
+    v1::SubmitAck ack;
+    ASSERT_TRUE(live.submit(live.render(*t), &ack).ok());
+    ASSERT_EQ(ack.outcome(), v1::SUBMIT_OUTCOME_COMMITTED);
+    if (++tiles == 4) break;  // the 4th is the dead worker's tile, after its lease expired
+  }
+  ASSERT_EQ(tiles, 4);
+  EXPECT_EQ(t->tile_index(), held->tile_index());
+  const v1::JobStatus st = status(id);
+  EXPECT_EQ(st.tiles_speculative(), 0u) << "a dead holder's tile must not be copied";
+  EXPECT_EQ(st.tiles_re_leased(), 1u);
+  EXPECT_EQ(st.worker_failures(), 1u) << "the expired lease counts against the dead worker";
 }
 
 TEST_F(LeaseTest, FailingWorkerIsBlockedAfterThreeFailuresAndAGoodWorkerFinishes) {
