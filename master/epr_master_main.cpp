@@ -29,6 +29,23 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"", "cpu"}));
   app.add_option("--max-queued-vertices", o.jobs.max_queued_vertices, "back-pressure bound of the commit queue")
       ->capture_default_str();
+  app.add_option("--max-image-side", o.jobs.max_image_side, "jobs with a wider or taller image are refused")
+      ->check(CLI::Range(1, 16384))->capture_default_str();
+  app.add_option("--max-spp", o.jobs.max_spp, "jobs asking for more samples per pixel are refused")
+      ->check(CLI::Range(1, 1000000))->capture_default_str();
+  app.add_option("--max-scene-bytes", o.jobs.max_scene_bytes, "scene bundles (inline or uploaded) over this size are refused")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--max-jobs", o.jobs.max_jobs, "jobs kept; finished ones beyond this are forgotten oldest first")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--speculative-factor", o.jobs.speculative_factor,
+                 "copy a tile to an idle worker once its lease runs this many times the round's median tile time "
+                 "(0: never)")
+      ->check(CLI::Range(0.0, 1000.0))->capture_default_str();
+  app.add_option("--speculative-floor-ms", o.jobs.speculative_floor_ms, "... and at least this long")
+      ->check(CLI::NonNegativeNumber)->capture_default_str();
+  app.add_option("--max-worker-failures", o.jobs.max_worker_failures,
+                 "failed tiles after which a worker gets no more tiles of that job (0: never block)")
+      ->check(CLI::NonNegativeNumber)->capture_default_str();
   std::string token_file;
   app.add_option("--token-file", token_file,
                  "file holding the bearer token clients and workers must send (else $EPR_TOKEN; none: no check)");

@@ -369,13 +369,16 @@ struct WorkerNode::Impl {
 
   // ---- leases --------------------------------------------------------------------------------------
 
-  // Gives leases back. A failure that means the session is gone ends it.
-  bool return_leases(Session& s, const std::vector<uint64_t>& ids, const std::string& reason) {
+  // Gives leases back, reporting `failure` (the master counts it against this worker for the job and
+  // stops leasing it the job's tiles after a few). A failure that means the session is gone ends it.
+  bool return_leases(Session& s, const std::vector<uint64_t>& ids, const std::string& reason,
+                     v1::LeaseFailure failure = v1::LEASE_FAILURE_UNSPECIFIED) {
     if (ids.empty()) return true;
     v1::ReturnLeaseRequest req;
     req.mutable_worker_id()->set_id(s.worker_id);
     for (uint64_t id : ids) req.add_lease_ids(id);
     req.set_reason(reason);
+    req.set_failure(failure);
     grpc::ClientContext ctx;
     prepare(ctx, kReturnDeadline);
     CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
@@ -415,7 +418,7 @@ struct WorkerNode::Impl {
       const int delay = job_failed(lease.job_id());
       log->error("lease {} (job {} tile {}) is unusable: {} (returned, leasing again in {} ms)", id, lease.job_id(),
                  lease.tile_index(), *err, delay);
-      if (return_leases(s, {id}, "unusable lease: " + *err)) release(s, id);
+      if (return_leases(s, {id}, "unusable lease: " + *err, v1::LEASE_FAILURE_TILE)) release(s, id);
       wait_for(&s, delay);
       return;
     }
@@ -427,14 +430,28 @@ struct WorkerNode::Impl {
       const int delay = job_failed(lease.job_id());
       log->error("job {}: cannot prepare its scene: {} (lease {} returned, leasing again in {} ms)", lease.job_id(),
                  e.what(), id, delay);
-      if (return_leases(s, {id}, fmt::format("worker cannot prepare the job: {}", e.what()))) release(s, id);
+      if (return_leases(s, {id}, fmt::format("worker {} cannot prepare the job: {}", name, e.what()),
+                        v1::LEASE_FAILURE_SCENE))
+        release(s, id);
       wait_for(&s, delay);
       return;
     }
     job_ok(lease.job_id());
 
-    const TileRenderer renderer(*job->tracer, tile.filter);
-    const auto result = render_leased_tile(renderer, tile, [&] { return s.ending.load() || h->abandoned.load(); });
+    std::optional<TileResult> result;
+    try {
+      const TileRenderer renderer(*job->tracer, tile.filter);
+      result = render_leased_tile(renderer, tile, [&] { return s.ending.load() || h->abandoned.load(); });
+    } catch (const std::exception& e) {
+      const int delay = job_failed(lease.job_id());
+      log->error("job {} tile {}: tracing failed: {} (lease {} returned, leasing again in {} ms)", lease.job_id(),
+                 lease.tile_index(), e.what(), id, delay);
+      if (return_leases(s, {id}, fmt::format("worker {} failed tracing the tile: {}", name, e.what()),
+                        v1::LEASE_FAILURE_TILE))
+        release(s, id);
+      wait_for(&s, delay);
+      return;
+    }
     if (result) {
       counters.paths_traced += result->stats.paths.paths;
       counters.micros_tracing += uint64_t(result->stats.seconds * 1e6);

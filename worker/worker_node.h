@@ -20,8 +20,10 @@
 // abandons its session: it gives its leases back if it still can, waits with exponential backoff and
 // jitter (capped at max_backoff_ms) and registers again. It never exits on its own except on the
 // master's Shutdown. A lease the heartbeat reports invalid is abandoned between two strips of rows.
-// A job whose scene cannot be loaded gets its lease returned and the thread waits (with backoff)
-// before leasing again, so a broken job cannot make the worker spin.
+// A job whose scene cannot be loaded (or a tile whose lease is unusable or whose tracing throws) gets
+// its lease returned as failed (ReturnLeaseRequest.failure) and the thread waits (with backoff) before
+// leasing again, so a broken job cannot make the worker spin; the master stops leasing the job's tiles
+// to a worker that keeps failing them.
 //
 // In-process use: no globals and no signal handling; any number of WorkerNodes may run in one
 // process (the embedded `epr render` runs a master and N nodes over loopback gRPC). epr-worker's main

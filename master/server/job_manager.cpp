@@ -43,6 +43,14 @@ struct JobManager::Job {
     std::set<uint64_t> leases;  // leases currently out for this tile
     int64_t deadline_ms = 0;
     bool re_leased = false;
+    struct Hold {
+      std::string worker;
+      int64_t since_ms = 0, deadline_ms = 0;
+      int64_t seen_ms = 0;  // leased or last extended by a heartbeat
+    };
+    std::map<uint64_t, Hold> holds;  // who holds each lease of `leases`, since and until when
+    bool speculated = false;         // a speculative copy went out this round
+    std::set<uint64_t> issued;       // every lease of the tile this round (results name one of them)
   };
 
   std::string id;
@@ -71,6 +79,14 @@ struct JobManager::Job {
   ReprojectionCounts counts;
   uint64_t rays = 0, vertices_received = 0, non_finite = 0, worker_culled = 0;
   uint64_t tiles_leased = 0, tiles_committed = 0, tiles_re_leased = 0, tiles_dropped = 0;
+  uint64_t tiles_speculative = 0, worker_failures = 0;
+  std::map<std::string, int> failures_by_worker;  // worker id -> failed leases of this job
+  std::set<std::string> blocked, scene_failed;    // worker ids: no more tiles; reported a scene failure
+  std::string last_failure;
+  // Lease-to-commit times (ms) of the tiles committed in round tile_ms_round: the current round once it
+  // has a commit, else the last round that had one. Drives the speculative re-lease threshold.
+  uint32_t tile_ms_round = 0;
+  std::vector<int64_t> tile_ms;
   int64_t submitted_ms = 0, started_ms = 0, finished_ms = 0;
   double seconds_tracing = 0, seconds_reprojecting = 0;
   bool budget_exhausted = false;
@@ -138,8 +154,8 @@ std::string JobManager::job_dir(const Job& job) const { return (fs::path(state_d
 
 // ---- clients --------------------------------------------------------------------------------------
 
-JobManager::SubmitResult JobManager::submit(JobRequest req) {
-  auto invalid = [](std::string why) { return SubmitResult{"", std::move(why)}; };
+std::optional<std::string> JobManager::validate(const JobRequest& req) const {
+  auto invalid = [](std::string why) { return std::optional<std::string>(std::move(why)); };
   if (auto err = req.options.validate()) return invalid(*err);
   if (auto err = req.camera.validate()) return invalid(*err);
   const SceneBundleData& b = req.bundle;
@@ -160,7 +176,14 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
   }
   if (req.options.width > options_.max_image_side || req.options.height > options_.max_image_side)
     return invalid(fmt::format("image sides are limited to {} pixels", options_.max_image_side));
-  const std::string hash = content_hash(b);
+  if (req.options.spp > options_.max_spp)
+    return invalid(fmt::format("spp {} is over this master's limit of {}", req.options.spp, options_.max_spp));
+  return std::nullopt;
+}
+
+JobManager::SubmitResult JobManager::submit(JobRequest req) {
+  if (auto err = validate(req)) return {"", *err};
+  const std::string hash = content_hash(req.bundle);
 
   std::shared_ptr<Job> job;
   {
@@ -222,6 +245,9 @@ JobSnapshot JobManager::snapshot(const Job& job) const {
   s.tiles_committed = job.tiles_committed;
   s.tiles_re_leased = job.tiles_re_leased;
   s.tiles_dropped = job.tiles_dropped;
+  s.tiles_speculative = job.tiles_speculative;
+  s.worker_failures = job.worker_failures;
+  s.workers_blocked = uint32_t(job.blocked.size());
   std::set<std::string> active_workers;
   for (const auto& [wid, w] : workers_)
     if (!w->leases.empty() && active_.get() == &job) active_workers.insert(wid);
@@ -365,6 +391,10 @@ std::optional<std::vector<std::pair<bool, int64_t>>> JobManager::heartbeat(const
       for (auto& slot : active_->slots)
         if (slot.state == Job::Slot::State::kLeased && slot.leases.count(lease)) {
           slot.deadline_ms = std::max(slot.deadline_ms, deadline);
+          if (auto h = slot.holds.find(lease); h != slot.holds.end()) {
+            h->second.deadline_ms = deadline;
+            h->second.seen_ms = now_ms();
+          }
           valid = true;
           break;
         }
@@ -389,18 +419,32 @@ LeaseDecision JobManager::lease_tile(const std::string& worker) {
   // the next round opens within milliseconds, so ask again soon; a long wait here idles every core
   // at every round barrier.
   if (!job || job->state != JobState::kRunning) return LeaseWait{job ? 20u : 200u};
-  if (!job->round_open || job->pending.empty()) return LeaseWait{5};
-  const uint32_t t = job->pending.front();
-  job->pending.pop_front();
+  // A worker that failed too many of this job's tiles waits for the next job.
+  if (job->blocked.count(worker)) return LeaseWait{500};
+  if (!job->round_open) return LeaseWait{5};
+  const int64_t now = now_ms();
+  // Every tile is out: maybe a copy of one whose lease runs long (the first complete result wins).
+  std::optional<uint32_t> speculative;
+  if (job->pending.empty() && !(speculative = speculative_tile(*job, worker, now))) return LeaseWait{5};
+  const uint32_t t = speculative ? *speculative : job->pending.front();
+  if (!speculative) job->pending.pop_front();
   Job::Slot& slot = job->slots[t];
   TileLeaseInfo info;
   info.lease_id = next_lease_++;
   slot.state = Job::Slot::State::kLeased;
   slot.leases.insert(info.lease_id);
-  slot.deadline_ms = now_ms() + options_.lease_timeout_ms;
+  slot.issued.insert(info.lease_id);
+  slot.holds[info.lease_id] = {worker, now, now + options_.lease_timeout_ms, now};
+  slot.deadline_ms = std::max(slot.deadline_ms, now + options_.lease_timeout_ms);
   w.leases.insert(info.lease_id);
   ++job->tiles_leased;
-  if (slot.re_leased) ++job->tiles_re_leased;
+  if (slot.re_leased && !speculative) ++job->tiles_re_leased;
+  if (speculative) {
+    slot.speculated = true;
+    ++job->tiles_speculative;
+    logger("master")->info("job {} round {} tile {}: lease runs long, speculative copy to worker {}", job->id,
+                           job->round, t, worker);
+  }
   ++job->version;
 
   info.job_id = job->id;
@@ -418,25 +462,115 @@ LeaseDecision JobManager::lease_tile(const std::string& worker) {
   info.scene_builtin = job->bundle->builtin;
   info.scene_bytes = job->bundle->total_bytes();
   info.triangles = job->triangles;
-  info.deadline_ms = slot.deadline_ms;
+  info.deadline_ms = now + options_.lease_timeout_ms;
   return info;
 }
 
+std::optional<uint32_t> JobManager::speculative_tile(Job& job, const std::string& worker, int64_t now) {
+  // Nothing to compare with before the first commit (of this round or the previous one).
+  if (options_.speculative_factor <= 0 || job.tile_ms.empty()) return std::nullopt;
+  // The longest-running tile not yet copied and not held by this worker, whose holder is alive (its
+  // heartbeat extended the lease lately): a dead worker's tile comes back when its lease expires.
+  const int64_t alive_ms = int64_t(options_.heartbeat_interval_ms) * 3 / 2;
+  std::optional<uint32_t> best;
+  int64_t best_age = -1;
+  for (uint32_t t = 0; t < job.slots.size(); ++t) {
+    const Job::Slot& slot = job.slots[t];
+    if (slot.state != Job::Slot::State::kLeased || slot.speculated || slot.holds.empty()) continue;
+    int64_t since = now;
+    bool own = false, alive = false;
+    for (const auto& [id, h] : slot.holds) {
+      since = std::min(since, h.since_ms);
+      own |= h.worker == worker;
+      alive |= now - h.seen_ms <= alive_ms;
+    }
+    if (!own && alive && now - since > best_age) {
+      best = t;
+      best_age = now - since;
+    }
+  }
+  if (!best || best_age <= options_.speculative_floor_ms) return std::nullopt;
+  std::vector<int64_t> times = job.tile_ms;
+  std::nth_element(times.begin(), times.begin() + ptrdiff_t(times.size() / 2), times.end());
+  const double median = double(times[times.size() / 2]);
+  if (double(best_age) <= options_.speculative_factor * median) return std::nullopt;
+  return best;
+}
+
+void JobManager::release_lease(Job& job, uint32_t t, uint64_t lease) {
+  auto& slot = job.slots[t];
+  slot.holds.erase(lease);
+  if (slot.state == Job::Slot::State::kLeased && slot.leases.erase(lease) && slot.leases.empty()) {
+    slot.state = Job::Slot::State::kPending;
+    slot.re_leased = true;
+    job.pending.push_front(t);
+    ++job.version;
+  }
+}
+
 void JobManager::return_leases(const std::string& worker, const std::vector<uint64_t>& leases) {
-  std::lock_guard lock(mu_);
-  auto wit = workers_.find(worker);
-  for (uint64_t lease : leases) {
-    if (wit != workers_.end()) wit->second->leases.erase(lease);
-    if (!active_) continue;
-    for (uint32_t t = 0; t < active_->slots.size(); ++t) {
-      auto& slot = active_->slots[t];
-      if (slot.state == Job::Slot::State::kLeased && slot.leases.erase(lease) && slot.leases.empty()) {
-        slot.state = Job::Slot::State::kPending;
-        slot.re_leased = true;
-        active_->pending.push_front(t);
+  fail_leases(worker, leases, LeaseFailure::kNone, "");
+}
+
+void JobManager::fail_leases(const std::string& worker, const std::vector<uint64_t>& leases, LeaseFailure failure,
+                             const std::string& reason) {
+  std::vector<std::shared_ptr<Job>> failed;
+  {
+    std::lock_guard lock(mu_);
+    auto wit = workers_.find(worker);
+    for (uint64_t lease : leases) {
+      if (wit != workers_.end()) wit->second->leases.erase(lease);
+      if (!active_) continue;
+      for (uint32_t t = 0; t < active_->slots.size(); ++t) {
+        auto& slot = active_->slots[t];
+        if (!slot.leases.count(lease)) continue;
+        auto h = slot.holds.find(lease);
+        // Counted against the worker only if the lease is its own and still live.
+        const bool counts = failure != LeaseFailure::kNone && slot.state == Job::Slot::State::kLeased &&
+                            h != slot.holds.end() && h->second.worker == worker;
+        release_lease(*active_, t, lease);
+        if (counts) count_failure(active_, worker, failure, reason, &failed);
+        break;
       }
     }
   }
+  if (!failed.empty()) work_cv_.notify_all();
+  for (const auto& job : failed) notify(job);
+}
+
+void JobManager::count_failure(const std::shared_ptr<Job>& job, const std::string& worker, LeaseFailure failure,
+                               const std::string& reason, std::vector<std::shared_ptr<Job>>* failed) {
+  const int n = ++job->failures_by_worker[worker];
+  ++job->worker_failures;
+  if (failure == LeaseFailure::kScene) job->scene_failed.insert(worker);
+  job->last_failure = reason;
+  ++job->version;
+  auto log = logger("master");
+  log->warn("job {}: worker {} failed a tile ({} so far): {}", job->id, worker, n, reason);
+  if (options_.max_worker_failures > 0 && n >= options_.max_worker_failures && job->blocked.insert(worker).second)
+    log->warn("job {}: worker {} failed {} tiles and gets no more tiles of this job", job->id, worker, n);
+  fail_if_all_blocked(job, failed);
+}
+
+void JobManager::fail_if_all_blocked(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed) {
+  if (job->state != JobState::kRunning || job->blocked.empty() || workers_.empty()) return;
+  bool all_scene = true;
+  for (const auto& [id, w] : workers_) {
+    if (!job->blocked.count(id)) return;
+    all_scene &= job->scene_failed.count(id) > 0;
+  }
+  const int limit = options_.max_worker_failures;
+  job->error = all_scene ? fmt::format("no worker could load the job's scene ({} worker(s) tried {} times each); last error: {}",
+                                       workers_.size(), limit, job->last_failure)
+                         : fmt::format("every registered worker ({}) failed {} tiles of the job and is blocked for it; "
+                                       "last failure: {}",
+                                       workers_.size(), limit, job->last_failure);
+  logger("master")->error("job {} failed: {}", job->id, job->error);
+  job->state = JobState::kFailed;
+  job->finished_ms = now_ms();
+  job->round_open = false;
+  ++job->version;
+  failed->push_back(job);
 }
 
 std::vector<WorkerSnapshot> JobManager::workers() const {
@@ -503,6 +637,9 @@ std::variant<TileExpectation, std::string> JobManager::expect(const v1::TileResu
   }
   if (h.tile_index() >= job.tiles.size())
     return fmt::format("tile index {} is outside the job's {} tiles", h.tile_index(), job.tiles.size());
+  if (h.tile_index() < job.slots.size() && !job.slots[h.tile_index()].issued.count(h.lease_id()))
+    return fmt::format("lease {} was not issued for tile {} of job {} round {}", h.lease_id(), h.tile_index(), job.id,
+                       job.round);
   const TileRect& r = job.tiles[h.tile_index()];
   TileExpectation e;
   e.job_id = job.id;
@@ -526,6 +663,14 @@ std::variant<TileExpectation, std::string> JobManager::expect(const v1::TileResu
   return e;
 }
 
+void JobManager::count_stale(const std::string& job_id) {
+  std::lock_guard lock(mu_);
+  if (auto it = jobs_.find(job_id); it != jobs_.end()) {
+    ++it->second->tiles_dropped;
+    ++it->second->version;
+  }
+}
+
 CommitOutcome JobManager::commit(const std::string& job_id, uint32_t round, uint32_t tile_index, AssembledTile tile) {
   {
     std::lock_guard lock(mu_);
@@ -547,9 +692,17 @@ CommitOutcome JobManager::commit(const std::string& job_id, uint32_t round, uint
       // Its lease had expired and the tile went back to the queue: this result still wins.
       job.pending.erase(std::remove(job.pending.begin(), job.pending.end(), tile_index), job.pending.end());
     }
+    if (auto h = slot.holds.find(tile.lease_id); h != slot.holds.end()) {
+      if (job.tile_ms_round != round) job.tile_ms.clear();
+      job.tile_ms_round = round;
+      job.tile_ms.push_back(now_ms() - h->second.since_ms);
+    }
+    // Any other lease of the tile (a speculative copy, or the slow original) lost: its heartbeat now
+    // answers "not wanted", and a result it still sends is dropped as a duplicate.
     for (uint64_t l : slot.leases)
       for (auto& [wid, w] : workers_) w->leases.erase(l);
     slot.leases.clear();
+    slot.holds.clear();
     slot.state = Job::Slot::State::kCommitted;
     ++job.tiles_committed;
     const auto& st = tile.worker_stats;
@@ -862,17 +1015,36 @@ void JobManager::reaper_loop() {
     work_cv_.wait_for(lock, std::chrono::milliseconds(200));
     if (stopping_) break;
     const int64_t now = now_ms();
+    std::vector<std::shared_ptr<Job>> failed;
     if (active_ && active_->state == JobState::kRunning) {
-      Job& job = *active_;
-      for (uint32_t t = 0; t < job.slots.size(); ++t) {
-        auto& slot = job.slots[t];
-        if (slot.state == Job::Slot::State::kLeased && slot.deadline_ms < now) {
-          logger("master")->warn("job {} tile {}: lease expired, re-queued", job.id, t);
+      const std::shared_ptr<Job> job = active_;
+      for (uint32_t t = 0; t < job->slots.size() && job->state == JobState::kRunning; ++t) {
+        auto& slot = job->slots[t];
+        if (slot.state != Job::Slot::State::kLeased) continue;
+        if (slot.holds.empty()) {
+          if (slot.deadline_ms >= now) continue;
+          logger("master")->warn("job {} tile {}: lease expired, re-queued", job->id, t);
           slot.state = Job::Slot::State::kPending;
           slot.leases.clear();
           slot.re_leased = true;
-          job.pending.push_front(t);
-          ++job.version;
+          job->pending.push_front(t);
+          ++job->version;
+          continue;
+        }
+        // Each lease on its own deadline: a dead holder expires even while a speculative copy lives.
+        std::vector<std::pair<uint64_t, std::string>> expired;
+        for (const auto& [id, h] : slot.holds)
+          if (h.deadline_ms < now) expired.emplace_back(id, h.worker);
+        for (const auto& [id, worker] : expired) {
+          if (slot.leases.size() == 1)
+            logger("master")->warn("job {} tile {}: lease expired, re-queued (lease {}, worker {})", job->id, t, id, worker);
+          else
+            logger("master")->warn("job {} tile {}: lease {} of worker {} expired; another lease of the tile is still out",
+                                   job->id, t, id, worker);
+          if (auto wit = workers_.find(worker); wit != workers_.end()) wit->second->leases.erase(id);
+          release_lease(*job, t, id);
+          count_failure(job, worker, LeaseFailure::kExpired,
+                        fmt::format("lease of tile {} expired without a result", t), &failed);
         }
       }
     }
@@ -883,6 +1055,14 @@ void JobManager::reaper_loop() {
       } else {
         ++it;
       }
+    }
+    // The workers that were not blocked may have left.
+    if (active_) fail_if_all_blocked(active_, &failed);
+    if (!failed.empty()) {
+      lock.unlock();
+      work_cv_.notify_all();
+      for (const auto& job : failed) notify(job);
+      lock.lock();
     }
   }
 }

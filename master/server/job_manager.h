@@ -8,6 +8,11 @@
 //    (deep framebuffer), applies committed tiles in commit order, closes rounds (M', skip mask),
 //    opens the next round and writes results.
 //  - A reaper thread re-queues tiles whose lease deadline passed and forgets silent workers.
+// Slow and failing workers: once a round has no unleased tile, an idle worker gets a speculative copy
+// of the tile whose lease runs longest (MasterOptions::speculative_factor); the first complete result
+// wins and the other lease is told "not wanted". Leases that expire, results refused as invalid and
+// failures workers report count per worker and job; past max_worker_failures the worker gets no more
+// tiles of the job, and a job every registered worker is blocked for fails with the last reason.
 // Back-pressure: committed tiles wait in a queue bounded in vertices; while it is over its bound,
 // LeaseTile answers Wait, so a fast worker cannot grow the master's memory (at most the bound plus
 // the tiles already leased).
@@ -51,7 +56,20 @@ struct MasterOptions {
   uint64_t max_queued_vertices = 8u << 20;  // back-pressure bound of the commit queue
   size_t max_scene_bytes = 256u << 20;
   int max_image_side = 16384;
+  int max_spp = 1000000;                  // target samples per pixel of one job
   int max_jobs = 1000;                    // jobs kept (finished ones are forgotten oldest first)
+  // Speculative re-lease: once a round has no unleased tile left, an idle worker gets a copy of the
+  // tile whose lease has run longest, if it has run longer than speculative_factor x the median tile
+  // time of the round so far (of the previous round while none of this one is committed) and at least
+  // speculative_floor_ms, and its holder is alive (a heartbeat extended the lease within 1.5 heartbeat
+  // intervals; a dead worker's tile comes back by expiry). At most one copy per tile and round.
+  // speculative_factor <= 0: never.
+  double speculative_factor = 2.0;
+  int speculative_floor_ms = 1000;
+  // A worker that fails this many tiles of a job (lease expired without a result, result refused as
+  // invalid, failure reported with ReturnLease) gets no more tiles of it; a job every registered worker
+  // is blocked for fails. <= 0: never block.
+  int max_worker_failures = 3;
 };
 
 enum class JobState { kQueued, kRunning, kDone, kFailed, kCancelled };
@@ -82,7 +100,10 @@ struct JobSnapshot {
   uint64_t rays_traced = 0, vertices_received = 0, non_finite_dropped = 0;
   uint64_t worker_culled = 0;  // culled by workers before sending (frustum, facing, glossy)
   uint64_t tiles_leased = 0, tiles_committed = 0, tiles_re_leased = 0, tiles_dropped = 0;
+  uint64_t tiles_speculative = 0;  // speculative copies handed out (MasterOptions::speculative_factor)
+  uint64_t worker_failures = 0;    // failed leases counted against workers
   uint32_t workers_active = 0;
+  uint32_t workers_blocked = 0;    // workers given no more tiles of this job
   int64_t submitted_ms = 0, started_ms = 0, finished_ms = 0;
   double seconds_elapsed = 0, eta_seconds = -1, seconds_tracing = 0, seconds_reprojecting = 0;
   bool budget_exhausted = false;
@@ -112,6 +133,9 @@ struct UnknownWorker {};
 using LeaseDecision = std::variant<TileLeaseInfo, LeaseWait, UnknownWorker>;
 
 enum class CommitOutcome { kCommitted, kDuplicate, kStale };
+
+/// Why a worker gives a lease back (ReturnLeaseRequest.failure).
+enum class LeaseFailure { kNone, kScene, kTile, kInvalidResult, kExpired };
 
 struct WorkerSnapshot {
   std::string id, name;
@@ -158,7 +182,15 @@ class JobManager {
   LeaseDecision lease_tile(const std::string& worker);
   void return_leases(const std::string& worker, const std::vector<uint64_t>& leases);
   void unregister_worker(const std::string& worker);
+  /// Gives leases back; with a failure other than kNone, also counts one failure of `worker` for the
+  /// job of each lease (blocking the worker past max_worker_failures, failing the job once every
+  /// registered worker is blocked). `reason` is kept for the job's error message.
+  void fail_leases(const std::string& worker, const std::vector<uint64_t>& leases, LeaseFailure failure,
+                   const std::string& reason);
   std::vector<WorkerSnapshot> workers() const;
+  /// The size and shape checks of a job request (dimensions, sample counts, camera, scene bundle)
+  /// against the MasterOptions limits; the reason if it is invalid. submit() applies them too.
+  std::optional<std::string> validate(const JobRequest& request) const;
   /// Stores an uploaded scene under its content hash.
   std::string add_scene(SceneBundleData bundle);
   /// Loads the scene to check it; the reason (naming file and line inside the bundle) if it is bad.
@@ -169,6 +201,8 @@ class JobManager {
   /// What a SubmitTile stream with this header must contain, or why it cannot be accepted
   /// (`stale` is set when the job or round moved on: the stream is drained and acknowledged as stale).
   std::variant<TileExpectation, std::string> expect(const v1::TileResultHeader& header, bool* stale) const;
+  /// Counts a complete result that arrived for a closed round of a still-known job as dropped.
+  void count_stale(const std::string& job_id);
   /// Commits a complete, checked tile result (never blocks on reprojection).
   CommitOutcome commit(const std::string& job_id, uint32_t round, uint32_t tile_index, AssembledTile tile);
 
@@ -196,6 +230,12 @@ class JobManager {
   JobSnapshot snapshot(const Job& job) const;  // with mu_ held
   std::shared_ptr<Job> next_job() const;        // with mu_ held
   std::string job_dir(const Job& job) const;
+  // Failures and speculative leases (with mu_ held).
+  void count_failure(const std::shared_ptr<Job>& job, const std::string& worker, LeaseFailure failure,
+                     const std::string& reason, std::vector<std::shared_ptr<Job>>* failed);
+  void fail_if_all_blocked(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed);
+  std::optional<uint32_t> speculative_tile(Job& job, const std::string& worker, int64_t now);
+  void release_lease(Job& job, uint32_t tile, uint64_t lease);
 
   MasterOptions options_;
   mutable std::mutex mu_;

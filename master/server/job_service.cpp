@@ -193,6 +193,9 @@ void to_proto(const JobSnapshot& s, v1::JobStatus* out) {
   out->set_tiles_re_leased(s.tiles_re_leased);
   out->set_tiles_dropped(s.tiles_dropped);
   out->set_workers_active(s.workers_active);
+  out->set_tiles_speculative(s.tiles_speculative);
+  out->set_worker_failures(s.worker_failures);
+  out->set_workers_blocked(s.workers_blocked);
   out->set_submitted_unix_ms(s.submitted_ms);
   out->set_started_unix_ms(s.started_ms);
   out->set_finished_unix_ms(s.finished_ms);
@@ -230,8 +233,9 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
   jr.priority = req->priority();
   jr.request_id = req->request_id();
   if (req->has_time_budget_seconds()) jr.time_budget_seconds = req->time_budget_seconds();
-  // Check the scene now so that a malformed file is an INVALID_ARGUMENT naming file and line,
-  // not a job that fails later.
+  // The limits first (cheap, and a huge bundle is not parsed), then the scene itself, so that a
+  // malformed file is an INVALID_ARGUMENT naming file and line, not a job that fails later.
+  if (auto err = jobs_.validate(jr)) return finish(ctx, invalid(*err));
   if (auto err = jobs_.check_scene(jr.bundle)) return finish(ctx, invalid(*err));
   const auto r = jobs_.submit(std::move(jr));
   if (!r.error.empty()) return finish(ctx, invalid(r.error));

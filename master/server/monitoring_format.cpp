@@ -94,8 +94,11 @@ json to_json(const JobSnapshot& s) {
        {{"leased", s.tiles_leased},
         {"committed", s.tiles_committed},
         {"re_leased", s.tiles_re_leased},
-        {"dropped", s.tiles_dropped}}},
+        {"dropped", s.tiles_dropped},
+        {"speculative", s.tiles_speculative}}},
       {"workers_active", s.workers_active},
+      {"worker_failures", s.worker_failures},
+      {"workers_blocked", s.workers_blocked},
       {"version", s.version},
   };
 }
@@ -385,6 +388,12 @@ void write_jobs(Exposition& e, const std::vector<JobSnapshot>& all) {
           [](const JobSnapshot& s) { return s.tiles_committed; });
   per_job("epr_job_tiles_re_leased_total", "counter", "Tiles of the job re-leased after a lease expired.",
           [](const JobSnapshot& s) { return s.tiles_re_leased; });
+  per_job("epr_job_tiles_speculative_total", "counter",
+          "Speculative copies of the job's tiles handed to idle workers while a lease ran long.",
+          [](const JobSnapshot& s) { return s.tiles_speculative; });
+  per_job("epr_job_worker_failures_total", "counter",
+          "Failed leases of the job counted against workers (expired, refused, reported).",
+          [](const JobSnapshot& s) { return s.worker_failures; });
   per_job("epr_job_tracing_seconds_total", "counter", "Worker thread time spent tracing the job's tiles.",
           [](const JobSnapshot& s) { return s.seconds_tracing; });
   per_job("epr_job_reprojection_seconds_total", "counter", "Master time spent reprojecting the job.",

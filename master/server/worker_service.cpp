@@ -26,23 +26,33 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
       bool stale = false;
       auto e = jobs_.expect(chunk_.header(), &stale);
       if (auto* why = std::get_if<std::string>(&e)) {
-        if (!stale) return Finish(invalid(*why));
+        if (!stale) return refuse(chunk_.header(), *why);
         draining_ = true;
         reason_ = *why;
+        stale_job_ = chunk_.header().job_id();
         return StartRead(&chunk_);
       }
       header_ = chunk_.header();
       assembler_ = std::make_unique<TileResultAssembler>(std::get<TileExpectation>(std::move(e)));
     }
-    if (auto err = assembler_->add(chunk_)) return Finish(invalid(*err));
+    if (auto err = assembler_->add(chunk_)) return refuse(header_, *err);
     StartRead(&chunk_);
   }
   void OnDone() override { delete this; }
   void OnCancel() override {}
 
  private:
+  // An invalid result counts as a failure of the worker holding the lease (if the header names the
+  // lease's holder) and gives the lease back, so the tile goes to another worker at once.
+  void refuse(const v1::TileResultHeader& h, const std::string& why) {
+    jobs_.fail_leases(h.worker_id().id(), {h.lease_id()}, LeaseFailure::kInvalidResult,
+                      fmt::format("tile result refused: {}", why));
+    Finish(invalid(why));
+  }
+
   void end_of_stream() {
     if (draining_) {
+      jobs_.count_stale(stale_job_);  // e.g. the losing copy of a speculatively re-leased tile
       ack_->set_accepted(false);
       ack_->set_outcome(v1::SUBMIT_OUTCOME_STALE);
       ack_->set_reason(reason_);
@@ -66,7 +76,7 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
   v1::TileResultHeader header_;
   std::unique_ptr<TileResultAssembler> assembler_;
   bool draining_ = false;
-  std::string reason_;
+  std::string reason_, stale_job_;
 };
 
 }  // namespace
@@ -183,8 +193,15 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::LeaseTile(grpc::CallbackServerConte
 grpc::ServerUnaryReactor* WorkerServiceImpl::ReturnLease(grpc::CallbackServerContext* ctx,
                                                          const v1::ReturnLeaseRequest* req, v1::ReturnLeaseResponse*) {
   if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
-  jobs_.return_leases(req->worker_id().id(), {req->lease_ids().begin(), req->lease_ids().end()});
-  logger("master")->info("worker {} returned {} lease(s): {}", req->worker_id().id(), req->lease_ids_size(), req->reason());
+  // Failures of kinds this master does not know (a newer worker) count as tile failures; the reason
+  // ends up in logs and maybe a job's error, so it is kept short.
+  const LeaseFailure failure = req->failure() == v1::LEASE_FAILURE_UNSPECIFIED ? LeaseFailure::kNone
+                               : req->failure() == v1::LEASE_FAILURE_SCENE     ? LeaseFailure::kScene
+                                                                               : LeaseFailure::kTile;
+  const std::string reason = req->reason().substr(0, 1024);
+  jobs_.fail_leases(req->worker_id().id(), {req->lease_ids().begin(), req->lease_ids().end()}, failure, reason);
+  logger("master")->info("worker {} returned {} lease(s){}: {}", req->worker_id().id(), req->lease_ids_size(),
+                         failure == LeaseFailure::kNone ? "" : " as failed", reason);
   return finish(ctx, grpc::Status::OK);
 }
 

@@ -494,7 +494,9 @@ int64_t local_ms_of_day() {
 TEST_F(ClusterTest, WorkerKilledMidJobLosesNothing) {
   // Tiles of 32x32 pixels x 16 paths take a single thread 50 ms or more in the first rounds.
   const Job job = long_job(16, 4);
-  ASSERT_NO_FATAL_FAILURE(start_master({"--lease-timeout-ms", "1500", "--heartbeat-ms", "300"}));
+  // No speculative copies: the victim's tile must come back through its lease's expiry.
+  ASSERT_NO_FATAL_FAILURE(
+      start_master({"--lease-timeout-ms", "1500", "--heartbeat-ms", "300", "--speculative-factor", "0"}));
   Process& victim = start_worker("victim");
   Process& survivor = start_worker("survivor");
   ASSERT_NO_FATAL_FAILURE(wait_for_workers(2));

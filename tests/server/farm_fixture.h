@@ -1,0 +1,297 @@
+// Shared pieces of the server tests: an in-process MasterServer on loopback with chosen MasterOptions,
+// a client for it, WorkerNodes on their own threads, and WireWorker — a worker driven call by call over
+// real gRPC (real tracing, real stream writer) so a test can stall, fail or misbehave on purpose.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <grpcpp/grpcpp.h>
+
+#include <filesystem>
+#include <functional>
+#include <fstream>
+#include <optional>
+#include <thread>
+
+#include "client/local_render.h"
+#include "common/image.h"
+#include "epr/v1/job_service.grpc.pb.h"
+#include "epr/v1/worker_service.grpc.pb.h"
+#include "master/server/master_server.h"
+#include "wire/convert.h"
+#include "wire/scene_bundle.h"
+#include "wire/tile_result_stream.h"
+#include "worker/embree_scene.h"
+#include "worker/path_tracer.h"
+#include "worker/tile_lease.h"
+#include "worker/tile_renderer.h"
+#include "worker/worker_node.h"
+
+namespace epr::test {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+inline void set_deadline(grpc::ClientContext* ctx, std::chrono::seconds s = 10s) {
+  ctx->set_deadline(std::chrono::system_clock::now() + s);
+}
+
+/// Polls `done` every 20 ms until it is true or `timeout` passes (a guard, not a speed assertion).
+inline bool eventually(const std::function<bool()>& done, std::chrono::milliseconds timeout = 30000ms) {
+  const auto until = std::chrono::steady_clock::now() + timeout;
+  while (!done()) {
+    if (std::chrono::steady_clock::now() > until) return false;
+    std::this_thread::sleep_for(20ms);
+  }
+  return true;
+}
+
+/// A WorkerNode running on its own thread.
+class RunningNode {
+ public:
+  explicit RunningNode(WorkerNodeOptions o) : node_(std::move(o)), thread_([this] { node_.run(); }) {}
+  ~RunningNode() { stop(); }
+  void stop() {
+    node_.stop();
+    if (thread_.joinable()) thread_.join();
+  }
+  WorkerNodeStats stats() const { return node_.stats(); }
+
+ private:
+  WorkerNode node_;
+  std::thread thread_;
+};
+
+/// A worker driven one call at a time.
+class WireWorker {
+ public:
+  WireWorker(const std::shared_ptr<grpc::Channel>& channel, const std::string& name)
+      : stub_(v1::WorkerService::NewStub(channel)) {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::WorkerInfo info;
+    info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
+    info.set_name(name);
+    info.set_threads(1);
+    v1::RegisterResponse r;
+    const grpc::Status st = stub_->Register(&ctx, info, &r);
+    EXPECT_TRUE(st.ok()) << st.error_message();
+    id_ = r.worker_id().id();
+  }
+  const std::string& id() const { return id_; }
+
+  /// A tile, or nullopt when the master says Wait.
+  std::optional<v1::TileLease> lease() {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::LeaseRequest req;
+    req.mutable_worker_id()->set_id(id_);
+    v1::Lease lease;
+    const grpc::Status st = stub_->LeaseTile(&ctx, req, &lease);
+    EXPECT_TRUE(st.ok()) << st.error_message();
+    if (!lease.has_tile()) return std::nullopt;
+    return lease.tile();
+  }
+
+  /// Leases until a tile comes (or `timeout`).
+  std::optional<v1::TileLease> lease_wait(std::chrono::milliseconds timeout = 30000ms) {
+    const auto until = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < until) {
+      if (auto t = lease()) return t;
+      std::this_thread::sleep_for(5ms);
+    }
+    return std::nullopt;
+  }
+
+  /// The tile traced for real (built-in scenes only) and split into the chunks a worker sends.
+  std::vector<v1::TileResultChunk> render(const v1::TileLease& t) const {
+    LeasedTile tile;
+    const auto err = unpack_tile_lease(t, &tile);
+    EXPECT_FALSE(err) << *err;
+    const auto& s = t.settings();
+    const Scene scene = load_bundle(bundle_scene(t.scene().builtin()), default_cache_root());
+    const EmbreeScene es(scene);
+    const Camera cam(from_proto(s.camera()), int(s.width()), int(s.height()));
+    const PathTracer tracer(es, cam, t.seed(), from_proto(s.russian_roulette()));
+    const TileRenderer renderer(tracer, tile.filter);
+    const TileResult result = *render_leased_tile(renderer, tile, nullptr);
+    const TileResultIdentity id{t.lease_id(), t.job_id(), t.round(), t.tile_index(), id_};
+    return split_tile_result(result, id, from_proto(s.codec_bounds()), TileResultLimits{});
+  }
+
+  /// Streams `chunks` as one SubmitTile call.
+  grpc::Status submit(const std::vector<v1::TileResultChunk>& chunks, v1::SubmitAck* ack) {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx, 30s);
+    auto w = stub_->SubmitTile(&ctx, ack);
+    for (const auto& c : chunks)
+      if (!w->Write(c)) break;
+    w->WritesDone();
+    return w->Finish();
+  }
+
+  /// Per lease: still wanted?
+  std::vector<bool> heartbeat(const std::vector<uint64_t>& leases) {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::HeartbeatRequest req;
+    req.mutable_worker_id()->set_id(id_);
+    for (uint64_t l : leases) req.add_lease_ids(l);
+    v1::HeartbeatResponse resp;
+    const grpc::Status st = stub_->Heartbeat(&ctx, req, &resp);
+    EXPECT_TRUE(st.ok()) << st.error_message();
+    std::vector<bool> out;
+    for (const auto& s : resp.leases()) out.push_back(s.valid());
+    return out;
+  }
+
+  grpc::Status give_back(uint64_t lease, v1::LeaseFailure failure, const std::string& reason) {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::ReturnLeaseRequest req;
+    req.mutable_worker_id()->set_id(id_);
+    req.add_lease_ids(lease);
+    req.set_reason(reason);
+    req.set_failure(failure);
+    v1::ReturnLeaseResponse resp;
+    return stub_->ReturnLease(&ctx, req, &resp);
+  }
+
+  void unregister() {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::WorkerId req;
+    req.set_id(id_);
+    v1::UnregisterResponse resp;
+    EXPECT_TRUE(stub_->Unregister(&ctx, req, &resp).ok());
+  }
+
+ private:
+  std::unique_ptr<v1::WorkerService::Stub> stub_;
+  std::string id_;
+};
+
+/// A master in this process with the given MasterOptions, and a JobService client.
+class FarmFixture : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::path(::testing::TempDir()) / ("epr-farm-" + std::to_string(::getpid()) + "-" +
+                                             ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    if (server_) server_->shutdown();
+    fs::remove_all(dir_);
+  }
+
+  void start(MasterOptions jobs = {}) {
+    MasterServerOptions o;
+    o.listen = "127.0.0.1:0";
+    o.jobs = std::move(jobs);
+    o.jobs.state_dir = (dir_ / "master").string();
+    server_ = std::make_unique<MasterServer>(o);
+    channel_ = grpc::CreateChannel(server_->local_target(), grpc::InsecureChannelCredentials());
+    jobs_ = v1::JobService::NewStub(channel_);
+  }
+
+  WorkerNodeOptions node_options(const std::string& name, int threads = 1) const {
+    WorkerNodeOptions o;
+    o.master = server_->local_target();
+    o.threads = threads;
+    o.name = name;
+    o.cache_dir = (dir_ / ("cache-" + name)).string();
+    o.max_backoff_ms = 300;
+    o.min_backoff_ms = 20;
+    return o;
+  }
+
+  static RenderOptions cornell(RenderMode mode, int size = 64, int spp = 4, int k = 2) {
+    RenderOptions o;
+    o.width = o.height = size;
+    o.spp = spp;
+    o.paths_per_round = k;
+    o.mode = mode;
+    o.reproject = ReprojectMethod::kCpu;
+    o.tile_size = 16;
+    o.scene = "builtin:cornell";
+    return o;
+  }
+
+  grpc::Status submit(const v1::JobSpec& spec, std::string* id = nullptr) {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::JobId out;
+    const grpc::Status st = jobs_->SubmitJob(&ctx, spec, &out);
+    if (id) *id = out.id();
+    return st;
+  }
+  std::string submit(const RenderOptions& o, const SceneBundleData& bundle) {
+    std::string id;
+    const grpc::Status st = submit(to_job_spec(o, bundle, CameraSpec{}), &id);
+    EXPECT_TRUE(st.ok()) << st.error_message();
+    return id;
+  }
+
+  v1::JobStatus status(const std::string& id) {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::JobId req;
+    req.set_id(id);
+    v1::JobStatus st;
+    EXPECT_TRUE(jobs_->GetJob(&ctx, req, &st).ok());
+    return st;
+  }
+
+  static bool terminal(const v1::JobStatus& st) {
+    return st.state() == v1::JOB_STATE_DONE || st.state() == v1::JOB_STATE_FAILED ||
+           st.state() == v1::JOB_STATE_CANCELLED;
+  }
+
+  /// Polls until the job is in a terminal state (or `timeout`, a guard against hanging).
+  v1::JobStatus wait_done(const std::string& id, std::chrono::seconds timeout = 120s) {
+    const auto until = std::chrono::steady_clock::now() + timeout;
+    v1::JobStatus st;
+    while (std::chrono::steady_clock::now() < until) {
+      st = status(id);
+      if (terminal(st)) break;
+      std::this_thread::sleep_for(20ms);
+    }
+    return st;
+  }
+
+  Image fetch_image(const std::string& id, v1::ResultKind kind) {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::ResultRequest req;
+    req.set_job_id(id);
+    req.set_kind(kind);
+    auto reader = jobs_->FetchResult(&ctx, req);
+    v1::ResultChunk c;
+    std::string bytes;
+    while (reader->Read(&c))
+      if (c.has_data()) bytes += c.data().data();
+    EXPECT_TRUE(reader->Finish().ok());
+    const std::string path = (dir_ / ("result-" + std::to_string(++fetches_) + ".exr")).string();
+    std::ofstream(path, std::ios::binary) << bytes;
+    return read_image(path);
+  }
+
+  /// The job's M / M' and path-traced sums equal the single-process render's, bit for bit.
+  void expect_same_as_local(const std::string& id, const RenderOptions& o) {
+    const RenderOutputs local = render_local(o);
+    const Image counts = fetch_image(id, v1::RESULT_KIND_COUNTS_EXR);
+    const Image pathtrace = fetch_image(id, v1::RESULT_KIND_PATH_TRACED_EXR);
+    ASSERT_EQ(counts.data.size(), local.counts.data.size());
+    EXPECT_EQ(counts.data, local.counts.data) << "M and M' must be identical";
+    EXPECT_EQ(pathtrace.data, local.pathtrace.data) << "path-traced sums must be identical";
+  }
+
+  fs::path dir_;
+  int fetches_ = 0;
+  std::unique_ptr<MasterServer> server_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::JobService::Stub> jobs_;
+};
+
+}  // namespace epr::test
