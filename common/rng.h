@@ -36,15 +36,16 @@ constexpr float bits_to_unit_float(uint64_t bits) { return float(bits >> 40) * 0
 
 /// The random numbers of one path: pixel p's sample number s. Dimensions are consumed in order;
 /// next() equals bits_to_unit_float(hash_key(seed, pixel, sample, dimension)), with the
-/// dimension-independent part of the hash computed once per path.
+/// dimension-independent part of the hash computed once per path. next2() takes a pair from one
+/// dimension's 64 bits: bits 40-63 and bits 16-39, 24 bits each.
 class SampleStream {
  public:
   constexpr SampleStream(uint64_t seed, uint32_t pixel, uint32_t sample) : key_(hash_path_key(seed, pixel, sample)) {}
 
   float next() { return bits_to_unit_float(hash_dimension(key_, dimension_++)); }
   Vec2 next2() {
-    const float a = next();
-    return {a, next()};
+    const uint64_t bits = hash_dimension(key_, dimension_++);
+    return {bits_to_unit_float(bits), bits_to_unit_float(bits << 24)};
   }
   uint32_t dimension() const { return dimension_; }
 

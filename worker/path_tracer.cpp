@@ -57,10 +57,34 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, -ray.dir);
     const Vec3 origin = v.position + v.normal * eps;
 
-    // Next event estimation: one shadow ray to a point on the emitters, cast only when the estimate
-    // can be non-zero (the surface reflects, the point is in front of it and it faces the point).
+    // This vertex's random numbers, in a fixed order of dimensions.
     const float u_light = rng.next();
     const Vec2 u_point = rng.next2();
+    const Vec2 u_rr_lobe = rng.next2();
+    const float u_rr = u_rr_lobe.x, u_lobe = u_rr_lobe.y;
+    const Vec2 u_dir = rng.next2();
+
+    // Russian roulette (q is the probability of continuing from this vertex) and the continuation,
+    // chosen before the shadow ray is cast: the two dependency chains then overlap, and the next
+    // ray is ready when the shadow query returns.
+    float q = 1;
+    if (depth >= rr_.max_depth) {
+      q = 0;
+    } else if (rr_.mode == RussianRoulette::Mode::kPaper && depth > rr_.start_depth) {
+      q = 1 - rr_.termination;
+    } else if (rr_.mode == RussianRoulette::Mode::kAlbedo && depth > rr_.start_depth) {
+      q = std::clamp(bsdf.albedo(), 0.05f, 1.f);
+    }
+    if (u_rr < q) {
+      const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
+      if (bs.valid && !is_black(bs.weight)) {
+        v.weight = bs.weight / q;
+        ray = {origin, bs.wi};
+      }
+    }
+
+    // Next event estimation: one shadow ray to a point on the emitters, cast only when the estimate
+    // can be non-zero (the surface reflects, the point is in front of it and it faces the point).
     const Emitter* light = bsdf.black() ? nullptr : scene_.sample_emitter(u_light);
     if (light) {
       const Vec2 b = sample_uniform_triangle(u_point);
@@ -82,26 +106,6 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
           if (!scene_.occluded(origin, light_pos - origin, 0.f, 1 - 2 * eps * inv_dist))
             v.direct = bsdf.eval(to_light) * light->le * (cos_x * cos_y / (dist2 * light->pdf_area));
         }
-      }
-    }
-
-    // Russian roulette: q is the probability of continuing from this vertex.
-    float q = 1;
-    if (depth >= rr_.max_depth) {
-      q = 0;
-    } else if (rr_.mode == RussianRoulette::Mode::kPaper && depth > rr_.start_depth) {
-      q = 1 - rr_.termination;
-    } else if (rr_.mode == RussianRoulette::Mode::kAlbedo && depth > rr_.start_depth) {
-      q = std::clamp(bsdf.albedo(), 0.05f, 1.f);
-    }
-    const float u_rr = rng.next();
-    const float u_lobe = rng.next();
-    const Vec2 u_dir = rng.next2();
-    if (u_rr < q) {
-      const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
-      if (bs.valid && !is_black(bs.weight)) {
-        v.weight = bs.weight / q;
-        ray = {origin, bs.wi};
       }
     }
     if (is_black(v.weight)) break;

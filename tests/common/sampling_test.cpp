@@ -198,6 +198,30 @@ TEST(Rng, CounterBasedIsDeterministicAndKeyed) {
   // The stream is the keyed hash, dimension after dimension.
   SampleStream f(123456789, 77, 5);
   for (uint32_t d = 0; d < 40; ++d) EXPECT_EQ(f.next(), bits_to_unit_float(hash_key(123456789, 77, 5, d))) << d;
+  const uint64_t bits = hash_key(123456789, 77, 5, 40);
+  const Vec2 pair = f.next2();
+  EXPECT_EQ(pair.x, bits_to_unit_float(bits));
+  EXPECT_EQ(pair.y, bits_to_unit_float(bits << 24));
+  EXPECT_EQ(f.dimension(), 41u);
+}
+
+TEST(Rng, PairsAreUniformAndUncorrelated) {
+  double sx = 0, sy = 0, sxy = 0, syy = 0;
+  const int n = 200000;
+  for (int i = 0; i < n; ++i) {
+    SampleStream s(5, uint32_t(i), 0);
+    const Vec2 p = s.next2();
+    ASSERT_GE(p.y, 0.f);
+    ASSERT_LT(p.y, 1.f);
+    sx += p.x;
+    sy += p.y;
+    sxy += double(p.x) * p.y;
+    syy += double(p.y) * p.y;
+  }
+  sx /= n, sy /= n, sxy /= n, syy /= n;
+  EXPECT_NEAR(sy, 0.5, 3e-3);
+  EXPECT_NEAR(syy - sy * sy, 1.0 / 12, 2e-3);
+  EXPECT_NEAR((sxy - sx * sy) * 12, 0.0, 0.01);  // correlation coefficient
 }
 
 TEST(Rng, UniformMoments) {
