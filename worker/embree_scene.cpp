@@ -46,7 +46,10 @@ EmbreeScene::EmbreeScene(const Scene& scene) : scene_(scene) {
                                  std::abs(b.hi.y), std::abs(b.hi.z), 1.f});
   ray_epsilon_ = 2e-5f * extent;
 
-  if (scene.materials.size() <= 65536) material16_.assign(scene.material_of.begin(), scene.material_of.end());
+  if (scene.materials.size() <= 256)
+    material8_.assign(scene.material_of.begin(), scene.material_of.end());
+  else if (scene.materials.size() <= 65536)
+    material16_.assign(scene.material_of.begin(), scene.material_of.end());
   build_emitter_table();
 }
 

@@ -47,9 +47,11 @@ class EmbreeScene {
   bool occluded(const Vec3& origin, const Vec3& dir, float tnear, float tfar) const;
 
   const Scene& scene() const { return scene_; }
-  /// Scene::material_of[prim], read from a copy of 2 bytes per triangle when the scene has at most
-  /// 65536 materials (a hit's one memory access outside Embree: the smaller, the likelier cached).
+  /// Scene::material_of[prim], read from a copy of 1 byte per triangle when the scene has at most
+  /// 256 materials, 2 bytes up to 65536: a hit's one memory access outside Embree, and the smaller
+  /// the table the likelier it is cached next to Embree's BVH.
   uint32_t material(uint32_t prim) const {
+    if (!material8_.empty()) return material8_[prim];
     return material16_.empty() ? scene_.material_of[prim] : material16_[prim];
   }
 
@@ -70,6 +72,7 @@ class EmbreeScene {
   RTCDevice device_ = nullptr;
   RTCScene rtc_scene_ = nullptr;
   float ray_epsilon_ = 1e-4f;
+  std::vector<uint8_t> material8_;
   std::vector<uint16_t> material16_;
   std::vector<Emitter> emitters_;
   AliasTable emitter_selection_;

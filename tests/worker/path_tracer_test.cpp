@@ -177,6 +177,22 @@ TEST(EmbreeScene, HitNormalIsTheTrianglesGeometricNormal) {
   EXPECT_GT(hits, 20);  // the oblique triangle was among them
 }
 
+TEST(EmbreeScene, CompactMaterialIndexMatchesTheScene) {
+  // 1-byte table up to 256 materials, 2 bytes beyond: both must give Scene::material_of.
+  for (int materials : {3, 256, 257, 700}) {
+    Scene scene;
+    scene.name = "test-materials";
+    for (int m = 0; m < materials; ++m) add_material(scene, Material{});
+    for (int i = 0; i < 2 * materials; ++i) {
+      const float x = float(i);
+      add_triangle(scene, {x, 0, 0}, {x + 1, 0, 0}, {x, 1, 0}, uint32_t((i * 7) % materials));
+    }
+    EmbreeScene es(scene);
+    for (uint32_t t = 0; t < scene.triangle_count(); ++t)
+      ASSERT_EQ(es.material(t), scene.material_of[t]) << materials << " materials, triangle " << t;
+  }
+}
+
 TEST(EmbreeScene, EmitterTableSelectsByPowerAndItsPdfIntegratesToOne) {
   // Two lights: a large dim one and a small bright one; selection must follow area x luminance(Ke).
   Scene scene;
