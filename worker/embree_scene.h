@@ -19,8 +19,8 @@
 namespace epr {
 
 struct Hit {
-  float t = 0;      // distance along the (unit) ray direction, metres
-  uint32_t prim = 0;  // triangle index into Scene::triangles
+  float t = 0;         // distance along the (unit) ray direction, metres
+  uint32_t prim = 0;   // triangle index into Scene::triangles
   float u = 0, v = 0;  // barycentrics of corners 1 and 2
   Vec3 ng;             // Embree's geometric normal: not normalised, right-hand rule on the corner order
 };

@@ -202,7 +202,7 @@ TEST(EmbreeScene, EmitterTableSelectsByPowerAndItsPdfIntegratesToOne) {
   bright.ke = Vec3(2.f, 8.f, 1.f);
   const uint32_t w = add_material(scene, wall), d = add_material(scene, dim), b = add_material(scene, bright);
   add_quad(scene, {-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}, w);
-  add_tessellated_quad(scene, {-1, 2, -1}, {1, 2, -1}, {1, 2, 1}, {-1, 2, 1}, d, 3);           // area 4
+  add_tessellated_quad(scene, {-1, 2, -1}, {1, 2, -1}, {1, 2, 1}, {-1, 2, 1}, d, 3);                       // area 4
   add_quad(scene, {-0.1f, 1.9f, -0.1f}, {0.1f, 1.9f, -0.1f}, {0.1f, 1.9f, 0.1f}, {-0.1f, 1.9f, 0.1f}, b);  // 0.04
   EmbreeScene es(scene);
   ASSERT_EQ(es.emitters().size(), 18u + 2u);
