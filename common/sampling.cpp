@@ -1,22 +1,9 @@
 #include "common/sampling.h"
 
 #include <algorithm>
+#include <stdexcept>
 
 namespace epr {
-
-Vec2 sample_uniform_disk_concentric(Vec2 u) {
-  const float ox = 2 * u.x - 1, oy = 2 * u.y - 1;
-  if (ox == 0 && oy == 0) return {0, 0};
-  float r, theta;
-  if (std::abs(ox) > std::abs(oy)) {
-    r = ox;
-    theta = (kPi / 4) * (oy / ox);
-  } else {
-    r = oy;
-    theta = kPi / 2 - (kPi / 4) * (ox / oy);
-  }
-  return {r * std::cos(theta), r * std::sin(theta)};
-}
 
 Vec2 invert_uniform_disk_concentric(Vec2 p) {
   const float theta = std::atan2(p.y, p.x);  // in [-pi, pi]
@@ -37,25 +24,7 @@ Vec2 invert_uniform_disk_concentric(Vec2 p) {
   return {(ox + 1) * 0.5f, (oy + 1) * 0.5f};
 }
 
-Vec3 sample_cosine_hemisphere(Vec2 u) {
-  const Vec2 d = sample_uniform_disk_concentric(u);
-  const float z = std::sqrt(std::max(0.f, 1 - d.x * d.x - d.y * d.y));
-  return {d.x, d.y, z};
-}
-
 Vec2 invert_cosine_hemisphere(const Vec3& w) { return invert_uniform_disk_concentric({w.x, w.y}); }
-
-Vec2 sample_uniform_triangle(Vec2 u) {
-  float b0, b1;
-  if (u.x < u.y) {
-    b0 = u.x / 2;
-    b1 = u.y - b0;
-  } else {
-    b1 = u.y / 2;
-    b0 = u.x - b1;
-  }
-  return {b0, b1};
-}
 
 Vec2 invert_uniform_triangle(Vec2 b) {
   if (b.x > b.y) {
@@ -96,6 +65,39 @@ size_t DiscreteDistribution::sample(float u, float* pmf_out, float* remapped) co
     *remapped = w > 0 ? float(std::clamp((target - cdf_[i]) / w, 0.0, 0.99999994)) : 0.f;
   }
   return i;
+}
+
+AliasTable::AliasTable(std::span<const float> weights) : bins_(weights.size()), pmf_(weights.size()) {
+  if (weights.size() > UINT32_MAX) throw std::invalid_argument("alias table: too many items");
+  double total = 0;
+  for (const float w : weights) {
+    if (!(w >= 0) || !std::isfinite(w)) throw std::invalid_argument("alias table: weights must be finite and >= 0");
+    total += w;
+  }
+  if (!(total > 0)) throw std::invalid_argument("alias table: no positive weight");
+
+  // Vose: scaled probabilities n p_i; items below 1 ("small") are topped up by one item above 1.
+  const size_t n = weights.size();
+  std::vector<double> scaled(n);
+  std::vector<uint32_t> small, large;
+  for (size_t i = 0; i < n; ++i) {
+    pmf_[i] = float(double(weights[i]) / total);
+    scaled[i] = double(weights[i]) / total * double(n);
+    (scaled[i] < 1 ? small : large).push_back(uint32_t(i));
+  }
+  while (!small.empty() && !large.empty()) {
+    const uint32_t s = small.back(), l = large.back();
+    small.pop_back();
+    bins_[s] = {scaled[s], l};
+    scaled[l] -= 1 - scaled[s];
+    if (scaled[l] < 1) {
+      large.pop_back();
+      small.push_back(l);
+    }
+  }
+  // What is left is 1 up to rounding: those bins keep their own item.
+  for (const uint32_t i : large) bins_[i] = {1.0, i};
+  for (const uint32_t i : small) bins_[i] = {1.0, i};
 }
 
 }  // namespace epr

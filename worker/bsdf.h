@@ -20,8 +20,10 @@ class Bsdf {
  public:
   Bsdf(const Material& m, Vec3 kd, Vec3 n, Vec3 wo)
       : kd_(kd), ks_(m.type == MaterialType::kGlossy ? m.ks : Vec3(0.f)), exponent_(m.exponent), n_(n), wo_(wo) {
-    const float ld = luminance(kd_), ls = luminance(ks_);
-    p_glossy_ = (ld + ls) > 0 ? ls / (ld + ls) : 0.f;
+    if (m.type == MaterialType::kGlossy) {
+      const float ld = luminance(kd_), ls = luminance(ks_);
+      p_glossy_ = (ld + ls) > 0 ? ls / (ld + ls) : 0.f;
+    }
   }
 
   /// f(wo, wi), 1/sr.
@@ -65,6 +67,8 @@ class Bsdf {
   }
 
   bool glossy() const { return p_glossy_ > 0; }
+  /// Reflects nothing (f = 0 everywhere): no estimate at this vertex can be non-zero.
+  bool black() const { return is_black(kd_) && is_black(ks_); }
   /// Largest total reflectance, the albedo-based Russian roulette's survival probability.
   float albedo() const { return max_component(kd_ + ks_); }
 

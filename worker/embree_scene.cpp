@@ -45,6 +45,30 @@ EmbreeScene::EmbreeScene(const Scene& scene) : scene_(scene) {
   const float extent = std::max({std::abs(b.lo.x), std::abs(b.lo.y), std::abs(b.lo.z), std::abs(b.hi.x),
                                  std::abs(b.hi.y), std::abs(b.hi.z), 1.f});
   ray_epsilon_ = 2e-5f * extent;
+
+  if (scene.materials.size() <= 256)
+    material8_.assign(scene.material_of.begin(), scene.material_of.end());
+  else if (scene.materials.size() <= 65536)
+    material16_.assign(scene.material_of.begin(), scene.material_of.end());
+  build_emitter_table();
+}
+
+void EmbreeScene::build_emitter_table() {
+  std::vector<float> weights, areas;
+  for (size_t i = 0; i < scene_.triangles.size(); ++i) {
+    const Material& m = scene_.materials[scene_.material_of[i]];
+    if (!m.emissive()) continue;
+    const float area = scene_.area(i);
+    const float w = area * luminance(m.ke);
+    if (!(w > 0)) continue;
+    const auto& t = scene_.triangles[i];
+    emitters_.push_back({scene_.positions[t[0]], scene_.positions[t[1]], scene_.positions[t[2]],
+                         scene_.geometric_normal(i), m.ke, 0.f});
+    weights.push_back(w);
+    areas.push_back(area);
+  }
+  if (!emitters_.empty()) emitter_selection_ = AliasTable(weights);
+  for (size_t k = 0; k < emitters_.size(); ++k) emitters_[k].pdf_area = emitter_selection_.pmf(k) / areas[k];
 }
 
 EmbreeScene::~EmbreeScene() {
@@ -76,6 +100,7 @@ bool EmbreeScene::intersect(const Ray& ray, float tnear, float tfar, Hit* hit) c
   hit->prim = rh.hit.primID;
   hit->u = rh.hit.u;
   hit->v = rh.hit.v;
+  hit->ng = {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};
   return true;
 }
 

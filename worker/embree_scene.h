@@ -1,22 +1,36 @@
-// The scene's triangles in an Embree 3 BVH: closest-hit and any-hit (shadow) queries.
+// The scene prepared for tracing: its triangles in an Embree 3 BVH (closest-hit and any-hit queries),
+// plus what a path needs per hit and per light sample, prepared once here rather than per ray: a
+// compact per-triangle material index and the table of emitting triangles. A hit's geometric normal
+// is Embree's (Hit::ng), which costs no memory access.
 //
 // One device per process; errors from Embree are reported through a device error callback (logged
 // on the "worker" logger) rather than by checking every call, as in Embree's tutorials.
 #pragma once
 
 #include <cstdint>
+#include <vector>
 
 #include <embree3/rtcore.h>
 
 #include "common/camera.h"
+#include "common/sampling.h"
 #include "common/scene.h"
 
 namespace epr {
 
 struct Hit {
-  float t = 0;      // distance along the (unit) ray direction, metres
-  uint32_t prim = 0;  // triangle index into Scene::triangles
+  float t = 0;         // distance along the (unit) ray direction, metres
+  uint32_t prim = 0;   // triangle index into Scene::triangles
   float u = 0, v = 0;  // barycentrics of corners 1 and 2
+  Vec3 ng;             // Embree's geometric normal: not normalised, right-hand rule on the corner order
+};
+
+/// An emitting triangle as next event estimation samples it (64 bytes: one cache line).
+struct Emitter {
+  Vec3 p0, p1, p2;  // corners, world space, metres
+  Vec3 normal;      // unit geometric normal (the emitter is two-sided)
+  Vec3 le;          // emitted radiance Ke, W / (m^2 sr)
+  float pdf_area;   // probability of choosing this triangle / its area, 1/m^2
 };
 
 class EmbreeScene {
@@ -29,18 +43,39 @@ class EmbreeScene {
 
   /// Closest hit along `ray` within (tnear, tfar); false if none.
   bool intersect(const Ray& ray, float tnear, float tfar, Hit* hit) const;
-  /// True if anything blocks the segment origin + t dir, t in (tnear, tfar).
+  /// True if anything blocks the segment origin + t dir, t in (tnear, tfar); dir need not be unit length.
   bool occluded(const Vec3& origin, const Vec3& dir, float tnear, float tfar) const;
 
   const Scene& scene() const { return scene_; }
+  /// Scene::material_of[prim], read from a copy of 1 byte per triangle when the scene has at most
+  /// 256 materials, 2 bytes up to 65536: a hit's one memory access outside Embree, and the smaller
+  /// the table the likelier it is cached next to Embree's BVH.
+  uint32_t material(uint32_t prim) const {
+    if (!material8_.empty()) return material8_[prim];
+    return material16_.empty() ? scene_.material_of[prim] : material16_[prim];
+  }
+
+  /// Emitting triangles (Ke non-zero, area > 0), chosen with probability proportional to
+  /// area x luminance(Ke).
+  const std::vector<Emitter>& emitters() const { return emitters_; }
+  /// The emitter for a uniform u in [0,1); null if the scene has none.
+  const Emitter* sample_emitter(float u) const {
+    return emitters_.empty() ? nullptr : &emitters_[emitter_selection_.sample(u)];
+  }
   /// Offset in metres used to step off a surface (scaled to the scene's extent).
   float ray_epsilon() const { return ray_epsilon_; }
 
  private:
+  void build_emitter_table();
+
   const Scene& scene_;
   RTCDevice device_ = nullptr;
   RTCScene rtc_scene_ = nullptr;
   float ray_epsilon_ = 1e-4f;
+  std::vector<uint8_t> material8_;
+  std::vector<uint16_t> material16_;
+  std::vector<Emitter> emitters_;
+  AliasTable emitter_selection_;
 };
 
 }  // namespace epr

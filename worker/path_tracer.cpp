@@ -20,34 +20,7 @@ struct PathVertex {
 }  // namespace
 
 PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr)
-    : scene_(scene), camera_(camera), seed_(seed), rr_(rr) {
-  const Scene& s = scene.scene();
-  std::vector<float> weights;
-  for (size_t i = 0; i < s.triangles.size(); ++i) {
-    const Material& m = s.materials[s.material_of[i]];
-    if (!m.emissive()) continue;
-    const float w = s.area(i) * luminance(m.ke);
-    if (!(w > 0)) continue;
-    emitters_.push_back(uint32_t(i));
-    weights.push_back(w);
-  }
-  emitter_distribution_ = DiscreteDistribution(weights);
-}
-
-bool PathTracer::sample_light(float u_select, Vec2 u, LightSample* out) const {
-  if (emitters_.empty()) return false;
-  float pmf = 0;
-  const size_t k = emitter_distribution_.sample(u_select, &pmf);
-  const uint32_t tri = emitters_[k];
-  const Scene& s = scene_.scene();
-  const auto& t = s.triangles[tri];
-  const Vec2 b = sample_uniform_triangle(u);
-  out->position = s.positions[t[0]] * b.x + s.positions[t[1]] * b.y + s.positions[t[2]] * (1 - b.x - b.y);
-  out->normal = s.geometric_normal(tri);
-  out->le = s.materials[s.material_of[tri]].ke;
-  out->pdf_area = pmf / s.area(tri);
-  return out->pdf_area > 0;
-}
+    : scene_(scene), camera_(camera), seed_(seed), rr_(rr) {}
 
 Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) const {
   const Scene& s = scene_.scene();
@@ -73,42 +46,27 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     Hit hit;
     ++rays;
     if (!scene_.intersect(ray, 0.f, std::numeric_limits<float>::infinity(), &hit)) break;
-    const Material& mat = s.materials[s.material_of[hit.prim]];
-    PathVertex v;
+    const Material& mat = s.materials[scene_.material(hit.prim)];
+    // Filled in place: building the vertex on the stack and copying it costs more than its shading.
+    PathVertex& v = path.emplace_back();
     v.position = ray.origin + ray.dir * hit.t;
-    const Vec3 ng = s.geometric_normal(hit.prim);
+    const Vec3 ng = hit.ng * (1 / length(hit.ng));
     v.normal = dot(ng, ray.dir) < 0 ? ng : -ng;
     v.le = mat.ke;  // two-sided diffuse emitter
     v.diffuse = mat.diffuse();
-    const Vec3 wo = -ray.dir;
-    const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, wo);
+    const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, -ray.dir);
     const Vec3 origin = v.position + v.normal * eps;
 
-    // Next event estimation: one shadow ray to a point on the emitters.
+    // This vertex's random numbers, in a fixed order of dimensions.
     const float u_light = rng.next();
     const Vec2 u_point = rng.next2();
-    LightSample ls;
-    if (sample_light(u_light, u_point, &ls)) {
-      // Geometry from the true surface point (an offset origin would give coplanar emitters a
-      // spurious cosine with a 1/d^4 singularity); the offset is only for the shadow ray.
-      Vec3 to_light = ls.position - v.position;
-      const float dist2 = dot(to_light, to_light);
-      const float dist = std::sqrt(dist2);
-      if (dist > 4 * eps) {
-        to_light = to_light / dist;
-        const float cos_x = dot(v.normal, to_light);
-        const float cos_y = std::abs(dot(ls.normal, to_light));
-        if (cos_x > 0 && cos_y > 0) {
-          ++rays;
-          const Vec3 shadow = ls.position - origin;
-          const float shadow_len = length(shadow);
-          if (!scene_.occluded(origin, shadow / shadow_len, 0.f, shadow_len - 2 * eps))
-            v.direct = bsdf.eval(to_light) * ls.le * (cos_x * cos_y / (dist2 * ls.pdf_area));
-        }
-      }
-    }
+    const Vec2 u_rr_lobe = rng.next2();
+    const float u_rr = u_rr_lobe.x, u_lobe = u_rr_lobe.y;
+    const Vec2 u_dir = rng.next2();
 
-    // Russian roulette: q is the probability of continuing from this vertex.
+    // Russian roulette (q is the probability of continuing from this vertex) and the continuation,
+    // chosen before the shadow ray is cast: the two dependency chains then overlap, and the next
+    // ray is ready when the shadow query returns.
     float q = 1;
     if (depth >= rr_.max_depth) {
       q = 0;
@@ -117,9 +75,6 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     } else if (rr_.mode == RussianRoulette::Mode::kAlbedo && depth > rr_.start_depth) {
       q = std::clamp(bsdf.albedo(), 0.05f, 1.f);
     }
-    const float u_rr = rng.next();
-    const float u_lobe = rng.next();
-    const Vec2 u_dir = rng.next2();
     if (u_rr < q) {
       const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
       if (bs.valid && !is_black(bs.weight)) {
@@ -127,7 +82,32 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
         ray = {origin, bs.wi};
       }
     }
-    path.push_back(v);
+
+    // Next event estimation: one shadow ray to a point on the emitters, cast only when the estimate
+    // can be non-zero (the surface reflects, the point is in front of it and it faces the point).
+    const Emitter* light = bsdf.black() ? nullptr : scene_.sample_emitter(u_light);
+    if (light) {
+      const Vec2 b = sample_uniform_triangle(u_point);
+      const Vec3 light_pos = light->p0 * b.x + light->p1 * b.y + light->p2 * (1 - b.x - b.y);
+      // Geometry from the true surface point (an offset origin would give coplanar emitters a
+      // spurious cosine with a 1/d^4 singularity); the offset is only for the shadow ray.
+      Vec3 to_light = light_pos - v.position;
+      const float dist2 = dot(to_light, to_light);
+      const float dist = std::sqrt(dist2);
+      if (dist > 4 * eps) {
+        const float inv_dist = 1 / dist;
+        to_light = to_light * inv_dist;
+        const float cos_x = dot(v.normal, to_light);
+        const float cos_y = std::abs(dot(light->normal, to_light));
+        if (cos_x > 0 && cos_y > 0) {
+          ++rays;
+          // The segment from the offset origin to the light point, parametrised over [0, 1] (Embree
+          // takes directions of any length); it stops about 2 eps short of the emitter.
+          if (!scene_.occluded(origin, light_pos - origin, 0.f, 1 - 2 * eps * inv_dist))
+            v.direct = bsdf.eval(to_light) * light->le * (cos_x * cos_y / (dist2 * light->pdf_area));
+        }
+      }
+    }
     if (is_black(v.weight)) break;
   }
 

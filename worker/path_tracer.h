@@ -48,19 +48,12 @@ class PathTracer {
   const EmbreeScene& scene() const { return scene_; }
 
  private:
-  struct LightSample {
-    Vec3 position, normal, le;
-    float pdf_area = 0;  // density w.r.t. area on the emitters, 1/m^2
-  };
-  bool sample_light(float u_select, Vec2 u, LightSample* out) const;
   Vec3 albedo_at(const Material& m, uint32_t prim, float u, float v) const;
 
   const EmbreeScene& scene_;
   Camera camera_;
   uint64_t seed_;
   RussianRoulette rr_;
-  std::vector<uint32_t> emitters_;  // triangle indices
-  DiscreteDistribution emitter_distribution_;
 };
 
 }  // namespace epr

@@ -12,6 +12,7 @@
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 
+#include "common/rng.h"
 #include "worker/tile_renderer.h"
 
 namespace epr {
@@ -152,6 +153,77 @@ TEST(PathTracer, TileIsBitIdenticalWhateverTheThreadOrOrder) {
     ASSERT_EQ(a[t].vertices.size(), b[t].vertices.size());
     for (size_t i = 0; i < a[t].vertices.size(); ++i) ASSERT_EQ(a[t].vertices[i].radiance, b[t].vertices[i].radiance);
   }
+}
+
+TEST(EmbreeScene, HitNormalIsTheTrianglesGeometricNormal) {
+  // The tracer takes a hit's normal from Embree; it must be Scene::geometric_normal (right-hand rule).
+  Scene scene = furnace_box(0.5f, 0.f);
+  add_triangle(scene, {0.3f, -0.2f, 0.1f}, {-0.4f, 0.5f, -0.2f}, {0.1f, 0.2f, 0.6f}, 0);  // oblique, inside
+  EmbreeScene es(scene);
+  int hits = 0;
+  for (uint32_t i = 0; i < 2000; ++i) {
+    SampleStream rng(1, i, 0);
+    const float z = 1 - 2 * rng.next(), phi = 2 * kPi * rng.next();
+    const float r = std::sqrt(std::max(0.f, 1 - z * z));
+    const Ray ray{{0.05f, 0.02f, -0.03f}, {r * std::cos(phi), r * std::sin(phi), z}};
+    Hit h;
+    ASSERT_TRUE(es.intersect(ray, 0.f, 1e30f, &h));  // closed box
+    const Vec3 n = normalize(h.ng), expected = scene.geometric_normal(h.prim);
+    EXPECT_NEAR(n.x, expected.x, 1e-6f);
+    EXPECT_NEAR(n.y, expected.y, 1e-6f);
+    EXPECT_NEAR(n.z, expected.z, 1e-6f);
+    hits += h.prim == scene.triangle_count() - 1;
+  }
+  EXPECT_GT(hits, 20);  // the oblique triangle was among them
+}
+
+TEST(EmbreeScene, CompactMaterialIndexMatchesTheScene) {
+  // 1-byte table up to 256 materials, 2 bytes beyond: both must give Scene::material_of.
+  for (int materials : {3, 256, 257, 700}) {
+    Scene scene;
+    scene.name = "test-materials";
+    for (int m = 0; m < materials; ++m) add_material(scene, Material{});
+    for (int i = 0; i < 2 * materials; ++i) {
+      const float x = float(i);
+      add_triangle(scene, {x, 0, 0}, {x + 1, 0, 0}, {x, 1, 0}, uint32_t((i * 7) % materials));
+    }
+    EmbreeScene es(scene);
+    for (uint32_t t = 0; t < scene.triangle_count(); ++t)
+      ASSERT_EQ(es.material(t), scene.material_of[t]) << materials << " materials, triangle " << t;
+  }
+}
+
+TEST(EmbreeScene, EmitterTableSelectsByPowerAndItsPdfIntegratesToOne) {
+  // Two lights: a large dim one and a small bright one; selection must follow area x luminance(Ke).
+  Scene scene;
+  scene.name = "test-lights";
+  Material wall, dim, bright;
+  dim.ke = Vec3(1.f);
+  bright.ke = Vec3(2.f, 8.f, 1.f);
+  const uint32_t w = add_material(scene, wall), d = add_material(scene, dim), b = add_material(scene, bright);
+  add_quad(scene, {-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}, w);
+  add_tessellated_quad(scene, {-1, 2, -1}, {1, 2, -1}, {1, 2, 1}, {-1, 2, 1}, d, 3);                       // area 4
+  add_quad(scene, {-0.1f, 1.9f, -0.1f}, {0.1f, 1.9f, -0.1f}, {0.1f, 1.9f, 0.1f}, {-0.1f, 1.9f, 0.1f}, b);  // 0.04
+  EmbreeScene es(scene);
+  ASSERT_EQ(es.emitters().size(), 18u + 2u);
+  const double power_dim = 4.0 * luminance(dim.ke), power_bright = 0.04 * luminance(bright.ke);
+  double integral = 0;
+  for (const Emitter& e : es.emitters()) {
+    const float area = 0.5f * length(cross(e.p1 - e.p0, e.p2 - e.p0));
+    integral += double(e.pdf_area) * area;  // sum of selection probabilities
+  }
+  EXPECT_NEAR(integral, 1.0, 1e-5);
+  int bright_hits = 0;
+  const int n = 1 << 16;
+  for (int i = 0; i < n; ++i) {
+    const Emitter* e = es.sample_emitter((float(i) + 0.5f) / float(n));
+    ASSERT_NE(e, nullptr);
+    bright_hits += e->le == bright.ke;
+  }
+  EXPECT_NEAR(bright_hits / double(n), power_bright / (power_dim + power_bright), 1e-3);
+
+  const Scene dark = furnace_box(0.5f, 0.f);
+  EXPECT_EQ(EmbreeScene(dark).sample_emitter(0.5f), nullptr);
 }
 
 TEST(TileRenderer, SkippedPixelsTraceNothingAndSampleIndicesShiftTheSequence) {
