@@ -41,9 +41,11 @@
 namespace epr {
 
 class GlContext;
+class CheckpointStore;
+struct JobProgressRecord;
 
 struct MasterOptions {
-  std::string state_dir;                  // results (and later checkpoints); empty: a temp folder
+  std::string state_dir;                  // results, scenes and checkpoints (checkpoint.h); empty: a temp folder
   std::string reproject_backend_override; // "cpu" forces the CPU reprojector (no OSMesa)
   int lease_timeout_ms = 20000;           // a lease not extended by a heartbeat for this long expires
   int heartbeat_interval_ms = 1000;       // asked of workers
@@ -178,6 +180,10 @@ class JobManager {
   /// Round and reprojection durations of every round closed so far (for /metrics).
   DurationHistograms histograms() const;
   const MasterOptions& options() const { return options_; }
+  /// This run's number in the state directory (1 for a new one). Lease ids carry it above bit
+  /// kLeaseEpochShift, so a lease of an earlier run is never mistaken for one of this run.
+  uint64_t epoch() const { return epoch_; }
+  static constexpr int kLeaseEpochShift = 40;
 
  private:
   struct Job;
@@ -196,6 +202,12 @@ class JobManager {
   JobSnapshot snapshot(const Job& job) const;  // with mu_ held
   std::shared_ptr<Job> next_job() const;        // with mu_ held
   std::string job_dir(const Job& job) const;
+  // Checkpoints (checkpoint.h): loading the state directory, and the records written after each
+  // round, at the end of a job and when it is cancelled or fails.
+  void load_state();
+  JobProgressRecord progress_record(const Job& job) const;  // with mu_ held
+  void save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record);  // reprojection thread
+  void save_final_checkpoint(const std::shared_ptr<Job>& job);
 
   MasterOptions options_;
   mutable std::mutex mu_;
@@ -213,6 +225,9 @@ class JobManager {
   bool gl_ready_ = false;
   DurationHistograms histograms_;
   std::string state_dir_;
+  std::unique_ptr<CheckpointStore> store_;
+  std::mutex checkpoint_mu_;  // a job's state is read and its checkpoint written under it, in that order
+  uint64_t epoch_ = 0;
   std::thread reprojection_thread_, reaper_thread_;
 };
 
