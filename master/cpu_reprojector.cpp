@@ -157,7 +157,8 @@ void CpuReprojector::restore(const SubpixelAccumulation& acc, const Reprojection
   if (acc.width != grid_.width || acc.height != grid_.height || acc.subpixels != subpixels_ ||
       acc.sum.size() != 3 * cells_.size() || acc.count.size() != cells_.size())
     throw std::invalid_argument("the accumulation to restore is not of this reprojector's subpixel grid");
-  for (size_t i = 0; i < cells_.size(); ++i) cells_[i] = {acc.sum[3 * i], acc.sum[3 * i + 1], acc.sum[3 * i + 2], acc.count[i]};
+  for (size_t i = 0; i < cells_.size(); ++i)
+    cells_[i] = {acc.sum[3 * i], acc.sum[3 * i + 1], acc.sum[3 * i + 2], acc.count[i]};
   counts_ = counts;
 }
 

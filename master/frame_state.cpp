@@ -194,9 +194,11 @@ void FrameState::restore(const FrameSnapshot& s) {
       s.skip.size() != n)
     throw std::invalid_argument("the snapshot's per-pixel arrays do not match the frame size");
   if (s.has_accumulation != (reprojector_ != nullptr))
-    throw std::invalid_argument(s.has_accumulation ? "the snapshot has a reprojection accumulation, this frame reprojects nothing"
-                                                   : "the snapshot has no reprojection accumulation");
-  if (s.paths_done < 0 || s.paths_done > opts_.spp) throw std::invalid_argument("the snapshot's path count is out of range");
+    throw std::invalid_argument(s.has_accumulation
+                                    ? "the snapshot has a reprojection accumulation, this frame reprojects nothing"
+                                    : "the snapshot has no reprojection accumulation");
+  if (s.paths_done < 0 || s.paths_done > opts_.spp)
+    throw std::invalid_argument("the snapshot's path count is out of range");
   if (reprojector_) reprojector_->restore(s.accumulation, s.counts);  // checks the grid; throws before any change below
   path_sum_ = s.path_sum;
   path_count_ = s.path_count;

@@ -2,6 +2,7 @@
 #include "master/server/checkpoint.h"
 
 #include <fcntl.h>
+#include <fmt/format.h>
 #include <unistd.h>
 #include <zlib.h>
 
@@ -13,8 +14,6 @@
 #include <sstream>
 #include <system_error>
 #include <type_traits>
-
-#include <fmt/format.h>
 
 #include "epr/v1/job_service.pb.h"
 #include "wire/convert.h"
@@ -262,7 +261,8 @@ std::string seal(RecordKind kind, std::string_view payload) {
 
 std::string unseal(RecordKind kind, std::string_view bytes) {
   if (bytes.size() < kSealHeaderBytes)
-    throw CheckpointError(fmt::format("torn: {} bytes, shorter than the {}-byte header", bytes.size(), kSealHeaderBytes));
+    throw CheckpointError(
+        fmt::format("torn: {} bytes, shorter than the {}-byte header", bytes.size(), kSealHeaderBytes));
   if (std::memcmp(bytes.data(), kMagic, 8) != 0) throw CheckpointError("not a state file (bad magic)");
   uint32_t version, k, crc, header_crc;
   uint64_t length;
@@ -336,7 +336,8 @@ JobSpecRecord decode_job_spec(std::string_view payload) {
   rd.expect_end();
   if (r.id.empty() || r.id.find('/') != std::string::npos || r.id == "." || r.id == "..")
     throw CheckpointError("malformed payload: unusable job id");
-  if (auto err = from_job_spec(spec, &r.options, &r.camera)) throw CheckpointError("the stored job spec is invalid: " + *err);
+  if (auto err = from_job_spec(spec, &r.options, &r.camera))
+    throw CheckpointError("the stored job spec is invalid: " + *err);
   r.name = spec.name();
   r.priority = spec.priority();
   r.request_id = spec.request_id();
@@ -373,7 +374,8 @@ JobProgressRecord decode_job_progress(std::string_view payload) {
   ByteReader rd(payload);
   JobProgressRecord r;
   const uint32_t state = rd.get<uint32_t>();
-  if (state > uint32_t(JobState::kCancelled)) throw CheckpointError(fmt::format("malformed payload: job state {}", state));
+  if (state > uint32_t(JobState::kCancelled))
+    throw CheckpointError(fmt::format("malformed payload: job state {}", state));
   r.state = JobState(state);
   r.error = rd.get_string();
   r.triangles = rd.get<uint64_t>();
@@ -450,7 +452,8 @@ SceneBundleData CheckpointStore::load_scene(const std::string& hash) const {
     data = from_proto(b.files());
   else
     throw CheckpointError(fmt::format("'{}': the scene bundle has neither files nor a built-in", path.string()));
-  if (content_hash(data) != hash) throw CheckpointError(fmt::format("'{}': content does not match its hash", path.string()));
+  if (content_hash(data) != hash)
+    throw CheckpointError(fmt::format("'{}': content does not match its hash", path.string()));
   return data;
 }
 
@@ -509,7 +512,8 @@ std::vector<CheckpointStore::LoadedJob> CheckpointStore::load_jobs(std::vector<s
       continue;
     }
     if (job.spec.id != entry.path().filename().string()) {
-      if (problems) problems->push_back(fmt::format("job folder '{}' holds job {}: skipped", entry.path().string(), job.spec.id));
+      if (problems)
+        problems->push_back(fmt::format("job folder '{}' holds job {}: skipped", entry.path().string(), job.spec.id));
       continue;
     }
     job.progress = load_progress(job.spec.id, &job.problems);

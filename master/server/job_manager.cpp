@@ -109,6 +109,7 @@ JobManager::JobManager(MasterOptions options) : options_(std::move(options)) {
                                           : options_.state_dir;
   fs::create_directories(fs::path(state_dir_) / "jobs");
   store_ = std::make_unique<CheckpointStore>(state_dir_);
+  checkpointing_ = options_.checkpoints && !options_.state_dir.empty();
   // Lease ids are never reused, not even across restarts: the run number is their top bits.
   epoch_ = store_->next_epoch();
   next_lease_ = (epoch_ << kLeaseEpochShift) + 1;
@@ -168,7 +169,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
     return invalid(fmt::format("image sides are limited to {} pixels", options_.max_image_side));
   const std::string hash = content_hash(b);
   try {
-    store_->save_scene(hash, b);
+    if (checkpointing_) store_->save_scene(hash, b);
   } catch (const std::exception& e) {
     logger("master")->error("cannot store scene {}: {} (its jobs will not survive a restart)", hash, e.what());
   }
@@ -193,8 +194,16 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
     job->request = std::move(req);
     if (!job->request.request_id.empty()) request_ids_[job->request.request_id] = job->id;
     jobs_[job->id] = job;
-    spec = {job->id, job->seq, job->submitted_ms, hash, job->request.options, job->request.camera, job->request.name,
-            job->request.priority, job->request.time_budget_seconds, job->request.request_id};
+    spec = {job->id,
+            job->seq,
+            job->submitted_ms,
+            hash,
+            job->request.options,
+            job->request.camera,
+            job->request.name,
+            job->request.priority,
+            job->request.time_budget_seconds,
+            job->request.request_id};
     // Forget the oldest finished jobs beyond the limit.
     while (jobs_.size() > size_t(options_.max_jobs)) {
       auto oldest = std::find_if(jobs_.begin(), jobs_.end(), [](const auto& kv) {
@@ -207,7 +216,8 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
   }
   for (const auto& id : forgotten) store_->remove_job(id);
   try {
-    store_->save_spec(spec);  // before the client learns the id: an acknowledged job survives a restart
+    if (checkpointing_)
+      store_->save_spec(spec);  // before the client learns the id: an acknowledged job survives a restart
   } catch (const std::exception& e) {
     logger("master")->error("job {}: cannot store its spec: {} (it will not survive a restart)", spec.id, e.what());
   }
@@ -722,7 +732,8 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
     try {
       job->frame->restore(*resume->frame);
     } catch (const std::exception& e) {
-      logger("master")->error("job {}: its checkpoint does not fit ({}); starting it again from round 0", job->id, e.what());
+      logger("master")->error("job {}: its checkpoint does not fit ({}); starting it again from round 0", job->id,
+                              e.what());
       resume.reset();
     }
   }
@@ -1032,6 +1043,7 @@ JobProgressRecord JobManager::progress_record(const Job& job) const {
 }
 
 void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) {
+  if (!checkpointing_) return;
   const auto start = std::chrono::steady_clock::now();
   record.frame = job->frame->save();  // the state after the closed round: nothing of the next is applied yet
   std::lock_guard checkpoint_lock(checkpoint_mu_);
@@ -1041,14 +1053,16 @@ void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgr
   }
   try {
     store_->save_progress(job->id, record);
-    logger("master")->debug("job {}: checkpoint after round {} written in {:.1f} ms", job->id, record.progress.round,
-                            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+    logger("master")->debug(
+        "job {}: checkpoint after round {} written in {:.1f} ms", job->id, record.progress.round,
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
   } catch (const std::exception& e) {
     logger("master")->error("job {}: cannot write its checkpoint: {}", job->id, e.what());
   }
 }
 
 void JobManager::save_final_checkpoint(const std::shared_ptr<Job>& job) {
+  if (!checkpointing_) return;
   std::lock_guard checkpoint_lock(checkpoint_mu_);
   JobProgressRecord record;
   {

@@ -45,7 +45,10 @@ class CheckpointStore;
 struct JobProgressRecord;
 
 struct MasterOptions {
-  std::string state_dir;                  // results, scenes and checkpoints (checkpoint.h); empty: a temp folder
+  std::string state_dir;  // results, scenes and checkpoints (checkpoint.h); empty: a temp folder
+  // Checkpoint every job after every round (and its spec at submit) so that a restarted master on
+  // the same state_dir resumes it. Only with an explicit state_dir: a temp folder is never reopened.
+  bool checkpoints = true;
   std::string reproject_backend_override; // "cpu" forces the CPU reprojector (no OSMesa)
   int lease_timeout_ms = 20000;           // a lease not extended by a heartbeat for this long expires
   int heartbeat_interval_ms = 1000;       // asked of workers
@@ -205,7 +208,7 @@ class JobManager {
   // Checkpoints (checkpoint.h): loading the state directory, and the records written after each
   // round, at the end of a job and when it is cancelled or fails.
   void load_state();
-  JobProgressRecord progress_record(const Job& job) const;  // with mu_ held
+  JobProgressRecord progress_record(const Job& job) const;                                // with mu_ held
   void save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record);  // reprojection thread
   void save_final_checkpoint(const std::shared_ptr<Job>& job);
 
@@ -228,6 +231,7 @@ class JobManager {
   std::unique_ptr<CheckpointStore> store_;
   std::mutex checkpoint_mu_;  // a job's state is read and its checkpoint written under it, in that order
   uint64_t epoch_ = 0;
+  bool checkpointing_ = false;  // options_.checkpoints with an explicit state_dir
   std::thread reprojection_thread_, reaper_thread_;
 };
 

@@ -3,8 +3,9 @@
 // export / import (CPU and GL), and a JobManager that is destroyed mid-job and created again on the
 // same state directory: it resumes the job, and the result equals an undisturbed run's (M, M' and
 // the path sums bit-identical, the combined image within float rounding).
-#include <gtest/gtest.h>
+#include "master/server/checkpoint.h"
 
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -17,7 +18,6 @@
 #include "common/image.h"
 #include "master/gl_context.h"
 #include "master/reprojector.h"
-#include "master/server/checkpoint.h"
 #include "master/server/job_manager.h"
 #include "wire/tile_result_stream.h"
 #include "worker/embree_scene.h"
@@ -31,8 +31,8 @@ using namespace std::chrono_literals;
 
 fs::path fresh_dir(const std::string& name) {
   static int n = 0;
-  const fs::path d = fs::temp_directory_path() / ("epr-checkpoint-test-" + std::to_string(::getpid()) + "-" + name + "-" +
-                                                  std::to_string(++n));
+  const fs::path d = fs::temp_directory_path() /
+                     ("epr-checkpoint-test-" + std::to_string(::getpid()) + "-" + name + "-" + std::to_string(++n));
   fs::remove_all(d);
   return d;
 }
@@ -42,7 +42,9 @@ std::string read_bytes(const fs::path& p) {
   return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
-void write_bytes(const fs::path& p, const std::string& bytes) { std::ofstream(p, std::ios::binary | std::ios::trunc) << bytes; }
+void write_bytes(const fs::path& p, const std::string& bytes) {
+  std::ofstream(p, std::ios::binary | std::ios::trunc) << bytes;
+}
 
 // A progress record with a small frame whose every array holds distinct values.
 JobProgressRecord sample_progress(int round) {
@@ -409,7 +411,8 @@ struct Result {
 
 Result results_of(JobManager& jobs, const std::string& id) {
   Result r;
-  for (auto [kind, image] : {std::pair{"counts.exr", &r.counts}, {"pathtrace.exr", &r.pathtrace}, {"exr", &r.combined}}) {
+  for (auto [kind, image] :
+       {std::pair{"counts.exr", &r.counts}, {"pathtrace.exr", &r.pathtrace}, {"exr", &r.combined}}) {
     const auto path = jobs.result_path(id, kind);
     EXPECT_TRUE(path) << kind;
     if (path) *image = read_image(*path);
