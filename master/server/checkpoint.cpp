@@ -11,6 +11,7 @@
 #include <cerrno>
 #include <cstring>
 #include <fstream>
+#include <initializer_list>
 #include <sstream>
 #include <system_error>
 #include <type_traits>
@@ -56,6 +57,7 @@ class ByteWriter {
     put<uint64_t>(v.size());
     out_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
   }
+  void reserve(size_t bytes) { out_.reserve(bytes); }
   std::string take() { return std::move(out_); }
 
  private:
@@ -210,21 +212,22 @@ void fsync_dir(const fs::path& dir) {
   if (rc != 0) throw_errno("cannot fsync folder", dir);
 }
 
-// Writes and fsyncs `path` (not atomic by itself).
-void write_and_sync(const fs::path& path, std::string_view bytes) {
+// Writes the parts one after the other into `path` and fsyncs it (not atomic by itself).
+void write_and_sync(const fs::path& path, std::initializer_list<std::string_view> parts) {
   const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) throw_errno("cannot create", path);
-  for (size_t off = 0; off < bytes.size();) {
-    const ssize_t n = ::write(fd, bytes.data() + off, bytes.size() - off);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      const int e = errno;
-      ::close(fd);
-      errno = e;
-      throw_errno("cannot write", path);
+  for (std::string_view bytes : parts)
+    for (size_t off = 0; off < bytes.size();) {
+      const ssize_t n = ::write(fd, bytes.data() + off, bytes.size() - off);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) {
+        const int e = errno;
+        ::close(fd);
+        errno = e;
+        throw_errno("cannot write", path);
+      }
+      off += size_t(n);
     }
-    off += size_t(n);
-  }
   if (::fsync(fd) != 0) {
     const int e = errno;
     ::close(fd);
@@ -244,7 +247,8 @@ fs::path temp_of(const fs::path& path) { return fs::path(path.string() + ".tmp")
 
 // ---- sealing ---------------------------------------------------------------------------------------
 
-std::string seal(RecordKind kind, std::string_view payload) {
+namespace {
+std::string seal_header(RecordKind kind, std::string_view payload) {
   std::string out(kSealHeaderBytes, '\0');
   std::memcpy(out.data(), kMagic, 8);
   const uint32_t version = kCheckpointVersion, k = uint32_t(kind), crc = crc32_of(payload);
@@ -255,9 +259,11 @@ std::string seal(RecordKind kind, std::string_view payload) {
   std::memcpy(out.data() + 24, &crc, 4);
   const uint32_t header_crc = crc32_of(std::string_view(out.data(), 28));
   std::memcpy(out.data() + 28, &header_crc, 4);
-  out.append(payload);
   return out;
 }
+}  // namespace
+
+std::string seal(RecordKind kind, std::string_view payload) { return seal_header(kind, payload).append(payload); }
 
 std::string unseal(RecordKind kind, std::string_view bytes) {
   if (bytes.size() < kSealHeaderBytes)
@@ -284,7 +290,7 @@ std::string unseal(RecordKind kind, std::string_view bytes) {
 
 void write_file_atomically(const fs::path& path, std::string_view bytes) {
   const fs::path tmp = temp_of(path);
-  write_and_sync(tmp, bytes);
+  write_and_sync(tmp, {bytes});
   rename_or_throw(tmp, path);
   fsync_dir(path.parent_path().empty() ? fs::path(".") : path.parent_path());
 }
@@ -347,6 +353,11 @@ JobSpecRecord decode_job_spec(std::string_view payload) {
 
 std::string encode(const JobProgressRecord& r) {
   ByteWriter w;
+  if (r.frame) {  // one allocation for the arrays
+    const FrameSnapshot& f = *r.frame;
+    w.reserve(4096 + f.path_sum.size() * 8 + f.path_count.size() * 4 + f.mprime.size() * 8 + f.reprojected.size() * 4 +
+              f.skip.size() + f.accumulation.sum.size() * 4 + f.accumulation.count.size() * 4);
+  }
   w.put<uint32_t>(uint32_t(r.state));
   w.put_string(r.error);
   w.put(r.triangles);
@@ -465,12 +476,13 @@ void CheckpointStore::save_spec(const JobSpecRecord& spec) {
 }
 
 void CheckpointStore::save_progress(const std::string& id, const JobProgressRecord& record) {
-  const std::string sealed = seal(RecordKind::kJobProgress, encode(record));
+  const std::string payload = encode(record);
+  const std::string header = seal_header(RecordKind::kJobProgress, payload);
   std::lock_guard lock(mu_);
   const fs::path dir = job_dir(id);
   fs::create_directories(dir);
   const fs::path newest = dir / "progress.ckpt", previous = dir / "progress.prev.ckpt", tmp = temp_of(newest);
-  write_and_sync(tmp, sealed);
+  write_and_sync(tmp, {header, payload});
   // A crash between the renames leaves only the previous checkpoint, which the loader then uses.
   if (fs::exists(newest)) rename_or_throw(newest, previous);
   rename_or_throw(tmp, newest);

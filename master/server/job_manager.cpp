@@ -116,6 +116,7 @@ JobManager::JobManager(MasterOptions options) : options_(std::move(options)) {
   load_state();
   reprojection_thread_ = std::thread([this] { reprojection_loop(); });
   reaper_thread_ = std::thread([this] { reaper_loop(); });
+  if (checkpointing_) checkpoint_thread_ = std::thread([this] { checkpoint_loop(); });
 }
 
 JobManager::~JobManager() { shutdown(); }
@@ -129,6 +130,12 @@ void JobManager::shutdown() {
   work_cv_.notify_all();
   if (reprojection_thread_.joinable()) reprojection_thread_.join();
   if (reaper_thread_.joinable()) reaper_thread_.join();
+  {
+    std::lock_guard lock(checkpoint_mu_);  // the checkpoints still queued are written first
+    checkpoint_stopping_ = true;
+  }
+  checkpoint_cv_.notify_all();
+  if (checkpoint_thread_.joinable()) checkpoint_thread_.join();
 }
 
 bool JobManager::gl_ready() const {
@@ -1046,19 +1053,15 @@ void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgr
   if (!checkpointing_) return;
   const auto start = std::chrono::steady_clock::now();
   record.frame = job->frame->save();  // the state after the closed round: nothing of the next is applied yet
+  logger("master")->debug("job {}: frame after round {} copied for its checkpoint in {:.1f} ms", job->id,
+                          record.progress.round,
+                          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
   std::lock_guard checkpoint_lock(checkpoint_mu_);
   {
     std::lock_guard lock(mu_);
-    if (job->state != JobState::kRunning) return;  // cancelled meanwhile: its final record is written instead
+    if (job->state != JobState::kRunning) return;  // cancelled meanwhile: its final record is queued instead
   }
-  try {
-    store_->save_progress(job->id, record);
-    logger("master")->debug(
-        "job {}: checkpoint after round {} written in {:.1f} ms", job->id, record.progress.round,
-        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
-  } catch (const std::exception& e) {
-    logger("master")->error("job {}: cannot write its checkpoint: {}", job->id, e.what());
-  }
+  enqueue_checkpoint(job->id, std::move(record));
 }
 
 void JobManager::save_final_checkpoint(const std::shared_ptr<Job>& job) {
@@ -1069,10 +1072,40 @@ void JobManager::save_final_checkpoint(const std::shared_ptr<Job>& job) {
     std::lock_guard lock(mu_);
     record = progress_record(*job);
   }
-  try {
-    store_->save_progress(job->id, record);
-  } catch (const std::exception& e) {
-    logger("master")->error("job {}: cannot write its checkpoint: {}", job->id, e.what());
+  enqueue_checkpoint(job->id, std::move(record));
+}
+
+void JobManager::enqueue_checkpoint(const std::string& job_id, JobProgressRecord record) {
+  auto r = std::make_shared<const JobProgressRecord>(std::move(record));
+  auto it = std::find_if(checkpoint_queue_.begin(), checkpoint_queue_.end(),
+                         [&](const auto& q) { return q.first == job_id; });
+  if (it != checkpoint_queue_.end())
+    it->second = std::move(r);  // not written yet: the newer state replaces it
+  else
+    checkpoint_queue_.emplace_back(job_id, std::move(r));
+  checkpoint_cv_.notify_all();
+}
+
+void JobManager::checkpoint_loop() {
+  std::unique_lock lock(checkpoint_mu_);
+  for (;;) {
+    checkpoint_cv_.wait(lock, [&] { return checkpoint_stopping_ || !checkpoint_queue_.empty(); });
+    if (checkpoint_queue_.empty()) return;  // stopping, everything written
+    auto [job_id, record] = std::move(checkpoint_queue_.front());
+    checkpoint_queue_.pop_front();
+    lock.unlock();
+    const auto start = std::chrono::steady_clock::now();
+    try {
+      store_->save_progress(job_id, *record);
+      logger("master")->debug(
+          "job {}: checkpoint ({} after round {}) written in {:.1f} ms", job_id, to_string(record->state),
+          record->progress.round,
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+    } catch (const std::exception& e) {
+      logger("master")->error("job {}: cannot write its checkpoint: {}", job_id, e.what());
+    }
+    record.reset();  // frees the frame copy before waiting
+    lock.lock();
   }
 }
 

@@ -211,6 +211,8 @@ class JobManager {
   JobProgressRecord progress_record(const Job& job) const;                                // with mu_ held
   void save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record);  // reprojection thread
   void save_final_checkpoint(const std::shared_ptr<Job>& job);
+  void enqueue_checkpoint(const std::string& job_id, JobProgressRecord record);  // with checkpoint_mu_ held
+  void checkpoint_loop();
 
   MasterOptions options_;
   mutable std::mutex mu_;
@@ -229,7 +231,14 @@ class JobManager {
   DurationHistograms histograms_;
   std::string state_dir_;
   std::unique_ptr<CheckpointStore> store_;
-  std::mutex checkpoint_mu_;  // a job's state is read and its checkpoint written under it, in that order
+  // Checkpoints are written by their own thread (the reprojection thread only copies the frame):
+  // a queue with at most one record per job, a newer record replacing a pending older one. A job's
+  // state is read and its record queued under checkpoint_mu_, so its last record is its last state.
+  std::mutex checkpoint_mu_;
+  std::condition_variable checkpoint_cv_;
+  std::deque<std::pair<std::string, std::shared_ptr<const JobProgressRecord>>> checkpoint_queue_;
+  bool checkpoint_stopping_ = false;
+  std::thread checkpoint_thread_;
   uint64_t epoch_ = 0;
   bool checkpointing_ = false;  // options_.checkpoints with an explicit state_dir
   std::thread reprojection_thread_, reaper_thread_;
