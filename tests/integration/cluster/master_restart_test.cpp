@@ -39,18 +39,19 @@ const std::string kEpr = EPR_CLIENT_BIN;
 const std::string kMaster = EPR_MASTER_BIN;
 const std::string kWorker = EPR_WORKER_BIN;
 
-// About a second of tracing for two single-threaded workers: 64x64 pixels in 4 tiles, up to 12 rounds
-// of 8 paths; every pixel traces for the first 8 rounds (min-paths), skipping thins out the rest.
-// The kills are placed by round (a random round, then a random pause), not by wall time, so that
-// they land mid-job however loaded the machine is.
+// A second or two of tracing for two single-threaded workers: 96x96 pixels in 9 tiles, up to 16 rounds
+// of 8 paths; every pixel traces for the first 12 rounds (min-paths), skipping thins out the rest.
+// The kills are placed by round (an early random round, then a random pause of at most 100 ms), not
+// by wall time, so that they land mid-job however loaded the machine is: an unloaded round takes
+// ~50 ms, and at least 7 rounds that trace every pixel are left.
 Args job_flags() {
   return {"builtin:cornell",
           "--width",
-          "64",
-          "--height",
-          "64",
-          "--spp",
           "96",
+          "--height",
+          "96",
+          "--spp",
+          "128",
           "--paths-per-round",
           "8",
           "--tile",
@@ -60,7 +61,7 @@ Args job_flags() {
           "--reproject",
           "cpu",
           "--min-paths",
-          "64",
+          "96",
           "--seed",
           "11"};
 }
@@ -314,8 +315,8 @@ TEST_F(MasterRestartTest, MasterKilledMidJobResumesFromItsCheckpoint) {
   ASSERT_FALSE(id.empty());
   note("job %s submitted", id.c_str());
   ASSERT_NO_FATAL_FAILURE(start_watch(id));
-  ASSERT_NO_FATAL_FAILURE(wait_for_random_round(1, 5));
-  random_pause(0, 150);
+  ASSERT_NO_FATAL_FAILURE(wait_for_random_round(1, 4));
+  random_pause(0, 100);
   ASSERT_NO_FATAL_FAILURE(kill_and_restart_master(id));
   // The workers find the new master by themselves.
   EXPECT_TRUE(wait_until([&] { return registered() >= 2; }, 30s)) << "the workers did not register again";
@@ -338,11 +339,11 @@ TEST_F(MasterRestartTest, WorkersAndMasterKilledAtRandomMomentsOfOneRun) {
   std::vector<size_t> order{0, 1, 2};
   std::shuffle(order.begin(), order.end(), rng_);
   ASSERT_NO_FATAL_FAILURE(wait_for_random_round(1, 2));
-  random_pause(0, 150);
+  random_pause(0, 100);
   note("SIGKILL %s", workers_[order[0]]->name().c_str());
   workers_[order[0]]->signal(SIGKILL);
-  ASSERT_NO_FATAL_FAILURE(wait_for_random_round(3, 5));
-  random_pause(0, 150);
+  ASSERT_NO_FATAL_FAILURE(wait_for_random_round(3, 4));
+  random_pause(0, 100);
   ASSERT_NO_FATAL_FAILURE(kill_and_restart_master(id));
   start_worker("w4");
   random_pause(100, 500);
