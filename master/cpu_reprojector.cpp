@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <stdexcept>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -150,6 +151,15 @@ PixelReprojection CpuReprojector::downsample_pixels() {
 void CpuReprojector::reset() {
   std::fill(cells_.begin(), cells_.end(), Cell{});
   counts_ = {};
+}
+
+void CpuReprojector::restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) {
+  if (acc.width != grid_.width || acc.height != grid_.height || acc.subpixels != subpixels_ ||
+      acc.sum.size() != 3 * cells_.size() || acc.count.size() != cells_.size())
+    throw std::invalid_argument("the accumulation to restore is not of this reprojector's subpixel grid");
+  for (size_t i = 0; i < cells_.size(); ++i)
+    cells_[i] = {acc.sum[3 * i], acc.sum[3 * i + 1], acc.sum[3 * i + 2], acc.count[i]};
+  counts_ = counts;
 }
 
 }  // namespace epr

@@ -31,6 +31,7 @@ class CpuReprojector final : public Reprojector {
   SubpixelAccumulation read() override;
   PixelReprojection downsample_pixels() override;
   void reset() override;
+  void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) override;
   std::string_view backend() const override { return "cpu"; }
 
  private:

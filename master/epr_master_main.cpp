@@ -21,7 +21,11 @@ int main(int argc, char** argv) {
   o.http_listen = "0.0.0.0:8080";
   app.add_option("--http", o.http_listen, "monitoring HTTP address HOST:PORT (dashboard, JSON, /metrics); \"\" disables it")
       ->capture_default_str();
-  app.add_option("--state-dir", o.jobs.state_dir, "folder for results and the scene cache (default: a temp folder)");
+  app.add_option("--state-dir", o.jobs.state_dir,
+                 "folder for results, scenes and job checkpoints; a master restarted on the same folder resumes its "
+                 "jobs (default: a temp folder, no checkpoints)");
+  app.add_flag("!--no-checkpoints", o.jobs.checkpoints,
+               "do not checkpoint jobs after every round (a restarted master then starts unfinished jobs again)");
   app.add_option("--lease-timeout-ms", o.jobs.lease_timeout_ms, "a tile lease not extended for this long is re-queued")
       ->capture_default_str();
   app.add_option("--heartbeat-ms", o.jobs.heartbeat_interval_ms, "heartbeat interval asked of workers")->capture_default_str();

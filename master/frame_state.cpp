@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <stdexcept>
+#include <string>
 
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
@@ -161,6 +162,55 @@ bool FrameState::tile_idle(int x0, int y0, int x1, int y1) const {
 }
 
 ReprojectionCounts FrameState::counts() const { return reprojector_ ? reprojector_->counts() : ReprojectionCounts{}; }
+
+FrameSnapshot FrameState::save() {
+  FrameSnapshot s;
+  s.width = width_;
+  s.height = height_;
+  s.path_sum = path_sum_;
+  s.path_count = path_count_;
+  s.mprime = mprime_;
+  s.reprojected = reprojected_radiance_.data;
+  s.skip = skip_;
+  s.paths_done = paths_done_;
+  s.done = done_;
+  s.progress = progress_;
+  s.seconds_reprojecting = seconds_reprojecting_;
+  s.seconds_downsampling = seconds_downsampling_;
+  if (reprojector_) {
+    s.has_accumulation = true;
+    s.accumulation = reprojector_->read();
+    s.counts = reprojector_->counts();
+  }
+  return s;
+}
+
+void FrameState::restore(const FrameSnapshot& s) {
+  const size_t n = size_t(width_) * size_t(height_);
+  if (s.width != width_ || s.height != height_)
+    throw std::invalid_argument("the snapshot is of a " + std::to_string(s.width) + "x" + std::to_string(s.height) +
+                                " frame, this frame is " + std::to_string(width_) + "x" + std::to_string(height_));
+  if (s.path_sum.size() != 3 * n || s.path_count.size() != n || s.mprime.size() != n || s.reprojected.size() != 3 * n ||
+      s.skip.size() != n)
+    throw std::invalid_argument("the snapshot's per-pixel arrays do not match the frame size");
+  if (s.has_accumulation != (reprojector_ != nullptr))
+    throw std::invalid_argument(s.has_accumulation
+                                    ? "the snapshot has a reprojection accumulation, this frame reprojects nothing"
+                                    : "the snapshot has no reprojection accumulation");
+  if (s.paths_done < 0 || s.paths_done > opts_.spp)
+    throw std::invalid_argument("the snapshot's path count is out of range");
+  if (reprojector_) reprojector_->restore(s.accumulation, s.counts);  // checks the grid; throws before any change below
+  path_sum_ = s.path_sum;
+  path_count_ = s.path_count;
+  mprime_ = s.mprime;
+  reprojected_radiance_.data = s.reprojected;
+  skip_ = s.skip;
+  paths_done_ = s.paths_done;
+  done_ = s.done;
+  progress_ = s.progress;
+  seconds_reprojecting_ = s.seconds_reprojecting;
+  seconds_downsampling_ = s.seconds_downsampling;
+}
 
 FrameImages FrameState::images() {
   if (reprojector_ && opts_.mode != RenderMode::kSkip) refresh_reprojection();

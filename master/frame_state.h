@@ -51,6 +51,25 @@ struct FrameImages {
   Image reprojected;   // M', one channel
 };
 
+/// Everything a FrameState holds after a finished round, for checkpoints: restoring it into a
+/// FrameState made for the same options, camera and scene continues the render exactly (the deep
+/// framebuffer is rebuilt from the scene; M' and L_rp continue from the subpixel accumulation).
+struct FrameSnapshot {
+  int width = 0, height = 0;
+  std::vector<double> path_sum;      // 3 per pixel
+  std::vector<uint32_t> path_count;  // M
+  std::vector<uint64_t> mprime;      // M' as of the last downsample
+  std::vector<float> reprojected;    // L_rp as of the last downsample, 3 per pixel
+  std::vector<uint8_t> skip;
+  int paths_done = 0;
+  bool done = false;
+  FrameProgress progress;
+  double seconds_reprojecting = 0, seconds_downsampling = 0;
+  bool has_accumulation = false;  // false for path tracing (no reprojector)
+  SubpixelAccumulation accumulation;
+  ReprojectionCounts counts;
+};
+
 /// M and M' per pixel as one 2-channel image (the counts result).
 Image counts_image(const FrameImages& images);
 
@@ -85,6 +104,11 @@ class FrameState {
   bool reprojects() const { return reprojector_ != nullptr; }
   /// Counts, percentages and timings as JSON (the statistics file of a render).
   nlohmann::json statistics(const RenderOptions& opts) const;
+  /// The state as of now (call between rounds); reads the accumulation back when reprojecting.
+  FrameSnapshot save();
+  /// Continues from `snapshot`. Throws std::invalid_argument (naming the mismatch) if it was not
+  /// taken from a FrameState of the same size and reprojection set-up; the state is then unchanged.
+  void restore(const FrameSnapshot& snapshot);
   /// The images as of the last finished round (reads the accumulation back when reprojecting).
   FrameImages images();
 

@@ -467,4 +467,33 @@ void GlReprojector::reset() {
   points_since_fold_ = 0;
 }
 
+void GlReprojector::restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) {
+  ctx_->check_thread();
+  const size_t cells = size_t(grid_w_) * size_t(grid_h_);
+  if (acc.width != grid_w_ || acc.height != grid_h_ || acc.subpixels != subpixels_ || acc.sum.size() != 3 * cells ||
+      acc.count.size() != cells)
+    throw std::invalid_argument("the accumulation to restore is not of this reprojector's subpixel grid");
+  if (counts.occluded < counts.backfacing) throw std::invalid_argument("occluded counts include the backfacing ones");
+  // The SSBO layout: {float r, g, b; uint n} per subpixel.
+  std::vector<float> raw(4 * cells);
+  for (size_t i = 0; i < cells; ++i) {
+    raw[4 * i] = acc.sum[3 * i];
+    raw[4 * i + 1] = acc.sum[3 * i + 1];
+    raw[4 * i + 2] = acc.sum[3 * i + 2];
+    std::memcpy(&raw[4 * i + 3], &acc.count[i], 4);
+  }
+  const auto& gl = ctx_->gl();
+  gl.NamedBufferSubData(acc_buf_->id(), 0, GLsizeiptr(raw.size() * 4), raw.data());
+  const GLuint zero = 0;
+  gl.ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+  ctx_->check_error("GlReprojector::restore");
+  // The GPU decides accepted, culled and occluded (backfacing apart); the CPU the rest.
+  folded_ = {counts.accepted, counts.culled, counts.backfacing, counts.occluded - counts.backfacing};
+  cpu_counts_ = {};
+  cpu_counts_.not_diffuse = counts.not_diffuse;
+  cpu_counts_.invalid = counts.invalid;
+  cpu_counts_.exact = counts.exact;
+  points_since_fold_ = 0;
+}
+
 }  // namespace epr

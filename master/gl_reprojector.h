@@ -55,6 +55,7 @@ class GlReprojector final : public Reprojector {
   SubpixelAccumulation read() override;
   PixelReprojection downsample_pixels() override;
   void reset() override;
+  void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) override;
   std::string_view backend() const override { return "gl"; }
 
   GlContext& context() { return *ctx_; }

@@ -123,6 +123,11 @@ class Reprojector {
   virtual PixelReprojection downsample_pixels();
   /// Zeroes the accumulation and the counts.
   virtual void reset() = 0;
+  /// Replaces the accumulation and the counts with `acc` (as read() returned it) and `counts` (as
+  /// counts() returned them), e.g. from a checkpoint: reprojection then continues exactly as if
+  /// the samples had been added to this reprojector. Throws std::invalid_argument if `acc` is not of
+  /// this reprojector's grid (the state is then unchanged).
+  virtual void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) = 0;
   virtual std::string_view backend() const = 0;
 };
 

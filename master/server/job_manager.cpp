@@ -11,6 +11,7 @@
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "master/gl_context.h"
+#include "master/server/checkpoint.h"
 #include "worker/tile_renderer.h"
 
 namespace epr {
@@ -98,6 +99,8 @@ struct JobManager::Job {
   std::unique_ptr<Scene> scene;
   std::unique_ptr<Camera> camera;
   std::unique_ptr<FrameState> frame;
+  // Set when the job was running when the master stopped: start_job continues from it.
+  std::shared_ptr<const JobProgressRecord> resume;
 };
 
 struct JobManager::Worker {
@@ -121,10 +124,15 @@ JobManager::JobManager(MasterOptions options) : options_(std::move(options)) {
   state_dir_ = options_.state_dir.empty() ? (fs::temp_directory_path() / fmt::format("epr-master-{}", ::getpid())).string()
                                           : options_.state_dir;
   fs::create_directories(fs::path(state_dir_) / "jobs");
-  // Lease ids are never reused, not even across restarts: start from the clock.
-  next_lease_ = uint64_t(now_ms()) << 16;
+  store_ = std::make_unique<CheckpointStore>(state_dir_);
+  checkpointing_ = options_.checkpoints && !options_.state_dir.empty();
+  // Lease ids are never reused, not even across restarts: the run number is their top bits.
+  epoch_ = store_->next_epoch();
+  next_lease_ = (epoch_ << kLeaseEpochShift) + 1;
+  load_state();
   reprojection_thread_ = std::thread([this] { reprojection_loop(); });
   reaper_thread_ = std::thread([this] { reaper_loop(); });
+  if (checkpointing_) checkpoint_thread_ = std::thread([this] { checkpoint_loop(); });
 }
 
 JobManager::~JobManager() { shutdown(); }
@@ -138,6 +146,12 @@ void JobManager::shutdown() {
   work_cv_.notify_all();
   if (reprojection_thread_.joinable()) reprojection_thread_.join();
   if (reaper_thread_.joinable()) reaper_thread_.join();
+  {
+    std::lock_guard lock(checkpoint_mu_);  // the checkpoints still queued are written first
+    checkpoint_stopping_ = true;
+  }
+  checkpoint_cv_.notify_all();
+  if (checkpoint_thread_.joinable()) checkpoint_thread_.join();
 }
 
 bool JobManager::gl_ready() const {
@@ -184,8 +198,15 @@ std::optional<std::string> JobManager::validate(const JobRequest& req) const {
 JobManager::SubmitResult JobManager::submit(JobRequest req) {
   if (auto err = validate(req)) return {"", *err};
   const std::string hash = content_hash(req.bundle);
+  try {
+    if (checkpointing_) store_->save_scene(hash, req.bundle);
+  } catch (const std::exception& e) {
+    logger("master")->error("cannot store scene {}: {} (its jobs will not survive a restart)", hash, e.what());
+  }
 
   std::shared_ptr<Job> job;
+  JobSpecRecord spec;
+  std::vector<std::string> forgotten;
   {
     std::lock_guard lock(mu_);
     if (!req.request_id.empty()) {
@@ -203,14 +224,32 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
     job->request = std::move(req);
     if (!job->request.request_id.empty()) request_ids_[job->request.request_id] = job->id;
     jobs_[job->id] = job;
+    spec = {job->id,
+            job->seq,
+            job->submitted_ms,
+            hash,
+            job->request.options,
+            job->request.camera,
+            job->request.name,
+            job->request.priority,
+            job->request.time_budget_seconds,
+            job->request.request_id};
     // Forget the oldest finished jobs beyond the limit.
     while (jobs_.size() > size_t(options_.max_jobs)) {
       auto oldest = std::find_if(jobs_.begin(), jobs_.end(), [](const auto& kv) {
         return kv.second->state != JobState::kQueued && kv.second->state != JobState::kRunning;
       });
       if (oldest == jobs_.end()) break;
+      forgotten.push_back(oldest->first);
       jobs_.erase(oldest);
     }
+  }
+  for (const auto& id : forgotten) store_->remove_job(id);
+  try {
+    if (checkpointing_)
+      store_->save_spec(spec);  // before the client learns the id: an acknowledged job survives a restart
+  } catch (const std::exception& e) {
+    logger("master")->error("job {}: cannot store its spec: {} (it will not survive a restart)", spec.id, e.what());
   }
   logger("master")->info("job {} submitted: {} {}x{} spp {} mode {}", job->id, job->scene_hash.substr(0, 12),
                          job->request.options.width, job->request.options.height, job->request.options.spp,
@@ -287,12 +326,14 @@ std::vector<JobSnapshot> JobManager::list() const {
 
 bool JobManager::cancel(const std::string& id) {
   std::shared_ptr<Job> job;
+  bool cancelled = false;
   {
     std::lock_guard lock(mu_);
     auto it = jobs_.find(id);
     if (it == jobs_.end()) return false;
     job = it->second;
     if (job->state == JobState::kQueued || job->state == JobState::kRunning) {
+      cancelled = true;
       job->state = JobState::kCancelled;
       job->finished_ms = now_ms();
       job->round_open = false;
@@ -300,6 +341,7 @@ bool JobManager::cancel(const std::string& id) {
     }
   }
   work_cv_.notify_all();
+  if (cancelled) save_final_checkpoint(job);
   notify(job);
   return true;
 }
@@ -625,6 +667,10 @@ std::variant<TileExpectation, std::string> JobManager::expect(const v1::TileResu
   *stale = false;
   std::lock_guard lock(mu_);
   if (h.lease_id() == 0 || h.lease_id() >= next_lease_) return std::string("unknown lease id");
+  if ((h.lease_id() >> kLeaseEpochShift) != epoch_) {
+    *stale = true;  // leased by an earlier run of the master: its round is traced again
+    return std::string("the lease is from before the master restarted");
+  }
   auto it = jobs_.find(h.job_id());
   if (it == jobs_.end()) {
     *stale = true;
@@ -735,6 +781,7 @@ std::shared_ptr<JobManager::Job> JobManager::next_job() const {
   std::shared_ptr<Job> best;
   for (const auto& [id, job] : jobs_) {
     if (job->state != JobState::kQueued) continue;
+    if (job->resume) return job;  // it was running when the master stopped: it goes on first
     if (!best || job->request.priority > best->request.priority ||
         (job->request.priority == best->request.priority && job->seq < best->seq))
       best = job;
@@ -801,6 +848,7 @@ void JobManager::reprojection_loop() {
           ++to_start->version;
           active_.reset();
         }
+        save_final_checkpoint(to_start);
         notify(to_start);
       }
       continue;
@@ -818,6 +866,7 @@ void JobManager::reprojection_loop() {
           ++task->job->version;
         }
         work_cv_.notify_all();
+        save_final_checkpoint(task->job);
         notify(task->job);
       }
     }
@@ -833,6 +882,21 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
   job->scene = std::make_unique<Scene>(load_bundle(*job->bundle, (fs::path(state_dir_) / "cache").string()));
   job->camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
   job->frame = std::make_unique<FrameState>(opts, *job->camera, *job->scene, gl);
+  std::shared_ptr<const JobProgressRecord> resume;
+  {
+    std::lock_guard lock(mu_);
+    resume = std::move(job->resume);
+  }
+  const bool had_checkpoint = resume != nullptr;
+  if (resume) {
+    try {
+      job->frame->restore(*resume->frame);
+    } catch (const std::exception& e) {
+      logger("master")->error("job {}: its checkpoint does not fit ({}); starting it again from round 0", job->id,
+                              e.what());
+      resume.reset();
+    }
+  }
   {
     std::lock_guard lock(mu_);
     job->triangles = job->scene->triangle_count();
@@ -840,6 +904,24 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
     if (job->state != JobState::kQueued) return;  // cancelled meanwhile
     job->state = JobState::kRunning;
     job->started_ms = now_ms();
+    if (had_checkpoint) {
+      JobProgressRecord counters = resume ? *resume : JobProgressRecord{};
+      if (!resume) counters.started_ms = job->started_ms;
+      job->progress = job->frame->progress();
+      job->counts = job->frame->counts();
+      job->round = uint32_t(job->frame->round());
+      job->started_ms = counters.started_ms;
+      job->rays = counters.rays;
+      job->vertices_received = counters.vertices_received;
+      job->non_finite = counters.non_finite;
+      job->worker_culled = counters.worker_culled;
+      job->tiles_leased = counters.tiles_leased;
+      job->tiles_committed = counters.tiles_committed;
+      job->tiles_re_leased = counters.tiles_re_leased;
+      job->tiles_dropped = counters.tiles_dropped;
+      job->seconds_tracing = counters.seconds_tracing;
+      job->seconds_reprojecting = job->frame->seconds_reprojecting();
+    }
     job->slots.assign(job->tiles.size(), {});
     open_round(*job);
   }
@@ -913,6 +995,11 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
       budget_over = double(now_ms() - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
     want_preview = now_ms() - job->last_preview_ms >= 1000;
   }
+  JobProgressRecord checkpoint;
+  {
+    std::lock_guard lock(mu_);
+    checkpoint = progress_record(*job);  // the counters as of the round's end
+  }
   if (!more || budget_over) {
     finish_job(job, budget_over && more);
     return;
@@ -930,6 +1017,7 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     open_round(*job);
   }
   notify(job);
+  save_round_checkpoint(job, std::move(checkpoint));  // the next round's tiles are being traced meanwhile
 }
 
 std::map<std::string, std::vector<unsigned char>> JobManager::make_previews(FrameState& frame) {
@@ -1000,11 +1088,178 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     active_.reset();
   }
   write("stats.json", [&](const std::string& p) { std::ofstream(p) << stats.dump(2) << "\n"; });
+  save_final_checkpoint(job);  // after the results: a finished job's checkpoint promises them
   job->frame.reset();
   job->scene.reset();
   logger("master")->info("job {} done", job->id);
   work_cv_.notify_all();
   notify(job);
+}
+
+// ---- checkpoints -----------------------------------------------------------------------------------
+
+void JobManager::load_state() {
+  auto log = logger("master");
+  std::vector<std::string> problems;
+  std::vector<CheckpointStore::LoadedJob> loaded = store_->load_jobs(&problems);
+  for (const auto& p : problems) log->warn("state directory: {}", p);
+  size_t resumed = 0, restarted = 0;
+  std::lock_guard lock(mu_);
+  for (auto& l : loaded) {
+    const JobSpecRecord& spec = l.spec;
+    for (const auto& p : l.problems) log->warn("job {}: checkpoint rejected: {}", spec.id, p);
+    auto job = std::make_shared<Job>();
+    job->id = spec.id;
+    job->seq = spec.seq;
+    job->submitted_ms = spec.submitted_ms;
+    job->scene_hash = spec.scene_hash;
+    job->request.options = spec.options;
+    job->request.camera = spec.camera;
+    job->request.name = spec.name;
+    job->request.priority = spec.priority;
+    job->request.time_budget_seconds = spec.time_budget_seconds;
+    job->request.request_id = spec.request_id;
+    job->tiles = make_tiles(spec.options.width, spec.options.height, spec.options.tile_size);
+    auto& cached = scenes_[spec.scene_hash];
+    if (!cached) {
+      try {
+        cached = std::make_shared<const SceneBundleData>(store_->load_scene(spec.scene_hash));
+      } catch (const CheckpointError& e) {
+        log->error("job {}: its scene is lost: {}", spec.id, e.what());
+      }
+    }
+    if (cached) {
+      job->bundle = cached;
+    } else {
+      scenes_.erase(spec.scene_hash);
+      job->bundle = std::make_shared<const SceneBundleData>();
+      job->state = JobState::kFailed;
+      job->error = "the scene was lost from the master's state directory";
+    }
+    if (l.progress && job->state == JobState::kQueued) {
+      JobProgressRecord& r = *l.progress;
+      job->triangles = r.triangles;
+      job->progress = r.progress;
+      job->counts = r.counts;
+      job->rays = r.rays;
+      job->vertices_received = r.vertices_received;
+      job->non_finite = r.non_finite;
+      job->worker_culled = r.worker_culled;
+      job->tiles_leased = r.tiles_leased;
+      job->tiles_committed = r.tiles_committed;
+      job->tiles_re_leased = r.tiles_re_leased;
+      job->tiles_dropped = r.tiles_dropped;
+      job->started_ms = r.started_ms;
+      job->seconds_tracing = r.seconds_tracing;
+      job->seconds_reprojecting = r.seconds_reprojecting;
+      job->round = uint32_t(std::max(0, r.progress.round));
+      if (r.state == JobState::kRunning || r.state == JobState::kQueued) {
+        if (r.frame) {
+          job->resume = std::make_shared<const JobProgressRecord>(std::move(r));  // stays queued until started
+          ++resumed;
+        } else {
+          ++restarted;
+        }
+      } else {
+        job->state = r.state;
+        job->error = r.error;
+        job->finished_ms = r.finished_ms;
+        job->budget_exhausted = r.budget_exhausted;
+        job->previews = std::move(r.previews);
+      }
+    } else if (job->state == JobState::kQueued) {
+      ++restarted;
+    }
+    next_job_seq_ = std::max(next_job_seq_, spec.seq + 1);
+    if (!spec.request_id.empty()) request_ids_[spec.request_id] = job->id;
+    jobs_[job->id] = job;
+  }
+  log->info("state directory {}: run {}, {} jobs loaded, {} resume from their checkpoint, {} start from round 0",
+            state_dir_, epoch_, loaded.size(), resumed, restarted);
+}
+
+JobProgressRecord JobManager::progress_record(const Job& job) const {
+  JobProgressRecord r;
+  r.state = job.state;
+  r.error = job.error;
+  r.triangles = job.triangles;
+  r.progress = job.progress;
+  r.counts = job.counts;
+  r.rays = job.rays;
+  r.vertices_received = job.vertices_received;
+  r.non_finite = job.non_finite;
+  r.worker_culled = job.worker_culled;
+  r.tiles_leased = job.tiles_leased;
+  r.tiles_committed = job.tiles_committed;
+  r.tiles_re_leased = job.tiles_re_leased;
+  r.tiles_dropped = job.tiles_dropped;
+  r.started_ms = job.started_ms;
+  r.finished_ms = job.finished_ms;
+  r.seconds_tracing = job.seconds_tracing;
+  r.seconds_reprojecting = job.seconds_reprojecting;
+  r.budget_exhausted = job.budget_exhausted;
+  if (job.state == JobState::kDone) r.previews = job.previews;
+  return r;
+}
+
+void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) {
+  if (!checkpointing_) return;
+  const auto start = std::chrono::steady_clock::now();
+  record.frame = job->frame->save();  // the state after the closed round: nothing of the next is applied yet
+  logger("master")->debug("job {}: frame after round {} copied for its checkpoint in {:.1f} ms", job->id,
+                          record.progress.round,
+                          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+  std::lock_guard checkpoint_lock(checkpoint_mu_);
+  {
+    std::lock_guard lock(mu_);
+    if (job->state != JobState::kRunning) return;  // cancelled meanwhile: its final record is queued instead
+  }
+  enqueue_checkpoint(job->id, std::move(record));
+}
+
+void JobManager::save_final_checkpoint(const std::shared_ptr<Job>& job) {
+  if (!checkpointing_) return;
+  std::lock_guard checkpoint_lock(checkpoint_mu_);
+  JobProgressRecord record;
+  {
+    std::lock_guard lock(mu_);
+    record = progress_record(*job);
+  }
+  enqueue_checkpoint(job->id, std::move(record));
+}
+
+void JobManager::enqueue_checkpoint(const std::string& job_id, JobProgressRecord record) {
+  auto r = std::make_shared<const JobProgressRecord>(std::move(record));
+  auto it = std::find_if(checkpoint_queue_.begin(), checkpoint_queue_.end(),
+                         [&](const auto& q) { return q.first == job_id; });
+  if (it != checkpoint_queue_.end())
+    it->second = std::move(r);  // not written yet: the newer state replaces it
+  else
+    checkpoint_queue_.emplace_back(job_id, std::move(r));
+  checkpoint_cv_.notify_all();
+}
+
+void JobManager::checkpoint_loop() {
+  std::unique_lock lock(checkpoint_mu_);
+  for (;;) {
+    checkpoint_cv_.wait(lock, [&] { return checkpoint_stopping_ || !checkpoint_queue_.empty(); });
+    if (checkpoint_queue_.empty()) return;  // stopping, everything written
+    auto [job_id, record] = std::move(checkpoint_queue_.front());
+    checkpoint_queue_.pop_front();
+    lock.unlock();
+    const auto start = std::chrono::steady_clock::now();
+    try {
+      store_->save_progress(job_id, *record);
+      logger("master")->debug(
+          "job {}: checkpoint ({} after round {}) written in {:.1f} ms", job_id, to_string(record->state),
+          record->progress.round,
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+    } catch (const std::exception& e) {
+      logger("master")->error("job {}: cannot write its checkpoint: {}", job_id, e.what());
+    }
+    record.reset();  // frees the frame copy before waiting
+    lock.lock();
+  }
 }
 
 // ---- the reaper -----------------------------------------------------------------------------------

@@ -46,9 +46,14 @@
 namespace epr {
 
 class GlContext;
+class CheckpointStore;
+struct JobProgressRecord;
 
 struct MasterOptions {
-  std::string state_dir;                  // results (and later checkpoints); empty: a temp folder
+  std::string state_dir;  // results, scenes and checkpoints (checkpoint.h); empty: a temp folder
+  // Checkpoint every job after every round (and its spec at submit) so that a restarted master on
+  // the same state_dir resumes it. Only with an explicit state_dir: a temp folder is never reopened.
+  bool checkpoints = true;
   std::string reproject_backend_override; // "cpu" forces the CPU reprojector (no OSMesa)
   int lease_timeout_ms = 20000;           // a lease not extended by a heartbeat for this long expires
   int heartbeat_interval_ms = 1000;       // asked of workers
@@ -212,6 +217,10 @@ class JobManager {
   /// Round and reprojection durations of every round closed so far (for /metrics).
   DurationHistograms histograms() const;
   const MasterOptions& options() const { return options_; }
+  /// This run's number in the state directory (1 for a new one). Lease ids carry it above bit
+  /// kLeaseEpochShift, so a lease of an earlier run is never mistaken for one of this run.
+  uint64_t epoch() const { return epoch_; }
+  static constexpr int kLeaseEpochShift = 40;
 
  private:
   struct Job;
@@ -236,6 +245,14 @@ class JobManager {
   void fail_if_all_blocked(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed);
   std::optional<uint32_t> speculative_tile(Job& job, const std::string& worker, int64_t now);
   void release_lease(Job& job, uint32_t tile, uint64_t lease);
+  // Checkpoints (checkpoint.h): loading the state directory, and the records written after each
+  // round, at the end of a job and when it is cancelled or fails.
+  void load_state();
+  JobProgressRecord progress_record(const Job& job) const;                                // with mu_ held
+  void save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record);  // reprojection thread
+  void save_final_checkpoint(const std::shared_ptr<Job>& job);
+  void enqueue_checkpoint(const std::string& job_id, JobProgressRecord record);  // with checkpoint_mu_ held
+  void checkpoint_loop();
 
   MasterOptions options_;
   mutable std::mutex mu_;
@@ -253,6 +270,17 @@ class JobManager {
   bool gl_ready_ = false;
   DurationHistograms histograms_;
   std::string state_dir_;
+  std::unique_ptr<CheckpointStore> store_;
+  // Checkpoints are written by their own thread (the reprojection thread only copies the frame):
+  // a queue with at most one record per job, a newer record replacing a pending older one. A job's
+  // state is read and its record queued under checkpoint_mu_, so its last record is its last state.
+  std::mutex checkpoint_mu_;
+  std::condition_variable checkpoint_cv_;
+  std::deque<std::pair<std::string, std::shared_ptr<const JobProgressRecord>>> checkpoint_queue_;
+  bool checkpoint_stopping_ = false;
+  std::thread checkpoint_thread_;
+  uint64_t epoch_ = 0;
+  bool checkpointing_ = false;  // options_.checkpoints with an explicit state_dir
   std::thread reprojection_thread_, reaper_thread_;
 };
 

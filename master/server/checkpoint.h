@@ -1,0 +1,132 @@
+// Checkpoints of the master's jobs in its state directory (DESIGN.md section 4): a master killed
+// with SIGKILL resumes every job from the last round it closed.
+//
+// Layout of the state directory:
+//   epoch                       this master's run counter (lease ids carry it, see JobManager)
+//   scenes/HASH.scene           each scene bundle once, by content hash
+//   jobs/ID/spec.ckpt           the job as submitted (written once, at submit)
+//   jobs/ID/progress.ckpt       state, counters and FrameState after the newest closed round
+//   jobs/ID/progress.prev.ckpt  the one before: used when the newest is torn or corrupt
+//   jobs/ID/*.exr, *.png, ...   results of a finished job
+//
+// Every file is sealed: a 32-byte header (magic "EPRSTATE", format version, record kind, payload
+// length, CRC-32 of the payload, CRC-32 of the header) and the payload. A file whose length, magic,
+// kind, version or checksums do not match is rejected with CheckpointError; the reader then uses the
+// previous checkpoint, and a job with none restarts from round 0. Files are replaced atomically:
+// written to a temp file in the same folder, fsynced, renamed over, and the folder fsynced.
+// Payloads are little-endian (the host order; other hosts are refused at compile time).
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "master/frame_state.h"
+#include "master/server/job_manager.h"
+#include "wire/scene_bundle.h"
+
+namespace epr {
+
+/// A state file that is missing, torn, corrupt or of another format version.
+class CheckpointError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+enum class RecordKind : uint32_t { kEpoch = 1, kScene = 2, kJobSpec = 3, kJobProgress = 4 };
+
+inline constexpr uint32_t kCheckpointVersion = 1;
+inline constexpr size_t kSealHeaderBytes = 32;
+
+/// Header + payload (see the file comment).
+std::string seal(RecordKind kind, std::string_view payload);
+/// The payload of a sealed file's bytes; CheckpointError saying what is wrong otherwise.
+std::string unseal(RecordKind kind, std::string_view bytes);
+
+/// Replaces `path` with `bytes` atomically and durably (temp file, fsync, rename, fsync of the
+/// folder). Throws std::system_error naming the file.
+void write_file_atomically(const std::filesystem::path& path, std::string_view bytes);
+/// The sealed payload of `path`; CheckpointError if it is missing or not valid.
+std::string read_sealed(const std::filesystem::path& path, RecordKind kind);
+
+/// The job as submitted: everything needed to run it again from round 0.
+struct JobSpecRecord {
+  std::string id;
+  uint64_t seq = 0;  // submission order
+  int64_t submitted_ms = 0;
+  std::string scene_hash;
+  RenderOptions options;  // as the master runs them (the wire's JobSpec fields)
+  CameraSpec camera;
+  std::string name;
+  int priority = 0;
+  std::optional<double> time_budget_seconds;
+  std::string request_id;
+};
+
+/// A job's state after its newest closed round (or its end).
+struct JobProgressRecord {
+  JobState state = JobState::kRunning;
+  std::string error;
+  uint64_t triangles = 0;
+  FrameProgress progress;
+  ReprojectionCounts counts;
+  uint64_t rays = 0, vertices_received = 0, non_finite = 0, worker_culled = 0;
+  uint64_t tiles_leased = 0, tiles_committed = 0, tiles_re_leased = 0, tiles_dropped = 0;
+  int64_t started_ms = 0, finished_ms = 0;
+  double seconds_tracing = 0, seconds_reprojecting = 0;
+  bool budget_exhausted = false;
+  std::optional<FrameSnapshot> frame;                          // running jobs: what the next round starts from
+  std::map<std::string, std::vector<unsigned char>> previews;  // finished jobs: layer -> PNG
+};
+
+std::string encode(const JobSpecRecord& r);
+JobSpecRecord decode_job_spec(std::string_view payload);  // CheckpointError if malformed
+std::string encode(const JobProgressRecord& r);
+JobProgressRecord decode_job_progress(std::string_view payload);  // CheckpointError if malformed
+
+/// The state directory: the layout above, the keep-two rotation of progress checkpoints and the
+/// fallback to the previous one. Thread-safe (one writer at a time).
+class CheckpointStore {
+ public:
+  /// Creates the folders if needed; throws std::filesystem::filesystem_error if it cannot.
+  explicit CheckpointStore(std::filesystem::path dir);
+
+  const std::filesystem::path& dir() const { return dir_; }
+  std::filesystem::path job_dir(const std::string& id) const { return dir_ / "jobs" / id; }
+
+  /// Reads the run counter (0 if there is none or it is unreadable), stores it plus one and returns that.
+  uint64_t next_epoch();
+
+  /// Stores a scene bundle under its hash unless a valid copy is there already.
+  void save_scene(const std::string& hash, const SceneBundleData& bundle);
+  /// The stored bundle; CheckpointError if missing, corrupt or not matching the hash.
+  SceneBundleData load_scene(const std::string& hash) const;
+
+  void save_spec(const JobSpecRecord& spec);
+  /// Makes `record` the newest progress checkpoint; the newest so far becomes the previous one.
+  void save_progress(const std::string& id, const JobProgressRecord& record);
+  /// Removes a forgotten job's folder.
+  void remove_job(const std::string& id);
+
+  struct LoadedJob {
+    JobSpecRecord spec;
+    std::optional<JobProgressRecord> progress;  // none: the job starts from round 0
+    std::vector<std::string> problems;          // checkpoints that were rejected, and why
+  };
+  /// Every job with a readable spec, in submission order; `problems` lists the folders skipped.
+  std::vector<LoadedJob> load_jobs(std::vector<std::string>* problems) const;
+  /// A job's newest valid progress checkpoint (falling back to the previous one).
+  std::optional<JobProgressRecord> load_progress(const std::string& id, std::vector<std::string>* problems) const;
+
+ private:
+  std::filesystem::path dir_;
+  mutable std::mutex mu_;
+};
+
+}  // namespace epr

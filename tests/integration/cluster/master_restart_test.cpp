@@ -1,0 +1,359 @@
+// A master killed with SIGKILL mid-job (DESIGN.md section 4): restarted on the same port and state
+// directory, it resumes the job from its last checkpoint; the workers register again by themselves
+// and a client's `epr watch` follows the job across the restart. The result must equal the
+// undisturbed render of the same job (`epr render --single-process`, which the cluster tests show
+// equal to an undisturbed cluster run): M, M' and the path-traced estimate bit-identical, the
+// combined image within float rounding. A second test kills workers and the master at random
+// moments of one run.
+//
+// The moments are random but seeded: the seed is printed, and EPR_TEST_SEED=N repeats a run.
+// Real processes on loopback (epr-master, epr-worker, epr); each test keeps its folder of logs and
+// prints their tails when it fails.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <random>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/image.h"
+#include "process.h"
+
+namespace epr::testing {
+namespace {
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using Args = std::vector<std::string>;
+
+const std::string kEpr = EPR_CLIENT_BIN;
+const std::string kMaster = EPR_MASTER_BIN;
+const std::string kWorker = EPR_WORKER_BIN;
+
+// A second or two of tracing for two single-threaded workers: 96x96 pixels in 9 tiles, up to 16 rounds
+// of 8 paths; every pixel traces for the first 12 rounds (min-paths), skipping thins out the rest.
+// The kills are placed by round (an early random round, then a random pause of at most 100 ms), not
+// by wall time, so that they land mid-job however loaded the machine is: an unloaded round takes
+// ~50 ms, and at least 7 rounds that trace every pixel are left.
+Args job_flags() {
+  return {"builtin:cornell",
+          "--width",
+          "96",
+          "--height",
+          "96",
+          "--spp",
+          "128",
+          "--paths-per-round",
+          "8",
+          "--tile",
+          "32",
+          "--mode",
+          "skip",
+          "--reproject",
+          "cpu",
+          "--min-paths",
+          "96",
+          "--seed",
+          "11"};
+}
+
+uint64_t test_seed() {
+  if (const char* s = std::getenv("EPR_TEST_SEED")) return std::strtoull(s, nullptr, 10);
+  return std::random_device{}();
+}
+
+std::string exact_difference(const Image& a, const Image& b) {
+  if (a.width != b.width || a.height != b.height || a.channels != b.channels) return "shapes differ";
+  size_t n = 0, first = 0;
+  for (size_t i = 0; i < a.data.size(); ++i)
+    if (std::memcmp(&a.data[i], &b.data[i], sizeof(float)) != 0 && n++ == 0) first = i;
+  if (n == 0) return "";
+  std::ostringstream ss;
+  ss << n << " of " << a.data.size() << " values differ; first at value " << first << ": " << a.data[first] << " vs "
+     << b.data[first];
+  return ss.str();
+}
+
+std::string close_difference(const Image& a, const Image& b) {
+  if (a.data.size() != b.data.size()) return "shapes differ";
+  size_t n = 0;
+  for (size_t i = 0; i < a.data.size(); ++i) {
+    const float x = a.data[i], y = b.data[i];
+    n += !(std::isfinite(x) && std::isfinite(y) &&
+           std::fabs(x - y) <= 1e-5f + 1e-4f * std::max(std::fabs(x), std::fabs(y)));
+  }
+  return n ? std::to_string(n) + " values differ beyond float rounding" : "";
+}
+
+class MasterRestartTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    start_ = std::chrono::steady_clock::now();
+    seed_ = test_seed();
+    rng_.seed(seed_);
+    std::printf("EPR_TEST_SEED=%llu\n", static_cast<unsigned long long>(seed_));
+    RecordProperty("seed", std::to_string(seed_));
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() / ("epr-restart-" + std::to_string(::getpid()) + "-" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+
+  void TearDown() override {
+    if (watch_) watch_->stop();
+    if (reference_) reference_->stop();
+    for (auto& w : workers_) w->stop();
+    if (master_) master_->stop();
+    if (HasFailure()) {
+      std::fprintf(stderr, "seed %llu; logs kept in %s\n", static_cast<unsigned long long>(seed_), dir_.c_str());
+      auto tail = [](const std::string& name, const std::string& text) {
+        const size_t from = text.size() > 3000 ? text.size() - 3000 : 0;
+        std::fprintf(stderr, "---- %s ----\n%s\n", name.c_str(), text.substr(from).c_str());
+      };
+      for (const auto& m : old_master_logs_) tail("killed epr-master", m);
+      if (master_) tail("epr-master", master_->err());
+      for (auto& w : workers_) tail(w->name(), w->err());
+      if (watch_) tail("epr watch", watch_->err());
+    } else {
+      fs::remove_all(dir_);
+    }
+  }
+
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  // Prints a line of the test's story with the seconds since it began.
+  template <class... A>
+  void note(const char* format, A... args) {
+    std::printf("  [%6.2f s] ", std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count());
+    std::printf(format, args...);
+    std::printf("\n");
+    std::fflush(stdout);
+  }
+
+  // Starts epr-master on `port` (0: a free one) with the test's state directory.
+  void start_master(int port) {
+    const Args argv{kMaster,
+                    "--listen",
+                    "127.0.0.1:" + std::to_string(port),
+                    "--state-dir",
+                    path("state"),
+                    "--http",
+                    "127.0.0.1:0",
+                    "--reproject",
+                    "cpu",
+                    "--lease-timeout-ms",
+                    "1500",
+                    "--heartbeat-ms",
+                    "300",
+                    "--log-level",
+                    "info"};
+    const std::regex listening("epr-master listening on port ([0-9]+)");
+    // A port just freed by the killed master may take a moment to be bindable again.
+    for (int attempt = 0; attempt < 20; ++attempt) {
+      master_ = std::make_unique<Process>(argv, dir_ / ("master-" + std::to_string(++masters_)));
+      std::smatch m;
+      std::string err;
+      wait_until(
+          [&] {
+            err = master_->err();
+            return std::regex_search(err, m, listening) || !master_->running();
+          },
+          10s);
+      if (m.size() == 2 && master_->running()) {
+        port_ = std::stoi(m[1]);
+        return;
+      }
+      std::this_thread::sleep_for(250ms);
+    }
+    FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
+  }
+
+  void start_worker(const std::string& name) {
+    workers_.push_back(
+        std::make_unique<Process>(Args{kWorker, "--master", address(), "--threads", "1", "--name", name, "--cache-dir",
+                                       path("cache-" + name), "--max-backoff-ms", "500", "--log-level", "debug"},
+                                  dir_ / name));
+  }
+
+  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
+
+  RunResult epr(Args args, Millis timeout = 60s) {
+    args.insert(args.begin(), kEpr);
+    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
+  }
+
+  std::string submit() {
+    Args args{"submit"};
+    const Args f = job_flags();
+    args.insert(args.end(), f.begin(), f.end());
+    args.insert(args.end(), {"--master", address()});
+    const RunResult r = epr(args, 30s);
+    EXPECT_EQ(r.code, 0) << r.err;
+    return r.out.substr(0, r.out.find('\n'));
+  }
+
+  // The undisturbed render of the job, `epr render --single-process`, in the background while the
+  // cluster starts (most of that is waiting for processes to come up).
+  void start_reference() {
+    Args args{kEpr, "render"};
+    const Args f = job_flags();
+    args.insert(args.end(), f.begin(), f.end());
+    args.insert(args.end(), {"--single-process", "--threads", "1", "--out", path("ref")});
+    reference_ = std::make_unique<Process>(args, dir_ / "reference");
+  }
+
+  // `epr watch` in the background, following the job before the master is killed: it has to
+  // outlive the master it started with.
+  void start_watch(const std::string& id) {
+    watch_ = std::make_unique<Process>(Args{kEpr, "watch", id, "--master", address()}, dir_ / "watch");
+    ASSERT_TRUE(wait_until([&] { return watch_->err().find("round") != std::string::npos || !watch_->running(); }, 30s))
+        << "epr watch printed no progress";
+    ASSERT_TRUE(watch_->running()) << watch_->err();
+  }
+
+  // Registrations the current master has logged.
+  size_t registered() const { return count_of(master_->err(), ") registered"); }
+
+  // Waits until some worker has leased a tile of round `round` or later.
+  bool wait_for_round(int round, Millis timeout) {
+    const std::regex leased("lease [0-9]+: job \\S+ round ([0-9]+) tile");
+    return wait_until(
+        [&] {
+          for (auto& w : workers_) {
+            const std::string log = w->err();
+            for (auto it = std::sregex_iterator(log.begin(), log.end(), leased); it != std::sregex_iterator(); ++it)
+              if (std::stoi((*it)[1]) >= round) return true;
+          }
+          return false;
+        },
+        timeout);
+  }
+
+  // Waits until the job reaches a random round in [lo, hi].
+  void wait_for_random_round(int lo, int hi) {
+    const int round = std::uniform_int_distribution<int>(lo, hi)(rng_);
+    ASSERT_TRUE(wait_for_round(round, 90s)) << "the job never reached round " << round;
+    note("round %d leased", round);
+  }
+
+  // Sleeps a random time in [lo, hi] ms (the test's seeded generator).
+  void random_pause(int lo, int hi) {
+    const int ms = std::uniform_int_distribution<int>(lo, hi)(rng_);
+    note("pause %d ms", ms);
+    std::this_thread::sleep_for(Millis(ms));
+  }
+
+  // SIGKILLs the master mid-job (the test fails if the job had already ended) and starts a new
+  // one on the same port and state directory; the new one must find the job again.
+  void kill_and_restart_master(const std::string& id) {
+    ASSERT_EQ(master_->err().find("job " + id + " done"), std::string::npos)
+        << "the job ended before the master was killed: nothing would be tested";
+    master_->signal(SIGKILL);
+    ASSERT_EQ(master_->wait_for(5s), 128 + SIGKILL);
+    old_master_logs_.push_back(master_->err());
+    const int port = port_;
+    ASSERT_NO_FATAL_FAILURE(start_master(port));
+    ASSERT_EQ(port_, port);
+    const std::regex loaded(
+        "run ([0-9]+), 1 jobs loaded, ([01]) resume from their checkpoint, ([01]) start from round 0");
+    std::smatch m;
+    const std::string err = master_->err();
+    ASSERT_TRUE(std::regex_search(err, m, loaded)) << err;
+    EXPECT_EQ(std::stoi(m[2]) + std::stoi(m[3]), 1);
+    note("master SIGKILLed and restarted (run %s): the job %s", m[1].str().c_str(),
+         m[2] == "1" ? "resumes from its checkpoint" : "starts again from round 0");
+  }
+
+  void fetch_and_compare(const std::string& id) {
+    ASSERT_TRUE(watch_->wait_for(120s).has_value()) << "epr watch did not end";
+    note("epr watch ended");
+    EXPECT_EQ(watch_->exit_code(), 0) << "epr watch across the restart:\n" << watch_->err();
+    EXPECT_NE(watch_->err().find("DONE"), std::string::npos) << watch_->err();
+    const RunResult g = epr({"get", id, "--out", path("cluster"), "--master", address()}, 30s);
+    ASSERT_EQ(g.code, 0) << g.err;
+    note("fetched the result");
+    ASSERT_TRUE(reference_->wait_for(120s).has_value()) << "the reference render did not end";
+    ASSERT_EQ(reference_->exit_code(), 0) << reference_->err();
+    const Image counts = read_image(path("cluster.counts.exr")), ref_counts = read_image(path("ref.counts.exr"));
+    ASSERT_EQ(counts.channels, 2);
+    EXPECT_EQ(exact_difference(counts, ref_counts), "") << "M and M' per pixel";
+    EXPECT_EQ(exact_difference(read_image(path("cluster.pathtrace.exr")), read_image(path("ref.pathtrace.exr"))), "")
+        << "path-traced estimate";
+    EXPECT_EQ(close_difference(read_image(path("cluster.exr")), read_image(path("ref.exr"))), "") << "combined image";
+    double mprime = 0;
+    for (int y = 0; y < counts.height; ++y)
+      for (int x = 0; x < counts.width; ++x) mprime += counts.at(x, y)[1];
+    EXPECT_GT(mprime, 0.0) << "nothing was reprojected: M' would not be compared";
+  }
+
+  uint64_t seed_ = 0;
+  std::chrono::steady_clock::time_point start_;
+  std::mt19937_64 rng_;
+  fs::path dir_;
+  std::unique_ptr<Process> master_, watch_, reference_;
+  std::vector<std::unique_ptr<Process>> workers_;
+  std::vector<std::string> old_master_logs_;
+  int port_ = 0, masters_ = 0, runs_ = 0;
+};
+
+TEST_F(MasterRestartTest, MasterKilledMidJobResumesFromItsCheckpoint) {
+  start_reference();
+  ASSERT_NO_FATAL_FAILURE(start_master(0));
+  start_worker("w1");
+  start_worker("w2");
+  ASSERT_TRUE(wait_until([&] { return registered() >= 2; }, 30s));
+  const std::string id = submit();
+  ASSERT_FALSE(id.empty());
+  note("job %s submitted", id.c_str());
+  ASSERT_NO_FATAL_FAILURE(start_watch(id));
+  ASSERT_NO_FATAL_FAILURE(wait_for_random_round(1, 4));
+  random_pause(0, 100);
+  ASSERT_NO_FATAL_FAILURE(kill_and_restart_master(id));
+  // The workers find the new master by themselves.
+  EXPECT_TRUE(wait_until([&] { return registered() >= 2; }, 30s)) << "the workers did not register again";
+  note("both workers registered again");
+  ASSERT_NO_FATAL_FAILURE(fetch_and_compare(id));
+  // The killed master's leases were not honoured by the new one.
+  for (auto& w : workers_) EXPECT_GE(count_of(w->err(), "registered with"), 2u) << w->name();
+}
+
+TEST_F(MasterRestartTest, WorkersAndMasterKilledAtRandomMomentsOfOneRun) {
+  start_reference();
+  ASSERT_NO_FATAL_FAILURE(start_master(0));
+  for (const char* n : {"w1", "w2", "w3"}) start_worker(n);
+  ASSERT_TRUE(wait_until([&] { return registered() >= 3; }, 30s));
+  const std::string id = submit();
+  ASSERT_FALSE(id.empty());
+  note("job %s submitted", id.c_str());
+  ASSERT_NO_FATAL_FAILURE(start_watch(id));
+  // A worker dies, then the master, then another worker under the new master; replacements join.
+  std::vector<size_t> order{0, 1, 2};
+  std::shuffle(order.begin(), order.end(), rng_);
+  ASSERT_NO_FATAL_FAILURE(wait_for_random_round(1, 2));
+  random_pause(0, 100);
+  note("SIGKILL %s", workers_[order[0]]->name().c_str());
+  workers_[order[0]]->signal(SIGKILL);
+  ASSERT_NO_FATAL_FAILURE(wait_for_random_round(3, 4));
+  random_pause(0, 100);
+  ASSERT_NO_FATAL_FAILURE(kill_and_restart_master(id));
+  start_worker("w4");
+  random_pause(100, 500);
+  note("SIGKILL %s", workers_[order[1]]->name().c_str());
+  workers_[order[1]]->signal(SIGKILL);
+  start_worker("w5");
+  ASSERT_NO_FATAL_FAILURE(fetch_and_compare(id));
+  EXPECT_FALSE(workers_[order[2]]->err().empty());
+  EXPECT_GE(count_of(workers_[order[2]]->err(), "registered with"), 2u) << "the surviving worker registered again";
+}
+
+}  // namespace
+}  // namespace epr::testing
