@@ -46,6 +46,9 @@ namespace fs = std::filesystem;
 
 // Larger coordinates would overflow float area and normal computations (cross products of edges).
 constexpr double kMaxCoordinate = 1e8;
+// tinyobjloader triangulates a polygon by ear clipping, in time quadratic in its corners: a single
+// face of 20000 corners took minutes. Real models' n-gons (cylinder caps) stay far below this.
+constexpr size_t kMaxFaceCorners = 1024;
 // Scene JSON files are a few lines; this keeps a hostile one from costing much memory.
 constexpr size_t kMaxJsonBytes = size_t(16) << 20;
 
@@ -519,6 +522,8 @@ ObjScan scan_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       out += '\n';  // normals are not used: faces are flat
     } else if (key == "f") {
       if (tok.size() < 4) fail(file, ln, fmt::format("face needs at least 3 vertices, got {}", tok.size() - 1));
+      if (tok.size() - 1 > kMaxFaceCorners)
+        fail(file, ln, fmt::format("face has {} vertices, more than the {} supported", tok.size() - 1, kMaxFaceCorners));
       triangles += tok.size() - 3;
       if (triangles > ctx.opts.max_triangles)
         fail(file, ln, fmt::format("more than {} triangles (the limit)", ctx.opts.max_triangles));

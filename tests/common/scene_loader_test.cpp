@@ -275,6 +275,29 @@ TEST(SceneLoader, BadSceneAuditNamesFileAndLine) {
       << log.text();
 }
 
+// A polygon is triangulated in time quadratic in its corners (one face of 20000 took minutes), so
+// faces are limited to 1024 corners: a cylinder cap of 1024 segments loads, one more is refused.
+TEST(SceneLoader, FacesOfMoreThan1024CornersAreRefused) {
+  TempDir dir;
+  auto polygon = [](int n) {
+    std::string text;
+    for (int i = 0; i < n; ++i) {
+      const double a = 2 * 3.14159265358979 * i / n;
+      text += fmt::format("v {} {} 0\n", std::cos(a), std::sin(a));
+    }
+    text += "f";
+    for (int i = 1; i <= n; ++i) text += fmt::format(" {}", i);
+    return text + "\n";
+  };
+  const Scene s = load_obj(dir.write("cap.obj", polygon(1024)));
+  EXPECT_EQ(s.triangle_count(), 1022u);
+  float area = 0;
+  for (size_t t = 0; t < s.triangle_count(); ++t) area += s.area(t);
+  EXPECT_NEAR(area, 3.14159f, 1e-3f);
+  EXPECT_NE(load_error(dir.write("big.obj", polygon(1025))).find("big.obj:1026: face has 1025 vertices, more than the 1024"),
+            std::string::npos);
+}
+
 TEST(SceneLoader, FacesWithoutMaterialGetDefaultGrey) {
   set_log_level("error");
   TempDir dir;
