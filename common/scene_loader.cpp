@@ -523,7 +523,8 @@ ObjScan scan_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
     } else if (key == "f") {
       if (tok.size() < 4) fail(file, ln, fmt::format("face needs at least 3 vertices, got {}", tok.size() - 1));
       if (tok.size() - 1 > kMaxFaceCorners)
-        fail(file, ln, fmt::format("face has {} vertices, more than the {} supported", tok.size() - 1, kMaxFaceCorners));
+        fail(file, ln,
+             fmt::format("face has {} vertices, more than the {} supported", tok.size() - 1, kMaxFaceCorners));
       triangles += tok.size() - 3;
       if (triangles > ctx.opts.max_triangles)
         fail(file, ln, fmt::format("more than {} triangles (the limit)", ctx.opts.max_triangles));
@@ -704,8 +705,7 @@ Scene load_obj_inside(const FileRef& obj, const fs::path& root, const LoadOption
   const std::string first = scan.first_degenerate_line > 0 ? " (the first on this line)" : "";
   if (scene.triangles.empty())
     throw SceneError(fmt::format("{}: all {} triangles are degenerate (zero area){}", where, degenerate, first));
-  if (degenerate > 0)
-    scene_log()->warn("{}: dropped {} degenerate (zero-area) triangles{}", where, degenerate, first);
+  if (degenerate > 0) scene_log()->warn("{}: dropped {} degenerate (zero-area) triangles{}", where, degenerate, first);
   if (uses_texture) scene.uvs = std::move(uvs);
   if (textured_without_uv)
     scene_log()->warn("{}: some textured faces have no texture coordinates; they use texel (0, 0)", file);

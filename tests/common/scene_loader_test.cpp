@@ -252,8 +252,10 @@ TEST(SceneLoader, BadSceneAuditNamesFileAndLine) {
       {"text as texture", tri, "newmtl a\nmap_Kd notes.png\n", "m.mtl:2: cannot read texture 'notes.png'"},
       {"texture is a folder", tri, "newmtl a\nmap_Kd scene\n", "m.mtl:2: texture 'scene' does not exist"},
       {"mtllib escaping", "mtllib ../m.mtl\n" + kTriangle + "f 1 2 3\n", "", "case.obj:1: mtllib '../m.mtl' leaves"},
-      {"mtllib absolute", "mtllib /etc/passwd\n" + kTriangle + "f 1 2 3\n", "", "case.obj:1: mtllib '/etc/passwd' is an absolute"},
-      {"texture escaping", tri, "newmtl a\nmap_Kd ../../x.png\n", "m.mtl:2: texture '../../x.png' leaves the scene folder"},
+      {"mtllib absolute", "mtllib /etc/passwd\n" + kTriangle + "f 1 2 3\n", "",
+       "case.obj:1: mtllib '/etc/passwd' is an absolute"},
+      {"texture escaping", tri, "newmtl a\nmap_Kd ../../x.png\n",
+       "m.mtl:2: texture '../../x.png' leaves the scene folder"},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.what);
@@ -294,8 +296,9 @@ TEST(SceneLoader, FacesOfMoreThan1024CornersAreRefused) {
   float area = 0;
   for (size_t t = 0; t < s.triangle_count(); ++t) area += s.area(t);
   EXPECT_NEAR(area, 3.14159f, 1e-3f);
-  EXPECT_NE(load_error(dir.write("big.obj", polygon(1025))).find("big.obj:1026: face has 1025 vertices, more than the 1024"),
-            std::string::npos);
+  EXPECT_NE(
+      load_error(dir.write("big.obj", polygon(1025))).find("big.obj:1026: face has 1025 vertices, more than the 1024"),
+      std::string::npos);
 }
 
 TEST(SceneLoader, FacesWithoutMaterialGetDefaultGrey) {

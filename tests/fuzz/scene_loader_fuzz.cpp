@@ -86,7 +86,10 @@ const Folder& folder() {
     fs::create_symlink("../outside.mtl", d.scene / "link_out.mtl");
     fs::create_symlink("../outside.png", d.scene / "link_out.png");
     fs::create_directory_symlink("..", d.scene / "up");
-    std::atexit([] { std::error_code ec; fs::remove_all(folder().root, ec); });
+    std::atexit([] {
+      std::error_code ec;
+      fs::remove_all(folder().root, ec);
+    });
     return d;
   }();
   return f;
@@ -141,7 +144,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const size_t json_at = in.find("#@json\n", mtl_at == std::string_view::npos ? 0 : mtl_at);
   const std::string_view obj = in.substr(0, std::min(mtl_at, json_at));
   std::string_view mtl;
-  if (mtl_at != std::string_view::npos) mtl = in.substr(mtl_at + 6, json_at == std::string_view::npos ? in.npos : json_at - mtl_at - 6);
+  if (mtl_at != std::string_view::npos)
+    mtl = in.substr(mtl_at + 6, json_at == std::string_view::npos ? in.npos : json_at - mtl_at - 6);
   const bool has_json = json_at != std::string_view::npos;
 
   write(f.scene / "a.obj", obj);
@@ -160,7 +164,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   } catch (const SceneError& e) {
     // The message names a file of the scene: it starts with the scene folder's path.
     const std::string_view msg = e.what();
-    if (msg.rfind(f.scene.string() + "/", 0) != 0) bug("SceneError does not start with a scene file: " + std::string(msg));
+    if (msg.rfind(f.scene.string() + "/", 0) != 0)
+      bug("SceneError does not start with a scene file: " + std::string(msg));
     if (msg.find(": ") == std::string_view::npos) bug("SceneError without a reason: " + std::string(msg));
   } catch (const std::exception& e) {
     bug(std::string("exception other than SceneError: ") + e.what());

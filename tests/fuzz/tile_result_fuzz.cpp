@@ -54,12 +54,18 @@ bool finite_non_negative(const Vec3& v) { return is_finite(v) && v.x >= 0 && v.y
 
 float any_float(FuzzedDataProvider& in) {
   switch (in.ConsumeIntegralInRange(0, 7)) {
-    case 0: return std::nanf("");
-    case 1: return INFINITY;
-    case 2: return -1.f;
-    case 3: return 0.f;
-    case 4: return in.ConsumeFloatingPoint<float>();
-    default: return in.ConsumeFloatingPointInRange(0.f, 100.f);
+    case 0:
+      return std::nanf("");
+    case 1:
+      return INFINITY;
+    case 2:
+      return -1.f;
+    case 3:
+      return 0.f;
+    case 4:
+      return in.ConsumeFloatingPoint<float>();
+    default:
+      return in.ConsumeFloatingPointInRange(0.f, 100.f);
   }
 }
 
@@ -134,7 +140,8 @@ void check_tile(const Lease& l, const v1::TileResultHeader& header, const Assemb
   require(t.vertices.size() == header.vertex_count(), "vertex count differs from the header");
   require(t.exact_samples.size() + t.dropped_exact_samples == header.exact_sample_count(),
           "exact sample count differs from the header");
-  if (e.payload != TileExpectation::Payload::kVertices) require(t.vertices.empty(), "vertices for a job that takes none");
+  if (e.payload != TileExpectation::Payload::kVertices)
+    require(t.vertices.empty(), "vertices for a job that takes none");
   if (e.payload != TileExpectation::Payload::kExactSamples)
     require(t.exact_samples.empty(), "exact samples for a job not in exact mode");
   if (e.max_vertices_per_tile > 0) require(t.vertices.size() <= e.max_vertices_per_tile, "per-tile vertex cap ignored");
@@ -194,7 +201,8 @@ void round_trip(FuzzedDataProvider& in, const Lease& l) {
     for (size_t i = 0; i < n && in.remaining_bytes() > 0; ++i) {
       VertexRecord v;
       v.position = in.ConsumeIntegralInRange(0, 7) == 0 ? any_vec(in) : vec_in(in, e.codec_bounds);
-      v.normal = in.ConsumeIntegralInRange(0, 7) == 0 ? any_vec(in) : Vec3(in.ConsumeFloatingPointInRange(-1.f, 1.f), 1.f, 0.5f);
+      v.normal = in.ConsumeIntegralInRange(0, 7) == 0 ? any_vec(in)
+                                                      : Vec3(in.ConsumeFloatingPointInRange(-1.f, 1.f), 1.f, 0.5f);
       v.radiance = any_vec(in);
       v.flags = in.ConsumeIntegralInRange(0, 15) == 0 ? in.ConsumeIntegral<uint32_t>() : VertexRecord::kDiffuse;
       r.vertices.push_back(v);
@@ -219,8 +227,9 @@ void round_trip(FuzzedDataProvider& in, const Lease& l) {
   const std::vector<v1::TileResultChunk> chunks = split_tile_result(r, id, e.codec_bounds, e.limits);
   TileResultAssembler a(e);
   const uint64_t announced = chunks.front().header().vertex_count();
-  const bool over_cap = e.max_vertices_per_tile > 0 && (announced > e.max_vertices_per_tile ||
-                                                        chunks.front().header().exact_sample_count() > e.max_vertices_per_tile);
+  const bool over_cap =
+      e.max_vertices_per_tile > 0 &&
+      (announced > e.max_vertices_per_tile || chunks.front().header().exact_sample_count() > e.max_vertices_per_tile);
   for (const v1::TileResultChunk& c : chunks) {
     if (auto err = a.add(c)) {
       if (over_cap && err->find("exceeds the per-tile limit") != std::string::npos) return;
@@ -278,7 +287,8 @@ void hostile_stream(FuzzedDataProvider& in, const Lease& l) {
         h->set_tile_index(honest ? e.tile_index : in.ConsumeIntegral<uint32_t>());
         h->mutable_worker_id()->set_id(in.ConsumeRandomLengthString(16));
         h->set_pixel_count(honest ? l.pixels : in.ConsumeIntegral<uint32_t>());
-        h->set_vertex_count(in.ConsumeBool() ? in.ConsumeIntegralInRange<uint64_t>(0, 64) : in.ConsumeIntegral<uint64_t>());
+        h->set_vertex_count(in.ConsumeBool() ? in.ConsumeIntegralInRange<uint64_t>(0, 64)
+                                             : in.ConsumeIntegral<uint64_t>());
         h->set_exact_sample_count(in.ConsumeBool() ? in.ConsumeIntegralInRange<uint64_t>(0, 64)
                                                    : in.ConsumeIntegral<uint64_t>());
         h->set_vertex_encoding(v1::VertexEncoding(honest ? 1 : in.ConsumeIntegral<int32_t>()));
@@ -288,7 +298,8 @@ void hostile_stream(FuzzedDataProvider& in, const Lease& l) {
         auto* p = c.mutable_pixels();
         const uint32_t first = honest ? cursor : in.ConsumeIntegral<uint32_t>();
         const uint32_t left = first < l.pixels ? l.pixels - first : 1;
-        const uint32_t count = honest ? in.ConsumeIntegralInRange<uint32_t>(1, left) : in.ConsumeIntegralInRange<uint32_t>(0, 300);
+        const uint32_t count =
+            honest ? in.ConsumeIntegralInRange<uint32_t>(1, left) : in.ConsumeIntegralInRange<uint32_t>(0, 300);
         p->set_first_pixel(first);
         const uint32_t values = honest ? 3 * count : in.ConsumeIntegralInRange<uint32_t>(0, 3 * count + 3);
         for (uint32_t i = 0; i < values; ++i) p->add_radiance_sum(any_float(in));
@@ -305,7 +316,8 @@ void hostile_stream(FuzzedDataProvider& in, const Lease& l) {
         auto* b = c.mutable_vertices();
         const uint32_t count = in.ConsumeIntegralInRange<uint32_t>(0, 64);
         b->set_count(honest ? count : in.ConsumeIntegral<uint32_t>());
-        b->set_packed(in.ConsumeBytesAsString(honest ? 16 * size_t(count) : in.ConsumeIntegralInRange<size_t>(0, 1100)));
+        b->set_packed(
+            in.ConsumeBytesAsString(honest ? 16 * size_t(count) : in.ConsumeIntegralInRange<size_t>(0, 1100)));
         break;
       }
       case 3: {
@@ -313,7 +325,8 @@ void hostile_stream(FuzzedDataProvider& in, const Lease& l) {
         const uint32_t n = in.ConsumeIntegralInRange<uint32_t>(0, 64);
         const uint64_t grid = uint64_t(e.subpixels) * e.image_width * e.subpixels * e.image_height;
         for (uint32_t i = 0; i < n; ++i)
-          s->add_subpixel(honest ? uint32_t(in.ConsumeIntegralInRange<uint64_t>(0, grid - 1)) : in.ConsumeIntegral<uint32_t>());
+          s->add_subpixel(honest ? uint32_t(in.ConsumeIntegralInRange<uint64_t>(0, grid - 1))
+                                 : in.ConsumeIntegral<uint32_t>());
         const uint32_t values = honest ? 3 * n : in.ConsumeIntegralInRange<uint32_t>(0, 3 * n + 3);
         for (uint32_t i = 0; i < values; ++i) s->add_radiance(any_float(in));
         break;
@@ -476,7 +489,8 @@ int main(int argc, char** argv) {
         r.vertices.push_back(v);
       }
     if (e.payload == TileExpectation::Payload::kExactSamples)
-      for (uint32_t i = 0; i < 90; ++i) r.visible.push_back({(i * 37) % (4 * 16 * 8), Vec3(u(rng), -0.f, i % 41 == 0 ? -1.f : u(rng))});
+      for (uint32_t i = 0; i < 90; ++i)
+        r.visible.push_back({(i * 37) % (4 * 16 * 8), Vec3(u(rng), -0.f, i % 41 == 0 ? -1.f : u(rng))});
     TileResultIdentity id;
     id.lease_id = 11;
     id.job_id = e.job_id;
