@@ -170,6 +170,14 @@ void check_tile(const Lease& l, const v1::TileResultHeader& header, const Assemb
   k.grid_w = float(e.subpixels * e.image_width);
   k.grid_h = float(e.subpixels * e.image_height);
   k.grid_wi = e.subpixels * e.image_width;
+  // A deep framebuffer covered everywhere by the plane z = middle of the bounds (the kernel reads
+  // texel_plane[texel]: ASan checks the index).
+  detail::PlaneGrid planes;
+  planes.width = int(k.grid_wi);
+  planes.height = int(e.subpixels * e.image_height);
+  planes.texel_plane.assign(grid, 0);
+  planes.planes = {0.f, 0.f, 1.f, spec.look.z};
+  k.epsilon = 1e-3f * (1.f + std::fabs(spec.look.z));
   for (const VertexRecord& v : t.vertices) {
     require(detail::record_is_finite(v), "decoded vertex not finite");
     for (int a = 0; a < 3; ++a)
@@ -180,6 +188,9 @@ void check_tile(const Lease& l, const v1::TileResultHeader& header, const Assemb
     uint32_t texel = 0;
     if (detail::project_and_face(k, v.position, v.normal, &texel) == detail::Decision::kAccepted)
       require(texel < grid, "the kernel's subpixel lies outside the grid");
+    uint32_t subpixel = grid;
+    if (detail::classify(k, planes, v.position, v.normal, &subpixel) == detail::Decision::kAccepted)
+      require(subpixel < grid, "an accepted vertex lands outside the subpixel grid");
   }
 }
 
