@@ -18,9 +18,11 @@
 // folder is read (the markers never show up in a loaded scene), the sanitizers stay quiet, and limits
 // keep time and memory bounded.
 #include <OpenImageIO/imageio.h>
+#include <signal.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -69,6 +71,15 @@ Image solid(int w, int h, Vec3 c) {
 const Folder& folder() {
   static const Folder f = [] {
     const fs::path base = fs::exists("/dev/shm") ? fs::path("/dev/shm") : fs::temp_directory_path();
+    // libFuzzer often leaves through _Exit (atexit handlers do not run): remove the folders of
+    // earlier runs whose process is gone.
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(base, ec)) {
+      const std::string name = entry.path().filename().string();
+      if (name.rfind("epr_scene_fuzz_", 0) != 0) continue;
+      const long pid = std::strtol(name.c_str() + 15, nullptr, 10);
+      if (pid > 0 && ::kill(pid_t(pid), 0) != 0 && errno == ESRCH) fs::remove_all(entry.path(), ec);
+    }
     Folder d;
     d.root = base / ("epr_scene_fuzz_" + std::to_string(::getpid()));
     d.scene = d.root / "scene";
