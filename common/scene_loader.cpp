@@ -46,6 +46,9 @@ namespace fs = std::filesystem;
 
 // Larger coordinates would overflow float area and normal computations (cross products of edges).
 constexpr double kMaxCoordinate = 1e8;
+// tinyobjloader triangulates a polygon by ear clipping, in time quadratic in its corners: a single
+// face of 20000 corners took minutes. Real models' n-gons (cylinder caps) stay far below this.
+constexpr size_t kMaxFaceCorners = 1024;
 // Scene JSON files are a few lines; this keeps a hostile one from costing much memory.
 constexpr size_t kMaxJsonBytes = size_t(16) << 20;
 
@@ -463,6 +466,7 @@ struct ObjScan {
   size_t lines = 0;
   size_t faces = 0;
   bool any_uv = false;
+  size_t first_degenerate_line = 0;  // first triangle face of zero area (0: none), for messages
 };
 
 /// Validates the OBJ line by line (reading its MTL files and textures on the way) and returns the
@@ -477,6 +481,7 @@ ObjScan scan_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
   scan.sanitized.reserve(text.size());
   std::string& out = scan.sanitized;
   size_t nv = 0, nvt = 0, nvn = 0, triangles = 0;
+  std::vector<Vec3> positions;  // as parsed: the zero-area test of triangle faces names their line
   std::vector<std::string_view> tok;
   std::set<std::string, std::less<>> warned_keywords;
   std::string_view raw;
@@ -498,6 +503,7 @@ ObjScan scan_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       for (size_t k = 0; k < 3; ++k) p[k] = parse_real(tok[k + 1], kMaxCoordinate, file, ln, "coordinate");
       for (size_t k = 4; k < tok.size(); ++k) parse_real(tok[k], 1e30, file, ln, "vertex weight or colour");
       if (++nv > kMaxVertices) fail(file, ln, "too many vertices");
+      positions.push_back({p[0], p[1], p[2]});
       out += fmt::format("v {} {} {}\n", format_real(p[0]), format_real(p[1]), format_real(p[2]));
     } else if (key == "vt") {
       if (tok.size() < 2 || tok.size() > 4)
@@ -516,14 +522,19 @@ ObjScan scan_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       out += '\n';  // normals are not used: faces are flat
     } else if (key == "f") {
       if (tok.size() < 4) fail(file, ln, fmt::format("face needs at least 3 vertices, got {}", tok.size() - 1));
+      if (tok.size() - 1 > kMaxFaceCorners)
+        fail(file, ln,
+             fmt::format("face has {} vertices, more than the {} supported", tok.size() - 1, kMaxFaceCorners));
       triangles += tok.size() - 3;
       if (triangles > ctx.opts.max_triangles)
         fail(file, ln, fmt::format("more than {} triangles (the limit)", ctx.opts.max_triangles));
       out += 'f';
+      uint32_t corner[3] = {0, 0, 0};
       for (size_t k = 1; k < tok.size(); ++k) {
         uint32_t v = 0;
         int64_t vt = -1;
         if (auto err = parse_corner(tok[k], nv, nvt, nvn, &v, &vt)) fail(file, ln, *err);
+        if (k <= 3) corner[k - 1] = v;
         if (vt >= 0) {
           out += fmt::format(" {}/{}", v + 1, vt + 1);
           scan.any_uv = true;
@@ -533,6 +544,10 @@ ObjScan scan_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       }
       out += '\n';
       ++scan.faces;
+      if (tok.size() == 4 && scan.first_degenerate_line == 0) {  // load_obj_inside's zero-area test
+        const Vec3 &a = positions[corner[0]], &b = positions[corner[1]], &c = positions[corner[2]];
+        if (!(length(cross(b - a, c - a)) > 0.f)) scan.first_degenerate_line = ln;
+      }
     } else if (key == "usemtl") {
       if (tok.size() < 2) fail(file, ln, "usemtl without a material name");
       const std::string name(tok[1]);
@@ -682,8 +697,15 @@ Scene load_obj_inside(const FileRef& obj, const fs::path& root, const LoadOption
       uvs.push_back(uv);
     }
   }
-  if (degenerate > 0) scene_log()->warn("{}: dropped {} degenerate (zero-area) triangles", file, degenerate);
-  if (scene.triangles.empty()) fail_file(file, fmt::format("all {} triangles are degenerate (zero area)", degenerate));
+  // Zero-area triangles are dropped, not fatal (exporters leave slivers behind); a scene of nothing but
+  // them is an error. Both messages name the first zero-area triangle face when there is one (a
+  // polygon's triangles are only known after triangulation).
+  const std::string where =
+      scan.first_degenerate_line > 0 ? fmt::format("{}:{}", file, scan.first_degenerate_line) : file;
+  const std::string first = scan.first_degenerate_line > 0 ? " (the first on this line)" : "";
+  if (scene.triangles.empty())
+    throw SceneError(fmt::format("{}: all {} triangles are degenerate (zero area){}", where, degenerate, first));
+  if (degenerate > 0) scene_log()->warn("{}: dropped {} degenerate (zero-area) triangles{}", where, degenerate, first);
   if (uses_texture) scene.uvs = std::move(uvs);
   if (textured_without_uv)
     scene_log()->warn("{}: some textured faces have no texture coordinates; they use texel (0, 0)", file);

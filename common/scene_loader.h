@@ -39,7 +39,7 @@ Scene load_scene(const std::string& spec, const LoadOptions& = {});
 /// An OBJ file with its MTL files and Kd textures. Materials are Lambertian (Kd or map_Kd, Ke for
 /// emitters); faces without a material get a grey default (kd 0.8). The camera is CameraSpec's
 /// default (the Cornell box's conventional camera): OBJ files carry none. Zero-area triangles are
-/// dropped with a warning.
+/// dropped with a warning that names the line of the first; an OBJ with nothing else is an error.
 Scene load_obj(const std::string& obj_path, const LoadOptions& = {});
 
 /// A scene JSON file: an OBJ or a built-in scene plus camera and material overrides.

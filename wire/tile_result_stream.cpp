@@ -16,6 +16,10 @@ constexpr uint32_t kPixelWireBytes = 12 + 5;
 constexpr uint32_t kExactWireBytes = 12 + 5;
 // A path count above this is not a count but garbage (paths_per_pixel is bounded far below it).
 constexpr uint32_t kMaxPathCount = 1u << 20;
+// The assembler reserves at most this many vertices / exact samples on the header's word; beyond it the
+// arrays grow geometrically with the data that actually arrives. A header alone (a few bytes) must not
+// make the master allocate much: 4 Mi announced vertices used to reserve 160 MB at once, per stream.
+constexpr uint64_t kInitialReserve = 1u << 16;
 
 uint32_t items_per_chunk(uint32_t max_chunk_bytes, uint32_t bytes_per_item, uint32_t cap) {
   const uint32_t room = max_chunk_bytes > TileResultLimits::kChunkFramingBytes
@@ -253,9 +257,8 @@ std::optional<std::string> TileResultAssembler::add_header(const v1::TileResultH
   tile_.path_sum.assign(pixel_count_, Vec3(0.f));
   tile_.path_count.assign(pixel_count_, 0);
   covered_.assign(pixel_count_, 0);
-  // Reserve only what a well-behaved header announces within one tile's worth; grow otherwise.
-  tile_.vertices.reserve(size_t(std::min<uint64_t>(h.vertex_count(), 1u << 22)));
-  tile_.exact_samples.reserve(size_t(std::min<uint64_t>(h.exact_sample_count(), 1u << 22)));
+  tile_.vertices.reserve(size_t(std::min<uint64_t>(h.vertex_count(), kInitialReserve)));
+  tile_.exact_samples.reserve(size_t(std::min<uint64_t>(h.exact_sample_count(), kInitialReserve)));
   return std::nullopt;
 }
 
@@ -307,6 +310,12 @@ std::optional<std::string> TileResultAssembler::add_vertices(const v1::VertexBat
     return fail(fmt::format("VertexBatch packs {} bytes for {} vertices (16 each)", b.packed().size(), b.count()));
   if (tile_.vertices.size() + b.count() > header_.vertex_count())
     return fail(fmt::format("more vertices than the header's vertex_count {}", header_.vertex_count()));
+  // Grow geometrically up to the announced count (decode_batch's own reserve is exact, which would
+  // copy the whole array once per batch).
+  const uint64_t need = tile_.vertices.size() + b.count();
+  if (need > tile_.vertices.capacity())
+    tile_.vertices.reserve(
+        size_t(std::min<uint64_t>(header_.vertex_count(), std::max<uint64_t>(need, 2 * tile_.vertices.capacity()))));
   codec_.decode_batch(b.packed(), &tile_.vertices);  // total: any bits decode to a finite record
   return std::nullopt;
 }

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ostream_sink.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -186,6 +187,118 @@ TEST(SceneLoader, DegenerateTrianglesAreDroppedNotFatal) {
   const Scene s = load_obj(obj);
   EXPECT_EQ(s.triangle_count(), 2u);
   for (size_t t = 0; t < s.triangle_count(); ++t) EXPECT_GT(s.area(t), 0.f);
+}
+
+/// Captures what the "common" logger writes at warn and above while it lives.
+class LogCapture {
+ public:
+  LogCapture() : sink_(std::make_shared<spdlog::sinks::ostream_sink_mt>(text_)) {
+    set_log_level("warn");
+    logger("common")->sinks().push_back(sink_);
+  }
+  ~LogCapture() {
+    auto& sinks = logger("common")->sinks();
+    sinks.erase(std::remove(sinks.begin(), sinks.end(), sink_), sinks.end());
+    set_log_level("info");
+  }
+  std::string text() const { return text_.str(); }
+
+ private:
+  std::ostringstream text_;
+  std::shared_ptr<spdlog::sinks::ostream_sink_mt> sink_;
+};
+
+// The bad-scene audit: every kind of broken input a job may carry gives a SceneError that names the
+// file and the line (or, for zero-area triangles, which are dropped rather than fatal, a warning that
+// does). tests/data/scenes/bad/ holds more variants of each.
+TEST(SceneLoader, BadSceneAuditNamesFileAndLine) {
+  set_log_level("error");
+  TempDir dir;
+  const std::string tri = "mtllib m.mtl\n" + kTriangle + "usemtl a\nf 1 2 3\n";  // the MTL is line 1
+  dir.write("corrupt.png", std::string("\x89PNG\r\n\x1a\n\0\0\0\rIHDR\0\0\x10\0\0\0\x10\0garbage", 32));
+  dir.write("empty.png", "");
+  dir.write("notes.png", "just text, not an image\n");
+  fs::create_directories(dir.path("scene"));
+  dir.write("scene/inner.png", "");
+  struct Case {
+    const char* what;
+    std::string obj, mtl;
+    std::string expect;  // "file:line: reason", or a part of it
+  };
+  const std::vector<Case> cases = {
+      {"truncated OBJ: vertex", "v 0 0 0\nv 1 0 0\nv 0 1", "", "case.obj:3: vertex needs 3 coordinates"},
+      {"truncated OBJ: face", kTriangle + "f 1 2", "", "case.obj:4: face needs at least 3 vertices, got 2"},
+      {"truncated OBJ: number", "v 0 0 0\nv 1 0 0\nv 0 1 1e", "", "case.obj:3: bad number '1e'"},
+      {"truncated OBJ: corner", kTriangle + "f 1 2 3/", "", "case.obj:4: face corner '3/' ends in '/'"},
+      {"malformed MTL: number", tri, "newmtl a\nKd 0.5 x 0.5\n", "m.mtl:2: bad number 'x'"},
+      {"malformed MTL: order", tri, "Kd 1 1 1\nnewmtl a\n", "m.mtl:1: Kd before any newmtl"},
+      {"malformed MTL: arity", tri, "newmtl a\nKe 1 2\n", "m.mtl:2: Ke needs 1 or 3 numbers"},
+      {"malformed MTL: name", tri, "newmtl\n", "m.mtl:1: newmtl without a material name"},
+      {"malformed MTL: NaN", tri, "newmtl a\nKd nan 0 0\n", "m.mtl:2: colour value 'nan' is not finite"},
+      {"index out of range", kTriangle + "f 1 2 4\n", "", "case.obj:4: vertex index 4 is out of range"},
+      {"negative index out of range", kTriangle + "f -1 -2 -4\n", "", "case.obj:4: vertex index -4 is out of range"},
+      {"texcoord out of range", kTriangle + "vt 0 0\nf 1/1 2/2 3/1\n", "", "case.obj:5: texture coordinate index 2"},
+      {"index 0", kTriangle + "f 0 1 2\n", "", "case.obj:4: vertex index 0"},
+      {"index beyond int64", kTriangle + "f 1 2 99999999999999999999\n", "", "case.obj:4: bad vertex index"},
+      {"NaN coordinate", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", "", "case.obj:2: coordinate 'nan' is not finite"},
+      {"inf coordinate", "v 0 0 0\nv 1 0 0\nv 0 -inf 0\nf 1 2 3\n", "", "case.obj:3: coordinate '-inf' is not finite"},
+      {"overflowing coordinate", "v 0 0 1e999\n", "", "case.obj:1: coordinate '1e999' is out of range"},
+      {"NaN texture coordinate", kTriangle + "vt 0 nan\n", "", "case.obj:4: texture coordinate 'nan' is not finite"},
+      {"all triangles degenerate", kTriangle + "v 2 0 0\nf 1 2 4\nf 3 3 1\n", "",
+       "case.obj:5: all 2 triangles are degenerate (zero area)"},
+      {"missing texture", tri, "newmtl a\nmap_Kd nope.png\n", "m.mtl:2: texture 'nope.png' does not exist"},
+      {"corrupt texture", tri, "newmtl a\nmap_Kd corrupt.png\n", "m.mtl:2: cannot read texture 'corrupt.png'"},
+      {"empty texture", tri, "newmtl a\nmap_Kd empty.png\n", "m.mtl:2: cannot read texture 'empty.png'"},
+      {"text as texture", tri, "newmtl a\nmap_Kd notes.png\n", "m.mtl:2: cannot read texture 'notes.png'"},
+      {"texture is a folder", tri, "newmtl a\nmap_Kd scene\n", "m.mtl:2: texture 'scene' does not exist"},
+      {"mtllib escaping", "mtllib ../m.mtl\n" + kTriangle + "f 1 2 3\n", "", "case.obj:1: mtllib '../m.mtl' leaves"},
+      {"mtllib absolute", "mtllib /etc/passwd\n" + kTriangle + "f 1 2 3\n", "",
+       "case.obj:1: mtllib '/etc/passwd' is an absolute"},
+      {"texture escaping", tri, "newmtl a\nmap_Kd ../../x.png\n",
+       "m.mtl:2: texture '../../x.png' leaves the scene folder"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.what);
+    dir.write("m.mtl", c.mtl);
+    const std::string obj = dir.write("case.obj", c.obj);
+    const std::string msg = load_error(obj);
+    EXPECT_NE(msg.find(c.expect), std::string::npos) << "message: " << msg << "\nexpected: " << c.expect;
+    // The file is named by the path the scene was loaded with, joined to the referring file's folder.
+    EXPECT_EQ(msg.rfind(dir.path(""), 0), 0u) << msg;
+  }
+
+  // Zero-area triangles among good ones are dropped (never fatal), with a warning naming the line of
+  // the first one; the scene keeps the rest.
+  const std::string obj = dir.write("slivers.obj", kTriangle + "v 2 0 0\nf 1 2 3\nf 1 2 4\nf 2 3 1\nf 4 4 4\n");
+  LogCapture log;
+  const Scene s = load_obj(obj);
+  EXPECT_EQ(s.triangle_count(), 2u);
+  EXPECT_NE(log.text().find("slivers.obj:6: dropped 2 degenerate (zero-area) triangles"), std::string::npos)
+      << log.text();
+}
+
+// A polygon is triangulated in time quadratic in its corners (one face of 20000 took minutes), so
+// faces are limited to 1024 corners: a cylinder cap of 1024 segments loads, one more is refused.
+TEST(SceneLoader, FacesOfMoreThan1024CornersAreRefused) {
+  TempDir dir;
+  auto polygon = [](int n) {
+    std::string text;
+    for (int i = 0; i < n; ++i) {
+      const double a = 2 * 3.14159265358979 * i / n;
+      text += fmt::format("v {} {} 0\n", std::cos(a), std::sin(a));
+    }
+    text += "f";
+    for (int i = 1; i <= n; ++i) text += fmt::format(" {}", i);
+    return text + "\n";
+  };
+  const Scene s = load_obj(dir.write("cap.obj", polygon(1024)));
+  EXPECT_EQ(s.triangle_count(), 1022u);
+  float area = 0;
+  for (size_t t = 0; t < s.triangle_count(); ++t) area += s.area(t);
+  EXPECT_NEAR(area, 3.14159f, 1e-3f);
+  EXPECT_NE(
+      load_error(dir.write("big.obj", polygon(1025))).find("big.obj:1026: face has 1025 vertices, more than the 1024"),
+      std::string::npos);
 }
 
 TEST(SceneLoader, FacesWithoutMaterialGetDefaultGrey) {

@@ -4,6 +4,7 @@
 #include "wire/tile_result_stream.h"
 
 #include <gtest/gtest.h>
+#include <malloc.h>
 
 #include <cmath>
 #include <cstring>
@@ -459,6 +460,65 @@ TEST(TileResultStream, ErrorsAreFinal) {
   for (const auto& c : base.chunks) EXPECT_EQ(a.add(c), err);
   EXPECT_FALSE(a.complete());
   EXPECT_THROW(a.take(), std::logic_error);
+}
+
+/// Bytes the process has allocated from the heap (glibc: small blocks plus mmap'd large ones).
+size_t heap_bytes() {
+  const struct mallinfo2 m = mallinfo2();
+  return m.uordblks + m.hblkhd;
+}
+
+// Found by tests/fuzz (regressions/tile_result/oom-header-reserves-160mb): a header announcing the
+// per-tile maximum of vertices or exact samples made the master reserve for all of them before a
+// single one arrived (160 MB per stream for 4 Mi vertices). Now memory follows the data received.
+TEST(TileResultStream, AHeaderAloneAllocatesLittle) {
+  for (const bool exact : {false, true}) {
+    SCOPED_TRACE(exact ? "exact samples" : "vertices");
+    const SmallStream base(exact);
+    TileExpectation e = base.expected(exact);
+    e.max_vertices_per_tile = 8u << 20;  // the master's default (JobManagerOptions::max_queued_vertices)
+    TileResultAssembler a(e);
+    v1::TileResultChunk header = base.chunks[0];
+    if (exact)
+      header.mutable_header()->set_exact_sample_count(8u << 20);
+    else
+      header.mutable_header()->set_vertex_count(8u << 20);
+    const size_t before = heap_bytes();
+    ASSERT_FALSE(a.add(header));
+    const size_t grown = heap_bytes() - std::min(heap_bytes(), before);
+    EXPECT_LT(grown, size_t(16) << 20) << grown << " bytes for a header";
+    // The data that does arrive is taken as usual; the stream is refused only at the trailer.
+    for (size_t i = 1; i + 1 < base.chunks.size(); ++i) EXPECT_FALSE(a.add(base.chunks[i])) << i;
+    const auto err = a.add(base.chunks.back());
+    ASSERT_TRUE(err);
+    EXPECT_NE(err->find("announced"), std::string::npos) << *err;
+  }
+}
+
+// Many small batches up to the announced count: the vertex array grows geometrically, and what comes
+// out is every vertex in order.
+TEST(TileResultStream, ManySmallBatchesAssembleInOrder) {
+  TileResult r;
+  r.rect = {0, 0, 4, 4};
+  r.path_sum.assign(16, Vec3(0.25f));
+  r.path_count.assign(16, 1);
+  for (int i = 0; i < 5000; ++i)
+    r.vertices.push_back({Vec3(float(i % 100) / 100.f, float(i / 100) / 50.f, 0.5f), Vec3(0, 0, 1), Vec3(float(i)),
+                          VertexRecord::kDiffuse});
+  const Bounds3 bounds{Vec3(0.f), Vec3(1.f)};
+  TileResultLimits limits;
+  limits.max_vertices_per_chunk = 7;
+  const auto chunks = split_tile_result(r, identity(), bounds, limits);
+  ASSERT_GT(chunks.size(), 700u);
+  const AssembledTile t = assemble(chunks, expectation(r.rect, TileExpectation::Payload::kVertices, bounds, limits));
+  ASSERT_EQ(t.vertices.size(), r.vertices.size());
+  const VertexCodec codec(bounds);
+  for (size_t i = 0; i < r.vertices.size(); ++i) {
+    PackedVertex p;
+    ASSERT_TRUE(codec.encode(r.vertices[i], &p));
+    const VertexRecord want = codec.decode(p);
+    ASSERT_EQ(std::memcmp(&t.vertices[i], &want, sizeof(VertexRecord)), 0) << i;
+  }
 }
 
 TEST(TileResultStream, BadExpectationsThrow) {
