@@ -101,9 +101,10 @@ class BenchWorker {
     ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
     v1::SubmitAck ack;
     auto stream = stub_->SubmitTile(&ctx, &ack);
-    bool ok = stream->Write(first);
-    for (size_t i = 0; ok && i < rest.size(); ++i) ok = stream->Write(rest[i]);
-    if (ok) stream->WritesDone();
+    // As WorkerNode does: the last chunk goes with the half-close.
+    bool ok = rest.empty() ? stream->Write(first, grpc::WriteOptions().set_last_message()) : stream->Write(first);
+    for (size_t i = 0; ok && i < rest.size(); ++i)
+      ok = i + 1 == rest.size() ? stream->Write(rest[i], grpc::WriteOptions().set_last_message()) : stream->Write(rest[i]);
     const grpc::Status s = stream->Finish();
     if (!s.ok()) throw std::runtime_error("SubmitTile: " + s.error_message());
     return ack;
@@ -115,13 +116,14 @@ class BenchWorker {
     ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
     v1::SubmitAck ack;
     auto stream = stub_->SubmitTile(&ctx, &ack);
-    v1::TileResultChunk chunk;
-    bool ok = true;
-    while (ok && writer.next(&chunk)) {
-      ok = stream->Write(chunk);
-      chunk.Clear();
+    v1::TileResultChunk chunk, next;
+    for (bool have = writer.next(&chunk); have;) {
+      const bool more = writer.next(&next);
+      if (!(more ? stream->Write(chunk) : stream->Write(chunk, grpc::WriteOptions().set_last_message()))) break;
+      chunk.Swap(&next);
+      next.Clear();
+      have = more;
     }
-    if (ok) stream->WritesDone();
     const grpc::Status s = stream->Finish();
     if (!s.ok()) throw std::runtime_error("SubmitTile: " + s.error_message());
     return ack;

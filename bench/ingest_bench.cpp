@@ -6,9 +6,13 @@
 // Each tile result is encoded once with TileResultWriter into its SubmitTile chunks; a bench worker
 // then replays them for every lease (only the header chunk is rewritten with the lease's identity),
 // so the client side costs gRPC sends, not encoding. An in-process MasterServer (127.0.0.1:0) runs a
-// job (rp mode, 1 round per k paths, --rounds rounds) whose tiles 1-2 bench workers (BenchWorker: one
-// gRPC channel each) lease and submit; after a Wait they retry after 1 ms (not the master's 100 ms),
-// so round barriers cost only what the master itself needs.
+// job (rp mode, k paths in every round, --rounds rounds, --tile pixel tiles) whose tiles 1-2 bench
+// workers (BenchWorker: one gRPC channel each) lease and submit; after a Wait they retry after 1 ms
+// (not the master's 5 ms), so round barriers cost only what the master itself needs.
+// The bench workers run in a separate process (this program re-executed with --serve-clients, the
+// synthetic tiles handed over in a file), so that the master's CPU time is this process's CPU time;
+// --in-process runs them as threads of this process instead (their gRPC client threads then count
+// as the master's). Both share the machine's cores with the master either way.
 //
 // Measured per (reprojector, clients), in one process, side by side:
 //   received    vertices / (time from the first lease until JobSnapshot.vertices_received = all sent)
@@ -16,18 +20,25 @@
 //   CPU         process CPU seconds in that window, split into the bench workers' threads and the rest
 //               (= the master: gRPC receive, chunk decoding, job manager, reprojection thread, llvmpipe)
 //   split       reprojection thread time (JobSnapshot.seconds_reprojecting, deep framebuffer excluded);
-//               decode = TileResultAssembler (checks + VertexCodec decode into VertexRecords) and protobuf
-//               parse of the chunks, both measured offline on the same chunks (ns per vertex x vertices)
+//               assemble = TileResultAssembler as the master runs it (checks; vertices kept packed, the
+//               reprojector decodes them in place) and protobuf parse of the chunks, both measured
+//               offline on the same chunks (ns per vertex x vertices); the offline decode into
+//               VertexRecords is printed for comparison
 //   wire        serialised TileResultChunk bytes per vertex (all chunks, and vertex batches alone)
 // Bar: >= 10 M vertices/s reprojected.
 //
-//   ingest_bench [--scene builtin:cornell] [--size 512] [-S 4] [--paths 1] [--rounds 16]
-//                [--backends cpu,gl] [--clients 1,2]
+//   ingest_bench [--scene builtin:cornell] [--size 512] [-S 4] [--paths 1] [--rounds 16] [--tile 64]
+//                [--backends cpu,gl] [--clients 1,2] [--in-process]
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <mutex>
 #include <string>
@@ -66,7 +77,9 @@ struct Synthetic {
   std::vector<TileData> tiles;
   uint64_t vertices = 0, bytes = 0, vertex_bytes = 0, paths = 0, recorded = 0;
   double encode_ns = 0, assemble_ns = 0, parse_ns = 0;  // per vertex, one thread (CPU time)
-  std::vector<std::vector<VertexRecord>> decoded;       // per tile, as the master decodes them
+  double decode_ns = 0;                                 // assembling with a decode into VertexRecords
+  std::vector<std::vector<VertexRecord>> decoded;       // per tile, decoded
+  std::vector<std::string> packed;                      // per tile, as the master keeps them
 };
 
 // Reprojection alone, offline, tile by tile as the master's reprojection thread calls it: process CPU
@@ -75,7 +88,7 @@ struct ReprojectCost {
   double cpu_ns = 0, wall_ns = 0;
 };
 ReprojectCost reprojection_cost(const std::string& backend, const std::string& spec, int size, int S,
-                                const Synthetic& syn, int runs) {
+                                const Synthetic& syn, int runs, bool packed) {
   const Scene scene = load_scene(spec);
   const Camera cam(scene.camera, size, size);
   std::unique_ptr<GlContext> gl;
@@ -86,12 +99,17 @@ ReprojectCost reprojection_cost(const std::string& backend, const std::string& s
   auto r = make_reprojector(backend, cam, dfb, rs, gl.get());
   r->reproject(syn.decoded.front());  // warm-up (GL: shader compilation)
   (void)r->counts();
+  const VertexCodec codec(scene.bounds());
   std::vector<double> cpu, wall;
   for (int i = 0; i < runs; ++i) {
     r->reset();
     const double c0 = process_cpu_seconds();
     const auto t0 = Clock::now();
-    for (const auto& v : syn.decoded) r->reproject(v);
+    if (packed) {
+      for (const auto& p : syn.packed) r->reproject_packed(p, codec);
+    } else {
+      for (const auto& v : syn.decoded) r->reproject(v);
+    }
     (void)r->counts();  // GL: waits for the GPU work
     wall.push_back(since(t0));
     cpu.push_back(process_cpu_seconds() - c0);
@@ -101,7 +119,7 @@ ReprojectCost reprojection_cost(const std::string& backend, const std::string& s
   return {1e9 * cpu[cpu.size() / 2] / double(syn.vertices), 1e9 * wall[wall.size() / 2] / double(syn.vertices)};
 }
 
-Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, const TileResultLimits& limits) {
+Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, int tile_size, const TileResultLimits& limits) {
   Synthetic syn;
   const Scene scene = load_scene(spec);
   EmbreeScene es(scene);
@@ -111,7 +129,7 @@ Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, const
   filter.mode = VertexFilter::Mode::kCull;
   filter.subpixels = S;
   TileRenderer renderer(tracer, filter);
-  const auto rects = make_tiles(size, size, 32);
+  const auto rects = make_tiles(size, size, tile_size);
   syn.tiles.resize(rects.size());
   tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) {
     syn.tiles[t].result = renderer.render({rects[t], {}, {}, k});
@@ -153,7 +171,7 @@ Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, const
     wire[t].push_back(syn.tiles[t].header.SerializeAsString());
     for (const auto& c : syn.tiles[t].body) wire[t].push_back(c.SerializeAsString());
   }
-  double parse = 0, assemble = 0;
+  double parse = 0, assemble = 0, decode = 0;
   for (size_t t = 0; t < syn.tiles.size(); ++t) {
     std::vector<v1::TileResultChunk> parsed(wire[t].size());
     double p0 = thread_cpu_seconds();
@@ -173,15 +191,27 @@ Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, const
     e.payload = TileExpectation::Payload::kVertices;
     e.limits = limits;
     e.paths_per_pixel = uint32_t(k);
+    // Decoding into VertexRecords (for the records path and the comparison).
     p0 = thread_cpu_seconds();
-    TileResultAssembler a(std::move(e));
+    TileResultAssembler a(e);
     for (const auto& c : parsed)
       if (auto err = a.add(c)) throw std::runtime_error("offline assembly: " + *err);
     AssembledTile tile = a.take();
-    assemble += thread_cpu_seconds() - p0;
+    decode += thread_cpu_seconds() - p0;
     if (tile.vertices.size() != syn.tiles[t].vertices) throw std::runtime_error("offline assembly lost vertices");
     syn.decoded.push_back(std::move(tile.vertices));
+    // As the master does it: packed, the batch's bytes moved out of the chunk.
+    e.keep_packed = true;
+    p0 = thread_cpu_seconds();
+    TileResultAssembler b(std::move(e));
+    for (auto& c : parsed)
+      if (auto err = b.add(&c)) throw std::runtime_error("offline assembly: " + *err);
+    AssembledTile kept = b.take();
+    assemble += thread_cpu_seconds() - p0;
+    if (kept.vertex_count() != syn.tiles[t].vertices) throw std::runtime_error("offline assembly lost vertices");
+    syn.packed.push_back(std::move(kept.packed_vertices));
   }
+  syn.decode_ns = 1e9 * decode / double(syn.vertices);
   syn.parse_ns = 1e9 * parse / double(syn.vertices);
   syn.assemble_ns = 1e9 * assemble / double(syn.vertices);
   return syn;
@@ -192,29 +222,206 @@ struct Figures {
   int clients = 0;
   uint64_t vertices = 0, tiles = 0;
   double t_recv = 0, t_proj = 0;      // seconds from the first lease
-  double cpu = 0, cpu_clients = 0;    // process and bench-worker CPU seconds in the window
+  double cpu = 0, cpu_clients = 0;    // master and bench-worker CPU seconds in the window
   double reproject = 0;               // reprojection thread seconds in the window
-  double waits = 0, wait_seconds = 0; // Wait answers and time the workers spent waiting (summed)
+  double waits = 0;                   // Wait answers at round barriers
   double load = 0;
 };
 
-Figures run_job(MasterServer& master, const std::string& spec, int size, int S, int k, int rounds,
-                ReprojectMethod method, int clients, const Synthetic& syn) {
+// ---- the bench workers' loop (threads of this process, or of the --serve-clients process) ---------
+
+struct ClientTotals {
+  uint64_t tiles = 0, waits = 0;
+  double thread_cpu = 0;  // CPU seconds of the loop threads themselves (not gRPC's own threads)
+};
+
+// Leases and submits replayed tiles until `done`; each worker on its own thread.
+ClientTotals client_loop(std::vector<std::unique_ptr<BenchWorker>>& workers, const std::vector<TileData>& tiles,
+                         const std::atomic<bool>& done) {
+  std::atomic<uint64_t> n_tiles{0}, n_waits{0};
+  std::mutex mu;
+  double cpu = 0;
+  std::vector<std::thread> threads;
+  for (auto& wp : workers)
+    threads.emplace_back([&, w = wp.get()] {
+      const double c0 = thread_cpu_seconds();
+      while (!done) {
+        auto l = w->lease();
+        if (std::holds_alternative<uint32_t>(l)) {
+          ++n_waits;
+          std::this_thread::sleep_for(std::chrono::milliseconds(1));
+          continue;
+        }
+        const v1::TileLease& lease = std::get<v1::TileLease>(l);
+        const TileData& d = tiles.at(lease.tile_index());
+        v1::TileResultChunk header = d.header;
+        auto* h = header.mutable_header();
+        h->set_lease_id(lease.lease_id());
+        h->set_job_id(lease.job_id());
+        h->set_round(lease.round());
+        h->set_tile_index(lease.tile_index());
+        h->mutable_worker_id()->set_id(w->id());
+        const v1::SubmitAck ack = w->submit(header, d.body);
+        if (!ack.accepted()) std::fprintf(stderr, "tile not committed: %s\n", ack.reason().c_str());
+        ++n_tiles;
+      }
+      std::lock_guard lock(mu);
+      cpu += thread_cpu_seconds() - c0;
+    });
+  for (auto& t : threads) t.join();
+  return {n_tiles, n_waits, cpu};
+}
+
+// The synthetic tiles as a file: per tile its chunk count, then each chunk as length + bytes.
+void save_tiles(const std::string& path, const Synthetic& syn) {
+  std::ofstream out(path, std::ios::binary);
+  auto put32 = [&](uint32_t v) { out.write(reinterpret_cast<const char*>(&v), 4); };
+  put32(uint32_t(syn.tiles.size()));
+  for (const TileData& d : syn.tiles) {
+    put32(uint32_t(1 + d.body.size()));
+    for (size_t i = 0; i <= d.body.size(); ++i) {
+      const std::string b = (i == 0 ? d.header : d.body[i - 1]).SerializeAsString();
+      put32(uint32_t(b.size()));
+      out.write(b.data(), std::streamsize(b.size()));
+    }
+  }
+  if (!out) throw std::runtime_error("cannot write " + path);
+}
+
+std::vector<TileData> load_tiles(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  auto get32 = [&] {
+    uint32_t v = 0;
+    in.read(reinterpret_cast<char*>(&v), 4);
+    if (!in) throw std::runtime_error("truncated " + path);
+    return v;
+  };
+  std::vector<TileData> tiles(get32());
+  for (TileData& d : tiles) {
+    const uint32_t chunks = get32();
+    for (uint32_t i = 0; i < chunks; ++i) {
+      std::string b(get32(), '\0');
+      in.read(b.data(), std::streamsize(b.size()));
+      v1::TileResultChunk c;
+      if (!in || !c.ParseFromString(b)) throw std::runtime_error("bad chunk in " + path);
+      if (i == 0) d.header = std::move(c);
+      else d.body.push_back(std::move(c));
+    }
+  }
+  return tiles;
+}
+
+// --serve-clients: registers `clients` bench workers, says "ready", replays tiles until its stdin
+// closes, then prints "cpu SECONDS tiles N waits N" (process CPU from "ready" on).
+int serve_clients(const std::string& file, const std::string& target, int clients) {
+  const std::vector<TileData> tiles = load_tiles(file);
+  std::vector<std::unique_ptr<BenchWorker>> workers;
+  for (int i = 0; i < clients; ++i)
+    workers.push_back(std::make_unique<BenchWorker>(target, "bench-" + std::to_string(i), 1));
+  std::atomic<bool> done{false};
+  std::thread stdin_watch([&] {
+    char buf[64];
+    while (::read(0, buf, sizeof buf) > 0) {
+    }
+    done = true;
+  });
+  const double c0 = process_cpu_seconds();
+  std::printf("ready\n");
+  std::fflush(stdout);
+  const ClientTotals t = client_loop(workers, tiles, done);
+  stdin_watch.join();
+  std::printf("cpu %.6f tiles %llu waits %llu\n", process_cpu_seconds() - c0, (unsigned long long)t.tiles,
+              (unsigned long long)t.waits);
+  std::fflush(stdout);
+  return 0;
+}
+
+// The bench workers as a child process (this program with --serve-clients).
+class ClientProcess {
+ public:
+  ClientProcess(const std::string& self, const std::string& file, const std::string& target, int clients) {
+    int in[2], out[2];
+    if (::pipe(in) != 0 || ::pipe(out) != 0) throw std::runtime_error("pipe failed");
+    posix_spawn_file_actions_t fa;
+    posix_spawn_file_actions_init(&fa);
+    posix_spawn_file_actions_adddup2(&fa, in[0], 0);
+    posix_spawn_file_actions_adddup2(&fa, out[1], 1);
+    posix_spawn_file_actions_addclose(&fa, in[1]);
+    posix_spawn_file_actions_addclose(&fa, out[0]);
+    const std::string n = std::to_string(clients);
+    std::vector<std::string> args = {self, "--serve-clients", file, "--target", target, "--clients", n};
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    if (posix_spawn(&pid_, self.c_str(), &fa, nullptr, argv.data(), environ) != 0)
+      throw std::runtime_error("cannot start " + self);
+    posix_spawn_file_actions_destroy(&fa);
+    ::close(in[0]);
+    ::close(out[1]);
+    to_child_ = in[1];
+    from_child_ = ::fdopen(out[0], "r");
+    if (line().rfind("ready", 0) != 0) throw std::runtime_error("the client process did not start");
+  }
+  ~ClientProcess() {
+    if (to_child_ >= 0) ::close(to_child_);
+    if (from_child_) std::fclose(from_child_);
+    if (pid_ > 0) ::waitpid(pid_, nullptr, 0);
+  }
+  /// Stops the clients; their CPU seconds and counts.
+  std::pair<double, ClientTotals> finish() {
+    ::close(to_child_);
+    to_child_ = -1;
+    const std::string l = line();
+    double cpu = 0;
+    unsigned long long tiles = 0, waits = 0;
+    if (std::sscanf(l.c_str(), "cpu %lf tiles %llu waits %llu", &cpu, &tiles, &waits) != 3)
+      throw std::runtime_error("unexpected client report: " + l);
+    ::waitpid(pid_, nullptr, 0);
+    pid_ = -1;
+    return {cpu, {tiles, waits}};
+  }
+
+ private:
+  std::string line() {
+    char buf[256];
+    if (!std::fgets(buf, sizeof buf, from_child_)) return "";
+    return buf;
+  }
+  pid_t pid_ = -1;
+  int to_child_ = -1;
+  FILE* from_child_ = nullptr;
+};
+
+struct RunSetup {
+  std::string spec;
+  int size = 512, S = 4, k = 1, rounds = 16, tile = 64;
+  bool in_process = false;
+  std::string self, tiles_file;
+};
+
+Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method, int clients, const Synthetic& syn) {
   Figures f;
   f.backend = to_string(method);
   f.clients = clients;
   RenderOptions o;
-  o.scene = spec;
-  o.width = o.height = size;
-  o.subpixels = S;
+  o.scene = rs.spec;
+  o.width = o.height = rs.size;
+  o.subpixels = rs.S;
   o.mode = RenderMode::kReproject;
   o.reproject = method;
-  o.spp = rounds * k;
-  o.paths_per_round = k;
+  o.spp = rs.rounds * rs.k;
+  o.paths_per_round = rs.k;
+  o.round_growth = 0;  // the same synthetic round, again and again
+  o.tile_size = rs.tile;
   o.seed = 1;
+  std::unique_ptr<ClientProcess> child;
   std::vector<std::unique_ptr<BenchWorker>> workers;
-  for (int i = 0; i < clients; ++i)
-    workers.push_back(std::make_unique<BenchWorker>(master.local_target(), "bench-" + std::to_string(i), 1));
+  if (rs.in_process) {
+    for (int i = 0; i < clients; ++i)
+      workers.push_back(std::make_unique<BenchWorker>(master.local_target(), "bench-" + std::to_string(i), 1));
+  } else {
+    child = std::make_unique<ClientProcess>(rs.self, rs.tiles_file, master.local_target(), clients);
+  }
   JobClient client(master.local_target());
   const std::string id = client.submit(o);
   JobManager& jobs = master.jobs();
@@ -225,47 +432,16 @@ Figures run_job(MasterServer& master, const std::string& spec, int size, int S, 
     if (s && s->state != JobState::kQueued) throw std::runtime_error("job did not start: " + s->error);
     std::this_thread::sleep_for(std::chrono::milliseconds(1));
   }
-  const uint64_t total = uint64_t(rounds) * syn.vertices;
+  const uint64_t total = uint64_t(rs.rounds) * syn.vertices;
   f.vertices = total;
   std::atomic<bool> done{false};
-  std::atomic<uint64_t> tiles{0}, waits{0};
-  std::mutex mu;
-  double client_cpu = 0, wait_seconds = 0;
+  ClientTotals in_process_totals;
 
   const double cpu0 = process_cpu_seconds();
   const auto t0 = Clock::now();
-  std::vector<std::thread> threads;
-  for (int i = 0; i < clients; ++i)
-    threads.emplace_back([&, i] {
-      BenchWorker& w = *workers[size_t(i)];
-      const double c0 = thread_cpu_seconds();
-      double waited = 0;
-      while (!done) {
-        auto l = w.lease();
-        if (auto* wait = std::get_if<uint32_t>(&l)) {
-          ++waits;
-          const auto ws = Clock::now();
-          std::this_thread::sleep_for(std::chrono::milliseconds(1));
-          waited += since(ws);
-          continue;
-        }
-        const v1::TileLease& lease = std::get<v1::TileLease>(l);
-        const TileData& d = syn.tiles.at(lease.tile_index());
-        v1::TileResultChunk header = d.header;
-        auto* h = header.mutable_header();
-        h->set_lease_id(lease.lease_id());
-        h->set_job_id(lease.job_id());
-        h->set_round(lease.round());
-        h->set_tile_index(lease.tile_index());
-        h->mutable_worker_id()->set_id(w.id());
-        const v1::SubmitAck ack = w.submit(header, d.body);
-        if (!ack.accepted()) std::fprintf(stderr, "tile not committed: %s\n", ack.reason().c_str());
-        ++tiles;
-      }
-      std::lock_guard lock(mu);
-      client_cpu += thread_cpu_seconds() - c0;
-      wait_seconds += waited;
-    });
+  std::thread in_process_clients;
+  if (rs.in_process)
+    in_process_clients = std::thread([&] { in_process_totals = client_loop(workers, syn.tiles, done); });
 
   // Monitor: when did the master receive, and reproject, everything?
   double reproject0 = -1, reproject1 = 0, cpu1 = 0;
@@ -289,13 +465,21 @@ Figures run_job(MasterServer& master, const std::string& spec, int size, int S, 
     std::this_thread::sleep_for(std::chrono::microseconds(500));
   }
   done = true;
-  for (auto& t : threads) t.join();
-  f.cpu = cpu1 - cpu0;
-  f.cpu_clients = client_cpu;
+  if (rs.in_process) {
+    in_process_clients.join();
+    // The rest of the process is the master (the loop threads' CPU runs a little past the window).
+    f.cpu = cpu1 - cpu0 - in_process_totals.thread_cpu;
+    f.cpu_clients = in_process_totals.thread_cpu;
+    f.tiles = in_process_totals.tiles;
+    f.waits = double(in_process_totals.waits);
+  } else {
+    const auto [cpu, totals] = child->finish();
+    f.cpu = cpu1 - cpu0;  // this process is the master (and the 0.5 ms status poll above)
+    f.cpu_clients = cpu;  // from the child's "ready" to its end: a little more than the window
+    f.tiles = totals.tiles;
+    f.waits = double(totals.waits);
+  }
   f.reproject = reproject1 - reproject0;
-  f.tiles = tiles;
-  f.waits = double(waits);
-  f.wait_seconds = wait_seconds;
   f.load = load_average();
   return f;
 }
@@ -304,51 +488,66 @@ Figures run_job(MasterServer& master, const std::string& spec, int size, int S, 
 
 int main(int argc, char** argv) {
   CLI::App app{"Master ingestion over loopback gRPC with synthetic workers"};
-  std::string spec = "builtin:cornell";
-  int size = 512, S = 4, k = 1, rounds = 16;
+  RunSetup rs;
+  rs.spec = "builtin:cornell";
+  rs.tile = RenderOptions{}.tile_size;
   std::vector<std::string> backends = {"cpu", "gl"};
   std::vector<int> client_counts = {1, 2};
-  app.add_option("--scene", spec);
-  app.add_option("--size", size, "image side, pixels");
-  app.add_option("-S,--subpixels", S);
-  app.add_option("--paths", k, "paths per pixel and round (k) of the synthetic tiles");
-  app.add_option("--rounds", rounds, "rounds per job");
+  std::string serve_file, target;
+  app.add_option("--scene", rs.spec);
+  app.add_option("--size", rs.size, "image side, pixels");
+  app.add_option("-S,--subpixels", rs.S);
+  app.add_option("--paths", rs.k, "paths per pixel and round (k) of the synthetic tiles");
+  app.add_option("--rounds", rs.rounds, "rounds per job");
+  app.add_option("--tile", rs.tile, "tile size, pixels");
   app.add_option("--backends", backends, "reprojectors: cpu, gl")->delimiter(',');
-  app.add_option("--clients", client_counts, "bench worker threads (gRPC channels)")->delimiter(',');
+  app.add_option("--clients", client_counts, "bench workers (gRPC channels, one thread each)")->delimiter(',');
+  app.add_flag("--in-process", rs.in_process, "run the bench workers as threads of this process");
+  app.add_option("--serve-clients", serve_file, "(internal) be the bench workers' process");
+  app.add_option("--target", target, "(internal) the master's address");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
+  if (!serve_file.empty()) return serve_clients(serve_file, target, client_counts.front());
+  rs.self = std::filesystem::canonical("/proc/self/exe").string();
 
-  std::printf("ingest_bench: %s %dx%d S=%d, k=%d paths/pixel/round, %d rounds per job, %u hardware threads, "
-              "load average %.2f\n",
-              spec.c_str(), size, size, S, k, rounds, std::thread::hardware_concurrency(), load_average());
+  std::printf("ingest_bench: %s %dx%d S=%d, k=%d paths/pixel/round, %d rounds per job, tiles %dx%d, clients %s, %u "
+              "hardware threads, load average %.2f\n",
+              rs.spec.c_str(), rs.size, rs.size, rs.S, rs.k, rs.rounds, rs.tile, rs.tile,
+              rs.in_process ? "in this process" : "in a separate process", std::thread::hardware_concurrency(),
+              load_average());
   std::fflush(stdout);
   const auto tsyn = Clock::now();
-  Synthetic syn = make_tiles_once(spec, size, S, k, TileResultLimits{});
+  Synthetic syn = make_tiles_once(rs.spec, rs.size, rs.S, rs.k, rs.tile, TileResultLimits{});
   std::printf("synthetic round: %zu tiles, %.3g paths, %.3g vertices recorded, %.3g sent (%.2f per pixel, %.0f per "
               "tile); made in %.1f s\n",
               syn.tiles.size(), double(syn.paths), double(syn.recorded), double(syn.vertices),
-              double(syn.vertices) / (double(size) * size), double(syn.vertices) / double(syn.tiles.size()),
+              double(syn.vertices) / (double(rs.size) * rs.size), double(syn.vertices) / double(syn.tiles.size()),
               since(tsyn));
   std::printf("wire: %.2f bytes/vertex for whole tile results (pixels, header, trailer included), %.2f for the "
               "vertex batches alone\n",
               double(syn.bytes) / double(syn.vertices), double(syn.vertex_bytes) / double(syn.vertices));
   std::printf("offline, one thread, CPU time per vertex: worker encode (TileResultWriter) %.1f ns; master protobuf "
-              "parse %.1f ns, assemble + decode (TileResultAssembler) %.1f ns\n",
-              syn.encode_ns, syn.parse_ns, syn.assemble_ns);
+              "parse %.1f ns, assemble (TileResultAssembler, vertices kept packed) %.1f ns (decoding into "
+              "VertexRecords instead: %.1f ns)\n",
+              syn.encode_ns, syn.parse_ns, syn.assemble_ns, syn.decode_ns);
   std::map<std::string, ReprojectCost> rcost;
   for (const std::string& b : backends) {
-    rcost[b] = reprojection_cost(b, spec, size, S, syn, 5);
-    std::printf("offline reprojection (%s, per-tile calls as on the master): %.1f ns/vertex process CPU, %.1f ns "
-                "wall (%.1f M/s)\n",
-                b.c_str(), rcost[b].cpu_ns, rcost[b].wall_ns, 1e3 / rcost[b].wall_ns);
+    rcost[b] = reprojection_cost(b, rs.spec, rs.size, rs.S, syn, 5, /*packed=*/true);
+    const ReprojectCost rec = reprojection_cost(b, rs.spec, rs.size, rs.S, syn, 5, /*packed=*/false);
+    std::printf("offline reprojection (%s, per-tile calls as on the master): packed %.1f ns/vertex process CPU, %.1f ns "
+                "wall (%.1f M/s); decoded records %.1f ns CPU, %.1f ns wall\n",
+                b.c_str(), rcost[b].cpu_ns, rcost[b].wall_ns, 1e3 / rcost[b].wall_ns, rec.cpu_ns, rec.wall_ns);
   }
   std::fflush(stdout);
 
   const std::string state_dir =
       (std::filesystem::temp_directory_path() / ("ingest_bench_" + std::to_string(::getpid()))).string();
+  std::filesystem::create_directories(state_dir);
+  rs.tiles_file = state_dir + "/tiles.bin";
+  if (!rs.in_process) save_tiles(rs.tiles_file, syn);
   MasterServerOptions mo;
   mo.listen = "127.0.0.1:0";
-  mo.jobs.state_dir = state_dir;
+  mo.jobs.state_dir = state_dir + "/master";
   MasterServer master(mo);
   for (int i = 0; i < 200 && !master.jobs().gl_ready(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
 
@@ -360,10 +559,12 @@ int main(int argc, char** argv) {
       continue;
     }
     for (int c : client_counts) {
-      all.push_back(run_job(master, spec, size, S, k, rounds, m, c, syn));
+      all.push_back(run_job(master, rs, m, c, syn));
       const Figures& f = all.back();
-      std::printf("  %s, %d client(s): %.3g vertices in %.2f s (%.2f M/s reprojected), load %.2f\n", f.backend.c_str(),
-                  f.clients, double(f.vertices), f.t_proj, f.vertices / f.t_proj / 1e6, f.load);
+      std::printf("  %s, %d client(s): %.3g vertices in %.2f s (%.2f M/s reprojected), master %.2f CPU-s (%.0f "
+                  "ns/vertex), clients %.2f CPU-s, load %.2f\n",
+                  f.backend.c_str(), f.clients, double(f.vertices), f.t_proj, f.vertices / f.t_proj / 1e6, f.cpu,
+                  1e9 * f.cpu / double(f.vertices), f.cpu_clients, f.load);
       std::fflush(stdout);
     }
   }
@@ -371,25 +572,29 @@ int main(int argc, char** argv) {
   std::filesystem::remove_all(state_dir);
 
   std::printf("\n%-4s %3s | %9s %9s | %8s %8s %8s | %9s %9s | %7s %7s %7s %7s | %7s %6s %7s\n", "rp", "cli",
-              "recv M/s", "reproj M/s", "CPU-s", "workers", "master", "M/mst-CPU", "M/CPU", "reproj", "parse", "decode",
-              "other", "rp busy", "waits", "load");
+              "recv M/s", "reproj M/s", "master", "ns/vert", "clients", "M/mst-CPU", "M/CPU", "reproj", "parse",
+              "assmbl", "other", "rp busy", "waits", "load");
   for (const Figures& f : all) {
     const double v = double(f.vertices);
-    const double master_cpu = f.cpu - f.cpu_clients;
-    const double parse = syn.parse_ns * 1e-9 * v, decode = syn.assemble_ns * 1e-9 * v;
+    const double master_cpu = f.cpu;
+    const double parse = syn.parse_ns * 1e-9 * v, assemble = syn.assemble_ns * 1e-9 * v;
     const double reproj = rcost[f.backend].cpu_ns * 1e-9 * v;
-    const double other = master_cpu - reproj - parse - decode;
-    std::printf("%-4s %3d | %9.2f %9.2f | %8.2f %8.2f %8.2f | %9.2f %9.2f | %6.0f%% %6.0f%% %6.0f%% %6.0f%% | %6.0f%% "
+    const double other = master_cpu - reproj - parse - assemble;
+    std::printf("%-4s %3d | %9.2f %9.2f | %8.2f %8.0f %8.2f | %9.2f %9.2f | %6.0f%% %6.0f%% %6.0f%% %6.0f%% | %6.0f%% "
                 "%6.0f %7.2f\n",
-                f.backend.c_str(), f.clients, v / f.t_recv / 1e6, v / f.t_proj / 1e6, f.cpu, f.cpu_clients, master_cpu,
-                v / master_cpu / 1e6, v / f.cpu / 1e6, 100 * reproj / master_cpu, 100 * parse / master_cpu,
-                100 * decode / master_cpu, 100 * other / master_cpu, 100 * f.reproject / f.t_proj, f.waits, f.load);
+                f.backend.c_str(), f.clients, v / f.t_recv / 1e6, v / f.t_proj / 1e6, master_cpu, 1e9 * master_cpu / v,
+                f.cpu_clients, v / master_cpu / 1e6, v / (master_cpu + f.cpu_clients) / 1e6, 100 * reproj / master_cpu,
+                100 * parse / master_cpu, 100 * assemble / master_cpu, 100 * other / master_cpu,
+                100 * f.reproject / f.t_proj, f.waits, f.load);
   }
   std::printf("(recv / reproj: vertices per wall second until the master had received / reprojected all of them, "
-              "bar >= 10 M/s reprojected; CPU-s: process CPU in that window = workers (the bench clients' threads) "
-              "+ master; M/mst-CPU: vertices per master CPU-second; reproj/parse/decode/other: share of master CPU "
-              "-- reproj, parse and decode are the offline per-vertex CPU costs x vertices, other = the rest (gRPC "
-              "transport on the master, job manager, this bench's 0.5 ms status polling); rp busy: the reprojection "
-              "thread's wall time in the reprojector over the window; waits: Wait answers at round barriers)\n");
+              "bar >= 10 M/s reprojected; master: the master's CPU seconds in that window (%s), ns/vert per vertex; "
+              "clients: the bench workers' CPU seconds; M/mst-CPU: vertices per master CPU-second; M/CPU: per CPU-second "
+              "of master and clients together; reproj/parse/assmbl/other: share of master CPU -- reproj, parse and "
+              "assmbl are the offline per-vertex CPU costs x vertices, other = the rest (gRPC transport on the master, "
+              "loopback TCP, wake-ups, job manager, this bench's 0.5 ms status polling); rp busy: the reprojection "
+              "thread's wall time in the reprojector over the window; waits: Wait answers at round barriers)\n",
+              rs.in_process ? "process CPU minus the bench threads' own CPU; their gRPC client threads count here"
+                            : "this process's CPU; the clients run in another process");
   return 0;
 }

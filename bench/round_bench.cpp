@@ -3,7 +3,8 @@
 //
 // Part 1, the default: render_embedded (in-process master + one WorkerNode with one tracing thread
 // per core, over loopback gRPC) on --scene at --size, P = --spp, for pt and skip and k = paths per
-// round in --ppr. Overhead = 1 - (sum of the workers' tile tracing seconds / tracing threads) / the
+// round in --ppr and round schedules in --growth (RenderOptions::round_growth; 0 = k paths in every
+// round). Overhead = 1 - (sum of the workers' tile tracing seconds / tracing threads) / the
 // job's wall time (JobStatus: seconds_tracing, seconds_elapsed = first round opened .. job done).
 //
 // Part 2, where the rest goes: the same jobs on a MasterServer with bench workers instead of a
@@ -14,14 +15,15 @@
 //
 // Part 3, the master's per-round work on its own (reprojection thread, workers idle meanwhile):
 // FrameState::finish_round for pt and skip (skip reads the accumulation back and downsamples every
-// round), FrameState::images() plus four PNG encodes (JobManager::make_previews, at most once a
-// second in close_round), and the LeaseTile round trip on loopback.
+// round), FrameState::images() (the preview copy JobManager takes at most once a second in
+// close_round) and, apart, the four PNG encodes (done on demand by whoever asks for a preview, off the
+// reprojection thread), and the LeaseTile round trip on loopback.
 //
 // Wall figures are distorted when other processes share the machine; the load average is printed
 // with each figure and CPU seconds beside wall seconds.
 //
-//   round_bench [--scene builtin:cornell] [--size 512] [--spp 16] [--ppr 1,2,4] [--modes pt,skip]
-//               [--threads 0] [--no-bench-workers]
+//   round_bench [--scene builtin:cornell] [--size 512] [--spp 64] [--ppr 1] [--growth 0,0.25]
+//               [--modes skip,pt] [--tile 64] [--threads 0] [--no-bench-workers]
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -75,10 +77,11 @@ struct JobFigures {
   double overhead() const { return 1 - tracing / threads / elapsed; }
 };
 
-int g_tile_size = 32;  // --tile
+int g_tile_size = RenderOptions{}.tile_size;  // --tile
 
-RenderOptions options(const std::string& scene, int size, int spp, RenderMode mode, int ppr) {
+RenderOptions options(const std::string& scene, int size, int spp, RenderMode mode, int ppr, float growth) {
   RenderOptions o;
+  o.round_growth = growth;
   o.tile_size = g_tile_size;
   o.scene = scene;
   o.width = o.height = size;
@@ -266,13 +269,14 @@ BenchJob run_bench_workers(const RenderOptions& o, int threads, const fs::path& 
 
 struct MasterRoundCosts {
   double finish_round = 0, finish_round_cpu = 0;  // seconds per call (median), wall and process CPU
-  double previews = 0, previews_cpu = 0;          // images() + 4 PNG encodes
+  double images = 0, images_cpu = 0;              // images(): the preview copy on the reprojection thread
+  double previews = 0, previews_cpu = 0;          // 4 PNG encodes (on demand, elsewhere)
   double reproject_round = 0;                     // reprojecting one round's vertices (rp/skip), wall
 };
 
 MasterRoundCosts master_round_costs(const std::string& spec, int size, RenderMode mode, ReprojectMethod method,
                                     int runs) {
-  RenderOptions o = options(spec, size, 1'000'000, mode, 1);
+  RenderOptions o = options(spec, size, 1'000'000, mode, 1, 0.f);
   o.reproject = method;
   o.min_paths = 1'000'000;  // never skip: every round does the same work
   const Scene scene = load_scene(spec);
@@ -282,19 +286,26 @@ MasterRoundCosts master_round_costs(const std::string& spec, int size, RenderMod
   VertexFilter filter;
   filter.mode = mode == RenderMode::kPathTrace ? VertexFilter::Mode::kNone : VertexFilter::Mode::kCull;
   TileRenderer renderer(tracer, filter);
-  const auto tiles = make_tiles(size, size, 32);
+  const auto tiles = make_tiles(size, size, g_tile_size);
   std::vector<TileResult> results;
-  for (const TileRect& r : tiles) results.push_back(renderer.render({r, {}, {}, 1}));
+  std::vector<std::string> packed;  // the vertices as the master receives them
+  const VertexCodec codec(scene.bounds());
+  for (const TileRect& r : tiles) {
+    results.push_back(renderer.render({r, {}, {}, 1}));
+    packed.emplace_back();
+    codec.encode_batch(results.back().vertices, &packed.back());
+  }
   std::unique_ptr<GlContext> gl;
   if (mode != RenderMode::kPathTrace && method == ReprojectMethod::kGl) gl = std::make_unique<GlContext>();
   FrameState frame(o, cam, scene, gl.get());
   MasterRoundCosts c;
-  std::vector<double> fr, frc, pv, pvc, rp;
+  std::vector<double> fr, frc, im, imc, pv, pvc, rp;
   for (int i = 0; i < runs; ++i) {
     const auto t0 = Clock::now();
-    for (const TileResult& r : results) {
+    for (size_t t = 0; t < results.size(); ++t) {
+      const TileResult& r = results[t];
       frame.add_paths(r.rect.x0, r.rect.y0, r.rect.x1, r.rect.y1, r.path_sum, r.path_count);
-      frame.reproject(r.vertices);
+      frame.reproject_packed(packed[t]);
     }
     (void)frame.counts();
     rp.push_back(since(t0));
@@ -306,6 +317,10 @@ MasterRoundCosts master_round_costs(const std::string& spec, int size, RenderMod
     c1 = process_cpu_seconds();
     t1 = Clock::now();
     const FrameImages img = frame.images();
+    im.push_back(since(t1));
+    imc.push_back(process_cpu_seconds() - c1);
+    c1 = process_cpu_seconds();
+    t1 = Clock::now();
     size_t bytes = encode_png_srgb(img.combined).size() + encode_png_srgb(img.pathtrace).size();
     if (frame.reprojects()) {
       bytes += encode_png_srgb(img.reprojection).size();
@@ -317,6 +332,8 @@ MasterRoundCosts master_round_costs(const std::string& spec, int size, RenderMod
   }
   c.finish_round = median(fr);
   c.finish_round_cpu = median(frc);
+  c.images = median(im);
+  c.images_cpu = median(imc);
   c.previews = median(pv);
   c.previews_cpu = median(pvc);
   c.reproject_round = median(rp);
@@ -352,14 +369,16 @@ std::pair<double, double> lease_rtt(int n) {
 int main(int argc, char** argv) {
   CLI::App app{"Round overhead of the embedded default"};
   std::string scene = "builtin:cornell";
-  int size = 512, spp = 16, threads = 0, runs = 5;
-  std::vector<int> pprs = {1, 2, 4};
-  std::vector<std::string> modes = {"pt", "skip"};
+  int size = 512, spp = 64, threads = 0, runs = 5;
+  std::vector<int> pprs = {1};
+  std::vector<float> growths = {0.f, RenderOptions{}.round_growth};
+  std::vector<std::string> modes = {"skip", "pt"};
   bool no_bench_workers = false, no_embedded = false, no_master_costs = false;
   app.add_option("--scene", scene);
   app.add_option("--size", size, "image side, pixels");
   app.add_option("--spp", spp, "P");
   app.add_option("--ppr", pprs, "paths per round (k) values")->delimiter(',');
+  app.add_option("--growth", growths, "round_growth values (0: k paths in every round)")->delimiter(',');
   app.add_option("--modes", modes, "pt, skip, rp")->delimiter(',');
   app.add_option("--threads", threads, "tracing threads (0: all cores)");
   app.add_option("--runs", runs, "runs of the offline per-round measurements (median)");
@@ -384,35 +403,37 @@ int main(int argc, char** argv) {
   struct Row {
     std::string mode;
     int ppr;
+    float growth;
     JobFigures emb;
     BenchJob bench;
   };
   std::vector<Row> rows;
   for (const std::string& m : modes)
+    for (float g : growths)
     for (int k : pprs) {
-      Row row{m, k, {}, {}};
-      const RenderOptions o = options(scene, size, spp, mode_of(m), k);
+      Row row{m, k, g, {}, {}};
+      const RenderOptions o = options(scene, size, spp, mode_of(m), k, g);
       if (!no_embedded) {
         row.emb = run_embedded(o, threads, tmp);
-        std::printf("  embedded     %-4s k=%d: %2d rounds, job %.2f s (call %.2f s, %.2f CPU-s), tracing %.2f s / %d "
+        std::printf("  embedded     %-4s g=%.2f k=%d: %2d rounds, job %.2f s (call %.2f s, %.2f CPU-s), tracing %.2f s / %d "
                     "threads -> overhead %.1f%%, load %.2f\n",
-                    m.c_str(), k, row.emb.rounds, row.emb.elapsed, row.emb.wall, row.emb.cpu, row.emb.tracing,
+                    m.c_str(), g, k, row.emb.rounds, row.emb.elapsed, row.emb.wall, row.emb.cpu, row.emb.tracing,
                     threads, 100 * row.emb.overhead(), row.emb.load);
         std::fflush(stdout);
       }
       if (!no_bench_workers) {
         row.bench = run_bench_workers(o, threads, tmp);
         const JobFigures& f = row.bench.fig;
-        std::printf("  bench worker %-4s k=%d: %2d rounds, job %.2f s (%.2f CPU-s), tracing %.2f s / %d threads -> "
+        std::printf("  bench worker %-4s g=%.2f k=%d: %2d rounds, job %.2f s (%.2f CPU-s), tracing %.2f s / %d threads -> "
                     "overhead %.1f%%, load %.2f\n",
-                    m.c_str(), k, f.rounds, f.elapsed, f.cpu, f.tracing, threads, 100 * f.overhead(), f.load);
+                    m.c_str(), g, k, f.rounds, f.elapsed, f.cpu, f.tracing, threads, 100 * f.overhead(), f.load);
         std::fflush(stdout);
       }
       rows.push_back(row);
     }
 
   std::printf("\n==== Part 1+2: share of the job's wall time outside tracing (bar <= 10%%)\n");
-  std::printf("%-5s %3s | %6s %8s %8s %9s %9s | %8s %9s %9s | %8s %8s %8s %8s %8s | %6s\n", "mode", "k", "rounds",
+  std::printf("%-5s %4s %3s | %6s %8s %8s %9s %9s | %8s %9s %9s | %8s %8s %8s %8s %8s | %6s\n", "mode", "g", "k", "rounds",
               "emb s", "emb ovh", "ovh/round", "round s", "bench s", "bench ovh", "ovh/round", "trace", "submit",
               "lease", "wait", "other", "load");
   for (const Row& r : rows) {
@@ -420,22 +441,22 @@ int main(int argc, char** argv) {
     const JobFigures& b = r.bench.fig;
     const ThreadSplit& s = r.bench.split;
     auto share = [&](double x) { return s.total > 0 ? 100 * x / s.total : 0.0; };
-    std::printf("%-5s %3d | %6d %8.2f %7.1f%% %7.1fms %8.3fs | %8.2f %8.1f%% %7.1fms | %7.1f%% %7.1f%% %7.1f%% %7.1f%% "
+    std::printf("%-5s %4.2f %3d | %6d %8.2f %7.1f%% %7.1fms %8.3fs | %8.2f %8.1f%% %7.1fms | %7.1f%% %7.1f%% %7.1f%% %7.1f%% "
                 "%7.1f%% | %6.2f\n",
-                r.mode.c_str(), r.ppr, e.rounds ? e.rounds : b.rounds, e.elapsed, 100 * (e.elapsed ? e.overhead() : 0),
+                r.mode.c_str(), r.growth, r.ppr, e.rounds ? e.rounds : b.rounds, e.elapsed, 100 * (e.elapsed ? e.overhead() : 0),
                 e.rounds ? 1e3 * (e.elapsed - e.tracing / e.threads) / e.rounds : 0.0, e.median_round, b.elapsed,
                 100 * (b.elapsed ? b.overhead() : 0), b.rounds ? 1e3 * (b.elapsed - b.tracing / b.threads) / b.rounds : 0.0,
                 share(s.tracing), share(s.submit), share(s.lease), share(s.waiting),
                 share(s.total - s.tracing - s.submit - s.lease - s.waiting), e.load ? e.load : b.load);
   }
   std::printf("\n==== CPU view (robust to load): share of the process's CPU time not spent tracing\n");
-  std::printf("%-5s %3s | %9s %9s %9s | %9s %9s | %11s %11s\n", "mode", "k", "trace CPU", "emb CPU", "emb ovh",
+  std::printf("%-5s %4s %3s | %9s %9s %9s | %9s %9s | %11s %11s\n", "mode", "g", "k", "trace CPU", "emb CPU", "emb ovh",
               "bench CPU", "bench ovh", "trace/round", "tiles");
   for (const Row& r : rows) {
     const double tc = r.bench.split.tracing_cpu;
     if (tc <= 0) continue;
     const int rounds = r.bench.fig.rounds;
-    std::printf("%-5s %3d | %9.2f %9.2f %8.1f%% %9.2f %8.1f%% | %9.1fms %11llu\n", r.mode.c_str(), r.ppr, tc,
+    std::printf("%-5s %4.2f %3d | %9.2f %9.2f %8.1f%% %9.2f %8.1f%% | %9.1fms %11llu\n", r.mode.c_str(), r.growth, r.ppr, tc,
                 r.emb.cpu, r.emb.cpu > 0 ? 100 * (1 - tc / r.emb.cpu) : 0.0, r.bench.fig.cpu,
                 100 * (1 - tc / r.bench.fig.cpu), rounds ? 1e3 * tc / threads / rounds : 0.0,
                 (unsigned long long)r.bench.split.tiles);
@@ -448,7 +469,7 @@ int main(int argc, char** argv) {
   for (const Row& r : rows) {
     const ThreadSplit& s = r.bench.split;
     if (!s.tiles) continue;
-    std::printf("%s k=%d: trace %.2f ms, submit %.2f ms, lease %.2f ms; ", r.mode.c_str(), r.ppr,
+    std::printf("%s g=%.2f k=%d: trace %.2f ms, submit %.2f ms, lease %.2f ms; ", r.mode.c_str(), r.growth, r.ppr,
                 1e3 * s.tracing_cpu / double(s.tiles), 1e3 * s.submit_cpu / double(s.tiles),
                 1e3 * s.lease_cpu / double(s.tiles));
   }
@@ -465,15 +486,16 @@ int main(int argc, char** argv) {
   }
   std::printf("\n==== Part 3: the master's per-round work on its own (%dx%d, median of %d), load %.2f\n", size, size,
               runs, load_average());
-  std::printf("%-5s %-4s | %12s %12s | %12s %12s | %14s\n", "mode", "rp", "finish_round", "CPU", "previews", "CPU",
-              "reproject round");
+  std::printf("%-5s %-4s | %12s %12s | %12s %12s | %12s %12s | %14s\n", "mode", "rp", "finish_round", "CPU",
+              "images()", "CPU", "4 PNGs", "CPU", "reproject round");
   for (const std::string& m : modes) {
     std::vector<ReprojectMethod> methods = {ReprojectMethod::kGl};
     if (m != "pt") methods.push_back(ReprojectMethod::kCpu);
     for (ReprojectMethod rm : methods) {
       const MasterRoundCosts c = master_round_costs(scene, size, mode_of(m), rm, runs);
-      std::printf("%-5s %-4s | %10.1fms %10.1fms | %10.1fms %10.1fms | %12.1fms\n", m.c_str(),
-                  m == "pt" ? "-" : to_string(rm), 1e3 * c.finish_round, 1e3 * c.finish_round_cpu, 1e3 * c.previews,
+      std::printf("%-5s %-4s | %10.1fms %10.1fms | %10.1fms %10.1fms | %10.1fms %10.1fms | %12.1fms\n", m.c_str(),
+                  m == "pt" ? "-" : to_string(rm), 1e3 * c.finish_round, 1e3 * c.finish_round_cpu, 1e3 * c.images,
+                  1e3 * c.images_cpu, 1e3 * c.previews,
                   1e3 * c.previews_cpu, 1e3 * c.reproject_round);
       std::fflush(stdout);
     }
@@ -483,8 +505,9 @@ int main(int argc, char** argv) {
               "master)\n",
               1e6 * rtt, 1e6 * rtt_cpu);
   std::printf("(finish_round: M', skip mask and progress -- skip mode reads the accumulation back and downsamples "
-              "every round; previews: FrameState::images() + 4 PNG encodes, as JobManager::make_previews does at most "
-              "once a second inside close_round; reproject round: add_paths + reproject of one round's tiles)\n");
+              "every round; images(): the preview copy close_round takes at most once a second; 4 PNGs: the encodes a "
+              "preview request costs, on the requesting thread; reproject round: add_paths + reproject_packed of one "
+              "round's tiles of --tile pixels)\n");
   fs::remove_all(tmp);
   std::printf("load average at end %.2f\n", load_average());
   return 0;

@@ -113,9 +113,10 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
       p.min_spp = fp.min_spp;
       p.mean_mprime = fp.mean_reprojected;
       p.pixels_active = double(fp.pixels_active) / (double(opts.width) * opts.height);
-      // Rounds left, at the mean pace so far (skipping makes later rounds cheaper: an upper bound).
-      const int rounds_left = (opts.spp - int(fp.mean_paths + 0.5) + opts.paths_per_round - 1) / opts.paths_per_round;
-      p.eta_seconds = frame.done() ? 0 : since(t_render) / fp.round * std::max(0, rounds_left);
+      // Paths left, at the mean pace per path so far (skipping makes later paths fewer: an upper bound).
+      p.eta_seconds = frame.done() || fp.mean_paths <= 0
+                          ? 0
+                          : since(t_render) / fp.mean_paths * std::max(0.0, opts.spp - fp.mean_paths);
       p.frame = &frame;
       progress(p);
     }

@@ -25,6 +25,9 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
   cmd->add_option("--height", o.height, "image height in pixels")->capture_default_str();
   cmd->add_option("--spp", o.spp, "target samples per pixel P")->capture_default_str();
   cmd->add_option("--paths-per-round", o.paths_per_round, "paths per non-skipped pixel and round (k)")->capture_default_str();
+  cmd->add_option("--round-growth", o.round_growth,
+                  "later rounds trace floor(g x paths so far) paths (at least k); 0: k paths in every round")
+      ->capture_default_str();
   cmd->add_option("--seed", o.seed, "random seed")->capture_default_str();
   cmd->add_option("--out", o.out, "output prefix: writes PREFIX.exr, PREFIX.png, PREFIX.json")->capture_default_str();
   const std::map<std::string, RenderMode> modes{{"pt", RenderMode::kPathTrace}, {"rp", RenderMode::kReproject}, {"skip", RenderMode::kSkip}};

@@ -1,5 +1,6 @@
 #include "common/render_options.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <fmt/format.h>
@@ -17,6 +18,8 @@ std::optional<std::string> RenderOptions::validate() const {
   if (!std::isfinite(epsilon) || epsilon < 0 || epsilon > 1)
     return fmt::format("--epsilon {} must be a fraction of the scene diagonal in [0, 1]", epsilon);
   if (min_paths < 1 || min_paths > spp) return fmt::format("--min-paths {} must be between 1 and --spp", min_paths);
+  if (!std::isfinite(round_growth) || round_growth < 0 || round_growth > 16)
+    return fmt::format("--round-growth {} must be between 0 and 16", round_growth);
   if (tile_size < 4 || tile_size > 1024) return fmt::format("--tile {} must be between 4 and 1024", tile_size);
   if (threads < 0) return "--threads must be 0 (all cores) or positive";
   if (rr.max_depth < 1 || rr.max_depth > 100000) return "--max-depth must be between 1 and 100000";
@@ -34,6 +37,25 @@ CameraSpec RenderOptions::camera_for(const CameraSpec& scene_camera) const {
   if (up) c.up = *up;
   if (fov) c.fov_y_degrees = *fov;
   return c;
+}
+
+int round_paths(const RenderOptions& o, int paths_done) {
+  const int left = o.spp - paths_done;
+  if (left <= 0) return 0;
+  int k = o.paths_per_round;
+  if (o.round_growth > 0) {
+    // In double: the products stay exact for every valid spp (< 2^20) and the result does not
+    // depend on the compiler's float evaluation.
+    k = std::max(k, int(std::floor(double(o.round_growth) * double(paths_done))));
+    if (left - k < (k + 1) / 2) k = left;  // no sliver of a round at the end
+  }
+  return std::min(k, left);
+}
+
+int rounds_planned(const RenderOptions& o) {
+  int rounds = 0;
+  for (int done = 0; done < o.spp; ++rounds) done += std::max(1, round_paths(o, done));
+  return rounds;
 }
 
 const char* to_string(RenderMode m) {

@@ -33,7 +33,10 @@ struct RenderOptions {
   std::string scene = "builtin:cornell";  // OBJ path, scene JSON path or builtin:NAME[?k=v&...]
   int width = 512, height = 512;         // pixels
   int spp = 16;                          // target samples per pixel P (path samples + reprojected)
-  int paths_per_round = 1;               // k: paths per non-skipped pixel and round
+  int paths_per_round = 1;               // k: paths per non-skipped pixel in the first rounds
+  // Round schedule (round_paths()): later rounds trace more paths so that every round carries enough
+  // work to amortise its fixed cost (barrier, reprojection close, M' readback). 0: k in every round.
+  float round_growth = 0.25f;
   uint64_t seed = 1;
   std::string out = "render";            // output prefix
   RenderMode mode = RenderMode::kPathTrace;
@@ -43,7 +46,7 @@ struct RenderOptions {
   int min_paths = 1;                     // a pixel is never skipped before it has this many real paths
   bool reproject_glossy = false;         // failure-mode study only
   RussianRoulette rr = RussianRoulette::paper();
-  int tile_size = 32;                    // pixels
+  int tile_size = 64;                    // pixels
   int threads = 0;                       // 0: all cores
   std::optional<Vec3> eye, look, up;     // camera overrides
   std::optional<float> fov;              // vertical, degrees
@@ -53,6 +56,18 @@ struct RenderOptions {
   /// The scene's camera with the overrides applied.
   CameraSpec camera_for(const CameraSpec& scene_camera) const;
 };
+
+/// The round schedule: paths every active pixel traces in the next round, given the paths each
+/// active pixel has traced so far. A pure function of its arguments, so the master and the
+/// single-process render follow the same schedule (and give the same image). With round_growth g > 0:
+///   k_r = max(k, floor(g * paths_done)),
+/// i.e. rounds grow geometrically (by a factor ~1 + g) once paths_done > k / g; a last round shorter
+/// than half of k_r is merged into this one. Always in [0, spp - paths_done]. (Skip mode decides per
+/// round which pixels stop, so late rounds must not grow much faster: a pixel that would have
+/// stopped after a few more paths traces the whole round.)
+int round_paths(const RenderOptions& o, int paths_done);
+/// Rounds the schedule needs (skip mode may end earlier, when every pixel is skipped).
+int rounds_planned(const RenderOptions& o);
 
 const char* to_string(RenderMode m);
 const char* to_string(ReprojectMethod m);

@@ -29,15 +29,18 @@ double float_ulp(double x) {
   return double(std::nextafter(f, std::numeric_limits<float>::infinity())) - double(f);
 }
 
+// floor() of a value of magnitude < 2^52, exactly, without the library call (the build targets
+// baseline x86-64, where std::floor is not an instruction).
+double floor_small(double x) {
+  const double t = double(int64_t(x));  // truncation toward zero, exact
+  return x < t ? t - 1.0 : t;
+}
+
 uint32_t snorm16(double o) {
-  const double q = std::floor(o * kSnormMax + 0.5);  // o in [-1, 1]: q in [-32767, 32767]
+  const double q = floor_small(o * kSnormMax + 0.5);  // o in [-1, 1]: q in [-32767, 32767]
   return uint32_t(uint16_t(int16_t(q)));
 }
 
-double from_snorm16(uint32_t bits) {
-  const double v = double(int16_t(uint16_t(bits))) / kSnormMax;
-  return v < -1.0 ? -1.0 : v;
-}
 
 }  // namespace
 
@@ -120,18 +123,6 @@ EncodeError VertexCodec::encode_normal(const Vec3& n, uint32_t* bits) {
   return EncodeError::kOk;
 }
 
-Vec3 VertexCodec::decode_normal(uint32_t bits) {
-  double x = from_snorm16(bits & 0xffffu), y = from_snorm16(bits >> 16);
-  const double z = 1.0 - std::fabs(x) - std::fabs(y);
-  if (z < 0) {
-    const double fx = (1.0 - std::fabs(y)) * sign_of(x);
-    const double fy = (1.0 - std::fabs(x)) * sign_of(y);
-    x = fx;
-    y = fy;
-  }
-  const double len = std::sqrt(x * x + y * y + z * z);  // >= 1/sqrt(3): never zero
-  return {float(x / len), float(y / len), float(z / len)};
-}
 
 // ---- radiance: shared-exponent RGB, 8-bit mantissas, 8-bit exponent -------------------------------
 
@@ -144,13 +135,15 @@ EncodeError VertexCodec::encode_radiance(const Vec3& rgb, uint32_t* bits) {
     *bits = 0;
     return EncodeError::kOk;
   }
-  int ex = 0;
-  std::frexp(mx, &ex);  // mx = f * 2^ex, f in [0.5, 1): mx * 2^(8 - ex) in [128, 256)
+  // frexp's exponent: mx = f * 2^ex, f in [0.5, 1), so mx * 2^(8 - ex) is in [128, 256). mx is a
+  // positive float widened to double, hence a normal double: ex comes straight from its exponent bits.
+  const int ex = int((std::bit_cast<uint64_t>(mx) >> 52) & 0x7ff) - 1022;
   int e = std::max(ex + 128, 1);  // e = 1 below 2^-128: fewer mantissa bits, absolute error only
   uint32_t m[3];
   for (int attempt = 0; attempt < 2; ++attempt) {
-    const double scale = std::ldexp(1.0, kRadianceBias - e);  // exact power of two
-    for (int i = 0; i < 3; ++i) m[i] = uint32_t(std::floor(c[i] * scale + 0.5));
+    const double scale = codec_detail::pow2(kRadianceBias - e);  // exact power of two; exponent in [-120, 135]
+    // c * scale + 0.5 > 0: truncation is floor.
+    for (int i = 0; i < 3; ++i) m[i] = uint32_t(c[i] * scale + 0.5);
     if (std::max(m[0], std::max(m[1], m[2])) < 256) break;
     ++e;  // the max channel rounded up to 256: one exponent step more and it is 128
   }
@@ -159,14 +152,6 @@ EncodeError VertexCodec::encode_radiance(const Vec3& rgb, uint32_t* bits) {
   return EncodeError::kOk;
 }
 
-Vec3 VertexCodec::decode_radiance(uint32_t bits) {
-  const int e = int(bits >> 24);
-  if (e == 0) return Vec3(0.f);
-  const double scale = std::ldexp(1.0, e - kRadianceBias);
-  // m * 2^(e-136) with m < 256 and e >= 1 is a float (possibly subnormal): the casts are exact.
-  return {float(double(bits & 0xffu) * scale), float(double((bits >> 8) & 0xffu) * scale),
-          float(double((bits >> 16) & 0xffu) * scale)};
-}
 
 // ---- whole records --------------------------------------------------------------------------------
 
@@ -182,7 +167,7 @@ EncodeError VertexCodec::try_encode(const VertexRecord& v, PackedVertex* out) co
     // One correctly rounded division, then an exact scaling by 2^21: the bits depend on nothing else.
     const double t = (double(v.position[a]) - lo_q_[a]) / extent_[a] * kCells;
     if (!(t >= 0 && t <= kCells)) return EncodeError::kOutsideBounds;
-    const uint64_t q = std::min(uint64_t(std::floor(t)), kCoordMask);
+    const uint64_t q = std::min(uint64_t(t), kCoordMask);  // t >= 0: truncation is floor
     pos |= q << (a * kPositionBits);
   }
   if (v.diffuse()) pos |= kDiffuseBit;
@@ -195,10 +180,7 @@ EncodeError VertexCodec::try_encode(const VertexRecord& v, PackedVertex* out) co
 
 VertexRecord VertexCodec::decode(const PackedVertex& p) const {
   VertexRecord v;
-  for (int a = 0; a < 3; ++a) {
-    const uint64_t q = (p.position_bits >> (a * kPositionBits)) & kCoordMask;
-    v.position[a] = float(lo_q_[a] + (double(q) + 0.5) * cell_[a]);
-  }
+  v.position = decode_position(p.position_bits);
   v.normal = decode_normal(p.normal_bits);
   v.radiance = decode_radiance(p.radiance_bits);
   v.flags = (p.position_bits & kDiffuseBit) ? VertexRecord::kDiffuse : 0u;
@@ -219,19 +201,6 @@ void VertexCodec::store(const PackedVertex& p, unsigned char* dst) {
   }
 }
 
-PackedVertex VertexCodec::load(const unsigned char* src) {
-  PackedVertex p;
-  if constexpr (std::endian::native == std::endian::little) {
-    std::memcpy(&p.position_bits, src, 8);
-    std::memcpy(&p.normal_bits, src + 8, 4);
-    std::memcpy(&p.radiance_bits, src + 12, 4);
-  } else {
-    for (int i = 0; i < 8; ++i) p.position_bits |= uint64_t(src[i]) << (8 * i);
-    for (int i = 0; i < 4; ++i) p.normal_bits |= uint32_t(src[8 + i]) << (8 * i);
-    for (int i = 0; i < 4; ++i) p.radiance_bits |= uint32_t(src[12 + i]) << (8 * i);
-  }
-  return p;
-}
 
 size_t VertexCodec::encode_batch(std::span<const VertexRecord> in, std::string* out, EncodeCounts* counts) const {
   const size_t start = out->size();
@@ -258,8 +227,10 @@ bool VertexCodec::decode_batch(std::string_view bytes, std::vector<VertexRecord>
   if (bytes.size() % kPackedBytes != 0) return false;
   const size_t n = bytes.size() / kPackedBytes;
   const auto* src = reinterpret_cast<const unsigned char*>(bytes.data());
-  out->reserve(out->size() + n);
-  for (size_t i = 0; i < n; ++i) out->push_back(decode(load(src + i * kPackedBytes)));
+  const size_t start = out->size();
+  out->resize(start + n);
+  VertexRecord* dst = out->data() + start;
+  for (size_t i = 0; i < n; ++i) dst[i] = decode(load(src + i * kPackedBytes));
   return true;
 }
 

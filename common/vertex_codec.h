@@ -46,14 +46,19 @@
 //             beside red keeps ~2.5 levels); rounding to nearest makes that a systematic error of at
 //             most the same 0.39 % of the max channel per vertex.
 //
-// Determinism: encode and decode use only IEEE basic operations (+ - * / sqrt), floor, frexp and
-// ldexp (all exact or correctly rounded; the tree builds with -ffp-contract=off), so the same record gives the same bits
+// Determinism: encode and decode use only IEEE basic operations (+ - * / sqrt), floor (as an exact
+// truncation), frexp and ldexp (read from / built into a double's exponent bits) -- all exact or
+// correctly rounded; the tree builds with -ffp-contract=off -- so the same record gives the same bits
 // on every machine. encode(decode(bits)) == bits for every output of encode when the scene bounds are
 // not far from the origin relative to their size (|coordinates| < ~4 extents, so the float spacing is
 // below half a cell).
 #pragma once
 
+#include <algorithm>
 #include <array>
+#include <bit>
+#include <cstring>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <span>
@@ -65,6 +70,11 @@
 #include "common/vertex_record.h"
 
 namespace epr {
+
+namespace codec_detail {
+/// 2^k as a double, exactly, for -1022 <= k <= 1023 (= std::ldexp(1.0, k) there, without the call).
+inline double pow2(int k) { return std::bit_cast<double>(uint64_t(k + 1023) << 52); }
+}  // namespace codec_detail
 
 struct PackedVertex {
   uint64_t position_bits = 0;
@@ -117,6 +127,18 @@ class VertexCodec {
   /// finite non-negative radiance. Flags carry only kDiffuse.
   VertexRecord decode(const PackedVertex& p) const;
 
+  /// The fields of decode() one at a time (inline: reprojection kernels decode packed vertices in
+  /// place, and only as far as each vertex needs -- see CpuReprojector::reproject_packed).
+  Vec3 decode_position(uint64_t position_bits) const {
+    Vec3 p;
+    for (int a = 0; a < 3; ++a) {
+      const uint64_t q = (position_bits >> (a * kPositionBits)) & ((uint64_t(1) << kPositionBits) - 1);
+      p[a] = float(lo_q_[a] + (double(q) + 0.5) * cell_[a]);
+    }
+    return p;
+  }
+  static bool decode_diffuse(uint64_t position_bits) { return (position_bits & kDiffuseBit) != 0; }
+
   /// Appends the 16-byte encoding of every representable record of `in` to `out` (little-endian);
   /// returns how many were appended. Rejections are counted in `counts` if given.
   size_t encode_batch(std::span<const VertexRecord> in, std::string* out, EncodeCounts* counts = nullptr) const;
@@ -126,7 +148,19 @@ class VertexCodec {
 
   /// Wire form of one record: 16 bytes, little-endian words, at `dst`.
   static void store(const PackedVertex& p, unsigned char* dst);
-  static PackedVertex load(const unsigned char* src);
+  static PackedVertex load(const unsigned char* src) {
+    PackedVertex p;
+    if constexpr (std::endian::native == std::endian::little) {
+      std::memcpy(&p.position_bits, src, 8);
+      std::memcpy(&p.normal_bits, src + 8, 4);
+      std::memcpy(&p.radiance_bits, src + 12, 4);
+    } else {
+      for (int i = 0; i < 8; ++i) p.position_bits |= uint64_t(src[i]) << (8 * i);
+      for (int i = 0; i < 4; ++i) p.normal_bits |= uint32_t(src[8 + i]) << (8 * i);
+      for (int i = 0; i < 4; ++i) p.radiance_bits |= uint32_t(src[12 + i]) << (8 * i);
+    }
+    return p;
+  }
 
   /// Largest per-axis position error of a decoded vertex, metres (the maximum of the per-axis bounds).
   float position_error_bound() const;
@@ -143,10 +177,30 @@ class VertexCodec {
   // The three fields on their own (pure; exposed for tests and for kernels that mirror them).
   /// kOk and `*bits` set, or kBadNormal. `n` need not be unit length.
   static EncodeError encode_normal(const Vec3& n, uint32_t* bits);
-  static Vec3 decode_normal(uint32_t bits);
+  static Vec3 decode_normal(uint32_t bits) {
+    // snorm16 pair; -32768 decodes as -1.
+    double x = std::max(-1.0, double(int16_t(uint16_t(bits & 0xffffu))) / 32767.0);
+    double y = std::max(-1.0, double(int16_t(uint16_t(bits >> 16))) / 32767.0);
+    const double z = 1.0 - std::fabs(x) - std::fabs(y);
+    if (z < 0) {  // unfold the lower hemisphere; copysign keeps the sign of zero
+      const double fx = (1.0 - std::fabs(y)) * std::copysign(1.0, x);
+      const double fy = (1.0 - std::fabs(x)) * std::copysign(1.0, y);
+      x = fx;
+      y = fy;
+    }
+    const double len = std::sqrt(x * x + y * y + z * z);  // >= 1/sqrt(3): never zero
+    return {float(x / len), float(y / len), float(z / len)};
+  }
   /// kOk and `*bits` set, or kNonFiniteRadiance / kNegativeRadiance / kRadianceOverflow.
   static EncodeError encode_radiance(const Vec3& rgb, uint32_t* bits);
-  static Vec3 decode_radiance(uint32_t bits);
+  static Vec3 decode_radiance(uint32_t bits) {
+    const int e = int(bits >> 24);
+    if (e == 0) return Vec3(0.f);
+    const double scale = codec_detail::pow2(e - 136);  // value = m * 2^(E - 136); e - 136 in [-135, 119]
+    // m * 2^(e-136) with m < 256 and e >= 1 is a float (possibly subnormal): the casts are exact.
+    return {float(double(bits & 0xffu) * scale), float(double((bits >> 8) & 0xffu) * scale),
+            float(double((bits >> 16) & 0xffu) * scale)};
+  }
   /// Largest radiance channel value the format represents (255 * 2^119 ~= 1.69e38).
   static float max_radiance();
 

@@ -18,6 +18,7 @@ constexpr uint32_t kNone = 0xffffffffu;
 constexpr size_t kChunk = 32768;  // records per pass pair: the chunk's records stay in L2 for pass 2
 constexpr size_t kBlock = 2048;  // records per classification task (pass A's prefetches stay in L2)
 constexpr size_t kPrefetchDistance = 32;  // accumulation: cells prefetched this many targets ahead
+constexpr size_t kSerialBelow = kChunk;    // reproject_packed and accumulate: one thread below this
 }  // namespace
 
 CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings)
@@ -30,11 +31,83 @@ CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb,
   target_.resize(kChunk);
 }
 
+void CpuReprojector::add_block_counts(const std::vector<std::array<uint32_t, 6>>& block_counts) {
+  for (const auto& c : block_counts) {
+    counts_.accepted += c[0];
+    counts_.culled += c[1];
+    counts_.backfacing += c[2];
+    counts_.occluded += c[2] + c[3];
+    counts_.not_diffuse += c[4];
+    counts_.invalid += c[5];
+  }
+}
+
+// reproject() of the decoded records, decoding in place: the diffuse bit first, position and normal
+// for the projection, radiance only for accepted vertices. Decoded records are always finite, so
+// none counts as invalid. The field decoders are VertexCodec's own (inline), so the values -- and
+// therefore decisions and sums -- are those of reproject(codec.decode(...)).
+void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
+  constexpr size_t kBytes = VertexCodec::kPackedBytes;
+  const size_t total = packed.size() / kBytes;
+  const auto* base = reinterpret_cast<const unsigned char*>(packed.data());
+  if (position_.size() < kChunk) position_.resize(kChunk);
+  for (size_t off = 0; off < total; off += kChunk) {
+    const size_t n = std::min(kChunk, total - off);
+    const unsigned char* src = base + off * kBytes;
+    const size_t blocks = (n + kBlock - 1) / kBlock;
+    std::vector<std::array<uint32_t, 6>> block_counts(blocks);
+    auto classify = [&](size_t b) {
+      std::array<uint32_t, 6> c{};
+      const size_t begin = b * kBlock, end = std::min(n, (b + 1) * kBlock);
+      for (size_t i = begin; i < end; ++i) {
+        const PackedVertex p = VertexCodec::load(src + i * kBytes);
+        target_[i] = kNone;
+        if (!VertexCodec::decode_diffuse(p.position_bits) && !settings_.reproject_glossy) {
+          ++c[4];
+          continue;
+        }
+        const Vec3 pos = codec.decode_position(p.position_bits);
+        uint32_t texel = 0;
+        const detail::Decision d = detail::project_and_face(params_, pos, VertexCodec::decode_normal(p.normal_bits), &texel);
+        if (d != detail::Decision::kAccepted) {
+          ++c[size_t(d)];
+          continue;
+        }
+        target_[i] = texel;
+        position_[i] = pos;
+        __builtin_prefetch(&grid_.texel_plane[texel]);
+      }
+      for (size_t i = begin; i < end; ++i) {
+        const uint32_t texel = target_[i];
+        if (texel == kNone) continue;
+        const detail::Decision d = detail::plane_test(params_, grid_, position_[i], texel);
+        ++c[size_t(d)];
+        if (d != detail::Decision::kAccepted) target_[i] = kNone;
+      }
+      block_counts[b] = c;
+    };
+    // A tile's worth of vertices (the master's calls): on the calling thread. Waking TBB's threads
+    // (which then spin a while) costs more CPU than it saves there, and the master shares its cores
+    // with gRPC; whole frames (the single-process render) go parallel.
+    if (n < kSerialBelow) {
+      for (size_t b = 0; b < blocks; ++b) classify(b);
+    } else {
+      tbb::parallel_for(size_t(0), blocks, classify);
+    }
+    add_block_counts(block_counts);
+    accumulate(n, [src](size_t i) {
+      return VertexCodec::decode_radiance(VertexCodec::load(src + i * kBytes).radiance_bits);
+    });
+  }
+}
+
 template <class Radiance>
 void CpuReprojector::accumulate(size_t n, const Radiance& radiance_of) {
   // Row ranges of the grid; each task owns one, so no two tasks touch the same cell.
+  // Small batches (a tile's worth) in one range: waking TBB's threads would cost more than it saves.
   const size_t cells = cells_.size();
-  const size_t ranges = std::clamp<size_t>(size_t(tbb::this_task_arena::max_concurrency()) * 2, 1, 64);
+  const size_t ranges =
+      n < kSerialBelow ? 1 : std::clamp<size_t>(size_t(tbb::this_task_arena::max_concurrency()) * 2, 1, 64);
   tbb::parallel_for(size_t(0), ranges, [&](size_t r) {
     const uint32_t lo = uint32_t(cells * r / ranges), hi = uint32_t(cells * (r + 1) / ranges);
     const uint32_t span = hi - lo;
@@ -97,14 +170,7 @@ void CpuReprojector::reproject(std::span<const VertexRecord> records) {
       }
       block_counts[b] = c;
     });
-    for (const auto& c : block_counts) {
-      counts_.accepted += c[0];
-      counts_.culled += c[1];
-      counts_.backfacing += c[2];
-      counts_.occluded += c[2] + c[3];
-      counts_.not_diffuse += c[4];
-      counts_.invalid += c[5];
-    }
+    add_block_counts(block_counts);
     accumulate(n, [rec](size_t i) { return rec[i].radiance; });
   }
 }

@@ -14,6 +14,7 @@
 // plane table) and 128 KiB of scratch.
 #pragma once
 
+#include <array>
 #include <vector>
 
 #include "master/reprojection_kernel.h"
@@ -26,6 +27,7 @@ class CpuReprojector final : public Reprojector {
   CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
 
   void reproject(std::span<const VertexRecord> records) override;
+  void reproject_packed(std::string_view packed, const VertexCodec& codec) override;
   void add_exact(std::span<const ExactSample> samples) override;
   ReprojectionCounts counts() const override { return counts_; }
   SubpixelAccumulation read() override;
@@ -41,6 +43,7 @@ class CpuReprojector final : public Reprojector {
   };
   template <class Radiance>
   void accumulate(size_t n, const Radiance& radiance_of);
+  void add_block_counts(const std::vector<std::array<uint32_t, 6>>& block_counts);
 
   ReprojectorSettings settings_;
   detail::KernelParams params_;
@@ -48,6 +51,7 @@ class CpuReprojector final : public Reprojector {
   int subpixels_;
   std::vector<Cell> cells_;
   std::vector<uint32_t> target_;  // per batch point: subpixel index or kNone
+  std::vector<Vec3> position_;    // reproject_packed: per batch point, the decoded position of a candidate
   ReprojectionCounts counts_;
 };
 

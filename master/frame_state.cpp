@@ -58,6 +58,7 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
                                 : use_gl     ? build_deep_framebuffer(scene, camera, opts.subpixels)
                                              : build_deep_framebuffer_cpu(scene, camera, opts.subpixels);
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, dfb, rs, gl);
+    codec_ = std::make_unique<VertexCodec>(scene.bounds());
   }
   progress_.pixels_active = uint64_t(width_) * uint64_t(height_);
 }
@@ -85,6 +86,12 @@ void FrameState::reproject(std::span<const VertexRecord> vertices) {
   reprojector_->reproject(vertices);
 }
 
+void FrameState::reproject_packed(std::string_view packed) {
+  if (!reprojector_ || packed.empty()) return;
+  ScopedTimer t(&seconds_reprojecting_);
+  reprojector_->reproject_packed(packed, *codec_);
+}
+
 void FrameState::add_exact(std::span<const ExactSample> samples) {
   if (!reprojector_ || samples.empty()) return;
   ScopedTimer t(&seconds_reprojecting_);
@@ -101,7 +108,7 @@ void FrameState::refresh_reprojection() {
 }
 
 int FrameState::next_paths_per_pixel() const {
-  return std::max(0, std::min(opts_.paths_per_round, opts_.spp - paths_done_));
+  return round_paths(opts_, paths_done_);
 }
 
 bool FrameState::finish_round() {

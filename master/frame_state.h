@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <memory>
 #include <span>
+#include <string_view>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -23,6 +24,7 @@
 #include "common/image.h"
 #include "common/render_options.h"
 #include "common/scene.h"
+#include "common/vertex_codec.h"
 #include "common/vertex_record.h"
 #include "master/reprojection_image.h"
 #include "master/reprojector.h"
@@ -83,13 +85,17 @@ class FrameState {
   /// The path samples of one tile: sums and counts row-major over [x0, x1) x [y0, y1).
   void add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums, std::span<const uint32_t> counts);
   void reproject(std::span<const VertexRecord> vertices);
+  /// Vertices in their 16-byte wire form, quantised with the scene's bounds (VertexCodec): the same
+  /// as reproject() of their decoded records.
+  void reproject_packed(std::string_view packed);
   void add_exact(std::span<const ExactSample> samples);
   /// Ends the round: M', skip mask and progress. Returns true if another round is needed.
   bool finish_round();
 
   bool done() const { return done_; }
   int round() const { return progress_.round; }
-  /// Paths each active pixel traces in the next round (k, or fewer to land exactly on P).
+  /// Paths each active pixel traces in the next round (the schedule of round_paths(), landing
+  /// exactly on P).
   int next_paths_per_pixel() const;
   /// Inputs of a tile for the next round: skip (1 = trace nothing) and the first sample index per pixel.
   void tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t>* skip, std::vector<uint32_t>* first_sample) const;
@@ -125,6 +131,7 @@ class FrameState {
   RenderOptions opts_;
   int width_, height_;
   std::unique_ptr<Reprojector> reprojector_;
+  std::unique_ptr<VertexCodec> codec_;  // the wire's quantisation (scene bounds), when reprojecting
   std::vector<double> path_sum_;      // 3 per pixel
   std::vector<uint32_t> path_count_;  // M
   std::vector<uint64_t> mprime_;      // M' as of the last downsample

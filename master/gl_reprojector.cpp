@@ -188,6 +188,7 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
     throw GlUnavailable("the GL reprojector needs GL_NV_shader_atomic_float (Mesa llvmpipe has it); use the cpu back-end");
   const auto& gl = ctx_->gl();
   params_ = detail::make_kernel_params(camera, dfb.subpixels, settings_.epsilon);
+  map_downsample_ = settings_.gl_map_downsample;
   subpixels_ = dfb.subpixels;
   grid_w_ = dfb.width;
   grid_h_ = dfb.height;
@@ -244,7 +245,8 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
 
   // Accumulation and counters.
   acc_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  gl.NamedBufferStorage(acc_buf_->id(), GLsizeiptr(cells * 16), nullptr, GL_DYNAMIC_STORAGE_BIT);
+  // Mappable for reading: the round's downsample reads the cells in place (downsample_pixels).
+  gl.NamedBufferStorage(acc_buf_->id(), GLsizeiptr(cells * 16), nullptr, GL_DYNAMIC_STORAGE_BIT | GL_MAP_READ_BIT);
   acc_view_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
   gl.TextureBuffer(acc_view_tex_->id(), GL_RGBA32UI, acc_buf_->id());
   counter_buf_ = std::make_unique<GlBuffer>(*ctx_);
@@ -348,6 +350,36 @@ void GlReprojector::reproject(std::span<const VertexRecord> records) {
   }
 }
 
+// reproject() of the decoded records, decoding straight into the upload slot (decoded records are
+// always finite: none is invalid).
+void GlReprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
+  ctx_->check_thread();
+  const size_t total = packed.size() / VertexCodec::kPackedBytes;
+  const auto* src = reinterpret_cast<const unsigned char*>(packed.data());
+  size_t i = 0;
+  while (i < total) {
+    const int slot = next_slot_;
+    next_slot_ = (next_slot_ + 1) % kSlots;
+    unsigned char* out = acquire_slot(slot);
+    size_t n = 0;
+    for (; i < total && n < settings_.batch_points; ++i) {
+      const PackedVertex p = VertexCodec::load(src + i * VertexCodec::kPackedBytes);
+      if (!VertexCodec::decode_diffuse(p.position_bits) && !settings_.reproject_glossy) {
+        ++cpu_counts_.not_diffuse;
+        continue;
+      }
+      const Vec3 v[3] = {codec.decode_position(p.position_bits), VertexCodec::decode_normal(p.normal_bits),
+                         VertexCodec::decode_radiance(p.radiance_bits)};
+      static_assert(sizeof(v) == kRecordBytes);
+      std::memcpy(out + n * kRecordBytes, v, kRecordBytes);
+      ++n;
+    }
+    if (n) dispatch(slot, n, false);
+    points_since_fold_ += n;
+    if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
+  }
+}
+
 void GlReprojector::add_exact(std::span<const ExactSample> samples) {
   ctx_->check_thread();
   const size_t per_slot = slot_bytes_ / sizeof(ExactSample);
@@ -424,6 +456,28 @@ SubpixelAccumulation GlReprojector::read() {
 PixelReprojection GlReprojector::downsample_pixels() {
   ctx_->check_thread();
   const auto& gl = ctx_->gl();
+  if (map_downsample_) {
+    // The accumulation mapped for reading (waits for the dispatches that write it) and downsampled
+    // by the CPU code in place: on a software GL (llvmpipe) the buffer is host memory, and this is
+    // several times cheaper than a compute pass plus its read-back. Same result as
+    // downsample(read()).
+    const size_t cells = size_t(grid_w_) * size_t(grid_h_);
+    gl.MemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    const void* mapped = gl.MapNamedBufferRange(acc_buf_->id(), 0, GLsizeiptr(cells * 16), GL_MAP_READ_BIT);
+    if (!mapped) ctx_->check_error("GlReprojector::downsample_pixels (map)");
+    if (mapped) {
+      PixelReprojection out;
+      try {
+        out = downsample_cells({static_cast<const AccumulationCell*>(mapped), cells}, grid_w_, grid_h_, subpixels_);
+      } catch (...) {
+        gl.UnmapNamedBuffer(acc_buf_->id());
+        throw;
+      }
+      gl.UnmapNamedBuffer(acc_buf_->id());
+      ctx_->check_error("GlReprojector::downsample_pixels");
+      return out;
+    }
+  }
   const int W = grid_w_ / subpixels_, H = grid_h_ / subpixels_;
   const size_t pixels = size_t(W) * size_t(H);
   if (!downsample_prog_) {

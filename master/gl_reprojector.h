@@ -50,6 +50,7 @@ class GlReprojector final : public Reprojector {
   ~GlReprojector() override;
 
   void reproject(std::span<const VertexRecord> records) override;
+  void reproject_packed(std::string_view packed, const VertexCodec& codec) override;
   void add_exact(std::span<const ExactSample> samples) override;
   ReprojectionCounts counts() const override;
   SubpixelAccumulation read() override;
@@ -76,6 +77,7 @@ class GlReprojector final : public Reprojector {
 
   std::unique_ptr<GlProgram> reproject_prog_, exact_prog_, downsample_prog_;
   std::unique_ptr<GlBuffer> pixels_buf_;  // W x H vec4: L_rp, M' (uint bits); created on first use
+  bool map_downsample_ = true;            // ReprojectorSettings::gl_map_downsample
   std::unique_ptr<GlBuffer> ring_, texel_plane_buf_, planes_buf_, acc_buf_, counter_buf_;
   std::unique_ptr<GlTexture> records_tex_, samples_tex_, texel_plane_tex_, planes_tex_, acc_view_tex_;
   unsigned char* ring_map_ = nullptr;

@@ -106,4 +106,16 @@ std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Ca
 
 PixelReprojection Reprojector::downsample_pixels() { return downsample(read()); }
 
+void Reprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
+  constexpr size_t kBatch = 32768;  // records decoded at a time: bounded scratch memory
+  std::vector<VertexRecord> records;
+  const size_t n = packed.size() / VertexCodec::kPackedBytes;
+  for (size_t off = 0; off < n; off += kBatch) {
+    const size_t m = std::min(kBatch, n - off);
+    records.clear();
+    codec.decode_batch(packed.substr(off * VertexCodec::kPackedBytes, m * VertexCodec::kPackedBytes), &records);
+    reproject(records);
+  }
+}
+
 }  // namespace epr

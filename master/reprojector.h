@@ -44,6 +44,7 @@
 
 #include "common/camera.h"
 #include "common/math.h"
+#include "common/vertex_codec.h"
 #include "common/vertex_record.h"
 #include "master/deep_framebuffer.h"
 
@@ -81,6 +82,9 @@ struct ReprojectorSettings {
   int workgroup_size = 32;
   int workgroups = 16;
   bool prefetch = true;
+  // GL: downsample at a round's end by mapping the accumulation and running the CPU downsample on it
+  // (cheaper on llvmpipe, whose buffers are host memory) instead of a compute pass and a read-back.
+  bool gl_map_downsample = true;
   // GL: the shader's 32-bit per-invocation counters are folded into 64-bit host totals after this
   // many points (2^31 keeps every counter far from overflow; tests lower it).
   uint64_t counter_fold_points = uint64_t(1) << 31;
@@ -112,6 +116,11 @@ class Reprojector {
   virtual ~Reprojector() = default;
   /// Reprojects eye-path vertices (DESIGN.md: x_n, n >= 2) and accumulates the accepted ones.
   virtual void reproject(std::span<const VertexRecord> records) = 0;
+  /// The same for vertices in their 16-byte wire form (VERTEX_ENCODING_PACKED16, a multiple of 16
+  /// bytes; a trailing partial record is ignored): exactly reproject() of codec.decode() of each, in
+  /// order -- same decisions, counts and sums. The default decodes in batches; the CPU back-end
+  /// decodes in place, each field only when the vertex gets that far.
+  virtual void reproject_packed(std::string_view packed, const VertexCodec& codec);
   /// Adds exact-mode samples directly to their subpixels.
   virtual void add_exact(std::span<const ExactSample> samples) = 0;
   virtual ReprojectionCounts counts() const = 0;

@@ -81,6 +81,7 @@ v1::JobSpec to_job_spec(const RenderOptions& o, const SceneBundleData& bundle, c
   to_proto(o.rr, spec.mutable_russian_roulette());
   spec.set_seed(o.seed);
   spec.set_tile_size(uint32_t(o.tile_size));
+  spec.set_round_growth(o.round_growth);
   return spec;
 }
 
@@ -128,6 +129,7 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
   }
   o.seed = spec.seed();
   if (spec.has_tile_size()) o.tile_size = int(spec.tile_size());
+  if (spec.has_round_growth()) o.round_growth = spec.round_growth();
   if (spec.has_time_budget_seconds() && !(spec.time_budget_seconds() > 0 && std::isfinite(spec.time_budget_seconds())))
     return "time budget must be a positive number of seconds";
   if (auto err = o.validate()) return err;

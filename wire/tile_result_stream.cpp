@@ -199,6 +199,13 @@ std::optional<std::string> TileResultAssembler::fail(std::string reason) {
   return error_;
 }
 
+std::optional<std::string> TileResultAssembler::add(v1::TileResultChunk* chunk) {
+  if (!error_ && !complete_ && header_seen_ && chunk->part_case() == v1::TileResultChunk::kVertices &&
+      chunk->ByteSizeLong() <= expected_.limits.max_chunk_bytes)
+    return add_vertices(chunk->vertices(), chunk->mutable_vertices()->mutable_packed());
+  return add(*chunk);
+}
+
 std::optional<std::string> TileResultAssembler::add(const v1::TileResultChunk& chunk) {
   if (error_) return error_;
   if (complete_) return fail("chunk after the trailer");
@@ -257,7 +264,9 @@ std::optional<std::string> TileResultAssembler::add_header(const v1::TileResultH
   tile_.path_sum.assign(pixel_count_, Vec3(0.f));
   tile_.path_count.assign(pixel_count_, 0);
   covered_.assign(pixel_count_, 0);
-  tile_.vertices.reserve(size_t(std::min<uint64_t>(h.vertex_count(), kInitialReserve)));
+  // Reserve at most kInitialReserve up front (a header alone must not allocate what it announces);
+  // grow with the data that arrives.
+  if (!e.keep_packed) tile_.vertices.reserve(size_t(std::min<uint64_t>(h.vertex_count(), kInitialReserve)));
   tile_.exact_samples.reserve(size_t(std::min<uint64_t>(h.exact_sample_count(), kInitialReserve)));
   return std::nullopt;
 }
@@ -301,22 +310,28 @@ std::optional<std::string> TileResultAssembler::add_pixels(const v1::PixelPaths&
   return std::nullopt;
 }
 
-std::optional<std::string> TileResultAssembler::add_vertices(const v1::VertexBatch& b) {
+std::optional<std::string> TileResultAssembler::add_vertices(const v1::VertexBatch& b, std::string* steal) {
   if (expected_.payload != TileExpectation::Payload::kVertices) return fail("VertexBatch for a job that takes none");
   if (b.count() > expected_.limits.max_vertices_per_chunk)
     return fail(fmt::format("VertexBatch of {} vertices exceeds max_vertices_per_chunk {}", b.count(),
                             expected_.limits.max_vertices_per_chunk));
   if (b.packed().size() != uint64_t(b.count()) * VertexCodec::kPackedBytes)
     return fail(fmt::format("VertexBatch packs {} bytes for {} vertices (16 each)", b.packed().size(), b.count()));
-  if (tile_.vertices.size() + b.count() > header_.vertex_count())
+  if (tile_.vertex_count() + b.count() > header_.vertex_count())
     return fail(fmt::format("more vertices than the header's vertex_count {}", header_.vertex_count()));
-  // Grow geometrically up to the announced count (decode_batch's own reserve is exact, which would
-  // copy the whole array once per batch).
-  const uint64_t need = tile_.vertices.size() + b.count();
-  if (need > tile_.vertices.capacity())
-    tile_.vertices.reserve(
-        size_t(std::min<uint64_t>(header_.vertex_count(), std::max<uint64_t>(need, 2 * tile_.vertices.capacity()))));
-  codec_.decode_batch(b.packed(), &tile_.vertices);  // total: any bits decode to a finite record
+  if (!expected_.keep_packed) {
+    // Grow geometrically up to the announced count (decode_batch's own reserve is exact, which would
+    // copy the whole array once per batch).
+    const uint64_t need = tile_.vertices.size() + b.count();
+    if (need > tile_.vertices.capacity())
+      tile_.vertices.reserve(
+          size_t(std::min<uint64_t>(header_.vertex_count(), std::max<uint64_t>(need, 2 * tile_.vertices.capacity()))));
+    codec_.decode_batch(b.packed(), &tile_.vertices);  // total: any bits decode to a finite record
+  } else if (steal && tile_.packed_vertices.empty()) {
+    tile_.packed_vertices.swap(*steal);  // the usual case: one batch per tile, no copy
+  } else {
+    tile_.packed_vertices.append(b.packed());  // std::string grows geometrically
+  }
   return std::nullopt;
 }
 
@@ -352,9 +367,9 @@ std::optional<std::string> TileResultAssembler::add_exact(const v1::ExactSamples
 std::optional<std::string> TileResultAssembler::add_trailer(const v1::TileResultTrailer& t) {
   if (pixels_covered_ != pixel_count_)
     return fail(fmt::format("trailer after {} of the tile's {} pixels", pixels_covered_, pixel_count_));
-  if (tile_.vertices.size() != header_.vertex_count())
+  if (tile_.vertex_count() != header_.vertex_count())
     return fail(
-        fmt::format("trailer after {} of the {} vertices announced", tile_.vertices.size(), header_.vertex_count()));
+        fmt::format("trailer after {} of the {} vertices announced", tile_.vertex_count(), header_.vertex_count()));
   const uint64_t exact = tile_.exact_samples.size() + tile_.dropped_exact_samples;
   if (exact != header_.exact_sample_count())
     return fail(fmt::format("trailer after {} of the {} exact samples announced", exact, header_.exact_sample_count()));

@@ -125,6 +125,11 @@ struct TileExpectation {
   std::vector<uint8_t> skip;
   /// Cap on the header's vertex_count (memory bound per tile on the master). 0: no cap.
   uint64_t max_vertices_per_tile = 0;
+  /// Keep the vertices in their 16-byte wire form (AssembledTile::packed_vertices) instead of
+  /// decoding them into VertexRecords: the master's reprojector decodes them in place
+  /// (Reprojector::reproject_packed). Every 16-byte pattern decodes to a valid record, so nothing
+  /// per vertex needs checking here.
+  bool keep_packed = false;
 };
 
 /// One complete, checked tile result.
@@ -135,10 +140,13 @@ struct AssembledTile {
   std::vector<Vec3> path_sum;                            // per tile pixel, row-major; linear RGB, finite, >= 0
   std::vector<uint32_t> path_count;                      // per tile pixel, row-major
   std::vector<VertexRecord> vertices;                    // decoded with the job's VertexCodec
+  std::string packed_vertices;                           // instead, with keep_packed: 16 bytes each
   std::vector<std::pair<uint32_t, Vec3>> exact_samples;  // (subpixel, radiance), finite, >= 0
   v1::TileWorkerStats worker_stats;                      // as the worker reported them
   uint64_t dropped_pixel_sums = 0;                       // non-finite or negative sums set to 0 (counts kept)
   uint64_t dropped_exact_samples = 0;                    // non-finite or negative exact samples left out
+
+  size_t vertex_count() const { return vertices.size() + packed_vertices.size() / VertexCodec::kPackedBytes; }
 };
 
 /// Checks a SubmitTile stream chunk by chunk and rebuilds the tile. Usage in the service: read the
@@ -153,6 +161,8 @@ class TileResultAssembler {
 
   /// Empty if the chunk is acceptable, otherwise why not (for INVALID_ARGUMENT).
   std::optional<std::string> add(const v1::TileResultChunk& chunk);
+  /// The same, but may move a vertex batch's bytes out of `chunk` instead of copying them.
+  std::optional<std::string> add(v1::TileResultChunk* chunk);
 
   /// The trailer has been accepted: every count matched and every pixel was covered once.
   bool complete() const { return complete_; }
@@ -164,7 +174,7 @@ class TileResultAssembler {
  private:
   std::optional<std::string> add_header(const v1::TileResultHeader& h);
   std::optional<std::string> add_pixels(const v1::PixelPaths& p);
-  std::optional<std::string> add_vertices(const v1::VertexBatch& b);
+  std::optional<std::string> add_vertices(const v1::VertexBatch& b, std::string* steal = nullptr);
   std::optional<std::string> add_exact(const v1::ExactSamples& e);
   std::optional<std::string> add_trailer(const v1::TileResultTrailer& t);
   std::optional<std::string> fail(std::string reason);

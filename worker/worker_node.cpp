@@ -50,7 +50,7 @@ constexpr Millis kFetchDeadlineBase = 60s;
 constexpr Millis kSubmitDeadlineBase = 30s;
 constexpr double kSlowLinkBytesPerSecond = 1e6;
 constexpr int kSubmitAttempts = 3;                  // SubmitTile tries on UNAVAILABLE / DEADLINE_EXCEEDED
-constexpr int kMinWaitMs = 10, kMaxWaitMs = 60000;  // bounds on the master's Wait.retry_after_ms
+constexpr int kMinWaitMs = 5, kMaxWaitMs = 60000;  // bounds on the master's Wait.retry_after_ms
 constexpr size_t kMaxFailingJobs = 256;             // job failure records kept
 
 Millis size_deadline(Millis base, double bytes) {
@@ -482,16 +482,16 @@ struct WorkerNode::Impl {
       CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
       v1::SubmitAck ack;
       auto stream = s.stub->SubmitTile(&ctx, &ack);
-      v1::TileResultChunk chunk;
-      bool broken = false;
-      while (writer.next(&chunk)) {
-        if (!stream->Write(chunk)) {
-          broken = true;  // the master closed the stream; Finish() says why
-          break;
-        }
-        chunk.Clear();
+      // The last chunk (the trailer) goes with the half-close in one write. A failed write means the
+      // master closed the stream; Finish() says why.
+      v1::TileResultChunk chunk, next;
+      for (bool have = writer.next(&chunk); have;) {
+        const bool more = writer.next(&next);
+        if (!(more ? stream->Write(chunk) : stream->Write(chunk, grpc::WriteOptions().set_last_message()))) break;
+        chunk.Swap(&next);
+        next.Clear();
+        have = more;
       }
-      if (!broken) stream->WritesDone();
       const grpc::Status status = stream->Finish();
       if (status.ok()) {
         switch (ack.outcome()) {

@@ -4,10 +4,12 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <set>
 
 #include <fmt/format.h>
 
+#include "common/image.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "master/gl_context.h"
@@ -92,10 +94,16 @@ struct JobManager::Job {
   double seconds_tracing = 0, seconds_reprojecting = 0;
   bool budget_exhausted = false;
   uint64_t version = 0;
-  std::map<std::string, std::vector<unsigned char>> previews;  // layer -> PNG
+  // Previews: a copy of the images taken at most once a second when a round closes (a running job)
+  // and the PNGs encoded from it on demand, by whoever asks (never on the reprojection thread). A
+  // finished job's previews come from its result files.
+  std::shared_ptr<const FrameImages> preview_images;
+  bool preview_reprojects = false;
+  std::map<std::string, std::vector<unsigned char>> previews;  // layer -> PNG of preview_images
   int64_t last_preview_ms = 0;
 
   // Reprojection thread only.
+  int64_t counts_ms = 0;  // when `counts` was last refreshed from the reprojector
   std::unique_ptr<Scene> scene;
   std::unique_ptr<Camera> camera;
   std::unique_ptr<FrameState> frame;
@@ -275,7 +283,7 @@ JobSnapshot JobManager::snapshot(const Job& job) const {
   s.progress = job.progress;
   s.counts = job.counts;
   const auto& o = job.request.options;
-  s.rounds_planned = (o.spp + o.paths_per_round - 1) / o.paths_per_round;
+  s.rounds_planned = rounds_planned(o);
   s.rays_traced = job.rays;
   s.vertices_received = job.vertices_received;
   s.non_finite_dropped = job.non_finite;
@@ -296,10 +304,9 @@ JobSnapshot JobManager::snapshot(const Job& job) const {
   s.finished_ms = job.finished_ms;
   const int64_t end = job.finished_ms ? job.finished_ms : now_ms();
   s.seconds_elapsed = job.started_ms ? double(end - job.started_ms) / 1000.0 : 0.0;
-  if (job.state == JobState::kRunning && job.progress.round > 0) {
-    const double per_round = s.seconds_elapsed / job.progress.round;
-    const int left = (o.spp - int(job.progress.mean_paths + 0.5) + o.paths_per_round - 1) / o.paths_per_round;
-    s.eta_seconds = per_round * std::max(0, left);
+  if (job.state == JobState::kRunning && job.progress.round > 0 && job.progress.mean_paths > 0) {
+    // At the mean pace per path so far (rounds grow, skipping makes later paths fewer: an upper bound).
+    s.eta_seconds = s.seconds_elapsed / job.progress.mean_paths * std::max(0.0, o.spp - job.progress.mean_paths);
   } else if (job.state == JobState::kDone) {
     s.eta_seconds = 0;
   }
@@ -391,12 +398,28 @@ std::optional<std::string> JobManager::result_path(const std::string& id, const 
 }
 
 std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::string& id, const std::string& layer) const {
+  std::shared_ptr<const FrameImages> images;
+  bool reprojects = false, done = false;
+  std::string dir;
+  {
+    std::lock_guard lock(mu_);
+    auto it = jobs_.find(id);
+    if (it == jobs_.end()) return std::nullopt;
+    const Job& job = *it->second;
+    if (auto p = job.previews.find(layer); p != job.previews.end()) return p->second;
+    images = job.preview_images;
+    reprojects = job.preview_reprojects;
+    done = job.state == JobState::kDone;
+    dir = job_dir(job);
+  }
+  // Encoded here, on the caller's thread, without the mutex: the rounds go on meanwhile.
+  auto png = images ? encode_preview(*images, reprojects, layer) : done ? result_preview(dir, layer) : std::nullopt;
+  if (!png) return std::nullopt;
   std::lock_guard lock(mu_);
   auto it = jobs_.find(id);
-  if (it == jobs_.end()) return std::nullopt;
-  auto p = it->second->previews.find(layer);
-  if (p == it->second->previews.end()) return std::nullopt;
-  return p->second;
+  if (it != jobs_.end() && it->second->preview_images == images && (images || it->second->state == JobState::kDone))
+    it->second->previews[layer] = *png;
+  return png;
 }
 
 // ---- workers --------------------------------------------------------------------------------------
@@ -706,6 +729,7 @@ std::variant<TileExpectation, std::string> JobManager::expect(const v1::TileResu
   e.paths_per_pixel = uint32_t(job.paths_per_pixel);
   e.skip = job.tile_skip[h.tile_index()];
   e.max_vertices_per_tile = std::max<uint64_t>(options_.max_queued_vertices, 1u << 20);
+  e.keep_packed = true;  // decoded by the reprojector, in place
   return e;
 }
 
@@ -755,7 +779,7 @@ CommitOutcome JobManager::commit(const std::string& job_id, uint32_t round, uint
     job.rays += st.rays_traced();
     job.non_finite += st.non_finite_dropped() + tile.dropped_pixel_sums + tile.dropped_exact_samples;
     job.worker_culled += st.culled_frustum() + st.culled_facing() + st.culled_not_diffuse() + st.exact_occluded();
-    job.vertices_received += tile.vertices.size() + tile.exact_samples.size();
+    job.vertices_received += tile.vertex_count() + tile.exact_samples.size();
     job.seconds_tracing += st.seconds_tracing();
     ++job.version;
     if (wit != workers_.end()) {
@@ -767,7 +791,7 @@ CommitOutcome JobManager::commit(const std::string& job_id, uint32_t round, uint
     task->job = it->second;
     task->round = round;
     task->tile_index = tile_index;
-    queued_vertices_ += tile.vertices.size() + tile.exact_samples.size();
+    queued_vertices_ += tile.vertex_count() + tile.exact_samples.size();
     task->tile = std::move(tile);
     tasks_.push_back(std::move(task));
   }
@@ -822,13 +846,26 @@ void JobManager::reprojection_loop() {
       } else if (!tasks_.empty()) {
         task = std::move(tasks_.front());
         tasks_.pop_front();
-        queued_vertices_ -= task->tile.vertices.size() + task->tile.exact_samples.size();
+        queued_vertices_ -= task->tile.vertex_count() + task->tile.exact_samples.size();
       } else if (!active_) {
         active_ = next_job();
         to_start = active_;
       }
     }
     if (to_drop) {
+      // Cancelled or failed: its last previews stay available as PNGs, the image copy goes.
+      std::shared_ptr<const FrameImages> images;
+      {
+        std::lock_guard lock(mu_);
+        images = std::move(to_drop->preview_images);
+      }
+      if (images) {
+        std::map<std::string, std::vector<unsigned char>> pngs;
+        for (const char* layer : {"combined", "pathtrace", "reprojection", "samples"})
+          if (auto png = encode_preview(*images, to_drop->preview_reprojects, layer)) pngs[layer] = std::move(*png);
+        std::lock_guard lock(mu_);
+        to_drop->previews = std::move(pngs);
+      }
       to_drop->frame.reset();
       to_drop->scene.reset();
       notify(to_drop);
@@ -964,15 +1001,25 @@ void JobManager::apply_commit(Task& task) {
   AssembledTile& t = task.tile;
   job.frame->add_paths(int(t.x0), int(t.y0), int(t.x1), int(t.y1), t.path_sum, t.path_count);
   job.frame->reproject(t.vertices);
+  job.frame->reproject_packed(t.packed_vertices);
   if (!t.exact_samples.empty()) {
     std::vector<ExactSample> exact(t.exact_samples.size());
     for (size_t i = 0; i < exact.size(); ++i) exact[i] = {t.exact_samples[i].first, t.exact_samples[i].second};
     job.frame->add_exact(exact);
   }
+  // The counts at most every 100 ms (and at the round's close): GL's counters are read back, which
+  // waits for the dispatches in flight.
+  const int64_t now = now_ms();
+  const bool refresh = now - job.counts_ms >= 100;
+  ReprojectionCounts counts;
+  if (refresh) {
+    counts = job.frame->counts();
+    job.counts_ms = now;
+  }
   bool round_done;
   {
     std::lock_guard lock(mu_);
-    job.counts = job.frame->counts();
+    if (refresh) job.counts = counts;
     job.seconds_reprojecting = job.frame->seconds_reprojecting();
     round_done = --job.remaining == 0;
   }
@@ -1005,9 +1052,11 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     return;
   }
   if (want_preview) {
-    auto previews = make_previews(*job->frame);
+    auto images = std::make_shared<const FrameImages>(job->frame->images());
     std::lock_guard lock(mu_);
-    job->previews = std::move(previews);
+    job->preview_images = std::move(images);
+    job->preview_reprojects = job->frame->reprojects();
+    job->previews.clear();
     job->last_preview_ms = now_ms();
   }
   {
@@ -1020,18 +1069,38 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
   save_round_checkpoint(job, std::move(checkpoint));  // the next round's tiles are being traced meanwhile
 }
 
-std::map<std::string, std::vector<unsigned char>> JobManager::make_previews(FrameState& frame) {
-  const FrameImages img = frame.images();
-  std::map<std::string, std::vector<unsigned char>> out;
-  out["combined"] = encode_png_srgb(img.combined);
-  out["pathtrace"] = encode_png_srgb(img.pathtrace);
-  if (frame.reprojects()) {
-    out["reprojection"] = encode_png_srgb(img.reprojection);
+std::optional<std::vector<unsigned char>> JobManager::encode_preview(const FrameImages& img, bool reprojects,
+                                                                      const std::string& layer) {
+  if (layer == "combined") return encode_png_srgb(img.combined);
+  if (layer == "pathtrace") return encode_png_srgb(img.pathtrace);
+  if (!reprojects) return std::nullopt;
+  if (layer == "reprojection") return encode_png_srgb(img.reprojection);
+  if (layer == "samples") {
     float max_m = 0;
     for (float v : img.reprojected.data) max_m = std::max(max_m, v);
-    out["samples"] = encode_png_srgb(heat_map(img.reprojected, max_m));
+    return encode_png_srgb(heat_map(img.reprojected, max_m));
   }
-  return out;
+  return std::nullopt;
+}
+
+std::optional<std::vector<unsigned char>> JobManager::result_preview(const std::string& dir, const std::string& layer) {
+  auto bytes = [](const fs::path& p) -> std::optional<std::vector<unsigned char>> {
+    std::ifstream in(p, std::ios::binary);
+    if (!in) return std::nullopt;
+    return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  };
+  try {
+    if (layer == "combined") return bytes(fs::path(dir) / "combined.png");
+    if (layer == "samples") return bytes(fs::path(dir) / "samples.png");
+    if (layer == "pathtrace" || layer == "reprojection") {
+      const fs::path exr = fs::path(dir) / (layer + ".exr");
+      if (!fs::exists(exr)) return std::nullopt;
+      return encode_png_srgb(read_image(exr.string()));
+    }
+  } catch (const std::exception& e) {
+    logger("master")->warn("preview {} from {}: {}", layer, dir, e.what());
+  }
+  return std::nullopt;
 }
 
 void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) {
@@ -1053,11 +1122,11 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     for (float v : img.reprojected.data) max_m = std::max(max_m, v);
     write("samples.png", [&](const std::string& p) { write_png_srgb(p, heat_map(img.reprojected, max_m)); });
   }
-  auto previews = make_previews(*job->frame);
   nlohmann::json stats = job->frame->statistics(job->request.options);
   {
     std::lock_guard lock(mu_);
-    job->previews = std::move(previews);
+    job->preview_images.reset();  // from now on the previews come from the result files
+    job->previews.clear();
     job->progress = job->frame->progress();
     job->counts = job->frame->counts();
     job->seconds_reprojecting = job->frame->seconds_reprojecting();

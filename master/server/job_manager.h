@@ -175,7 +175,9 @@ class JobManager {
   /// Path of a finished result file ("exr", "png", "samples.png", "json", "pathtrace.exr",
   /// "reprojection.exr"), if it exists.
   std::optional<std::string> result_path(const std::string& id, const std::string& kind) const;
-  /// PNG of a layer ("combined", "pathtrace", "reprojection", "samples") after the last round.
+  /// PNG of a layer ("combined", "pathtrace", "reprojection", "samples") as of a round that closed
+  /// at most a second after the previous preview (encoded on demand, on the calling thread), or of
+  /// the finished job's results.
   std::optional<std::vector<unsigned char>> preview_png(const std::string& id, const std::string& layer) const;
 
   // ---- workers -----------------------------------------------------------------------------------
@@ -234,7 +236,9 @@ class JobManager {
   void close_round(const std::shared_ptr<Job>& job);
   void open_round(Job& job);  // with mu_ held
   void finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted);
-  static std::map<std::string, std::vector<unsigned char>> make_previews(FrameState& frame);
+  static std::optional<std::vector<unsigned char>> encode_preview(const FrameImages& images, bool reprojects,
+                                                                  const std::string& layer);
+  static std::optional<std::vector<unsigned char>> result_preview(const std::string& dir, const std::string& layer);
   void notify(const std::shared_ptr<Job>& job);
   JobSnapshot snapshot(const Job& job) const;  // with mu_ held
   std::shared_ptr<Job> next_job() const;        // with mu_ held

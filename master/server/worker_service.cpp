@@ -35,7 +35,7 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
       header_ = chunk_.header();
       assembler_ = std::make_unique<TileResultAssembler>(std::get<TileExpectation>(std::move(e)));
     }
-    if (auto err = assembler_->add(chunk_)) return refuse(header_, *err);
+    if (auto err = assembler_->add(&chunk_)) return refuse(header_, *err);
     StartRead(&chunk_);
   }
   void OnDone() override { delete this; }

@@ -278,6 +278,54 @@ TEST(TileResultStream, BigTileRespectsTheChunkLimits) {
   }
 }
 
+// The master keeps the vertices packed (TileExpectation::keep_packed) and moves each batch's bytes out
+// of its chunk: the bytes, in order, are the vertices a decoding assembler returns.
+TEST(TileResultStream, KeptPackedVerticesAreTheDecodedOnes) {
+  const TileResult r = big_tile();
+  const Bounds3 bounds{Vec3(0.f), Vec3(1.f)};
+  const TileResultLimits limits{30'000, 2u << 20};  // 4 vertex batches
+  TileExpectation e;
+  e.job_id = "job-1";
+  e.round = 3;
+  e.tile_index = 5;
+  e.x1 = 512;
+  e.y1 = 256;
+  e.image_width = 512;
+  e.image_height = 256;
+  e.codec_bounds = bounds;
+  e.limits = limits;
+  auto chunks = split_tile_result(r, identity(), bounds, limits);
+  const AssembledTile decoded = assemble(chunks, e);
+  e.keep_packed = true;
+  TileResultAssembler a(e);
+  for (auto& c : chunks) ASSERT_FALSE(a.add(&c));
+  ASSERT_TRUE(a.complete());
+  const AssembledTile packed = a.take();
+  EXPECT_TRUE(packed.vertices.empty());
+  EXPECT_EQ(packed.vertex_count(), 100'000u);
+  ASSERT_EQ(packed.packed_vertices.size(), 16u * 100'000u);
+  std::vector<VertexRecord> unpacked;
+  ASSERT_TRUE(VertexCodec(bounds).decode_batch(packed.packed_vertices, &unpacked));
+  ASSERT_EQ(unpacked.size(), decoded.vertices.size());
+  for (size_t i = 0; i < unpacked.size(); ++i)
+    ASSERT_EQ(std::memcmp(&unpacked[i], &decoded.vertices[i], sizeof(VertexRecord)), 0) << "vertex " << i;
+  EXPECT_EQ(packed.path_count, r.path_count);
+  // A short count is still caught at the trailer.
+  e.limits = limits;
+  auto again = split_tile_result(r, identity(), bounds, limits);
+  TileResultAssembler b(e);
+  std::optional<std::string> err;
+  for (auto& c : again) {
+    if (c.has_vertices() && c.vertices().count() == 30'000) {
+      c.mutable_vertices()->set_count(29'999);
+      c.mutable_vertices()->mutable_packed()->resize(16 * 29'999);
+    }
+    if ((err = b.add(&c))) break;
+  }
+  ASSERT_TRUE(err);
+  EXPECT_NE(err->find("trailer after"), std::string::npos) << *err;
+}
+
 TEST(TileResultStream, WriterDropsWhatTheCodecRefusesAndCountsIt) {
   TileResult r;
   r.rect = {0, 0, 2, 1};

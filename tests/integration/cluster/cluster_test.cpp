@@ -29,6 +29,7 @@
 #include <vector>
 
 #include "common/image.h"
+#include "common/render_options.h"
 #include "process.h"
 
 namespace epr::testing {
@@ -52,6 +53,7 @@ struct Job {
   int k = 8;      // paths per round
   int tile = 16;
   int min_paths = 8;
+  float round_growth = RenderOptions{}.round_growth;
   uint64_t seed = 7;
 
   // The flags shared by `epr render` and `epr submit`. CPU reprojection on both sides, so that the
@@ -74,6 +76,8 @@ struct Job {
             "cpu",
             "--min-paths",
             std::to_string(min_paths),
+            "--round-growth",
+            std::to_string(round_growth),
             "--seed",
             std::to_string(seed)};
   }
@@ -435,6 +439,9 @@ TEST_F(ClusterTest, JobEndsWhenReprojectionSkipsEveryPixel) {
   job.spp = 32;
   job.k = 4;
   job.min_paths = 12;
+  // k paths in every round: with growing rounds (the default), a straggler still active when the
+  // last, larger round opens traces it whole and may end at P paths.
+  job.round_growth = 0;
   ASSERT_NO_FATAL_FAILURE(start_master());
   start_worker("w1");
   start_worker("w2");
