@@ -18,6 +18,7 @@
 #include "epr/v1/job_service.grpc.pb.h"
 #include "epr/v1/worker_service.grpc.pb.h"
 #include "master/server/master_server.h"
+#include "tests/job_results.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
 #include "wire/tile_result_stream.h"
@@ -233,58 +234,23 @@ class FarmFixture : public ::testing::Test {
     return id;
   }
 
-  v1::JobStatus status(const std::string& id) {
-    grpc::ClientContext ctx;
-    set_deadline(&ctx);
-    v1::JobId req;
-    req.set_id(id);
-    v1::JobStatus st;
-    EXPECT_TRUE(jobs_->GetJob(&ctx, req, &st).ok());
-    return st;
-  }
+  v1::JobStatus status(const std::string& id) { return job_status(*jobs_, id); }
 
-  static bool terminal(const v1::JobStatus& st) {
-    return st.state() == v1::JOB_STATE_DONE || st.state() == v1::JOB_STATE_FAILED ||
-           st.state() == v1::JOB_STATE_CANCELLED;
-  }
+  static bool terminal(const v1::JobStatus& st) { return job_terminal(st); }
 
   /// Polls until the job is in a terminal state (or `timeout`, a guard against hanging).
   v1::JobStatus wait_done(const std::string& id, std::chrono::seconds timeout = 120s) {
-    const auto until = std::chrono::steady_clock::now() + timeout;
-    v1::JobStatus st;
-    while (std::chrono::steady_clock::now() < until) {
-      st = status(id);
-      if (terminal(st)) break;
-      std::this_thread::sleep_for(20ms);
-    }
-    return st;
+    return wait_terminal([&] { return status(id); }, timeout);
   }
 
   Image fetch_image(const std::string& id, v1::ResultKind kind) {
-    grpc::ClientContext ctx;
-    set_deadline(&ctx);
-    v1::ResultRequest req;
-    req.set_job_id(id);
-    req.set_kind(kind);
-    auto reader = jobs_->FetchResult(&ctx, req);
-    v1::ResultChunk c;
-    std::string bytes;
-    while (reader->Read(&c))
-      if (c.has_data()) bytes += c.data().data();
-    EXPECT_TRUE(reader->Finish().ok());
     const std::string path = (dir_ / ("result-" + std::to_string(++fetches_) + ".exr")).string();
-    std::ofstream(path, std::ios::binary) << bytes;
-    return read_image(path);
+    return fetch_result_image(*jobs_, id, kind, 10s, path);
   }
 
   /// The job's M / M' and path-traced sums equal the single-process render's, bit for bit.
   void expect_same_as_local(const std::string& id, const RenderOptions& o) {
-    const RenderOutputs local = render_local(o);
-    const Image counts = fetch_image(id, v1::RESULT_KIND_COUNTS_EXR);
-    const Image pathtrace = fetch_image(id, v1::RESULT_KIND_PATH_TRACED_EXR);
-    ASSERT_EQ(counts.data.size(), local.counts.data.size());
-    EXPECT_EQ(counts.data, local.counts.data) << "M and M' must be identical";
-    EXPECT_EQ(pathtrace.data, local.pathtrace.data) << "path-traced sums must be identical";
+    test::expect_same_as_local([&](v1::ResultKind kind) { return fetch_image(id, kind); }, o);
   }
 
   fs::path dir_;

@@ -13,6 +13,7 @@
 #include "epr/v1/worker_service.grpc.pb.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "master/server/master_server.h"
+#include "tests/job_results.h"
 #include "wire/convert.h"
 #include "wire/tile_result_stream.h"
 #include "worker/tile_renderer.h"
@@ -107,30 +108,10 @@ class MasterServiceTest : public ::testing::Test {
     return true;
   }
 
-  v1::JobStatus status(const std::string& id) {
-    grpc::ClientContext ctx;
-    deadline(&ctx);
-    v1::JobId req;
-    req.set_id(id);
-    v1::JobStatus st;
-    EXPECT_TRUE(jobs_->GetJob(&ctx, req, &st).ok());
-    return st;
-  }
+  v1::JobStatus status(const std::string& id) { return test::job_status(*jobs_, id); }
 
   std::string fetch(const std::string& id, v1::ResultKind kind, grpc::Status* status_out = nullptr) {
-    grpc::ClientContext ctx;
-    deadline(&ctx);
-    v1::ResultRequest req;
-    req.set_job_id(id);
-    req.set_kind(kind);
-    auto reader = jobs_->FetchResult(&ctx, req);
-    v1::ResultChunk c;
-    std::string bytes;
-    while (reader->Read(&c))
-      if (c.has_data()) bytes += c.data().data();
-    auto st = reader->Finish();
-    if (status_out) *status_out = st;
-    return bytes;
+    return test::fetch_result_bytes(*jobs_, id, kind, std::chrono::seconds(10), status_out);
   }
 
   std::unique_ptr<MasterServer> server_;

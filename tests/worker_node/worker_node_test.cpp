@@ -17,6 +17,7 @@
 #include "common/image.h"
 #include "epr/v1/job_service.grpc.pb.h"
 #include "master/server/master_server.h"
+#include "tests/job_results.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
 
@@ -118,43 +119,17 @@ class WorkerNodeTest : public ::testing::Test {
 
   // Waits until the job is in a terminal state (or `timeout`); returns its last status.
   v1::JobStatus wait_done(const std::string& id, std::chrono::seconds timeout = 120s) {
-    const auto until = std::chrono::steady_clock::now() + timeout;
-    v1::JobStatus st;
-    while (std::chrono::steady_clock::now() < until) {
-      st = status(id);
-      if (st.state() == v1::JOB_STATE_DONE || st.state() == v1::JOB_STATE_FAILED ||
-          st.state() == v1::JOB_STATE_CANCELLED)
-        break;
-      std::this_thread::sleep_for(20ms);
-    }
-    return st;
+    return test::wait_terminal([&] { return status(id); }, timeout);
   }
 
   Image fetch_image(const std::string& id, v1::ResultKind kind) {
-    grpc::ClientContext ctx;
-    ctx.set_deadline(std::chrono::system_clock::now() + 10s);
-    v1::ResultRequest req;
-    req.set_job_id(id);
-    req.set_kind(kind);
-    auto reader = jobs_->FetchResult(&ctx, req);
-    v1::ResultChunk c;
-    std::string bytes;
-    while (reader->Read(&c))
-      if (c.has_data()) bytes += c.data().data();
-    EXPECT_TRUE(reader->Finish().ok());
     const std::string path = (cache_ / ("result-" + std::to_string(++fetches_) + ".exr")).string();
-    std::ofstream(path, std::ios::binary) << bytes;
-    return read_image(path);
+    return test::fetch_result_image(*jobs_, id, kind, 10s, path);
   }
 
   // The job's M / M' and path-traced sums must equal the single-process render's, bit for bit.
   void expect_same_as_local(const std::string& id, const RenderOptions& o) {
-    const RenderOutputs local = render_local(o);
-    const Image counts = fetch_image(id, v1::RESULT_KIND_COUNTS_EXR);
-    const Image pathtrace = fetch_image(id, v1::RESULT_KIND_PATH_TRACED_EXR);
-    ASSERT_EQ(counts.data.size(), local.counts.data.size());
-    EXPECT_EQ(counts.data, local.counts.data) << "M and M' must be identical";
-    EXPECT_EQ(pathtrace.data, local.pathtrace.data) << "path-traced sums must be identical";
+    test::expect_same_as_local([&](v1::ResultKind kind) { return fetch_image(id, kind); }, o);
   }
 
   fs::path cache_;

@@ -18,6 +18,7 @@
 #include "client/local_render.h"
 #include "common/image.h"
 #include "epr/v1/job_service.grpc.pb.h"
+#include "tests/job_results.h"
 #include "tests/integration/cluster/process.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
@@ -194,20 +195,8 @@ TEST(LoadTest, ManyClientsQueuedJobsAndChurningWorkers) {
   // Every job equals the single-process render.
   auto stub = v1::JobService::NewStub(grpc::CreateChannel(target, grpc::InsecureChannelCredentials()));
   auto fetch = [&](const std::string& id, v1::ResultKind kind) {
-    grpc::ClientContext ctx;
-    deadline(ctx, kCallDeadline);
-    v1::ResultRequest req;
-    req.set_job_id(id);
-    req.set_kind(kind);
-    auto reader = stub->FetchResult(&ctx, req);
-    v1::ResultChunk ch;
-    std::string bytes;
-    while (reader->Read(&ch))
-      if (ch.has_data()) bytes += ch.data().data();
-    EXPECT_TRUE(reader->Finish().ok());
     const fs::path p = dir / (id + "-" + std::to_string(int(kind)) + ".exr");
-    std::ofstream(p, std::ios::binary) << bytes;
-    return read_image(p.string());
+    return test::fetch_result_image(*stub, id, kind, kCallDeadline, p.string());
   };
   uint64_t pixels = 0;
   for (int c = 0; c < kClients; ++c) {
