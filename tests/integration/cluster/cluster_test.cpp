@@ -30,17 +30,13 @@
 
 #include "common/image.h"
 #include "common/render_options.h"
+#include "binaries.h"
 #include "process.h"
 
 namespace epr::testing {
 namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
-using Args = std::vector<std::string>;
-
-const std::string kEpr = EPR_CLIENT_BIN;
-const std::string kMaster = EPR_MASTER_BIN;
-const std::string kWorker = EPR_WORKER_BIN;
 
 // ---- jobs ----------------------------------------------------------------------------------------
 

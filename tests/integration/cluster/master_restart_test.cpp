@@ -27,17 +27,13 @@
 #include <vector>
 
 #include "common/image.h"
+#include "binaries.h"
 #include "process.h"
 
 namespace epr::testing {
 namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
-using Args = std::vector<std::string>;
-
-const std::string kEpr = EPR_CLIENT_BIN;
-const std::string kMaster = EPR_MASTER_BIN;
-const std::string kWorker = EPR_WORKER_BIN;
 
 // A second or two of tracing for two single-threaded workers: 96x96 pixels in 9 tiles, up to 16 rounds
 // of 8 paths; every pixel traces for the first 12 rounds (min-paths), skipping thins out the rest.
