@@ -19,6 +19,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -27,9 +28,27 @@
 #include "common/image.h"
 #include "common/render_options.h"
 
+#ifndef EPR_SOURCE_DIR
+#define EPR_SOURCE_DIR "."
+#endif
+
 namespace epr::bench {
 
 namespace fs = std::filesystem;
+
+/// The reference cache folder of the source tree (bench/cache).
+inline std::string default_cache_dir() { return std::string(EPR_SOURCE_DIR) + "/bench/cache"; }
+
+/// The options every error-measuring benchmark takes: image size, reference spp and its cache folder,
+/// tracing threads and the share of pixels the trimmed rMSE leaves out.
+inline void add_common_options(CLI::App& app, int* size, int* ref_spp, std::string* cache, int* threads,
+                               double* trim) {
+  app.add_option("--size", *size, "image side, pixels");
+  app.add_option("--ref-spp", *ref_spp, "reference spp (two halves of ref-spp/2, cached)");
+  app.add_option("--cache", *cache, "reference cache folder");
+  app.add_option("--threads", *threads, "tracing threads (0: all cores)");
+  app.add_option("--trim", *trim, "share of the largest per-pixel errors left out of the trimmed rMSE");
+}
 
 constexpr float kRelEps = 0.01f;  // the rMSE denominator's offset (radiance^2)
 

@@ -59,10 +59,6 @@
 #include "worker/embree_scene.h"
 #include "worker/tile_renderer.h"
 
-#ifndef EPR_SOURCE_DIR
-#define EPR_SOURCE_DIR "."
-#endif
-
 using namespace epr;
 using namespace epr::bench;
 namespace fs = std::filesystem;
@@ -410,17 +406,13 @@ int main(int argc, char** argv) {
   std::vector<std::string> only;
   std::string out_dir = std::string(EPR_SOURCE_DIR) + "/docs/results/failure";
   std::string csv_file, full_dir;
-  std::string cache = std::string(EPR_SOURCE_DIR) + "/bench/cache";
-  app.add_option("--size", size, "image side, pixels");
+  std::string cache = default_cache_dir();
+  add_common_options(app, &size, &ref_spp, &cache, &threads, &g_trim);
   app.add_option("--spp", spp, "P: paths per pixel for every render (rp and pt alike)");
-  app.add_option("--ref-spp", ref_spp, "reference spp (two halves of ref-spp/2, cached)");
   app.add_option("--case", only, "run only these cases");
   app.add_option("--out", out_dir, "folder for the PNG strips ('' for none)");
   app.add_option("--csv", csv_file, "CSV file (default OUT/failure_study.csv)");
-  app.add_option("--cache", cache, "reference cache folder");
-  app.add_option("--threads", threads, "tracing threads (0: all cores)");
   app.add_option("--full", full_dir, "also write every full image as PNG to this folder");
-  app.add_option("--trim", g_trim, "share of the largest per-pixel errors left out of the trimmed rMSE");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
   if (csv_file.empty() && !out_dir.empty()) csv_file = out_dir + "/failure_study.csv";

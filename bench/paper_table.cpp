@@ -56,10 +56,6 @@
 #include "master/frame_state.h"
 #include "master/gl_context.h"
 
-#ifndef EPR_SOURCE_DIR
-#define EPR_SOURCE_DIR "."
-#endif
-
 using namespace epr;
 using namespace epr::bench;
 namespace fs = std::filesystem;
@@ -141,18 +137,14 @@ int main(int argc, char** argv) {
   CLI::App app{"The paper's table: vertex fates, reprojection overhead, pixel skipping against path tracing"};
   int size = 256, spp = 64, rp_spp = 16, ref_spp = 1024, threads = 0, subpixels = 4;
   std::vector<std::string> scenes = {"builtin:cornell", "builtin:conference", "builtin:hall"};
-  std::string cache = std::string(EPR_SOURCE_DIR) + "/bench/cache";
+  std::string cache = default_cache_dir();
   bool no_embedded = false;
-  app.add_option("--size", size, "image side, pixels");
+  add_common_options(app, &size, &ref_spp, &cache, &threads, &g_trim);
   app.add_option("--spp", spp, "P for skip and pt");
   app.add_option("--rp-spp", rp_spp, "P for the rp (statistics) renders");
-  app.add_option("--ref-spp", ref_spp, "reference spp (two halves of ref-spp/2, cached)");
   app.add_option("--scene", scenes, "scene specs");
-  app.add_option("--cache", cache, "reference cache folder");
   app.add_option("-S,--subpixels", subpixels);
-  app.add_option("--threads", threads, "tracing threads (0: all cores)");
   app.add_flag("--no-embedded", no_embedded, "skip the embedded (gRPC) comparison");
-  app.add_option("--trim", g_trim, "share of the largest per-pixel errors left out of the trimmed rMSE");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
 

@@ -55,16 +55,13 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "bench_reference.h"
 #include "client/local_render.h"
 #include "common/builtin_scenes.h"
 #include "common/image.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "master/frame_state.h"
-
-#ifndef EPR_SOURCE_DIR
-#define EPR_SOURCE_DIR "."
-#endif
 
 using namespace epr;
 namespace fs = std::filesystem;
@@ -75,17 +72,8 @@ namespace {
 constexpr float kRelEps = 0.01f;            // the rMSE denominator's offset (radiance^2)
 constexpr const char* kRendererTag = "pt-v1";  // bump when the path tracer's image changes
 
-double cpu_seconds() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-}
-
-double load1() {
-  double l[3] = {0, 0, 0};
-  getloadavg(l, 3);
-  return l[0];
-}
+using bench::cpu_seconds;
+using bench::load1;
 
 std::string scene_name(const std::string& spec) {
   std::string s = spec.substr(spec.find(':') + 1);
@@ -417,24 +405,20 @@ int main(int argc, char** argv) {
                                      "builtin:glossy"};
   std::vector<std::string> modes = {"pt", "rp", "skip", "exact"};
   std::vector<int> targets = {64, 256};
-  std::string cache = std::string(EPR_SOURCE_DIR) + "/bench/cache", out_dir = "bench_out", export_dir, cycles_dir;
+  std::string cache = bench::default_cache_dir(), out_dir = "bench_out", export_dir, cycles_dir;
   bool no_strip = false, list_references = false;
-  app.add_option("--size", size, "image side, pixels");
+  bench::add_common_options(app, &size, &ref_spp, &cache, &threads, &g_trim);
   app.add_option("--spp", spp, "P: samples per pixel of every run");
-  app.add_option("--ref-spp", ref_spp, "reference spp (two cached halves of ref-spp/2)");
   app.add_option("--scene", scenes, "scene specs (builtin:NAME[?tess=N])");
   app.add_option("--mode", modes, "modes: pt, rp, skip, exact (pt is always run first)");
   app.add_option("--target", targets, "the P of plain path tracing whose error the time-to-error columns use");
-  app.add_option("--cache", cache, "reference cache folder");
   app.add_option("--out", out_dir, "output folder (csv/, strip/, summary.json, tables.md)");
   app.add_option("--cycles", cycles_dir, "folder of cycles_sweep.py results to score (SCENE_WxH/times.csv)");
   app.add_option("--export-obj", export_dir, "write the scenes as OBJ+MTL+camera into this folder and exit");
   app.add_option("-S,--subpixels", subpixels);
-  app.add_option("--threads", threads, "tracing threads (0: all cores)");
   app.add_option("--strip-p", strip_p, "equal-time strip at half of pt's CPU time for this P");
   app.add_flag("--no-strip", no_strip, "no equal-time images");
   app.add_flag("--list-references", list_references, "print the reference cache file names and exit");
-  app.add_option("--trim", g_trim, "share of the largest per-pixel errors left out of rel_mse_trim");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
 
