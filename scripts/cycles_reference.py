@@ -406,13 +406,15 @@ def main():
     print("cycles_seconds=%.6f" % seconds, flush=True)
 
 
-if __name__ == "__main__":
+def run_as_script(entry, name):
+    """Runs entry() as Blender's -P script: on an error, prints it (tagged with name) and ends the
+    process with status 1 -- Blender ignores a script's exit status in -P mode unless we exit the
+    process ourselves."""
     try:
-        main()
+        entry()
     except SystemExit as e:
-        # Blender ignores a script's exit status in -P mode unless we exit the process ourselves
         if e.code not in (None, 0):
-            print("cycles_reference: error: %s" % e.code, file=sys.stderr, flush=True)
+            print("%s: error: %s" % (name, e.code), file=sys.stderr, flush=True)
             sys.stdout.flush()
             os._exit(1)
         raise
@@ -422,3 +424,7 @@ if __name__ == "__main__":
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(1)
+
+
+if __name__ == "__main__":
+    run_as_script(main, "cycles_reference")

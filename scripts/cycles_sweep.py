@@ -112,17 +112,4 @@ def main():
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except SystemExit as e:
-        if e.code not in (None, 0):
-            print("cycles_sweep: error: %s" % e.code, file=sys.stderr, flush=True)
-            sys.stdout.flush()
-            os._exit(1)
-        raise
-    except Exception:
-        import traceback
-        traceback.print_exc()
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(1)
+    cr.run_as_script(main, "cycles_sweep")
