@@ -19,6 +19,7 @@
 #include "epr/v1/worker_service.grpc.pb.h"
 #include "master/server/master_server.h"
 #include "tests/job_results.h"
+#include "tests/running_node.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
 #include "wire/tile_result_stream.h"
@@ -46,22 +47,6 @@ inline bool eventually(const std::function<bool()>& done, std::chrono::milliseco
   }
   return true;
 }
-
-/// A WorkerNode running on its own thread.
-class RunningNode {
- public:
-  explicit RunningNode(WorkerNodeOptions o) : node_(std::move(o)), thread_([this] { node_.run(); }) {}
-  ~RunningNode() { stop(); }
-  void stop() {
-    node_.stop();
-    if (thread_.joinable()) thread_.join();
-  }
-  WorkerNodeStats stats() const { return node_.stats(); }
-
- private:
-  WorkerNode node_;
-  std::thread thread_;
-};
 
 /// A worker driven one call at a time.
 class WireWorker {

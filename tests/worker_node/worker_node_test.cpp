@@ -18,6 +18,7 @@
 #include "epr/v1/job_service.grpc.pb.h"
 #include "master/server/master_server.h"
 #include "tests/job_results.h"
+#include "tests/running_node.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
 
@@ -26,26 +27,9 @@ namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
+using test::RunningNode;
+
 const std::string kCornellObj = EPR_SOURCE_DIR "/../shared/scenes/cornell-box/CornellBox-Original.obj";
-
-// A WorkerNode running on its own thread.
-class RunningNode {
- public:
-  explicit RunningNode(WorkerNodeOptions o) : node_(std::move(o)), thread_([this] { node_.run(); }) {}
-  ~RunningNode() { stop(); }
-  /// Stops the node and waits for run() to return; the time it took.
-  std::chrono::duration<double> stop() {
-    const auto start = std::chrono::steady_clock::now();
-    node_.stop();
-    if (thread_.joinable()) thread_.join();
-    return std::chrono::steady_clock::now() - start;
-  }
-  WorkerNodeStats stats() const { return node_.stats(); }
-
- private:
-  WorkerNode node_;
-  std::thread thread_;
-};
 
 class WorkerNodeTest : public ::testing::Test {
  protected:

@@ -19,6 +19,7 @@
 #include "common/image.h"
 #include "epr/v1/job_service.grpc.pb.h"
 #include "tests/job_results.h"
+#include "tests/running_node.h"
 #include "tests/integration/cluster/process.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
@@ -27,6 +28,7 @@
 namespace epr {
 namespace {
 namespace fs = std::filesystem;
+using test::RunningNode;
 using namespace std::chrono_literals;
 using epr::testing::Process;
 using epr::testing::wait_until;
@@ -43,19 +45,6 @@ uint64_t peak_rss_bytes(pid_t pid) {
     if (line.rfind("VmHWM:", 0) == 0) return std::stoull(line.substr(6)) * 1024;
   return 0;
 }
-
-class RunningNode {
- public:
-  explicit RunningNode(WorkerNodeOptions o) : node_(std::move(o)), thread_([this] { node_.run(); }) {}
-  ~RunningNode() {
-    node_.stop();
-    thread_.join();
-  }
-
- private:
-  WorkerNode node_;
-  std::thread thread_;
-};
 
 RenderOptions job_options(int j) {
   RenderOptions o;
