@@ -42,12 +42,17 @@ TEST_F(LeaseTest, StalledTileIsCopiedToAnIdleWorkerAndTheFirstResultWins) {
       }
       ++stalled;
       const auto chunks = staller.render(*t);
+      bool released = false;
       for (;;) {
+        // Read before the heartbeat: once the job is done, one more heartbeat must still say that the
+        // tile is not wanted (the job may end between two heartbeats of the last round).
+        const bool job_done = done;
         const std::vector<bool> wanted = staller.heartbeat({t->lease_id()});
-        if (done || wanted.size() != 1 || !wanted[0]) break;
+        released = wanted.size() != 1 || !wanted[0];
+        if (released || job_done) break;
         std::this_thread::sleep_for(50ms);
       }
-      if (done) break;
+      if (!released) break;  // still wanted after the job ended: counted as missing below
       ++not_wanted;
       v1::SubmitAck ack;
       const grpc::Status st = staller.submit(chunks, &ack);
