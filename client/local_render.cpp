@@ -113,10 +113,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
       p.min_spp = fp.min_spp;
       p.mean_mprime = fp.mean_reprojected;
       p.pixels_active = double(fp.pixels_active) / (double(opts.width) * opts.height);
-      // Paths left, at the mean pace per path so far (skipping makes later paths fewer: an upper bound).
-      p.eta_seconds = frame.done() || fp.mean_paths <= 0
-                          ? 0
-                          : since(t_render) / fp.mean_paths * std::max(0.0, opts.spp - fp.mean_paths);
+      p.eta_seconds = frame.done() ? 0 : eta_seconds(fp, opts.spp, since(t_render));
       p.frame = &frame;
       progress(p);
     }

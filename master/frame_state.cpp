@@ -26,6 +26,13 @@ class ScopedTimer {
 
 }  // namespace
 
+double eta_seconds(const FrameProgress& p, int spp, double seconds) {
+  if (p.paths_traced == 0 || p.pixels_active == 0) return 0;
+  // Active pixels have all traced the same number of paths, at least the mean over all pixels.
+  const double paths_left = double(p.pixels_active) * std::max(0.0, double(spp) - p.mean_paths);
+  return seconds / double(p.paths_traced) * paths_left;
+}
+
 Image counts_image(const FrameImages& images) {
   Image out(images.path_count.width, images.path_count.height, 2);
   for (int y = 0; y < out.height; ++y)

@@ -75,6 +75,11 @@ struct FrameSnapshot {
 /// M and M' per pixel as one 2-channel image (the counts result).
 Image counts_image(const FrameImages& images);
 
+/// Seconds left for a render at `spp` that took `seconds` for the rounds in `p`: the paths still to
+/// trace by the pixels that are still active, at the pace per path so far. An upper bound when
+/// skipping (pixels keep dropping out), never counting skipped pixels. 0 if nothing is left.
+double eta_seconds(const FrameProgress& p, int spp, double seconds);
+
 class FrameState {
  public:
   /// `scene` supplies the triangles of the deep framebuffer (rp / skip modes only). `gl` is the

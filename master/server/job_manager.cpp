@@ -304,9 +304,8 @@ JobSnapshot JobManager::snapshot(const Job& job) const {
   s.finished_ms = job.finished_ms;
   const int64_t end = job.finished_ms ? job.finished_ms : now_ms();
   s.seconds_elapsed = job.started_ms ? double(end - job.started_ms) / 1000.0 : 0.0;
-  if (job.state == JobState::kRunning && job.progress.round > 0 && job.progress.mean_paths > 0) {
-    // At the mean pace per path so far (rounds grow, skipping makes later paths fewer: an upper bound).
-    s.eta_seconds = s.seconds_elapsed / job.progress.mean_paths * std::max(0.0, o.spp - job.progress.mean_paths);
+  if (job.state == JobState::kRunning && job.progress.round > 0 && job.progress.paths_traced > 0) {
+    s.eta_seconds = eta_seconds(job.progress, o.spp, s.seconds_elapsed);
   } else if (job.state == JobState::kDone) {
     s.eta_seconds = 0;
   }

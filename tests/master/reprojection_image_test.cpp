@@ -1,5 +1,6 @@
 // Downsampling (mean of non-empty subpixel means, M' = total count), the combination formula and
 // the skip mask, on hand-made inputs with known answers.
+#include "master/frame_state.h"
 #include "master/reprojection_image.h"
 
 #include <gtest/gtest.h>
@@ -84,3 +85,21 @@ TEST(SkipMask, SkipsWhenTargetReachedAndEnoughPathsTraced) {
 
 }  // namespace
 }  // namespace epr
+
+// The ETA counts only the paths the still-active pixels have left, at the pace per path so far.
+TEST(EtaSeconds, CountsOnlyActivePixelsAtThePaceSoFar) {
+  epr::FrameProgress p;
+  p.round = 4;
+  p.pixels_active = 100;
+  p.pixels_skipped = 900;
+  p.mean_paths = 4;
+  p.paths_traced = 4000;  // 1000 pixels x 4 paths in 8 s: 2 ms per path
+  EXPECT_DOUBLE_EQ(epr::eta_seconds(p, 16, 8.0), 8.0 / 4000 * 100 * 12);
+  p.pixels_active = 1000;  // nothing skipped: all pixels' 12 paths left
+  EXPECT_DOUBLE_EQ(epr::eta_seconds(p, 16, 8.0), 8.0 / 4000 * 1000 * 12);
+  p.pixels_active = 0;  // all skipped: done
+  EXPECT_EQ(epr::eta_seconds(p, 16, 8.0), 0.0);
+  p.pixels_active = 10;
+  p.mean_paths = 20;  // past P
+  EXPECT_EQ(epr::eta_seconds(p, 16, 8.0), 0.0);
+}
