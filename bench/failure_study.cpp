@@ -247,7 +247,7 @@ Run render_facing_defeated(RenderOptions o) {
   const Camera camera(o.camera_for(scene.camera), o.width, o.height);
   EmbreeScene embree(scene);
   FrameState frame(o, camera, scene, nullptr);
-  PathTracer tracer(embree, camera, o.seed, o.rr);
+  PathTracer tracer(embree, camera, o.seed, o.rr, o.mis);
   TileRenderer renderer(tracer, VertexFilter{VertexFilter::Mode::kAll, o.subpixels, true});
   const TileRect all{0, 0, o.width, o.height};
   while (!frame.done()) {

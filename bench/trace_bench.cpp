@@ -81,8 +81,8 @@ struct TraceRun {
   PathStats stats;
 };
 
-TraceRun trace(const EmbreeScene& es, const Camera& cam, int spp, uint64_t seed) {
-  PathTracer tracer(es, cam, seed, RussianRoulette::paper());
+TraceRun trace(const EmbreeScene& es, const Camera& cam, int spp, uint64_t seed, bool mis) {
+  PathTracer tracer(es, cam, seed, RussianRoulette::paper(), mis);
   TileRenderer tr(tracer, {VertexFilter::Mode::kNone});
   TileRequest req{{0, 0, cam.width(), cam.height()}, {}, {}, spp};
   TileResult r;
@@ -101,16 +101,17 @@ int main(int argc, char** argv) {
   app.add_option("--size", size, "image side of the traced frame, pixels");
   app.add_option("--spp", spp, "paths per pixel");
   app.add_option("--rays", nrays, "rays in the raw loop");
-  bool profile_pt = false;
+  bool profile_pt = false, mis = true;
+  app.add_flag("--mis,!--no-mis", mis, "direct-light estimator: MIS (default) or next event estimation only");
   app.add_flag("--profile-pt", profile_pt, "only run the path tracer, --runs times (for perf record)");
   CLI11_PARSE(app, argc, argv);
   if (scenes.empty()) scenes = {"builtin:cornell", "builtin:hall?tess=11", "builtin:hall?tess=18"};
 
   double load[3] = {0, 0, 0};
   getloadavg(load, 3);
-  std::printf("trace_bench: one thread, %dx%d pixels x %d spp per run, %d raw rays, %d runs (medians); "
+  std::printf("trace_bench: one thread, %dx%d pixels x %d spp per run (%s), %d raw rays, %d runs (medians); "
               "load average %.2f %.2f %.2f\n",
-              size, size, spp, nrays, runs, load[0], load[1], load[2]);
+              size, size, spp, mis ? "MIS" : "NEE only", nrays, runs, load[0], load[1], load[2]);
   std::printf("%-22s %9s | %-23s | %-23s | %-23s | %7s %7s | %-13s\n", "", "", "raw rays/s (M)", "pt rays/s (M)",
               "pt vertices/s (M)", "verts", "rays", "ratio verts:raw");
   std::printf("%-22s %9s | %11s %11s | %11s %11s | %11s %11s | %7s %7s | %6s %6s\n", "scene", "triangles", "wall",
@@ -119,15 +120,15 @@ int main(int argc, char** argv) {
     const Scene scene = load_scene(spec);
     EmbreeScene es(scene);
     const Camera cam(scene.camera, size, size);
-    trace(es, cam, 1, 99);  // warm-up: page faults, caches
+    trace(es, cam, 1, 99, mis);  // warm-up: page faults, caches
     if (profile_pt) {
-      for (int r = 0; r < runs; ++r) trace(es, cam, spp, uint64_t(r) + 1);
+      for (int r = 0; r < runs; ++r) trace(es, cam, spp, uint64_t(r) + 1, mis);
       continue;
     }
     std::vector<double> raw_w, raw_c, rays_w, rays_c, verts_w, verts_c, ratio_w, ratio_c, vpp, rpp;
     for (int r = 0; r < runs; ++r) {
       const Timing raw = raw_rays(es, scene.bounds(), nrays, uint64_t(r) + 1);
-      const TraceRun pt = trace(es, cam, spp, uint64_t(r) + 1);
+      const TraceRun pt = trace(es, cam, spp, uint64_t(r) + 1, mis);
       const double v = double(pt.stats.vertices), ry = double(pt.stats.rays);
       raw_w.push_back(nrays / raw.wall);
       raw_c.push_back(nrays / raw.cpu);

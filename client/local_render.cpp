@@ -61,7 +61,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   // give the same M' (DESIGN.md: determinism).
   const VertexCodec codec(scene.bounds());
 
-  PathTracer tracer(embree, camera, opts.seed, opts.rr);
+  PathTracer tracer(embree, camera, opts.seed, opts.rr, opts.mis);
   TileRenderer tile_renderer(tracer, filter_for(opts));
   const auto tiles = make_tiles(opts.width, opts.height, opts.tile_size);
   TileStats totals;

@@ -44,6 +44,9 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
       ->check(CLI::IsMember({"paper", "albedo", "off"}))->default_str("paper");
   cmd->add_option("--max-depth", extra["max-depth"],
                   "hard cap on path vertices (default 1024; with --rr off the fixed depth, default 8)");
+  cmd->add_flag("--mis,!--no-mis", o.mis,
+                "direct light by MIS of light and BSDF samples (default); --no-mis: next event estimation only")
+      ->capture_default_str();
   cmd->add_option("--tile", o.tile_size, "tile size in pixels")->capture_default_str();
   if (set == RenderFlagSet::kLocal)
     cmd->add_option("--threads", o.threads, "worker threads, 0 = all cores")->capture_default_str();

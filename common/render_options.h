@@ -46,6 +46,7 @@ struct RenderOptions {
   int min_paths = 1;                     // a pixel is never skipped before it has this many real paths
   bool reproject_glossy = false;         // failure-mode study only
   RussianRoulette rr = RussianRoulette::paper();
+  bool mis = true;                       // direct light by MIS of light and BSDF samples; false: NEE only
   int tile_size = 64;                    // pixels
   int threads = 0;                       // 0: all cores
   std::optional<Vec3> eye, look, up;     // camera overrides

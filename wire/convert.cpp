@@ -82,6 +82,7 @@ v1::JobSpec to_job_spec(const RenderOptions& o, const SceneBundleData& bundle, c
   spec.set_seed(o.seed);
   spec.set_tile_size(uint32_t(o.tile_size));
   spec.set_round_growth(o.round_growth);
+  spec.set_mis(o.mis);
   return spec;
 }
 
@@ -130,6 +131,7 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
   o.seed = spec.seed();
   if (spec.has_tile_size()) o.tile_size = int(spec.tile_size());
   if (spec.has_round_growth()) o.round_growth = spec.round_growth();
+  if (spec.has_mis()) o.mis = spec.mis();
   if (spec.has_time_budget_seconds() && !(spec.time_budget_seconds() > 0 && std::isfinite(spec.time_budget_seconds())))
     return "time budget must be a positive number of seconds";
   if (auto err = o.validate()) return err;
@@ -151,6 +153,7 @@ void to_render_settings(const RenderOptions& o, const CameraSpec& camera, const 
   to_proto_reprojection(o, out->mutable_reprojection());
   to_proto(o.rr, out->mutable_russian_roulette());
   to_proto(codec_bounds, out->mutable_codec_bounds());
+  out->set_mis(o.mis);
 }
 
 SceneBundleData from_proto(const v1::SceneFiles& files) {

@@ -13,6 +13,7 @@ namespace epr {
 struct BsdfSample {
   Vec3 wi;
   Vec3 weight;  // f * cos / pdf
+  float pdf = 0;  // solid-angle density of wi (the mixture of both lobes for the glossy material), 1/sr
   bool valid = false;
 };
 
@@ -52,7 +53,8 @@ class Bsdf {
       // Pure Lambertian: f cos / pdf = kd exactly.
       s.wi = Frame::from_normal(n_).to_world(sample_cosine_hemisphere(u));
       s.weight = kd_;
-      s.valid = dot(s.wi, n_) > 0;
+      s.pdf = cosine_hemisphere_pdf(dot(s.wi, n_));
+      s.valid = s.pdf > 0;
       return s;
     }
     if (u_lobe < p_glossy_)
@@ -62,6 +64,7 @@ class Bsdf {
     const float p = pdf(s.wi);
     if (!(p > 0)) return s;
     s.weight = eval(s.wi) * (dot(s.wi, n_) / p);
+    s.pdf = p;
     s.valid = true;
     return s;
   }

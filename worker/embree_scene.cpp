@@ -68,6 +68,9 @@ void EmbreeScene::build_emitter_table() {
     areas.push_back(area);
   }
   if (!emitters_.empty()) emitter_selection_ = AliasTable(weights);
+  double total = 0;
+  for (float w : weights) total += w;
+  inv_emitter_weight_ = total > 0 ? float(1 / total) : 0.f;
   for (size_t k = 0; k < emitters_.size(); ++k) emitters_[k].pdf_area = emitter_selection_.pmf(k) / areas[k];
 }
 

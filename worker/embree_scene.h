@@ -62,6 +62,11 @@ class EmbreeScene {
   const Emitter* sample_emitter(float u) const {
     return emitters_.empty() ? nullptr : &emitters_[emitter_selection_.sample(u)];
   }
+  /// Area density (1/m^2) with which next event estimation picks a point on an emitting triangle of
+  /// material `m`: pmf / area = area * luminance(Ke) / (total weight * area) = luminance(Ke) / total
+  /// weight, the same for every triangle of the material. 0 for a material no emitter uses (then only
+  /// BSDF sampling can find its light). Used by multiple importance sampling.
+  float emitter_pdf_area(const Material& m) const { return luminance(m.ke) * inv_emitter_weight_; }
   /// Offset in metres used to step off a surface (scaled to the scene's extent).
   float ray_epsilon() const { return ray_epsilon_; }
 
@@ -76,6 +81,7 @@ class EmbreeScene {
   std::vector<uint16_t> material16_;
   std::vector<Emitter> emitters_;
   AliasTable emitter_selection_;
+  float inv_emitter_weight_ = 0;  // 1 / sum over emitters of area x luminance(Ke)
 };
 
 }  // namespace epr

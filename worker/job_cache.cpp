@@ -116,8 +116,8 @@ std::shared_ptr<const JobContext> JobCache::build(const v1::TileLease& lease) {
   ctx->codec_bounds = from_proto(s.codec_bounds());
   ctx->scene = scene_for(lease.scene());
   ctx->camera = Camera(from_proto(s.camera()), int(s.width()), int(s.height()));
-  ctx->tracer =
-      std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed, from_proto(s.russian_roulette()));
+  ctx->tracer = std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed,
+                                             from_proto(s.russian_roulette()), !s.has_mis() || s.mis());
   return ctx;
 }
 

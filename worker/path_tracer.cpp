@@ -12,15 +12,24 @@ namespace {
 struct PathVertex {
   Vec3 position, normal;  // normal oriented towards the previous vertex
   Vec3 le;                // emitted radiance at the vertex
-  Vec3 direct;            // D_n, the next event estimate
+  Vec3 direct;            // D_n, the direct-light estimate (MIS-weighted, or NEE only)
   Vec3 weight;            // f cos / pdf / q for the continuation (0 if the path ended here)
+  float continuation_pdf = 0;  // solid-angle pdf of the continuation direction (BSDF sampling), 1/sr
   bool diffuse = true;
 };
 
+// Power heuristic (beta = 2) weight of the technique with density p_this against p_other, written
+// as 1 / (1 + (p_other / p_this)^2) so that a huge density (a grazing emitter) cannot overflow to
+// inf / inf. p_this > 0.
+inline float power_heuristic(float p_this, float p_other) {
+  const float r = p_other / p_this;
+  return 1 / (1 + r * r);
+}
+
 }  // namespace
 
-PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr)
-    : scene_(scene), camera_(camera), seed_(seed), rr_(rr) {}
+PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis)
+    : scene_(scene), camera_(camera), seed_(seed), rr_(rr), mis_(mis) {}
 
 Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) const {
   const Scene& s = scene_.scene();
@@ -47,6 +56,21 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     ++rays;
     if (!scene_.intersect(ray, 0.f, std::numeric_limits<float>::infinity(), &hit)) break;
     const Material& mat = s.materials[scene_.material(hit.prim)];
+    // MIS, BSDF-sampling half: the continuation ray of x_{n-1} found emission at x_n. It is light
+    // reflected at x_{n-1}, so it belongs to D_{n-1}, weighted by w_bsdf and carried by x_{n-1}'s
+    // continuation weight f cos / pdf / q. (Le(x_n) itself stays in the vertex below unweighted:
+    // see the back-propagation.) Two-sided emitters: |cos| at the light.
+    if (mis_ && !path.empty() && mat.emissive()) {
+      PathVertex& prev = path.back();
+      float w_bsdf = 1;  // an emitter next event estimation cannot pick: BSDF sampling is the only technique
+      const float pdf_area = scene_.emitter_pdf_area(mat);
+      if (pdf_area > 0) {
+        const float cos_y = std::abs(dot(hit.ng, ray.dir)) / length(hit.ng);  // ray.dir is unit length
+        // Edge-on (cos 0) p_light is infinite; prev.continuation_pdf > 0 (a sampled direction).
+        w_bsdf = cos_y > 0 ? power_heuristic(prev.continuation_pdf, pdf_area * hit.t * hit.t / cos_y) : 0.f;
+      }
+      prev.direct += prev.weight * mat.ke * w_bsdf;
+    }
     // Filled in place: building the vertex on the stack and copying it costs more than its shading.
     PathVertex& v = path.emplace_back();
     v.position = ray.origin + ray.dir * hit.t;
@@ -79,6 +103,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
       if (bs.valid && !is_black(bs.weight)) {
         v.weight = bs.weight / q;
+        v.continuation_pdf = bs.pdf;
         ray = {origin, bs.wi};
       }
     }
@@ -103,8 +128,14 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
           ++rays;
           // The segment from the offset origin to the light point, parametrised over [0, 1] (Embree
           // takes directions of any length); it stops about 2 eps short of the emitter.
-          if (!scene_.occluded(origin, light_pos - origin, 0.f, 1 - 2 * eps * inv_dist))
-            v.direct = bsdf.eval(to_light) * light->le * (cos_x * cos_y / (dist2 * light->pdf_area));
+          if (!scene_.occluded(origin, light_pos - origin, 0.f, 1 - 2 * eps * inv_dist)) {
+            // MIS, light-sampling half: w_light against the BSDF's density for the same direction,
+            // both in solid angle at x_n. With q = 0 (depth cap) no continuation can be traced, so
+            // BSDF sampling is no technique here and next event estimation keeps weight 1.
+            float w_light = 1;
+            if (mis_ && q > 0) w_light = power_heuristic(light->pdf_area * dist2 / cos_y, bsdf.pdf(to_light));
+            v.direct = bsdf.eval(to_light) * light->le * (w_light * cos_x * cos_y / (dist2 * light->pdf_area));
+          }
         }
       }
     }
@@ -112,6 +143,14 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
   }
 
   // ---- propagate radiance back: R_n = D_n + w_n R_{n+1} -----------------------------------------------
+  // R_n estimates the radiance x_n reflects towards x_{n-1} (its own emission excluded), whatever
+  // the direct-light estimator: with MIS, D_n = w_light NEE_n + w_n w_bsdf Le(x_{n+1}) has the
+  // expectation of NEE_n alone (the two weights sum to 1 for every direction: standard MIS), and
+  // w_n R_{n+1} estimates the rest of the reflected light as before. A record of x_n, n >= 2, is the
+  // radiance leaving x_n towards x_{n-1}, Le(x_n) + R_n, with Le(x_n) unweighted: the MIS-weighted
+  // share of Le(x_n) went into D_{n-1} (the estimate of x_{n-1}'s reflected light, part of its own
+  // record) and is a different quantity. Reprojection then shows x_n with Le + R_n from any other
+  // pixel, exactly as a path-traced sample of x_n would: Le(x_1) + R_1.
   Vec3 r(0.f);
   const size_t first_record = records ? records->size() : 0;
   if (records && path.size() > 1) records->resize(first_record + path.size() - 1);

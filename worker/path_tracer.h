@@ -4,10 +4,18 @@
 // luminance of Ke), then a BSDF-sampled continuation and Russian roulette. Radiance is propagated
 // back once the path ends:
 //     R_N = D_N,  R_n = D_n + (f_n cos_n / pdf_n / q_n) R_{n+1},  pixel sample = Le(x_1) + R_1
-// Emission found by a BSDF-sampled ray after the first vertex is not added (NEE counts it). Every
-// x_n with n >= 2 is recorded with radiance Le(x_n) + R_n.
+// D_n, the direct light reflected at x_n, is one of two estimators:
+//   * MIS (default): multiple importance sampling with the power heuristic (beta 2) of the shadow
+//     ray's light sample, weighted w_light = p_light^2 / (p_light^2 + p_bsdf^2), and the emission
+//     Le(x_{n+1}) the continuation ray hits, weighted w_bsdf = p_bsdf^2 / (p_light^2 + p_bsdf^2)
+//     and carried by f cos / pdf / q. Both densities in solid angle at x_n; p_light = emitter pmf /
+//     area * dist^2 / |cos at the light|. Removes the 1/d^2 fireflies next to area lights.
+//   * next event estimation only (DESIGN.md section 1; `mis` false): emission found by a
+//     BSDF-sampled ray after the first vertex is not added (NEE counts it). Bit-identical to the
+//     tracer before MIS.
+// Either way every x_n with n >= 2 is recorded with radiance Le(x_n) + R_n (see trace()).
 //
-// Parameters: RussianRoulette (common/render_options.h); the seed of the counter-based generator.
+// Parameters: RussianRoulette (common/render_options.h); `mis`; the seed of the counter-based generator.
 // Determinism: a path depends only on (seed, pixel, sample index): same inputs, same bits.
 // Caveat: a hard depth cap (`max_depth`, default 1024) stops pathological paths; its bias is below
 // float precision for albedos < 0.95 with the paper's roulette.
@@ -38,7 +46,7 @@ struct PathStats {
 
 class PathTracer {
  public:
-  PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr);
+  PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis = true);
 
   /// Traces path number `sample` of pixel (x, y); returns the pixel sample Le(x_1) + R_1. When
   /// `vertices` is not null, appends one record per vertex x_n, n >= 2.
@@ -46,6 +54,7 @@ class PathTracer {
 
   const Camera& camera() const { return camera_; }
   const EmbreeScene& scene() const { return scene_; }
+  bool mis() const { return mis_; }
 
  private:
   Vec3 albedo_at(const Material& m, uint32_t prim, float u, float v) const;
@@ -54,6 +63,7 @@ class PathTracer {
   Camera camera_;
   uint64_t seed_;
   RussianRoulette rr_;
+  bool mis_ = true;
 };
 
 }  // namespace epr

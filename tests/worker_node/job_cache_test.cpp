@@ -91,6 +91,18 @@ TEST(JobCache, ChangedSettingsRebuildTheJob) {
   EXPECT_EQ(cache.size(), 1u);
 }
 
+TEST(JobCache, TheTracerTakesTheDirectLightEstimatorFromTheSettings) {
+  CountingLoader loader;
+  JobCache cache(3, loader.fn());
+  auto lease = lease_for("a");
+  ASSERT_TRUE(lease.settings().has_mis());  // to_render_settings states it explicitly
+  EXPECT_TRUE(cache.get(lease)->tracer->mis());
+  lease.mutable_settings()->set_mis(false);
+  EXPECT_FALSE(cache.get(lease)->tracer->mis());
+  lease.mutable_settings()->clear_mis();  // a master that predates the field: MIS
+  EXPECT_TRUE(cache.get(lease)->tracer->mis());
+}
+
 TEST(JobCache, FailuresReachEveryWaiterAndAreRetried) {
   CountingLoader loader;
   loader.fail = true;

@@ -51,31 +51,34 @@ struct Job {
   int min_paths = 8;
   float round_growth = RenderOptions{}.round_growth;
   uint64_t seed = 7;
+  bool mis = true;  // false: --no-mis (next event estimation only)
 
   // The flags shared by `epr render` and `epr submit`. CPU reprojection on both sides, so that the
   // master's --reproject cpu does not change the job.
   Args flags() const {
-    return {scene,
-            "--width",
-            std::to_string(size),
-            "--height",
-            std::to_string(size),
-            "--spp",
-            std::to_string(spp),
-            "--paths-per-round",
-            std::to_string(k),
-            "--tile",
-            std::to_string(tile),
-            "--mode",
-            "skip",
-            "--reproject",
-            "cpu",
-            "--min-paths",
-            std::to_string(min_paths),
-            "--round-growth",
-            std::to_string(round_growth),
-            "--seed",
-            std::to_string(seed)};
+    Args a{scene,
+           "--width",
+           std::to_string(size),
+           "--height",
+           std::to_string(size),
+           "--spp",
+           std::to_string(spp),
+           "--paths-per-round",
+           std::to_string(k),
+           "--tile",
+           std::to_string(tile),
+           "--mode",
+           "skip",
+           "--reproject",
+           "cpu",
+           "--min-paths",
+           std::to_string(min_paths),
+           "--round-growth",
+           std::to_string(round_growth),
+           "--seed",
+           std::to_string(seed)};
+    if (!mis) a.push_back("--no-mis");
+    return a;
   }
 };
 
@@ -368,6 +371,27 @@ TEST_F(ClusterTest, ThreeWorkersEqualSingleProcessRender) {
   EXPECT_GE(workers_with_tiles, 2u) << "the work was not shared";
   const auto stats = load_outputs(path("cluster")).stats;
   EXPECT_EQ(tiles, stats.value("tiles_committed", uint64_t(0))) << "workers' commits against the master's count";
+}
+
+TEST_F(ClusterTest, NextEventEstimationOnlyTravelsToTheWorkers) {
+  // --no-mis must reach the workers (JobSpec.mis -> RenderSettings.mis): the cluster's image equals
+  // the single-process --no-mis render bit for bit, and differs from the MIS one.
+  Job job;
+  job.size = 48;
+  job.spp = 8;
+  job.k = 4;
+  job.min_paths = 4;
+  job.mis = false;
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  for (const char* name : {"w1", "w2"}) start_worker(name);
+  ASSERT_NO_FATAL_FAILURE(wait_for_workers(2));
+  ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("nee")));
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("nee_ref")));
+  expect_equal_to_reference(path("nee"), path("nee_ref"));
+  job.mis = true;
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("mis_ref")));
+  EXPECT_NE(exact_difference(load_outputs(path("nee")).pathtrace, load_outputs(path("mis_ref")).pathtrace), "")
+      << "the MIS and NEE-only renders are identical: the estimator option did nothing";
 }
 
 // ---- 2. the number of workers does not change the result ----------------------------------------------
