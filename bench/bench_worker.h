@@ -116,14 +116,7 @@ class BenchWorker {
     ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
     v1::SubmitAck ack;
     auto stream = stub_->SubmitTile(&ctx, &ack);
-    v1::TileResultChunk chunk, next;
-    for (bool have = writer.next(&chunk); have;) {
-      const bool more = writer.next(&next);
-      if (!(more ? stream->Write(chunk) : stream->Write(chunk, grpc::WriteOptions().set_last_message()))) break;
-      chunk.Swap(&next);
-      next.Clear();
-      have = more;
-    }
+    write_tile_result(writer, *stream);
     const grpc::Status s = stream->Finish();
     if (!s.ok()) throw std::runtime_error("SubmitTile: " + s.error_message());
     return ack;

@@ -34,6 +34,8 @@
 #include "common/math.h"
 #include "common/vertex_codec.h"
 #include "common/vertex_record.h"
+#include <grpcpp/support/sync_stream.h>
+
 #include "epr/v1/worker_service.pb.h"
 
 namespace epr {
@@ -94,6 +96,21 @@ class TileResultWriter {
   Phase phase_ = Phase::kHeader;
   size_t cursor_ = 0;  // next pixel / vertex / exact sample of the current phase
 };
+
+/// Writes every chunk of `writer` to a SubmitTile client stream (grpc::ClientWriter), the last one
+/// (the trailer) with the half-close in one write. Stops at the first failed write: the master has
+/// closed the stream, and the caller's Finish() says why.
+template <class Stream>
+void write_tile_result(TileResultWriter& writer, Stream& stream) {
+  v1::TileResultChunk chunk, next;
+  for (bool have = writer.next(&chunk); have;) {
+    const bool more = writer.next(&next);
+    if (!(more ? stream.Write(chunk) : stream.Write(chunk, grpc::WriteOptions().set_last_message()))) break;
+    chunk.Swap(&next);
+    next.Clear();
+    have = more;
+  }
+}
 
 /// All chunks at once (tests and small tiles; the worker streams with TileResultWriter).
 std::vector<v1::TileResultChunk> split_tile_result(const TileResult& result, const TileResultIdentity& identity,

@@ -482,16 +482,7 @@ struct WorkerNode::Impl {
       CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
       v1::SubmitAck ack;
       auto stream = s.stub->SubmitTile(&ctx, &ack);
-      // The last chunk (the trailer) goes with the half-close in one write. A failed write means the
-      // master closed the stream; Finish() says why.
-      v1::TileResultChunk chunk, next;
-      for (bool have = writer.next(&chunk); have;) {
-        const bool more = writer.next(&next);
-        if (!(more ? stream->Write(chunk) : stream->Write(chunk, grpc::WriteOptions().set_last_message()))) break;
-        chunk.Swap(&next);
-        next.Clear();
-        have = more;
-      }
+      write_tile_result(writer, *stream);  // the trailer goes with the half-close
       const grpc::Status status = stream->Finish();
       if (status.ok()) {
         switch (ack.outcome()) {
