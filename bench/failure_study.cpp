@@ -451,7 +451,7 @@ int main(int argc, char** argv) {
     } else {
       const int half = std::max(1, ref_spp / 2);
       double ref_cpu = 0;
-      const Image a = cached_pt(rbase, half, 1000001, cache, &ref_cpu);
+      const Image a = cached_half(rbase, half, 1000001, cache, &ref_cpu);
       const Reference r = reference(rbase, ref_spp, cache);
       ref = r.image;
       const std::vector<double> ea = rel_sq_errors(a, ref);

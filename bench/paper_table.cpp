@@ -206,7 +206,7 @@ int main(int argc, char** argv) {
     row.skip_share = 100 * num(skip.out.stats, "paths_traced") / (double(spp) * size * size);
     row.skip_wall = skip.wall;
     row.skip_cpu = skip.cpu;
-    row.skip_err = means(rel_sq_errors(skip.out.combined, ref.image)) - ref.floor;
+    row.skip_err = errors(skip.out.combined, ref.image) - ref.floor;
     std::printf("  skip P=%-3d %6.1f s wall %6.1f CPU-s  traced %.1f%% of P x pixels\n", spp, skip.wall, skip.cpu,
                 row.skip_share);
     std::fflush(stdout);
@@ -217,7 +217,7 @@ int main(int argc, char** argv) {
     const Run ptr = run_local(pt);
     row.pt_wall = ptr.wall;
     row.pt_cpu = ptr.cpu;
-    row.pt_err = means(rel_sq_errors(ptr.out.combined, ref.image)) - ref.floor;
+    row.pt_err = errors(ptr.out.combined, ref.image) - ref.floor;
     row.vertices_per_path = num(ptr.out.stats, "vertices") / std::max(1.0, num(ptr.out.stats, "paths"));
     row.paths_per_cpu_s_pt = num(ptr.out.stats, "paths") / ptr.cpu;
     std::printf("  pt   P=%-3d %6.1f s wall %6.1f CPU-s\n", spp, ptr.wall, ptr.cpu);
@@ -229,7 +229,7 @@ int main(int argc, char** argv) {
     const Run eq = run_local(pt);
     row.eq_wall = eq.wall;
     row.eq_cpu = eq.cpu;
-    row.eq_err = means(rel_sq_errors(eq.out.combined, ref.image)) - ref.floor;
+    row.eq_err = errors(eq.out.combined, ref.image) - ref.floor;
     std::printf("  pt   P=%-3d %6.1f s wall %6.1f CPU-s  (same CPU time as skip)\n", row.eq_spp, eq.wall, eq.cpu);
     std::fflush(stdout);
     // pt's error curve: P/4, P/2, the equal-time spp and P, for the spp at which pt matches skip.
@@ -238,7 +238,7 @@ int main(int argc, char** argv) {
       if (q < 1 || q == row.eq_spp || q == spp) continue;
       pt.spp = q;
       const Run c = run_local(pt);
-      row.pt_curve.emplace_back(q, (means(rel_sq_errors(c.out.combined, ref.image)) - ref.floor).trimmed);
+      row.pt_curve.emplace_back(q, (errors(c.out.combined, ref.image) - ref.floor).trimmed);
       std::printf("  pt   P=%-3d %6.1f s wall %6.1f CPU-s  (error curve)\n", q, c.wall, c.cpu);
       std::fflush(stdout);
     }

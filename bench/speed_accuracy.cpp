@@ -69,128 +69,14 @@ using nlohmann::json;
 
 namespace {
 
-constexpr float kRelEps = 0.01f;            // the rMSE denominator's offset (radiance^2)
-constexpr const char* kRendererTag = "pt-v1";  // bump when the path tracer's image changes
-
 using bench::cpu_seconds;
+using bench::ErrorMeans;
+using bench::errors;
 using bench::load1;
-
-std::string scene_name(const std::string& spec) {
-  std::string s = spec.substr(spec.find(':') + 1);
-  for (char& ch : s)
-    if (!std::isalnum(static_cast<unsigned char>(ch))) ch = '_';
-  return s;
-}
-
-// ---------------------------------------------------------------------------------------------------
-// Error metric
-// ---------------------------------------------------------------------------------------------------
-
-double g_trim = 0.01;
-
-struct Errors {
-  double rel = 0, rel_trim = 0, mse = 0;
-  Errors operator-(const Errors& o) const { return {rel - o.rel, rel_trim - o.rel_trim, mse - o.mse}; }
-};
-
-Errors errors(const Image& x, const Image& ref) {
-  if (x.width != ref.width || x.height != ref.height)
-    throw std::runtime_error(fmt::format("image is {}x{}, reference {}x{}", x.width, x.height, ref.width, ref.height));
-  const size_t n = size_t(ref.width) * size_t(ref.height);
-  std::vector<double> e(n, 0.0);
-  Errors out;
-  for (size_t p = 0; p < n; ++p)
-    for (int c = 0; c < 3; ++c) {
-      const double r = ref.data[p * size_t(ref.channels) + size_t(c)];
-      const double d = double(x.data[p * size_t(x.channels) + size_t(c)]) - r;
-      e[p] += d * d / (r * r + kRelEps) / 3;
-      out.mse += d * d / 3;
-    }
-  out.mse /= double(n);
-  for (double v : e) out.rel += v;
-  out.rel /= double(n);
-  const size_t keep = n - size_t(double(n) * g_trim);
-  std::nth_element(e.begin(), e.begin() + ptrdiff_t(keep), e.end());
-  for (size_t i = 0; i < keep; ++i) out.rel_trim += e[i];
-  out.rel_trim /= double(keep);
-  return out;
-}
-
-// ---------------------------------------------------------------------------------------------------
-// Cached reference
-// ---------------------------------------------------------------------------------------------------
-
-struct Reference {
-  Image image;   // (a + b) / 2
-  Errors floor;  // of (a - b)^2 / 4: what the reference's own noise adds to every figure
-};
-
-uint64_t fnv1a(const std::string& s) {
-  uint64_t h = 1469598103934665603ull;
-  for (unsigned char c : s) h = (h ^ c) * 1099511628211ull;
-  return h;
-}
-
-std::string reference_file(const RenderOptions& o, int w, int h, int spp, uint64_t seed) {
-  const std::string key = fmt::format("{}|{}|{}x{}|spp={}|seed={}|rr={},{},{},{}", kRendererTag, o.scene, w, h, spp,
-                                      seed, int(o.rr.mode), o.rr.start_depth, o.rr.termination, o.rr.max_depth);
-  return fmt::format("ref_{}_{}x{}_pt{}_seed{}_{:016x}.exr", scene_name(o.scene), w, h, spp, seed, fnv1a(key));
-}
-
-Image downsample2(const Image& a) {
-  Image out(a.width / 2, a.height / 2, 3);
-  for (int y = 0; y < out.height; ++y)
-    for (int x = 0; x < out.width; ++x)
-      out.set_rgb(x, y, (a.rgb(2 * x, 2 * y) + a.rgb(2 * x + 1, 2 * y) + a.rgb(2 * x, 2 * y + 1) +
-                         a.rgb(2 * x + 1, 2 * y + 1)) *
-                            0.25f);
-  return out;
-}
-
-void write_atomic(const fs::path& file, const Image& img) {
-  fs::create_directories(file.parent_path());
-  const fs::path tmp = file.parent_path() / ("." + file.filename().string());
-  write_exr(tmp.string(), img);
-  fs::rename(tmp, file);
-}
-
-Image cached_half(const RenderOptions& base, int spp, uint64_t seed, const fs::path& cache) {
-  const fs::path file = cache / reference_file(base, base.width, base.height, spp, seed);
-  if (fs::exists(file)) return read_image(file.string());
-  const fs::path twice = cache / reference_file(base, 2 * base.width, 2 * base.height, spp, seed);
-  if (fs::exists(twice)) {
-    std::printf("  reference %s: 2x2 box average of %s\n", file.filename().c_str(), twice.filename().c_str());
-    const Image img = downsample2(read_image(twice.string()));
-    write_atomic(file, img);
-    return img;
-  }
-  RenderOptions o = base;
-  o.mode = RenderMode::kPathTrace;
-  o.spp = spp;
-  o.seed = seed;
-  o.paths_per_round = std::min(spp, 16);  // fewer round barriers; the sample indices are the same
-  std::printf("  rendering reference %s (pt, %d spp) ...\n", file.filename().c_str(), spp);
-  std::fflush(stdout);
-  const double c0 = cpu_seconds();
-  const auto t0 = std::chrono::steady_clock::now();
-  const RenderOutputs out = render_local(o);
-  std::printf("  ... %.1f s wall, %.1f CPU-s\n",
-              std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), cpu_seconds() - c0);
-  write_atomic(file, out.combined);
-  return out.combined;
-}
-
-Reference reference(const RenderOptions& base, int spp, const fs::path& cache) {
-  const int half = std::max(1, spp / 2);
-  const Image a = cached_half(base, half, 1000001, cache);
-  const Image b = cached_half(base, half, 1000002, cache);
-  Reference ref;
-  ref.image = Image(a.width, a.height, 3);
-  for (int y = 0; y < a.height; ++y)
-    for (int x = 0; x < a.width; ++x) ref.image.set_rgb(x, y, (a.rgb(x, y) + b.rgb(x, y)) * 0.5f);
-  ref.floor = errors(a, ref.image);  // (a - r)^2 = (a - b)^2 / 4
-  return ref;
-}
+using bench::Reference;
+using bench::reference;
+using bench::reference_file;
+using bench::scene_name;
 
 // ---------------------------------------------------------------------------------------------------
 // Runs
@@ -199,7 +85,7 @@ Reference reference(const RenderOptions& base, int spp, const fs::path& cache) {
 struct Sample {
   int round = 0;
   double wall = 0, cpu = 0, eye_paths = 0, reprojected = 0, mean_spp = 0;
-  Errors raw, err;  // err = raw - floor
+  ErrorMeans raw, err;  // err = raw - floor
 };
 
 struct Snapshot {
@@ -276,12 +162,12 @@ void write_csv(const fs::path& file, const std::vector<Sample>& samples) {
        "rel_mse_trim_raw,rmse_raw\n";
   for (const Sample& s : samples)
     f << fmt::format("{},{:.4f},{:.4f},{:.0f},{:.0f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}\n", s.round, s.wall,
-                     s.cpu, s.eye_paths, s.reprojected, s.mean_spp, s.err.rel, s.err.rel_trim,
-                     std::sqrt(std::max(0.0, s.err.mse)), s.raw.rel, s.raw.rel_trim, std::sqrt(s.raw.mse));
+                     s.cpu, s.eye_paths, s.reprojected, s.mean_spp, s.err.full, s.err.trimmed,
+                     std::sqrt(std::max(0.0, s.err.mse)), s.raw.full, s.raw.trimmed, std::sqrt(s.raw.mse));
 }
 
 // The error column a table uses: trimmed or full relative MSE (reference noise subtracted).
-double metric(const Sample& s, bool trimmed) { return trimmed ? s.err.rel_trim : s.err.rel; }
+double metric(const Sample& s, bool trimmed) { return trimmed ? s.err.trimmed : s.err.full; }
 
 // log(time) at which log(error) crosses `target` on the segment between rounds a and b.
 double crossing(const Sample& a, const Sample& b, double target, bool use_cpu, bool trimmed) {
@@ -407,7 +293,7 @@ int main(int argc, char** argv) {
   std::vector<int> targets = {64, 256};
   std::string cache = bench::default_cache_dir(), out_dir = "bench_out", export_dir, cycles_dir;
   bool no_strip = false, list_references = false;
-  bench::add_common_options(app, &size, &ref_spp, &cache, &threads, &g_trim);
+  bench::add_common_options(app, &size, &ref_spp, &cache, &threads, &bench::g_trim);
   app.add_option("--spp", spp, "P: samples per pixel of every run");
   app.add_option("--scene", scenes, "scene specs (builtin:NAME[?tess=N])");
   app.add_option("--mode", modes, "modes: pt, rp, skip, exact (pt is always run first)");
@@ -451,7 +337,7 @@ int main(int argc, char** argv) {
                   {"subpixels", subpixels},
                   {"threads", threads},
                   {"hardware_threads", std::thread::hardware_concurrency()},
-                  {"trim", g_trim},
+                  {"trim", bench::g_trim},
                   {"load_start", load1()},
                   {"scenes", json::array()}};
   std::printf("speed_accuracy: %dx%d, P=%d, reference %d spp, %u hardware threads, tracer threads %s, load %.2f\n",
@@ -475,7 +361,7 @@ int main(int argc, char** argv) {
     json js = {{"scene", spec},
                {"tag", tag},
                {"triangles", load_scene(spec).triangle_count()},
-               {"floor", {{"rel_mse", ref.floor.rel}, {"rel_mse_trim", ref.floor.rel_trim}, {"mse", ref.floor.mse}}},
+               {"floor", {{"rel_mse", ref.floor.full}, {"rel_mse_trim", ref.floor.trimmed}, {"mse", ref.floor.mse}}},
                {"load_start", load1()},
                {"modes", json::object()}};
 
@@ -491,7 +377,7 @@ int main(int argc, char** argv) {
       Run run = run_mode(base, mode, ref, keep);
       const Sample& last = run.samples.back();
       std::printf("  %-5s %4d rounds  %7.1f s wall %7.1f CPU-s  paths %.3g  M' %.3g  rMSE(trim) %.4g  load %.2f\n",
-                  mode.c_str(), last.round, last.wall, last.cpu, last.eye_paths, last.reprojected, last.err.rel_trim,
+                  mode.c_str(), last.round, last.wall, last.cpu, last.eye_paths, last.reprojected, last.err.trimmed,
                   load1());
       std::fflush(stdout);
       write_csv(out / "csv" / (tag + "_" + mode + ".csv"), run.samples);
@@ -505,8 +391,8 @@ int main(int argc, char** argv) {
       stats["load_after"] = load1();
       stats["final_wall_s"] = last.wall;
       stats["final_cpu_s"] = last.cpu;
-      stats["final_rel_mse"] = last.err.rel;
-      stats["final_rel_mse_trim"] = last.err.rel_trim;
+      stats["final_rel_mse"] = last.err.full;
+      stats["final_rel_mse_trim"] = last.err.trimmed;
       stats["final_rmse"] = std::sqrt(std::max(0.0, last.err.mse));
       js["modes"][mode] = stats;
       runs[mode] = std::move(run);
@@ -524,7 +410,7 @@ int main(int argc, char** argv) {
         if (!best) continue;
         write_exr((out / "strip" / (tag + "_" + mode + ".exr")).string(), best->combined);
         strip[mode] = {{"round", best->round}, {"cpu_s", best->cpu},
-                       {"rel_mse_trim", (errors(best->combined, ref.image) - ref.floor).rel_trim}};
+                       {"rel_mse_trim", (errors(best->combined, ref.image) - ref.floor).trimmed}};
         if (mode == "skip") {
           float max_m = 0;
           for (float v : best->mprime.data) max_m = std::max(max_m, v);
@@ -544,8 +430,8 @@ int main(int argc, char** argv) {
         write_csv(out / "csv" / (tag + "_cycles.csv"), cycles);
         json cj = json::array();
         for (const Sample& s : cycles)
-          cj.push_back({{"spp", s.round}, {"wall_s", s.wall}, {"cpu_s", s.cpu}, {"rel_mse_trim", s.err.rel_trim},
-                        {"rel_mse", s.err.rel}});
+          cj.push_back({{"spp", s.round}, {"wall_s", s.wall}, {"cpu_s", s.cpu}, {"rel_mse_trim", s.err.trimmed},
+                        {"rel_mse", s.err.full}});
         js["cycles"] = cj;
         std::printf("  cycles: %zu renders scored\n", cycles.size());
       }
