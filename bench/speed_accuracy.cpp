@@ -85,6 +85,7 @@ using bench::scene_name;
 struct Sample {
   int round = 0;
   double wall = 0, cpu = 0, eye_paths = 0, reprojected = 0, mean_spp = 0;
+  double spp = 0;  // paths per pixel the round schedule has reached (traced + skipped; = pt's M)
   ErrorMeans raw, err;  // err = raw - floor
 };
 
@@ -139,13 +140,14 @@ Run run_mode(const RenderOptions& base, const std::string& mode, const Reference
     s.eye_paths = double(fp.paths_traced);
     s.reprojected = fp.mean_reprojected * pixels;
     s.mean_spp = fp.mean_spp;
+    s.spp = double(fp.paths_traced + fp.paths_skipped) / pixels;
     const double rp0 = p.frame->seconds_reprojecting();
     FrameImages img = p.frame->images();
     run.eval_reprojecting += p.frame->seconds_reprojecting() - rp0;
     s.raw = errors(img.combined, ref.image);
     s.err = s.raw - ref.floor;
     run.samples.push_back(s);
-    if (keep_snapshot && keep_snapshot(s.round, s.cpu))
+    if (keep_snapshot && keep_snapshot(int(std::lround(s.spp)), s.cpu))
       run.snapshots.push_back({s.cpu, s.round, std::move(img.combined), std::move(img.reprojected)});
     excluded_wall += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_in).count();
     excluded_cpu += cpu_seconds() - c_in;
@@ -159,15 +161,37 @@ void write_csv(const fs::path& file, const std::vector<Sample>& samples) {
   std::ofstream f(file);
   if (!f) throw std::runtime_error("cannot write " + file.string());
   f << "round,wall_s,cpu_s,eye_paths,reprojected_samples,mean_spp,rel_mse,rel_mse_trim,rmse,rel_mse_raw,"
-       "rel_mse_trim_raw,rmse_raw\n";
+       "rel_mse_trim_raw,rmse_raw,spp\n";
   for (const Sample& s : samples)
-    f << fmt::format("{},{:.4f},{:.4f},{:.0f},{:.0f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}\n", s.round, s.wall,
+    f << fmt::format("{},{:.4f},{:.4f},{:.0f},{:.0f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.4f}\n", s.round, s.wall,
                      s.cpu, s.eye_paths, s.reprojected, s.mean_spp, s.err.full, s.err.trimmed,
-                     std::sqrt(std::max(0.0, s.err.mse)), s.raw.full, s.raw.trimmed, std::sqrt(s.raw.mse));
+                     std::sqrt(std::max(0.0, s.err.mse)), s.raw.full, s.raw.trimmed, std::sqrt(s.raw.mse), s.spp);
 }
 
 // The error column a table uses: trimmed or full relative MSE (reference noise subtracted).
 double metric(const Sample& s, bool trimmed) { return trimmed ? s.err.trimmed : s.err.full; }
+
+// A curve's state at exactly t paths per pixel: the round that ends there, or a log-log interpolation
+// between the two rounds around it (the growing round schedule need not end a round at t).
+std::optional<Sample> at_spp(const std::vector<Sample>& s, double t) {
+  for (size_t i = 0; i < s.size(); ++i) {
+    if (s[i].spp == t) return s[i];
+    if (s[i].spp < t) continue;
+    if (i == 0 || !(s[i - 1].spp > 0)) return std::nullopt;
+    const Sample &a = s[i - 1], &b = s[i];
+    const double f = (std::log(t) - std::log(a.spp)) / (std::log(b.spp) - std::log(a.spp));
+    const auto lerp = [f](double x, double y) {
+      return x > 0 && y > 0 ? std::exp(std::log(x) + f * (std::log(y) - std::log(x))) : x + f * (y - x);
+    };
+    Sample r = b;
+    r.spp = t;
+    r.wall = lerp(a.wall, b.wall);
+    r.cpu = lerp(a.cpu, b.cpu);
+    r.err = {lerp(a.err.full, b.err.full), lerp(a.err.trimmed, b.err.trimmed), lerp(a.err.mse, b.err.mse)};
+    return r;
+  }
+  return std::nullopt;
+}
 
 // log(time) at which log(error) crosses `target` on the segment between rounds a and b.
 double crossing(const Sample& a, const Sample& b, double target, bool use_cpu, bool trimmed) {
@@ -230,6 +254,7 @@ std::vector<Sample> score_cycles(const fs::path& dir, const Reference& ref) {
     s.wall = std::stod(wall);
     s.cpu = std::stod(cpu);
     s.mean_spp = s.round;
+    s.spp = s.round;
     s.eye_paths = double(s.round) * ref.image.width * ref.image.height;
     s.raw = errors(read_image((dir / file).string()), ref.image);
     s.err = s.raw - ref.floor;
@@ -381,10 +406,8 @@ int main(int argc, char** argv) {
                   load1());
       std::fflush(stdout);
       write_csv(out / "csv" / (tag + "_" + mode + ".csv"), run.samples);
-      if (mode == "pt") {
-        for (const Sample& s : run.samples)
-          if (s.round == strip_p) strip_cpu = 0.5 * s.cpu;
-      }
+      if (mode == "pt")
+        if (const auto at = at_spp(run.samples, strip_p)) strip_cpu = 0.5 * at->cpu;
       json stats = run.stats;
       stats["seconds_reprojecting_harness_reads"] = run.eval_reprojecting;
       stats["load_before"] = l0;
@@ -476,10 +499,9 @@ int main(int argc, char** argv) {
         const Sample& last = s->back();
         md << fmt::format("| {} | {:.4g} | {:.1f} | {:.1f} |", m, metric(last, trimmed), last.cpu, last.wall);
         for (int t : targets) {
-          // The target and the time it is compared with: plain path tracing's error and CPU time at round t.
-          const Sample* base = nullptr;
-          for (const Sample& p : runs["pt"].samples)
-            if (p.round == t) base = &p;
+          // The target and the time it is compared with: plain path tracing's error and CPU time at t
+          // paths per pixel.
+          const std::optional<Sample> base = at_spp(runs["pt"].samples, t);
           if (!base) {
             md << " - | - |";
             continue;

@@ -50,6 +50,23 @@ def stays_time(rows, target, key, tcol="cpu_s"):
     return rows[i][tcol] if i == 0 else interp(rows[i - 1], rows[i], target, key, tcol)
 
 
+def at_spp(rows, t):
+    """pt's row at exactly t paths per pixel: the round ending there, or log-log between the two
+    rounds around it (the growing round schedule need not end a round at t)."""
+    for i, r in enumerate(rows):
+        if r["spp"] == t:
+            return r
+        if r["spp"] > t:
+            if i == 0:
+                return None
+            a = rows[i - 1]
+            f = (math.log(t) - math.log(a["spp"])) / (math.log(r["spp"]) - math.log(a["spp"]))
+            lerp = lambda x, y: (math.exp(math.log(x) + f * (math.log(y) - math.log(x)))
+                                 if x > 0 and y > 0 else x + f * (y - x))
+            return {k: lerp(a[k], r[k]) for k in r}
+    return None
+
+
 def f3(x):
     return "-" if x is None else ("%.3g" % x)
 
@@ -67,7 +84,7 @@ def scene_tables(part_dir, js, targets, out):
             curves[m] = read_csv(p)
     pt = curves["pt"]
     size = int(tag.split("_")[-1].split("x")[0])
-    spp = max(int(r["round"]) for r in pt)
+    spp = int(round(max(r["spp"] for r in pt)))
     out.append("#### %s (%d triangles)\n" % (tag, js["triangles"]))
     if "fates" in js:
         fa = js["fates"]
@@ -85,7 +102,7 @@ def scene_tables(part_dir, js, targets, out):
             sep += "---|---|"
         out.append(head)
         out.append(sep)
-        base = {t: next((r for r in pt if int(r["round"]) == t), None) for t in targets}
+        base = {t: at_spp(pt, t) for t in targets}
         for m, rows in curves.items():
             last = rows[-1]
             line = "| %s | %.3g | %.1f | %.1f |" % (m, last[key], last["cpu_s"], last["wall_s"])
