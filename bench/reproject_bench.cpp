@@ -8,7 +8,9 @@
 // common/vertex_record.h) instead, e.g. vertex sets dumped by the path tracer.
 //
 // Each figure is the median over --runs runs of: reset, reproject all points (in the back-end's
-// batches, upload included), read the counts back (GL: waits for the GPU). Printed per back-end:
+// batches, upload included), read the counts back (GL: waits for the GPU). The "packed" rows take
+// the same points in their 16-byte wire form (reproject_packed, decoding included) in calls of 2^20
+// vertices, of 15 000 (one 64 x 64 tile, the master's calling pattern) and of 3 800 (32 x 32 tiles). Printed per back-end:
 // wall-clock points/s and points per CPU-second of the whole process (robust when other processes
 // share the machine: divide by the cores you have for an idle-machine estimate). LP_NUM_THREADS is
 // read by llvmpipe once per process, so --lp-threads re-runs this program with each value.
@@ -24,11 +26,13 @@
 #include <cstdlib>
 #include <fstream>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <CLI/CLI.hpp>
 #include <tbb/global_control.h>
 
+#include "common/vertex_codec.h"
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
 #include "master/reprojector.h"
@@ -67,6 +71,28 @@ Figure measure(Reprojector& r, const std::vector<VertexRecord>& pts, int runs) {
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     wall.push_back(double(pts.size()) / dt);
     cpu.push_back(double(pts.size()) / std::max(1e-9, cpu_seconds() - c0));
+  }
+  f.wall = median(wall);
+  f.cpu = median(cpu);
+  return f;
+}
+
+// The same, for the points in their 16-byte wire form (Reprojector::reproject_packed) in calls of
+// `call_points` vertices: the master's calling pattern is one call per tile (~3 800-15 000 vertices).
+Figure measure_packed(Reprojector& r, const std::string& packed, const VertexCodec& codec, size_t call_points, int runs) {
+  std::vector<double> wall, cpu;
+  Figure f;
+  const size_t n = packed.size() / VertexCodec::kPackedBytes, call = call_points * VertexCodec::kPackedBytes;
+  r.reproject_packed(std::string_view(packed).substr(0, size_t(1) << 20), codec);  // warm-up
+  for (int i = 0; i < runs; ++i) {
+    r.reset();
+    const double c0 = cpu_seconds();
+    const auto t0 = std::chrono::steady_clock::now();
+    for (size_t off = 0; off < packed.size(); off += call) r.reproject_packed(std::string_view(packed).substr(off, call), codec);
+    f.counts = r.counts();
+    const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    wall.push_back(double(n) / dt);
+    cpu.push_back(double(n) / std::max(1e-9, cpu_seconds() - c0));
   }
   f.wall = median(wall);
   f.cpu = median(cpu);
@@ -151,6 +177,10 @@ int main(int argc, char** argv) {
         vertices.empty() ? test::real_like_points(scene, dfb, cam, points, 42) : read_vertices(vertices);
     ReprojectorSettings settings;
     settings.epsilon = default_epsilon(scene.bounds());
+    const VertexCodec codec(scene.bounds());
+    std::string packed;  // the representable points in their wire form
+    codec.encode_batch(pts, &packed);
+    const size_t tile_call = 15000;  // one call per 64 x 64 tile (section 4 of docs/BENCHMARKS.md)
     std::printf("\n%s (%s, %zu triangles, %.1f%% of texels covered): %zu points\n", name.c_str(), scene.name.c_str(),
                 scene.triangle_count(), 100.0 * double(dfb.covered_count()) / double(dfb.texel_count()), pts.size());
 
@@ -161,6 +191,11 @@ int main(int argc, char** argv) {
       std::printf("  gl  (wg %d x %d, prefetch %s): %7.2f M points/s wall, %7.2f M points/CPU-s\n", settings.workgroups,
                   settings.workgroup_size, settings.prefetch ? "on" : "off", gl_fig.wall / 1e6, gl_fig.cpu / 1e6);
       print_counts(gl_fig.counts, pts.size());
+      for (size_t call : {size_t(1) << 20, tile_call, size_t(3800)}) {
+        const Figure f = measure_packed(*gl, packed, codec, call, runs);
+        std::printf("  gl  packed, %7zu-vertex calls:  %7.2f M points/s wall, %7.2f M points/CPU-s (%.1f ns/vertex CPU)\n",
+                    call, f.wall / 1e6, f.cpu / 1e6, 1e9 / f.cpu);
+      }
       if (sweep) {
         for (int wg : {8, 16, 32, 64, 128})
           for (int groups : {4, 16, 64})
@@ -193,6 +228,9 @@ int main(int argc, char** argv) {
       if (ctx) std::printf("   GL/CPU = %.2f", gl_fig.wall / f.wall);
       std::printf("\n");
       if (!ctx) print_counts(f.counts, pts.size());
+      const Figure fp = measure_packed(*cpu, packed, codec, tile_call, runs);
+      std::printf("  cpu packed, %7zu-vertex calls:  %7.2f M points/s wall, %7.2f M points/CPU-s (%.1f ns/vertex CPU)\n",
+                  tile_call, fp.wall / 1e6, fp.cpu / 1e6, 1e9 / fp.cpu);
     }
   }
   return 0;

@@ -138,6 +138,10 @@ class VertexCodec {
     return p;
   }
   static bool decode_diffuse(uint64_t position_bits) { return (position_bits & kDiffuseBit) != 0; }
+  /// decode_position's operands per axis, lo_q and extent / 2^21, for kernels that decode positions
+  /// themselves (the GL reprojector's compute shader).
+  const std::array<double, 3>& quantisation_origin() const { return lo_q_; }
+  const std::array<double, 3>& quantisation_cell() const { return cell_; }
 
   /// Appends the 16-byte encoding of every representable record of `in` to `out` (little-endian);
   /// returns how many were appended. Rejections are counted in `counts` if given.

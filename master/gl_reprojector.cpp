@@ -3,6 +3,7 @@
 #include "master/gl_reprojector.h"
 
 #include <algorithm>
+#include <bit>
 #include <cstring>
 #include <stdexcept>
 #include <string>
@@ -17,12 +18,66 @@ namespace epr {
 
 namespace {
 
+// ---- packed vertices: VertexCodec's decode in GLSL -------------------------------------------------
+// The 16-byte wire record (common/vertex_codec.h) read as one RGBA32UI texel: x, y = position_bits
+// (low, high word), z = normal_bits, w = radiance_bits. Each function is VertexCodec's decode_*
+// operation for operation (double precision where the codec computes in double), so the decoded
+// floats are bit for bit the CPU's (tests/master/gl_packed_test.cpp compares them on every edge case).
+constexpr const char* kPackedDecode = R"(
+layout(std430, binding = 3) readonly buffer Codec { double codec[8]; };  // lo_q.xyz, 0, cell.xyz, 0
+
+// VertexCodec::decode_position: float(lo_q + (q + 0.5) * cell) per axis, in double.
+vec3 decode_position(uvec2 bits, dvec3 lo_q, dvec3 cell) {
+  uvec3 q = uvec3(bits.x & 0x1fffffu, (bits.x >> 21) | ((bits.y & 0x3ffu) << 11), (bits.y >> 10) & 0x1fffffu);
+  precise dvec3 p = lo_q + (dvec3(q) + 0.5LF) * cell;
+  return vec3(p);
+}
+
+// VertexCodec::decode_normal: octahedral snorm16 pair, unfolded, normalised in double. x and y are
+// never -0 (an integer over 32767), so copysign(1, x) is the sign of the integer.
+vec3 decode_normal(uint bits) {
+  int ix = int(bits << 16) >> 16;  // int16 two's complement, sign-extended
+  int iy = int(bits) >> 16;
+  precise double x = max(-1.0LF, double(ix) / 32767.0LF);
+  precise double y = max(-1.0LF, double(iy) / 32767.0LF);
+  precise double z = 1.0LF - abs(x) - abs(y);
+  if (z < 0.0LF) {
+    precise double fx = (1.0LF - abs(y)) * (ix < 0 ? -1.0LF : 1.0LF);
+    precise double fy = (1.0LF - abs(x)) * (iy < 0 ? -1.0LF : 1.0LF);
+    x = fx;
+    y = fy;
+  }
+  precise double len = sqrt(x * x + y * y + z * z);
+  precise double nx = x / len;
+  precise double ny = y / len;
+  precise double nz = z / len;
+  return vec3(float(nx), float(ny), float(nz));
+}
+
+// VertexCodec::decode_radiance: m * 2^(E - 136), E = 0 black. Every product is exact in float (m < 256;
+// below 2^-126 in two steps, so that the power of two itself stays a normal float).
+vec3 decode_radiance(uint bits) {
+  uint e = bits >> 24;
+  if (e == 0u) return vec3(0.0);
+  precise vec3 m = vec3(uvec3(bits & 0xffu, (bits >> 8) & 0xffu, (bits >> 16) & 0xffu));
+  if (e >= 10u) return m * uintBitsToFloat((e - 9u) << 23);   // 2^(e-136), e - 136 >= -126
+  precise vec3 hi = m * uintBitsToFloat((e + 55u) << 23);      // 2^(e-72)
+  return hi * uintBitsToFloat(63u << 23);                      // 2^-64
+}
+)";
+
 // ---- reprojection kernel -------------------------------------------------------------------------
+// PACKED 0: 36-byte float records (reproject(); the CPU filtered glossy and non-finite ones).
+// PACKED 1: 16-byte wire records (reproject_packed(); copied as they are, decoded here, glossy ones
+// counted here unless GLOSSY).
 constexpr const char* kReprojectShader = R"(
-#extension GL_NV_shader_atomic_float : require
 layout(local_size_x = WORKGROUP_SIZE) in;
 
+#if PACKED
+uniform usamplerBuffer words;        // RGBA32UI, 1 texel per record: the 16-byte wire record
+#else
 uniform samplerBuffer records;       // RGB32F, 3 texels per record: position, normal, radiance
+#endif
 uniform usamplerBuffer texel_plane;  // R16UI or R32UI per texel: plane index, UNCOVERED if uncovered
 uniform samplerBuffer planes;        // RGBA32F per plane: N.xyz, d
 #if PREFETCH
@@ -30,9 +85,9 @@ uniform usamplerBuffer cell_view;    // RGBA32UI view of `cells`, only read to w
 #endif
 struct Cell { float r, g, b; uint n; };
 layout(std430, binding = 0) buffer Accumulation { Cell cells[]; };
-layout(std430, binding = 1) buffer Counters { uint counters[]; };  // 4 per invocation
+layout(std430, binding = 1) buffer Counters { uint counters[]; };  // COUNTERS per invocation
 
-uniform int first;    // texel of the batch's first record in `records`
+uniform int first;    // texel of the batch's first record in `records` / `words`
 uniform uint count;   // records in the batch
 uniform vec3 eye, forward_, right_, up_;
 uniform float tan_half_x, tan_half_y, width_, height_, s, grid_w, grid_h, epsilon;
@@ -41,10 +96,22 @@ uniform uint grid_wi;
 void main() {
   uint gid = gl_GlobalInvocationID.x;
   uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
-  uint n_accepted = 0u, n_culled = 0u, n_backfacing = 0u, n_occluded = 0u;
+  uint n_accepted = 0u, n_culled = 0u, n_backfacing = 0u, n_occluded = 0u, n_not_diffuse = 0u;
+#if PACKED
+  dvec3 lo_q = dvec3(codec[0], codec[1], codec[2]);
+  dvec3 cell = dvec3(codec[4], codec[5], codec[6]);
+#endif
   for (uint i = gid; i < count; i += stride) {
+#if PACKED
+    uvec4 w = texelFetch(words, first + int(i));
+#if !GLOSSY
+    if ((w.y & 0x80000000u) == 0u) { n_not_diffuse++; continue; }  // VertexCodec::kDiffuseBit
+#endif
+    vec3 p = decode_position(w.xy, lo_q, cell);
+#else
     int base = first + 3 * int(i);
     vec3 p = texelFetch(records, base).xyz;
+#endif
     // Camera::project, expression for expression.
     precise float dx = p.x - eye.x;
     precise float dy = p.y - eye.y;
@@ -58,7 +125,11 @@ void main() {
     precise float gx = rx * s;
     precise float gy = ry * s;
     if (!(gx >= 0.0 && gx < grid_w && gy >= 0.0 && gy < grid_h)) { n_culled++; continue; }
+#if PACKED
+    vec3 n = decode_normal(w.z);
+#else
     vec3 n = texelFetch(records, base + 1).xyz;
+#endif
     precise float ex = eye.x - p.x;
     precise float ey = eye.y - p.y;
     precise float ez = eye.z - p.z;
@@ -80,22 +151,49 @@ void main() {
     precise float dist = p.x * t.x + p.y * t.y + p.z * t.z - t.w;
     if (!(abs(dist) <= epsilon)) { n_occluded++; continue; }
     n_accepted++;
+#if PACKED
+    vec3 L = decode_radiance(w.w);
+#else
     vec3 L = texelFetch(records, base + 2).xyz;
+#endif
     atomicAdd(cells[idx].r, L.r);
     atomicAdd(cells[idx].g, L.g);
     atomicAdd(cells[idx].b, L.b);
     atomicAdd(cells[idx].n, 1u);
   }
-  counters[4u * gid + 0u] += n_accepted;
-  counters[4u * gid + 1u] += n_culled;
-  counters[4u * gid + 2u] += n_backfacing;
-  counters[4u * gid + 3u] += n_occluded;
+  counters[COUNTERS * gid + 0u] += n_accepted;
+  counters[COUNTERS * gid + 1u] += n_culled;
+  counters[COUNTERS * gid + 2u] += n_backfacing;
+  counters[COUNTERS * gid + 3u] += n_occluded;
+  counters[COUNTERS * gid + 4u] += n_not_diffuse;
+}
+)";
+
+// Decoding alone (GlReprojector::decode_packed): one invocation per record writes the decoded
+// position, diffuse flag, normal and radiance as 12 words.
+constexpr const char* kDecodeShader = R"(
+layout(local_size_x = 64) in;
+uniform usamplerBuffer words;
+layout(std430, binding = 2) writeonly buffer Decoded { uint decoded[]; };
+uniform uint count;
+void main() {
+  uint i = gl_GlobalInvocationID.x;
+  if (i >= count) return;
+  uvec4 w = texelFetch(words, int(i));
+  dvec3 lo_q = dvec3(codec[0], codec[1], codec[2]);
+  dvec3 cell = dvec3(codec[4], codec[5], codec[6]);
+  uvec3 p = floatBitsToUint(decode_position(w.xy, lo_q, cell));
+  uvec3 n = floatBitsToUint(decode_normal(w.z));
+  uvec3 L = floatBitsToUint(decode_radiance(w.w));
+  uint o = 12u * i;
+  decoded[o + 0u] = p.x; decoded[o + 1u] = p.y; decoded[o + 2u] = p.z; decoded[o + 3u] = w.y >> 31;
+  decoded[o + 4u] = n.x; decoded[o + 5u] = n.y; decoded[o + 6u] = n.z; decoded[o + 7u] = 0u;
+  decoded[o + 8u] = L.x; decoded[o + 9u] = L.y; decoded[o + 10u] = L.z; decoded[o + 11u] = 0u;
 }
 )";
 
 // ---- exact-mode samples --------------------------------------------------------------------------
 constexpr const char* kExactShader = R"(
-#extension GL_NV_shader_atomic_float : require
 layout(local_size_x = WORKGROUP_SIZE) in;
 uniform usamplerBuffer samples;  // RGBA32UI per sample: subpixel, radiance bits (validated on the CPU)
 struct Cell { float r, g, b; uint n; };
@@ -145,11 +243,16 @@ void main() {
 )";
 
 constexpr size_t kRecordBytes = 36;  // 9 floats
+constexpr size_t kPackedBytes = VertexCodec::kPackedBytes;
 constexpr int kSlots = 2;
+constexpr size_t kCounters = 5;  // per invocation: accepted, culled, backfacing, other occluded, not diffuse
 
-std::string shader_source(const char* body, const ReprojectorSettings& s, bool narrow_planes) {
-  return fmt::format("#version 450\n#define WORKGROUP_SIZE {}\n#define PREFETCH {}\n#define UNCOVERED {}\n{}",
-                     s.workgroup_size, s.prefetch ? 1 : 0, narrow_planes ? "0xffffu" : "0xffffffffu", body);
+std::string shader_source(const char* body, const ReprojectorSettings& s, bool narrow_planes, bool packed = false) {
+  return fmt::format(
+      "#version 450\n#extension GL_NV_shader_atomic_float : require\n#define WORKGROUP_SIZE {}\n#define PREFETCH {}\n#define UNCOVERED {}\n#define PACKED {}\n"
+      "#define GLOSSY {}\n#define COUNTERS {}u\n{}{}",
+      s.workgroup_size, s.prefetch ? 1 : 0, narrow_planes ? "0xffffu" : "0xffffffffu", packed ? 1 : 0,
+      s.reproject_glossy ? 1 : 0, kCounters, packed ? kPackedDecode : "", body);
 }
 
 }  // namespace
@@ -171,8 +274,9 @@ GlReprojector::~GlReprojector() {
   } catch (const std::exception&) {
     // GL objects can only be deleted where the context is current; leak them rather than crash.
     logger("master")->error("GlReprojector destroyed on a thread its GL context is not current on; GL objects leak");
-    for (auto* p : {&reproject_prog_, &exact_prog_, &downsample_prog_}) (void)p->release();
-    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &acc_buf_, &counter_buf_, &pixels_buf_}) (void)p->release();
+    for (auto* p : {&reproject_prog_, &packed_prog_, &exact_prog_, &downsample_prog_, &decode_prog_}) (void)p->release();
+    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &acc_buf_, &counter_buf_, &pixels_buf_, &codec_buf_})
+      (void)p->release();
     for (auto* p : {&records_tex_, &samples_tex_, &texel_plane_tex_, &planes_tex_, &acc_view_tex_}) (void)p->release();
     (void)owned_ctx_.release();
     return;
@@ -212,6 +316,7 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
   const detail::PlaneGrid grid = detail::make_plane_grid(dfb);
   const bool narrow = grid.planes.size() / 4 < 0xffff;
   reproject_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kReprojectShader, settings_, narrow));
+  packed_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kReprojectShader, settings_, narrow, true));
   exact_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kExactShader, settings_, narrow));
 
   // Upload ring, persistently mapped.
@@ -250,36 +355,43 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
   acc_view_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
   gl.TextureBuffer(acc_view_tex_->id(), GL_RGBA32UI, acc_buf_->id());
   counter_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  gl.NamedBufferStorage(counter_buf_->id(), GLsizeiptr(invocations_ * 16), nullptr, GL_DYNAMIC_STORAGE_BIT);
+  gl.NamedBufferStorage(counter_buf_->id(), GLsizeiptr(invocations_ * kCounters * 4), nullptr, GL_DYNAMIC_STORAGE_BIT);
+  // The packed kernels' codec parameters (lo_q, cell as doubles), set per call when they change.
+  codec_buf_ = std::make_unique<GlBuffer>(*ctx_);
+  gl.NamedBufferStorage(codec_buf_->id(), GLsizeiptr(sizeof(codec_params_)), codec_params_.data(), GL_DYNAMIC_STORAGE_BIT);
 
-  // Uniforms that never change.
-  const GLuint p = reproject_prog_->id();
-  const GlProgram& rp = *reproject_prog_;
-  gl.ProgramUniform1i(p, rp.uniform("records"), 0);
-  gl.ProgramUniform1i(p, rp.uniform("texel_plane"), 1);
-  gl.ProgramUniform1i(p, rp.uniform("planes"), 2);
-  if (settings_.prefetch) gl.ProgramUniform1i(p, rp.uniform("cell_view"), 3);
+  // Uniforms that never change (the same in the record and the packed kernel).
   const auto& k = params_;
-  gl.ProgramUniform3f(p, rp.uniform("eye"), k.eye.x, k.eye.y, k.eye.z);
-  gl.ProgramUniform3f(p, rp.uniform("forward_"), k.forward.x, k.forward.y, k.forward.z);
-  gl.ProgramUniform3f(p, rp.uniform("right_"), k.right.x, k.right.y, k.right.z);
-  gl.ProgramUniform3f(p, rp.uniform("up_"), k.up.x, k.up.y, k.up.z);
-  gl.ProgramUniform1f(p, rp.uniform("tan_half_x"), k.tan_half_x);
-  gl.ProgramUniform1f(p, rp.uniform("tan_half_y"), k.tan_half_y);
-  gl.ProgramUniform1f(p, rp.uniform("width_"), k.width);
-  gl.ProgramUniform1f(p, rp.uniform("height_"), k.height);
-  gl.ProgramUniform1f(p, rp.uniform("s"), k.s);
-  gl.ProgramUniform1f(p, rp.uniform("grid_w"), k.grid_w);
-  gl.ProgramUniform1f(p, rp.uniform("grid_h"), k.grid_h);
-  gl.ProgramUniform1f(p, rp.uniform("epsilon"), k.epsilon);
-  gl.ProgramUniform1ui(p, rp.uniform("grid_wi"), k.grid_wi);
-  loc_first_ = rp.uniform("first");
-  loc_count_ = rp.uniform("count");
+  for (const GlProgram* rp : {reproject_prog_.get(), packed_prog_.get()}) {
+    const GLuint p = rp->id();
+    gl.ProgramUniform1i(p, rp->uniform(rp == packed_prog_.get() ? "words" : "records"), 0);
+    gl.ProgramUniform1i(p, rp->uniform("texel_plane"), 1);
+    gl.ProgramUniform1i(p, rp->uniform("planes"), 2);
+    if (settings_.prefetch) gl.ProgramUniform1i(p, rp->uniform("cell_view"), 3);
+    gl.ProgramUniform3f(p, rp->uniform("eye"), k.eye.x, k.eye.y, k.eye.z);
+    gl.ProgramUniform3f(p, rp->uniform("forward_"), k.forward.x, k.forward.y, k.forward.z);
+    gl.ProgramUniform3f(p, rp->uniform("right_"), k.right.x, k.right.y, k.right.z);
+    gl.ProgramUniform3f(p, rp->uniform("up_"), k.up.x, k.up.y, k.up.z);
+    gl.ProgramUniform1f(p, rp->uniform("tan_half_x"), k.tan_half_x);
+    gl.ProgramUniform1f(p, rp->uniform("tan_half_y"), k.tan_half_y);
+    gl.ProgramUniform1f(p, rp->uniform("width_"), k.width);
+    gl.ProgramUniform1f(p, rp->uniform("height_"), k.height);
+    gl.ProgramUniform1f(p, rp->uniform("s"), k.s);
+    gl.ProgramUniform1f(p, rp->uniform("grid_w"), k.grid_w);
+    gl.ProgramUniform1f(p, rp->uniform("grid_h"), k.grid_h);
+    gl.ProgramUniform1f(p, rp->uniform("epsilon"), k.epsilon);
+    gl.ProgramUniform1ui(p, rp->uniform("grid_wi"), k.grid_wi);
+  }
+  loc_first_ = reproject_prog_->uniform("first");
+  loc_count_ = reproject_prog_->uniform("count");
+  loc_packed_first_ = packed_prog_->uniform("first");
+  loc_packed_count_ = packed_prog_->uniform("count");
   const GLuint e = exact_prog_->id();
   gl.ProgramUniform1i(e, exact_prog_->uniform("samples"), 4);
   loc_exact_first_ = exact_prog_->uniform("first");
   loc_exact_count_ = exact_prog_->uniform("count");
 
+  static_assert(kCounters == kGpuCounters);
   reset();
   ctx_->check_error("GlReprojector setup");
 }
@@ -295,23 +407,28 @@ unsigned char* GlReprojector::acquire_slot(int slot) {
   return ring_map_ + size_t(slot) * slot_bytes_;
 }
 
-void GlReprojector::dispatch(int slot, size_t count, bool exact) {
+void GlReprojector::dispatch(int slot, size_t count, Kernel kernel) {
   const auto& gl = ctx_->gl();
   gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, acc_buf_->id());
   gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, counter_buf_->id());
-  if (exact) {
+  if (kernel == Kernel::kExact) {
     gl.UseProgram(exact_prog_->id());
     gl.BindTextureUnit(4, samples_tex_->id());
     gl.ProgramUniform1i(exact_prog_->id(), loc_exact_first_, GLint(size_t(slot) * slot_bytes_ / 16));
     gl.ProgramUniform1ui(exact_prog_->id(), loc_exact_count_, GLuint(count));
   } else {
-    gl.UseProgram(reproject_prog_->id());
-    gl.BindTextureUnit(0, records_tex_->id());
+    const bool packed = kernel == Kernel::kPacked;
+    const GLuint p = packed ? packed_prog_->id() : reproject_prog_->id();
+    gl.UseProgram(p);
+    // The packed kernel reads the ring as RGBA32UI texels (one per 16-byte record).
+    gl.BindTextureUnit(0, packed ? samples_tex_->id() : records_tex_->id());
     gl.BindTextureUnit(1, texel_plane_tex_->id());
     gl.BindTextureUnit(2, planes_tex_->id());
     if (settings_.prefetch) gl.BindTextureUnit(3, acc_view_tex_->id());
-    gl.ProgramUniform1i(reproject_prog_->id(), loc_first_, GLint(size_t(slot) * slot_bytes_ / 12));
-    gl.ProgramUniform1ui(reproject_prog_->id(), loc_count_, GLuint(count));
+    if (packed) gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, codec_buf_->id());
+    gl.ProgramUniform1i(p, packed ? loc_packed_first_ : loc_first_,
+                        GLint(size_t(slot) * slot_bytes_ / (packed ? kPackedBytes : 12)));
+    gl.ProgramUniform1ui(p, packed ? loc_packed_count_ : loc_count_, GLuint(count));
   }
   const size_t groups = std::min<size_t>(size_t(settings_.workgroups),
                                          (count + size_t(settings_.workgroup_size) - 1) / size_t(settings_.workgroup_size));
@@ -344,40 +461,104 @@ void GlReprojector::reproject(std::span<const VertexRecord> records) {
       std::memcpy(out + n * kRecordBytes, &r, kRecordBytes);
       ++n;
     }
-    if (n) dispatch(slot, n, false);
+    if (n) dispatch(slot, n, Kernel::kRecords);
     points_since_fold_ += n;
     if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
   }
 }
 
-// reproject() of the decoded records, decoding straight into the upload slot (decoded records are
-// always finite: none is invalid).
+void GlReprojector::set_codec(const VertexCodec& codec) {
+  std::array<double, 8> p{};
+  for (size_t a = 0; a < 3; ++a) {
+    p[a] = codec.quantisation_origin()[a];
+    p[4 + a] = codec.quantisation_cell()[a];
+  }
+  if (p == codec_params_) return;
+  codec_params_ = p;
+  // Ordered after the dispatches already issued, which read the former parameters.
+  ctx_->gl().NamedBufferSubData(codec_buf_->id(), 0, GLsizeiptr(sizeof(p)), p.data());
+}
+
+void GlReprojector::copy_packed(const unsigned char* src, size_t n, unsigned char* dst) {
+  if constexpr (std::endian::native == std::endian::little) {
+    std::memcpy(dst, src, n * kPackedBytes);  // the wire form is the texel layout
+  } else {
+    for (size_t i = 0; i < n; ++i) {
+      const PackedVertex v = VertexCodec::load(src + i * kPackedBytes);
+      const uint32_t w[4] = {uint32_t(v.position_bits), uint32_t(v.position_bits >> 32), v.normal_bits, v.radiance_bits};
+      std::memcpy(dst + i * kPackedBytes, w, kPackedBytes);
+    }
+  }
+}
+
+// The wire records are copied into the upload slot as they are; the shader decodes them (each field
+// only when the vertex gets that far) and counts the glossy ones.
 void GlReprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
   ctx_->check_thread();
-  const size_t total = packed.size() / VertexCodec::kPackedBytes;
+  const size_t total = packed.size() / kPackedBytes;
+  if (total == 0) return;
+  set_codec(codec);
   const auto* src = reinterpret_cast<const unsigned char*>(packed.data());
-  size_t i = 0;
-  while (i < total) {
+  const size_t per_slot = slot_bytes_ / kPackedBytes;
+  for (size_t i = 0; i < total;) {
     const int slot = next_slot_;
     next_slot_ = (next_slot_ + 1) % kSlots;
-    unsigned char* out = acquire_slot(slot);
-    size_t n = 0;
-    for (; i < total && n < settings_.batch_points; ++i) {
-      const PackedVertex p = VertexCodec::load(src + i * VertexCodec::kPackedBytes);
-      if (!VertexCodec::decode_diffuse(p.position_bits) && !settings_.reproject_glossy) {
-        ++cpu_counts_.not_diffuse;
-        continue;
-      }
-      const Vec3 v[3] = {codec.decode_position(p.position_bits), VertexCodec::decode_normal(p.normal_bits),
-                         VertexCodec::decode_radiance(p.radiance_bits)};
-      static_assert(sizeof(v) == kRecordBytes);
-      std::memcpy(out + n * kRecordBytes, v, kRecordBytes);
-      ++n;
-    }
-    if (n) dispatch(slot, n, false);
+    const size_t n = std::min(total - i, per_slot);
+    copy_packed(src + i * kPackedBytes, n, acquire_slot(slot));
+    dispatch(slot, n, Kernel::kPacked);
+    i += n;
     points_since_fold_ += n;
     if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
   }
+}
+
+std::vector<VertexRecord> GlReprojector::decode_packed(std::string_view packed, const VertexCodec& codec) {
+  ctx_->check_thread();
+  const auto& gl = ctx_->gl();
+  const size_t n = packed.size() / kPackedBytes;
+  std::vector<VertexRecord> out(n);
+  if (n == 0) return out;
+  if (!decode_prog_) decode_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kDecodeShader, settings_, true, true));
+  set_codec(codec);
+  constexpr size_t kChunk = size_t(1) << 20;  // records per dispatch (64-invocation groups: < 65535 of them)
+  const size_t chunk = std::min(n, kChunk);
+  GlBuffer in(*ctx_), decoded(*ctx_);
+  gl.NamedBufferStorage(in.id(), GLsizeiptr(chunk * kPackedBytes), nullptr, GL_DYNAMIC_STORAGE_BIT);
+  gl.NamedBufferStorage(decoded.id(), GLsizeiptr(chunk * 48), nullptr, 0);
+  GlTexture tex(*ctx_, GL_TEXTURE_BUFFER);
+  gl.TextureBuffer(tex.id(), GL_RGBA32UI, in.id());
+  const GLuint p = decode_prog_->id();
+  gl.ProgramUniform1i(p, decode_prog_->uniform("words"), 5);
+  std::vector<unsigned char> words(chunk * kPackedBytes);
+  std::vector<uint32_t> raw(chunk * 12);
+  const auto* src = reinterpret_cast<const unsigned char*>(packed.data());
+  for (size_t first = 0; first < n; first += chunk) {
+    const size_t m = std::min(chunk, n - first);
+    copy_packed(src + first * kPackedBytes, m, words.data());
+    gl.NamedBufferSubData(in.id(), 0, GLsizeiptr(m * kPackedBytes), words.data());
+    gl.UseProgram(p);
+    gl.ProgramUniform1ui(p, decode_prog_->uniform("count"), GLuint(m));
+    gl.BindTextureUnit(5, tex.id());
+    gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, decoded.id());
+    gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, codec_buf_->id());
+    gl.DispatchCompute(GLuint((m + 63) / 64), 1, 1);
+    gl.MemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+    gl.UseProgram(0);
+    gl.GetNamedBufferSubData(decoded.id(), 0, GLsizeiptr(m * 48), raw.data());
+    ctx_->check_error("GlReprojector::decode_packed");
+    const auto vec = [](const uint32_t* b) {
+      return Vec3(std::bit_cast<float>(b[0]), std::bit_cast<float>(b[1]), std::bit_cast<float>(b[2]));
+    };
+    for (size_t i = 0; i < m; ++i) {
+      const uint32_t* w = &raw[12 * i];
+      VertexRecord& r = out[first + i];
+      r.position = vec(w);
+      r.normal = vec(w + 4);
+      r.radiance = vec(w + 8);
+      r.flags = w[3] ? VertexRecord::kDiffuse : 0;
+    }
+  }
+  return out;
 }
 
 void GlReprojector::add_exact(std::span<const ExactSample> samples) {
@@ -401,21 +582,21 @@ void GlReprojector::add_exact(std::span<const ExactSample> samples) {
       ++n;
     }
     cpu_counts_.exact += n;
-    if (n) dispatch(slot, n, true);
+    if (n) dispatch(slot, n, Kernel::kExact);
   }
 }
 
-std::array<uint64_t, 4> GlReprojector::read_gpu_counters() const {
-  std::vector<uint32_t> c(invocations_ * 4);
+std::array<uint64_t, GlReprojector::kGpuCounters> GlReprojector::read_gpu_counters() const {
+  std::vector<uint32_t> c(invocations_ * kCounters);
   ctx_->gl().GetNamedBufferSubData(counter_buf_->id(), 0, GLsizeiptr(c.size() * 4), c.data());
-  std::array<uint64_t, 4> sum{};
-  for (size_t i = 0; i < c.size(); ++i) sum[i % 4] += c[i];
+  std::array<uint64_t, kGpuCounters> sum{};
+  for (size_t i = 0; i < c.size(); ++i) sum[i % kCounters] += c[i];
   return sum;
 }
 
 void GlReprojector::fold_counters() {
-  const std::array<uint64_t, 4> gpu = read_gpu_counters();
-  for (int k = 0; k < 4; ++k) folded_[size_t(k)] += gpu[size_t(k)];
+  const std::array<uint64_t, kGpuCounters> gpu = read_gpu_counters();
+  for (size_t k = 0; k < kGpuCounters; ++k) folded_[k] += gpu[k];
   const GLuint zero = 0;
   ctx_->gl().ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
   points_since_fold_ = 0;
@@ -423,8 +604,9 @@ void GlReprojector::fold_counters() {
 
 ReprojectionCounts GlReprojector::counts() const {
   ctx_->check_thread();
-  const std::array<uint64_t, 4> gpu = read_gpu_counters();
+  const std::array<uint64_t, kGpuCounters> gpu = read_gpu_counters();
   ReprojectionCounts r = cpu_counts_;
+  r.not_diffuse += folded_[4] + gpu[4];
   r.accepted = folded_[0] + gpu[0];
   r.culled = folded_[1] + gpu[1];
   r.backfacing = folded_[2] + gpu[2];
@@ -542,7 +724,7 @@ void GlReprojector::restore(const SubpixelAccumulation& acc, const ReprojectionC
   gl.ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
   ctx_->check_error("GlReprojector::restore");
   // The GPU decides accepted, culled and occluded (backfacing apart); the CPU the rest.
-  folded_ = {counts.accepted, counts.culled, counts.backfacing, counts.occluded - counts.backfacing};
+  folded_ = {counts.accepted, counts.culled, counts.backfacing, counts.occluded - counts.backfacing, 0};
   cpu_counts_ = {};
   cpu_counts_.not_diffuse = counts.not_diffuse;
   cpu_counts_.invalid = counts.invalid;

@@ -2,12 +2,18 @@
 // GL_NV_shader_atomic_float).
 //
 // Data on the GL side:
-//   - upload ring: 2 slots of batch_points records in one persistently mapped, coherent buffer,
+//   - upload ring: 2 slots of batch_points records in one persistently mapped, coherent buffer; a
+//     fence per slot keeps the CPU from overwriting a batch the GPU still reads. reproject() copies
 //     36 bytes per record (position, normal, radiance as float32: lossless, so decisions are
-//     bit-identical to the CPU back-end). The CPU filters glossy (unless reproject_glossy) and
-//     non-finite records while copying; a fence per slot keeps the CPU from overwriting a batch the
-//     GPU still reads. Read in the shader through an RGB32F buffer texture (texelFetch): llvmpipe
-//     vectorises texel fetches but runs SSBO loads lane by lane, so this is ~3x faster.
+//     bit-identical to the CPU back-end), filtering glossy (unless reproject_glossy) and non-finite
+//     records on the way. reproject_packed() copies the 16-byte wire records as they are (one memcpy
+//     per slot, up to 2.25 x batch_points of them) and a second variant of the kernel decodes them:
+//     the GLSL of VertexCodec's decode_position / decode_normal (in double, as the codec) /
+//     decode_radiance, bit-identical to it, each field decoded only when the vertex gets that far;
+//     the kernel also counts the glossy ones. The codec's quantisation (lo_q, cell per axis) is a
+//     32-byte SSBO, re-uploaded when a call passes a different codec. Records are read through
+//     buffer textures (RGB32F, resp. RGBA32UI; texelFetch): llvmpipe vectorises texel fetches but
+//     runs SSBO loads lane by lane, so this is ~3x faster.
 //   - compact deep framebuffer (reprojection_kernel.h): plane index per texel (R16UI when the
 //     frame shows fewer than 65535 distinct planes, else R32UI) + RGBA32F plane table, both buffer
 //     textures. The plane-index gather and the accumulation prefetch are issued back to back so
@@ -16,10 +22,10 @@
 //     atomics from GL_NV_shader_atomic_float). Optionally prefetched by a vector gather through an
 //     RGBA32UI view (ReprojectorSettings::prefetch), which overlaps the cache misses of 8 lanes
 //     before the per-lane atomics serialise them.
-//   - counters: 4 uints per shader invocation (accepted, culled, backfacing, other occluded), written
-//     without atomics (each invocation owns its slots); summed on the CPU by counts(), and folded
-//     into 64-bit host totals every counter_fold_points (2^31) points so that no 32-bit slot can
-//     overflow.
+//   - counters: 5 uints per shader invocation (accepted, culled, backfacing, other occluded, not
+//     diffuse), written without atomics (each invocation owns its slots); summed on the CPU by
+//     counts(), and folded into 64-bit host totals every counter_fold_points (2^31) points so that
+//     no 32-bit slot can overflow.
 // Each batch is one glDispatchCompute of `workgroups` x `workgroup_size` invocations running a
 // grid-stride loop. llvmpipe's worker threads (LP_NUM_THREADS) run the workgroups; llvmpipe
 // executes a dispatch synchronously, so the copy of the next batch does not overlap it (the copy is
@@ -33,6 +39,8 @@
 
 #include <array>
 #include <memory>
+#include <string_view>
+#include <vector>
 
 #include "master/gl_context.h"
 #include "master/gl_program.h"
@@ -61,11 +69,20 @@ class GlReprojector final : public Reprojector {
 
   GlContext& context() { return *ctx_; }
 
+  /// The packed kernel's decoding on its own: each 16-byte record of `packed` decoded by the GLSL that
+  /// reproject_packed() runs (bit-identical to VertexCodec::decode; for tests).
+  std::vector<VertexRecord> decode_packed(std::string_view packed, const VertexCodec& codec);
+
  private:
   void init(const Camera& camera, const DeepFramebuffer& dfb);
   /// Waits until `slot` of the upload ring is free and returns its mapped bytes.
   unsigned char* acquire_slot(int slot);
-  void dispatch(int slot, size_t count, bool exact);
+  enum class Kernel { kRecords, kPacked, kExact };
+  void dispatch(int slot, size_t count, Kernel kernel);
+  /// Uploads the codec's quantisation (lo_q, cell) for the packed kernels if it changed.
+  void set_codec(const VertexCodec& codec);
+  /// The wire records as RGBA32UI texels (a memcpy on little-endian hosts).
+  static void copy_packed(const unsigned char* src, size_t n, unsigned char* dst);
 
   std::unique_ptr<GlContext> owned_ctx_;
   GlContext* ctx_;
@@ -75,22 +92,25 @@ class GlReprojector final : public Reprojector {
   size_t slot_bytes_ = 0;
   size_t invocations_ = 0;
 
-  std::unique_ptr<GlProgram> reproject_prog_, exact_prog_, downsample_prog_;
+  std::unique_ptr<GlProgram> reproject_prog_, packed_prog_, exact_prog_, downsample_prog_, decode_prog_;
   std::unique_ptr<GlBuffer> pixels_buf_;  // W x H vec4: L_rp, M' (uint bits); created on first use
   bool map_downsample_ = true;            // ReprojectorSettings::gl_map_downsample
-  std::unique_ptr<GlBuffer> ring_, texel_plane_buf_, planes_buf_, acc_buf_, counter_buf_;
+  std::unique_ptr<GlBuffer> ring_, texel_plane_buf_, planes_buf_, acc_buf_, counter_buf_, codec_buf_;
+  std::array<double, 8> codec_params_{};  // as in codec_buf_: lo_q.xyz, 0, cell.xyz, 0
   std::unique_ptr<GlTexture> records_tex_, samples_tex_, texel_plane_tex_, planes_tex_, acc_view_tex_;
   unsigned char* ring_map_ = nullptr;
   GLsync fences_[2] = {nullptr, nullptr};
   int next_slot_ = 0;
-  GLint loc_first_ = -1, loc_count_ = -1, loc_exact_first_ = -1, loc_exact_count_ = -1;
-  /// Sums of the GPU's per-invocation counters (accepted, culled, backfacing, occluded).
-  std::array<uint64_t, 4> read_gpu_counters() const;
+  GLint loc_first_ = -1, loc_count_ = -1, loc_packed_first_ = -1, loc_packed_count_ = -1;
+  GLint loc_exact_first_ = -1, loc_exact_count_ = -1;
+  static constexpr size_t kGpuCounters = 5;
+  /// Sums of the GPU's per-invocation counters (accepted, culled, backfacing, occluded, not diffuse).
+  std::array<uint64_t, kGpuCounters> read_gpu_counters() const;
   /// Moves the GPU counters into folded_ (keeps the 32-bit GPU counters far from overflow).
   void fold_counters();
 
-  ReprojectionCounts cpu_counts_;  // not_diffuse, invalid, exact: decided on the CPU
-  std::array<uint64_t, 4> folded_{};
+  ReprojectionCounts cpu_counts_;  // not_diffuse (records), invalid, exact: decided on the CPU
+  std::array<uint64_t, kGpuCounters> folded_{};
   uint64_t points_since_fold_ = 0;
 };
 
