@@ -512,8 +512,9 @@ void encode_microbench(const std::string& spec, int size, int S, int k, int tile
   const TileResultLimits limits;
   const TileRenderer packing(tracer, filter, scene.bounds());
   std::vector<TileResult> packed_results(rects.size());
-  tbb::parallel_for(size_t(0), rects.size(),
-                    [&](size_t t) { packed_results[t] = packing.render({rects[t], {}, {}, k}); });
+  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) {
+    packed_results[t] = packing.render({rects[t], {}, {}, k});
+  });
   for (size_t t = 0; t < rects.size(); ++t) {
     auto a = split_tile_result(results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
     auto b = split_tile_result(packed_results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
@@ -568,15 +569,15 @@ void encode_microbench(const std::string& spec, int size, int S, int k, int tile
     std::sort(v.begin(), v.end());
     return v[v.size() / 2];
   };
-  std::printf("encode microbench: %zu tiles, %llu vertices sent, %d reps, load %.2f: thread CPU per vertex (median): "
-              "codec %.1f ns, writer from records %.1f ns; encoding while tracing: in-render encode %.1f ns + writer "
-              "from packed %.1f ns = %.1f ns (bytes identical; checksum %llu); minima: codec %.1f, writer %.1f, "
-              "in-render %.1f + packed %.1f ns\n",
-              results.size(), (unsigned long long)vertices, reps, load_average(), med(codec_ns), med(writer_ns),
-              med(inrender_ns), med(packed_ns), med(inrender_ns) + med(packed_ns), (unsigned long long)sink,
-              *std::min_element(codec_ns.begin(), codec_ns.end()), *std::min_element(writer_ns.begin(), writer_ns.end()),
-              *std::min_element(inrender_ns.begin(), inrender_ns.end()),
-              *std::min_element(packed_ns.begin(), packed_ns.end()));
+  std::printf(
+      "encode microbench: %zu tiles, %llu vertices sent, %d reps, load %.2f: thread CPU per vertex (median): "
+      "codec %.1f ns, writer from records %.1f ns; encoding while tracing: in-render encode %.1f ns + writer "
+      "from packed %.1f ns = %.1f ns (bytes identical; checksum %llu); minima: codec %.1f, writer %.1f, "
+      "in-render %.1f + packed %.1f ns\n",
+      results.size(), (unsigned long long)vertices, reps, load_average(), med(codec_ns), med(writer_ns),
+      med(inrender_ns), med(packed_ns), med(inrender_ns) + med(packed_ns), (unsigned long long)sink,
+      *std::min_element(codec_ns.begin(), codec_ns.end()), *std::min_element(writer_ns.begin(), writer_ns.end()),
+      *std::min_element(inrender_ns.begin(), inrender_ns.end()), *std::min_element(packed_ns.begin(), packed_ns.end()));
 }
 
 }  // namespace

@@ -105,7 +105,6 @@ using D4 = double __attribute__((vector_size(32)));
 using I4 = int64_t __attribute__((vector_size(32)));
 using W4 = int32_t __attribute__((vector_size(16)));
 
-
 // The helpers are always inlined into the kernel (so they take its target); no 32-byte vector ever
 // crosses a call, hence no ABI concern (-Wpsabi).
 #if defined(__GNUC__) && !defined(__clang__)
@@ -117,7 +116,7 @@ EPR_LANES I4 splat_i(int64_t v) { return I4{v, v, v, v}; }
 EPR_LANES D4 select4(I4 m, D4 a, D4 b) { return (D4)(((I4)a & m) | ((I4)b & ~m)); }
 EPR_LANES D4 abs4(D4 v) { return (D4)((I4)v & splat_i(INT64_MAX)); }
 EPR_LANES D4 max4(D4 a, D4 b) { return select4(a < b, b, a); }  // std::max(a, b)
-EPR_LANES D4 floor4(D4 x) {                                      // floor_small, lane by lane (|x| < 2^31)
+EPR_LANES D4 floor4(D4 x) {                                     // floor_small, lane by lane (|x| < 2^31)
   const D4 t = __builtin_convertvector(__builtin_convertvector(x, W4), D4);
   return t - select4(x < t, splat(1.0), splat(0.0));
 }
@@ -142,7 +141,8 @@ EPR_LANES size_t encode_groups_body(const VertexRecord* in, size_t n, const doub
     // infinities fail the range test.
     W4 q[3];
     for (int a = 0; a < 3; ++a) {
-      const D4 p{double(r[0].position[a]), double(r[1].position[a]), double(r[2].position[a]), double(r[3].position[a])};
+      const D4 p{double(r[0].position[a]), double(r[1].position[a]), double(r[2].position[a]),
+                 double(r[3].position[a])};
       D4 t = (p - splat(lo_q[a])) / splat(extent[a]) * cells;
       const I4 in_box = (t >= splat(0.0)) & (t <= cells);
       ok &= in_box;
@@ -254,9 +254,7 @@ const char* to_string(EncodeError e) {
   return "unknown";
 }
 
-const char* VertexCodec::batch_kernel() {
-  return cpu_has_avx2() && !g_force_baseline.load() ? "avx2" : "baseline";
-}
+const char* VertexCodec::batch_kernel() { return cpu_has_avx2() && !g_force_baseline.load() ? "avx2" : "baseline"; }
 void VertexCodec::force_baseline_kernel(bool on) { g_force_baseline.store(on); }
 
 uint64_t EncodeCounts::rejected_total() const {
@@ -371,7 +369,8 @@ size_t VertexCodec::encode_batch(std::span<const VertexRecord> in, std::string* 
   for (size_t i = 0; i < in.size();) {
     // Whole groups of four while they are representable, then the group that stopped it (or the
     // last 1-3 records) one at a time.
-    const size_t groups = encode_groups(in.data() + i, in.size() - i, lo_q_.data(), extent_.data(), dst + n * kPackedBytes);
+    const size_t groups =
+        encode_groups(in.data() + i, in.size() - i, lo_q_.data(), extent_.data(), dst + n * kPackedBytes);
     i += groups;
     n += groups;
     if (counts) counts->accepted += groups;
@@ -383,8 +382,10 @@ size_t VertexCodec::encode_batch(std::span<const VertexRecord> in, std::string* 
         ++n;
       }
       if (counts) {
-        if (err == EncodeError::kOk) ++counts->accepted;
-        else ++counts->rejected[size_t(err)];
+        if (err == EncodeError::kOk)
+          ++counts->accepted;
+        else
+          ++counts->rejected[size_t(err)];
       }
     }
   }

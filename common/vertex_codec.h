@@ -52,9 +52,9 @@
 // on every machine. The encoder is written for speed but computes exactly these operations: the
 // per-vertex choices (fold, floor) are bit selects instead of branches, and encode_batch runs the
 // same operations on four records at once in vector lanes (AVX2 where the CPU has it). Both are
-// checked bit for bit against the plain formulas (tests/common/vertex_codec_reference.h). encode(decode(bits)) == bits for every output of encode when the scene bounds are
-// not far from the origin relative to their size (|coordinates| < ~4 extents, so the float spacing is
-// below half a cell).
+// checked bit for bit against the plain formulas (tests/common/vertex_codec_reference.h).
+// encode(decode(bits)) == bits for every output of encode when the scene bounds are not far from the
+// origin relative to their size (|coordinates| < ~4 extents, so the float spacing is below half a cell).
 #pragma once
 
 #include <algorithm>

@@ -95,7 +95,7 @@ class TileResultWriter {
   const TileResult& result_;
   v1::TileResultHeader header_;
   v1::TileWorkerStats stats_;
-  std::string packed_;                // accepted vertices, 16 bytes each, in record order (from records)
+  std::string packed_;                        // accepted vertices, 16 bytes each, in record order (from records)
   const std::string* packed_src_ = &packed_;  // what is sent: packed_ or the result's packed_vertices
   std::vector<uint32_t> exact_kept_;  // indices into result.visible of the samples sent
   uint32_t pixels_per_chunk_ = 1, vertices_per_chunk_ = 1, exact_per_chunk_ = 1;

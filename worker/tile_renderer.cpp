@@ -26,7 +26,8 @@ TileStats& TileStats::operator+=(const TileStats& o) {
 
 TileRenderer::TileRenderer(const PathTracer& tracer, VertexFilter filter, const Bounds3& codec_bounds)
     : tracer_(tracer), filter_(filter), codec_bounds_(codec_bounds) {
-  if (filter_.mode == VertexFilter::Mode::kAll || filter_.mode == VertexFilter::Mode::kCull) codec_.emplace(codec_bounds);
+  if (filter_.mode == VertexFilter::Mode::kAll || filter_.mode == VertexFilter::Mode::kCull)
+    codec_.emplace(codec_bounds);
 }
 
 void TileRenderer::filter_vertices(std::vector<VertexRecord>& recs, size_t first, TileResult& out) const {
@@ -82,8 +83,8 @@ TileResult TileRenderer::render(const TileRequest& req) const {
   out.path_count.assign(n, 0);
   const bool record = filter_.mode != VertexFilter::Mode::kNone;
   const bool encode = codec_.has_value();
-  // Exact mode keeps records only until they are turned into VisibleSamples, encoding only until they
-  // are packed: one path's records at a time, still in cache.
+  // Exact mode keeps records only until they are turned into VisibleSamples; with a codec, kept
+  // records wait only until kEncodeBatch of them can be packed together (still in cache).
   std::vector<VertexRecord> scratch;
   std::vector<VertexRecord>& recs = filter_.mode == VertexFilter::Mode::kExact || encode ? scratch : out.vertices;
   if (encode) out.packed_bounds = codec_bounds_;

@@ -5,9 +5,10 @@
 // the reprojector needs, filtered for the camera (VertexFilter) so that nothing the master would
 // cull crosses the network. Given the job's codec bounds (kAll / kCull), it encodes the kept vertices
 // into their 16-byte wire form a few paths after they come out of the tracer (VertexCodec, the bytes
-// TileResultWriter would produce from the records), so that no 40-byte record outlives its path and
-// the worker makes no second pass over the tile's vertices before SubmitTile. In exact mode the worker decides visibility itself with a ray from each
-// vertex to the eye and returns (subpixel, radiance) pairs instead of records.
+// TileResultWriter would produce from the records), so that no 40-byte record is kept for the tile and
+// the worker makes no second pass over the tile's vertices before SubmitTile. In exact mode the
+// worker decides visibility itself with a ray from each vertex to the eye and returns (subpixel,
+// radiance) pairs instead of records.
 #pragma once
 
 #include <cstdint>

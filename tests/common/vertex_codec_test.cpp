@@ -479,7 +479,6 @@ TEST(VertexCodecRecord, BitsFollowTheDocumentedFormula) {
   EXPECT_EQ(std::memcmp(wire, expected, 16), 0);
 }
 
-
 // ---- the optimised encoder against the plain formulas ---------------------------------------------
 
 // Records of every kind the encoder distinguishes, mostly valid: positions inside and around the
@@ -549,14 +548,15 @@ TEST(VertexCodecReference, TryEncodeMatchesThePlainFormulasBitForBit) {
       const EncodeError eg = codec.try_encode(v, &got), ew = ref.encode(v, &want);
       if (eg != ew || (ew == EncodeError::kOk && !(got == want))) {
         if (++mismatches <= 5)
-          ADD_FAILURE() << "record " << v.position.x << " " << v.position.y << " " << v.position.z << " / " << v.normal.x
-                        << " " << v.normal.y << " " << v.normal.z << " / " << v.radiance.x << " " << v.radiance.y << " "
-                        << v.radiance.z << " flags " << v.flags << ": " << to_string(eg) << " vs " << to_string(ew);
+          ADD_FAILURE() << "record " << v.position.x << " " << v.position.y << " " << v.position.z << " / "
+                        << v.normal.x << " " << v.normal.y << " " << v.normal.z << " / " << v.radiance.x << " "
+                        << v.radiance.y << " " << v.radiance.z << " flags " << v.flags << ": " << to_string(eg)
+                        << " vs " << to_string(ew);
       }
       accepted += ew == EncodeError::kOk;
     }
     EXPECT_EQ(mismatches, 0u);
-    EXPECT_GT(accepted, recs.size() / 2);       // mostly valid records ...
+    EXPECT_GT(accepted, recs.size() / 2);         // mostly valid records ...
     EXPECT_LT(accepted, recs.size() * 99 / 100);  // ... and every rejection exercised
   }
 }

@@ -390,7 +390,8 @@ TEST(TileResultStream, VerticesPackedWhileTracingGiveTheSameStream) {
     EXPECT_GT(a.size(), 6u);
     for (auto* chunks : {&a, &b})  // the tracing wall time is the one field that may differ
       chunks->back().mutable_trailer()->mutable_stats()->set_seconds_tracing(0);
-    for (size_t i = 0; i < a.size(); ++i) EXPECT_EQ(a[i].SerializeAsString(), b[i].SerializeAsString()) << "chunk " << i;
+    for (size_t i = 0; i < a.size(); ++i)
+      EXPECT_EQ(a[i].SerializeAsString(), b[i].SerializeAsString()) << "chunk " << i;
   }
   // Exact mode and path tracing ignore the bounds.
   VertexFilter exact;
