@@ -29,6 +29,7 @@
 //
 //   ingest_bench [--scene builtin:cornell] [--size 512] [-S 4] [--paths 1] [--rounds 16] [--tile 64]
 //                [--backends cpu,gl] [--clients 1,2] [--in-process]
+//   ingest_bench --encode-reps 9   only the worker's encode microbenchmark (encode_microbench below)
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -484,6 +485,101 @@ Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method
   return f;
 }
 
+// The worker's vertex path from the traced records to the chunks handed to gRPC, offline, one thread,
+// `reps` times over every tile of one synthetic round (median thread CPU per vertex sent):
+//   codec   VertexCodec::encode_batch over each tile's culled records (the arithmetic alone)
+//   writer  TileResultWriter from the records: encode, then chunking, until every chunk is out
+// and the path WorkerNode takes since the vertices are encoded while tracing:
+//   in-render  encode_batch appending TileRenderer::kEncodeBatch records at a time to the tile's
+//              string, as TileRenderer does once that many kept records have gathered
+//   packed     TileResultWriter from a TileResult the renderer packed: chunking and one copy
+// The packed tiles (traced again with codec bounds) must give the writer's bytes exactly; checked.
+void encode_microbench(const std::string& spec, int size, int S, int k, int tile_size, int reps) {
+  const Scene scene = load_scene(spec);
+  EmbreeScene es(scene);
+  const Camera cam(scene.camera, size, size);
+  PathTracer tracer(es, cam, 1, RussianRoulette::paper());
+  VertexFilter filter;
+  filter.mode = VertexFilter::Mode::kCull;
+  filter.subpixels = S;
+  TileRenderer renderer(tracer, filter);
+  const auto rects = make_tiles(size, size, tile_size);
+  std::vector<TileResult> results(rects.size());
+  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) { results[t] = renderer.render({rects[t], {}, {}, k}); });
+  uint64_t vertices = 0;
+  for (const TileResult& r : results) vertices += r.vertices.size();
+  const VertexCodec codec(scene.bounds());
+  const TileResultLimits limits;
+  const TileRenderer packing(tracer, filter, scene.bounds());
+  std::vector<TileResult> packed_results(rects.size());
+  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) {
+    packed_results[t] = packing.render({rects[t], {}, {}, k});
+  });
+  for (size_t t = 0; t < rects.size(); ++t) {
+    auto a = split_tile_result(results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
+    auto b = split_tile_result(packed_results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
+    for (auto* chunks : {&a, &b})  // the tracing wall time is the one field that may differ
+      chunks->back().mutable_trailer()->mutable_stats()->set_seconds_tracing(0);
+    bool same = a.size() == b.size();
+    for (size_t i = 0; same && i < a.size(); ++i) same = a[i].SerializeAsString() == b[i].SerializeAsString();
+    if (!same) throw std::runtime_error("tile " + std::to_string(t) + ": packed while tracing != encoded after");
+  }
+  std::vector<double> codec_ns, writer_ns, inrender_ns, packed_ns;
+  uint64_t sink = 0;
+  for (int rep = 0; rep < reps; ++rep) {
+    double c0 = thread_cpu_seconds();
+    for (const TileResult& r : results) {
+      std::string packed;
+      codec.encode_batch(r.vertices, &packed);
+      sink += packed.size();
+    }
+    codec_ns.push_back(1e9 * (thread_cpu_seconds() - c0) / double(vertices));
+    c0 = thread_cpu_seconds();
+    for (size_t t = 0; t < results.size(); ++t) {
+      TileResultWriter w(results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
+      v1::TileResultChunk c;
+      while (w.next(&c)) {
+        if (c.has_vertices()) sink += c.vertices().packed().size();
+        c.Clear();
+      }
+    }
+    writer_ns.push_back(1e9 * (thread_cpu_seconds() - c0) / double(vertices));
+    c0 = thread_cpu_seconds();
+    for (const TileResult& r : results) {
+      std::string packed;
+      EncodeCounts counts;
+      const std::span<const VertexRecord> all(r.vertices);
+      for (size_t i = 0; i < all.size(); i += TileRenderer::kEncodeBatch)
+        codec.encode_batch(all.subspan(i, std::min(TileRenderer::kEncodeBatch, all.size() - i)), &packed, &counts);
+      sink += packed.size();
+    }
+    inrender_ns.push_back(1e9 * (thread_cpu_seconds() - c0) / double(vertices));
+    c0 = thread_cpu_seconds();
+    for (size_t t = 0; t < packed_results.size(); ++t) {
+      TileResultWriter w(packed_results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
+      v1::TileResultChunk c;
+      while (w.next(&c)) {
+        if (c.has_vertices()) sink += c.vertices().packed().size();
+        c.Clear();
+      }
+    }
+    packed_ns.push_back(1e9 * (thread_cpu_seconds() - c0) / double(vertices));
+  }
+  auto med = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v[v.size() / 2];
+  };
+  std::printf(
+      "encode microbench: %zu tiles, %llu vertices sent, %d reps, load %.2f: thread CPU per vertex (median): "
+      "codec %.1f ns, writer from records %.1f ns; encoding while tracing: in-render encode %.1f ns + writer "
+      "from packed %.1f ns = %.1f ns (bytes identical; checksum %llu); minima: codec %.1f, writer %.1f, "
+      "in-render %.1f + packed %.1f ns\n",
+      results.size(), (unsigned long long)vertices, reps, load_average(), med(codec_ns), med(writer_ns),
+      med(inrender_ns), med(packed_ns), med(inrender_ns) + med(packed_ns), (unsigned long long)sink,
+      *std::min_element(codec_ns.begin(), codec_ns.end()), *std::min_element(writer_ns.begin(), writer_ns.end()),
+      *std::min_element(inrender_ns.begin(), inrender_ns.end()), *std::min_element(packed_ns.begin(), packed_ns.end()));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -505,10 +601,16 @@ int main(int argc, char** argv) {
   app.add_flag("--in-process", rs.in_process, "run the bench workers as threads of this process");
   app.add_option("--serve-clients", serve_file, "(internal) be the bench workers' process");
   app.add_option("--target", target, "(internal) the master's address");
+  int encode_reps = 0;
+  app.add_option("--encode-reps", encode_reps, "only the worker's encode microbenchmark, this many repetitions");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
   if (!serve_file.empty()) return serve_clients(serve_file, target, client_counts.front());
   rs.self = std::filesystem::canonical("/proc/self/exe").string();
+  if (encode_reps > 0) {
+    encode_microbench(rs.spec, rs.size, rs.S, rs.k, rs.tile, encode_reps);
+    return 0;
+  }
 
   std::printf("ingest_bench: %s %dx%d S=%d, k=%d paths/pixel/round, %d rounds per job, tiles %dx%d, clients %s, %u "
               "hardware threads, load average %.2f\n",

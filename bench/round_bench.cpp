@@ -215,7 +215,7 @@ BenchJob run_bench_workers(const RenderOptions& o, int threads, const fs::path& 
         if (auto err = unpack_tile_lease(lease, &tile)) throw std::runtime_error("bad lease: " + *err);
         const auto tt = Clock::now();
         const double tc = thread_cpu_seconds();
-        const TileRenderer renderer(tracer->tracer, tile.filter);
+        const TileRenderer renderer(tracer->tracer, tile.filter, tracer->codec_bounds);  // as WorkerNode
         const auto result = render_leased_tile(renderer, tile, {});
         s.tracing += since(tt);
         s.tracing_cpu += thread_cpu_seconds() - tc;

@@ -49,9 +49,12 @@
 // Determinism: encode and decode use only IEEE basic operations (+ - * / sqrt), floor (as an exact
 // truncation), frexp and ldexp (read from / built into a double's exponent bits) -- all exact or
 // correctly rounded; the tree builds with -ffp-contract=off -- so the same record gives the same bits
-// on every machine. encode(decode(bits)) == bits for every output of encode when the scene bounds are
-// not far from the origin relative to their size (|coordinates| < ~4 extents, so the float spacing is
-// below half a cell).
+// on every machine. The encoder is written for speed but computes exactly these operations: the
+// per-vertex choices (fold, floor) are bit selects instead of branches, and encode_batch runs the
+// same operations on four records at once in vector lanes (AVX2 where the CPU has it). Both are
+// checked bit for bit against the plain formulas (tests/common/vertex_codec_reference.h).
+// encode(decode(bits)) == bits for every output of encode when the scene bounds are not far from the
+// origin relative to their size (|coordinates| < ~4 extents, so the float spacing is below half a cell).
 #pragma once
 
 #include <algorithm>
@@ -107,6 +110,11 @@ struct EncodeCounts {
 
   uint64_t rejected_total() const;
   uint64_t operator[](EncodeError e) const { return rejected[size_t(e)]; }
+  EncodeCounts& operator+=(const EncodeCounts& o) {
+    accepted += o.accepted;
+    for (size_t i = 0; i < rejected.size(); ++i) rejected[i] += o.rejected[i];
+    return *this;
+  }
 };
 
 class VertexCodec {
@@ -146,6 +154,11 @@ class VertexCodec {
   /// Appends the 16-byte encoding of every representable record of `in` to `out` (little-endian);
   /// returns how many were appended. Rejections are counted in `counts` if given.
   size_t encode_batch(std::span<const VertexRecord> in, std::string* out, EncodeCounts* counts = nullptr) const;
+  /// encode_batch encodes four records at a time with a kernel built twice on x86-64: for AVX2 and for
+  /// the baseline ISA (the same bits either way). Which one runs: "avx2" or "baseline".
+  static const char* batch_kernel();
+  /// Makes encode_batch use the baseline build even where AVX2 is available (tests, benchmarks).
+  static void force_baseline_kernel(bool on);
   /// Appends the records encoded in `bytes` to `out`. False (nothing appended) unless
   /// bytes.size() is a multiple of 16.
   bool decode_batch(std::string_view bytes, std::vector<VertexRecord>* out) const;

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <stdexcept>
 
@@ -30,6 +31,14 @@ uint32_t items_per_chunk(uint32_t max_chunk_bytes, uint32_t bytes_per_item, uint
 
 bool finite_non_negative(const Vec3& v) { return is_finite(v) && v.x >= 0 && v.y >= 0 && v.z >= 0; }
 
+bool same_bits(const Bounds3& a, const Bounds3& b) {
+  for (int i = 0; i < 3; ++i)
+    if (std::bit_cast<uint32_t>(a.lo[i]) != std::bit_cast<uint32_t>(b.lo[i]) ||
+        std::bit_cast<uint32_t>(a.hi[i]) != std::bit_cast<uint32_t>(b.hi[i]))
+      return false;
+  return true;
+}
+
 }  // namespace
 
 // ---- worker side ---------------------------------------------------------------------------------
@@ -38,11 +47,21 @@ TileResultWriter::TileResultWriter(const TileResult& result, TileResultIdentity 
                                    const TileResultLimits& limits)
     : result_(result) {
   EncodeCounts counts;
-  if (!result.vertices.empty()) {  // path tracing sends no vertices and needs no usable bounds
+  if (result.packed_bounds) {
+    // Encoded while tracing (TileRenderer with codec bounds): the bytes are ready, if the bounds are
+    // the ones the master decodes with.
+    if (!result.vertices.empty()) throw std::invalid_argument("TileResult has both records and packed vertices");
+    if (!same_bits(*result.packed_bounds, codec_bounds))
+      throw std::invalid_argument("TileResult's vertices were encoded with other codec bounds than the lease's");
+    if (result.packed_vertices.size() % VertexCodec::kPackedBytes != 0)
+      throw std::invalid_argument("TileResult's packed vertices are not a whole number of 16-byte records");
+    packed_src_ = &result.packed_vertices;
+    counts = result.encode_counts;
+  } else if (!result.vertices.empty()) {  // path tracing sends no vertices and needs no usable bounds
     const VertexCodec codec(codec_bounds);
     codec.encode_batch(result.vertices, &packed_, &counts);
   }
-  const uint64_t vertex_count = packed_.size() / VertexCodec::kPackedBytes;
+  const uint64_t vertex_count = packed_src_->size() / VertexCodec::kPackedBytes;
   const uint64_t codec_nonfinite = counts[EncodeError::kNonFiniteRadiance];
   const uint64_t codec_rejected = counts.rejected_total() - codec_nonfinite;
 
@@ -118,7 +137,7 @@ bool TileResultWriter::next(v1::TileResultChunk* chunk) {
       }
 
       case Phase::kVertices: {
-        const size_t n = packed_.size() / VertexCodec::kPackedBytes;
+        const size_t n = packed_src_->size() / VertexCodec::kPackedBytes;
         if (cursor_ >= n) {
           phase_ = Phase::kExact;
           cursor_ = 0;
@@ -127,7 +146,9 @@ bool TileResultWriter::next(v1::TileResultChunk* chunk) {
         const size_t count = std::min<size_t>(vertices_per_chunk_, n - cursor_);
         v1::VertexBatch* b = chunk->mutable_vertices();
         b->set_count(uint32_t(count));
-        b->set_packed(packed_.substr(cursor_ * VertexCodec::kPackedBytes, count * VertexCodec::kPackedBytes));
+        // One copy, straight into the chunk's string (no temporary).
+        b->mutable_packed()->assign(packed_src_->data() + cursor_ * VertexCodec::kPackedBytes,
+                                    count * VertexCodec::kPackedBytes);
         cursor_ += count;
         return true;
       }

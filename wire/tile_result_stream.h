@@ -22,7 +22,8 @@
 // The header announces exactly what is sent.
 //
 // Memory: the writer keeps the tile's accepted vertices packed (16 bytes each, less than the 40-byte
-// records it reads) and produces one chunk at a time; the assembler holds one tile.
+// records it reads; nothing when the renderer packed them already) and produces one chunk at a time;
+// the assembler holds one tile.
 #pragma once
 
 #include <cstdint>
@@ -67,12 +68,16 @@ struct TileResultIdentity {
 ///     TileResultWriter w(result, id, codec_bounds, limits);
 ///     v1::TileResultChunk c;
 ///     while (w.next(&c)) stream->Write(c);
-/// `result` must outlive the writer. Throws std::invalid_argument if the result has vertices and
-/// `codec_bounds` are unusable (VertexCodec's constructor).
+/// `result` must outlive the writer. Vertices come either as records (encoded here) or already packed
+/// by the tile renderer (TileResult::packed_vertices: copied once, straight into the chunks). Throws
+/// std::invalid_argument if the result has records and `codec_bounds` are unusable (VertexCodec's
+/// constructor), or has packed vertices encoded with other bounds than `codec_bounds`.
 class TileResultWriter {
  public:
   TileResultWriter(const TileResult& result, TileResultIdentity identity, const Bounds3& codec_bounds,
                    const TileResultLimits& limits);
+  TileResultWriter(const TileResultWriter&) = delete;  // points into itself
+  TileResultWriter& operator=(const TileResultWriter&) = delete;
 
   /// Sets `*chunk` to the next chunk; false (chunk untouched) once the trailer has been produced.
   bool next(v1::TileResultChunk* chunk);
@@ -90,7 +95,8 @@ class TileResultWriter {
   const TileResult& result_;
   v1::TileResultHeader header_;
   v1::TileWorkerStats stats_;
-  std::string packed_;                // accepted vertices, 16 bytes each, in record order
+  std::string packed_;                        // accepted vertices, 16 bytes each, in record order (from records)
+  const std::string* packed_src_ = &packed_;  // what is sent: packed_ or the result's packed_vertices
   std::vector<uint32_t> exact_kept_;  // indices into result.visible of the samples sent
   uint32_t pixels_per_chunk_ = 1, vertices_per_chunk_ = 1, exact_per_chunk_ = 1;
   Phase phase_ = Phase::kHeader;

@@ -148,6 +148,12 @@ std::optional<TileResult> render_leased_tile(const TileRenderer& renderer, const
     else
       out.vertices.insert(out.vertices.end(), part.vertices.begin(), part.vertices.end());
     out.visible.insert(out.visible.end(), part.visible.begin(), part.visible.end());
+    if (out.packed_vertices.empty())
+      out.packed_vertices = std::move(part.packed_vertices);
+    else
+      out.packed_vertices += part.packed_vertices;
+    out.encode_counts += part.encode_counts;
+    out.packed_bounds = part.packed_bounds;
     out.stats += part.stats;
   }
   return out;

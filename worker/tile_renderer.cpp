@@ -24,6 +24,12 @@ TileStats& TileStats::operator+=(const TileStats& o) {
   return *this;
 }
 
+TileRenderer::TileRenderer(const PathTracer& tracer, VertexFilter filter, const Bounds3& codec_bounds)
+    : tracer_(tracer), filter_(filter), codec_bounds_(codec_bounds) {
+  if (filter_.mode == VertexFilter::Mode::kAll || filter_.mode == VertexFilter::Mode::kCull)
+    codec_.emplace(codec_bounds);
+}
+
 void TileRenderer::filter_vertices(std::vector<VertexRecord>& recs, size_t first, TileResult& out) const {
   const Camera& cam = tracer_.camera();
   const EmbreeScene& scene = tracer_.scene();
@@ -76,9 +82,12 @@ TileResult TileRenderer::render(const TileRequest& req) const {
   out.path_sum.assign(n, Vec3(0.f));
   out.path_count.assign(n, 0);
   const bool record = filter_.mode != VertexFilter::Mode::kNone;
-  // Exact mode keeps records only until they are turned into VisibleSamples.
+  const bool encode = codec_.has_value();
+  // Exact mode keeps records only until they are turned into VisibleSamples; with a codec, kept
+  // records wait only until kEncodeBatch of them can be packed together (still in cache).
   std::vector<VertexRecord> scratch;
-  std::vector<VertexRecord>& recs = filter_.mode == VertexFilter::Mode::kExact ? scratch : out.vertices;
+  std::vector<VertexRecord>& recs = filter_.mode == VertexFilter::Mode::kExact || encode ? scratch : out.vertices;
+  if (encode) out.packed_bounds = codec_bounds_;
 
   size_t i = 0;
   for (int y = req.rect.y0; y < req.rect.y1; ++y) {
@@ -93,11 +102,16 @@ TileResult TileRenderer::render(const TileRequest& req) const {
         if (filter_.mode == VertexFilter::Mode::kCull || filter_.mode == VertexFilter::Mode::kExact)
           filter_vertices(recs, before, out);
         if (filter_.mode == VertexFilter::Mode::kExact) recs.clear();
+        if (encode && recs.size() >= kEncodeBatch) {
+          codec_->encode_batch(recs, &out.packed_vertices, &out.encode_counts);
+          recs.clear();
+        }
       }
       out.path_sum[i] = sum;
       out.path_count[i] = uint32_t(req.paths_per_pixel);
     }
   }
+  if (encode) codec_->encode_batch(recs, &out.packed_vertices, &out.encode_counts);
   out.stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return out;
 }

@@ -3,14 +3,21 @@
 //
 // Per tile pixel it returns the sum and count of this tile's path samples, and the vertex records
 // the reprojector needs, filtered for the camera (VertexFilter) so that nothing the master would
-// cull crosses the network. In exact mode the worker decides visibility itself with a ray from each
-// vertex to the eye and returns (subpixel, radiance) pairs instead of records.
+// cull crosses the network. Given the job's codec bounds (kAll / kCull), it encodes the kept vertices
+// into their 16-byte wire form a few paths after they come out of the tracer (VertexCodec, the bytes
+// TileResultWriter would produce from the records), so that no 40-byte record is kept for the tile and
+// the worker makes no second pass over the tile's vertices before SubmitTile. In exact mode the
+// worker decides visibility itself with a ray from each vertex to the eye and returns (subpixel,
+// radiance) pairs instead of records.
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <span>
+#include <string>
 #include <vector>
 
+#include "common/vertex_codec.h"
 #include "common/vertex_record.h"
 #include "worker/path_tracer.h"
 
@@ -67,15 +74,29 @@ struct TileResult {
   TileRect rect;
   std::vector<Vec3> path_sum;          // per tile pixel, linear RGB, sum over this tile's paths
   std::vector<uint32_t> path_count;    // per tile pixel
-  std::vector<VertexRecord> vertices;  // kAll / kCull
+  std::vector<VertexRecord> vertices;  // kAll / kCull without codec bounds
   std::vector<VisibleSample> visible;  // kExact
   TileStats stats;
+  /// kAll / kCull with codec bounds: the kept vertices the codec accepted, 16 bytes each
+  /// (VertexCodec::encode_batch of what `vertices` would hold, in the same order), and the counts of
+  /// what it refused. `vertices` stays empty. packed_bounds: the bounds they were encoded with
+  /// (TileResultWriter checks them against the lease's); nullopt if nothing was encoded here.
+  std::string packed_vertices;
+  EncodeCounts encode_counts;
+  std::optional<Bounds3> packed_bounds;
 };
 
 class TileRenderer {
  public:
   TileRenderer(const PathTracer& tracer, VertexFilter filter) : tracer_(tracer), filter_(filter) {}
+  /// Encodes the vertices as they are produced (kAll / kCull; other modes ignore the bounds). Throws
+  /// std::invalid_argument for bounds VertexCodec refuses.
+  TileRenderer(const PathTracer& tracer, VertexFilter filter, const Bounds3& codec_bounds);
   TileResult render(const TileRequest& request) const;
+
+  /// With codec bounds, kept records are encoded once at least this many have gathered (a few paths'
+  /// worth, 2.5 KB: still in L1), so that the codec's four-record kernel runs on full groups.
+  static constexpr size_t kEncodeBatch = 64;
 
  private:
   /// Applies the filter to `recs` in place (kCull / kExact) and fills `visible` in exact mode.
@@ -83,6 +104,8 @@ class TileRenderer {
 
   const PathTracer& tracer_;
   VertexFilter filter_;
+  std::optional<VertexCodec> codec_;  // set: encode kept vertices into TileResult::packed_vertices
+  Bounds3 codec_bounds_;
 };
 
 }  // namespace epr

@@ -440,7 +440,8 @@ struct WorkerNode::Impl {
 
     std::optional<TileResult> result;
     try {
-      const TileRenderer renderer(*job->tracer, tile.filter);
+      // Vertices are encoded as they are traced (the bytes SubmitTile sends), not in a pass afterwards.
+      const TileRenderer renderer(*job->tracer, tile.filter, job->codec_bounds);
       result = render_leased_tile(renderer, tile, [&] { return s.ending.load() || h->abandoned.load(); });
     } catch (const std::exception& e) {
       const int delay = job_failed(lease.job_id());

@@ -12,6 +12,7 @@
 #include <limits>
 
 #include "common/builtin_scenes.h"
+#include "tests/common/vertex_codec_reference.h"
 #include "worker/tile_renderer.h"
 
 namespace epr {
@@ -353,6 +354,65 @@ TEST(TileResultStream, WriterDropsWhatTheCodecRefusesAndCountsIt) {
   const auto& px = chunks[1].pixels();
   EXPECT_EQ(px.radiance_sum(3), 0.f);
   EXPECT_EQ(px.path_count(1), 1u);
+}
+
+// The worker's path: TileRenderer with the codec bounds packs the vertices while tracing; the stream
+// must be the one the writer makes from the records, byte for byte, and those bytes the plain formulas'.
+TEST(TileResultStream, VerticesPackedWhileTracingGiveTheSameStream) {
+  const CornellFixture& f = cornell();
+  const Bounds3 bounds = f.scene.bounds();
+  const TileRect rect{8, 4, 40, 36};
+  TileRequest req;
+  req.rect = rect;
+  req.paths_per_pixel = 3;
+  TileResultLimits limits;
+  limits.max_vertices_per_chunk = 97;  // several vertex chunks
+  for (const VertexFilter::Mode mode : {VertexFilter::Mode::kAll, VertexFilter::Mode::kCull}) {
+    VertexFilter filter;
+    filter.mode = mode;
+    filter.subpixels = 2;
+    const TileResult records = TileRenderer(f.tracer, filter).render(req);
+    const TileResult packed = TileRenderer(f.tracer, filter, bounds).render(req);
+    ASSERT_TRUE(packed.packed_bounds.has_value());
+    EXPECT_TRUE(packed.vertices.empty());
+    EXPECT_FALSE(records.packed_bounds.has_value());
+    ASSERT_GT(records.vertices.size(), 500u);
+
+    EncodeCounts want_counts;
+    const std::string want = test::ReferenceEncoder(bounds).encode_all(records.vertices, &want_counts);
+    EXPECT_EQ(packed.packed_vertices, want);
+    EXPECT_EQ(packed.encode_counts.accepted, want_counts.accepted);
+    EXPECT_EQ(packed.encode_counts.rejected_total(), want_counts.rejected_total());
+
+    auto a = split_tile_result(records, identity(), bounds, limits);
+    auto b = split_tile_result(packed, identity(), bounds, limits);
+    ASSERT_EQ(a.size(), b.size());
+    EXPECT_GT(a.size(), 6u);
+    for (auto* chunks : {&a, &b})  // the tracing wall time is the one field that may differ
+      chunks->back().mutable_trailer()->mutable_stats()->set_seconds_tracing(0);
+    for (size_t i = 0; i < a.size(); ++i)
+      EXPECT_EQ(a[i].SerializeAsString(), b[i].SerializeAsString()) << "chunk " << i;
+  }
+  // Exact mode and path tracing ignore the bounds.
+  VertexFilter exact;
+  exact.mode = VertexFilter::Mode::kExact;
+  exact.subpixels = 2;
+  const TileResult e = TileRenderer(f.tracer, exact, bounds).render(req);
+  EXPECT_FALSE(e.packed_bounds.has_value());
+  EXPECT_TRUE(e.packed_vertices.empty());
+  EXPECT_FALSE(e.visible.empty());
+}
+
+TEST(TileResultStream, WriterRefusesVerticesPackedWithOtherBounds) {
+  const CornellFixture& f = cornell();
+  VertexFilter filter;
+  filter.mode = VertexFilter::Mode::kCull;
+  const TileResult packed = TileRenderer(f.tracer, filter, f.scene.bounds()).render({{0, 0, 8, 8}, {}, {}, 2});
+  Bounds3 other = f.scene.bounds();
+  other.hi.x = std::nextafter(other.hi.x, kInf);  // one ulp: a different quantisation
+  EXPECT_THROW(TileResultWriter(packed, identity(), other, {}), std::invalid_argument);
+  EXPECT_NO_THROW(TileResultWriter(packed, identity(), f.scene.bounds(), {}));
+  EXPECT_THROW(TileRenderer(f.tracer, filter, Bounds3{Vec3(1.f), Vec3(0.f)}), std::invalid_argument);
 }
 
 // ---- protocol violations ------------------------------------------------------------------------------

@@ -194,6 +194,20 @@ TEST(TileLease, StripsAreBitIdenticalToOneCall) {
     EXPECT_EQ(parts->stats.culled_frustum, whole.stats.culled_frustum);
     EXPECT_GT(whole.vertices.size() + whole.visible.size(), 0u);
 
+    // Packed while tracing (WorkerNode's renderer): the strips' bytes and counts concatenate to one call's.
+    if (method != ReprojectMethod::kExact) {
+      const TileRenderer packing(tracer, t.filter, from_proto(lease.settings().codec_bounds()));
+      const TileResult one = packing.render(t.request());
+      const auto strips_packed = render_leased_tile(packing, t, {}, /*strip_paths=*/100);
+      ASSERT_TRUE(strips_packed);
+      EXPECT_GT(one.packed_vertices.size(), 0u);
+      EXPECT_EQ(strips_packed->packed_vertices, one.packed_vertices);
+      EXPECT_EQ(strips_packed->encode_counts.accepted, one.encode_counts.accepted);
+      EXPECT_EQ(strips_packed->encode_counts.accepted * VertexCodec::kPackedBytes, one.packed_vertices.size());
+      EXPECT_TRUE(strips_packed->packed_bounds.has_value());
+      EXPECT_TRUE(strips_packed->vertices.empty());
+    }
+
     // Cancelled after the second strip: no result.
     int calls = 0;
     EXPECT_FALSE(render_leased_tile(
