@@ -590,6 +590,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> backends = {"cpu", "gl"};
   std::vector<int> client_counts = {1, 2};
   std::string serve_file, target;
+  bool checkpoints = false;
   app.add_option("--scene", rs.spec);
   app.add_option("--size", rs.size, "image side, pixels");
   app.add_option("-S,--subpixels", rs.S);
@@ -599,6 +600,7 @@ int main(int argc, char** argv) {
   app.add_option("--backends", backends, "reprojectors: cpu, gl")->delimiter(',');
   app.add_option("--clients", client_counts, "bench workers (gRPC channels, one thread each)")->delimiter(',');
   app.add_flag("--in-process", rs.in_process, "run the bench workers as threads of this process");
+  app.add_flag("--checkpoints", checkpoints, "checkpoint every round as a master with --state-dir does");
   app.add_option("--serve-clients", serve_file, "(internal) be the bench workers' process");
   app.add_option("--target", target, "(internal) the master's address");
   int encode_reps = 0;
@@ -650,6 +652,7 @@ int main(int argc, char** argv) {
   MasterServerOptions mo;
   mo.listen = "127.0.0.1:0";
   mo.jobs.state_dir = state_dir + "/master";
+  mo.jobs.checkpoints = checkpoints;  // ingestion alone unless asked: a checkpoint is per round, not per vertex
   MasterServer master(mo);
   for (int i = 0; i < 200 && !master.jobs().gl_ready(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
 

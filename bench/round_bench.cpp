@@ -78,6 +78,7 @@ struct JobFigures {
 };
 
 int g_tile_size = RenderOptions{}.tile_size;  // --tile
+bool g_checkpoints = false;  // --checkpoints
 
 RenderOptions options(const std::string& scene, int size, int spp, RenderMode mode, int ppr, float growth) {
   RenderOptions o;
@@ -99,6 +100,7 @@ JobFigures run_embedded(const RenderOptions& o, int threads, const fs::path& tmp
   eo.workers = 1;
   eo.worker_threads = threads;
   eo.state_dir = (tmp / "state").string();
+  eo.checkpoints = g_checkpoints;  // `epr render` keeps its state in a temporary folder: no checkpoints
   std::vector<std::pair<uint32_t, Clock::time_point>> rounds;
   const double c0 = process_cpu_seconds();
   const auto t0 = Clock::now();
@@ -160,6 +162,7 @@ BenchJob run_bench_workers(const RenderOptions& o, int threads, const fs::path& 
   MasterServerOptions mo;
   mo.listen = "127.0.0.1:0";
   mo.jobs.state_dir = (tmp / "state").string();
+  mo.jobs.checkpoints = g_checkpoints;
   MasterServer master(mo);
   for (int i = 0; i < 200 && !master.jobs().gl_ready(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
   std::vector<std::unique_ptr<BenchWorker>> workers;
@@ -345,6 +348,7 @@ std::pair<double, double> lease_rtt(int n) {
   MasterServerOptions mo;
   mo.listen = "127.0.0.1:0";
   mo.jobs.state_dir = (fs::temp_directory_path() / ("round_bench_rtt_" + std::to_string(::getpid()))).string();
+  mo.jobs.checkpoints = g_checkpoints;
   MasterServer master(mo);
   std::vector<double> t;
   double cpu = 0;
@@ -384,6 +388,8 @@ int main(int argc, char** argv) {
   app.add_option("--runs", runs, "runs of the offline per-round measurements (median)");
   app.add_option("--tile", g_tile_size, "tile size of the jobs, pixels");
   app.add_flag("--no-bench-workers", no_bench_workers, "only the embedded default (part 1)");
+  app.add_flag("--checkpoints", g_checkpoints,
+               "checkpoint every round as a master with --state-dir does (the embedded default does not)");
   app.add_flag("--no-embedded", no_embedded, "skip part 1");
   app.add_flag("--no-master-costs", no_master_costs, "skip part 3 (e.g. when profiling part 1 with perf)");
   CLI11_PARSE(app, argc, argv);
