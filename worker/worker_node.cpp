@@ -17,6 +17,7 @@
 #include <mutex>
 #include <random>
 #include <stdexcept>
+#include <future>
 #include <thread>
 #include <vector>
 
@@ -406,7 +407,10 @@ struct WorkerNode::Impl {
     job_failures.erase(job_id);
   }
 
-  void process_tile(Session& s, const v1::TileLease& lease) {
+  // Leases, traces and hands the result to a background submission (`pending`: this thread's
+  // submission in flight, at most one), so that the next tile is leased and traced while the master
+  // receives this one.
+  void process_tile(Session& s, const v1::TileLease& lease, std::future<void>* pending) {
     ++counters.tiles_leased;
     const uint64_t id = lease.lease_id();
     auto h = hold(s, id);
@@ -464,7 +468,15 @@ struct WorkerNode::Impl {
       return;
     }
     if (!result || s.lost) return;  // stopping or broken: the hold is returned on the way out
-    if (submit(s, lease, *job, *result, *h)) release(s, id);
+    finish_submission(pending);
+    *pending = std::async(std::launch::async, [this, &s, lease, job, h, id, r = std::move(*result)] {
+      if (submit(s, lease, *job, r, *h)) release(s, id);
+    });
+  }
+
+  // Waits for a background submission to end (rethrowing what it threw).
+  static void finish_submission(std::future<void>* pending) {
+    if (pending->valid()) pending->get();
   }
 
   // True once the master has answered for the tile (committed, dropped or refused); false if the
@@ -552,6 +564,13 @@ struct WorkerNode::Impl {
   }
 
   void tracing_loop(Session& s) {
+    std::future<void> pending;  // this thread's tile result being submitted
+    struct Drain {              // on every way out: the last submission ends before the thread does
+      std::future<void>* f;
+      ~Drain() {
+        if (f->valid()) f->wait();
+      }
+    } drain{&pending};
     while (!s.ending) {
       v1::LeaseRequest req;
       req.mutable_worker_id()->set_id(s.worker_id);
@@ -572,7 +591,7 @@ struct WorkerNode::Impl {
       s.healthy = true;
       switch (lease.kind_case()) {
         case v1::Lease::kTile:
-          process_tile(s, lease.tile());
+          process_tile(s, lease.tile(), &pending);
           break;
         case v1::Lease::kWait:
           wait_for(&s, std::clamp<int>(int(lease.wait().retry_after_ms()), kMinWaitMs, kMaxWaitMs));
