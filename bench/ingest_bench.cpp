@@ -120,21 +120,30 @@ ReprojectCost reprojection_cost(const std::string& backend, const std::string& s
   return {1e9 * cpu[cpu.size() / 2] / double(syn.vertices), 1e9 * wall[wall.size() / 2] / double(syn.vertices)};
 }
 
-Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, int tile_size, const TileResultLimits& limits) {
-  Synthetic syn;
-  const Scene scene = load_scene(spec);
+// Every tile of a size x size frame of `scene` traced once, k paths per pixel, with the worker's
+// culling (kCull, S subpixels); with `pack`, the kept vertices are also encoded while tracing, as
+// WorkerNode's TileRenderer does.
+std::vector<TileResult> trace_all_tiles(const Scene& scene, int size, int S, int k, int tile_size, bool pack) {
   EmbreeScene es(scene);
   const Camera cam(scene.camera, size, size);
   PathTracer tracer(es, cam, 1, RussianRoulette::paper());
   VertexFilter filter;
   filter.mode = VertexFilter::Mode::kCull;
   filter.subpixels = S;
-  TileRenderer renderer(tracer, filter);
+  const TileRenderer renderer = pack ? TileRenderer(tracer, filter, scene.bounds()) : TileRenderer(tracer, filter);
   const auto rects = make_tiles(size, size, tile_size);
-  syn.tiles.resize(rects.size());
-  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) {
-    syn.tiles[t].result = renderer.render({rects[t], {}, {}, k});
-  });
+  std::vector<TileResult> results(rects.size());
+  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) { results[t] = renderer.render({rects[t], {}, {}, k}); });
+  return results;
+}
+
+Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, int tile_size, const TileResultLimits& limits) {
+  Synthetic syn;
+  const Scene scene = load_scene(spec);
+  std::vector<TileResult> traced = trace_all_tiles(scene, size, S, k, tile_size, false);
+  const auto rects = make_tiles(size, size, tile_size);
+  syn.tiles.resize(traced.size());
+  for (size_t t = 0; t < traced.size(); ++t) syn.tiles[t].result = std::move(traced[t]);
 
   // Encode once (worker-side cost, timed).
   const double c0 = thread_cpu_seconds();
@@ -496,26 +505,13 @@ Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method
 // The packed tiles (traced again with codec bounds) must give the writer's bytes exactly; checked.
 void encode_microbench(const std::string& spec, int size, int S, int k, int tile_size, int reps) {
   const Scene scene = load_scene(spec);
-  EmbreeScene es(scene);
-  const Camera cam(scene.camera, size, size);
-  PathTracer tracer(es, cam, 1, RussianRoulette::paper());
-  VertexFilter filter;
-  filter.mode = VertexFilter::Mode::kCull;
-  filter.subpixels = S;
-  TileRenderer renderer(tracer, filter);
-  const auto rects = make_tiles(size, size, tile_size);
-  std::vector<TileResult> results(rects.size());
-  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) { results[t] = renderer.render({rects[t], {}, {}, k}); });
+  const std::vector<TileResult> results = trace_all_tiles(scene, size, S, k, tile_size, false);
   uint64_t vertices = 0;
   for (const TileResult& r : results) vertices += r.vertices.size();
   const VertexCodec codec(scene.bounds());
   const TileResultLimits limits;
-  const TileRenderer packing(tracer, filter, scene.bounds());
-  std::vector<TileResult> packed_results(rects.size());
-  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) {
-    packed_results[t] = packing.render({rects[t], {}, {}, k});
-  });
-  for (size_t t = 0; t < rects.size(); ++t) {
+  const std::vector<TileResult> packed_results = trace_all_tiles(scene, size, S, k, tile_size, true);
+  for (size_t t = 0; t < results.size(); ++t) {
     auto a = split_tile_result(results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
     auto b = split_tile_result(packed_results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
     for (auto* chunks : {&a, &b})  // the tracing wall time is the one field that may differ
@@ -526,6 +522,19 @@ void encode_microbench(const std::string& spec, int size, int S, int k, int tile
   }
   std::vector<double> codec_ns, writer_ns, inrender_ns, packed_ns;
   uint64_t sink = 0;
+  // Thread CPU per vertex of writing every tile of `tiles` into its SubmitTile chunks.
+  const auto writer_pass = [&](const std::vector<TileResult>& tiles) {
+    const double c0 = thread_cpu_seconds();
+    for (size_t t = 0; t < tiles.size(); ++t) {
+      TileResultWriter w(tiles[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
+      v1::TileResultChunk c;
+      while (w.next(&c)) {
+        if (c.has_vertices()) sink += c.vertices().packed().size();
+        c.Clear();
+      }
+    }
+    return 1e9 * (thread_cpu_seconds() - c0) / double(vertices);
+  };
   for (int rep = 0; rep < reps; ++rep) {
     double c0 = thread_cpu_seconds();
     for (const TileResult& r : results) {
@@ -534,16 +543,7 @@ void encode_microbench(const std::string& spec, int size, int S, int k, int tile
       sink += packed.size();
     }
     codec_ns.push_back(1e9 * (thread_cpu_seconds() - c0) / double(vertices));
-    c0 = thread_cpu_seconds();
-    for (size_t t = 0; t < results.size(); ++t) {
-      TileResultWriter w(results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
-      v1::TileResultChunk c;
-      while (w.next(&c)) {
-        if (c.has_vertices()) sink += c.vertices().packed().size();
-        c.Clear();
-      }
-    }
-    writer_ns.push_back(1e9 * (thread_cpu_seconds() - c0) / double(vertices));
+    writer_ns.push_back(writer_pass(results));
     c0 = thread_cpu_seconds();
     for (const TileResult& r : results) {
       std::string packed;
@@ -554,16 +554,7 @@ void encode_microbench(const std::string& spec, int size, int S, int k, int tile
       sink += packed.size();
     }
     inrender_ns.push_back(1e9 * (thread_cpu_seconds() - c0) / double(vertices));
-    c0 = thread_cpu_seconds();
-    for (size_t t = 0; t < packed_results.size(); ++t) {
-      TileResultWriter w(packed_results[t], {1, "bench", 0, uint32_t(t), "bench"}, scene.bounds(), limits);
-      v1::TileResultChunk c;
-      while (w.next(&c)) {
-        if (c.has_vertices()) sink += c.vertices().packed().size();
-        c.Clear();
-      }
-    }
-    packed_ns.push_back(1e9 * (thread_cpu_seconds() - c0) / double(vertices));
+    packed_ns.push_back(writer_pass(packed_results));
   }
   auto med = [](std::vector<double> v) {
     std::sort(v.begin(), v.end());
