@@ -2,6 +2,9 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <optional>
 #include <iostream>
 #include <map>
 
@@ -17,6 +20,27 @@
 namespace {
 
 using namespace epr;
+
+// Makes the folder of the output prefix and checks that files can be written there, before a render
+// whose outputs would otherwise be lost at its end. The reason when that is impossible.
+std::optional<std::string> prepare_output_folder(const std::string& prefix) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::path(prefix).parent_path();
+  std::error_code ec;
+  if (!dir.empty() && !fs::is_directory(dir, ec)) {
+    fs::create_directories(dir, ec);
+    if (ec) return fmt::format("cannot create the output folder '{}': {}", dir.string(), ec.message());
+  }
+  const fs::path probe = (dir.empty() ? fs::path(".") : dir) / fmt::format(".epr-write-check-{}", ::getpid());
+  bool ok = false;
+  {
+    std::ofstream f(probe);
+    ok = bool(f);
+  }
+  fs::remove(probe, ec);
+  if (!ok) return fmt::format("cannot write into the output folder '{}'", dir.empty() ? "." : dir.string());
+  return std::nullopt;
+}
 
 void print_progress(const RoundProgress& p, int spp, bool tty) {
   const int width = 30;
@@ -52,6 +76,10 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
   finish_options(o, extra);
   if (auto err = o.validate()) {
     std::fprintf(stderr, "epr render: %s\n", err->c_str());
+    return 2;
+  }
+  if (auto err = prepare_output_folder(o.out)) {
+    std::fprintf(stderr, "epr render: %s (--out %s)\n", err->c_str(), o.out.c_str());
     return 2;
   }
   const bool tty = isatty(STDERR_FILENO);

@@ -491,6 +491,10 @@ FetchedFile JobClient::fetch_to(const std::string& job_id, v1::ResultKind kind,
   const v1::ResultHeader header = chunk.header();
   FetchedFile file{kind, path_for(header), header.total_bytes(), header.round(), header.partial()};
   const std::string tmp = fmt::format("{}.part-{}-{}", file.path, ::getpid(), counter++);
+  if (const auto dir = std::filesystem::path(file.path).parent_path(); !dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(dir, ec);  // a failure shows as "cannot write" below
+  }
 
   bool finished = false;
   try {

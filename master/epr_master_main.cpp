@@ -23,7 +23,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--state-dir", o.jobs.state_dir,
                  "folder for results, scenes and job checkpoints; a master restarted on the same folder resumes its "
-                 "jobs (default: a temp folder, no checkpoints)");
+                 "jobs (default: a temp folder, no checkpoints, removed when the master exits)");
   app.add_flag("!--no-checkpoints", o.jobs.checkpoints,
                "do not checkpoint jobs after every round (a restarted master then starts unfinished jobs again)");
   app.add_option("--lease-timeout-ms", o.jobs.lease_timeout_ms, "a tile lease not extended for this long is re-queued")

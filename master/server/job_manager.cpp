@@ -1,6 +1,7 @@
 #include "master/server/job_manager.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -129,8 +130,12 @@ struct JobManager::Task {
 // ---- lifecycle ------------------------------------------------------------------------------------
 
 JobManager::JobManager(MasterOptions options) : options_(std::move(options)) {
-  state_dir_ = options_.state_dir.empty() ? (fs::temp_directory_path() / fmt::format("epr-master-{}", ::getpid())).string()
-                                          : options_.state_dir;
+  // A temporary folder is this manager's alone (several masters may live in one process) and goes
+  // with it.
+  static std::atomic<uint32_t> temporary_folders{0};
+  state_dir_ = options_.state_dir.empty()
+                   ? (fs::temp_directory_path() / fmt::format("epr-master-{}-{}", ::getpid(), ++temporary_folders)).string()
+                   : options_.state_dir;
   fs::create_directories(fs::path(state_dir_) / "jobs");
   store_ = std::make_unique<CheckpointStore>(state_dir_);
   checkpointing_ = options_.checkpoints && !options_.state_dir.empty();
@@ -143,7 +148,13 @@ JobManager::JobManager(MasterOptions options) : options_(std::move(options)) {
   if (checkpointing_) checkpoint_thread_ = std::thread([this] { checkpoint_loop(); });
 }
 
-JobManager::~JobManager() { shutdown(); }
+JobManager::~JobManager() {
+  shutdown();
+  if (options_.state_dir.empty()) {
+    std::error_code ec;
+    fs::remove_all(state_dir_, ec);
+  }
+}
 
 void JobManager::shutdown() {
   {

@@ -50,7 +50,8 @@ class CheckpointStore;
 struct JobProgressRecord;
 
 struct MasterOptions {
-  std::string state_dir;  // results, scenes and checkpoints (checkpoint.h); empty: a temp folder
+  std::string state_dir;  // results, scenes and checkpoints (checkpoint.h); empty: a temp folder of
+                          // this manager's, removed with it (results must be fetched before)
   // Checkpoint every job after every round (and its spec at submit) so that a restarted master on
   // the same state_dir resumes it. Only with an explicit state_dir: a temp folder is never reopened.
   bool checkpoints = true;

@@ -18,6 +18,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <functional>
 #include <map>
 #include <memory>
@@ -344,6 +345,37 @@ class ClusterTest : public ::testing::Test {
 };
 
 // ---- 1. a cluster equals the single-process render ---------------------------------------------------
+
+// `epr render --out` into a folder that does not exist yet makes it; one that cannot exist fails
+// before rendering, naming it, instead of losing the render at its end.
+TEST(EprRender, MakesTheOutputFolderOrRefusesBeforeRendering) {
+  const fs::path dir = fs::temp_directory_path() / ("epr_out_test_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::vector<std::string> render = {kEpr, "render", "builtin:cornell", "--width", "32", "--height", "32",
+                                           "--spp", "2", "--http", ""};
+  for (const bool single : {false, true}) {
+    const fs::path prefix = dir / (single ? "single" : "embedded") / "nested" / "cornell";
+    std::vector<std::string> args = render;
+    args.insert(args.end(), {"--out", prefix.string()});
+    if (single) args.push_back("--single-process");
+    const RunResult r = run_process(args, dir / (single ? "log-single" : "log-embedded"), Millis(120000));
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_TRUE(fs::is_regular_file(prefix.string() + ".exr"));
+    EXPECT_TRUE(fs::is_regular_file(prefix.string() + ".png"));
+  }
+  {
+    std::ofstream(dir / "a-file") << "not a folder";
+    std::vector<std::string> args = render;
+    args.insert(args.end(), {"--out", (dir / "a-file" / "sub" / "cornell").string()});
+    const RunResult r = run_process(args, dir / "log-refused", Millis(60000));
+    EXPECT_EQ(r.code, 2) << r.err;
+    EXPECT_NE(r.err.find("cannot create the output folder"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find((dir / "a-file" / "sub").string()), std::string::npos) << r.err;
+    EXPECT_EQ(r.err.find("round"), std::string::npos) << "refused before rendering: " << r.err;
+  }
+  fs::remove_all(dir);
+}
 
 TEST_F(ClusterTest, ThreeWorkersEqualSingleProcessRender) {
   const Job job;
