@@ -226,11 +226,14 @@ struct WorkerNode::Impl {
     if (s) end_session(*s, reason, /*lost=*/false);
   }
 
+  // The hold of a lease, made when the lease arrives (a stop returns it even before it is traced).
   std::shared_ptr<Session::Hold> hold(Session& s, uint64_t lease_id) {
-    auto h = std::make_shared<Session::Hold>();
-    h->lease_id = lease_id;
     std::lock_guard lock(s.mu);
-    s.held[lease_id] = h;
+    auto& h = s.held[lease_id];
+    if (!h) {
+      h = std::make_shared<Session::Hold>();
+      h->lease_id = lease_id;
+    }
     return h;
   }
 
@@ -563,6 +566,27 @@ struct WorkerNode::Impl {
     }
   }
 
+  struct LeaseCall {
+    grpc::Status status;
+    v1::Lease lease;
+  };
+  // One LeaseTile call; a tile it grants is held at once (heartbeats report it, a stop returns it).
+  LeaseCall lease_tile(Session& s) {
+    v1::LeaseRequest req;
+    req.mutable_worker_id()->set_id(s.worker_id);
+    grpc::ClientContext ctx;
+    prepare(ctx, kLeaseDeadline);
+    LeaseCall call;
+    {
+      // Not cancelled by stop(): the master answers at once, and a cancelled call whose lease was
+      // already granted would leave that lease to expire instead of being returned.
+      CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
+      call.status = s.stub->LeaseTile(&ctx, req, &call.lease);
+    }
+    if (call.status.ok() && call.lease.has_tile()) hold(s, call.lease.tile().lease_id());
+    return call;
+  }
+
   void tracing_loop(Session& s) {
     std::future<void> pending;  // this thread's tile result being submitted
     struct Drain {              // on every way out: the last submission ends before the thread does
@@ -571,26 +595,20 @@ struct WorkerNode::Impl {
         if (f->valid()) f->wait();
       }
     } drain{&pending};
+    // The next lease, asked for while this thread traces its tile: the master's answer arrives during
+    // the tracing instead of after it. (Destroyed before `drain`: the call ends before the thread.)
+    std::future<LeaseCall> next;
     while (!s.ending) {
-      v1::LeaseRequest req;
-      req.mutable_worker_id()->set_id(s.worker_id);
-      grpc::ClientContext ctx;
-      prepare(ctx, kLeaseDeadline);
-      v1::Lease lease;
-      grpc::Status status;
-      {
-        // Not cancelled by stop(): the master answers at once, and a cancelled call whose lease was
-        // already granted would leave that lease to expire instead of being returned.
-        CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
-        status = s.stub->LeaseTile(&ctx, req, &lease);
-      }
-      if (!status.ok()) {
-        call_failed(s, "LeaseTile", status);
+      LeaseCall call = next.valid() ? next.get() : lease_tile(s);
+      const v1::Lease& lease = call.lease;
+      if (!call.status.ok()) {
+        call_failed(s, "LeaseTile", call.status);
         break;
       }
       s.healthy = true;
       switch (lease.kind_case()) {
         case v1::Lease::kTile:
+          next = std::async(std::launch::async, [this, &s] { return lease_tile(s); });
           process_tile(s, lease.tile(), &pending);
           break;
         case v1::Lease::kWait:
