@@ -51,6 +51,7 @@
 #include <vector>
 
 #include "bench_reference.h"
+#include "tests/study/unfiltered_render.h"
 #include "client/local_render.h"
 #include "common/image.h"
 #include "common/log.h"
@@ -237,36 +238,16 @@ Metrics measure(const Run& r, const Image& ref, const Masks& k, const Region& re
 // worker, reaches the CPU reprojector with its normal turned towards the camera, as if the
 // reprojector ignored the side a point was lit from (the paper's behaviour). Otherwise the same
 // rounds as render_local (no wire quantisation: it does not change which side a normal is on).
-Run render_facing_defeated(RenderOptions o) {
-  o.mode = RenderMode::kReproject;
-  o.reproject = ReprojectMethod::kCpu;
+Run render_facing_defeated(const RenderOptions& o) {
   Run run;
   const double c0 = cpu_seconds();
   const auto t0 = std::chrono::steady_clock::now();
-  const Scene scene = load_scene(o.scene);
-  const Camera camera(o.camera_for(scene.camera), o.width, o.height);
-  EmbreeScene embree(scene);
-  FrameState frame(o, camera, scene, nullptr);
-  PathTracer tracer(embree, camera, o.seed, o.rr, o.mis);
-  TileRenderer renderer(tracer, VertexFilter{VertexFilter::Mode::kAll, o.subpixels, true});
-  const TileRect all{0, 0, o.width, o.height};
-  while (!frame.done()) {
-    std::vector<uint8_t> skip;
-    std::vector<uint32_t> first;
-    frame.tile_inputs(0, 0, o.width, o.height, &skip, &first);
-    TileResult res = renderer.render({all, skip, first, frame.next_paths_per_pixel()});
-    for (VertexRecord& v : res.vertices)
-      if (dot(v.normal, camera.eye() - v.position) < 0) v.normal = -v.normal;
-    frame.add_paths(0, 0, o.width, o.height, res.path_sum, res.path_count);
-    frame.reproject(res.vertices);
-    frame.finish_round();
-  }
-  const FrameImages img = frame.images();
-  run.out.combined = img.combined;
-  run.out.pathtrace = img.pathtrace;
-  run.out.reprojection = img.reprojection;
-  run.out.stats = frame.statistics(o);
-  run.out.stats["vertices_recorded"] = frame.counts().total();
+  const UnfilteredRender r = render_unfiltered(o, /*defeat_facing=*/true, /*reproject_glossy=*/true);
+  run.out.combined = r.images.combined;
+  run.out.pathtrace = r.images.pathtrace;
+  run.out.reprojection = r.images.reprojection;
+  run.out.stats = r.stats;
+  run.out.stats["vertices_recorded"] = r.counts.total();
   run.wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   run.cpu = cpu_seconds() - c0;
   return run;
