@@ -60,6 +60,21 @@ const CornellFixture& cornell() {
 
 TileResultIdentity identity() { return {42, "job-1", 3, 5, "worker-a"}; }
 
+// The whole 512 x 256 image as one tile (big_tile()'s frame).
+TileExpectation big_tile_expectation(const Bounds3& bounds, const TileResultLimits& limits) {
+  TileExpectation e;
+  e.job_id = "job-1";
+  e.round = 3;
+  e.tile_index = 5;
+  e.x1 = 512;
+  e.y1 = 256;
+  e.image_width = 512;
+  e.image_height = 256;
+  e.codec_bounds = bounds;
+  e.limits = limits;
+  return e;
+}
+
 TileExpectation expectation(const TileRect& rect, TileExpectation::Payload payload, const Bounds3& bounds,
                             TileResultLimits limits = {}) {
   TileExpectation e;
@@ -263,16 +278,7 @@ TEST(TileResultStream, BigTileRespectsTheChunkLimits) {
     EXPECT_EQ(vertices, 100'000u);
     EXPECT_EQ(pixels, 512u * 256u);
     EXPECT_GT(chunks, 4u);
-    TileExpectation e;
-    e.job_id = "job-1";
-    e.round = 3;
-    e.tile_index = 5;
-    e.x1 = 512;
-    e.y1 = 256;
-    e.image_width = 512;
-    e.image_height = 256;
-    e.codec_bounds = bounds;
-    e.limits = limits;
+    const TileExpectation e = big_tile_expectation(bounds, limits);
     const AssembledTile t = assemble(split_tile_result(r, identity(), bounds, limits), e);
     EXPECT_EQ(t.vertices.size(), 100'000u);
     EXPECT_EQ(t.path_count, r.path_count);
@@ -285,16 +291,7 @@ TEST(TileResultStream, KeptPackedVerticesAreTheDecodedOnes) {
   const TileResult r = big_tile();
   const Bounds3 bounds{Vec3(0.f), Vec3(1.f)};
   const TileResultLimits limits{30'000, 2u << 20};  // 4 vertex batches
-  TileExpectation e;
-  e.job_id = "job-1";
-  e.round = 3;
-  e.tile_index = 5;
-  e.x1 = 512;
-  e.y1 = 256;
-  e.image_width = 512;
-  e.image_height = 256;
-  e.codec_bounds = bounds;
-  e.limits = limits;
+  TileExpectation e = big_tile_expectation(bounds, limits);
   auto chunks = split_tile_result(r, identity(), bounds, limits);
   const AssembledTile decoded = assemble(chunks, e);
   e.keep_packed = true;
