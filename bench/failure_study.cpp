@@ -8,11 +8,12 @@
 //
 // Cases (scene: settings):
 //   glossy    builtin:glossy: glossy vertices culled (default) / forced into the reprojection
-//   epsilon   builtin:cornell: plane-test epsilon 0 / default (3e-4 of the diagonal) / 10x / 100x
+//   epsilon   builtin:cornell: plane-test epsilon 0 / default (3e-4 of the diagonal) / 10x / 100x, and
+//             100x with the plane test alone (no joint test: the paper's transparency)
 //   subpixels builtin:cornell: S = 1 / 2 / 4
 //   wall      builtin:wall: almost every vertex culled
-//   thinwall  builtin:thinwall: zero-thickness partition, light on the far side; and the same with
-//             the back-facing test defeated (records' normals turned towards the camera, i.e. the
+//   thinwall  builtin:thinwall: zero-thickness partition, light on the far side; the same without
+//             the joint test (the leak at the joints it stops) and with the back-facing test defeated (records' normals turned towards the camera, i.e. the
 //             paper's behaviour) to show what the test protects
 //   rr        builtin:cornell and an analytic furnace: Russian roulette paper / off (fixed depth 8)
 //   hidden    builtin:hiddenlight: the only emitter is hidden from the camera
@@ -290,6 +291,10 @@ std::vector<Case> make_cases(const RenderOptions& base) {
   for (float f : {0.f, 1.f, 10.f, 100.f})
     eps.settings.push_back({f == 1 ? "3e-4 (default)" : fmt::format("{:g} x default", f),
                             with(cornell, [&](RenderOptions& o) { o.epsilon = 3e-4f * f; })});
+  eps.settings.push_back({"100 x, no joint test", with(cornell, [](RenderOptions& o) {
+                                                    o.epsilon = 3e-2f;
+                                                    o.joint_test = false;
+                                                  })});
   eps.settings.push_back({"exact", with(cornell, exact)});
   cases.push_back(eps);
   Case sub{"subpixels", cornell, {0.2f, 0.25f, 0.55f, 0.6f}, -1, {}};
@@ -311,6 +316,7 @@ std::vector<Case> make_cases(const RenderOptions& base) {
             -1,
             {
                 {"default", with("builtin:thinwall", same)},
+                {"no joint test", with("builtin:thinwall", [](RenderOptions& o) { o.joint_test = false; })},
                 {"exact", with("builtin:thinwall", exact)},
             }};
   thin.settings.push_back({"facing test defeated", with("builtin:thinwall", same), true});

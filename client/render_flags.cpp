@@ -40,6 +40,8 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
   cmd->add_option("--epsilon", o.epsilon, "plane-test tolerance, fraction of the scene's bounding-box diagonal")->capture_default_str();
   cmd->add_option("--min-paths", o.min_paths, "real paths a pixel traces before it may be skipped")->capture_default_str();
   cmd->add_flag("--reproject-glossy", o.reproject_glossy, "also reproject glossy vertices (failure-mode study)");
+  cmd->add_flag_callback("--no-joint-test", [&o] { o.joint_test = false; },
+                "plane test without its normal and crease tests: thin walls leak at their joints (failure-mode study)");
   cmd->add_option("--rr", extra["rr"], "Russian roulette: paper (after 8 bounces, p=0.1), albedo, or off")
       ->check(CLI::IsMember({"paper", "albedo", "off"}))->default_str("paper");
   cmd->add_option("--max-depth", extra["max-depth"],

@@ -45,6 +45,7 @@ struct RenderOptions {
   float epsilon = 3e-4f;                 // plane-test tolerance as a fraction of the scene's bbox diagonal
   int min_paths = 1;                     // a pixel is never skipped before it has this many real paths
   bool reproject_glossy = false;         // failure-mode study only
+  bool joint_test = true;                // the plane test's normal and crease tests (off: failure-mode study)
   RussianRoulette rr = RussianRoulette::paper();
   bool mis = true;                       // direct light by MIS of light and BSDF samples; false: NEE only
   int tile_size = 64;                    // pixels

@@ -23,10 +23,10 @@ constexpr size_t kSerialBelow = kChunk;    // reproject_packed and accumulate: o
 
 CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings)
     : settings_(settings),
-      params_(detail::make_kernel_params(camera, dfb.subpixels, settings.epsilon)),
+      params_(detail::make_kernel_params(camera, dfb.subpixels, settings.epsilon, settings.joint_test)),
       subpixels_(dfb.subpixels) {
   detail::validate_reprojector_inputs(camera, dfb, settings);
-  grid_ = detail::make_plane_grid(dfb);
+  grid_ = detail::make_plane_grid(dfb, camera.eye(), params_.crease_tolerance, settings_.joint_test);
   cells_.resize(dfb.texel_count());
   target_.resize(kChunk);
 }
@@ -50,7 +50,7 @@ void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec
   constexpr size_t kBytes = VertexCodec::kPackedBytes;
   const size_t total = packed.size() / kBytes;
   const auto* base = reinterpret_cast<const unsigned char*>(packed.data());
-  if (position_.size() < kChunk) position_.resize(kChunk);
+  if (position_.size() < kChunk) position_.resize(kChunk), normal_.resize(kChunk);
   for (size_t off = 0; off < total; off += kChunk) {
     const size_t n = std::min(kChunk, total - off);
     const unsigned char* src = base + off * kBytes;
@@ -68,19 +68,21 @@ void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec
         }
         const Vec3 pos = codec.decode_position(p.position_bits);
         uint32_t texel = 0;
-        const detail::Decision d = detail::project_and_face(params_, pos, VertexCodec::decode_normal(p.normal_bits), &texel);
+        const Vec3 nrm = VertexCodec::decode_normal(p.normal_bits);
+        const detail::Decision d = detail::project_and_face(params_, pos, nrm, &texel);
         if (d != detail::Decision::kAccepted) {
           ++c[size_t(d)];
           continue;
         }
         target_[i] = texel;
         position_[i] = pos;
+        normal_[i] = nrm;
         __builtin_prefetch(&grid_.texel_plane[texel]);
       }
       for (size_t i = begin; i < end; ++i) {
         const uint32_t texel = target_[i];
         if (texel == kNone) continue;
-        const detail::Decision d = detail::plane_test(params_, grid_, position_[i], texel);
+        const detail::Decision d = detail::plane_test(params_, grid_, position_[i], normal_[i], texel);
         ++c[size_t(d)];
         if (d != detail::Decision::kAccepted) target_[i] = kNone;
       }
@@ -164,7 +166,7 @@ void CpuReprojector::reproject(std::span<const VertexRecord> records) {
       for (size_t i = begin; i < end; ++i) {
         const uint32_t texel = target_[i];
         if (texel == kNone) continue;
-        const detail::Decision d = detail::plane_test(params_, grid_, rec[i].position, texel);
+        const detail::Decision d = detail::plane_test(params_, grid_, rec[i].position, rec[i].normal, texel);
         ++c[size_t(d)];
         if (d != detail::Decision::kAccepted) target_[i] = kNone;
       }

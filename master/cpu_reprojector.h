@@ -52,6 +52,7 @@ class CpuReprojector final : public Reprojector {
   std::vector<Cell> cells_;
   std::vector<uint32_t> target_;  // per batch point: subpixel index or kNone
   std::vector<Vec3> position_;    // reproject_packed: per batch point, the decoded position of a candidate
+  std::vector<Vec3> normal_;      // reproject_packed: ... and its decoded normal
   ReprojectionCounts counts_;
 };
 

@@ -58,6 +58,7 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     ReprojectorSettings rs;
     rs.epsilon = opts.epsilon * scene.bounds().diagonal_length();
     rs.reproject_glossy = opts.reproject_glossy;
+    rs.joint_test = opts.joint_test;
     // Exact mode decides visibility with rays on the workers; the accumulation is the same, so the
     // CPU back-end (no GL needed) holds it.
     const bool use_gl = opts.reproject == ReprojectMethod::kGl;

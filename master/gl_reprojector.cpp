@@ -79,7 +79,9 @@ uniform usamplerBuffer words;        // RGBA32UI, 1 texel per record: the 16-byt
 uniform samplerBuffer records;       // RGB32F, 3 texels per record: position, normal, radiance
 #endif
 uniform usamplerBuffer texel_plane;  // R16UI or R32UI per texel: plane index, UNCOVERED if uncovered
-uniform samplerBuffer planes;        // RGBA32F per plane: N.xyz, d
+uniform samplerBuffer planes;        // RGBA32F per entry: N.xyz, d
+uniform usamplerBuffer crease_range; // RG32UI per creased entry (entry - first_creased): first, count
+uniform samplerBuffer creases;       // RGBA32F per crease: oriented N.xyz, d (visible side > 0)
 #if PREFETCH
 uniform usamplerBuffer cell_view;    // RGBA32UI view of `cells`, only read to warm the cache
 #endif
@@ -90,8 +92,8 @@ layout(std430, binding = 1) buffer Counters { uint counters[]; };  // COUNTERS p
 uniform int first;    // texel of the batch's first record in `records` / `words`
 uniform uint count;   // records in the batch
 uniform vec3 eye, forward_, right_, up_;
-uniform float tan_half_x, tan_half_y, width_, height_, s, grid_w, grid_h, epsilon;
-uniform uint grid_wi;
+uniform float tan_half_x, tan_half_y, width_, height_, s, grid_w, grid_h, epsilon, crease_tolerance, min_normal_cosine;
+uniform uint grid_wi, first_creased;
 
 void main() {
   uint gid = gl_GlobalInvocationID.x;
@@ -150,6 +152,18 @@ void main() {
     vec4 t = texelFetch(planes, int(plane));
     precise float dist = p.x * t.x + p.y * t.y + p.z * t.z - t.w;
     if (!(abs(dist) <= epsilon)) { n_occluded++; continue; }
+    precise float cosine = n.x * t.x + n.y * t.y + n.z * t.z;
+    if (!(abs(cosine) >= min_normal_cosine)) { n_occluded++; continue; }
+    if (plane >= first_creased) {
+      uvec2 r = texelFetch(crease_range, int(plane - first_creased)).xy;
+      bool behind = false;
+      for (uint c = r.x; c < r.x + r.y; ++c) {
+        vec4 q = texelFetch(creases, int(c));
+        precise float e = p.x * q.x + p.y * q.y + p.z * q.z - q.w;
+        if (e < -crease_tolerance) { behind = true; break; }
+      }
+      if (behind) { n_occluded++; continue; }
+    }
     n_accepted++;
 #if PACKED
     vec3 L = decode_radiance(w.w);
@@ -275,9 +289,12 @@ GlReprojector::~GlReprojector() {
     // GL objects can only be deleted where the context is current; leak them rather than crash.
     logger("master")->error("GlReprojector destroyed on a thread its GL context is not current on; GL objects leak");
     for (auto* p : {&reproject_prog_, &packed_prog_, &exact_prog_, &downsample_prog_, &decode_prog_}) (void)p->release();
-    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &acc_buf_, &counter_buf_, &pixels_buf_, &codec_buf_})
+    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &crease_range_buf_, &creases_buf_, &acc_buf_, &counter_buf_,
+                    &pixels_buf_, &codec_buf_})
       (void)p->release();
-    for (auto* p : {&records_tex_, &samples_tex_, &texel_plane_tex_, &planes_tex_, &acc_view_tex_}) (void)p->release();
+    for (auto* p : {&records_tex_, &samples_tex_, &texel_plane_tex_, &planes_tex_, &crease_range_tex_, &creases_tex_,
+                    &acc_view_tex_})
+      (void)p->release();
     (void)owned_ctx_.release();
     return;
   }
@@ -291,7 +308,7 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
   if (!ctx_->has_extension("GL_NV_shader_atomic_float"))
     throw GlUnavailable("the GL reprojector needs GL_NV_shader_atomic_float (Mesa llvmpipe has it); use the cpu back-end");
   const auto& gl = ctx_->gl();
-  params_ = detail::make_kernel_params(camera, dfb.subpixels, settings_.epsilon);
+  params_ = detail::make_kernel_params(camera, dfb.subpixels, settings_.epsilon, settings_.joint_test);
   map_downsample_ = settings_.gl_map_downsample;
   subpixels_ = dfb.subpixels;
   grid_w_ = dfb.width;
@@ -313,7 +330,7 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
 
   // Compact deep framebuffer; 16-bit plane indices when there are few enough planes (halves the
   // largest randomly accessed array after the accumulation).
-  const detail::PlaneGrid grid = detail::make_plane_grid(dfb);
+  const detail::PlaneGrid grid = detail::make_plane_grid(dfb, camera.eye(), params_.crease_tolerance, settings_.joint_test);
   const bool narrow = grid.planes.size() / 4 < 0xffff;
   reproject_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kReprojectShader, settings_, narrow));
   packed_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(kReprojectShader, settings_, narrow, true));
@@ -347,6 +364,18 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
   gl.NamedBufferStorage(planes_buf_->id(), GLsizeiptr(planes.size() * 4), planes.data(), 0);
   planes_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
   gl.TextureBuffer(planes_tex_->id(), GL_RGBA32F, planes_buf_->id());
+  std::vector<uint32_t> crease_range = grid.crease_range;
+  if (crease_range.empty()) crease_range.assign(2, 0u);
+  crease_range_buf_ = std::make_unique<GlBuffer>(*ctx_);
+  gl.NamedBufferStorage(crease_range_buf_->id(), GLsizeiptr(crease_range.size() * 4), crease_range.data(), 0);
+  crease_range_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
+  gl.TextureBuffer(crease_range_tex_->id(), GL_RG32UI, crease_range_buf_->id());
+  std::vector<float> creases = grid.creases;
+  if (creases.empty()) creases.assign(4, 0.f);
+  creases_buf_ = std::make_unique<GlBuffer>(*ctx_);
+  gl.NamedBufferStorage(creases_buf_->id(), GLsizeiptr(creases.size() * 4), creases.data(), 0);
+  creases_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
+  gl.TextureBuffer(creases_tex_->id(), GL_RGBA32F, creases_buf_->id());
 
   // Accumulation and counters.
   acc_buf_ = std::make_unique<GlBuffer>(*ctx_);
@@ -367,6 +396,11 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
     gl.ProgramUniform1i(p, rp->uniform(rp == packed_prog_.get() ? "words" : "records"), 0);
     gl.ProgramUniform1i(p, rp->uniform("texel_plane"), 1);
     gl.ProgramUniform1i(p, rp->uniform("planes"), 2);
+    gl.ProgramUniform1i(p, rp->uniform("crease_range"), 5);
+    gl.ProgramUniform1i(p, rp->uniform("creases"), 6);
+    gl.ProgramUniform1ui(p, rp->uniform("first_creased"), grid.first_creased);
+    gl.ProgramUniform1f(p, rp->uniform("crease_tolerance"), k.crease_tolerance);
+    gl.ProgramUniform1f(p, rp->uniform("min_normal_cosine"), k.min_normal_cosine);
     if (settings_.prefetch) gl.ProgramUniform1i(p, rp->uniform("cell_view"), 3);
     gl.ProgramUniform3f(p, rp->uniform("eye"), k.eye.x, k.eye.y, k.eye.z);
     gl.ProgramUniform3f(p, rp->uniform("forward_"), k.forward.x, k.forward.y, k.forward.z);
@@ -424,6 +458,8 @@ void GlReprojector::dispatch(int slot, size_t count, Kernel kernel) {
     gl.BindTextureUnit(0, packed ? samples_tex_->id() : records_tex_->id());
     gl.BindTextureUnit(1, texel_plane_tex_->id());
     gl.BindTextureUnit(2, planes_tex_->id());
+    gl.BindTextureUnit(5, crease_range_tex_->id());
+    gl.BindTextureUnit(6, creases_tex_->id());
     if (settings_.prefetch) gl.BindTextureUnit(3, acc_view_tex_->id());
     if (packed) gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, codec_buf_->id());
     gl.ProgramUniform1i(p, packed ? loc_packed_first_ : loc_first_,

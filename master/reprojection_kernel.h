@@ -2,10 +2,22 @@
 // compute shader in gl_reprojector.cpp (keep both in step: same operations in the same order, so
 // that the CPU and GL back-ends take bit-identical decisions). Internal to master/.
 //
-// The deep framebuffer is used in a compact form, PlaneGrid: per texel the index of its plane in a
-// table of distinct (N.x, N.y, N.z, d) tuples (kUncovered if no triangle covers the texel). The table
-// is tiny for most scenes (one entry per visible triangle), so the per-texel array (4 bytes) is the
-// only large random-access structure besides the accumulation.
+// The deep framebuffer is used in a compact form, PlaneGrid: per texel the index of its entry in a
+// table of (N.x, N.y, N.z, d) planes (kUncovered if no triangle covers the texel). The table is tiny
+// for most scenes (one entry per visible plane), so the per-texel array (4 bytes) is the only large
+// random-access structure besides the accumulation.
+//
+// Creases. The plane test alone accepts any point of the texel's plane that projects into the
+// texel's footprint, also where another visible surface cuts that footprint and hides part of the
+// plane: a floor running on under a thin partition, seen next to it, would take the light of the room
+// behind the partition (docs/FAILURE_MODES.md, thin walls). So a texel whose 8 neighbours see other
+// planes gets its own table entry (after the plain ones: index >= first_creased) with those planes as
+// creases, each oriented so that the texel's own visible point (its centre's hit) lies on the positive
+// side -- or, when that point lies on the crease plane within the tolerance, the eye. A point that
+// passes the plane test but lies more than crease_tolerance on the negative side of one of its
+// texel's creases is past the line where the neighbouring surface meets or crosses the texel's plane:
+// behind a concave joint it is hidden, past a convex edge it is not on the texel's surface; either
+// way it is occluded. Points on the neighbouring surface itself (distance ~0 to it) pass.
 #pragma once
 
 #include <cmath>
@@ -24,9 +36,30 @@ struct PlaneGrid {
   static constexpr uint32_t kUncovered = 0xffffffffu;
   int width = 0, height = 0;
   std::vector<uint32_t> texel_plane;  // per texel: index into planes, or kUncovered
-  std::vector<float> planes;          // 4 per plane: N.x, N.y, N.z, d
+  std::vector<float> planes;          // 4 per entry: N.x, N.y, N.z, d
+  uint32_t first_creased = 0;         // entries >= this one have creases (all plain entries come first)
+  std::vector<uint32_t> crease_range;  // 2 per creased entry (index - first_creased): first crease, count
+  std::vector<float> creases;          // 4 per crease: oriented plane N.x, N.y, N.z, d (visible side > 0)
+  size_t creased_entries() const { return crease_range.size() / 2; }
 };
-PlaneGrid make_plane_grid(const DeepFramebuffer& dfb);
+
+/// Crease tolerance as a fraction of epsilon. At the default epsilon (3e-4 of the scene's diagonal)
+/// it is ~3e-7 of the diagonal: about the wire's position quantisation (half a cell, 2^-22 of the
+/// extent per axis) and well above the float rounding of the distance, so points on the neighbouring
+/// surface itself are not cut; what it still lets through past a joint is a band that thin (1.4 um in
+/// the thin-wall scene, where 1/64 left a measurable 7e-6 on one pixel at 128 x 128).
+inline constexpr float kCreaseToleranceFraction = 1.f / 1024.f;
+
+/// Normal agreement. A point within epsilon of a texel's plane may lie on another surface that
+/// crosses that plane there: the lit side's floor, within epsilon of a thin partition's plane next to
+/// the joint, would land on the partition's dark face. Its normal tells: a point whose (geometric)
+/// normal is more than 60 degrees from the texel's plane normal is not on that surface. 60 degrees
+/// leaves tessellated curved surfaces alone (neighbouring facets differ by far less).
+inline constexpr float kMinNormalCosine = 0.5f;
+
+/// `eye` orients creases the texel's own point cannot (see the file comment); `crease_tolerance` in
+/// metres. Without `creases` every entry is plain (first_creased = number of entries).
+PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float crease_tolerance, bool creases = true);
 
 /// Uniform inputs of the kernel (the GL shader receives the same values as uniforms).
 struct KernelParams {
@@ -37,8 +70,10 @@ struct KernelParams {
   float grid_w = 4, grid_h = 4;   // S * width, S * height
   uint32_t grid_wi = 4;
   float epsilon = 0;
+  float crease_tolerance = 0;  // epsilon * kCreaseToleranceFraction
+  float min_normal_cosine = kMinNormalCosine;  // -1 without the joint test
 };
-KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsilon);
+KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsilon, bool joint_test = true);
 
 /// Throws std::invalid_argument for bad settings or a deep framebuffer that does not fit the camera.
 void validate_reprojector_inputs(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& s);
@@ -78,13 +113,23 @@ inline Decision project_and_face(const KernelParams& k, const Vec3& p, const Vec
   return Decision::kAccepted;
 }
 
-/// Steps 5-6: coverage and plane distance of a candidate at `texel`.
-inline Decision plane_test(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, uint32_t texel) {
+/// Steps 5-6: coverage, plane distance, normal agreement and creases of a candidate at `texel`.
+inline Decision plane_test(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, const Vec3& n, uint32_t texel) {
   const uint32_t plane = grid.texel_plane[texel];
   if (plane == PlaneGrid::kUncovered) return Decision::kOccluded;
   const float* t = &grid.planes[4 * size_t(plane)];
   const float dist = p.x * t[0] + p.y * t[1] + p.z * t[2] - t[3];
-  return std::fabs(dist) <= k.epsilon ? Decision::kAccepted : Decision::kOccluded;
+  if (!(std::fabs(dist) <= k.epsilon)) return Decision::kOccluded;
+  const float cosine = n.x * t[0] + n.y * t[1] + n.z * t[2];
+  if (!(std::fabs(cosine) >= k.min_normal_cosine)) return Decision::kOccluded;
+  if (plane < grid.first_creased) return Decision::kAccepted;
+  const uint32_t* r = &grid.crease_range[2 * size_t(plane - grid.first_creased)];
+  for (uint32_t c = r[0]; c < r[0] + r[1]; ++c) {
+    const float* q = &grid.creases[4 * size_t(c)];
+    const float e = p.x * q[0] + p.y * q[1] + p.z * q[2] - q[3];
+    if (e < -k.crease_tolerance) return Decision::kOccluded;
+  }
+  return Decision::kAccepted;
 }
 
 /// Steps 3-6 for a finite record: the decision and, if accepted, the subpixel index.
@@ -92,7 +137,7 @@ inline Decision classify(const KernelParams& k, const PlaneGrid& grid, const Vec
   uint32_t texel = 0;
   const Decision d = project_and_face(k, p, n, &texel);
   if (d != Decision::kAccepted) return d;
-  const Decision e = plane_test(k, grid, p, texel);
+  const Decision e = plane_test(k, grid, p, n, texel);
   if (e == Decision::kAccepted) *subpixel = texel;
   return e;
 }

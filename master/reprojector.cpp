@@ -3,12 +3,16 @@
 
 #include "master/reprojection_image.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstring>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
 
 #include <fmt/format.h>
+#include <tbb/parallel_for.h>
 
 #include "master/cpu_reprojector.h"
 #include "master/gl_reprojector.h"
@@ -24,7 +28,7 @@ uint32_t subpixel_index(float rx, float ry, int subpixels, int width, int height
 
 namespace detail {
 
-PlaneGrid make_plane_grid(const DeepFramebuffer& dfb) {
+PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float crease_tolerance, bool creases) {
   PlaneGrid g;
   g.width = dfb.width;
   g.height = dfb.height;
@@ -40,6 +44,7 @@ PlaneGrid make_plane_grid(const DeepFramebuffer& dfb) {
       return size_t(h ^ (h >> 31));
     }
   };
+  // Plain entries: one per distinct plane.
   std::unordered_map<Key, uint32_t, Hash> index;
   Key last{};
   uint32_t last_plane = PlaneGrid::kUncovered;
@@ -56,10 +61,80 @@ PlaneGrid make_plane_grid(const DeepFramebuffer& dfb) {
     }
     g.texel_plane[t] = last_plane;
   }
+  g.first_creased = uint32_t(g.planes.size() / 4);
+  if (!creases) return g;
+
+  // Crease sets: per texel, the other planes its 8 neighbours see, each as 2 * plane + (1 if flipped),
+  // sorted. Rows in parallel; the sets are interned below in texel order (deterministic indices).
+  const int W = dfb.width, H = dfb.height;
+  auto row_sets = std::vector<std::vector<uint32_t>>(size_t(H));    // concatenated sets of a row
+  auto row_texels = std::vector<std::vector<uint32_t>>(size_t(H));  // (texel x, set begin, set size) per creased texel
+  auto oriented = [&](uint32_t q, const Vec3& point, double* side) {
+    const float* pl = &g.planes[4 * size_t(q)];
+    *side = double(pl[0]) * point.x + double(pl[1]) * point.y + double(pl[2]) * point.z - double(pl[3]);
+    return std::fabs(*side) > double(crease_tolerance);
+  };
+  tbb::parallel_for(0, H, [&](int y) {
+    std::vector<uint32_t> set;
+    for (int x = 0; x < W; ++x) {
+      const size_t t = dfb.index(x, y);
+      const uint32_t own = g.texel_plane[t];
+      if (own == PlaneGrid::kUncovered) continue;
+      set.clear();
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int nx = x + dx, ny = y + dy;
+          if ((dx == 0 && dy == 0) || nx < 0 || ny < 0 || nx >= W || ny >= H) continue;
+          const uint32_t q = g.texel_plane[dfb.index(nx, ny)];
+          if (q == PlaneGrid::kUncovered || q == own) continue;
+          double side = 0;
+          if (!oriented(q, dfb.position_at(t), &side) && !oriented(q, eye, &side)) continue;
+          const uint32_t code = 2 * q + (side < 0 ? 1u : 0u);
+          if (std::find(set.begin(), set.end(), code) == set.end()) set.push_back(code);
+        }
+      if (set.empty()) continue;
+      std::sort(set.begin(), set.end());
+      auto& rs = row_sets[size_t(y)];
+      row_texels[size_t(y)].insert(row_texels[size_t(y)].end(), {uint32_t(x), uint32_t(rs.size()), uint32_t(set.size())});
+      rs.insert(rs.end(), set.begin(), set.end());
+    }
+  });
+  struct SetHash {
+    size_t operator()(const std::vector<uint32_t>& v) const {
+      uint64_t h = 0x9e3779b97f4a7c15ull;
+      for (uint32_t x : v) h = (h ^ x) * 0xbf58476d1ce4e5b9ull;
+      return size_t(h ^ (h >> 31));
+    }
+  };
+  std::unordered_map<std::vector<uint32_t>, uint32_t, SetHash> creased_entry;  // (own plane, codes...) -> entry
+  std::vector<uint32_t> key;
+  for (int y = 0; y < H; ++y) {
+    const auto& rt = row_texels[size_t(y)];
+    for (size_t i = 0; i < rt.size(); i += 3) {
+      const size_t t = dfb.index(int(rt[i]), y);
+      const uint32_t own = g.texel_plane[t];
+      key.assign(1, own);
+      key.insert(key.end(), row_sets[size_t(y)].begin() + rt[i + 1], row_sets[size_t(y)].begin() + rt[i + 1] + rt[i + 2]);
+      auto [it, inserted] = creased_entry.try_emplace(key, uint32_t(g.planes.size() / 4));
+      if (inserted) {
+        const std::array<float, 4> plane{g.planes[4 * size_t(own)], g.planes[4 * size_t(own) + 1],
+                                         g.planes[4 * size_t(own) + 2], g.planes[4 * size_t(own) + 3]};
+        g.planes.insert(g.planes.end(), plane.begin(), plane.end());
+        g.crease_range.push_back(uint32_t(g.creases.size() / 4));
+        g.crease_range.push_back(uint32_t(key.size() - 1));
+        for (size_t c = 1; c < key.size(); ++c) {
+          const float s = (key[c] & 1u) ? -1.f : 1.f;
+          const float* pl = &g.planes[4 * size_t(key[c] >> 1)];
+          g.creases.insert(g.creases.end(), {s * pl[0], s * pl[1], s * pl[2], s * pl[3]});
+        }
+      }
+      g.texel_plane[t] = it->second;
+    }
+  }
   return g;
 }
 
-KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsilon) {
+KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsilon, bool joint_test) {
   KernelParams k;
   k.eye = camera.eye();
   k.forward = camera.forward();
@@ -74,6 +149,8 @@ KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsil
   k.grid_h = float(subpixels * camera.height());
   k.grid_wi = uint32_t(subpixels * camera.width());
   k.epsilon = epsilon;
+  k.crease_tolerance = epsilon * kCreaseToleranceFraction;
+  k.min_normal_cosine = joint_test ? kMinNormalCosine : -1.f;
   return k;
 }
 

@@ -15,7 +15,12 @@
 //   4. dot(normal, eye - position) <= 0 (the point faces away from the camera on the side it was lit
 //      from; records' normals point towards the previous path vertex)  -> counts.occluded (and
 //      counts.backfacing): no light leaks through thin two-sided walls
-//   5. texel uncovered, or |dot(position, N_t) - d_t| > epsilon  -> counts.occluded
+//   5. texel uncovered, or |dot(position, N_t) - d_t| > epsilon, or (joint test on) the point is not
+//      on a surface parallel to the texel's: |dot(normal, N_t)| < 0.5 (more than 60 degrees apart),
+//      or it lies more than epsilon / 1024 beyond one of the texel's creases -- a plane seen by a
+//      neighbouring texel, oriented towards the texel's own visible point (reprojection_kernel.h):
+//      past the line where that surface meets the texel's plane, e.g. a floor running on under a thin
+//      partition  -> counts.occluded
 //   6. otherwise accepted: subpixel (sum += radiance, count += 1)  -> counts.accepted
 // Exact mode (paper 4.3): add_exact() adds samples whose visibility a worker already decided with a
 // ray; a sample with subpixel index outside the grid or non-finite radiance counts as invalid.
@@ -73,6 +78,8 @@ struct ReprojectorSettings {
   float epsilon = 0;              // plane-distance tolerance, metres (>= 0); see default_epsilon()
   bool reproject_glossy = false;  // also reproject records without the diffuse flag (biased: their
                                   // radiance depends on the view direction)
+  bool joint_test = true;         // step 5's normal and crease tests (off: the plane test alone, as
+                                  // in the paper; thin walls then leak at their joints)
   // GL upload batch: points per dispatch. Bounded memory: 2 batches of 36 bytes per point in
   // flight (18 MiB at the default). The CPU back-end uses fixed 32768-point chunks instead.
   size_t batch_points = size_t(1) << 18;

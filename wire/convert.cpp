@@ -65,6 +65,7 @@ void to_proto_reprojection(const RenderOptions& o, v1::ReprojectionSettings* r) 
   r->set_epsilon_fraction(o.epsilon);
   r->set_min_paths(uint32_t(o.min_paths));
   r->set_reproject_glossy(o.reproject_glossy);
+  r->set_joint_test(o.joint_test);
 }
 }  // namespace
 
@@ -121,6 +122,7 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
     o.min_paths = int(r.min_paths());
   }
   if (r.has_reproject_glossy()) o.reproject_glossy = r.reproject_glossy();
+  if (r.has_joint_test()) o.joint_test = r.joint_test();
   if (spec.has_russian_roulette()) {
     const auto& rr = spec.russian_roulette();
     if (rr.mode() < 0 || rr.mode() > v1::RUSSIAN_ROULETTE_MODE_OFF) return "unknown Russian roulette mode";

@@ -149,6 +149,104 @@ TEST_P(ReprojectorCase, UncoveredTexelOccludes) {
   EXPECT_EQ(r->counts().occluded, 1u);
 }
 
+// The joint test (reprojection_kernel.h), part 1: a point within epsilon of the texel's plane but on a
+// surface more than 60 degrees from it is not on that surface.
+TEST_P(ReprojectorCase, PointOnAPlaneWithADifferentNormalIsOccluded) {
+  const Scene scene = quads({0.f});
+  const Camera cam(head_on(), 64, 64);
+  const Vec3 p(-0.3f, 0.2f, 0.f);  // normals tilted towards +x still face the eye at (0, 0, 3)
+  auto tilted = [](float degrees) {
+    const float a = degrees * 3.14159265f / 180.f;
+    return Vec3(std::sin(a), 0.f, std::cos(a));
+  };
+  const std::vector<VertexRecord> pts = {rec(p, {0, 0, 1}), rec(p, tilted(50)), rec(p, tilted(70)), rec(p, {1, 0, 0})};
+  for (bool joint : {true, false}) {
+    ReprojectorSettings s;
+    s.joint_test = joint;
+    auto r = make(scene, cam, default_epsilon(scene.bounds()), 4, s);
+    r->reproject(pts);
+    EXPECT_EQ(r->counts().accepted, joint ? 2u : 4u) << "joint test " << joint;
+    EXPECT_EQ(r->counts().backfacing, 0u);
+  }
+}
+
+// Part 2, the thin-wall joint: two floor quads meet under a zero-thickness partition at x = 0; the
+// camera, on the +x side and at the partition's height, sees the right floor and the partition's face
+// but nothing of the left floor. Points of the left floor next to the joint project onto the right
+// floor's and the partition's texels near the joint; the plane test alone takes some of them.
+TEST_P(ReprojectorCase, FloorRunningOnUnderAThinPartitionDoesNotLeak) {
+  Scene scene;
+  const uint32_t m = add_material(scene, Material{});
+  add_quad(scene, {-1, 0, 1}, {0, 0, 1}, {0, 0, -1}, {-1, 0, -1}, m);  // left floor, faces +y
+  add_quad(scene, {0, 0, 1}, {1, 0, 1}, {1, 0, -1}, {0, 0, -1}, m);    // right floor
+  add_quad(scene, {0, 0, 1}, {0, 0, -1}, {0, 1, -1}, {0, 1, 1}, m);    // partition, faces +x
+  CameraSpec spec;
+  spec.eye = {1.5f, 1.f, 2.5f};
+  spec.look = {-0.2f, 0.3f, 0.f};
+  spec.up = {0, 1, 0};
+  spec.fov_y_degrees = 50;
+  const Camera cam(spec, 64, 64);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> z(-0.9f, 0.9f), near_joint(1e-4f, 0.02f);
+  std::vector<VertexRecord> left, right;
+  for (int i = 0; i < 20000; ++i) {
+    left.push_back(rec({-near_joint(rng), 0.f, z(rng)}, {0, 1, 0}));
+    right.push_back(rec({near_joint(rng), 0.f, z(rng)}, {0, 1, 0}));
+  }
+  uint64_t accepted[2][2] = {};  // [joint test][left, right]
+  for (bool joint : {false, true}) {
+    ReprojectorSettings s;
+    s.joint_test = joint;
+    for (int side = 0; side < 2; ++side) {
+      auto r = make(scene, cam, default_epsilon(scene.bounds()), 4, s);
+      r->reproject(side == 0 ? left : right);
+      accepted[joint][side] = r->counts().accepted;
+    }
+  }
+  std::printf("  accepted left / right: plane test alone %llu / %llu, with the joint test %llu / %llu\n",
+              (unsigned long long)accepted[0][0], (unsigned long long)accepted[0][1],
+              (unsigned long long)accepted[1][0], (unsigned long long)accepted[1][1]);
+  EXPECT_GT(accepted[0][0], 100u) << "the plane test alone must leak here, or the case tests nothing";
+  EXPECT_EQ(accepted[1][0], 0u);
+  // The visible floor next to the joint keeps its samples.
+  EXPECT_GT(accepted[1][1], 0.9 * double(accepted[0][1]));
+}
+
+// Part 3: creases must not cut convex edges. A step (top at y = 0.5, front face at z = 0.5) seen from
+// above and in front: points on the top and on the front face next to their shared edge.
+TEST_P(ReprojectorCase, ConvexEdgeKeepsItsSamples) {
+  Scene scene;
+  const uint32_t m = add_material(scene, Material{});
+  add_quad(scene, {-1, 0.5f, 0.5f}, {1, 0.5f, 0.5f}, {1, 0.5f, -1}, {-1, 0.5f, -1}, m);  // top, faces +y
+  add_quad(scene, {-1, 0, 0.5f}, {1, 0, 0.5f}, {1, 0.5f, 0.5f}, {-1, 0.5f, 0.5f}, m);    // front, faces +z
+  add_quad(scene, {-1, 0, 2}, {1, 0, 2}, {1, 0, 0.5f}, {-1, 0, 0.5f}, m);                // floor in front
+  CameraSpec spec;
+  spec.eye = {0.3f, 1.6f, 2.5f};
+  spec.look = {0.f, 0.4f, 0.3f};
+  spec.up = {0, 1, 0};
+  spec.fov_y_degrees = 45;
+  const Camera cam(spec, 64, 64);
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<float> x(-0.9f, 0.9f), near_edge(1e-4f, 0.03f);
+  std::vector<VertexRecord> pts;
+  for (int i = 0; i < 20000; ++i) {
+    pts.push_back(rec({x(rng), 0.5f, 0.5f - near_edge(rng)}, {0, 1, 0}));  // top
+    pts.push_back(rec({x(rng), 0.5f - near_edge(rng), 0.5f}, {0, 0, 1}));  // front
+  }
+  uint64_t accepted[2] = {};
+  for (bool joint : {false, true}) {
+    ReprojectorSettings s;
+    s.joint_test = joint;
+    auto r = make(scene, cam, default_epsilon(scene.bounds()), 4, s);
+    r->reproject(pts);
+    accepted[joint] = r->counts().accepted;
+  }
+  std::printf("  accepted at the convex edge: plane test alone %llu, with the joint test %llu of %zu\n",
+              (unsigned long long)accepted[0], (unsigned long long)accepted[1], pts.size());
+  EXPECT_GT(accepted[1], 0.9 * double(pts.size()));
+  EXPECT_GT(accepted[1], 0.97 * double(accepted[0]));
+}
+
 TEST_P(ReprojectorCase, SubpixelIndexIsRowMajorWithYDown) {
   const Scene scene = quads({0.f}, 2);
   const Camera cam(head_on(), 40, 30);

@@ -120,6 +120,23 @@ class MasterServiceTest : public ::testing::Test {
   std::unique_ptr<v1::WorkerService::Stub> workers_;
 };
 
+// The joint test travels with a job; a spec without it (an older client) gets the default, on.
+TEST(JobSpecConversion, JointTestTravelsAndDefaultsToOn) {
+  RenderOptions o;
+  o.scene = "builtin:cornell";
+  o.mode = RenderMode::kReproject;
+  o.joint_test = false;
+  v1::JobSpec spec = to_job_spec(o, bundle_scene(o.scene), CameraSpec{});
+  RenderOptions back;
+  CameraSpec cam;
+  ASSERT_FALSE(from_job_spec(spec, &back, &cam));
+  EXPECT_FALSE(back.joint_test);
+  spec.mutable_reprojection()->clear_joint_test();
+  RenderOptions unset;
+  ASSERT_FALSE(from_job_spec(spec, &unset, &cam));
+  EXPECT_TRUE(unset.joint_test);
+}
+
 TEST_F(MasterServiceTest, HealthServiceSaysServing) {
   auto health = grpc::health::v1::Health::NewStub(channel_);
   grpc::ClientContext ctx;
