@@ -9,6 +9,7 @@
 #include <set>
 
 #include <fmt/format.h>
+#include <tbb/task_group.h>
 
 #include "common/image.h"
 #include "common/log.h"
@@ -78,6 +79,8 @@ struct JobManager::Job {
   bool round_open = false;
   int64_t round_opened_ms = 0;              // for the round duration histogram
   double reprojecting_at_round_open = 0;    // seconds_reprojecting when the round opened
+  std::chrono::steady_clock::time_point last_commit_at;  // the round's latest committed result arrived
+  double seconds_round_backlog = 0, seconds_round_closing = 0, seconds_writing_results = 0;  // JobSnapshot
 
   FrameProgress progress;
   ReprojectionCounts counts;
@@ -322,6 +325,9 @@ JobSnapshot JobManager::snapshot(const Job& job) const {
   }
   s.seconds_tracing = job.seconds_tracing;
   s.seconds_reprojecting = job.seconds_reprojecting;
+  s.seconds_round_backlog = job.seconds_round_backlog;
+  s.seconds_round_closing = job.seconds_round_closing;
+  s.seconds_writing_results = job.seconds_writing_results;
   s.budget_exhausted = job.budget_exhausted;
   s.version = job.version;
   return s;
@@ -802,6 +808,7 @@ CommitOutcome JobManager::commit(const std::string& job_id, uint32_t round, uint
     task->round = round;
     task->tile_index = tile_index;
     queued_vertices_ += tile.vertex_count() + tile.exact_samples.size();
+    job.last_commit_at = std::chrono::steady_clock::now();
     task->tile = std::move(tile);
     tasks_.push_back(std::move(task));
   }
@@ -1037,11 +1044,13 @@ void JobManager::apply_commit(Task& task) {
 }
 
 void JobManager::close_round(const std::shared_ptr<Job>& job) {
+  const auto closing = std::chrono::steady_clock::now();
   const bool more = job->frame->finish_round();
   bool budget_over = false;
   bool want_preview;
   {
     std::lock_guard lock(mu_);
+    job->seconds_round_backlog += std::chrono::duration<double>(closing - job->last_commit_at).count();
     job->progress = job->frame->progress();
     job->counts = job->frame->counts();
     job->seconds_reprojecting = job->frame->seconds_reprojecting();
@@ -1061,6 +1070,15 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     finish_job(job, budget_over && more);
     return;
   }
+  {
+    std::lock_guard lock(mu_);
+    if (job->state != JobState::kRunning) return;
+    ++job->round;
+    open_round(*job);
+    job->seconds_round_closing += std::chrono::duration<double>(std::chrono::steady_clock::now() - closing).count();
+  }
+  // The preview copy after the next round opened (workers trace meanwhile): the frame still holds the
+  // closed round's state, since only this thread applies the next round's results.
   if (want_preview) {
     auto images = std::make_shared<const FrameImages>(job->frame->images());
     std::lock_guard lock(mu_);
@@ -1068,12 +1086,6 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     job->preview_reprojects = job->frame->reprojects();
     job->previews.clear();
     job->last_preview_ms = now_ms();
-  }
-  {
-    std::lock_guard lock(mu_);
-    if (job->state != JobState::kRunning) return;
-    ++job->round;
-    open_round(*job);
   }
   notify(job);
   save_round_checkpoint(job, std::move(checkpoint));  // the next round's tiles are being traced meanwhile
@@ -1114,6 +1126,7 @@ std::optional<std::vector<unsigned char>> JobManager::result_preview(const std::
 }
 
 void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) {
+  const auto start = std::chrono::steady_clock::now();
   const std::string dir = job_dir(*job);
   fs::create_directories(dir);
   const FrameImages img = job->frame->images();
@@ -1122,16 +1135,22 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     fn(tmp);
     fs::rename(tmp, dir + "/" + name);
   };
-  write("combined.exr", [&](const std::string& p) { write_exr(p, img.combined); });
-  write("combined.png", [&](const std::string& p) { write_png_srgb(p, img.combined); });
-  write("pathtrace.exr", [&](const std::string& p) { write_exr(p, img.pathtrace); });
-  write("counts.exr", [&](const std::string& p) { write_exr(p, counts_image(img)); });
+  // The files are encoded side by side: the workers are idle until the job is done (one after the
+  // other, this took ~0.5 s of a 512 x 512 job's ~8 s on two cores).
+  tbb::task_group files;
+  files.run([&] { write("combined.exr", [&](const std::string& p) { write_exr(p, img.combined); }); });
+  files.run([&] { write("combined.png", [&](const std::string& p) { write_png_srgb(p, img.combined); }); });
+  files.run([&] { write("pathtrace.exr", [&](const std::string& p) { write_exr(p, img.pathtrace); }); });
+  files.run([&] { write("counts.exr", [&](const std::string& p) { write_exr(p, counts_image(img)); }); });
   if (job->frame->reprojects()) {
-    write("reprojection.exr", [&](const std::string& p) { write_exr(p, img.reprojection); });
-    float max_m = 0;
-    for (float v : img.reprojected.data) max_m = std::max(max_m, v);
-    write("samples.png", [&](const std::string& p) { write_png_srgb(p, heat_map(img.reprojected, max_m)); });
+    files.run([&] { write("reprojection.exr", [&](const std::string& p) { write_exr(p, img.reprojection); }); });
+    files.run([&] {
+      float max_m = 0;
+      for (float v : img.reprojected.data) max_m = std::max(max_m, v);
+      write("samples.png", [&](const std::string& p) { write_png_srgb(p, heat_map(img.reprojected, max_m)); });
+    });
   }
+  files.wait();  // rethrows what a write threw
   nlohmann::json stats = job->frame->statistics(job->request.options);
   {
     std::lock_guard lock(mu_);
@@ -1141,6 +1160,7 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     job->counts = job->frame->counts();
     job->seconds_reprojecting = job->frame->seconds_reprojecting();
     job->budget_exhausted = budget_exhausted;
+    job->seconds_writing_results = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     job->finished_ms = now_ms();
     job->state = JobState::kDone;
     job->round_open = false;

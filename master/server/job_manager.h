@@ -112,6 +112,11 @@ struct JobSnapshot {
   uint32_t workers_blocked = 0;    // workers given no more tiles of this job
   int64_t submitted_ms = 0, started_ms = 0, finished_ms = 0;
   double seconds_elapsed = 0, eta_seconds = -1, seconds_tracing = 0, seconds_reprojecting = 0;
+  // Between rounds, summed over the rounds closed so far: from a round's last result arriving to the
+  // reprojection thread having applied it (the commit queue's backlog), and from there to the next
+  // round being open (M', skip mask, previews and the next round's tile inputs).
+  double seconds_round_backlog = 0, seconds_round_closing = 0;
+  double seconds_writing_results = 0;  // the finished job's output files, before it is done
   bool budget_exhausted = false;
   uint64_t version = 0;  // increases with every change
 };
