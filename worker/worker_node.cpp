@@ -49,6 +49,9 @@ using Millis = std::chrono::milliseconds;
 // on top of a fixed allowance), so a large scene or tile on a slow link is not cut off.
 constexpr Millis kRegisterDeadline = 10s;
 constexpr Millis kLeaseDeadline = 10s;
+// How long the master may hold a LeaseTile call when no tile is available yet (a round closing, its
+// last tiles out, no job): the answer then comes the moment a tile is there (LeaseRequest.max_wait_ms).
+constexpr uint32_t kLeaseMaxWaitMs = 1000;
 constexpr Millis kReturnDeadline = 5s;
 constexpr Millis kLostReturnDeadline = 1s;  // best effort after the session broke
 constexpr Millis kUnregisterDeadline = 3s;
@@ -250,11 +253,10 @@ class ThreadActivity {
   double cpu_;  // thread CPU seconds at the last change
 };
 
-// Runs the calls a tracing thread hands it (the submission of its last tile, the lease of its next
-// one) on one thread of its own, in order, while the tracing thread traces. One long-lived thread
-// instead of a thread started for every call: starting one per call, and the new thread preempting
-// its starter, idled the tracing thread for ~0.5 ms per tile. The destructor runs what is queued and
-// joins: every call ends before its tracing thread does.
+// Runs the calls a tracing thread hands it (the submissions of its tiles, or the leases it asks for
+// ahead) on a long-lived thread of its own, in order, while the tracing thread traces; a thread
+// started per call (std::async) cost a thread creation twice per tile. The destructor runs what is
+// queued and joins: every call ends before its tracing thread does.
 class Courier {
  public:
   Courier() : thread_([this] { loop(); }) {}
@@ -587,7 +589,7 @@ struct WorkerNode::Impl {
   // Leases, traces and hands the result to a background submission (`pending`: this thread's
   // submission in flight, at most one), so that the next tile is leased and traced while the master
   // receives this one.
-  void process_tile(Session& s, const v1::TileLease& lease, Courier& courier, std::future<void>* pending,
+  void process_tile(Session& s, const v1::TileLease& lease, Courier& submitter, std::future<void>* pending,
                     ThreadActivity* activity) {
     ++counters.tiles_leased;
     const uint64_t id = lease.lease_id();
@@ -651,7 +653,7 @@ struct WorkerNode::Impl {
       ThreadActivity::Doing submitting(activity, Activity::kSubmitting);
       finish_submission(pending);
     }
-    *pending = courier.run([this, &s, lease, job, h, id, r = std::move(*result)] {
+    *pending = submitter.run([this, &s, lease, job, h, id, r = std::move(*result)] {
       if (submit(s, lease, *job, r, *h)) release(s, id);
     });
   }
@@ -753,13 +755,14 @@ struct WorkerNode::Impl {
   LeaseCall lease_tile(Session& s) {
     v1::LeaseRequest req;
     req.mutable_worker_id()->set_id(s.worker_id);
+    req.set_max_wait_ms(kLeaseMaxWaitMs);
     grpc::ClientContext ctx;
     prepare(ctx, kLeaseDeadline);
     LeaseCall call;
     {
-      // Not cancelled by stop(): the master answers at once, and a cancelled call whose lease was
-      // already granted would leave that lease to expire instead of being returned.
-      CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
+      // Cancelled by stop() (the master may be holding it): a tile the master granted before it saw
+      // the cancellation is given back by the master itself.
+      CallScope scope(*this, s, ctx, /*cancel_on_stop=*/true);
       call.status = s.stub->LeaseTile(&ctx, req, &call.lease);
     }
     if (call.status.ok() && call.lease.has_tile()) hold(s, call.lease.tile().lease_id());
@@ -768,7 +771,9 @@ struct WorkerNode::Impl {
 
   void tracing_loop(Session& s) {
     ThreadActivity activity(time);  // destroyed last: the drain below is accounted for
-    Courier courier;                // this thread's calls in the background (destroyed after the futures)
+    // This thread's calls in the background (destroyed after the futures): submissions apart from the
+    // lease asked for ahead, which the master may hold until the next round opens.
+    Courier submitter, leaser;
     std::future<void> pending;      // this thread's tile result being submitted
     struct Drain {                  // on every way out: the last submission ends before the thread does
       std::future<void>* f;
@@ -795,8 +800,8 @@ struct WorkerNode::Impl {
       s.healthy = true;
       switch (lease.kind_case()) {
         case v1::Lease::kTile:
-          next = courier.run([this, &s] { return lease_tile(s); });
-          process_tile(s, lease.tile(), courier, &pending, &activity);
+          next = leaser.run([this, &s] { return lease_tile(s); });
+          process_tile(s, lease.tile(), submitter, &pending, &activity);
           break;
         case v1::Lease::kWait: {
           ThreadActivity::Doing waiting(&activity, Activity::kWaiting);

@@ -164,7 +164,10 @@ void JobManager::shutdown() {
     std::lock_guard lock(mu_);
     if (stopping_) return;
     stopping_ = true;
+    parking_stopped_ = true;
+    wake_parked(/*all=*/true);
   }
+  answer_due();
   work_cv_.notify_all();
   if (reprojection_thread_.joinable()) reprojection_thread_.join();
   if (reaper_thread_.joinable()) reaper_thread_.join();
@@ -488,6 +491,69 @@ std::optional<std::vector<std::pair<bool, int64_t>>> JobManager::heartbeat(const
 
 LeaseDecision JobManager::lease_tile(const std::string& worker) {
   std::lock_guard lock(mu_);
+  bool parkable = false;
+  return lease_tile_locked(worker, &parkable);
+}
+
+std::optional<LeaseDecision> JobManager::lease_tile_or_park(const std::string& worker, int max_wait_ms,
+                                                            std::function<void(LeaseDecision)> answer,
+                                                            uint64_t* handle) {
+  std::lock_guard lock(mu_);
+  bool parkable = false;
+  LeaseDecision d = lease_tile_locked(worker, &parkable);
+  if (!parkable || max_wait_ms <= 0 || parking_stopped_) return d;
+  *handle = next_parked_++;
+  parked_[*handle] = {worker, now_ms() + std::min(max_wait_ms, kMaxParkMs), std::move(answer)};
+  return std::nullopt;
+}
+
+bool JobManager::cancel_parked(uint64_t handle) {
+  std::lock_guard lock(mu_);
+  return parked_.erase(handle) > 0;
+}
+
+size_t JobManager::parked_requests() const {
+  std::lock_guard lock(mu_);
+  return parked_.size();
+}
+
+void JobManager::stop_parking() {
+  {
+    std::lock_guard lock(mu_);
+    parking_stopped_ = true;
+    wake_parked(/*all=*/true);
+  }
+  answer_due();
+}
+
+void JobManager::wake_parked(bool all) {
+  const int64_t now = now_ms();
+  for (auto it = parked_.begin(); it != parked_.end();) {
+    bool parkable = false;
+    LeaseDecision d = lease_tile_locked(it->second.worker, &parkable);
+    if (parkable && !all && now < it->second.deadline_ms) {
+      ++it;
+      continue;
+    }
+    // Out of time: ask again at once (a job may start any moment).
+    if (parkable) d = LeaseWait{1};
+    due_.emplace_back(std::move(it->second.answer), std::move(d));
+    it = parked_.erase(it);
+  }
+}
+
+void JobManager::answer_due() {
+  std::vector<std::pair<std::function<void(LeaseDecision)>, LeaseDecision>> due;
+  {
+    std::lock_guard lock(mu_);
+    due.swap(due_);
+  }
+  for (auto& [answer, decision] : due) answer(std::move(decision));
+}
+
+// *parkable: the answer is a short Wait that a tile may end soon (see lease_tile_or_park).
+LeaseDecision JobManager::lease_tile_locked(const std::string& worker, bool* parkable) {
+  *parkable = false;
   auto wit = workers_.find(worker);
   if (wit == workers_.end()) return UnknownWorker{};
   Worker& w = *wit->second;
@@ -499,14 +565,19 @@ LeaseDecision JobManager::lease_tile(const std::string& worker) {
   // No job: poll slowly. A running job between rounds (its last tiles are out or being reprojected):
   // the next round opens within milliseconds, so ask again soon; a long wait here idles every core
   // at every round barrier.
-  if (!job || job->state != JobState::kRunning) return LeaseWait{job ? 20u : 200u};
+  if (!job || job->state != JobState::kRunning) {
+    *parkable = true;
+    return LeaseWait{job ? 20u : 200u};
+  }
   // A worker that failed too many of this job's tiles waits for the next job.
   if (job->blocked.count(worker)) return LeaseWait{500};
+  *parkable = true;
   if (!job->round_open) return LeaseWait{5};
   const int64_t now = now_ms();
   // Every tile is out: maybe a copy of one whose lease runs long (the first complete result wins).
   std::optional<uint32_t> speculative;
   if (job->pending.empty() && !(speculative = speculative_tile(*job, worker, now))) return LeaseWait{5};
+  *parkable = false;
   const uint32_t t = speculative ? *speculative : job->pending.front();
   if (!speculative) job->pending.pop_front();
   Job::Slot& slot = job->slots[t];
@@ -614,7 +685,9 @@ void JobManager::fail_leases(const std::string& worker, const std::vector<uint64
         break;
       }
     }
+    wake_parked(/*all=*/false);  // the tiles given back
   }
+  answer_due();
   if (!failed.empty()) work_cv_.notify_all();
   for (const auto& job : failed) notify(job);
 }
@@ -978,7 +1051,9 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
     }
     job->slots.assign(job->tiles.size(), {});
     open_round(*job);
+    wake_parked(/*all=*/false);
   }
+  answer_due();
   logger("master")->info("job {} running: {} triangles, {} tiles", job->id, job->triangles, job->tiles.size());
   notify(job);
 }
@@ -1003,6 +1078,12 @@ void JobManager::open_round(Job& job) {
     job.pending.push_back(t);
     ++job.remaining;
   }
+  // Longest first (every pixel of a round traces the same number of paths, so a tile's cost is about
+  // its active pixels): the round ends on small tiles, and its tail -- cores idle while the last tile
+  // is traced -- is short. The results do not depend on the order: commits of a round touch disjoint
+  // pixels and each pixel's samples are keyed by (pixel, sample index).
+  auto active = [&](uint32_t t) { return std::count(job.tile_skip[t].begin(), job.tile_skip[t].end(), uint8_t(0)); };
+  std::stable_sort(job.pending.begin(), job.pending.end(), [&](uint32_t a, uint32_t b) { return active(a) > active(b); });
   job.round_open = true;
   job.round_opened_ms = now_ms();
   job.reprojecting_at_round_open = job.frame->seconds_reprojecting();  // not the deep framebuffer build
@@ -1076,7 +1157,9 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     ++job->round;
     open_round(*job);
     job->seconds_round_closing += std::chrono::duration<double>(std::chrono::steady_clock::now() - closing).count();
+    wake_parked(/*all=*/false);
   }
+  answer_due();
   // The preview copy after the next round opened (workers trace meanwhile): the frame still holds the
   // closed round's state, since only this thread applies the next round's results.
   if (want_preview) {
@@ -1412,8 +1495,11 @@ void JobManager::reaper_loop() {
     }
     // The workers that were not blocked may have left.
     if (active_) fail_if_all_blocked(active_, &failed);
-    if (!failed.empty()) {
+    // Parked lease requests: tiles that came back, speculative copies, and the ones out of time.
+    wake_parked(/*all=*/false);
+    if (!failed.empty() || !due_.empty()) {
       lock.unlock();
+      answer_due();
       work_cv_.notify_all();
       for (const auto& job : failed) notify(job);
       lock.lock();
