@@ -6,6 +6,11 @@
 // round in --ppr and round schedules in --growth (RenderOptions::round_growth; 0 = k paths in every
 // round). Overhead = 1 - (sum of the workers' tile tracing seconds / tracing threads) / the
 // job's wall time (JobStatus: seconds_tracing, seconds_elapsed = first round opened .. job done).
+// Where the rest goes: the WorkerNode's own accounting of its tracing threads' wall and CPU time over
+// the job (WorkerNodeStats::time_others_tracing / time_none_tracing / cpu: tracing, leasing, waiting,
+// submitting, other; while another thread traced or while none did) and the master's round closes
+// (JobSnapshot::seconds_round_backlog / seconds_round_closing / seconds_writing_results), both
+// returned by render_embedded. The rounds alone: the job's wall time minus its result files.
 //
 // Part 2, where the rest goes: the same jobs on a MasterServer with bench workers instead of a
 // WorkerNode (bench_worker.h: the same lease / trace / TileResultWriter / SubmitTile steps, with
@@ -507,8 +512,10 @@ int main(int argc, char** argv) {
     std::printf("      thread-seconds %.2f over a job of %.2f s x %d threads = %.2f\n", all, e.elapsed, e.threads,
                 e.elapsed * e.threads);
     std::printf("      master, per round: last result -> applied (backlog) %.1f ms, applied -> next round open %.1f "
-                "ms; writing the results at the end %.0f ms (%.1f%% of the job)\n",
-                1e3 * e.backlog / e.rounds, 1e3 * e.closing / e.rounds, 1e3 * e.writing, 100 * e.writing / e.elapsed);
+                "ms; writing the results at the end %.0f ms (%.1f%% of the job); overhead of the rounds alone "
+                "(job wall minus the results) %.1f%%\n",
+                1e3 * e.backlog / e.rounds, 1e3 * e.closing / e.rounds, 1e3 * e.writing, 100 * e.writing / e.elapsed,
+                100 * (1 - e.tracing / e.threads / (e.elapsed - e.writing)));
   }
   std::printf("(shares of the tracing threads' summed wall time from the job running to done; 'another traces': a "
               "thread's time while another thread of the node traced -- its idle part is a round's tail; 'none "

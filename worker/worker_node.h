@@ -9,7 +9,10 @@
 // balances across workers, so one tile per thread keeps every core busy without a second scheduler,
 // overlaps one thread's network I/O with the others' tracing, and gives deterministic results (each
 // tile's bits depend only on the lease). A round's last tiles may leave cores idle for up to one
-// tile's time; tiles are small (32 x 32 pixels by default), so that tail is short.
+// tile's time; the master hands out a round's tiles longest first, so that tail is short. Each
+// thread submits its finished tile and asks for its next lease in the background (a courier thread
+// each) while it traces; the master holds a lease call it cannot serve yet (a round closing) and
+// answers it the moment the next round opens (LeaseRequest.max_wait_ms).
 //
 // Scenes: built-ins are generated locally from SceneRef.builtin; file scenes are fetched with
 // FetchScene once and cached on disk by content hash (worker/scene_fetch.h). Per-job state (scene,
