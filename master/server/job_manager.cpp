@@ -521,7 +521,9 @@ void JobManager::stop_parking() {
   {
     std::lock_guard lock(mu_);
     parking_stopped_ = true;
-    wake_parked(/*all=*/true);
+    // The server is going away: no tile is handed out now that its result could not come back.
+    for (auto& [handle, p] : parked_) due_.emplace_back(std::move(p.answer), LeaseWait{1000});
+    parked_.clear();
   }
   answer_due();
 }

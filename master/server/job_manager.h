@@ -204,7 +204,7 @@ class JobManager {
                                                   std::function<void(LeaseDecision)> answer, uint64_t* handle);
   /// True if the parked request was still waiting (its `answer` will not be called).
   bool cancel_parked(uint64_t handle);
-  /// Answers every parked request now and parks no more (before the server shuts down).
+  /// Answers every parked request with a Wait now and parks no more (before the server shuts down).
   void stop_parking();
   /// LeaseTile requests being held (for tests and monitoring).
   size_t parked_requests() const;
