@@ -6,6 +6,11 @@
 // round in --ppr and round schedules in --growth (RenderOptions::round_growth; 0 = k paths in every
 // round). Overhead = 1 - (sum of the workers' tile tracing seconds / tracing threads) / the
 // job's wall time (JobStatus: seconds_tracing, seconds_elapsed = first round opened .. job done).
+// Where the rest goes: the WorkerNode's own accounting of its tracing threads' wall and CPU time over
+// the job (WorkerNodeStats::time_others_tracing / time_none_tracing / cpu: tracing, leasing, waiting,
+// submitting, other; while another thread traced or while none did) and the master's round closes
+// (JobSnapshot::seconds_round_backlog / seconds_round_closing / seconds_writing_results), both
+// returned by render_embedded. The rounds alone: the job's wall time minus its result files.
 //
 // Part 2, where the rest goes: the same jobs on a MasterServer with bench workers instead of a
 // WorkerNode (bench_worker.h: the same lease / trace / TileResultWriter / SubmitTile steps, with
@@ -74,6 +79,12 @@ struct JobFigures {
   int rounds = 0, threads = 0;
   double median_round = 0;  // seconds between round updates (watch stream)
   double load = 0;
+  // The embedded WorkerNode's tracing threads over the job (WorkerNodeStats, summed over nodes):
+  // while another of its threads traced / while none did.
+  WorkerTimeSplit others, none, thread_cpu;
+  double job_cpu = 0;  // process CPU seconds from the first update showing the job running to the one showing it done
+  uint64_t tiles = 0;
+  double backlog = 0, closing = 0, writing = 0;  // the master's JobSnapshot::seconds_round_* and _writing_results
   double overhead() const { return 1 - tracing / threads / elapsed; }
 };
 
@@ -104,8 +115,11 @@ JobFigures run_embedded(const RenderOptions& o, int threads, const fs::path& tmp
   std::vector<std::pair<uint32_t, Clock::time_point>> rounds;
   const double c0 = process_cpu_seconds();
   const auto t0 = Clock::now();
+  double cpu_running = -1, cpu_done = -1;
   const EmbeddedResult r = render_embedded(opts, eo, [&](const v1::JobStatus& s) {
     if (rounds.empty() || rounds.back().first != s.round()) rounds.emplace_back(s.round(), Clock::now());
+    if (cpu_running < 0 && s.state() != v1::JOB_STATE_QUEUED) cpu_running = process_cpu_seconds();
+    if (cpu_done < 0 && s.state() == v1::JOB_STATE_DONE) cpu_done = process_cpu_seconds();
   });
   JobFigures f;
   f.wall = since(t0);
@@ -121,6 +135,25 @@ JobFigures run_embedded(const RenderOptions& o, int threads, const fs::path& tmp
       d.push_back(std::chrono::duration<double>(rounds[i].second - rounds[i - 1].second).count());
   f.median_round = median(d);
   f.load = load_average();
+  f.job_cpu = cpu_done - cpu_running;
+  if (r.master_view) {
+    f.backlog = r.master_view->seconds_round_backlog;
+    f.closing = r.master_view->seconds_round_closing;
+    f.writing = r.master_view->seconds_writing_results;
+  }
+  for (const WorkerNodeStats& w : r.workers) {
+    auto add = [](WorkerTimeSplit& a, const WorkerTimeSplit& b) {
+      a.tracing += b.tracing;
+      a.leasing += b.leasing;
+      a.waiting += b.waiting;
+      a.submitting += b.submitting;
+      a.other += b.other;
+    };
+    add(f.others, w.time_others_tracing);
+    add(f.none, w.time_none_tracing);
+    add(f.thread_cpu, w.cpu);
+    f.tiles += w.tiles_leased;
+  }
   fs::remove_all(eo.state_dir);
   return f;
 }
@@ -455,6 +488,40 @@ int main(int argc, char** argv) {
                 share(s.tracing), share(s.submit), share(s.lease), share(s.waiting),
                 share(s.total - s.tracing - s.submit - s.lease - s.waiting), e.load ? e.load : b.load);
   }
+  std::printf("\n==== The embedded WorkerNode's tracing threads over the job: where their wall time went\n");
+  std::printf("%-5s %4s %3s | %-14s | %7s %7s %7s %7s %7s %7s | %9s %9s\n", "mode", "g", "k", "while", "total",
+              "trace", "lease", "wait", "submit", "other", "idle/rnd", "tiles");
+  for (const Row& r : rows) {
+    const JobFigures& e = r.emb;
+    if (!e.rounds) continue;
+    const double all = e.others.total() + e.none.total();
+    auto line = [&](const char* what, const WorkerTimeSplit& t) {
+      auto pc = [&](double x) { return all > 0 ? 100 * x / all : 0.0; };
+      std::printf("%-5s %4.2f %3d | %-14s | %6.1f%% %6.1f%% %6.1f%% %6.1f%% %6.1f%% %6.1f%% | %7.1fms %9llu\n",
+                  r.mode.c_str(), r.growth, r.ppr, what, pc(t.total()), pc(t.tracing), pc(t.leasing), pc(t.waiting),
+                  pc(t.submitting), pc(t.other), 1e3 * (t.total() - t.tracing) / e.threads / e.rounds,
+                  (unsigned long long)e.tiles);
+    };
+    line("another traces", e.others);
+    line("none traces", e.none);
+    const WorkerTimeSplit& c = e.thread_cpu;
+    std::printf("%-5s %4.2f %3d | %-14s | %6.2fs %6.2fs %6.2fs %6.2fs %6.2fs %6.2fs | CPU view: 1 - tracing CPU / "
+                "process CPU over the job (%.2f s) = %.1f%%\n",
+                r.mode.c_str(), r.growth, r.ppr, "thread CPU", c.total(), c.tracing, c.leasing, c.waiting,
+                c.submitting, c.other, e.job_cpu, e.job_cpu > 0 ? 100 * (1 - c.tracing / e.job_cpu) : 0.0);
+    std::printf("      thread-seconds %.2f over a job of %.2f s x %d threads = %.2f\n", all, e.elapsed, e.threads,
+                e.elapsed * e.threads);
+    std::printf("      master, per round: last result -> applied (backlog) %.1f ms, applied -> next round open %.1f "
+                "ms; writing the results at the end %.0f ms (%.1f%% of the job); overhead of the rounds alone "
+                "(job wall minus the results) %.1f%%\n",
+                1e3 * e.backlog / e.rounds, 1e3 * e.closing / e.rounds, 1e3 * e.writing, 100 * e.writing / e.elapsed,
+                100 * (1 - e.tracing / e.threads / (e.elapsed - e.writing)));
+  }
+  std::printf("(shares of the tracing threads' summed wall time from the job running to done; 'another traces': a "
+              "thread's time while another thread of the node traced -- its idle part is a round's tail; 'none "
+              "traces': while no other thread traced -- its idle part is the node waiting for the master; "
+              "idle/rnd: the idle part / threads / rounds, i.e. the wall time per round it costs)\n");
+
   std::printf("\n==== CPU view (robust to load): share of the process's CPU time not spent tracing\n");
   std::printf("%-5s %4s %3s | %9s %9s %9s | %9s %9s | %11s %11s\n", "mode", "g", "k", "trace CPU", "emb CPU", "emb ovh",
               "bench CPU", "bench ovh", "trace/round", "tiles");

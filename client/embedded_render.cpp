@@ -4,7 +4,6 @@
 #include <thread>
 
 #include "master/server/master_server.h"
-#include "worker/worker_node.h"
 
 namespace epr {
 
@@ -46,10 +45,24 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
   try {
     JobClient client(result.master_target);
     const std::string id = client.submit(opts);
+    std::vector<WorkerNodeStats> at_start;
     result.status = client.watch(id, [&](const v1::JobStatus& s) {
+      if (at_start.empty() && s.state() != v1::JOB_STATE_QUEUED)
+        for (auto& node : nodes) at_start.push_back(node->stats());
+      if (s.state() == v1::JOB_STATE_DONE && result.workers.empty())
+        for (size_t i = 0; i < nodes.size(); ++i) {
+          WorkerNodeStats w = nodes[i]->stats();
+          if (i < at_start.size()) {
+            w.time_others_tracing -= at_start[i].time_others_tracing;
+            w.time_none_tracing -= at_start[i].time_none_tracing;
+            w.cpu -= at_start[i].cpu;
+          }
+          result.workers.push_back(std::move(w));
+        }
       if (on_status) on_status(s);
       return true;
     });
+    result.master_view = master.jobs().get(id);
     if (result.status.state() == v1::JOB_STATE_DONE) result.files = client.fetch_all(id, opts.out);
   } catch (...) {
     stop_workers();

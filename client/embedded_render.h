@@ -4,11 +4,14 @@
 #pragma once
 
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "client/job_client.h"
 #include "common/render_options.h"
+#include "master/server/job_manager.h"
+#include "worker/worker_node.h"
 
 namespace epr {
 
@@ -25,6 +28,11 @@ struct EmbeddedResult {
   std::vector<FetchedFile> files;    // what was written under the output prefix
   std::string master_target;         // the loopback address the master listened on
   std::string dashboard_url;         // "http://127.0.0.1:PORT/" while the render runs; empty if disabled
+  /// Each worker node's statistics when the job ended; their time splits cover the job only (from
+  /// the first update showing it running to the one showing it done).
+  std::vector<WorkerNodeStats> workers;
+  /// The master's view of the job when it ended (its round timings, ...).
+  std::optional<JobSnapshot> master_view;
 };
 
 /// Renders `opts` to completion and writes the outputs under opts.out. `on_status` is called with

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 #include <grpcpp/grpcpp.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -12,6 +13,8 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdlib>
+#include <deque>
+#include <functional>
 #include <fstream>
 #include <map>
 #include <mutex>
@@ -19,6 +22,8 @@
 #include <stdexcept>
 #include <future>
 #include <thread>
+#include <tuple>
+#include <utility>
 #include <vector>
 
 #include "common/log.h"
@@ -44,6 +49,9 @@ using Millis = std::chrono::milliseconds;
 // on top of a fixed allowance), so a large scene or tile on a slow link is not cut off.
 constexpr Millis kRegisterDeadline = 10s;
 constexpr Millis kLeaseDeadline = 10s;
+// How long the master may hold a LeaseTile call when no tile is available yet (a round closing, its
+// last tiles out, no job): the answer then comes the moment a tile is there (LeaseRequest.max_wait_ms).
+constexpr uint32_t kLeaseMaxWaitMs = 1000;
 constexpr Millis kReturnDeadline = 5s;
 constexpr Millis kLostReturnDeadline = 1s;  // best effort after the session broke
 constexpr Millis kUnregisterDeadline = 3s;
@@ -128,6 +136,173 @@ struct Session {
   }
 };
 
+// Where the tracing threads' wall time goes (WorkerNodeStats::time_*): each thread is in one activity
+// at a time; at every change the elapsed time is credited to the activities of all threads, split by
+// whether another thread was tracing meanwhile. A few changes per tile: one mutex is cheap enough.
+enum class Activity { kOther, kTracing, kLeasing, kWaiting, kSubmitting };
+constexpr int kActivities = 5;
+
+class TimeAccounting {
+ public:
+  void enter(Activity a) { change(nullptr, &a); }
+  void leave(Activity a) { change(&a, nullptr); }
+  void move(Activity from, Activity to) { change(&from, &to); }
+  void add_cpu(Activity a, double seconds) {
+    std::lock_guard lock(mu_);
+    cpu_[int(a)] += seconds;
+  }
+  WorkerTimeSplit cpu() {
+    std::lock_guard lock(mu_);
+    return to_split(cpu_);
+  }
+
+  // {while another thread traced, while none did}, up to now.
+  std::pair<WorkerTimeSplit, WorkerTimeSplit> split() {
+    std::lock_guard lock(mu_);
+    advance();
+    double with[kActivities], without[kActivities];
+    for (int a = 0; a < kActivities; ++a) {
+      with[a] = seconds_[a][1];
+      without[a] = seconds_[a][0];
+    }
+    return {to_split(with), to_split(without)};
+  }
+
+ private:
+  static WorkerTimeSplit to_split(const double (&by)[kActivities]) {
+    WorkerTimeSplit t;
+    t.other = by[int(Activity::kOther)];
+    t.tracing = by[int(Activity::kTracing)];
+    t.leasing = by[int(Activity::kLeasing)];
+    t.waiting = by[int(Activity::kWaiting)];
+    t.submitting = by[int(Activity::kSubmitting)];
+    return t;
+  }
+
+  using Clock = std::chrono::steady_clock;
+  void change(const Activity* from, const Activity* to) {
+    std::lock_guard lock(mu_);
+    advance();
+    if (from) --threads_in_[int(*from)];
+    if (to) ++threads_in_[int(*to)];
+  }
+  void advance() {
+    const auto now = Clock::now();
+    const double dt = std::chrono::duration<double>(now - last_).count();
+    last_ = now;
+    const int tracing = threads_in_[int(Activity::kTracing)];
+    for (int a = 0; a < kActivities; ++a) {
+      // A tracing thread sees another one tracing if there are two; any other thread if there is one.
+      const bool others = a == int(Activity::kTracing) ? tracing > 1 : tracing > 0;
+      seconds_[a][others ? 1 : 0] += double(threads_in_[a]) * dt;
+    }
+  }
+  std::mutex mu_;
+  Clock::time_point last_ = Clock::now();
+  int threads_in_[kActivities] = {};
+  double seconds_[kActivities][2] = {};
+  double cpu_[kActivities] = {};  // thread CPU seconds
+};
+
+double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+
+// The activity of one tracing thread: `Doing` switches it for a scope and switches back after.
+class ThreadActivity {
+ public:
+  explicit ThreadActivity(TimeAccounting& t) : t_(t), cpu_(thread_cpu_seconds()) { t_.enter(current_); }
+  ~ThreadActivity() {
+    t_.add_cpu(current_, thread_cpu_seconds() - cpu_);
+    t_.leave(current_);
+  }
+  ThreadActivity(const ThreadActivity&) = delete;
+  ThreadActivity& operator=(const ThreadActivity&) = delete;
+
+  class Doing {
+   public:
+    Doing(ThreadActivity* a, Activity what) : a_(a) {
+      if (!a_) return;
+      before_ = a_->current_;
+      a_->set(what);
+    }
+    ~Doing() {
+      if (a_) a_->set(before_);
+    }
+    Doing(const Doing&) = delete;
+    Doing& operator=(const Doing&) = delete;
+
+   private:
+    ThreadActivity* a_;
+    Activity before_ = Activity::kOther;
+  };
+
+ private:
+  void set(Activity a) {
+    if (a == current_) return;
+    const double cpu = thread_cpu_seconds();
+    t_.add_cpu(current_, cpu - cpu_);
+    cpu_ = cpu;
+    t_.move(current_, a);
+    current_ = a;
+  }
+  TimeAccounting& t_;
+  Activity current_ = Activity::kOther;
+  double cpu_;  // thread CPU seconds at the last change
+};
+
+// Runs the calls a tracing thread hands it (the submissions of its tiles, or the leases it asks for
+// ahead) on a long-lived thread of its own, in order, while the tracing thread traces; a thread
+// started per call (std::async) cost a thread creation twice per tile. The destructor runs what is
+// queued and joins: every call ends before its tracing thread does.
+class Courier {
+ public:
+  Courier() : thread_([this] { loop(); }) {}
+  ~Courier() {
+    {
+      std::lock_guard lock(mu_);
+      stopping_ = true;
+    }
+    cv_.notify_one();
+    thread_.join();
+  }
+  Courier(const Courier&) = delete;
+  Courier& operator=(const Courier&) = delete;
+
+  template <typename F>
+  auto run(F f) -> std::future<decltype(f())> {
+    auto task = std::make_shared<std::packaged_task<decltype(f())()>>(std::move(f));
+    auto result = task->get_future();
+    {
+      std::lock_guard lock(mu_);
+      tasks_.emplace_back([task] { (*task)(); });
+    }
+    cv_.notify_one();
+    return result;
+  }
+
+ private:
+  void loop() {
+    std::unique_lock lock(mu_);
+    for (;;) {
+      cv_.wait(lock, [&] { return stopping_ || !tasks_.empty(); });
+      if (tasks_.empty()) return;
+      auto task = std::move(tasks_.front());
+      tasks_.pop_front();
+      lock.unlock();
+      task();
+      lock.lock();
+    }
+  }
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<std::function<void()>> tasks_;
+  bool stopping_ = false;
+  std::thread thread_;  // last: started once the members above exist
+};
+
 }  // namespace
 
 struct WorkerNode::Impl {
@@ -165,6 +340,7 @@ struct WorkerNode::Impl {
         exact_samples_sent{0}, scenes_fetched{0}, scene_bytes_fetched{0};
     std::atomic<uint64_t> micros_tracing{0};
   } counters;
+  TimeAccounting time;
 
   // ---- plumbing --------------------------------------------------------------------------------
 
@@ -413,7 +589,8 @@ struct WorkerNode::Impl {
   // Leases, traces and hands the result to a background submission (`pending`: this thread's
   // submission in flight, at most one), so that the next tile is leased and traced while the master
   // receives this one.
-  void process_tile(Session& s, const v1::TileLease& lease, std::future<void>* pending) {
+  void process_tile(Session& s, const v1::TileLease& lease, Courier& submitter, std::future<void>* pending,
+                    ThreadActivity* activity) {
     ++counters.tiles_leased;
     const uint64_t id = lease.lease_id();
     auto h = hold(s, id);
@@ -449,6 +626,7 @@ struct WorkerNode::Impl {
     try {
       // Vertices are encoded as they are traced (the bytes SubmitTile sends), not in a pass afterwards.
       const TileRenderer renderer(*job->tracer, tile.filter, job->codec_bounds);
+      ThreadActivity::Doing tracing(activity, Activity::kTracing);
       result = render_leased_tile(renderer, tile, [&] { return s.ending.load() || h->abandoned.load(); });
     } catch (const std::exception& e) {
       const int delay = job_failed(lease.job_id());
@@ -471,8 +649,11 @@ struct WorkerNode::Impl {
       return;
     }
     if (!result || s.lost) return;  // stopping or broken: the hold is returned on the way out
-    finish_submission(pending);
-    *pending = std::async(std::launch::async, [this, &s, lease, job, h, id, r = std::move(*result)] {
+    {
+      ThreadActivity::Doing submitting(activity, Activity::kSubmitting);
+      finish_submission(pending);
+    }
+    *pending = submitter.run([this, &s, lease, job, h, id, r = std::move(*result)] {
       if (submit(s, lease, *job, r, *h)) release(s, id);
     });
   }
@@ -574,13 +755,14 @@ struct WorkerNode::Impl {
   LeaseCall lease_tile(Session& s) {
     v1::LeaseRequest req;
     req.mutable_worker_id()->set_id(s.worker_id);
+    req.set_max_wait_ms(kLeaseMaxWaitMs);
     grpc::ClientContext ctx;
     prepare(ctx, kLeaseDeadline);
     LeaseCall call;
     {
-      // Not cancelled by stop(): the master answers at once, and a cancelled call whose lease was
-      // already granted would leave that lease to expire instead of being returned.
-      CallScope scope(*this, s, ctx, /*cancel_on_stop=*/false);
+      // Cancelled by stop() (the master may be holding it): a tile the master granted before it saw
+      // the cancellation is given back by the master itself.
+      CallScope scope(*this, s, ctx, /*cancel_on_stop=*/true);
       call.status = s.stub->LeaseTile(&ctx, req, &call.lease);
     }
     if (call.status.ok() && call.lease.has_tile()) hold(s, call.lease.tile().lease_id());
@@ -588,18 +770,28 @@ struct WorkerNode::Impl {
   }
 
   void tracing_loop(Session& s) {
-    std::future<void> pending;  // this thread's tile result being submitted
-    struct Drain {              // on every way out: the last submission ends before the thread does
+    ThreadActivity activity(time);  // destroyed last: the drain below is accounted for
+    // This thread's calls in the background (destroyed after the futures): submissions apart from the
+    // lease asked for ahead, which the master may hold until the next round opens.
+    Courier submitter, leaser;
+    std::future<void> pending;      // this thread's tile result being submitted
+    struct Drain {                  // on every way out: the last submission ends before the thread does
       std::future<void>* f;
+      ThreadActivity* activity;
       ~Drain() {
+        ThreadActivity::Doing submitting(activity, Activity::kSubmitting);
         if (f->valid()) f->wait();
       }
-    } drain{&pending};
+    } drain{&pending, &activity};
     // The next lease, asked for while this thread traces its tile: the master's answer arrives during
-    // the tracing instead of after it. (Destroyed before `drain`: the call ends before the thread.)
+    // the tracing instead of after it.
     std::future<LeaseCall> next;
     while (!s.ending) {
-      LeaseCall call = next.valid() ? next.get() : lease_tile(s);
+      LeaseCall call;
+      {
+        ThreadActivity::Doing leasing(&activity, Activity::kLeasing);
+        call = next.valid() ? next.get() : lease_tile(s);
+      }
       const v1::Lease& lease = call.lease;
       if (!call.status.ok()) {
         call_failed(s, "LeaseTile", call.status);
@@ -608,12 +800,14 @@ struct WorkerNode::Impl {
       s.healthy = true;
       switch (lease.kind_case()) {
         case v1::Lease::kTile:
-          next = std::async(std::launch::async, [this, &s] { return lease_tile(s); });
-          process_tile(s, lease.tile(), &pending);
+          next = leaser.run([this, &s] { return lease_tile(s); });
+          process_tile(s, lease.tile(), submitter, &pending, &activity);
           break;
-        case v1::Lease::kWait:
+        case v1::Lease::kWait: {
+          ThreadActivity::Doing waiting(&activity, Activity::kWaiting);
           wait_for(&s, std::clamp<int>(int(lease.wait().retry_after_ms()), kMinWaitMs, kMaxWaitMs));
           break;
+        }
         case v1::Lease::kShutdown:
           log->info("the master asks the worker to shut down: {}", lease.shutdown().reason());
           stop("master shutdown: " + lease.shutdown().reason());
@@ -771,6 +965,8 @@ WorkerNodeStats WorkerNode::stats() const {
   s.scenes_fetched = c.scenes_fetched;
   s.scene_bytes_fetched = c.scene_bytes_fetched;
   s.seconds_tracing = double(c.micros_tracing) * 1e-6;
+  std::tie(s.time_others_tracing, s.time_none_tracing) = impl_->time.split();
+  s.cpu = impl_->time.cpu();
   return s;
 }
 

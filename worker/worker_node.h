@@ -9,7 +9,10 @@
 // balances across workers, so one tile per thread keeps every core busy without a second scheduler,
 // overlaps one thread's network I/O with the others' tracing, and gives deterministic results (each
 // tile's bits depend only on the lease). A round's last tiles may leave cores idle for up to one
-// tile's time; tiles are small (32 x 32 pixels by default), so that tail is short.
+// tile's time; the master hands out a round's tiles longest first, so that tail is short. Each
+// thread submits its finished tile and asks for its next lease in the background (a courier thread
+// each) while it traces; the master holds a lease call it cannot serve yet (a round closing) and
+// answers it the moment the next round opens (LeaseRequest.max_wait_ms).
 //
 // Scenes: built-ins are generated locally from SceneRef.builtin; file scenes are fetched with
 // FetchScene once and cached on disk by content hash (worker/scene_fetch.h). Per-job state (scene,
@@ -55,6 +58,25 @@ struct WorkerNodeOptions {
   int max_cached_jobs = 3;    // per-job tracing state kept (scenes and BVHs of older jobs are dropped)
 };
 
+/// Where the tracing threads' wall time went, in thread-seconds summed over the threads (one row of
+/// WorkerNodeStats: while another tracing thread of the node traced, or while none did).
+struct WorkerTimeSplit {
+  double tracing = 0;     // inside render_leased_tile (tracing, culling, encoding the vertices)
+  double leasing = 0;     // waiting for a LeaseTile answer (the one asked for ahead, or a synchronous one)
+  double waiting = 0;     // sleeping on the master's Wait (a round barrier, no job, back-pressure)
+  double submitting = 0;  // waiting for the thread's previous tile submission to end
+  double other = 0;       // the rest: preparing a job (scene, BVH), returning leases, starting calls
+  double total() const { return tracing + leasing + waiting + submitting + other; }
+  WorkerTimeSplit& operator-=(const WorkerTimeSplit& o) {
+    tracing -= o.tracing;
+    leasing -= o.leasing;
+    waiting -= o.waiting;
+    submitting -= o.submitting;
+    other -= o.other;
+    return *this;
+  }
+};
+
 struct WorkerNodeStats {
   std::string worker_id;       // as assigned by the master at the last registration; empty if none
   bool registered = false;     // a session with the master is up
@@ -73,6 +95,14 @@ struct WorkerNodeStats {
   uint64_t scenes_fetched = 0;
   uint64_t scene_bytes_fetched = 0;
   double seconds_tracing = 0;
+  // The tracing threads' wall time since run() began (up to the call of stats()), by activity. A
+  // tracing thread that is not tracing while another one is (time_others_tracing minus its tracing)
+  // idles at a round's tail; when none traces (time_none_tracing), the node waits for the master
+  // (the round barrier) or has no work. With T threads, time_none_tracing.total() - its tracing is
+  // T x the wall time during which the node traced nothing.
+  WorkerTimeSplit time_others_tracing;
+  WorkerTimeSplit time_none_tracing;
+  WorkerTimeSplit cpu;  // the tracing threads' own CPU seconds by activity (up to their last change)
 };
 
 class WorkerNode {

@@ -112,6 +112,11 @@ struct JobSnapshot {
   uint32_t workers_blocked = 0;    // workers given no more tiles of this job
   int64_t submitted_ms = 0, started_ms = 0, finished_ms = 0;
   double seconds_elapsed = 0, eta_seconds = -1, seconds_tracing = 0, seconds_reprojecting = 0;
+  // Between rounds, summed over the rounds closed so far: from a round's last result arriving to the
+  // reprojection thread having applied it (the commit queue's backlog), and from there to the next
+  // round being open (M', skip mask, previews and the next round's tile inputs).
+  double seconds_round_backlog = 0, seconds_round_closing = 0;
+  double seconds_writing_results = 0;  // the finished job's output files, before it is done
   bool budget_exhausted = false;
   uint64_t version = 0;  // increases with every change
 };
@@ -188,6 +193,22 @@ class JobManager {
   std::optional<std::vector<std::pair<bool, int64_t>>> heartbeat(const std::string& worker,
                                                                   const std::vector<uint64_t>& leases);
   LeaseDecision lease_tile(const std::string& worker);
+  /// Like lease_tile, but a worker that would be told to wait briefly (the round is closing, every
+  /// tile of the round is out, or no job has started yet) is kept waiting instead, for up to
+  /// max_wait_ms (at most kMaxParkMs): then `answer` is called later, exactly once, from another thread
+  /// and without the manager's mutex, as soon as a tile may be there (a round opened, a tile came back)
+  /// or when the time is up -- unless cancel_parked(*handle) returned true first. Returns the decision
+  /// if it is made now (`answer` is then never called). A worker answered at once at a round barrier
+  /// polled every few milliseconds; this answers it the moment the next round opens.
+  std::optional<LeaseDecision> lease_tile_or_park(const std::string& worker, int max_wait_ms,
+                                                  std::function<void(LeaseDecision)> answer, uint64_t* handle);
+  /// True if the parked request was still waiting (its `answer` will not be called).
+  bool cancel_parked(uint64_t handle);
+  /// Answers every parked request with a Wait now and parks no more (before the server shuts down).
+  void stop_parking();
+  /// LeaseTile requests being held (for tests and monitoring).
+  size_t parked_requests() const;
+  static constexpr int kMaxParkMs = 2000;
   void return_leases(const std::string& worker, const std::vector<uint64_t>& leases);
   void unregister_worker(const std::string& worker);
   /// Gives leases back; with a failure other than kNone, also counts one failure of `worker` for the
@@ -230,6 +251,9 @@ class JobManager {
   struct Worker;
   struct Task;
 
+  LeaseDecision lease_tile_locked(const std::string& worker, bool* parkable);  // with mu_ held
+  void wake_parked(bool all);  // with mu_ held: decides what can be decided (all: every request) into due_
+  void answer_due();           // without mu_: calls the answers wake_parked decided
   void reprojection_loop();
   void reaper_loop();
   void start_job(const std::shared_ptr<Job>& job, GlContext* gl);
@@ -271,6 +295,15 @@ class JobManager {
   uint64_t next_job_seq_ = 1, next_lease_ = 1, next_worker_ = 1, next_watch_ = 1;
   std::map<uint64_t, std::pair<std::string, std::function<void(const JobSnapshot&)>>> watchers_;
   std::shared_ptr<Job> active_;  // the job whose tiles are being leased
+  struct Parked {
+    std::string worker;
+    int64_t deadline_ms = 0;
+    std::function<void(LeaseDecision)> answer;
+  };
+  std::map<uint64_t, Parked> parked_;  // LeaseTile requests kept waiting, oldest first
+  uint64_t next_parked_ = 1;
+  bool parking_stopped_ = false;
+  std::vector<std::pair<std::function<void(LeaseDecision)>, LeaseDecision>> due_;  // decided, to be answered
   bool stopping_ = false;
   bool gl_ready_ = false;
   DurationHistograms histograms_;

@@ -80,6 +80,7 @@ void MasterServer::shutdown() {
   shut_down_ = true;
   if (monitoring_) monitoring_->stop();
   server_->GetHealthCheckService()->SetServingStatus(false);
+  jobs_->stop_parking();  // the LeaseTile calls held open are answered: the server need not wait for them
   server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
   jobs_->shutdown();
 }

@@ -146,14 +146,14 @@ grpc::ServerWriteReactor<v1::SceneChunk>* WorkerServiceImpl::FetchScene(grpc::Ca
   return new ListWriter<v1::SceneChunk>(scene_chunks(*bundle));
 }
 
-grpc::ServerUnaryReactor* WorkerServiceImpl::LeaseTile(grpc::CallbackServerContext* ctx, const v1::LeaseRequest* req,
-                                                       v1::Lease* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
-  LeaseDecision d = jobs_.lease_tile(req->worker_id().id());
-  if (std::holds_alternative<UnknownWorker>(d)) return finish(ctx, unknown_worker(req->worker_id().id()));
+namespace {
+
+// Fills `resp` from a decision; the call's status.
+grpc::Status lease_answer(const std::string& worker, const LeaseDecision& d, v1::Lease* resp) {
+  if (std::holds_alternative<UnknownWorker>(d)) return unknown_worker(worker);
   if (auto* w = std::get_if<LeaseWait>(&d)) {
     resp->mutable_wait()->set_retry_after_ms(w->retry_after_ms);
-    return finish(ctx, grpc::Status::OK);
+    return grpc::Status::OK;
   }
   const TileLeaseInfo& t = std::get<TileLeaseInfo>(d);
   auto* l = resp->mutable_tile();
@@ -187,7 +187,48 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::LeaseTile(grpc::CallbackServerConte
   l->mutable_scene()->set_total_bytes(t.scene_bytes);
   l->mutable_scene()->set_triangle_count(t.triangles);
   l->set_deadline_unix_ms(t.deadline_ms);
-  return finish(ctx, grpc::Status::OK);
+  return grpc::Status::OK;
+}
+
+// A LeaseTile call that may be kept waiting (LeaseRequest.max_wait_ms, JobManager::lease_tile_or_park).
+// Whoever comes first answers it: the manager's decision, or the client's cancellation. A tile granted
+// to a call that the client cancelled before the answer reached it is given back at once.
+class LeaseTileReactor final : public grpc::ServerUnaryReactor {
+ public:
+  LeaseTileReactor(JobManager& jobs, grpc::CallbackServerContext* ctx, const v1::LeaseRequest& req, v1::Lease* resp)
+      : jobs_(jobs), ctx_(ctx), worker_(req.worker_id().id()), resp_(resp) {
+    const int max_wait = int(std::min<uint32_t>(req.max_wait_ms(), uint32_t(JobManager::kMaxParkMs)));
+    auto now = jobs_.lease_tile_or_park(
+        worker_, max_wait, [this](LeaseDecision d) { answer(d); }, &handle_);
+    if (now) answer(*now);
+  }
+  void OnCancel() override {
+    if (jobs_.cancel_parked(handle_)) Finish(grpc::Status(grpc::StatusCode::CANCELLED, "the worker went away"));
+  }
+  void OnDone() override {
+    if (granted_ && ctx_->IsCancelled()) jobs_.return_leases(worker_, {granted_});
+    delete this;
+  }
+
+ private:
+  void answer(const LeaseDecision& d) {
+    if (auto* t = std::get_if<TileLeaseInfo>(&d)) granted_ = t->lease_id;
+    Finish(lease_answer(worker_, d, resp_));
+  }
+  JobManager& jobs_;
+  grpc::CallbackServerContext* ctx_;
+  std::string worker_;
+  v1::Lease* resp_;
+  uint64_t handle_ = 0;   // 0: not parked
+  uint64_t granted_ = 0;  // the lease id handed out, if any
+};
+
+}  // namespace
+
+grpc::ServerUnaryReactor* WorkerServiceImpl::LeaseTile(grpc::CallbackServerContext* ctx, const v1::LeaseRequest* req,
+                                                       v1::Lease* resp) {
+  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
+  return new LeaseTileReactor(jobs_, ctx, *req, resp);
 }
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::ReturnLease(grpc::CallbackServerContext* ctx,

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <thread>
 
 #include "client/local_render.h"
@@ -137,6 +138,36 @@ TEST_F(WorkerNodeTest, TwoNodesRenderASkipJobLikeTheSingleProcessRender) {
   EXPECT_EQ(sa.tiles_refused + sb.tiles_refused, 0u);
   EXPECT_EQ(sa.registrations, 1u);
   expect_same_as_local(id, o);
+}
+
+// The time split (WorkerNodeStats::time_*, cpu) books every tracing thread's wall time once: over a
+// job that runs entirely while the node does, the threads' booked time covers at least threads x the
+// job's wall time and at most threads x the node's; tracing wall time holds the tiles' own tracing
+// time and the threads' tracing CPU time.
+TEST_F(WorkerNodeTest, TimeSplitAccountsForEveryTracingThread) {
+  const auto node_started = std::chrono::steady_clock::now();
+  std::optional<RunningNode> node(std::in_place, node_options(2));
+  for (int i = 0; i < 500 && !node->stats().registered; ++i) std::this_thread::sleep_for(10ms);
+  ASSERT_TRUE(node->stats().registered);
+  const RenderOptions o = cornell_options(RenderMode::kSkip, ReprojectMethod::kCpu, 48, 8, 2);
+  const std::string id = submit(o, bundle_scene(o.scene));
+  const v1::JobStatus st = wait_done(id);
+  ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
+  const WorkerNodeStats s = node->stats();
+  const double node_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - node_started).count();
+  node.reset();
+
+  const double booked = s.time_others_tracing.total() + s.time_none_tracing.total();
+  EXPECT_GE(booked, 2 * st.seconds_elapsed() - 0.01);
+  EXPECT_LE(booked, 2 * node_seconds + 0.01);
+  const double tracing = s.time_others_tracing.tracing + s.time_none_tracing.tracing;
+  EXPECT_GT(s.cpu.tracing, 0.0);
+  EXPECT_GE(tracing, s.seconds_tracing - 0.001);
+  EXPECT_GE(tracing, s.cpu.tracing - 0.01);
+  EXPECT_LE(s.cpu.total(), booked + 0.01);
+  // Nothing negative (a booking against the wrong activity would drive one below zero).
+  for (const WorkerTimeSplit* t : {&s.time_others_tracing, &s.time_none_tracing, &s.cpu})
+    for (double v : {t->tracing, t->leasing, t->waiting, t->submitting, t->other}) EXPECT_GE(v, 0.0);
 }
 
 TEST_F(WorkerNodeTest, ExactModeJobLikeTheSingleProcessRender) {
