@@ -48,22 +48,25 @@ inline bool eventually(const std::function<bool()>& done, std::chrono::milliseco
   return true;
 }
 
+/// Registers a one-thread worker called `name` on `stub`; returns its id.
+inline std::string register_worker(v1::WorkerService::Stub& stub, const std::string& name) {
+  grpc::ClientContext ctx;
+  set_deadline(&ctx);
+  v1::WorkerInfo info;
+  info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
+  info.set_name(name);
+  info.set_threads(1);
+  v1::RegisterResponse r;
+  const grpc::Status st = stub.Register(&ctx, info, &r);
+  EXPECT_TRUE(st.ok()) << st.error_message();
+  return r.worker_id().id();
+}
+
 /// A worker driven one call at a time.
 class WireWorker {
  public:
   WireWorker(const std::shared_ptr<grpc::Channel>& channel, const std::string& name)
-      : stub_(v1::WorkerService::NewStub(channel)) {
-    grpc::ClientContext ctx;
-    set_deadline(&ctx);
-    v1::WorkerInfo info;
-    info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
-    info.set_name(name);
-    info.set_threads(1);
-    v1::RegisterResponse r;
-    const grpc::Status st = stub_->Register(&ctx, info, &r);
-    EXPECT_TRUE(st.ok()) << st.error_message();
-    id_ = r.worker_id().id();
-  }
+      : stub_(v1::WorkerService::NewStub(channel)), id_(register_worker(*stub_, name)) {}
   const std::string& id() const { return id_; }
 
   /// A tile, or nullopt when the master says Wait.

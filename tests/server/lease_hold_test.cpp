@@ -10,20 +10,6 @@ namespace {
 
 class LeaseHoldTest : public FarmFixture {
  protected:
-  // Registers a worker on its own stub.
-  std::string register_worker(v1::WorkerService::Stub& stub, const std::string& name) {
-    grpc::ClientContext ctx;
-    set_deadline(&ctx);
-    v1::WorkerInfo info;
-    info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
-    info.set_name(name);
-    info.set_threads(1);
-    v1::RegisterResponse r;
-    const grpc::Status st = stub.Register(&ctx, info, &r);
-    EXPECT_TRUE(st.ok()) << st.error_message();
-    return r.worker_id().id();
-  }
-
   // One LeaseTile call with max_wait_ms, run on another thread.
   std::future<std::pair<grpc::Status, v1::Lease>> lease_async(v1::WorkerService::Stub& stub, const std::string& id,
                                                               uint32_t max_wait_ms, grpc::ClientContext* ctx) {
