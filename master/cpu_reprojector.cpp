@@ -210,10 +210,10 @@ SubpixelAccumulation CpuReprojector::read() {
   return a;
 }
 
-PixelReprojection CpuReprojector::downsample_pixels() {
+void CpuReprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip) {
   static_assert(sizeof(Cell) == sizeof(AccumulationCell));
   const std::span<const AccumulationCell> cells(reinterpret_cast<const AccumulationCell*>(cells_.data()), cells_.size());
-  return downsample_cells(cells, grid_.width, grid_.height, subpixels_);
+  downsample_cells(cells, grid_.width, grid_.height, subpixels_, skip, out);
 }
 
 void CpuReprojector::reset() {

@@ -106,13 +106,15 @@ void FrameState::add_exact(std::span<const ExactSample> samples) {
   reprojector_->add_exact(samples);
 }
 
-void FrameState::refresh_reprojection() {
+void FrameState::refresh_reprojection(bool active_only) {
   if (!reprojector_) return;
   ScopedTimer t(&seconds_reprojecting_);
   ScopedTimer d(&seconds_downsampling_);
-  PixelReprojection pr = reprojector_->downsample_pixels();
+  PixelReprojection pr{std::move(reprojected_radiance_), std::move(mprime_)};
+  reprojector_->downsample_pixels_into(&pr, active_only ? std::span<const uint8_t>(skip_) : std::span<const uint8_t>());
   mprime_ = std::move(pr.count);
   reprojected_radiance_ = std::move(pr.radiance);
+  reprojection_partial_ = active_only;
 }
 
 int FrameState::next_paths_per_pixel() const {
@@ -123,11 +125,17 @@ bool FrameState::finish_round() {
   paths_done_ += next_paths_per_pixel();
   ++progress_.round;
   const bool skipping = opts_.mode == RenderMode::kSkip;
-  // M' is needed every round for skipping; otherwise only for the last round and the images.
-  if (skipping || paths_done_ >= opts_.spp) refresh_reprojection();
+  // M' is needed every round for skipping -- but only where pixels are still active: a skipped pixel
+  // stays skipped, so its M' decides nothing until the last round --, otherwise only for the last
+  // round and the images. The progress figures below see skipped pixels' M' as of an earlier
+  // refresh until the last round (or a preview's images()) refreshes every pixel.
+  if (paths_done_ >= opts_.spp) {
+    refresh_reprojection(false);
+  } else if (skipping) {
+    refresh_reprojection(true);
+  }
   const uint64_t target = uint64_t(opts_.spp);
-  uint64_t active = 0, skipped = 0, traced = 0;
-  double sum_spp = 0, sum_m = 0, sum_mp = 0, min_spp = 1e300;
+  uint64_t active = 0, skipped = 0;
   for (size_t p = 0; p < skip_.size(); ++p) {
     const uint64_t m = path_count_[p], mp = mprime_[p];
     if (!skip_[p]) {
@@ -137,6 +145,13 @@ bool FrameState::finish_round() {
       }
     }
     active += !skip_[p];
+  }
+  done_ = active == 0 || paths_done_ >= opts_.spp;
+  if (done_ && reprojection_partial_) refresh_reprojection(false);
+  uint64_t traced = 0;
+  double sum_spp = 0, sum_m = 0, sum_mp = 0, min_spp = 1e300;
+  for (size_t p = 0; p < skip_.size(); ++p) {
+    const uint64_t m = path_count_[p], mp = mprime_[p];
     traced += m;
     sum_m += double(m);
     sum_mp += double(mp);
@@ -151,7 +166,6 @@ bool FrameState::finish_round() {
   progress_.mean_reprojected = sum_mp / n;
   progress_.mean_spp = sum_spp / n;
   progress_.min_spp = min_spp;
-  done_ = active == 0 || paths_done_ >= opts_.spp;
   // Paths a skipped pixel did not trace, against plain path tracing at P.
   progress_.paths_skipped = done_ ? uint64_t(opts_.spp) * uint64_t(skip_.size()) - traced : 0;
   return !done_;
@@ -225,10 +239,11 @@ void FrameState::restore(const FrameSnapshot& s) {
   progress_ = s.progress;
   seconds_reprojecting_ = s.seconds_reprojecting;
   seconds_downsampling_ = s.seconds_downsampling;
+  reprojection_partial_ = reprojector_ != nullptr;  // the snapshot may hold a partial refresh
 }
 
 FrameImages FrameState::images() {
-  if (reprojector_ && opts_.mode != RenderMode::kSkip) refresh_reprojection();
+  if (reprojector_ && (opts_.mode != RenderMode::kSkip || reprojection_partial_)) refresh_reprojection(false);
   FrameImages out;
   Image sum(width_, height_, 3);
   out.pathtrace = Image(width_, height_, 3);

@@ -120,7 +120,8 @@ class FrameState {
   /// Continues from `snapshot`. Throws std::invalid_argument (naming the mismatch) if it was not
   /// taken from a FrameState of the same size and reprojection set-up; the state is then unchanged.
   void restore(const FrameSnapshot& snapshot);
-  /// The images as of the last finished round (reads the accumulation back when reprojecting).
+  /// The images: path tracing as of the last finished round, L_rp and M' as of this call when
+  /// reprojecting (reads the accumulation back).
   FrameImages images();
 
   int width() const { return width_; }
@@ -130,7 +131,8 @@ class FrameState {
   const std::vector<uint64_t>& reprojected_counts() const { return mprime_; }
 
  private:
-  void refresh_reprojection();
+  // M' and L_rp from the reprojector: every pixel, or (active_only) the pixels not skipped.
+  void refresh_reprojection(bool active_only);
   size_t pixel(int x, int y) const { return size_t(y) * size_t(width_) + size_t(x); }
 
   RenderOptions opts_;
@@ -141,6 +143,7 @@ class FrameState {
   std::vector<uint32_t> path_count_;  // M
   std::vector<uint64_t> mprime_;      // M' as of the last downsample
   Image reprojected_radiance_;        // L_rp as of the last downsample
+  bool reprojection_partial_ = false;  // the last downsample left skipped pixels as they were
   std::vector<uint8_t> skip_;         // 1 = no more paths for this pixel
   int paths_done_ = 0;                // paths every active pixel has traced
   bool done_ = false;

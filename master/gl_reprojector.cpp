@@ -671,7 +671,7 @@ SubpixelAccumulation GlReprojector::read() {
   return a;
 }
 
-PixelReprojection GlReprojector::downsample_pixels() {
+void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<const uint8_t> skip) {
   ctx_->check_thread();
   const auto& gl = ctx_->gl();
   if (map_downsample_) {
@@ -684,16 +684,15 @@ PixelReprojection GlReprojector::downsample_pixels() {
     const void* mapped = gl.MapNamedBufferRange(acc_buf_->id(), 0, GLsizeiptr(cells * 16), GL_MAP_READ_BIT);
     if (!mapped) ctx_->check_error("GlReprojector::downsample_pixels (map)");
     if (mapped) {
-      PixelReprojection out;
       try {
-        out = downsample_cells({static_cast<const AccumulationCell*>(mapped), cells}, grid_w_, grid_h_, subpixels_);
+        downsample_cells({static_cast<const AccumulationCell*>(mapped), cells}, grid_w_, grid_h_, subpixels_, skip, result);
       } catch (...) {
         gl.UnmapNamedBuffer(acc_buf_->id());
         throw;
       }
       gl.UnmapNamedBuffer(acc_buf_->id());
       ctx_->check_error("GlReprojector::downsample_pixels");
-      return out;
+      return;
     }
   }
   const int W = grid_w_ / subpixels_, H = grid_h_ / subpixels_;
@@ -726,7 +725,7 @@ PixelReprojection GlReprojector::downsample_pixels() {
     std::memcpy(&n, &raw[4 * i + 3], 4);
     out.count[i] = n;
   }
-  return out;
+  *result = std::move(out);  // every pixel: the compute pass has no mask
 }
 
 void GlReprojector::reset() {

@@ -10,13 +10,22 @@ namespace epr {
 
 namespace {
 
-// The downsampling of one pixel, for any storage of the cells: `cell(s)` returns subpixel s.
+// The downsampling, for any storage of the cells: `cell(s)` returns subpixel s. Only pixels p with
+// skip[p] == 0 (every pixel if `skip` is empty, or if *out is not W x H: it is then reallocated).
 template <class CellAt>
-PixelReprojection downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell) {
+void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::span<const uint8_t> skip,
+                     PixelReprojection* outp) {
   const int W = grid_w / S, H = grid_h / S;
-  PixelReprojection out{Image(W, H, 3), std::vector<uint64_t>(size_t(W) * size_t(H), 0)};
+  const size_t pixels = size_t(W) * size_t(H);
+  PixelReprojection& out = *outp;
+  if (out.radiance.width != W || out.radiance.height != H || out.radiance.channels != 3 || out.count.size() != pixels) {
+    out = PixelReprojection{Image(W, H, 3), std::vector<uint64_t>(pixels, 0)};
+    skip = {};
+  }
+  if (!skip.empty() && skip.size() != pixels) throw std::invalid_argument("downsample: skip mask of the wrong size");
   tbb::parallel_for(0, H, [&](int y) {
     for (int x = 0; x < W; ++x) {
+      if (!skip.empty() && skip[size_t(y) * size_t(W) + size_t(x)]) continue;
       double mean[3] = {0, 0, 0};
       uint64_t total = 0;
       int non_empty = 0;
@@ -31,11 +40,12 @@ PixelReprojection downsample_impl(int grid_w, int grid_h, int S, const CellAt& c
           total += c.n;
           ++non_empty;
         }
-      if (non_empty) out.radiance.set_rgb(x, y, Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty), float(mean[2] / non_empty)));
+      out.radiance.set_rgb(x, y, non_empty ? Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty),
+                                                  float(mean[2] / non_empty))
+                                           : Vec3(0.f));
       out.count[size_t(y) * size_t(W) + size_t(x)] = total;
     }
   });
-  return out;
 }
 
 }  // namespace
@@ -45,15 +55,19 @@ PixelReprojection downsample(const SubpixelAccumulation& acc) {
   if (S < 1 || acc.width % S != 0 || acc.height % S != 0 || acc.sum.size() != 3 * acc.size() ||
       acc.count.size() != acc.size())
     throw std::invalid_argument("downsample: malformed subpixel accumulation");
-  return downsample_impl(acc.width, acc.height, S, [&](size_t s) {
-    return AccumulationCell{acc.sum[3 * s], acc.sum[3 * s + 1], acc.sum[3 * s + 2], acc.count[s]};
-  });
+  PixelReprojection out;
+  downsample_impl(
+      acc.width, acc.height, S,
+      [&](size_t s) { return AccumulationCell{acc.sum[3 * s], acc.sum[3 * s + 1], acc.sum[3 * s + 2], acc.count[s]}; },
+      {}, &out);
+  return out;
 }
 
-PixelReprojection downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int S) {
+void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int S, std::span<const uint8_t> skip,
+                      PixelReprojection* out) {
   if (S < 1 || grid_w % S != 0 || grid_h % S != 0 || cells.size() != size_t(grid_w) * size_t(grid_h))
     throw std::invalid_argument("downsample_cells: malformed subpixel grid");
-  return downsample_impl(grid_w, grid_h, S, [&](size_t s) { return cells[s]; });
+  downsample_impl(grid_w, grid_h, S, [&](size_t s) { return cells[s]; }, skip, out);
 }
 
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp) {

@@ -181,7 +181,13 @@ std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Ca
   throw std::invalid_argument(fmt::format("unknown reprojector back-end '{}' (expected 'gl' or 'cpu')", backend));
 }
 
-PixelReprojection Reprojector::downsample_pixels() { return downsample(read()); }
+PixelReprojection Reprojector::downsample_pixels() {
+  PixelReprojection out;
+  downsample_pixels_into(&out);
+  return out;
+}
+
+void Reprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t>) { *out = downsample(read()); }
 
 void Reprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
   constexpr size_t kBatch = 32768;  // records decoded at a time: bounded scratch memory

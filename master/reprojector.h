@@ -134,9 +134,14 @@ class Reprojector {
   /// A copy of the accumulation (GL: read back, synchronising with outstanding work).
   virtual SubpixelAccumulation read() = 0;
   /// L_rp and M' per pixel (reprojection_image.h's downsample of read()), computed where the
-  /// accumulation lives so that a round's end does not copy the whole subpixel grid: GL runs a
-  /// compute pass and reads back only W x H pixels; the CPU back-end reads its cells in place.
-  virtual PixelReprojection downsample_pixels();
+  /// accumulation lives so that a round's end does not copy the whole subpixel grid: GL maps its
+  /// accumulation (or runs a compute pass and reads back only W x H pixels); the CPU back-end reads
+  /// its cells in place.
+  PixelReprojection downsample_pixels();
+  /// The same into *out, for the pixels p with skip[p] == 0 only (all if `skip` is empty or *out is
+  /// not W x H): the others keep their values. A skip-mode round needs M' only where pixels are still
+  /// active, which late in a job is a small part of the image. The default computes every pixel.
+  virtual void downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip = {});
   /// Zeroes the accumulation and the counts.
   virtual void reset() = 0;
   /// Replaces the accumulation and the counts with `acc` (as read() returned it) and `counts` (as

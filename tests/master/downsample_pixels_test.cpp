@@ -42,5 +42,49 @@ TEST(DownsamplePixels, EveryBackendMatchesTheReference) {
   }
 }
 
+// downsample_pixels_into with a skip mask: the pixels not skipped are brought up to date, the
+// skipped ones keep what they had (a skip-mode round refreshes only the active pixels).
+TEST(DownsamplePixels, SkippedPixelsKeepTheirValues) {
+  const Scene scene = test::scene_named("cornell");
+  const Camera cam(scene.camera, 64, 48);
+  GlContext gl;
+  const DeepFramebuffer dfb = build_deep_framebuffer_gl(gl, scene, cam, 4);
+  const auto first = test::real_like_points(scene, dfb, cam, 100000, 8);
+  const auto second = test::real_like_points(scene, dfb, cam, 100000, 9);
+  ReprojectorSettings rs;
+  rs.epsilon = default_epsilon(scene.bounds());
+  std::vector<uint8_t> skip(size_t(cam.width()) * size_t(cam.height()));
+  for (size_t p = 0; p < skip.size(); ++p) skip[p] = (p * 7 + p / 64) % 3 == 0;  // a third skipped
+  for (const char* backend : {"cpu", "gl"}) {
+    SCOPED_TRACE(backend);
+    auto r = make_reprojector(backend, cam, dfb, rs, &gl);
+    r->reproject(first);
+    PixelReprojection partial;
+    r->downsample_pixels_into(&partial, skip);  // empty *out: every pixel, mask or not
+    const PixelReprojection before = partial;
+    expect_same(before, downsample(r->read()));
+    r->reproject(second);
+    r->downsample_pixels_into(&partial, skip);
+    const PixelReprojection now = downsample(r->read());
+    size_t changed_skipped = 0, updated = 0;
+    for (size_t p = 0; p < skip.size(); ++p) {
+      if (skip[p]) {
+        ASSERT_EQ(partial.count[p], before.count[p]) << p;
+        changed_skipped += now.count[p] != before.count[p];
+      } else {
+        ASSERT_EQ(partial.count[p], now.count[p]) << p;
+        for (int c = 0; c < 3; ++c)
+          ASSERT_NEAR(partial.radiance.data[3 * p + size_t(c)], now.radiance.data[3 * p + size_t(c)],
+                      1e-5f * std::max(1.f, std::abs(now.radiance.data[3 * p + size_t(c)])));
+        updated += now.count[p] != before.count[p];
+      }
+    }
+    EXPECT_GT(changed_skipped, 100u) << "skipped pixels must have received samples, or the test shows nothing";
+    EXPECT_GT(updated, 100u);
+    r->downsample_pixels_into(&partial);  // no mask: every pixel
+    expect_same(partial, now);
+  }
+}
+
 }  // namespace
 }  // namespace epr
