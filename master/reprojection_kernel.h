@@ -37,7 +37,7 @@ struct PlaneGrid {
   int width = 0, height = 0;
   std::vector<uint32_t> texel_plane;  // per texel: index into planes, or kUncovered
   std::vector<float> planes;          // 4 per entry: N.x, N.y, N.z, d
-  uint32_t first_creased = 0;         // entries >= this one have creases (all plain entries come first)
+  uint32_t first_creased = kUncovered;  // entries >= this one have creases (after all plain ones); none by default
   std::vector<uint32_t> crease_range;  // 2 per creased entry (index - first_creased): first crease, count
   std::vector<float> creases;          // 4 per crease: oriented plane N.x, N.y, N.z, d (visible side > 0)
   size_t creased_entries() const { return crease_range.size() / 2; }

@@ -11,6 +11,7 @@
 #include "master/cpu_reprojector.h"
 #include "master/gl_context.h"
 #include "master/gl_reprojector.h"
+#include "master/reprojection_kernel.h"
 #include "test_scenes.h"
 
 namespace epr {
@@ -245,6 +246,21 @@ TEST_P(ReprojectorCase, ConvexEdgeKeepsItsSamples) {
               (unsigned long long)accepted[0], (unsigned long long)accepted[1], pts.size());
   EXPECT_GT(accepted[1], 0.9 * double(pts.size()));
   EXPECT_GT(accepted[1], 0.97 * double(accepted[0]));
+}
+
+// Found by tests/fuzz (regressions/tile_result/plane-grid-without-creases): a PlaneGrid filled by
+// hand, without make_plane_grid, has no creased entries -- its planes are plain, and the kernel must
+// not look for crease ranges it does not have.
+TEST(ReprojectionKernel, HandMadePlaneGridHasNoCreases) {
+  detail::PlaneGrid g;
+  g.width = g.height = 4;
+  g.texel_plane.assign(16, 0);
+  g.planes = {0.f, 0.f, 1.f, 0.f};
+  ASSERT_TRUE(g.crease_range.empty());
+  detail::KernelParams k;
+  k.epsilon = 1e-3f;
+  EXPECT_EQ(detail::plane_test(k, g, Vec3(0.1f, 0.2f, 0.f), Vec3(0, 0, 1), 5), detail::Decision::kAccepted);
+  EXPECT_EQ(detail::plane_test(k, g, Vec3(0.1f, 0.2f, 0.5f), Vec3(0, 0, 1), 5), detail::Decision::kOccluded);
 }
 
 TEST_P(ReprojectorCase, SubpixelIndexIsRowMajorWithYDown) {
