@@ -20,14 +20,19 @@ void expect_same(const PixelReprojection& a, const PixelReprojection& b) {
     ASSERT_NEAR(a.radiance.data[i], b.radiance.data[i], 1e-5f * std::max(1.f, std::abs(b.radiance.data[i]))) << i;
 }
 
-TEST(DownsamplePixels, EveryBackendMatchesTheReference) {
+// The Cornell box at 64 x 48 (S = 4), its GL deep framebuffer and the default epsilon.
+class DownsamplePixels : public ::testing::Test {
+ protected:
+  DownsamplePixels() : dfb(build_deep_framebuffer_gl(gl, scene, cam, 4)) { rs.epsilon = default_epsilon(scene.bounds()); }
   const Scene scene = test::scene_named("cornell");
-  const Camera cam(scene.camera, 64, 48);
+  const Camera cam{scene.camera, 64, 48};
   GlContext gl;
-  const DeepFramebuffer dfb = build_deep_framebuffer_gl(gl, scene, cam, 4);
-  const auto points = test::real_like_points(scene, dfb, cam, 200000, 7);
+  const DeepFramebuffer dfb;
   ReprojectorSettings rs;
-  rs.epsilon = default_epsilon(scene.bounds());
+};
+
+TEST_F(DownsamplePixels, EveryBackendMatchesTheReference) {
+  const auto points = test::real_like_points(scene, dfb, cam, 200000, 7);
   for (const char* backend : {"cpu", "gl"}) {
     auto r = make_reprojector(backend, cam, dfb, rs, &gl);
     r->reproject(points);
@@ -44,15 +49,9 @@ TEST(DownsamplePixels, EveryBackendMatchesTheReference) {
 
 // downsample_pixels_into with a skip mask: the pixels not skipped are brought up to date, the
 // skipped ones keep what they had (a skip-mode round refreshes only the active pixels).
-TEST(DownsamplePixels, SkippedPixelsKeepTheirValues) {
-  const Scene scene = test::scene_named("cornell");
-  const Camera cam(scene.camera, 64, 48);
-  GlContext gl;
-  const DeepFramebuffer dfb = build_deep_framebuffer_gl(gl, scene, cam, 4);
+TEST_F(DownsamplePixels, SkippedPixelsKeepTheirValues) {
   const auto first = test::real_like_points(scene, dfb, cam, 100000, 8);
   const auto second = test::real_like_points(scene, dfb, cam, 100000, 9);
-  ReprojectorSettings rs;
-  rs.epsilon = default_epsilon(scene.bounds());
   std::vector<uint8_t> skip(size_t(cam.width()) * size_t(cam.height()));
   for (size_t p = 0; p < skip.size(); ++p) skip[p] = (p * 7 + p / 64) % 3 == 0;  // a third skipped
   for (const char* backend : {"cpu", "gl"}) {
