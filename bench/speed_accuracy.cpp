@@ -136,14 +136,14 @@ Run run_mode(const RenderOptions& base, const std::string& mode, const Reference
     s.round = p.round;
     s.wall = std::chrono::duration<double>(t_in - t0).count() - excluded_wall;
     s.cpu = c_in - c0 - excluded_cpu;
+    const double rp0 = p.frame->seconds_reprojecting();
+    FrameImages img = p.frame->images();  // also brings skip mode's M' of skipped pixels up to date
+    run.eval_reprojecting += p.frame->seconds_reprojecting() - rp0;
     const FrameProgress& fp = p.frame->progress();
     s.eye_paths = double(fp.paths_traced);
     s.reprojected = fp.mean_reprojected * pixels;
     s.mean_spp = fp.mean_spp;
     s.spp = double(fp.paths_traced + fp.paths_skipped) / pixels;
-    const double rp0 = p.frame->seconds_reprojecting();
-    FrameImages img = p.frame->images();
-    run.eval_reprojecting += p.frame->seconds_reprojecting() - rp0;
     s.raw = errors(img.combined, ref.image);
     s.err = s.raw - ref.floor;
     run.samples.push_back(s);

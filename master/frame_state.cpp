@@ -127,8 +127,8 @@ bool FrameState::finish_round() {
   const bool skipping = opts_.mode == RenderMode::kSkip;
   // M' is needed every round for skipping -- but only where pixels are still active: a skipped pixel
   // stays skipped, so its M' decides nothing until the last round --, otherwise only for the last
-  // round and the images. The progress figures below see skipped pixels' M' as of an earlier
-  // refresh until the last round (or a preview's images()) refreshes every pixel.
+  // round and the images. The progress figures below see skipped pixels' M' as of the last round
+  // they were active in, until the last round refreshes every pixel.
   if (paths_done_ >= opts_.spp) {
     refresh_reprojection(false);
   } else if (skipping) {
@@ -148,6 +148,13 @@ bool FrameState::finish_round() {
   }
   done_ = active == 0 || paths_done_ >= opts_.spp;
   if (done_ && reprojection_partial_) refresh_reprojection(false);
+  progress_.pixels_active = active;
+  progress_.pixels_skipped += skipped;
+  update_sample_progress();
+  return !done_;
+}
+
+void FrameState::update_sample_progress() {
   uint64_t traced = 0;
   double sum_spp = 0, sum_m = 0, sum_mp = 0, min_spp = 1e300;
   for (size_t p = 0; p < skip_.size(); ++p) {
@@ -159,8 +166,6 @@ bool FrameState::finish_round() {
     min_spp = std::min(min_spp, double(m + mp));
   }
   const double n = double(skip_.size());
-  progress_.pixels_active = active;
-  progress_.pixels_skipped += skipped;
   progress_.paths_traced = traced;
   progress_.mean_paths = sum_m / n;
   progress_.mean_reprojected = sum_mp / n;
@@ -168,7 +173,6 @@ bool FrameState::finish_round() {
   progress_.min_spp = min_spp;
   // Paths a skipped pixel did not trace, against plain path tracing at P.
   progress_.paths_skipped = done_ ? uint64_t(opts_.spp) * uint64_t(skip_.size()) - traced : 0;
-  return !done_;
 }
 
 void FrameState::tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t>* skip,
@@ -242,8 +246,14 @@ void FrameState::restore(const FrameSnapshot& s) {
   reprojection_partial_ = reprojector_ != nullptr;  // the snapshot may hold a partial refresh
 }
 
-FrameImages FrameState::images() {
-  if (reprojector_ && (opts_.mode != RenderMode::kSkip || reprojection_partial_)) refresh_reprojection(false);
+FrameImages FrameState::images(bool preview) {
+  // Skip mode: the last round refreshed only the active pixels; bring the skipped ones up to date
+  // too, unless a preview does without them.
+  if (reprojector_ && opts_.mode != RenderMode::kSkip) refresh_reprojection(false);
+  if (reprojector_ && opts_.mode == RenderMode::kSkip && reprojection_partial_ && !preview) {
+    refresh_reprojection(false);
+    update_sample_progress();  // M' of the skipped pixels changed
+  }
   FrameImages out;
   Image sum(width_, height_, 3);
   out.pathtrace = Image(width_, height_, 3);

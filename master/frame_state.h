@@ -120,9 +120,10 @@ class FrameState {
   /// Continues from `snapshot`. Throws std::invalid_argument (naming the mismatch) if it was not
   /// taken from a FrameState of the same size and reprojection set-up; the state is then unchanged.
   void restore(const FrameSnapshot& snapshot);
-  /// The images: path tracing as of the last finished round, L_rp and M' as of this call when
-  /// reprojecting (reads the accumulation back).
-  FrameImages images();
+  /// The images as of the last finished round (L_rp and M' read back from the accumulation). A skip
+  /// round refreshes only the pixels still active; with `preview` the skipped pixels stay as of the
+  /// last round they were active in (no read-back for them), without it they are brought up to date.
+  FrameImages images(bool preview = false);
 
   int width() const { return width_; }
   int height() const { return height_; }
@@ -133,6 +134,8 @@ class FrameState {
  private:
   // M' and L_rp from the reprojector: every pixel, or (active_only) the pixels not skipped.
   void refresh_reprojection(bool active_only);
+  // progress_'s path and sample counts (paths traced, mean M, M', M + M', min M + M') from the arrays.
+  void update_sample_progress();
   size_t pixel(int x, int y) const { return size_t(y) * size_t(width_) + size_t(x); }
 
   RenderOptions opts_;

@@ -1165,7 +1165,7 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
   // The preview copy after the next round opened (workers trace meanwhile): the frame still holds the
   // closed round's state, since only this thread applies the next round's results.
   if (want_preview) {
-    auto images = std::make_shared<const FrameImages>(job->frame->images());
+    auto images = std::make_shared<const FrameImages>(job->frame->images(/*preview=*/true));
     std::lock_guard lock(mu_);
     job->preview_images = std::move(images);
     job->preview_reprojects = job->frame->reprojects();
