@@ -76,6 +76,43 @@ TEST(LocalRender, SkippingTracesFewerPathsAndEveryPixelReachesTarget) {
   EXPECT_EQ(out.stats.at("paths_skipped").get<uint64_t>(), full - traced);
 }
 
+// Skip mode refreshes M' only for the pixels still active at a round's end; a preview keeps the
+// skipped pixels as they were, the images for results bring them up to date (they keep receiving
+// reprojected samples from their neighbours' paths).
+TEST(LocalRender, SkipModePreviewKeepsSkippedPixelsResultImagesRefreshThem) {
+  RenderOptions o;
+  o.scene = "builtin:cornell";
+  o.width = o.height = 64;
+  o.spp = 32;
+  o.round_growth = 0;
+  o.mode = RenderMode::kSkip;
+  o.reproject = ReprojectMethod::kCpu;
+  bool checked = false;
+  render_local(o, [&](const RoundProgress& p) {
+    if (checked || p.pixels_active > 0.8 || p.pixels_active < 0.05) return;
+    std::vector<uint8_t> skip;
+    std::vector<uint32_t> first_sample;
+    p.frame->tile_inputs(0, 0, o.width, o.height, &skip, &first_sample);
+    const FrameImages preview = p.frame->images(/*preview=*/true);
+    const FrameImages current = p.frame->images();
+    size_t skipped = 0, grew = 0;
+    for (size_t i = 0; i < skip.size(); ++i) {
+      const float before = preview.reprojected.data[i], now = current.reprojected.data[i];
+      if (skip[i]) {
+        ++skipped;
+        ASSERT_GE(now, before) << i;
+        grew += now > before;
+      } else {
+        ASSERT_EQ(now, before) << "an active pixel is refreshed every round: " << i;
+      }
+    }
+    EXPECT_GT(skipped, 100u);
+    EXPECT_GT(grew, skipped / 10) << "skipped pixels keep receiving reprojected samples";
+    checked = true;
+  });
+  EXPECT_TRUE(checked) << "no round had between 5 % and 80 % of the pixels active";
+}
+
 TEST(LocalRender, NoSkippingInPathTraceMode) {
   RenderOptions o;
   o.scene = "builtin:cornell";
