@@ -4,10 +4,10 @@
 #pragma once
 
 #include <sys/resource.h>
-#include <time.h>
 
 #include <chrono>
 #include <cstdint>
+#include <cstdlib>
 #include <memory>
 #include <optional>
 #include <span>
@@ -18,24 +18,11 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include "common/cpu_time.h"
 #include "epr/v1/worker_service.grpc.pb.h"
 #include "wire/tile_result_stream.h"
 
 namespace epr::bench {
-
-// CPU time of the calling thread / the whole process, seconds (nanosecond clocks: per-tile deltas are
-// microseconds, below getrusage's tick granularity on some kernels).
-inline double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
-}
-
-inline double process_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
-}
 
 inline double load_average() {
   double l[3] = {0, 0, 0};

@@ -13,7 +13,6 @@
 // spends time outside Embree".
 //
 //   trace_bench [--runs 5] [--scene SPEC ...] [--size 128] [--spp 4] [--rays 400000] [--profile-pt]
-#include <time.h>
 
 #include <algorithm>
 #include <chrono>
@@ -24,6 +23,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "common/cpu_time.h"
 #include "common/rng.h"
 #include "common/scene_loader.h"
 #include "worker/tile_renderer.h"
@@ -36,12 +36,6 @@ namespace {
 double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   return v[v.size() / 2];
-}
-
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
 // Wall and CPU seconds of one measured section.

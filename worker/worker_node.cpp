@@ -5,7 +5,6 @@
 #include <fmt/format.h>
 #include <grpcpp/grpcpp.h>
 #include <sys/stat.h>
-#include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -26,6 +25,7 @@
 #include <utility>
 #include <vector>
 
+#include "common/cpu_time.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "epr/v1/worker_service.grpc.pb.h"
@@ -203,12 +203,6 @@ class TimeAccounting {
   double seconds_[kActivities][2] = {};
   double cpu_[kActivities] = {};  // thread CPU seconds
 };
-
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
-}
 
 // The activity of one tracing thread: `Doing` switches it for a scope and switches back after.
 class ThreadActivity {
