@@ -69,6 +69,15 @@ PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float cre
   const int W = dfb.width, H = dfb.height;
   auto row_sets = std::vector<std::vector<uint32_t>>(size_t(H));    // concatenated sets of a row
   auto row_texels = std::vector<std::vector<uint32_t>>(size_t(H));  // (texel x, set begin, set size) per creased texel
+  // Another entry of the same plane (a zero of the other sign, or the opposite winding): not a crease;
+  // oriented by the eye it would cut the far half of the texel's own epsilon band.
+  auto same_plane = [&](uint32_t a, uint32_t b) {
+    const float* x = &g.planes[4 * size_t(a)];
+    const float* y = &g.planes[4 * size_t(b)];
+    const bool same = x[0] == y[0] && x[1] == y[1] && x[2] == y[2] && x[3] == y[3];
+    const bool opposite = x[0] == -y[0] && x[1] == -y[1] && x[2] == -y[2] && x[3] == -y[3];
+    return same || opposite;
+  };
   auto oriented = [&](uint32_t q, const Vec3& point, double* side) {
     const float* pl = &g.planes[4 * size_t(q)];
     *side = double(pl[0]) * point.x + double(pl[1]) * point.y + double(pl[2]) * point.z - double(pl[3]);
@@ -86,7 +95,7 @@ PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float cre
           const int nx = x + dx, ny = y + dy;
           if ((dx == 0 && dy == 0) || nx < 0 || ny < 0 || nx >= W || ny >= H) continue;
           const uint32_t q = g.texel_plane[dfb.index(nx, ny)];
-          if (q == PlaneGrid::kUncovered || q == own) continue;
+          if (q == PlaneGrid::kUncovered || q == own || same_plane(own, q)) continue;
           double side = 0;
           if (!oriented(q, dfb.position_at(t), &side) && !oriented(q, eye, &side)) continue;
           const uint32_t code = 2 * q + (side < 0 ? 1u : 0u);
