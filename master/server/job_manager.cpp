@@ -1084,8 +1084,9 @@ void JobManager::open_round(Job& job) {
   // its active pixels): the round ends on small tiles, and its tail -- cores idle while the last tile
   // is traced -- is short. The results do not depend on the order: commits of a round touch disjoint
   // pixels and each pixel's samples are keyed by (pixel, sample index).
-  auto active = [&](uint32_t t) { return std::count(job.tile_skip[t].begin(), job.tile_skip[t].end(), uint8_t(0)); };
-  std::stable_sort(job.pending.begin(), job.pending.end(), [&](uint32_t a, uint32_t b) { return active(a) > active(b); });
+  std::vector<size_t> active(job.tile_skip.size(), 0);  // counted once, not in every comparison
+  for (uint32_t t : job.pending) active[t] = size_t(std::count(job.tile_skip[t].begin(), job.tile_skip[t].end(), uint8_t(0)));
+  std::stable_sort(job.pending.begin(), job.pending.end(), [&](uint32_t a, uint32_t b) { return active[a] > active[b]; });
   job.round_open = true;
   job.round_opened_ms = now_ms();
   job.reprojecting_at_round_open = job.frame->seconds_reprojecting();  // not the deep framebuffer build
