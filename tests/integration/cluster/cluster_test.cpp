@@ -602,8 +602,11 @@ TEST_F(ClusterTest, WorkerKilledMidJobLosesNothing) {
   EXPECT_GE(stats.value("tiles_re_leased", 0u), 1u);
   EXPECT_NE(survivor.err().find("round " + held_round + " tile " + held_tile + "\n"), std::string::npos)
       << "the survivor did not trace the victim's tile";
-  EXPECT_EQ(tiles_committed(victim, id) + tiles_committed(survivor, id), stats.value("tiles_committed", 0u))
-      << "tiles committed by the workers against the master's count";
+  // The victim (one thread) submits in the background while it traces its next tile: killed then,
+  // its last submission may be committed by the master without the victim living to log it.
+  const uint64_t logged = tiles_committed(victim, id) + tiles_committed(survivor, id);
+  EXPECT_GE(stats.value("tiles_committed", 0u), logged) << "tiles committed by the workers against the master's count";
+  EXPECT_LE(stats.value("tiles_committed", 0u), logged + 1) << "at most the victim's one submission in flight unlogged";
 
   ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("ref")));
   expect_equal_to_reference(path("cluster"), path("ref"));
