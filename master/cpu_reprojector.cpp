@@ -210,10 +210,10 @@ SubpixelAccumulation CpuReprojector::read() {
   return a;
 }
 
-void CpuReprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip) {
+void CpuReprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip, bool counts_only) {
   static_assert(sizeof(Cell) == sizeof(AccumulationCell));
   const std::span<const AccumulationCell> cells(reinterpret_cast<const AccumulationCell*>(cells_.data()), cells_.size());
-  downsample_cells(cells, grid_.width, grid_.height, subpixels_, skip, out);
+  downsample_cells(cells, grid_.width, grid_.height, subpixels_, skip, out, counts_only);
 }
 
 void CpuReprojector::reset() {

@@ -31,7 +31,8 @@ class CpuReprojector final : public Reprojector {
   void add_exact(std::span<const ExactSample> samples) override;
   ReprojectionCounts counts() const override { return counts_; }
   SubpixelAccumulation read() override;
-  void downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip = {}) override;
+  void downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip = {},
+                              bool counts_only = false) override;
   void reset() override;
   void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) override;
   std::string_view backend() const override { return "cpu"; }

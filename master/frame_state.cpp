@@ -106,15 +106,18 @@ void FrameState::add_exact(std::span<const ExactSample> samples) {
   reprojector_->add_exact(samples);
 }
 
-void FrameState::refresh_reprojection(bool active_only) {
+void FrameState::refresh_reprojection(bool active_only, bool counts_only) {
   if (!reprojector_) return;
   ScopedTimer t(&seconds_reprojecting_);
   ScopedTimer d(&seconds_downsampling_);
   PixelReprojection pr{std::move(reprojected_radiance_), std::move(mprime_)};
-  reprojector_->downsample_pixels_into(&pr, active_only ? std::span<const uint8_t>(skip_) : std::span<const uint8_t>());
+  counts_only = counts_only && active_only;
+  reprojector_->downsample_pixels_into(&pr, active_only ? std::span<const uint8_t>(skip_) : std::span<const uint8_t>(),
+                                       counts_only);
   mprime_ = std::move(pr.count);
   reprojected_radiance_ = std::move(pr.radiance);
   reprojection_partial_ = active_only;
+  radiance_stale_ = counts_only;
 }
 
 int FrameState::next_paths_per_pixel() const {
@@ -126,13 +129,13 @@ bool FrameState::finish_round() {
   ++progress_.round;
   const bool skipping = opts_.mode == RenderMode::kSkip;
   // M' is needed every round for skipping -- but only where pixels are still active: a skipped pixel
-  // stays skipped, so its M' decides nothing until the last round --, otherwise only for the last
-  // round and the images. The progress figures below see skipped pixels' M' as of the last round
-  // they were active in, until the last round refreshes every pixel.
+  // stays skipped, so its M' decides nothing until the last round --, and L_rp not at all: it is
+  // brought up to date for the last round and the images. The progress figures below see skipped
+  // pixels' M' as of the last round they were active in, until the last round refreshes every pixel.
   if (paths_done_ >= opts_.spp) {
     refresh_reprojection(false);
   } else if (skipping) {
-    refresh_reprojection(true);
+    refresh_reprojection(true, /*counts_only=*/true);
   }
   const uint64_t target = uint64_t(opts_.spp);
   uint64_t active = 0, skipped = 0;
@@ -147,7 +150,7 @@ bool FrameState::finish_round() {
     active += !skip_[p];
   }
   done_ = active == 0 || paths_done_ >= opts_.spp;
-  if (done_ && reprojection_partial_) refresh_reprojection(false);
+  if (done_ && (reprojection_partial_ || radiance_stale_)) refresh_reprojection(false);
   progress_.pixels_active = active;
   progress_.pixels_skipped += skipped;
   update_sample_progress();
@@ -244,6 +247,7 @@ void FrameState::restore(const FrameSnapshot& s) {
   seconds_reprojecting_ = s.seconds_reprojecting;
   seconds_downsampling_ = s.seconds_downsampling;
   reprojection_partial_ = reprojector_ != nullptr;  // the snapshot may hold a partial refresh
+  radiance_stale_ = reprojection_partial_;
 }
 
 FrameImages FrameState::images(bool preview) {
@@ -253,6 +257,8 @@ FrameImages FrameState::images(bool preview) {
   if (reprojector_ && opts_.mode == RenderMode::kSkip && reprojection_partial_ && !preview) {
     refresh_reprojection(false);
     update_sample_progress();  // M' of the skipped pixels changed
+  } else if (reprojector_ && opts_.mode == RenderMode::kSkip && radiance_stale_) {
+    refresh_reprojection(true);  // a preview: L_rp of the active pixels (the round refreshed M' alone)
   }
   FrameImages out;
   Image sum(width_, height_, 3);

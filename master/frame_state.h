@@ -121,8 +121,9 @@ class FrameState {
   /// taken from a FrameState of the same size and reprojection set-up; the state is then unchanged.
   void restore(const FrameSnapshot& snapshot);
   /// The images as of the last finished round (L_rp and M' read back from the accumulation). A skip
-  /// round refreshes only the pixels still active; with `preview` the skipped pixels stay as of the
-  /// last round they were active in (no read-back for them), without it they are brought up to date.
+  /// round refreshes only the active pixels' M'; with `preview` the active pixels' L_rp is brought up
+  /// to date and the skipped pixels stay as of the last round they were active in (no read-back for
+  /// them), without it every pixel is.
   FrameImages images(bool preview = false);
 
   int width() const { return width_; }
@@ -132,8 +133,9 @@ class FrameState {
   const std::vector<uint64_t>& reprojected_counts() const { return mprime_; }
 
  private:
-  // M' and L_rp from the reprojector: every pixel, or (active_only) the pixels not skipped.
-  void refresh_reprojection(bool active_only);
+  // M' and L_rp from the reprojector: every pixel, or (active_only) the pixels not skipped;
+  // counts_only (with active_only): M' alone, as a skip round's decision needs.
+  void refresh_reprojection(bool active_only, bool counts_only = false);
   // progress_'s path and sample counts (paths traced, mean M, M', M + M', min M + M') from the arrays.
   void update_sample_progress();
   size_t pixel(int x, int y) const { return size_t(y) * size_t(width_) + size_t(x); }
@@ -147,6 +149,7 @@ class FrameState {
   std::vector<uint64_t> mprime_;      // M' as of the last downsample
   Image reprojected_radiance_;        // L_rp as of the last downsample
   bool reprojection_partial_ = false;  // the last downsample left skipped pixels as they were
+  bool radiance_stale_ = false;        // ... and L_rp of the active ones too (a counts-only refresh)
   std::vector<uint8_t> skip_;         // 1 = no more paths for this pixel
   int paths_done_ = 0;                // paths every active pixel has traced
   bool done_ = false;

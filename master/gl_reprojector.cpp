@@ -671,7 +671,7 @@ SubpixelAccumulation GlReprojector::read() {
   return a;
 }
 
-void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<const uint8_t> skip) {
+void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<const uint8_t> skip, bool counts_only) {
   ctx_->check_thread();
   const auto& gl = ctx_->gl();
   if (map_downsample_) {
@@ -685,7 +685,8 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
     if (!mapped) ctx_->check_error("GlReprojector::downsample_pixels (map)");
     if (mapped) {
       try {
-        downsample_cells({static_cast<const AccumulationCell*>(mapped), cells}, grid_w_, grid_h_, subpixels_, skip, result);
+        downsample_cells({static_cast<const AccumulationCell*>(mapped), cells}, grid_w_, grid_h_, subpixels_, skip, result,
+                         counts_only);
       } catch (...) {
         gl.UnmapNamedBuffer(acc_buf_->id());
         throw;

@@ -11,21 +11,32 @@ namespace epr {
 namespace {
 
 // The downsampling, for any storage of the cells: `cell(s)` returns subpixel s. Only pixels p with
-// skip[p] == 0 (every pixel if `skip` is empty, or if *out is not W x H: it is then reallocated).
+// skip[p] == 0 (every pixel if `skip` is empty, or if *out is not W x H: it is then reallocated);
+// `counts_only`: only the counts (not on a reallocated *out, whose radiance would be left empty).
 template <class CellAt>
 void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::span<const uint8_t> skip,
-                     PixelReprojection* outp) {
+                     PixelReprojection* outp, bool counts_only = false) {
   const int W = grid_w / S, H = grid_h / S;
   const size_t pixels = size_t(W) * size_t(H);
   PixelReprojection& out = *outp;
   if (out.radiance.width != W || out.radiance.height != H || out.radiance.channels != 3 || out.count.size() != pixels) {
     out = PixelReprojection{Image(W, H, 3), std::vector<uint64_t>(pixels, 0)};
     skip = {};
+    counts_only = false;
   }
   if (!skip.empty() && skip.size() != pixels) throw std::invalid_argument("downsample: skip mask of the wrong size");
   tbb::parallel_for(0, H, [&](int y) {
     for (int x = 0; x < W; ++x) {
       if (!skip.empty() && skip[size_t(y) * size_t(W) + size_t(x)]) continue;
+      if (counts_only) {
+        uint64_t total = 0;
+        for (int j = 0; j < S; ++j) {
+          const size_t row = size_t(y * S + j) * size_t(grid_w) + size_t(x * S);
+          for (int i = 0; i < S; ++i) total += cell(row + size_t(i)).n;
+        }
+        out.count[size_t(y) * size_t(W) + size_t(x)] = total;
+        continue;
+      }
       double mean[3] = {0, 0, 0};
       uint64_t total = 0;
       int non_empty = 0;
@@ -64,10 +75,10 @@ PixelReprojection downsample(const SubpixelAccumulation& acc) {
 }
 
 void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int S, std::span<const uint8_t> skip,
-                      PixelReprojection* out) {
+                      PixelReprojection* out, bool counts_only) {
   if (S < 1 || grid_w % S != 0 || grid_h % S != 0 || cells.size() != size_t(grid_w) * size_t(grid_h))
     throw std::invalid_argument("downsample_cells: malformed subpixel grid");
-  downsample_impl(grid_w, grid_h, S, [&](size_t s) { return cells[s]; }, skip, out);
+  downsample_impl(grid_w, grid_h, S, [&](size_t s) { return cells[s]; }, skip, out, counts_only);
 }
 
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp) {

@@ -42,9 +42,10 @@ static_assert(sizeof(AccumulationCell) == 16);
 /// The same downsampling straight from a back-end's cells (grid_w x grid_h subpixels, S per axis),
 /// without copying the grid first, into *out: only the pixels p with skip[p] == 0 are computed, the
 /// others keep their values (every pixel if `skip` is empty or *out is not of the image's size, in
-/// which case it is reallocated).
+/// which case it is reallocated). `counts_only`: only M' (out->count), L_rp stays as it was -- a
+/// skip round's decision needs no radiance, and the sum of counts costs no divisions.
 void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int subpixels,
-                      std::span<const uint8_t> skip, PixelReprojection* out);
+                      std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only = false);
 
 /// L(p) = (path_sum + M' L_rp) / (M + M'). `path_sum` is the sum (not the mean) of p's M path samples.
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& reprojected);

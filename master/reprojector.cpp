@@ -196,7 +196,9 @@ PixelReprojection Reprojector::downsample_pixels() {
   return out;
 }
 
-void Reprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t>) { *out = downsample(read()); }
+void Reprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t>, bool) {
+  *out = downsample(read());
+}
 
 void Reprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
   constexpr size_t kBatch = 32768;  // records decoded at a time: bounded scratch memory

@@ -140,8 +140,10 @@ class Reprojector {
   PixelReprojection downsample_pixels();
   /// The same into *out, for the pixels p with skip[p] == 0 only (all if `skip` is empty or *out is
   /// not W x H): the others keep their values. A skip-mode round needs M' only where pixels are still
-  /// active, which late in a job is a small part of the image. The default computes every pixel.
-  virtual void downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip = {});
+  /// active, which late in a job is a small part of the image. `counts_only`: M' only, L_rp as it
+  /// was (the skip decision needs no radiance). The default computes both for every pixel.
+  virtual void downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip = {},
+                                      bool counts_only = false);
   /// Zeroes the accumulation and the counts.
   virtual void reset() = 0;
   /// Replaces the accumulation and the counts with `acc` (as read() returned it) and `counts` (as

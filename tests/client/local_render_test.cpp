@@ -104,6 +104,9 @@ TEST(LocalRender, SkipModePreviewKeepsSkippedPixelsResultImagesRefreshThem) {
         grew += now > before;
       } else {
         ASSERT_EQ(now, before) << "an active pixel is refreshed every round: " << i;
+        // The round refreshed M' alone; the preview brings the active pixels' L_rp up to date.
+        for (size_t c = 0; c < 3; ++c)
+          ASSERT_EQ(preview.reprojection.data[3 * i + c], current.reprojection.data[3 * i + c]) << i;
       }
     }
     EXPECT_GT(skipped, 100u);

@@ -85,5 +85,35 @@ TEST_F(DownsamplePixels, SkippedPixelsKeepTheirValues) {
   }
 }
 
+// counts_only (a skip round's refresh): the active pixels' M' is brought up to date, every L_rp and
+// the skipped pixels' M' stay as they were; a full refresh afterwards gives the reference.
+TEST_F(DownsamplePixels, CountsOnlyRefreshesTheActivePixelsCounts) {
+  const auto first = test::real_like_points(scene, dfb, cam, 100000, 10);
+  const auto second = test::real_like_points(scene, dfb, cam, 100000, 11);
+  std::vector<uint8_t> skip(size_t(cam.width()) * size_t(cam.height()));
+  for (size_t p = 0; p < skip.size(); ++p) skip[p] = (p * 5 + p / 64) % 4 == 0;  // a quarter skipped
+  for (const char* backend : {"cpu", "gl"}) {
+    SCOPED_TRACE(backend);
+    auto r = make_reprojector(backend, cam, dfb, rs, &gl);
+    r->reproject(first);
+    PixelReprojection out;
+    r->downsample_pixels_into(&out, skip, /*counts_only=*/true);  // empty *out: everything, counts or not
+    const PixelReprojection before = out;
+    expect_same(before, downsample(r->read()));
+    r->reproject(second);
+    r->downsample_pixels_into(&out, skip, /*counts_only=*/true);
+    const PixelReprojection now = downsample(r->read());
+    EXPECT_EQ(out.radiance.data, before.radiance.data) << "counts_only must leave L_rp alone";
+    size_t updated = 0;
+    for (size_t p = 0; p < skip.size(); ++p) {
+      ASSERT_EQ(out.count[p], skip[p] ? before.count[p] : now.count[p]) << p;
+      updated += !skip[p] && now.count[p] != before.count[p];
+    }
+    EXPECT_GT(updated, 100u) << "active pixels must have received samples, or the test shows nothing";
+    r->downsample_pixels_into(&out);
+    expect_same(out, now);
+  }
+}
+
 }  // namespace
 }  // namespace epr
