@@ -28,6 +28,7 @@
 #include "common/cpu_time.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
+#include "common/thread_name.h"
 #include "epr/v1/worker_service.grpc.pb.h"
 #include "wire/tile_result_stream.h"
 #include "worker/backoff.h"
@@ -253,7 +254,7 @@ class ThreadActivity {
 // queued and joins: every call ends before its tracing thread does.
 class Courier {
  public:
-  Courier() : thread_([this] { loop(); }) {}
+  explicit Courier(std::string name) : name_(std::move(name)), thread_([this] { loop(); }) {}
   ~Courier() {
     {
       std::lock_guard lock(mu_);
@@ -279,6 +280,7 @@ class Courier {
 
  private:
   void loop() {
+    set_thread_name(name_);
     std::unique_lock lock(mu_);
     for (;;) {
       cv_.wait(lock, [&] { return stopping_ || !tasks_.empty(); });
@@ -294,6 +296,7 @@ class Courier {
   std::condition_variable cv_;
   std::deque<std::function<void()>> tasks_;
   bool stopping_ = false;
+  const std::string name_;
   std::thread thread_;  // last: started once the members above exist
 };
 
@@ -718,6 +721,7 @@ struct WorkerNode::Impl {
   // ---- the loops -----------------------------------------------------------------------------------
 
   void heartbeat_loop(Session& s) {
+    set_thread_name("epr-heartbeat");
     while (!s.ending) {
       if (wait_for(&s, int(s.heartbeat_ms))) break;
       v1::HeartbeatRequest req;
@@ -764,10 +768,11 @@ struct WorkerNode::Impl {
   }
 
   void tracing_loop(Session& s) {
+    set_thread_name("epr-trace");
     ThreadActivity activity(time);  // destroyed last: the drain below is accounted for
     // This thread's calls in the background (destroyed after the futures): submissions apart from the
     // lease asked for ahead, which the master may hold until the next round opens.
-    Courier submitter, leaser;
+    Courier submitter("epr-submit"), leaser("epr-lease");
     std::future<void> pending;      // this thread's tile result being submitted
     struct Drain {                  // on every way out: the last submission ends before the thread does
       std::future<void>* f;

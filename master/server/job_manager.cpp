@@ -14,6 +14,7 @@
 #include "common/image.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
+#include "common/thread_name.h"
 #include "master/gl_context.h"
 #include "master/server/checkpoint.h"
 #include "worker/tile_renderer.h"
@@ -906,6 +907,7 @@ std::shared_ptr<JobManager::Job> JobManager::next_job() const {
 }
 
 void JobManager::reprojection_loop() {
+  set_thread_name("epr-reproject");
   auto log = logger("master");
   std::unique_ptr<GlContext> gl;
   if (options_.reproject_backend_override != "cpu") {
@@ -1425,6 +1427,7 @@ void JobManager::enqueue_checkpoint(const std::string& job_id, JobProgressRecord
 }
 
 void JobManager::checkpoint_loop() {
+  set_thread_name("epr-checkpoint");
   std::unique_lock lock(checkpoint_mu_);
   for (;;) {
     checkpoint_cv_.wait(lock, [&] { return checkpoint_stopping_ || !checkpoint_queue_.empty(); });
@@ -1450,6 +1453,7 @@ void JobManager::checkpoint_loop() {
 // ---- the reaper -----------------------------------------------------------------------------------
 
 void JobManager::reaper_loop() {
+  set_thread_name("epr-reaper");
   std::unique_lock lock(mu_);
   while (!stopping_) {
     work_cv_.wait_for(lock, std::chrono::milliseconds(200));

@@ -11,6 +11,7 @@
 #include <thread>
 
 #include "common/log.h"
+#include "common/thread_name.h"
 #include "master/server/job_manager.h"
 #include "master/server/monitoring_format.h"
 
@@ -203,6 +204,7 @@ MonitoringServer::MonitoringServer(JobManager& jobs, MonitoringOptions options)
     throw std::runtime_error(
         fmt::format("cannot serve HTTP on {} (address in use or invalid?)", impl_->options.listen));
   impl_->thread = std::thread([impl = impl_.get()] {
+    set_thread_name("epr-http");
     if (!impl->http.listen_after_bind()) logger("master")->error("monitoring: the HTTP listener stopped with an error");
     impl->listen_returned = true;
   });

@@ -1,0 +1,39 @@
+// The master's and a worker node's long-lived threads carry names (`top -H`, `ps -L`, perf), so that
+// an operator sees which part of the pipeline uses the CPU: tracing, the reprojection thread, the
+// tile submissions.
+#include <fstream>
+#include <map>
+#include <string>
+
+#include "tests/server/farm_fixture.h"
+
+namespace epr::test {
+namespace {
+
+std::map<std::string, int> thread_names() {
+  std::map<std::string, int> names;
+  for (const auto& task : fs::directory_iterator("/proc/self/task")) {
+    std::ifstream in(task.path() / "comm");
+    std::string name;
+    if (std::getline(in, name)) ++names[name];
+  }
+  return names;
+}
+
+TEST_F(FarmFixture, ThreadsAreNamedAfterTheirWork) {
+  start();
+  EXPECT_EQ(thread_names().count("epr-trace"), 0u);
+  EXPECT_GE(thread_names()["epr-reproject"], 1);
+  EXPECT_GE(thread_names()["epr-reaper"], 1);
+  RunningNode node(node_options("named", 2));
+  // Each tracing thread names itself when its session starts; its two couriers start with it.
+  EXPECT_TRUE(eventually([] {
+    auto n = thread_names();
+    return n["epr-trace"] == 2 && n["epr-submit"] == 2 && n["epr-lease"] == 2 && n["epr-heartbeat"] == 1;
+  }));
+  node.stop();
+  EXPECT_EQ(thread_names().count("epr-trace"), 0u) << "the tracing threads end with the node";
+}
+
+}  // namespace
+}  // namespace epr::test
