@@ -29,6 +29,13 @@ class DownsamplePixels : public ::testing::Test {
   GlContext gl;
   const DeepFramebuffer dfb;
   ReprojectorSettings rs;
+
+  // Pixel p skipped when (p * mul + p / 64) % mod == 0: about 1 / mod of them, scattered.
+  std::vector<uint8_t> scattered_skips(size_t mul, size_t mod) const {
+    std::vector<uint8_t> skip(size_t(cam.width()) * size_t(cam.height()));
+    for (size_t p = 0; p < skip.size(); ++p) skip[p] = (p * mul + p / 64) % mod == 0;
+    return skip;
+  }
 };
 
 TEST_F(DownsamplePixels, EveryBackendMatchesTheReference) {
@@ -52,8 +59,7 @@ TEST_F(DownsamplePixels, EveryBackendMatchesTheReference) {
 TEST_F(DownsamplePixels, SkippedPixelsKeepTheirValues) {
   const auto first = test::real_like_points(scene, dfb, cam, 100000, 8);
   const auto second = test::real_like_points(scene, dfb, cam, 100000, 9);
-  std::vector<uint8_t> skip(size_t(cam.width()) * size_t(cam.height()));
-  for (size_t p = 0; p < skip.size(); ++p) skip[p] = (p * 7 + p / 64) % 3 == 0;  // a third skipped
+  const std::vector<uint8_t> skip = scattered_skips(7, 3);
   for (const char* backend : {"cpu", "gl"}) {
     SCOPED_TRACE(backend);
     auto r = make_reprojector(backend, cam, dfb, rs, &gl);
@@ -90,8 +96,7 @@ TEST_F(DownsamplePixels, SkippedPixelsKeepTheirValues) {
 TEST_F(DownsamplePixels, CountsOnlyRefreshesTheActivePixelsCounts) {
   const auto first = test::real_like_points(scene, dfb, cam, 100000, 10);
   const auto second = test::real_like_points(scene, dfb, cam, 100000, 11);
-  std::vector<uint8_t> skip(size_t(cam.width()) * size_t(cam.height()));
-  for (size_t p = 0; p < skip.size(); ++p) skip[p] = (p * 5 + p / 64) % 4 == 0;  // a quarter skipped
+  const std::vector<uint8_t> skip = scattered_skips(5, 4);
   for (const char* backend : {"cpu", "gl"}) {
     SCOPED_TRACE(backend);
     auto r = make_reprojector(backend, cam, dfb, rs, &gl);
