@@ -85,11 +85,13 @@ struct JobFigures {
   double job_cpu = 0;  // process CPU seconds from the first update showing the job running to the one showing it done
   uint64_t tiles = 0;
   double backlog = 0, closing = 0, writing = 0;  // the master's JobSnapshot::seconds_round_* and _writing_results
+  uint32_t round_checkpoints = 0;                 // JobSnapshot::round_checkpoints (--checkpoints)
   double overhead() const { return 1 - tracing / threads / elapsed; }
 };
 
 int g_tile_size = RenderOptions{}.tile_size;  // --tile
 bool g_checkpoints = false;  // --checkpoints
+double g_checkpoint_interval = -1;  // --checkpoint-interval
 
 RenderOptions options(const std::string& scene, int size, int spp, RenderMode mode, int ppr, float growth) {
   RenderOptions o;
@@ -111,7 +113,8 @@ JobFigures run_embedded(const RenderOptions& o, int threads, const fs::path& tmp
   eo.workers = 1;
   eo.worker_threads = threads;
   eo.state_dir = (tmp / "state").string();
-  eo.checkpoints = g_checkpoints;  // `epr render` keeps its state in a temporary folder: no checkpoints
+  eo.checkpoints = g_checkpoints;
+  eo.checkpoint_interval_s = g_checkpoint_interval;  // `epr render` keeps its state in a temporary folder: no checkpoints
   std::vector<std::pair<uint32_t, Clock::time_point>> rounds;
   const double c0 = process_cpu_seconds();
   const auto t0 = Clock::now();
@@ -140,6 +143,7 @@ JobFigures run_embedded(const RenderOptions& o, int threads, const fs::path& tmp
     f.backlog = r.master_view->seconds_round_backlog;
     f.closing = r.master_view->seconds_round_closing;
     f.writing = r.master_view->seconds_writing_results;
+    f.round_checkpoints = r.master_view->round_checkpoints;
   }
   for (const WorkerNodeStats& w : r.workers) {
     auto add = [](WorkerTimeSplit& a, const WorkerTimeSplit& b) {
@@ -196,6 +200,7 @@ BenchJob run_bench_workers(const RenderOptions& o, int threads, const fs::path& 
   mo.listen = "127.0.0.1:0";
   mo.jobs.state_dir = (tmp / "state").string();
   mo.jobs.checkpoints = g_checkpoints;
+  mo.jobs.checkpoint_interval_s = g_checkpoint_interval;
   MasterServer master(mo);
   for (int i = 0; i < 200 && !master.jobs().gl_ready(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
   std::vector<std::unique_ptr<BenchWorker>> workers;
@@ -382,6 +387,7 @@ std::pair<double, double> lease_rtt(int n) {
   mo.listen = "127.0.0.1:0";
   mo.jobs.state_dir = (fs::temp_directory_path() / ("round_bench_rtt_" + std::to_string(::getpid()))).string();
   mo.jobs.checkpoints = g_checkpoints;
+  mo.jobs.checkpoint_interval_s = g_checkpoint_interval;
   MasterServer master(mo);
   std::vector<double> t;
   double cpu = 0;
@@ -422,7 +428,9 @@ int main(int argc, char** argv) {
   app.add_option("--tile", g_tile_size, "tile size of the jobs, pixels");
   app.add_flag("--no-bench-workers", no_bench_workers, "only the embedded default (part 1)");
   app.add_flag("--checkpoints", g_checkpoints,
-               "checkpoint every round as a master with --state-dir does (the embedded default does not)");
+               "checkpoint rounds as a master with --state-dir does (the embedded default does not)");
+  app.add_option("--checkpoint-interval", g_checkpoint_interval,
+                 "with --checkpoints: seconds between round checkpoints (0: every round; < 0: automatic)");
   app.add_flag("--no-embedded", no_embedded, "skip part 1");
   app.add_flag("--no-master-costs", no_master_costs, "skip part 3 (e.g. when profiling part 1 with perf)");
   CLI11_PARSE(app, argc, argv);
@@ -516,6 +524,7 @@ int main(int argc, char** argv) {
                 "(job wall minus the results) %.1f%%\n",
                 1e3 * e.backlog / e.rounds, 1e3 * e.closing / e.rounds, 1e3 * e.writing, 100 * e.writing / e.elapsed,
                 100 * (1 - e.tracing / e.threads / (e.elapsed - e.writing)));
+    if (g_checkpoints) std::printf("      round checkpoints: %u of %d rounds\n", e.round_checkpoints, e.rounds);
   }
   std::printf("(shares of the tracing threads' summed wall time from the job running to done; 'another traces': a "
               "thread's time while another thread of the node traced -- its idle part is a round's tail; 'none "

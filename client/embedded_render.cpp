@@ -14,6 +14,7 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
   mo.listen = "127.0.0.1:0";
   mo.jobs.state_dir = embedded.state_dir;
   mo.jobs.checkpoints = embedded.checkpoints;
+  mo.jobs.checkpoint_interval_s = embedded.checkpoint_interval_s;
   mo.http_listen = embedded.http_listen;
   MasterServer master(mo);
   EmbeddedResult result;

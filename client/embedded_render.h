@@ -19,7 +19,8 @@ struct EmbeddedOptions {
   int workers = 1;          // worker nodes in this process
   int worker_threads = 0;   // tracing threads per worker; 0: all cores / workers
   std::string state_dir;    // the master's state folder; empty: a temporary one
-  bool checkpoints = true;  // with an explicit state_dir: checkpoint every round (a temporary folder never does)
+  bool checkpoints = true;  // with an explicit state_dir: checkpoint rounds (a temporary folder never does)
+  double checkpoint_interval_s = -1;  // MasterOptions::checkpoint_interval_s (< 0: automatic)
   std::string http_listen = "127.0.0.1:0";  // the master's monitoring endpoint (dashboard); empty: none
 };
 

@@ -14,6 +14,7 @@
 #                                     unset: epr-master's default 0.0.0.0:8080; set but empty: no HTTP
 #           EPR_STATE_DIR=/var/lib/eprfarm  results and checkpoints (a volume)
 #           EPR_LEASE_TIMEOUT_MS  EPR_HEARTBEAT_MS  EPR_REPROJECT (cpu)  EPR_MAX_QUEUED_VERTICES
+#           EPR_CHECKPOINT_INTERVAL   seconds between a job's round checkpoints, 0 or auto
 #           EPR_TOKEN_FILE            the bearer token every client and worker must send (a secret)
 #           EPR_TLS_CERT EPR_TLS_KEY  serve gRPC over TLS;  EPR_TLS_CLIENT_CA  require client certificates
 #   worker  EPR_MASTER=master:50051   the master's gRPC address
@@ -55,6 +56,7 @@ case "$role" in
     flag heartbeat-ms "${EPR_HEARTBEAT_MS:-}"
     flag reproject "${EPR_REPROJECT:-}"
     flag max-queued-vertices "${EPR_MAX_QUEUED_VERTICES:-}"
+    flag checkpoint-interval "${EPR_CHECKPOINT_INTERVAL:-}"
     flag log-level "${EPR_LOG_LEVEL:-}"
     flag token-file "${EPR_TOKEN_FILE:-}"
     flag tls-cert "${EPR_TLS_CERT:-}"

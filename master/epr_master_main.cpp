@@ -1,5 +1,6 @@
 // epr-master: the reprojection master of an eprfarm cluster.
 #include <csignal>
+#include <string>
 #include <cstdio>
 #include <thread>
 
@@ -25,7 +26,22 @@ int main(int argc, char** argv) {
                  "folder for results, scenes and job checkpoints; a master restarted on the same folder resumes its "
                  "jobs (default: a temp folder, no checkpoints, removed when the master exits)");
   app.add_flag("!--no-checkpoints", o.jobs.checkpoints,
-               "do not checkpoint jobs after every round (a restarted master then starts unfinished jobs again)");
+               "do not checkpoint jobs (a restarted master then starts unfinished jobs again)");
+  std::string checkpoint_interval = "auto";
+  app.add_option("--checkpoint-interval", checkpoint_interval,
+                 "seconds at least between a job's round checkpoints; 0: after every round; auto: 20x what the "
+                 "job's last checkpoint cost, so that checkpoints take at most ~5% of the master's time")
+      ->check([](const std::string& v) -> std::string {
+        if (v == "auto") return "";
+        try {
+          size_t used = 0;
+          const double s = std::stod(v, &used);
+          if (used == v.size() && s >= 0 && s <= 86400) return "";
+        } catch (const std::exception&) {
+        }
+        return "expected auto or seconds in [0, 86400], got '" + v + "'";
+      })
+      ->capture_default_str();
   app.add_option("--lease-timeout-ms", o.jobs.lease_timeout_ms, "a tile lease not extended for this long is re-queued")
       ->capture_default_str();
   app.add_option("--heartbeat-ms", o.jobs.heartbeat_interval_ms, "heartbeat interval asked of workers")->capture_default_str();
@@ -60,6 +76,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   epr::set_log_level(log_level);
+  o.jobs.checkpoint_interval_s = checkpoint_interval == "auto" ? -1 : std::stod(checkpoint_interval);
 
   if ((o.tls_cert_file.empty()) != (o.tls_key_file.empty())) {
     std::fprintf(stderr, "epr-master: --tls-cert and --tls-key go together\n");

@@ -82,6 +82,11 @@ struct JobManager::Job {
   double reprojecting_at_round_open = 0;    // seconds_reprojecting when the round opened
   std::chrono::steady_clock::time_point last_commit_at;  // the round's latest committed result arrived
   double seconds_round_backlog = 0, seconds_round_closing = 0, seconds_writing_results = 0;  // JobSnapshot
+  // Round checkpoints (MasterOptions::checkpoint_interval_s): when the last was taken (0: none yet
+  // in this master's run) and what it cost, copy + write, seconds.
+  int64_t last_checkpoint_ms = 0;
+  double checkpoint_cost_s = 0;
+  uint32_t round_checkpoints = 0;
 
   FrameProgress progress;
   ReprojectionCounts counts;
@@ -332,6 +337,7 @@ JobSnapshot JobManager::snapshot(const Job& job) const {
   s.seconds_round_backlog = job.seconds_round_backlog;
   s.seconds_round_closing = job.seconds_round_closing;
   s.seconds_writing_results = job.seconds_writing_results;
+  s.round_checkpoints = job.round_checkpoints;
   s.budget_exhausted = job.budget_exhausted;
   s.version = job.version;
   return s;
@@ -1391,15 +1397,25 @@ JobProgressRecord JobManager::progress_record(const Job& job) const {
 
 void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) {
   if (!checkpointing_) return;
+  {
+    // Not every round: a 512 x 512 frame is ~80 MB to copy and write (see checkpoint_interval_s).
+    std::lock_guard lock(mu_);
+    const double gap = options_.checkpoint_interval_s >= 0 ? options_.checkpoint_interval_s
+                                                           : MasterOptions::kAutoCheckpointFactor * job->checkpoint_cost_s;
+    if (job->last_checkpoint_ms && double(now_ms() - job->last_checkpoint_ms) < 1000 * gap) return;
+    job->last_checkpoint_ms = now_ms();
+  }
   const auto start = std::chrono::steady_clock::now();
   record.frame = job->frame->save();  // the state after the closed round: nothing of the next is applied yet
+  const double copy_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   logger("master")->debug("job {}: frame after round {} copied for its checkpoint in {:.1f} ms", job->id,
-                          record.progress.round,
-                          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+                          record.progress.round, 1e3 * copy_s);
   std::lock_guard checkpoint_lock(checkpoint_mu_);
   {
     std::lock_guard lock(mu_);
     if (job->state != JobState::kRunning) return;  // cancelled meanwhile: its final record is queued instead
+    job->checkpoint_cost_s = copy_s;  // the write's time is added when it is written
+    ++job->round_checkpoints;
   }
   enqueue_checkpoint(job->id, std::move(record));
 }
@@ -1438,10 +1454,13 @@ void JobManager::checkpoint_loop() {
     const auto start = std::chrono::steady_clock::now();
     try {
       store_->save_progress(job_id, *record);
-      logger("master")->debug(
-          "job {}: checkpoint ({} after round {}) written in {:.1f} ms", job_id, to_string(record->state),
-          record->progress.round,
-          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+      const double write_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      logger("master")->debug("job {}: checkpoint ({} after round {}) written in {:.1f} ms", job_id,
+                              to_string(record->state), record->progress.round, 1e3 * write_s);
+      if (record->frame) {
+        std::lock_guard jobs_lock(mu_);
+        if (auto it = jobs_.find(job_id); it != jobs_.end()) it->second->checkpoint_cost_s += write_s;
+      }
     } catch (const std::exception& e) {
       logger("master")->error("job {}: cannot write its checkpoint: {}", job_id, e.what());
     }

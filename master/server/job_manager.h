@@ -52,9 +52,15 @@ struct JobProgressRecord;
 struct MasterOptions {
   std::string state_dir;  // results, scenes and checkpoints (checkpoint.h); empty: a temp folder of
                           // this manager's, removed with it (results must be fetched before)
-  // Checkpoint every job after every round (and its spec at submit) so that a restarted master on
+  // Checkpoint every job after its rounds (and its spec at submit) so that a restarted master on
   // the same state_dir resumes it. Only with an explicit state_dir: a temp folder is never reopened.
   bool checkpoints = true;
+  // Seconds at least between a job's round checkpoints (the first round is always checkpointed).
+  // < 0, the default: automatic, kAutoCheckpointFactor x what the job's last checkpoint cost (the
+  // frame copy on the reprojection thread plus encoding and writing it), so that checkpoints take
+  // at most ~5 % of the master's time however large the image; 0: after every round.
+  double checkpoint_interval_s = -1;
+  static constexpr double kAutoCheckpointFactor = 20;
   std::string reproject_backend_override; // "cpu" forces the CPU reprojector (no OSMesa)
   int lease_timeout_ms = 20000;           // a lease not extended by a heartbeat for this long expires
   int heartbeat_interval_ms = 1000;       // asked of workers
@@ -117,6 +123,7 @@ struct JobSnapshot {
   // round being open (M', skip mask, previews and the next round's tile inputs).
   double seconds_round_backlog = 0, seconds_round_closing = 0;
   double seconds_writing_results = 0;  // the finished job's output files, before it is done
+  uint32_t round_checkpoints = 0;      // rounds whose state was checkpointed (MasterOptions::checkpoint_interval_s)
   bool budget_exhausted = false;
   uint64_t version = 0;  // increases with every change
 };

@@ -458,6 +458,7 @@ class JobManagerResume : public ::testing::TestWithParam<ReprojectMethod> {};
 TEST_P(JobManagerResume, DestroyedMidJobAndRecreatedOnTheSameStateDirFinishesIdentically) {
   const fs::path undisturbed_dir = fresh_dir("undisturbed"), resumed_dir = fresh_dir("resumed");
   MasterOptions o;
+  o.checkpoint_interval_s = 0;  // after every round: the resumed round is known
   Result undisturbed;
   std::string undisturbed_id;
   uint32_t undisturbed_rounds = 0;
@@ -561,6 +562,7 @@ INSTANTIATE_TEST_SUITE_P(Reprojectors, JobManagerResume, ::testing::Values(Repro
 TEST(JobManagerCheckpoint, CancelledJobStaysCancelledAndTornNewestCheckpointFallsBack) {
   const fs::path dir = fresh_dir("cancel");
   MasterOptions o;
+  o.checkpoint_interval_s = 0;  // after every round
   o.state_dir = dir.string();
   o.reproject_backend_override = "cpu";
   std::string cancelled, running;
@@ -600,6 +602,57 @@ TEST(JobManagerCheckpoint, CancelledJobStaysCancelledAndTornNewestCheckpointFall
     EXPECT_EQ(jobs.get(running)->progress.round, previous_round);
   }
   fs::remove_all(dir);
+}
+
+// Round checkpoints follow MasterOptions::checkpoint_interval_s: 0 after every round but the last
+// (the job's end writes its final record), a long interval only after the first round, the automatic
+// one somewhere between; the newest checkpoint on disk is then of the last checkpointed round.
+TEST(JobManagerCheckpoint, RoundCheckpointsFollowTheInterval) {
+  struct Case {
+    double interval;
+    const char* name;
+  };
+  uint32_t rounds_every = 0;
+  for (const Case c : {Case{0, "every round"}, Case{3600, "an hour"}, Case{-1, "auto"}}) {
+    SCOPED_TRACE(c.name);
+    const fs::path dir = fresh_dir("interval");
+    MasterOptions o;
+    o.state_dir = dir.string();
+    o.reproject_backend_override = "cpu";
+    o.checkpoint_interval_s = c.interval;
+    auto owner = std::make_unique<JobManager>(o);  // gone (its checkpoint thread joined) before the folder
+    JobManager& jobs = *owner;
+    const std::string id = jobs.submit(resume_request(ReprojectMethod::kCpu)).id;
+    InProcessWorker w(jobs);
+    ASSERT_NO_FATAL_FAILURE(w.work(id, 4));
+    auto s = jobs.get(id);
+    ASSERT_TRUE(s);
+    ASSERT_EQ(s->state, JobState::kRunning);
+    const uint32_t closed = uint32_t(s->progress.round);
+    ASSERT_GE(closed, 4u);
+    // The round's checkpoint is taken just after the round shows as closed; nothing is traced
+    // meanwhile, so the round stays where it is.
+    for (auto end = std::chrono::steady_clock::now() + 10s;
+         c.interval == 0 && s->round_checkpoints < closed && std::chrono::steady_clock::now() < end;) {
+      std::this_thread::sleep_for(5ms);
+      s = jobs.get(id);
+    }
+    ASSERT_EQ(uint32_t(s->progress.round), closed);
+    if (c.interval == 0) {
+      EXPECT_EQ(s->round_checkpoints, closed);
+      rounds_every = s->round_checkpoints;
+    } else if (c.interval > 0) {
+      EXPECT_EQ(s->round_checkpoints, 1u) << "only the first round within the hour";
+    } else {
+      EXPECT_GE(s->round_checkpoints, 1u);
+      EXPECT_LE(s->round_checkpoints, closed);
+    }
+    ASSERT_NO_FATAL_FAILURE(w.work(id));
+    EXPECT_EQ(jobs.get(id)->state, JobState::kDone);
+    owner.reset();
+    fs::remove_all(dir);
+  }
+  EXPECT_GE(rounds_every, 4u);
 }
 
 }  // namespace
