@@ -364,7 +364,9 @@ TEST_F(MonitoringEndpointTest, MetricsParseAndCountersIncreaseOverARender) {
   const double queued = sample(before, "epr_jobs", {{"state", "queued"}});
   EXPECT_EQ(queued + sample(before, "epr_jobs", {{"state", "running"}}), 1.0);
   EXPECT_EQ(sample(before, "epr_jobs_submitted_total"), 1.0);
-  if (queued == 1.0) EXPECT_EQ(sample(before, "epr_eye_paths_traced_total"), 0.0);
+  if (queued == 1.0) {
+    EXPECT_EQ(sample(before, "epr_eye_paths_traced_total"), 0.0);
+  }
   EXPECT_EQ(sample(before, "epr_job_state", {{"job", id}, {"state", "queued"}}) +
                 sample(before, "epr_job_state", {{"job", id}, {"state", "running"}}),
             1.0);
