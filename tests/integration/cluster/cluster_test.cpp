@@ -18,6 +18,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fmt/format.h>
 #include <fstream>
 #include <functional>
 #include <map>
@@ -434,7 +435,7 @@ TEST_F(ClusterTest, OneTwoAndFourWorkersGiveIdenticalCountsAndPathSums) {
   ASSERT_NO_FATAL_FAILURE(start_master());
   std::map<int, std::string> ids;
   for (int n : {1, 2, 4}) {
-    while (int(workers_.size()) < n) start_worker("w" + std::to_string(workers_.size() + 1));
+    while (int(workers_.size()) < n) start_worker(fmt::format("w{}", workers_.size() + 1));
     ASSERT_NO_FATAL_FAILURE(wait_for_workers(size_t(n)));
     ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("n" + std::to_string(n)), &ids[n]));
   }
