@@ -28,7 +28,7 @@
 // with each figure and CPU seconds beside wall seconds.
 //
 //   round_bench [--scene builtin:cornell] [--size 512] [--spp 64] [--ppr 1] [--growth 0,0.25]
-//               [--modes skip,pt] [--tile 64] [--threads 0] [--no-bench-workers]
+//               [--modes skip,pt] [--tile auto] [--threads 0] [--no-bench-workers]
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -89,7 +89,7 @@ struct JobFigures {
   double overhead() const { return 1 - tracing / threads / elapsed; }
 };
 
-int g_tile_size = RenderOptions{}.tile_size;  // --tile
+int g_tile_size = 0;  // --tile; 0: auto_tile_size() as `epr render` picks it
 bool g_checkpoints = false;  // --checkpoints
 double g_checkpoint_interval = -1;  // --checkpoint-interval
 
@@ -425,7 +425,7 @@ int main(int argc, char** argv) {
   app.add_option("--modes", modes, "pt, skip, rp")->delimiter(',');
   app.add_option("--threads", threads, "tracing threads (0: all cores)");
   app.add_option("--runs", runs, "runs of the offline per-round measurements (median)");
-  app.add_option("--tile", g_tile_size, "tile size of the jobs, pixels");
+  app.add_option("--tile", g_tile_size, "tile size of the jobs, pixels (default: auto, as epr render)");
   app.add_flag("--no-bench-workers", no_bench_workers, "only the embedded default (part 1)");
   app.add_flag("--checkpoints", g_checkpoints,
                "checkpoint rounds as a master with --state-dir does (the embedded default does not)");
@@ -436,6 +436,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
   if (threads <= 0) threads = int(std::max(1u, std::thread::hardware_concurrency()));
+  if (g_tile_size <= 0) g_tile_size = auto_tile_size(size, size, threads);
   const fs::path tmp = fs::temp_directory_path() / ("round_bench_" + std::to_string(::getpid()));
   fs::create_directories(tmp);
   auto mode_of = [](const std::string& m) {

@@ -7,6 +7,12 @@
 
 namespace epr {
 
+int embedded_threads_per_worker(const RenderOptions& opts, const EmbeddedOptions& embedded) {
+  const int n = std::max(1, embedded.workers);
+  const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
+  return embedded.worker_threads > 0 ? embedded.worker_threads : opts.threads > 0 ? opts.threads : std::max(1, cores / n);
+}
+
 EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
                                const std::function<void(const v1::JobStatus&)>& on_status,
                                const std::function<void(const std::string&, const std::string&)>& on_started) {
@@ -23,10 +29,7 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
   if (on_started) on_started(result.master_target, result.dashboard_url);
 
   const int n = std::max(1, embedded.workers);
-  const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
-  const int threads = embedded.worker_threads > 0 ? embedded.worker_threads
-                      : opts.threads > 0          ? opts.threads
-                                                  : std::max(1, cores / n);
+  const int threads = embedded_threads_per_worker(opts, embedded);
   std::vector<std::unique_ptr<WorkerNode>> nodes;
   std::vector<std::thread> runners;
   for (int i = 0; i < n; ++i) {

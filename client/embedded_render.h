@@ -36,6 +36,10 @@ struct EmbeddedResult {
   std::optional<JobSnapshot> master_view;
 };
 
+/// Tracing threads of each local worker node (EmbeddedOptions::worker_threads, else opts.threads,
+/// else the cores shared out among the nodes).
+int embedded_threads_per_worker(const RenderOptions& opts, const EmbeddedOptions& embedded);
+
 /// Renders `opts` to completion and writes the outputs under opts.out. `on_status` is called with
 /// every progress update (from the watch stream); `on_started` once the master is up (with its gRPC
 /// target and the dashboard URL, empty if disabled).

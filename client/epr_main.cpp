@@ -7,6 +7,7 @@
 #include <optional>
 #include <iostream>
 #include <map>
+#include <thread>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
@@ -74,6 +75,13 @@ void print_status(const v1::JobStatus& s, bool tty) {
 int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra, bool single_process, int workers,
                const std::string& http) {
   finish_options(o, extra);
+  if (o.tile_size == 0) {  // --tile not given
+    EmbeddedOptions eo;
+    eo.workers = workers;
+    const int threads = single_process ? (o.threads > 0 ? o.threads : int(std::max(1u, std::thread::hardware_concurrency())))
+                                       : workers * embedded_threads_per_worker(o, eo);
+    o.tile_size = auto_tile_size(o.width, o.height, threads);
+  }
   if (auto err = o.validate()) {
     std::fprintf(stderr, "epr render: %s\n", err->c_str());
     return 2;

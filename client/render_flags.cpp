@@ -49,7 +49,15 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
   cmd->add_flag("--mis,!--no-mis", o.mis,
                 "direct light by MIS of light and BSDF samples (default); --no-mis: next event estimation only")
       ->capture_default_str();
-  cmd->add_option("--tile", o.tile_size, "tile size in pixels")->capture_default_str();
+  if (set == RenderFlagSet::kLocal) {
+    o.tile_size = 0;  // auto: run_render picks auto_tile_size() for the threads it starts
+    cmd->add_option("--tile", o.tile_size,
+                    fmt::format("tile size in pixels (auto: the largest of 128, 64, 32, 16 giving each tracing "
+                                "thread {} tiles a round)", kTilesPerThread))
+        ->default_str("auto");
+  } else {
+    cmd->add_option("--tile", o.tile_size, "tile size in pixels")->capture_default_str();
+  }
   if (set == RenderFlagSet::kLocal)
     cmd->add_option("--threads", o.threads, "worker threads, 0 = all cores")->capture_default_str();
   for (const char* v : {"--eye", "--look", "--up"})

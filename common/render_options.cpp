@@ -52,6 +52,15 @@ int round_paths(const RenderOptions& o, int paths_done) {
   return std::min(k, left);
 }
 
+int auto_tile_size(int width, int height, int threads) {
+  const long long wanted = static_cast<long long>(kTilesPerThread) * std::max(1, threads);
+  for (int t : {128, 64, 32}) {
+    const long long tiles = static_cast<long long>((width + t - 1) / t) * ((height + t - 1) / t);
+    if (tiles >= wanted) return t;
+  }
+  return 16;
+}
+
 int rounds_planned(const RenderOptions& o) {
   int rounds = 0;
   for (int done = 0; done < o.spp; ++rounds) done += std::max(1, round_paths(o, done));

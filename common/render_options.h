@@ -48,7 +48,7 @@ struct RenderOptions {
   bool joint_test = true;                // the plane test's normal and crease tests (off: failure-mode study)
   RussianRoulette rr = RussianRoulette::paper();
   bool mis = true;                       // direct light by MIS of light and BSDF samples; false: NEE only
-  int tile_size = 64;                    // pixels
+  int tile_size = 64;                    // pixels (`epr render` picks auto_tile_size() unless told)
   int threads = 0;                       // 0: all cores
   std::optional<Vec3> eye, look, up;     // camera overrides
   std::optional<float> fov;              // vertical, degrees
@@ -70,6 +70,15 @@ struct RenderOptions {
 int round_paths(const RenderOptions& o, int paths_done);
 /// Rounds the schedule needs (skip mode may end earlier, when every pixel is skipped).
 int rounds_planned(const RenderOptions& o);
+
+/// The tile size `epr render` uses unless told: the largest of 128, 64, 32 and 16 pixels that gives
+/// each of `threads` tracing threads at least kTilesPerThread tiles per round (16 if none does).
+/// Larger tiles mean fewer lease and submission round trips, GL dispatches and hand-offs per path;
+/// enough tiles per thread keep a round's tail (threads idle while the last tiles are traced)
+/// short. A cluster job keeps its tiles while workers come and go, so a submitted job does not
+/// guess: JobSpec.tile_size, default 64.
+int auto_tile_size(int width, int height, int threads);
+inline constexpr int kTilesPerThread = 8;
 
 const char* to_string(RenderMode m);
 const char* to_string(ReprojectMethod m);
