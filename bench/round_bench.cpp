@@ -89,7 +89,8 @@ struct JobFigures {
   double overhead() const { return 1 - tracing / threads / elapsed; }
 };
 
-int g_tile_size = 0;  // --tile; 0: auto_tile_size() as `epr render` picks it
+int g_tile_size = 0;  // --tile; 0: auto_tile_size() as `epr render` picks it, tapered
+bool g_taper_tiles = false;  // --taper-tiles
 bool g_checkpoints = false;  // --checkpoints
 double g_checkpoint_interval = -1;  // --checkpoint-interval
 
@@ -97,6 +98,7 @@ RenderOptions options(const std::string& scene, int size, int spp, RenderMode mo
   RenderOptions o;
   o.round_growth = growth;
   o.tile_size = g_tile_size;
+  o.taper_tiles = g_taper_tiles;
   o.scene = scene;
   o.width = o.height = size;
   o.spp = spp;
@@ -327,7 +329,7 @@ MasterRoundCosts master_round_costs(const std::string& spec, int size, RenderMod
   VertexFilter filter;
   filter.mode = mode == RenderMode::kPathTrace ? VertexFilter::Mode::kNone : VertexFilter::Mode::kCull;
   TileRenderer renderer(tracer, filter);
-  const auto tiles = make_tiles(size, size, g_tile_size);
+  const auto tiles = make_tiles(size, size, g_tile_size, g_taper_tiles);
   std::vector<TileResult> results;
   std::vector<std::string> packed;  // the vertices as the master receives them
   const VertexCodec codec(scene.bounds());
@@ -425,7 +427,8 @@ int main(int argc, char** argv) {
   app.add_option("--modes", modes, "pt, skip, rp")->delimiter(',');
   app.add_option("--threads", threads, "tracing threads (0: all cores)");
   app.add_option("--runs", runs, "runs of the offline per-round measurements (median)");
-  app.add_option("--tile", g_tile_size, "tile size of the jobs, pixels (default: auto, as epr render)");
+  app.add_option("--tile", g_tile_size, "tile size of the jobs, pixels (default: auto and tapered, as epr render)");
+  app.add_flag("--taper-tiles", g_taper_tiles, "with --tile: tapered tiles");
   app.add_flag("--no-bench-workers", no_bench_workers, "only the embedded default (part 1)");
   app.add_flag("--checkpoints", g_checkpoints,
                "checkpoint rounds as a master with --state-dir does (the embedded default does not)");
@@ -436,16 +439,19 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
   if (threads <= 0) threads = int(std::max(1u, std::thread::hardware_concurrency()));
-  if (g_tile_size <= 0) g_tile_size = auto_tile_size(size, size, threads);
+  if (g_tile_size <= 0) {  // as `epr render` does unless told
+    g_tile_size = auto_tile_size(size, size, threads);
+    g_taper_tiles = true;
+  }
   const fs::path tmp = fs::temp_directory_path() / ("round_bench_" + std::to_string(::getpid()));
   fs::create_directories(tmp);
   auto mode_of = [](const std::string& m) {
     return m == "skip" ? RenderMode::kSkip : m == "rp" ? RenderMode::kReproject : RenderMode::kPathTrace;
   };
 
-  std::printf("round_bench: %s %dx%d, P=%d, tiles %dx%d, %d tracing threads, %u hardware threads, load average "
+  std::printf("round_bench: %s %dx%d, P=%d, tiles %dx%d%s, %d tracing threads, %u hardware threads, load average "
               "%.2f\n",
-              scene.c_str(), size, size, spp, g_tile_size, g_tile_size, threads, std::thread::hardware_concurrency(), load_average());
+              scene.c_str(), size, size, spp, g_tile_size, g_tile_size, g_taper_tiles ? " (tapered)" : "", threads, std::thread::hardware_concurrency(), load_average());
   std::fflush(stdout);
 
   struct Row {

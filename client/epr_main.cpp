@@ -81,6 +81,7 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
     const int threads = single_process ? (o.threads > 0 ? o.threads : int(std::max(1u, std::thread::hardware_concurrency())))
                                        : workers * embedded_threads_per_worker(o, eo);
     o.tile_size = auto_tile_size(o.width, o.height, threads);
+    o.taper_tiles = true;
   }
   if (auto err = o.validate()) {
     std::fprintf(stderr, "epr render: %s\n", err->c_str());

@@ -50,14 +50,16 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
                 "direct light by MIS of light and BSDF samples (default); --no-mis: next event estimation only")
       ->capture_default_str();
   if (set == RenderFlagSet::kLocal) {
-    o.tile_size = 0;  // auto: run_render picks auto_tile_size() for the threads it starts
+    o.tile_size = 0;  // auto: run_render picks auto_tile_size() for the threads it starts, tapered
     cmd->add_option("--tile", o.tile_size,
                     fmt::format("tile size in pixels (auto: the largest of 128, 64, 32, 16 giving each tracing "
-                                "thread {} tiles a round)", kTilesPerThread))
+                                "thread {} tiles a round, tapered)", kTilesPerThread))
         ->default_str("auto");
   } else {
     cmd->add_option("--tile", o.tile_size, "tile size in pixels")->capture_default_str();
   }
+  cmd->add_flag("--taper-tiles", o.taper_tiles,
+                "the last quarter of the tile rows in tiles of half the size: rounds end on small tiles");
   if (set == RenderFlagSet::kLocal)
     cmd->add_option("--threads", o.threads, "worker threads, 0 = all cores")->capture_default_str();
   for (const char* v : {"--eye", "--look", "--up"})

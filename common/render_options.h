@@ -49,6 +49,7 @@ struct RenderOptions {
   RussianRoulette rr = RussianRoulette::paper();
   bool mis = true;                       // direct light by MIS of light and BSDF samples; false: NEE only
   int tile_size = 64;                    // pixels (`epr render` picks auto_tile_size() unless told)
+  bool taper_tiles = false;              // the last quarter of the tile rows in half-size tiles (make_tiles)
   int threads = 0;                       // 0: all cores
   std::optional<Vec3> eye, look, up;     // camera overrides
   std::optional<float> fov;              // vertical, degrees

@@ -84,6 +84,7 @@ v1::JobSpec to_job_spec(const RenderOptions& o, const SceneBundleData& bundle, c
   spec.set_tile_size(uint32_t(o.tile_size));
   spec.set_round_growth(o.round_growth);
   spec.set_mis(o.mis);
+  spec.set_taper_tiles(o.taper_tiles);
   return spec;
 }
 
@@ -134,6 +135,7 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
   if (spec.has_tile_size()) o.tile_size = int(spec.tile_size());
   if (spec.has_round_growth()) o.round_growth = spec.round_growth();
   if (spec.has_mis()) o.mis = spec.mis();
+  if (spec.has_taper_tiles()) o.taper_tiles = spec.taper_tiles();
   if (spec.has_time_budget_seconds() && !(spec.time_budget_seconds() > 0 && std::isfinite(spec.time_budget_seconds())))
     return "time budget must be a positive number of seconds";
   if (auto err = o.validate()) return err;

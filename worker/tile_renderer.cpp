@@ -5,11 +5,17 @@
 
 namespace epr {
 
-std::vector<TileRect> make_tiles(int width, int height, int tile_size) {
+std::vector<TileRect> make_tiles(int width, int height, int tile_size, bool taper) {
   std::vector<TileRect> tiles;
-  for (int y = 0; y < height; y += tile_size)
-    for (int x = 0; x < width; x += tile_size)
-      tiles.push_back({x, y, std::min(width, x + tile_size), std::min(height, y + tile_size)});
+  const int rows = (height + tile_size - 1) / tile_size;
+  // Tapered: the last quarter of the tile rows (at least one) in tiles of half the edge.
+  const int small_rows = taper && tile_size >= 2 ? std::max(1, rows / 4) : 0;
+  for (int row = 0, y = 0; y < height; ++row, y += tile_size) {
+    const int y1 = std::min(height, y + tile_size);
+    const int t = row >= rows - small_rows ? tile_size / 2 : tile_size;
+    for (int ty = y; ty < y1; ty += t)
+      for (int x = 0; x < width; x += t) tiles.push_back({x, ty, std::min(width, x + t), std::min(y1, ty + t)});
+  }
   return tiles;
 }
 

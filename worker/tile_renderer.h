@@ -31,7 +31,7 @@ struct TileRect {
 };
 
 /// Tiles of at most `tile_size` x `tile_size` pixels covering the image, row-major.
-std::vector<TileRect> make_tiles(int width, int height, int tile_size);
+std::vector<TileRect> make_tiles(int width, int height, int tile_size, bool taper = false);
 
 struct VertexFilter {
   enum class Mode {

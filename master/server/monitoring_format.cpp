@@ -53,6 +53,7 @@ json to_json(const JobSnapshot& s) {
         {"subpixels", o.subpixels},
         {"epsilon", o.epsilon},
         {"tile_size", o.tile_size},
+        {"taper_tiles", o.taper_tiles},
         {"seed", o.seed}}},
       {"round", p.round},
       {"rounds_planned", s.rounds_planned},

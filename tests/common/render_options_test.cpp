@@ -22,8 +22,12 @@ TEST(AutoTileSize, LargestTileGivingEveryThreadEightTiles) {
     for (int side : {96, 200, 512, 777}) {
       const int t = auto_tile_size(side, side, threads);
       SCOPED_TRACE(testing::Message() << side << " px, " << threads << " threads -> " << t);
-      if (t > 16) EXPECT_GE(tiles(side, side, t), kTilesPerThread * threads);
-      if (t < 128) EXPECT_LT(tiles(side, side, 2 * t), kTilesPerThread * threads) << "a larger tile would do";
+      if (t > 16) {
+        EXPECT_GE(tiles(side, side, t), kTilesPerThread * threads);
+      }
+      if (t < 128) {
+        EXPECT_LT(tiles(side, side, 2 * t), kTilesPerThread * threads) << "a larger tile would do";
+      }
       RenderOptions o;
       o.tile_size = t;
       EXPECT_FALSE(o.validate()) << "the chosen size is a valid --tile";

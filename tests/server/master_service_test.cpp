@@ -137,6 +137,22 @@ TEST(JobSpecConversion, JointTestTravelsAndDefaultsToOn) {
   EXPECT_TRUE(unset.joint_test);
 }
 
+// Tapered tiles travel with a job; unset, a job has square tiles only.
+TEST(JobSpecConversion, TaperedTilesTravelAndDefaultToOff) {
+  RenderOptions o;
+  o.scene = "builtin:cornell";
+  o.taper_tiles = true;
+  v1::JobSpec spec = to_job_spec(o, bundle_scene(o.scene), CameraSpec{});
+  RenderOptions back;
+  CameraSpec cam;
+  ASSERT_FALSE(from_job_spec(spec, &back, &cam));
+  EXPECT_TRUE(back.taper_tiles);
+  spec.clear_taper_tiles();
+  RenderOptions unset;
+  ASSERT_FALSE(from_job_spec(spec, &unset, &cam));
+  EXPECT_FALSE(unset.taper_tiles);
+}
+
 TEST_F(MasterServiceTest, HealthServiceSaysServing) {
   auto health = grpc::health::v1::Health::NewStub(channel_);
   grpc::ClientContext ctx;
