@@ -120,6 +120,15 @@ class MasterServiceTest : public ::testing::Test {
   std::unique_ptr<v1::WorkerService::Stub> workers_;
 };
 
+// The options a master reads back from `spec` (which must be valid).
+RenderOptions read_back(const v1::JobSpec& spec) {
+  RenderOptions o;
+  CameraSpec cam;
+  const auto err = from_job_spec(spec, &o, &cam);
+  EXPECT_FALSE(err) << *err;
+  return o;
+}
+
 // The joint test travels with a job; a spec without it (an older client) gets the default, on.
 TEST(JobSpecConversion, JointTestTravelsAndDefaultsToOn) {
   RenderOptions o;
@@ -127,14 +136,9 @@ TEST(JobSpecConversion, JointTestTravelsAndDefaultsToOn) {
   o.mode = RenderMode::kReproject;
   o.joint_test = false;
   v1::JobSpec spec = to_job_spec(o, bundle_scene(o.scene), CameraSpec{});
-  RenderOptions back;
-  CameraSpec cam;
-  ASSERT_FALSE(from_job_spec(spec, &back, &cam));
-  EXPECT_FALSE(back.joint_test);
+  EXPECT_FALSE(read_back(spec).joint_test);
   spec.mutable_reprojection()->clear_joint_test();
-  RenderOptions unset;
-  ASSERT_FALSE(from_job_spec(spec, &unset, &cam));
-  EXPECT_TRUE(unset.joint_test);
+  EXPECT_TRUE(read_back(spec).joint_test);
 }
 
 // Tapered tiles travel with a job; unset, a job has square tiles only.
@@ -143,14 +147,9 @@ TEST(JobSpecConversion, TaperedTilesTravelAndDefaultToOff) {
   o.scene = "builtin:cornell";
   o.taper_tiles = true;
   v1::JobSpec spec = to_job_spec(o, bundle_scene(o.scene), CameraSpec{});
-  RenderOptions back;
-  CameraSpec cam;
-  ASSERT_FALSE(from_job_spec(spec, &back, &cam));
-  EXPECT_TRUE(back.taper_tiles);
+  EXPECT_TRUE(read_back(spec).taper_tiles);
   spec.clear_taper_tiles();
-  RenderOptions unset;
-  ASSERT_FALSE(from_job_spec(spec, &unset, &cam));
-  EXPECT_FALSE(unset.taper_tiles);
+  EXPECT_FALSE(read_back(spec).taper_tiles);
 }
 
 TEST_F(MasterServiceTest, HealthServiceSaysServing) {
