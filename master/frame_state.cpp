@@ -293,6 +293,8 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts) const {
       {"reproject", to_string(opts.reproject)},
       {"subpixels", opts.subpixels},
       {"epsilon_fraction", opts.epsilon},
+      {"tile_size", opts.tile_size},
+      {"taper_tiles", opts.taper_tiles},
       {"rounds", p.round},
       {"paths_traced", p.paths_traced},
       {"paths_skipped", p.paths_skipped},
