@@ -7,7 +7,6 @@
 #include <optional>
 #include <iostream>
 #include <map>
-#include <thread>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
@@ -76,11 +75,9 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
                const std::string& http) {
   finish_options(o, extra);
   if (o.tile_size == 0) {  // --tile not given
-    EmbeddedOptions eo;
-    eo.workers = workers;
-    const int threads = single_process ? (o.threads > 0 ? o.threads : int(std::max(1u, std::thread::hardware_concurrency())))
-                                       : workers * embedded_threads_per_worker(o, eo);
-    o.tile_size = auto_tile_size(o.width, o.height, threads);
+    EmbeddedOptions eo;  // the tracing threads this render starts (one "worker" when single-process)
+    eo.workers = single_process ? 1 : workers;
+    o.tile_size = auto_tile_size(o.width, o.height, eo.workers * embedded_threads_per_worker(o, eo));
     o.taper_tiles = true;
   }
   if (auto err = o.validate()) {

@@ -63,7 +63,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
 
   PathTracer tracer(embree, camera, opts.seed, opts.rr, opts.mis);
   TileRenderer tile_renderer(tracer, filter_for(opts));
-  const auto tiles = make_tiles(opts.width, opts.height, opts.tile_size, opts.taper_tiles);
+  const auto tiles = make_tiles(opts);
   TileStats totals;
   double seconds_tracing = 0;
   uint64_t codec_rejected = 0;

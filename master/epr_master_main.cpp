@@ -1,5 +1,6 @@
 // epr-master: the reprojection master of an eprfarm cluster.
 #include <csignal>
+#include <optional>
 #include <string>
 #include <cstdio>
 #include <thread>
@@ -11,6 +12,19 @@
 
 namespace {
 volatile std::sig_atomic_t g_stop = 0;
+
+// --checkpoint-interval: "auto" (-1, MasterOptions' automatic interval) or seconds in [0, 86400].
+std::optional<double> checkpoint_interval_seconds(const std::string& v) {
+  if (v == "auto") return -1;
+  try {
+    size_t used = 0;
+    const double s = std::stod(v, &used);
+    if (used == v.size() && s >= 0 && s <= 86400) return s;
+  } catch (const std::exception&) {
+  }
+  return std::nullopt;
+}
+
 void on_signal(int) { g_stop = 1; }
 }  // namespace
 
@@ -32,14 +46,7 @@ int main(int argc, char** argv) {
                  "seconds at least between a job's round checkpoints; 0: after every round; auto: 20x what the "
                  "job's last checkpoint cost, so that checkpoints take at most ~5% of the master's time")
       ->check([](const std::string& v) -> std::string {
-        if (v == "auto") return "";
-        try {
-          size_t used = 0;
-          const double s = std::stod(v, &used);
-          if (used == v.size() && s >= 0 && s <= 86400) return "";
-        } catch (const std::exception&) {
-        }
-        return "expected auto or seconds in [0, 86400], got '" + v + "'";
+        return checkpoint_interval_seconds(v) ? "" : "expected auto or seconds in [0, 86400], got '" + v + "'";
       })
       ->capture_default_str();
   app.add_option("--lease-timeout-ms", o.jobs.lease_timeout_ms, "a tile lease not extended for this long is re-queued")
@@ -76,7 +83,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   epr::set_log_level(log_level);
-  o.jobs.checkpoint_interval_s = checkpoint_interval == "auto" ? -1 : std::stod(checkpoint_interval);
+  o.jobs.checkpoint_interval_s = *checkpoint_interval_seconds(checkpoint_interval);
 
   if ((o.tls_cert_file.empty()) != (o.tls_key_file.empty())) {
     std::fprintf(stderr, "epr-master: --tls-cert and --tls-key go together\n");

@@ -253,11 +253,12 @@ void FrameState::restore(const FrameSnapshot& s) {
 FrameImages FrameState::images(bool preview) {
   // Skip mode: the last round refreshed only the active pixels; bring the skipped ones up to date
   // too, unless a preview does without them.
-  if (reprojector_ && opts_.mode != RenderMode::kSkip) refresh_reprojection(false);
-  if (reprojector_ && opts_.mode == RenderMode::kSkip && reprojection_partial_ && !preview) {
+  if (reprojector_ && opts_.mode != RenderMode::kSkip) {
+    refresh_reprojection(false);
+  } else if (reprojector_ && reprojection_partial_ && !preview) {
     refresh_reprojection(false);
     update_sample_progress();  // M' of the skipped pixels changed
-  } else if (reprojector_ && opts_.mode == RenderMode::kSkip && radiance_stale_) {
+  } else if (reprojector_ && radiance_stale_) {
     refresh_reprojection(true);  // a preview: L_rp of the active pixels (the round refreshed M' alone)
   }
   FrameImages out;

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "common/render_options.h"
 #include "common/vertex_codec.h"
 #include "common/vertex_record.h"
 #include "worker/path_tracer.h"
@@ -32,6 +33,10 @@ struct TileRect {
 
 /// Tiles of at most `tile_size` x `tile_size` pixels covering the image, row-major.
 std::vector<TileRect> make_tiles(int width, int height, int tile_size, bool taper = false);
+/// A job's tiles: its image, tile size and tapering.
+inline std::vector<TileRect> make_tiles(const RenderOptions& o) {
+  return make_tiles(o.width, o.height, o.tile_size, o.taper_tiles);
+}
 
 struct VertexFilter {
   enum class Mode {

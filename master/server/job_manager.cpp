@@ -251,7 +251,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
     if (!cached) cached = std::make_shared<const SceneBundleData>(std::move(req.bundle));
     job->bundle = cached;
     job->submitted_ms = now_ms();
-    job->tiles = make_tiles(req.options.width, req.options.height, req.options.tile_size, req.options.taper_tiles);
+    job->tiles = make_tiles(req.options);
     job->request = std::move(req);
     if (!job->request.request_id.empty()) request_ids_[job->request.request_id] = job->id;
     jobs_[job->id] = job;
@@ -1312,7 +1312,7 @@ void JobManager::load_state() {
     job->request.priority = spec.priority;
     job->request.time_budget_seconds = spec.time_budget_seconds;
     job->request.request_id = spec.request_id;
-    job->tiles = make_tiles(spec.options.width, spec.options.height, spec.options.tile_size, spec.options.taper_tiles);
+    job->tiles = make_tiles(spec.options);
     auto& cached = scenes_[spec.scene_hash];
     if (!cached) {
       try {

@@ -19,11 +19,17 @@ double channel_mean(const Image& img) {
   return s / double(img.data.size());
 }
 
-RenderOptions furnace_options(RenderMode mode, RussianRoulette rr) {
+// A square render of `scene` at `spp` samples per pixel, the other options at their defaults.
+RenderOptions square_job(const std::string& scene, int size, int spp) {
   RenderOptions o;
-  o.scene = "builtin:furnace?albedo=0.5&emission=1";
-  o.width = o.height = 64;
-  o.spp = 256;
+  o.scene = scene;
+  o.width = o.height = size;
+  o.spp = spp;
+  return o;
+}
+
+RenderOptions furnace_options(RenderMode mode, RussianRoulette rr) {
+  RenderOptions o = square_job("builtin:furnace?albedo=0.5&emission=1", 64, 256);
   o.paths_per_round = 64;
   o.mode = mode;
   o.rr = rr;
@@ -56,10 +62,7 @@ TEST(LocalRender, RussianRouletteKeepsReprojectionUnbiased) {
 }
 
 TEST(LocalRender, SkippingTracesFewerPathsAndEveryPixelReachesTarget) {
-  RenderOptions o;
-  o.scene = "builtin:cornell";
-  o.width = o.height = 64;
-  o.spp = 16;
+  RenderOptions o = square_job("builtin:cornell", 64, 16);
   o.mode = RenderMode::kSkip;
   const RenderOutputs out = render_local(o);
   uint64_t traced = 0;
@@ -80,10 +83,7 @@ TEST(LocalRender, SkippingTracesFewerPathsAndEveryPixelReachesTarget) {
 // skipped pixels as they were, the images for results bring them up to date (they keep receiving
 // reprojected samples from their neighbours' paths).
 TEST(LocalRender, SkipModePreviewKeepsSkippedPixelsResultImagesRefreshThem) {
-  RenderOptions o;
-  o.scene = "builtin:cornell";
-  o.width = o.height = 64;
-  o.spp = 32;
+  RenderOptions o = square_job("builtin:cornell", 64, 32);
   o.round_growth = 0;
   o.mode = RenderMode::kSkip;
   o.reproject = ReprojectMethod::kCpu;
@@ -117,10 +117,7 @@ TEST(LocalRender, SkipModePreviewKeepsSkippedPixelsResultImagesRefreshThem) {
 }
 
 TEST(LocalRender, NoSkippingInPathTraceMode) {
-  RenderOptions o;
-  o.scene = "builtin:cornell";
-  o.width = o.height = 32;
-  o.spp = 4;
+  RenderOptions o = square_job("builtin:cornell", 32, 4);
   const RenderOutputs out = render_local(o);
   for (float m : out.path_count.data) ASSERT_EQ(m, 4.f);
   EXPECT_EQ(out.mprime.width, 0);  // no reprojection ran
@@ -192,10 +189,7 @@ EdgeSplit split_difference(const Image& a, const Image& ref, const std::vector<u
 // test at silhouettes), free of path noise. Path tracing with another seed is the unbiased reference
 // for the exact mode's bias check.
 TEST(LocalRender, ConvergedCornellBiasIsConcentratedAtEdgesAndExactModeHasNone) {
-  RenderOptions o;
-  o.scene = "builtin:cornell";
-  o.width = o.height = 96;
-  o.spp = 256;
+  RenderOptions o = square_job("builtin:cornell", 96, 256);
   o.paths_per_round = 64;
   o.seed = 1;
   const RenderOutputs pt = render_local(o);
