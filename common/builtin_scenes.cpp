@@ -142,7 +142,7 @@ void column(Builder& b, float cx, float cz, float radius, float y0, float y1, in
 // cornell, glossy
 // ---------------------------------------------------------------------------------------------------
 
-// CornellBox-Original.obj with the fix described in ../shared/scenes/cornell-box/README.md (both
+// CornellBox-Original.obj with the fix described in scenes/cornell-box/README.md (both
 // boxes' bottom faces use their own four vertices). Faces in file order, corners in file order.
 struct CornellQuad {
   int material;  // index into kCornellMaterials

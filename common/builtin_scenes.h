@@ -1,7 +1,7 @@
 // Named built-in scenes that reproduce the paper's situations (DESIGN.md section 2), generated
 // deterministically (no randomness; the same name gives bit-identical scenes on every call).
 //
-//   cornell     CornellBox-Original (the fixed OBJ in ../shared/scenes/cornell-box): closed, mostly
+//   cornell     CornellBox-Original (the fixed OBJ in scenes/cornell-box): closed, mostly
 //               visible, the best case. 36 triangles at tessellation 1.
 //   glossy      the Cornell box with a glossy tall box (ks 0.6, Phong exponent 200).
 //   conference  closed 12 x 3 x 8 m meeting room: table, twelve chairs, six ceiling light panels.

@@ -3,7 +3,7 @@
 Run with Blender (tested with Debian's Blender 3.4.1):
 
     blender -b --factory-startup -noaudio -P scripts/cycles_reference.py -- \
-        --obj /work/shared/scenes/cornell-box/CornellBox-Original.obj \
+        --obj scenes/cornell-box/CornellBox-Original.obj \
         --width 128 --height 128 --spp 4096 --seed 1 --out out.exr
 
 It renders the same light transport model as eprfarm's path tracer:

@@ -15,7 +15,7 @@
 namespace epr {
 namespace {
 
-const std::string kCornellObj = EPR_SOURCE_DIR "/../shared/scenes/cornell-box/CornellBox-Original.obj";
+const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.obj";
 
 size_t emissive_triangles(const Scene& s) {
   size_t n = 0;

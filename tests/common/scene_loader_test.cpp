@@ -22,7 +22,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-const std::string kCornellObj = EPR_SOURCE_DIR "/../shared/scenes/cornell-box/CornellBox-Original.obj";
+const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.obj";
 const std::string kBadDir = EPR_SOURCE_DIR "/tests/data/scenes/bad";
 const std::string kShippedDir = EPR_SOURCE_DIR "/scenes";
 
@@ -564,7 +564,7 @@ TEST(SceneLoader, MutatedInputsLoadOrRaiseSceneError) {
   set_log_level("off");
   TempDir dir;
   const std::string obj = read_text(kCornellObj);
-  const std::string mtl = read_text(EPR_SOURCE_DIR "/../shared/scenes/cornell-box/CornellBox-Original.mtl");
+  const std::string mtl = read_text(EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.mtl");
   const std::string json =
       R"({"builtin": "cornell", "camera": {"eye": [0, 1, 3.9], "fov": 40}, "materials": {"tallBox": {"type": "glossy", "ks": [0.5, 0.5, 0.5]}}})";
   const std::string alphabet = std::string("0123456789.-+/ \t\n\r#eEnaifvtf\0\\[]{}\":,", 39);

@@ -14,7 +14,7 @@
 namespace epr::test {
 namespace {
 
-const std::string kCornellObj = EPR_SOURCE_DIR "/../shared/scenes/cornell-box/CornellBox-Original.obj";
+const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.obj";
 
 class LeaseTest : public FarmFixture {};
 

@@ -57,7 +57,7 @@ TEST(CyclesReference, CornellBoxBlockMeansAgreeWithinNoise) {
   ASSERT_EQ(reference.width, kSize);
   ASSERT_EQ(reference.height, kSize);
 
-  const Scene scene = load_scene(dir + "/../shared/scenes/cornell-box/CornellBox-Original.obj");
+  const Scene scene = load_scene(dir + "/scenes/cornell-box/CornellBox-Original.obj");
   EmbreeScene es(scene);
   const Camera cam(scene.camera, kSize, kSize);
   PathTracer tracer(es, cam, 2024, RussianRoulette::paper());

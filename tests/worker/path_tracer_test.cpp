@@ -146,7 +146,7 @@ PixelMoments render_cornell(const EmbreeScene& es, const Camera& cam, bool mis) 
 }
 
 TEST(PathTracer, MisAndNextEventEstimationAgreeOnTheCornellBoxAndMisIsLessNoisyNearTheLight) {
-  const Scene scene = load_scene(std::string(EPR_SOURCE_DIR) + "/../shared/scenes/cornell-box/CornellBox-Original.obj");
+  const Scene scene = load_scene(std::string(EPR_SOURCE_DIR) + "/scenes/cornell-box/CornellBox-Original.obj");
   EmbreeScene es(scene);
   const Camera cam(scene.camera, kCornellSize, kCornellSize);
   const PixelMoments on = render_cornell(es, cam, true), off = render_cornell(es, cam, false);

@@ -17,7 +17,7 @@ namespace epr {
 namespace {
 namespace fs = std::filesystem;
 
-const std::string kCornellObj = EPR_SOURCE_DIR "/../shared/scenes/cornell-box/CornellBox-Original.obj";
+const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.obj";
 
 struct TempDir {
   fs::path path;

@@ -30,7 +30,7 @@ using namespace std::chrono_literals;
 
 using test::RunningNode;
 
-const std::string kCornellObj = EPR_SOURCE_DIR "/../shared/scenes/cornell-box/CornellBox-Original.obj";
+const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.obj";
 
 class WorkerNodeTest : public ::testing::Test {
  protected:
