@@ -1,5 +1,5 @@
-// Round overhead of the embedded default (DESIGN.md section 3: "reprojection + transport overhead a
-// small fraction of a round"; bar <= 10 % of a round's wall time outside tracing).
+// Round overhead of the embedded default (DESIGN.md section 3, "Rounds and their overhead": the bar
+// is <= 10 % of a round's wall time outside tracing).
 //
 // Part 1, the default: render_embedded (in-process master + one WorkerNode with one tracing thread
 // per core, over loopback gRPC) on --scene at --size, P = --spp, for pt and skip and k = paths per
