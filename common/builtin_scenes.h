@@ -36,7 +36,7 @@
 #include <vector>
 
 #include "common/scene.h"
-#include "common/scene_loader.h"
+#include "common/scene_error.h"  // SceneError, LoadOptions
 
 namespace epr {
 
