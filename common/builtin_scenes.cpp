@@ -44,8 +44,8 @@ class Builder {
   Material& material_ref(uint32_t id) { return s_.materials[id]; }
 
   /// The quad a-b-c-d (counter-clockwise seen from the front), split into n x n cells. At n = 1 the
-  /// quad is split along its shorter diagonal, ties along b-d, exactly as tinyobjloader triangulates
-  /// OBJ quads (so the Cornell box matches the loaded OBJ triangle for triangle).
+  /// quad is split along its shorter diagonal, ties along b-d, as the OBJ loader splits quads
+  /// (common/scene_loader/polygon.h), so the Cornell box has the loaded OBJ's triangles.
   void quad(Vec3 a, Vec3 b, Vec3 c, Vec3 d, uint32_t mat) {
     const int n = n_;
     triangles_ += 2 * size_t(n) * size_t(n);
@@ -154,7 +154,7 @@ struct CornellMaterial {
   Vec3 kd, ke;
 };
 
-// Material order is the MTL file's, as tinyobjloader returns it.
+// Material order is the MTL file's, as the OBJ loader lists them.
 constexpr std::array<CornellMaterial, 8> kCornellMaterials = {{
     {"leftWall", {0.63f, 0.065f, 0.05f}, {0, 0, 0}},
     {"rightWall", {0.14f, 0.45f, 0.091f}, {0, 0, 0}},

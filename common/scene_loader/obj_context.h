@@ -1,0 +1,78 @@
+// What the OBJ reader (obj.cpp), the MTL reader (mtl.cpp) and the texture reader (textures.cpp)
+// share while one OBJ is loaded: the limits, the scene folder, the textures read so far and the
+// table of materials the OBJ's mtllib statements have defined.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <set>
+#include <string>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include "common/scene.h"
+#include "common/scene_error.h"
+#include "common/scene_loader/path_sandbox.h"
+
+namespace epr::loader {
+
+/// A material as its MTL file defines it, before the loader clamps it into a Material. Values not
+/// given keep these defaults (as in tinyobjloader: black, Ns 1).
+struct MtlMaterial {
+  std::string name;
+  Vec3 kd{0.f}, ke{0.f}, ks{0.f};
+  float ns = 1.f;
+  int texture = -1;  // map_Kd: index into ObjContext::textures
+};
+
+/// One statement of an MTL file that the material model uses.
+struct MtlStatement {
+  enum class Kind : uint8_t { kNewmtl, kKd, kKe, kKs, kNs, kMapKd };
+  Kind kind = Kind::kNewmtl;
+  Vec3 value{0.f};   // Kd, Ke, Ks: the colour; Ns: value.x
+  int texture = -1;  // map_Kd
+  std::string name;  // newmtl
+};
+
+/// An MTL file, validated: its statements in file order.
+struct MtlFile {
+  std::vector<MtlStatement> statements;
+  size_t bytes = 0;  // size of the file
+};
+
+/// The materials an OBJ's mtllib statements define, in order. A name defined twice appears twice;
+/// usemtl finds the first.
+struct MaterialTable {
+  std::vector<MtlMaterial> materials;
+  std::unordered_map<std::string, int> first_of_name;
+};
+
+struct ObjContext {
+  ObjContext(const LoadOptions& o, std::filesystem::path r) : opts(o), root(std::move(r)) {}
+
+  const LoadOptions& opts;
+  std::filesystem::path root;  // canonical: nothing outside it is read
+  std::vector<Texture> textures;
+  std::map<std::filesystem::path, int> texture_of_path;
+  size_t texture_pixels = 0;                                // total of all textures
+  std::map<std::filesystem::path, MtlFile> mtl_files;       // each MTL file read once
+  std::set<std::vector<std::filesystem::path>> mtl_lists;   // the mtllib file lists already applied
+  size_t mtl_bytes = 0;                                     // total of the applied lists' file sizes
+  std::set<std::string> defined_materials;                  // names from the MTL files read so far
+  MaterialTable table;
+};
+
+/// Loads the texture `name` (from map_Kd in `file` at `line`, relative to `dir`), once per file;
+/// returns its index in ctx.textures.
+int load_texture(ObjContext& ctx, const std::string& name, const std::filesystem::path& dir,
+                 const std::string& display_dir, const std::string& file, size_t line);
+
+/// The mtllib statement at `file`:`line` naming `mtls`: reads and validates the files (each once per
+/// OBJ, with their textures) and, the first time the OBJ names this list of files, appends their
+/// materials to ctx.table, the files of the list read as one library (mtl.cpp describes how).
+void apply_mtllib(ObjContext& ctx, const std::vector<FileRef>& mtls, const std::string& file, size_t line);
+
+}  // namespace epr::loader

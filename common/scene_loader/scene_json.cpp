@@ -1,0 +1,327 @@
+// Scene JSON files (scenes/README.md): an OBJ inside the file's folder or a built-in scene, plus
+// camera and material overrides. Problems raise SceneError naming the file and the line of the
+// offending value.
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string_view>
+#include <unordered_map>
+#include <vector>
+
+#include "common/builtin_scenes.h"
+#include "common/scene_loader.h"
+#include "common/scene_loader/obj.h"
+#include "common/scene_loader/path_sandbox.h"
+#include "common/scene_loader/text.h"
+
+namespace epr {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace loader;
+
+// Scene JSON files are a few lines; this keeps a hostile one from costing much memory.
+constexpr size_t kMaxJsonBytes = size_t(16) << 20;
+
+std::string pointer_token(std::string_view s) {
+  std::string out;
+  for (char c : s) {
+    if (c == '~')
+      out += "~0";
+    else if (c == '/')
+      out += "~1";
+    else
+      out += c;
+  }
+  return out;
+}
+
+/// The line each value of an (already parsed) JSON text starts on, by JSON pointer ("/camera/fov"):
+/// nlohmann::json keeps no source positions.
+class JsonLines {
+ public:
+  explicit JsonLines(std::string_view text) {
+    struct Frame {
+      bool object;
+      std::string path;
+      std::string key;
+      size_t index = 0;
+      bool expect_key = true;
+    };
+    // Only the first levels get pointers (the schema is 4 deep): deeper nesting would make the paths
+    // grow with the square of the depth.
+    constexpr size_t kMaxDepth = 8;
+    std::vector<Frame> stack;
+    size_t line = 1;
+    bool in_scalar = false;
+    auto value_path = [&]() -> std::string {
+      if (stack.empty()) return "";
+      const Frame& f = stack.back();
+      if (stack.size() > kMaxDepth) return f.path;
+      return f.path + "/" + (f.object ? pointer_token(f.key) : std::to_string(f.index));
+    };
+    auto record = [&](const std::string& path) {
+      if (stack.size() <= kMaxDepth) lines_[path] = line;
+    };
+    for (size_t i = 0; i < text.size(); ++i) {
+      const char c = text[i];
+      const bool scalar_char = std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '+' || c == '.';
+      if (scalar_char) {
+        if (!in_scalar) record(value_path());
+        in_scalar = true;
+        continue;
+      }
+      in_scalar = false;
+      if (c == '\n') {
+        ++line;
+      } else if (c == '/' && i + 1 < text.size() && text[i + 1] == '/') {
+        while (i + 1 < text.size() && text[i + 1] != '\n') ++i;
+      } else if (c == '/' && i + 1 < text.size() && text[i + 1] == '*') {
+        i += 2;
+        while (i + 1 < text.size() && !(text[i] == '*' && text[i + 1] == '/')) line += text[i++] == '\n';
+        ++i;
+      } else if (c == '"') {
+        size_t j = i + 1;
+        while (j < text.size() && text[j] != '"') j += text[j] == '\\' ? 2 : 1;
+        const std::string_view raw = text.substr(i, std::min(j, text.size() - 1) - i + 1);
+        if (!stack.empty() && stack.back().object && stack.back().expect_key) {
+          try {
+            stack.back().key = nlohmann::json::parse(raw).get<std::string>();
+          } catch (const std::exception&) {
+            stack.back().key = std::string(raw);
+          }
+          stack.back().expect_key = false;
+        } else {
+          record(value_path());
+        }
+        i = j;
+      } else if (c == ',') {
+        if (!stack.empty()) {
+          if (stack.back().object)
+            stack.back().expect_key = true;
+          else
+            ++stack.back().index;
+        }
+      } else if (c == '{' || c == '[') {
+        const std::string path = value_path();
+        record(path);
+        stack.push_back({c == '{', path, "", 0, true});
+      } else if ((c == '}' || c == ']') && !stack.empty()) {
+        stack.pop_back();
+      }
+    }
+  }
+
+  /// Line of the value at `pointer`, or of its nearest recorded ancestor.
+  size_t line(std::string pointer) const {
+    for (;;) {
+      if (auto it = lines_.find(pointer); it != lines_.end()) return it->second;
+      if (pointer.empty()) return 1;
+      pointer.resize(pointer.rfind('/'));
+    }
+  }
+
+ private:
+  std::unordered_map<std::string, size_t> lines_;
+};
+
+class JsonSceneReader {
+ public:
+  JsonSceneReader(const std::string& path, const LoadOptions& opts) : path_(path), opts_(opts) {}
+
+  Scene read() {
+    const FileRef self{canonical_or_fail(path_, path_), path_};
+    const std::string text = read_file(self, std::min(opts_.max_file_bytes, kMaxJsonBytes));
+    nlohmann::json doc;
+    try {
+      doc = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/true, /*ignore_comments=*/true);
+    } catch (const nlohmann::json::parse_error& e) {
+      fail(path_, line_at_byte(text, e.byte), "invalid JSON: " + json_reason(e));
+    } catch (const nlohmann::json::exception& e) {
+      // Number overflow ("number overflow parsing '1e999'") carries no position: find the number.
+      const std::string what = e.what();
+      const size_t open = what.find('\''), close = what.rfind('\'');
+      size_t at = 0;
+      if (open != std::string::npos && close > open + 1) at = text.find(what.substr(open + 1, close - open - 1));
+      fail(path_, at == std::string::npos ? 1 : line_at_byte(text, at + 1), "invalid JSON: " + json_reason(e));
+    }
+    lines_ = std::make_unique<JsonLines>(text);
+    if (!doc.is_object()) error("", "a scene file must be a JSON object");
+    check_keys(doc, "", {"obj", "builtin", "tessellation", "camera", "materials"});
+
+    Scene scene;
+    std::vector<GlossyDefaults> glossy;
+    const bool has_obj = doc.contains("obj"), has_builtin = doc.contains("builtin");
+    if (has_obj == has_builtin) error("", "give exactly one of \"obj\" and \"builtin\"");
+    if (has_obj) {
+      if (doc.contains("tessellation")) error("/tessellation", "\"tessellation\" applies to built-in scenes only");
+      const std::string obj = string_at(doc, "/obj");
+      const fs::path root = self.real.parent_path();
+      const std::string display_dir = fs::path(path_).parent_path().string();
+      const FileRef ref = resolve_inside(root, root, display_dir, obj, path_, line("/obj"), "obj");
+      std::error_code ec;
+      if (!fs::is_regular_file(ref.real, ec)) error("/obj", fmt::format("obj file '{}' does not exist", obj));
+      scene = load_obj_inside(ref, root, opts_, &glossy);
+    } else {
+      BuiltinSpec spec;
+      try {
+        spec = parse_builtin_spec(string_at(doc, "/builtin"));
+        if (doc.contains("tessellation")) {
+          const auto& t = doc["tessellation"];
+          if (!t.is_number_integer()) error("/tessellation", "\"tessellation\" must be an integer");
+          if (spec.tessellation != 1) error("/tessellation", "tessellation given both here and in \"builtin\"");
+          spec.tessellation = int(std::clamp<int64_t>(t.get<int64_t>(), -1, 1 << 20));
+        }
+        scene = make_builtin_scene(spec, opts_.max_triangles);
+      } catch (const SceneError& e) {
+        if (std::string_view(e.what()).rfind(path_ + ":", 0) == 0) throw;
+        fail(path_, line(doc.contains("tessellation") ? "/tessellation" : "/builtin"), e.what());
+      }
+      for (const Material& m : scene.materials) glossy.push_back({m.ks, m.exponent});
+    }
+    if (doc.contains("camera")) apply_camera(doc["camera"], &scene.camera);
+    if (doc.contains("materials")) apply_materials(doc["materials"], glossy, &scene);
+    scene.name = path_;
+    validate_or_fail(scene, path_);
+    return scene;
+  }
+
+ private:
+  /// nlohmann's message without its "[json.exception.parse_error.101] " tag.
+  static std::string json_reason(const nlohmann::json::exception& e) {
+    std::string what = e.what();
+    if (const size_t p = what.find("] "); what.rfind("[json.exception", 0) == 0 && p != std::string::npos)
+      what = what.substr(p + 2);
+    return what;
+  }
+
+  static size_t line_at_byte(const std::string& text, size_t byte) {
+    const size_t end = std::min(byte > 0 ? byte - 1 : 0, text.size());
+    return 1 + size_t(std::count(text.begin(), text.begin() + std::ptrdiff_t(end), '\n'));
+  }
+
+  size_t line(const std::string& pointer) const { return lines_->line(pointer); }
+
+  [[noreturn]] void error(const std::string& pointer, const std::string& reason) const {
+    fail(path_, line(pointer), reason);
+  }
+
+  void check_keys(const nlohmann::json& obj, const std::string& pointer, std::initializer_list<const char*> known) {
+    for (const auto& item : obj.items()) {
+      const std::string& key = item.key();
+      if (std::none_of(known.begin(), known.end(), [&](const char* k) { return key == k; }))
+        error(pointer + "/" + pointer_token(key),
+              fmt::format("unknown key {} (known: {})", quote_token(key), fmt::join(known, ", ")));
+    }
+  }
+
+  std::string string_at(const nlohmann::json& doc, const std::string& pointer) {
+    const auto& v = doc.at(nlohmann::json::json_pointer(pointer));
+    if (!v.is_string()) error(pointer, fmt::format("\"{}\" must be a string", pointer.substr(1)));
+    return v.get<std::string>();
+  }
+
+  float number_at(const nlohmann::json& v, const std::string& pointer, const char* what) {
+    if (!v.is_number()) error(pointer, fmt::format("{} must be a number", what));
+    const double d = v.get<double>();
+    if (!std::isfinite(d) || std::abs(d) > 1e30) error(pointer, fmt::format("{} is out of range", what));
+    return float(d);
+  }
+
+  Vec3 vec3_at(const nlohmann::json& v, const std::string& pointer, const char* what) {
+    if (!v.is_array() || v.size() != 3) error(pointer, fmt::format("{} must be an array of 3 numbers", what));
+    Vec3 out;
+    for (int k = 0; k < 3; ++k) out[k] = number_at(v[size_t(k)], pointer + "/" + std::to_string(k), what);
+    return out;
+  }
+
+  Vec3 colour_at(const nlohmann::json& v, const std::string& pointer, const char* what, float hi) {
+    const Vec3 c = vec3_at(v, pointer, what);
+    if (!(c.x >= 0 && c.y >= 0 && c.z >= 0 && c.x <= hi && c.y <= hi && c.z <= hi))
+      error(pointer, fmt::format("{} values must lie in [0, {}]", what, hi));
+    return c;
+  }
+
+  void apply_camera(const nlohmann::json& cam, CameraSpec* spec) {
+    if (!cam.is_object()) error("/camera", "\"camera\" must be an object");
+    check_keys(cam, "/camera", {"eye", "look", "up", "fov"});
+    if (cam.contains("eye")) spec->eye = vec3_at(cam["eye"], "/camera/eye", "camera eye");
+    if (cam.contains("look")) spec->look = vec3_at(cam["look"], "/camera/look", "camera look");
+    if (cam.contains("up")) spec->up = vec3_at(cam["up"], "/camera/up", "camera up");
+    if (cam.contains("fov")) spec->fov_y_degrees = number_at(cam["fov"], "/camera/fov", "camera fov");
+    if (auto reason = spec->validate()) error("/camera", *reason);
+  }
+
+  void apply_materials(const nlohmann::json& mats, const std::vector<GlossyDefaults>& glossy, Scene* scene) {
+    if (!mats.is_object()) error("/materials", "\"materials\" must be an object");
+    for (const auto& item : mats.items()) {
+      const std::string& name = item.key();
+      const nlohmann::json& o = item.value();
+      const std::string p = "/materials/" + pointer_token(name);
+      const auto named = [&](const Material& m) { return m.name == name; };
+      if (std::none_of(scene->materials.begin(), scene->materials.end(), named)) {
+        std::vector<std::string> names;
+        for (const Material& m : scene->materials)
+          if (names.size() < 20) names.push_back(m.name);
+        error(p, fmt::format("no material named '{}' in the scene (it has: {})", name, fmt::join(names, ", ")));
+      }
+      if (!o.is_object()) error(p, fmt::format("material override '{}' must be an object", name));
+      check_keys(o, p, {"kd", "ke", "type", "ks", "exponent"});
+      for (size_t i = 0; i < scene->materials.size(); ++i) {
+        Material& m = scene->materials[i];
+        if (m.name != name) continue;
+        if (o.contains("kd")) {
+          m.kd = colour_at(o["kd"], p + "/kd", "kd", 1.f);
+          m.kd_texture = -1;  // a constant kd replaces the texture
+        }
+        if (o.contains("ke")) m.ke = colour_at(o["ke"], p + "/ke", "ke", 1e6f);
+        if (o.contains("type")) {
+          const auto& t = o["type"];
+          if (t == "glossy") {
+            if (m.diffuse()) {  // start from the MTL's Ks and Ns
+              m.type = MaterialType::kGlossy;
+              m.ks = i < glossy.size() ? glossy[i].ks : Vec3(0.f);
+              m.exponent = i < glossy.size() ? glossy[i].exponent : Material{}.exponent;
+            }
+          } else if (t == "diffuse") {
+            m.type = MaterialType::kDiffuse;
+            m.ks = Vec3(0.f);
+          } else {
+            error(p + "/type", "material type must be \"diffuse\" or \"glossy\"");
+          }
+        }
+        if (o.contains("ks") || o.contains("exponent")) {
+          if (m.diffuse())
+            error(p + (o.contains("ks") ? "/ks" : "/exponent"),
+                  fmt::format("material '{}' is diffuse: add \"type\": \"glossy\" to use ks and exponent", name));
+          if (o.contains("ks")) m.ks = colour_at(o["ks"], p + "/ks", "ks", 1.f);
+          if (o.contains("exponent")) {
+            m.exponent = number_at(o["exponent"], p + "/exponent", "exponent");
+            if (!(m.exponent > 0.f && m.exponent <= 1e6f)) error(p + "/exponent", "exponent must lie in (0, 1e6]");
+          }
+        }
+        if (!m.diffuse() && is_black(m.ks))
+          scene_log()->warn("{}:{}: glossy material '{}' has ks 0 and renders as diffuse", path_, line(p), name);
+        if (max_component(m.kd + m.ks) > 1.f)
+          scene_log()->warn("{}:{}: material '{}' reflects more than it receives (kd + ks > 1)", path_, line(p), name);
+      }
+    }
+  }
+
+  std::string path_;
+  const LoadOptions& opts_;
+  std::unique_ptr<JsonLines> lines_;
+};
+
+}  // namespace
+
+Scene load_scene_json(const std::string& json_path, const LoadOptions& opts) {
+  return JsonSceneReader(json_path, opts).read();
+}
+
+}  // namespace epr

@@ -1,0 +1,69 @@
+// Reading the text formats of a scene (OBJ and MTL): errors that name file and line, lines split as
+// exporters write them, blank-separated tokens and strictly checked numbers.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <spdlog/logger.h>
+
+#include "common/scene.h"
+
+namespace epr::loader {
+
+/// The logger warnings about scene input go to ("common").
+std::shared_ptr<spdlog::logger> scene_log();
+
+/// Raises SceneError "file:line: reason".
+[[noreturn]] void fail(const std::string& file, size_t line, const std::string& reason);
+/// Raises SceneError "file: reason" (a problem with the whole file).
+[[noreturn]] void fail_file(const std::string& file, const std::string& reason);
+/// Scene::validate(), its complaint raised as SceneError naming `file`.
+void validate_or_fail(const Scene& scene, const std::string& file);
+
+/// Splits text into lines: "\n", "\r\n" and a lone "\r" each end a line.
+class LineReader {
+ public:
+  explicit LineReader(std::string_view text) : text_(text) {}
+
+  bool next(std::string_view* line) {
+    if (pos_ >= text_.size()) return false;
+    size_t end = pos_;
+    while (end < text_.size() && text_[end] != '\n' && text_[end] != '\r') ++end;
+    *line = text_.substr(pos_, end - pos_);
+    pos_ = end;
+    if (pos_ < text_.size()) {
+      if (text_[pos_] == '\r' && pos_ + 1 < text_.size() && text_[pos_ + 1] == '\n') ++pos_;
+      ++pos_;
+    }
+    ++number_;
+    return true;
+  }
+  /// 1-based number of the line next() returned last.
+  size_t number() const { return number_; }
+
+ private:
+  std::string_view text_;
+  size_t pos_ = 0;
+  size_t number_ = 0;
+};
+
+inline bool is_space(char c) { return c == ' ' || c == '\t'; }
+
+/// Removes a comment (a token starting with '#') and surrounding blanks.
+std::string_view strip_comment(std::string_view line);
+/// Tokens separated by blanks (spaces and tabs).
+void tokenize(std::string_view line, std::vector<std::string_view>* tokens);
+/// The statement's argument text: the line after its keyword, without comment and blanks.
+std::string_view rest_after_keyword(std::string_view stripped, std::string_view keyword);
+/// The token in quotes for a message: at most 40 characters, control characters as '?'.
+std::string quote_token(std::string_view token);
+/// A decimal number (read as a double, returned as the nearest float) that must be finite and at
+/// most `limit` in magnitude; failures raise file:line naming `what`.
+float parse_real(std::string_view tok, double limit, const std::string& file, size_t line, const char* what);
+/// Splits an mtllib argument: blanks separate names, a backslash escapes the next character.
+std::vector<std::string> split_escaped(std::string_view s);
+
+}  // namespace epr::loader
