@@ -3,7 +3,6 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <spdlog/sinks/ostream_sink.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -16,6 +15,7 @@
 #include "common/builtin_scenes.h"
 #include "common/image.h"
 #include "common/log.h"
+#include "tests/common/scene_test_files.h"
 
 namespace epr {
 namespace {
@@ -26,40 +26,8 @@ const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-O
 const std::string kBadDir = EPR_SOURCE_DIR "/tests/data/scenes/bad";
 const std::string kShippedDir = EPR_SOURCE_DIR "/scenes";
 
-/// A fresh folder per test, removed afterwards.
-class TempDir {
- public:
-  TempDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    root_ = fs::temp_directory_path() / fmt::format("epr_scene_loader_{}_{}", info->name(), getpid());
-    fs::remove_all(root_);
-    fs::create_directories(root_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(root_, ec);
-  }
-  std::string path(const std::string& rel) const { return (root_ / rel).string(); }
-  std::string write(const std::string& rel, const std::string& text) const {
-    const fs::path p = root_ / rel;
-    fs::create_directories(p.parent_path());
-    std::ofstream(p, std::ios::binary) << text;
-    return p.string();
-  }
-
- private:
-  fs::path root_;
-};
-
-/// The SceneError message of loading `spec`, or "" if it loaded. Any other exception fails the test.
-std::string load_error(const std::string& spec, const LoadOptions& opts = {}) {
-  try {
-    load_scene(spec, opts);
-  } catch (const SceneError& e) {
-    return e.what();
-  }
-  return "";
-}
+using test::load_error;
+using test::TempDir;
 
 std::string read_text(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
