@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -20,7 +21,9 @@
 #include <thread>
 
 #include "client/job_client.h"
+#include "common/result_kinds.h"
 #include "client/remote_commands.h"
+#include "tests/wait_until.h"
 #include "wire/scene_bundle.h"
 
 namespace epr {
@@ -28,6 +31,8 @@ namespace {
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
+using namespace std::chrono_literals;
+using test::wait_until;
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
@@ -69,15 +74,11 @@ class Process {
   void stop(int sig) {
     if (pid_ <= 0) return;
     ::kill(pid_, sig);
-    for (int i = 0; i < 100; ++i) {  // 10 s to wind down, then SIGKILL
-      if (::waitpid(pid_, nullptr, WNOHANG) == pid_) {
-        pid_ = -1;
-        return;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    // 10 s to wind down, then SIGKILL.
+    if (!wait_until([&] { return ::waitpid(pid_, nullptr, WNOHANG) == pid_; }, 10s, 10ms)) {
+      ::kill(pid_, SIGKILL);
+      ::waitpid(pid_, nullptr, 0);
     }
-    ::kill(pid_, SIGKILL);
-    ::waitpid(pid_, nullptr, 0);
     pid_ = -1;
   }
 
@@ -107,14 +108,14 @@ class ClusterTest : public ::testing::Test {
                                         dir_ / "master.log");
     // The master prints its port once it listens.
     const std::regex listening("listening on port ([0-9]+)");
-    for (auto t0 = Clock::now(); seconds_since(t0) < 30 && target_.empty();) {
-      std::smatch m;
-      const std::string log = read_file(dir_ / "master.log");
-      if (std::regex_search(log, m, listening))
-        target_ = "127.0.0.1:" + m[1].str();
-      else
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
+    wait_until(
+        [&] {
+          std::smatch m;
+          const std::string log = read_file(dir_ / "master.log");
+          if (std::regex_search(log, m, listening)) target_ = "127.0.0.1:" + m[1].str();
+          return !target_.empty();
+        },
+        60s, 20ms);
     ASSERT_FALSE(target_.empty()) << "epr-master did not start:\n" << read_file(dir_ / "master.log");
   }
 
@@ -197,7 +198,8 @@ TEST_F(ClusterTest, JobRunsToDoneAndEveryResultIsFetchedAndVerified) {
   const std::string prefix = (dir_ / "rp").string();
   const auto files = client.fetch_all(id, prefix);
   EXPECT_EQ(suffixes(files, prefix), (std::set<std::string>{".exr", ".png", ".json", ".pathtrace.exr",
-                                                            ".reprojection.exr", ".counts.exr", ".samples.png"}));
+                                                            ".reprojection.exr", ".counts.exr", ".samples.exr",
+                                                            ".samples.png"}));
   for (const auto& f : files) {
     EXPECT_EQ(fs::file_size(f.path), f.bytes) << f.path;
     EXPECT_EQ(f.round, 2u) << f.path;
@@ -282,8 +284,15 @@ TEST_F(ClusterTest, CancelEndsAWatchWithTheCancelledState) {
   JobClient client(target_, client_options());  // no worker: the job waits until cancelled
   const std::string id = client.submit(tiny_job(RenderMode::kPathTrace));
   v1::JobStatus last;
-  std::thread watcher([&] { last = client.watch(id, [](const v1::JobStatus&) { return true; }); });
-  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  std::atomic<int> updates{0};
+  std::thread watcher([&] {
+    last = client.watch(id, [&](const v1::JobStatus&) {
+      ++updates;
+      return true;
+    });
+  });
+  // The watch is established once its first status (the job as it is) has arrived.
+  EXPECT_TRUE(wait_until([&] { return updates > 0; })) << "no status from WatchJob";
   const auto t0 = Clock::now();
   EXPECT_EQ(client.cancel(id).state(), v1::JOB_STATE_CANCELLED);
   watcher.join();
@@ -313,8 +322,7 @@ TEST_F(ClusterTest, CallCancellerStopsAWatchFromAnotherThread) {
       code = e.code();
     }
   });
-  for (auto t0 = Clock::now(); updates == 0 && seconds_since(t0) < 10;)
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  wait_until([&] { return updates > 0; });  // the watch is established (checked below)
   const auto t0 = Clock::now();
   canceller.cancel();
   watcher.join();
@@ -345,8 +353,8 @@ TEST_F(ClusterTest, WatchGivesUpWithinTheReconnectWindowWhenTheMasterDies) {
     }
     failed_at = Clock::now();
   });
-  for (auto t0 = Clock::now(); updates == 0 && seconds_since(t0) < 10;)
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  // The watch is established before the master dies, so what follows is a lost master, not a refused call.
+  EXPECT_TRUE(wait_until([&] { return updates > 0; })) << "no status from WatchJob";
   const auto killed_at = Clock::now();
   master_->stop(SIGKILL);
   watcher.join();
@@ -371,8 +379,9 @@ TEST_F(ClusterTest, CliSubmitWaitThenListGetAndWatch) {
   ASSERT_TRUE(std::regex_match(submit.out, m, std::regex("([A-Za-z0-9_-]{1,64})\n"))) << "stdout: " << submit.out;
   const std::string id = m[1];
   EXPECT_NE(submit.err.find("DONE"), std::string::npos) << submit.err;
-  for (const char* suffix : {".exr", ".png", ".json", ".pathtrace.exr", ".reprojection.exr", ".samples.png"})
-    EXPECT_TRUE(fs::exists(prefix + suffix)) << suffix;
+  // The files `epr render` writes (common/result_kinds.h).
+  for (const ResultKindInfo& k : result_kinds())
+    EXPECT_TRUE(fs::exists(prefix + std::string(k.suffix))) << k.suffix;
 
   const CliRun list = epr("list");
   EXPECT_EQ(list.exit_code, kExitOk) << list.err;

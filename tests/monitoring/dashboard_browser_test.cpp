@@ -89,6 +89,17 @@ class Browser {
     fs::create_directories(file.parent_path());
     std::ofstream(file, std::ios::binary) << png;
   }
+  /// Waits until the page is still: the preview image (if shown) decoded and no CSS transition (the
+  /// progress bar's) running. For screenshots that show what the page settled on.
+  bool wait_still(double seconds) {
+    return wait_for(
+        [&] {
+          return eval("const i = document.getElementById('preview');"
+                      "return (i.hidden || (i.complete && i.naturalWidth > 0)) && document.getAnimations().length === 0;")
+                     .get<bool>();
+        },
+        seconds);
+  }
   /// Waits until `predicate(state())` holds; the last state for messages.
   template <typename F>
   bool wait_state(F predicate, double seconds, json* last) {
@@ -160,7 +171,8 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   EXPECT_FALSE(digest1.empty());
   EXPECT_EQ(browser->eval("return document.getElementById('preview').naturalWidth;"), o.width);
 
-  // The master refreshes previews at most once a second: close the next round after that.
+  // The master refreshes previews at most once a second, a rule of wall time: close the next round
+  // only after that second (counted from round 1's preview, which the page has shown) has passed.
   std::this_thread::sleep_for(std::chrono::milliseconds(1100));
   worker.work_available();
   ASSERT_TRUE(wait_for([&] { return round_of() >= 2; }, 30));
@@ -170,15 +182,16 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   EXPECT_GT(s["meanSpp"].get<double>(), spp1);
   EXPECT_EQ(s["errors"], 0);
 
-  // A few more rounds so that the chart has a curve, then the running screenshot.
+  // A few more rounds, each seen by the page before the next, so that the chart has a point per
+  // round; then the running screenshot.
   for (int i = 0; i < 4; ++i) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(600));
     worker.work_available();
+    ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["round"].get<int>() >= round_of(); }, 30, &s))
+        << s;
   }
-  ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["round"].get<int>() >= round_of(); }, 30, &s)) << s;
   const std::string bar = browser->eval("return document.querySelector('#j-bar > div').style.width;");
   EXPECT_NE(bar, "0%");
-  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // let the image decode and the bar animate
+  EXPECT_TRUE(browser->wait_still(30));
   browser->screenshot(artefact_dir() / "dashboard_running.png");
 
   // Switching the layer loads the M' heat map.
@@ -189,7 +202,7 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
       << s;
   EXPECT_NE(browser->eval("return document.getElementById('preview-size').textContent;").get<std::string>().find("M′"),
             std::string::npos);
-  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EXPECT_TRUE(browser->wait_still(30));
   browser->screenshot(artefact_dir() / "dashboard_samples.png");
   browser->eval("document.querySelector('#layers [data-layer=combined]').click(); return null;");
 
@@ -204,7 +217,7 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["state"] == "done"; }, 30, &s)) << s;
   EXPECT_EQ(browser->eval("return parseFloat(document.querySelector('#j-bar > div').style.width);"), 100);
   EXPECT_EQ(s["errors"], 0);
-  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EXPECT_TRUE(browser->wait_still(30));
   browser->screenshot(artefact_dir() / "dashboard_done.png");
   EXPECT_GT(fs::file_size(artefact_dir() / "dashboard_done.png"), 10000u);
   browser.reset();

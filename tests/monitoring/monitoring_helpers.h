@@ -25,6 +25,7 @@
 #include "client/job_client.h"
 #include "epr/v1/worker_service.grpc.pb.h"
 #include "master/server/master_server.h"
+#include "tests/wait_until.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
 #include "wire/tile_result_stream.h"
@@ -43,9 +44,8 @@ inline double seconds_since(Clock::time_point t0) { return std::chrono::duration
 /// Polls `done` every 20 ms for up to `seconds`.
 template <typename F>
 bool wait_for(F done, double seconds) {
-  for (auto t0 = Clock::now(); seconds_since(t0) < seconds; std::this_thread::sleep_for(std::chrono::milliseconds(20)))
-    if (done()) return true;
-  return done();
+  return test::wait_until(done, std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds)),
+                          std::chrono::milliseconds(20));
 }
 
 /// An in-process master (gRPC and HTTP on free loopback ports).

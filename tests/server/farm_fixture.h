@@ -20,6 +20,7 @@
 #include "master/server/master_server.h"
 #include "tests/job_results.h"
 #include "tests/running_node.h"
+#include "tests/wait_until.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
 #include "wire/tile_result_stream.h"
@@ -40,12 +41,7 @@ inline void set_deadline(grpc::ClientContext* ctx, std::chrono::seconds s = 10s)
 
 /// Polls `done` every 20 ms until it is true or `timeout` passes (a guard, not a speed assertion).
 inline bool eventually(const std::function<bool()>& done, std::chrono::milliseconds timeout = 30000ms) {
-  const auto until = std::chrono::steady_clock::now() + timeout;
-  while (!done()) {
-    if (std::chrono::steady_clock::now() > until) return false;
-    std::this_thread::sleep_for(20ms);
-  }
-  return true;
+  return wait_until(done, timeout, 20ms);
 }
 
 /// Registers a one-thread worker called `name` on `stub`; returns its id.
@@ -69,12 +65,14 @@ class WireWorker {
       : stub_(v1::WorkerService::NewStub(channel)), id_(register_worker(*stub_, name)) {}
   const std::string& id() const { return id_; }
 
-  /// A tile, or nullopt when the master says Wait.
-  std::optional<v1::TileLease> lease() {
+  /// A tile, or nullopt when the master says Wait. With max_wait_ms > 0 the master may hold the call
+  /// that long for a tile to appear (LeaseRequest.max_wait_ms) before it says Wait.
+  std::optional<v1::TileLease> lease(uint32_t max_wait_ms = 0) {
     grpc::ClientContext ctx;
     set_deadline(&ctx);
     v1::LeaseRequest req;
     req.mutable_worker_id()->set_id(id_);
+    req.set_max_wait_ms(max_wait_ms);
     v1::Lease lease;
     const grpc::Status st = stub_->LeaseTile(&ctx, req, &lease);
     EXPECT_TRUE(st.ok()) << st.error_message();

@@ -32,14 +32,12 @@ TEST_F(LeaseTest, StalledTileIsCopiedToAnIdleWorkerAndTheFirstResultWins) {
   // (heartbeating, so its lease stays valid) until the master says the tile is no longer wanted.
   WireWorker staller(channel_, "staller");
   std::atomic<bool> done{false};
-  int not_wanted = 0, late_duplicate = 0, late_stale = 0, late_committed = 0, stalled = 0;
+  std::atomic<int> stalled{0};
+  int not_wanted = 0, late_duplicate = 0, late_stale = 0, late_committed = 0;
   std::thread staller_thread([&] {
     while (!done) {
-      auto t = staller.lease();
-      if (!t) {
-        std::this_thread::sleep_for(5ms);
-        continue;
-      }
+      auto t = staller.lease(200);  // the master holds the call until a tile is there (or 200 ms pass)
+      if (!t) continue;
       ++stalled;
       const auto chunks = staller.render(*t);
       bool released = false;
@@ -50,6 +48,8 @@ TEST_F(LeaseTest, StalledTileIsCopiedToAnIdleWorkerAndTheFirstResultWins) {
         const std::vector<bool> wanted = staller.heartbeat({t->lease_id()});
         released = wanted.size() != 1 || !wanted[0];
         if (released || job_done) break;
+        // The staller's heartbeat interval: it is a slow worker on purpose, and a heartbeat is how a
+        // worker learns that its tile is no longer wanted.
         std::this_thread::sleep_for(50ms);
       }
       if (!released) break;  // still wanted after the job ended: counted as missing below
@@ -63,7 +63,7 @@ TEST_F(LeaseTest, StalledTileIsCopiedToAnIdleWorkerAndTheFirstResultWins) {
     }
   });
   // Let the staller hold a tile of round 0 before the fast worker joins.
-  for (int i = 0; i < 500 && stalled == 0; ++i) std::this_thread::sleep_for(10ms);
+  EXPECT_TRUE(eventually([&] { return stalled > 0; })) << "the staller got no tile";
 
   RunningNode fast(node_options("fast", 1));
   const v1::JobStatus st = wait_done(id, 180s);
@@ -87,21 +87,28 @@ TEST_F(LeaseTest, StalledTileIsCopiedToAnIdleWorkerAndTheFirstResultWins) {
 TEST_F(LeaseTest, NoSpeculativeCopyBeforeTheThresholdNorWhenDisabled) {
   MasterOptions mo;
   mo.speculative_factor = 0;  // disabled
+  // Nothing else stands in the way of a copy: no floor, and the holder counts as alive throughout.
+  mo.speculative_floor_ms = 0;
+  mo.heartbeat_interval_ms = 60000;
   start(mo);
   const RenderOptions o = cornell(RenderMode::kPathTrace, 16, 2, 1);  // one tile per round
   const std::string id = submit(o, bundle_scene(o.scene));
   WireWorker a(channel_, "a"), b(channel_, "b");
   auto t = a.lease_wait();
   ASSERT_TRUE(t);
-  // Round 0 has no committed tile yet, and copies are disabled anyway: b waits.
+  const auto round0_leased = std::chrono::steady_clock::now();
+  // Round 0 has no committed tile yet, so nothing to compare with (and copies are disabled anyway):
+  // b waits. Holding the tile for a while is the point here; no event marks a copy not happening.
   std::this_thread::sleep_for(400ms);
   EXPECT_FALSE(b.lease());
   v1::SubmitAck ack;
   ASSERT_TRUE(a.submit(a.render(*t), &ack).ok());
   EXPECT_EQ(ack.outcome(), v1::SUBMIT_OUTCOME_COMMITTED);
+  const auto round0 = std::chrono::steady_clock::now() - round0_leased;
   auto t2 = a.lease_wait();  // round 1
   ASSERT_TRUE(t2);
-  std::this_thread::sleep_for(400ms);
+  // Held for three times round 0's tile: with copies enabled (factor 2) b would now get one.
+  std::this_thread::sleep_for(3 * round0 + 100ms);
   EXPECT_FALSE(b.lease()) << "speculative_factor 0 must never copy";
   ASSERT_TRUE(a.submit(a.render(*t2), &ack).ok());
   const v1::JobStatus st = wait_done(id);
@@ -222,12 +229,10 @@ TEST_F(LeaseTest, JobFailsWithTheReasonWhenEveryRegisteredWorkerIsBlocked) {
   // The master serves the next job.
   const std::string next = submit(o, bundle_scene(o.scene));
   WireWorker fresh(channel_, "fresh");
-  for (int guard = 0; guard < 1000 && !terminal(status(next)); ++guard) {
-    auto t = fresh.lease();
-    if (!t) {
-      std::this_thread::sleep_for(5ms);
-      continue;
-    }
+  const auto until = std::chrono::steady_clock::now() + 60s;  // a guard against hanging
+  while (!terminal(status(next)) && std::chrono::steady_clock::now() < until) {
+    auto t = fresh.lease(200);  // held by the master until a tile is there (or 200 ms pass)
+    if (!t) continue;
     v1::SubmitAck ack;
     ASSERT_TRUE(fresh.submit(fresh.render(*t), &ack).ok());
   }

@@ -23,8 +23,11 @@ std::map<std::string, int> thread_names() {
 TEST_F(FarmFixture, ThreadsAreNamedAfterTheirWork) {
   start();
   EXPECT_EQ(thread_names().count("epr-trace"), 0u);
-  EXPECT_GE(thread_names()["epr-reproject"], 1);
-  EXPECT_GE(thread_names()["epr-reaper"], 1);
+  // The master's threads name themselves once they run, which may be after start() returns.
+  EXPECT_TRUE(eventually([] {
+    auto n = thread_names();
+    return n["epr-reproject"] >= 1 && n["epr-reaper"] >= 1;
+  })) << "the master's reprojection and reaper threads carry their names";
   RunningNode node(node_options("named", 2));
   // Each tracing thread names itself when its session starts; its two couriers start with it.
   EXPECT_TRUE(eventually([] {

@@ -5,6 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
 #include <stdexcept>
 #include <thread>
 
@@ -32,17 +35,40 @@ v1::TileLease lease_for(const std::string& job, const std::string& builtin = "bu
   return lease;
 }
 
+// Counts the scene loads. With a gate of N callers, a load does not finish before N threads have
+// called arrive() right before their JobCache::get(), so the build is still running when they reach
+// the cache. (A caller preempted between arrive() and get() may find the build over instead; every
+// assertion below holds for it as well.)
 struct CountingLoader {
   std::atomic<int> calls{0};
   std::atomic<bool> fail{false};
+  int gate = 0;
+
+  void arrive() {
+    std::lock_guard lock(mu);
+    ++arrived;
+    cv.notify_all();
+  }
+  /// False if a load gave up waiting for its callers (the guard against a hang, not a timing claim).
+  bool gate_held() const { return !gate_timed_out; }
+
   JobCache::SceneLoader fn() {
     return [this](const v1::SceneRef& ref) {
       ++calls;
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));  // give waiters time to pile up
+      {
+        std::unique_lock lock(mu);
+        if (!cv.wait_for(lock, std::chrono::seconds(60), [&] { return arrived >= gate; })) gate_timed_out = true;
+      }
       if (fail) throw std::runtime_error("scene unavailable");
       return make_builtin_scene(ref.builtin().substr(8));
     };
   }
+
+ private:
+  std::mutex mu;
+  std::condition_variable cv;
+  int arrived = 0;
+  std::atomic<bool> gate_timed_out{false};
 };
 
 TEST(JobCache, BuildsOncePerJobEvenUnderConcurrency) {
@@ -50,9 +76,15 @@ TEST(JobCache, BuildsOncePerJobEvenUnderConcurrency) {
   JobCache cache(3, loader.fn());
   const auto lease = lease_for("a");
   std::vector<std::shared_ptr<const JobContext>> got(6);
+  loader.gate = int(got.size());
   std::vector<std::thread> threads;
-  for (size_t i = 0; i < got.size(); ++i) threads.emplace_back([&, i] { got[i] = cache.get(lease); });
+  for (size_t i = 0; i < got.size(); ++i)
+    threads.emplace_back([&, i] {
+      loader.arrive();
+      got[i] = cache.get(lease);
+    });
   for (auto& t : threads) t.join();
+  EXPECT_TRUE(loader.gate_held());
   for (const auto& g : got) EXPECT_EQ(g, got[0]);
   EXPECT_EQ(loader.calls, 1);
   EXPECT_EQ(got[0]->camera.width(), 16);
@@ -109,9 +141,11 @@ TEST(JobCache, FailuresReachEveryWaiterAndAreRetried) {
   JobCache cache(3, loader.fn());
   const auto lease = lease_for("a");
   std::atomic<int> failures{0};
+  loader.gate = 4;
   std::vector<std::thread> threads;
   for (int i = 0; i < 4; ++i)
     threads.emplace_back([&] {
+      loader.arrive();
       try {
         cache.get(lease);
       } catch (const std::runtime_error&) {
@@ -119,6 +153,7 @@ TEST(JobCache, FailuresReachEveryWaiterAndAreRetried) {
       }
     });
   for (auto& t : threads) t.join();
+  EXPECT_TRUE(loader.gate_held());
   EXPECT_EQ(failures, 4);
   EXPECT_EQ(cache.size(), 0u);
   loader.fail = false;

@@ -8,18 +8,24 @@
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
+#include <spdlog/sinks/base_sink.h>
+
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <optional>
+#include <string>
 #include <thread>
 
 #include "client/local_render.h"
 #include "common/image.h"
+#include "common/log.h"
 #include "epr/v1/job_service.grpc.pb.h"
 #include "master/server/master_server.h"
 #include "tests/job_results.h"
 #include "tests/running_node.h"
+#include "tests/wait_until.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
 
@@ -29,8 +35,51 @@ namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
 using test::RunningNode;
+using test::wait_until;
 
 const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.obj";
+
+// Counts the warnings (and worse) of one component's logger whose message names `what`, from
+// construction to destruction. Attach before the code that logs starts its threads.
+class WarningsAbout {
+ public:
+  WarningsAbout(const std::string& component, std::string what)
+      : logger_(logger(component)), sink_(std::make_shared<Sink>(std::move(what))) {
+    logger_->sinks().push_back(sink_);
+  }
+  ~WarningsAbout() {
+    auto& sinks = logger_->sinks();
+    sinks.erase(std::remove(sinks.begin(), sinks.end(), sink_), sinks.end());
+  }
+  WarningsAbout(const WarningsAbout&) = delete;
+  WarningsAbout& operator=(const WarningsAbout&) = delete;
+  int count() const { return sink_->count(); }
+
+ private:
+  class Sink : public spdlog::sinks::base_sink<std::mutex> {
+   public:
+    explicit Sink(std::string what) : what_(std::move(what)) {}
+    int count() {
+      std::lock_guard lock(base_sink<std::mutex>::mutex_);
+      return count_;
+    }
+
+   protected:
+    void sink_it_(const spdlog::details::log_msg& msg) override {
+      if (msg.level >= spdlog::level::warn &&
+          std::string_view(msg.payload.data(), msg.payload.size()).find(what_) != std::string_view::npos)
+        ++count_;
+    }
+    void flush_() override {}
+
+   private:
+    const std::string what_;
+    int count_ = 0;
+  };
+
+  std::shared_ptr<spdlog::logger> logger_;
+  std::shared_ptr<Sink> sink_;
+};
 
 class WorkerNodeTest : public ::testing::Test {
  protected:
@@ -147,8 +196,7 @@ TEST_F(WorkerNodeTest, TwoNodesRenderASkipJobLikeTheSingleProcessRender) {
 TEST_F(WorkerNodeTest, TimeSplitAccountsForEveryTracingThread) {
   const auto node_started = std::chrono::steady_clock::now();
   std::optional<RunningNode> node(std::in_place, node_options(2));
-  for (int i = 0; i < 500 && !node->stats().registered; ++i) std::this_thread::sleep_for(10ms);
-  ASSERT_TRUE(node->stats().registered);
+  ASSERT_TRUE(wait_until([&] { return node->stats().registered; }));
   const RenderOptions o = cornell_options(RenderMode::kSkip, ReprojectMethod::kCpu, 48, 8, 2);
   const std::string id = submit(o, bundle_scene(o.scene));
   const v1::JobStatus st = wait_done(id);
@@ -213,11 +261,13 @@ TEST_F(WorkerNodeTest, WorkerWaitsForItsMasterAndSurvivesARestart) {
   master_->shutdown();
   master_.reset();
 
-  // The worker starts while nobody listens: it keeps trying, with backoff, without crashing.
+  // The worker starts while nobody listens: it keeps trying, with backoff, without crashing. Its
+  // log says so: a warning naming the master for each of its first failed attempts.
+  WarningsAbout attempts("worker", target);
   WorkerNodeOptions wo = node_options(2);
   wo.master = target;
   RunningNode node(wo);
-  std::this_thread::sleep_for(800ms);
+  EXPECT_TRUE(wait_until([&] { return attempts.count() >= 2; })) << "the worker did not try again";
   EXPECT_EQ(node.stats().registrations, 0u);
   EXPECT_FALSE(node.stats().registered);
 
@@ -232,7 +282,8 @@ TEST_F(WorkerNodeTest, WorkerWaitsForItsMasterAndSurvivesARestart) {
   const uint64_t registrations = node.stats().registrations;
   master_->shutdown();
   master_.reset();
-  std::this_thread::sleep_for(300ms);
+  // The new master comes up once the worker has noticed that the old one is gone.
+  EXPECT_TRUE(wait_until([&] { return !node.stats().registered; })) << "the worker did not notice the master leave";
   start_master("127.0.0.1:" + std::to_string(port));
   const RenderOptions o2 = cornell_options(RenderMode::kReproject, ReprojectMethod::kCpu, 32, 4, 1);
   const std::string second = submit(o2, bundle_scene(o2.scene));
@@ -251,9 +302,7 @@ TEST_F(WorkerNodeTest, StopReturnsLeasesAndAnotherWorkerFinishes) {
   const RenderOptions o = cornell_options(RenderMode::kPathTrace, ReprojectMethod::kCpu, 128, 32, 1);
   const std::string id = submit(o, bundle_scene(o.scene));
   auto first = std::make_unique<RunningNode>(node_options(2));
-  const auto until = std::chrono::steady_clock::now() + 60s;
-  while (first->stats().tiles_committed < 20 && std::chrono::steady_clock::now() < until)
-    std::this_thread::sleep_for(5ms);
+  wait_until([&] { return first->stats().tiles_committed >= 20; }, 120s);
   ASSERT_GE(first->stats().tiles_committed, 20u);
   const auto took = first->stop();
   EXPECT_LT(took.count(), 5.0) << "stop() must not wait for lease deadlines";
