@@ -15,6 +15,10 @@
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "wire/convert.h"
+#include "wire/rpc/channel.h"
+#include "wire/rpc/chunked.h"
+#include "wire/rpc/status.h"
+#include "wire/rpc/token.h"
 #include "wire/sha256.h"
 
 namespace epr {
@@ -23,16 +27,7 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
-constexpr size_t kChunkBytes = 1u << 20;  // UploadScene and FetchResult carry at most 1 MiB per message
 constexpr size_t kMaxNameBytes = 256;     // JobSpec.name
-
-std::string read_text_file(const std::string& path, const char* what) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error(fmt::format("cannot read {} {}", what, path));
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 std::string random_hex(size_t bytes) {
   std::random_device rd;
@@ -78,50 +73,7 @@ std::string extension_for(const v1::ResultHeader& h) {
 
 // ---- errors and cancellation --------------------------------------------------------------------
 
-bool RpcError::unreachable() const {
-  return code() == grpc::StatusCode::UNAVAILABLE || code() == grpc::StatusCode::DEADLINE_EXCEEDED;
-}
-
-std::string status_code_name(grpc::StatusCode code) {
-  switch (code) {
-    case grpc::StatusCode::OK:
-      return "OK";
-    case grpc::StatusCode::CANCELLED:
-      return "CANCELLED";
-    case grpc::StatusCode::UNKNOWN:
-      return "UNKNOWN";
-    case grpc::StatusCode::INVALID_ARGUMENT:
-      return "INVALID_ARGUMENT";
-    case grpc::StatusCode::DEADLINE_EXCEEDED:
-      return "DEADLINE_EXCEEDED";
-    case grpc::StatusCode::NOT_FOUND:
-      return "NOT_FOUND";
-    case grpc::StatusCode::ALREADY_EXISTS:
-      return "ALREADY_EXISTS";
-    case grpc::StatusCode::PERMISSION_DENIED:
-      return "PERMISSION_DENIED";
-    case grpc::StatusCode::RESOURCE_EXHAUSTED:
-      return "RESOURCE_EXHAUSTED";
-    case grpc::StatusCode::FAILED_PRECONDITION:
-      return "FAILED_PRECONDITION";
-    case grpc::StatusCode::ABORTED:
-      return "ABORTED";
-    case grpc::StatusCode::OUT_OF_RANGE:
-      return "OUT_OF_RANGE";
-    case grpc::StatusCode::UNIMPLEMENTED:
-      return "UNIMPLEMENTED";
-    case grpc::StatusCode::INTERNAL:
-      return "INTERNAL";
-    case grpc::StatusCode::UNAVAILABLE:
-      return "UNAVAILABLE";
-    case grpc::StatusCode::DATA_LOSS:
-      return "DATA_LOSS";
-    case grpc::StatusCode::UNAUTHENTICATED:
-      return "UNAUTHENTICATED";
-    default:
-      return fmt::format("status {}", int(code));
-  }
-}
+bool RpcError::unreachable() const { return rpc::is_unreachable(code()); }
 
 std::string state_name(v1::JobState state) {
   switch (state) {
@@ -171,22 +123,14 @@ void CallCanceller::detach() {
 
 JobClient::JobClient(const std::string& target, JobClientOptions options)
     : target_(target), options_(std::move(options)) {
-  std::shared_ptr<grpc::ChannelCredentials> creds;
-  if (options_.tls || !options_.ca_file.empty()) {
-    grpc::SslCredentialsOptions ssl;
-    if (!options_.ca_file.empty()) ssl.pem_root_certs = read_text_file(options_.ca_file, "CA file");
-    creds = grpc::SslCredentials(ssl);
-  } else {
-    creds = grpc::InsecureChannelCredentials();
-  }
+  if (!options_.token.empty() && !rpc::is_valid_token(options_.token))
+    throw std::runtime_error("the bearer token must be printable ASCII without spaces");
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);  // ListJobs pages of large statuses; results come chunked
   args.SetUserAgentPrefix("epr");
-  channel_ = grpc::CreateCustomChannel(target_, creds, args);
+  const rpc::ClientTls tls{options_.tls || !options_.ca_file.empty(), options_.ca_file, "", ""};
+  channel_ = grpc::CreateCustomChannel(target_, rpc::channel_credentials(tls), args);
   stub_ = v1::JobService::NewStub(channel_);
-  if (!options_.token.empty() && !std::all_of(options_.token.begin(), options_.token.end(),
-                                              [](unsigned char c) { return c >= 0x21 && c <= 0x7e; }))
-    throw std::runtime_error("the bearer token must be printable ASCII without spaces");
 }
 
 JobClient::JobClient(std::shared_ptr<grpc::Channel> channel, const std::string& target, JobClientOptions options)
@@ -196,13 +140,11 @@ JobClient::JobClient(std::shared_ptr<grpc::Channel> channel, const std::string& 
       stub_(v1::JobService::NewStub(channel_)) {}
 
 void JobClient::prepare(grpc::ClientContext* ctx, std::chrono::milliseconds timeout) const {
-  ctx->set_deadline(std::chrono::system_clock::now() + timeout);
-  if (!options_.token.empty()) ctx->AddMetadata("authorization", "Bearer " + options_.token);
+  rpc::prepare_call(*ctx, timeout, options_.token);
 }
 
 void JobClient::fail(const grpc::Status& s, const std::string& call) const {
-  const std::string code = status_code_name(s.error_code());
-  const std::string detail = s.error_message().empty() ? code : code + ": " + s.error_message();
+  const std::string detail = rpc::describe(s);
   switch (s.error_code()) {
     case grpc::StatusCode::UNAVAILABLE:
       throw RpcError(s, fmt::format("cannot reach master at {} ({})", target_, detail));
@@ -301,31 +243,9 @@ std::string JobClient::upload_scene(const SceneBundleData& bundle) {
   v1::SceneRef ref;
   auto writer = stub_->UploadScene(&ctx, &ref);
 
-  v1::SceneChunk chunk;
-  auto* manifest = chunk.mutable_manifest();
-  manifest->set_content_hash(hash);
-  manifest->set_entry_path(bundle.entry_path);
-  for (const auto& [path, data] : bundle.files) {
-    auto* f = manifest->add_files();
-    f->set_path(path);
-    f->set_size_bytes(data.size());
-  }
-  manifest->set_total_bytes(bundle.total_bytes());
   // A false Write means the master has already answered (e.g. it knows the hash): stop sending and
   // read its answer.
-  bool open = writer->Write(chunk);
-  for (size_t i = 0; open && i < bundle.files.size(); ++i) {
-    const std::string& data = bundle.files[i].second;
-    for (size_t offset = 0; open && offset < data.size(); offset += kChunkBytes) {
-      chunk.Clear();
-      auto* d = chunk.mutable_data();
-      d->set_file_index(uint32_t(i));
-      d->set_offset(offset);
-      d->set_data(data.substr(offset, kChunkBytes));
-      open = writer->Write(chunk);
-    }
-  }
-  if (open) writer->WritesDone();
+  if (rpc::send_scene(bundle, [&](const v1::SceneChunk& chunk) { return writer->Write(chunk); })) writer->WritesDone();
   const grpc::Status s = writer->Finish();
   if (!s.ok()) fail(s, "UploadScene");
   if (ref.content_hash() != hash)
@@ -445,12 +365,12 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
       lost = true;
       lost_since = Clock::now();
       logger("client")->warn("lost the watch of job {} at {} ({}); reconnecting for up to {}", job_id, target_,
-                             status_code_name(code), seconds_text(options_.watch_reconnect_timeout));
+                             rpc::status_code_name(code), seconds_text(options_.watch_reconnect_timeout));
     } else if (Clock::now() - lost_since >= options_.watch_reconnect_timeout) {
       throw RpcError(
           s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s,
           fmt::format("lost master at {} while watching job {} and could not reconnect within {} ({})", target_, job_id,
-                      seconds_text(options_.watch_reconnect_timeout), status_code_name(code)));
+                      seconds_text(options_.watch_reconnect_timeout), rpc::status_code_name(code)));
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(200));  // no hot loop on a master that ends streams at once
   }
@@ -472,64 +392,59 @@ FetchedFile JobClient::fetch_to(const std::string& job_id, v1::ResultKind kind,
   req.set_allow_partial(allow_partial);
   auto reader = stub_->FetchResult(&ctx, req);
 
+  // The header, then the bytes into a temporary file beside the output, renamed at the end.
+  std::optional<v1::ResultHeader> header;
+  std::optional<rpc::ChunkTracker> received;
+  FetchedFile file;
+  std::string tmp;
+  std::ofstream out;
+  Sha256 sha;
+  auto take = [&](const v1::ResultChunk& chunk) -> std::optional<std::string> {
+    if (!header) {
+      if (!chunk.has_header()) return "the first message is not the header";
+      header = chunk.header();
+      received.emplace(header->total_bytes());
+      file = {kind, path_for(*header), header->total_bytes(), header->round(), header->partial()};
+      if (const auto dir = fs::path(file.path).parent_path(); !dir.empty()) {
+        std::error_code ec;
+        fs::create_directories(dir, ec);  // a failure shows as "cannot write" below
+      }
+      tmp = fmt::format("{}.part-{}-{}", file.path, ::getpid(), counter++);
+      out.open(tmp, std::ios::binary | std::ios::trunc);
+      if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
+      return std::nullopt;
+    }
+    if (!chunk.has_data()) return "a second header";
+    const auto& d = chunk.data();
+    if (auto err = received->add(d.offset(), d.data().size())) return err;
+    out.write(d.data().data(), std::streamsize(d.data().size()));
+    if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
+    sha.update(d.data());
+    return std::nullopt;
+  };
   // A reply that breaks the stream's rules (proto/epr/v1/job_service.proto, FetchResult).
   auto bad_stream = [&](const std::string& why) {
     return RpcError(grpc::Status(grpc::StatusCode::DATA_LOSS, why),
                     fmt::format("master at {} sent a bad {} stream for job {}: {}", target_, call, job_id, why));
   };
-  v1::ResultChunk chunk;
-  if (!reader->Read(&chunk)) {
-    const grpc::Status s = reader->Finish();
-    if (!s.ok()) fail(s, call);
-    throw bad_stream("no header");
-  }
-  if (!chunk.has_header()) {
-    ctx.TryCancel();
-    reader->Finish();
-    throw bad_stream("the first message is not the header");
-  }
-  const v1::ResultHeader header = chunk.header();
-  FetchedFile file{kind, path_for(header), header.total_bytes(), header.round(), header.partial()};
-  const std::string tmp = fmt::format("{}.part-{}-{}", file.path, ::getpid(), counter++);
-  if (const auto dir = std::filesystem::path(file.path).parent_path(); !dir.empty()) {
-    std::error_code ec;
-    std::filesystem::create_directories(dir, ec);  // a failure shows as "cannot write" below
-  }
-
-  bool finished = false;
   try {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
-    Sha256 sha;
-    uint64_t received = 0;
-    while (reader->Read(&chunk)) {
-      if (!chunk.has_data()) throw bad_stream("a second header");
-      const auto& d = chunk.data();
-      if (d.offset() != received) throw bad_stream(fmt::format("data at offset {}, expected {}", d.offset(), received));
-      if (d.data().size() > header.total_bytes() - received)
-        throw bad_stream(fmt::format("more than the {} bytes announced", header.total_bytes()));
-      out.write(d.data().data(), std::streamsize(d.data().size()));
-      if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
-      sha.update(d.data());
-      received += d.data().size();
-    }
-    finished = true;
-    const grpc::Status s = reader->Finish();
-    if (!s.ok()) fail(s, call);
+    const rpc::StreamEnd end = rpc::read_stream<v1::ResultChunk>(ctx, *reader, take);
+    if (end.error) throw bad_stream(*end.error);
+    if (!end.status.ok()) fail(end.status, call);
+    if (!header) throw bad_stream("no header");
     out.close();
     if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
-    if (received != header.total_bytes())
-      throw bad_stream(fmt::format("{} bytes received, {} announced", received, header.total_bytes()));
-    if (const std::string got = sha.hex(); got != lower(header.sha256()))
-      throw bad_stream(fmt::format("SHA-256 {} does not match the announced {}", got, header.sha256()));
+    if (!received->complete())
+      throw bad_stream(fmt::format("{} bytes received, {} announced", received->received(), header->total_bytes()));
+    if (const std::string got = sha.hex(); got != lower(header->sha256()))
+      throw bad_stream(fmt::format("SHA-256 {} does not match the announced {}", got, header->sha256()));
     fs::rename(tmp, file.path);
   } catch (...) {
-    if (!finished) {
-      ctx.TryCancel();
-      reader->Finish();
+    if (!tmp.empty()) {
+      out.close();
+      std::error_code ec;
+      fs::remove(tmp, ec);
     }
-    std::error_code ec;
-    fs::remove(tmp, ec);
     throw;
   }
   return file;

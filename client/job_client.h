@@ -51,7 +51,7 @@ class RpcError : public std::runtime_error {
 struct JobClientOptions {
   bool tls = false;
   std::string ca_file;  // PEM roots for TLS; empty: the system's roots
-  // Sent as "authorization: Bearer <token>" metadata on every call when not empty. Printable ASCII.
+  // Sent as "authorization: Bearer <token>" metadata on every call when not empty (wire/rpc/token.h).
   std::string token;
   std::chrono::milliseconds timeout{10'000};                  // unary calls and connection checks
   std::chrono::milliseconds transfer_timeout{600'000};        // a whole upload or result download
@@ -104,7 +104,8 @@ using WatchCallback = std::function<bool(const v1::JobStatus&)>;  // false: stop
 class JobClient {
  public:
   /// target is "HOST:PORT" (e.g. "localhost:50051", "127.0.0.1:41234"). No connection is made yet.
-  /// Throws std::runtime_error if the CA file cannot be read or the token is not printable ASCII.
+  /// Throws std::runtime_error if the CA file cannot be read or the token is not one token of
+  /// printable ASCII (rpc::is_valid_token).
   explicit JobClient(const std::string& target, JobClientOptions options = {});
   /// Over an existing channel (e.g. an in-process one); `target` only names it in messages.
   JobClient(std::shared_ptr<grpc::Channel> channel, const std::string& target, JobClientOptions options = {});
@@ -170,7 +171,5 @@ class JobClient {
 /// "DONE", "RUNNING", ... for messages and tables.
 std::string state_name(v1::JobState state);
 bool is_terminal(v1::JobState state);
-/// "grpc status code name" e.g. "UNAVAILABLE".
-std::string status_code_name(grpc::StatusCode code);
 
 }  // namespace epr

@@ -8,13 +8,12 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <fstream>
 #include <functional>
 #include <map>
-#include <sstream>
 
 #include "client/render_flags.h"
 #include "common/scene_loader.h"
+#include "wire/rpc/token.h"
 
 namespace epr {
 namespace {
@@ -52,26 +51,13 @@ void add_connection_flags(CLI::App* cmd, ConnectionFlags& f) {
   cmd->add_option("--ca-file", f.ca_file, "PEM file of CA roots for TLS (implies --tls)")->check(CLI::ExistingFile);
 }
 
-std::string trim(const std::string& s) {
-  const auto b = s.find_first_not_of(" \t\r\n");
-  if (b == std::string::npos) return "";
-  return s.substr(b, s.find_last_not_of(" \t\r\n") - b + 1);
-}
-
+// --token-file, else $EPR_TOKEN, under the rule of wire/rpc/token.h.
 std::string read_token(const ConnectionFlags& f) {
-  if (f.token_file.empty()) {
-    const char* env = std::getenv("EPR_TOKEN");
-    return env ? trim(env) : "";
+  try {
+    return rpc::configured_token(f.token_file).value_or("");
+  } catch (const rpc::TokenError& e) {
+    throw UsageError(e.what());
   }
-  std::ifstream in(f.token_file, std::ios::binary);
-  if (!in) throw UsageError(fmt::format("cannot read token file {}", f.token_file));
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  const std::string token = trim(ss.str());
-  if (token.empty()) throw UsageError(fmt::format("token file {} is empty", f.token_file));
-  if (!std::all_of(token.begin(), token.end(), [](unsigned char c) { return c >= 0x21 && c <= 0x7e; }))
-    throw UsageError(fmt::format("token file {} must hold one token of printable ASCII characters", f.token_file));
-  return token;
 }
 
 std::unique_ptr<JobClient> make_client(const ConnectionFlags& f) {

@@ -9,6 +9,7 @@
 
 #include "common/log.h"
 #include "master/server/master_server.h"
+#include "wire/rpc/token.h"
 
 namespace {
 volatile std::sig_atomic_t g_stop = 0;
@@ -90,7 +91,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
-    if (auto token = epr::configured_token(token_file)) o.token = *token;
+    if (auto token = epr::rpc::configured_token(token_file)) o.token = *token;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "epr-master: %s\n", e.what());
     return 2;

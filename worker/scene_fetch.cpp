@@ -150,15 +150,15 @@ std::optional<std::string> SceneReceiver::add_manifest(const v1::SceneManifest& 
   }
   have_manifest_ = true;
   current_ = 0;
-  written_ = 0;
+  written_ = rpc::ChunkTracker(files_.empty() ? 0 : files_[0].second);
   return std::nullopt;
 }
 
 std::optional<std::string> SceneReceiver::close_current() {
   if (current_ >= files_.size()) return std::nullopt;
-  if (written_ != files_[current_].second)
-    return fail(
-        fmt::format("file '{}' ended after {} of {} bytes", files_[current_].first, written_, files_[current_].second));
+  if (!written_.complete())
+    return fail(fmt::format("file '{}' ended after {} of {} bytes", files_[current_].first, written_.received(),
+                            written_.size()));
   if (out_) {
     out_->out.close();
     const bool ok = !out_->out.fail();
@@ -166,7 +166,7 @@ std::optional<std::string> SceneReceiver::close_current() {
     if (!ok) return fail(fmt::format("cannot write scene file '{}' in the cache", files_[current_].first));
   }
   ++current_;
-  written_ = 0;
+  written_ = rpc::ChunkTracker(current_ < files_.size() ? files_[current_].second : 0);
   return std::nullopt;
 }
 
@@ -175,12 +175,10 @@ std::optional<std::string> SceneReceiver::add_data(const v1::SceneFileData& d) {
   if (d.file_index() < current_) return fail(fmt::format("data for file {} after it was complete", d.file_index()));
   while (current_ < d.file_index())
     if (auto err = close_current()) return err;
-  const auto& [path, size] = files_[current_];
-  if (d.offset() != written_)
-    return fail(fmt::format("file '{}': data at offset {}, expected {}", path, d.offset(), written_));
+  const std::string& path = files_[current_].first;
   if (d.data().size() > limits_.max_chunk_bytes)
     return fail(fmt::format("data chunk of {} bytes exceeds {}", d.data().size(), limits_.max_chunk_bytes));
-  if (d.data().size() > size - written_) return fail(fmt::format("file '{}': more bytes than its size {}", path, size));
+  if (auto err = written_.add(d.offset(), d.data().size())) return fail(fmt::format("file '{}': {}", path, *err));
   if (!out_) {
     out_ = std::make_unique<OpenFile>();
     out_->out.open(fs::path(tmp_dir_) / path, std::ios::binary | std::ios::trunc);
@@ -188,7 +186,6 @@ std::optional<std::string> SceneReceiver::add_data(const v1::SceneFileData& d) {
   }
   out_->out.write(d.data().data(), std::streamsize(d.data().size()));
   if (!out_->out) return fail(fmt::format("cannot write scene file '{}' in the cache", path));
-  written_ += d.data().size();
   bytes_received_ += d.data().size();
   return std::nullopt;
 }

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "epr/v1/scene.pb.h"
+#include "wire/rpc/chunked.h"
 
 namespace epr {
 
@@ -71,7 +72,7 @@ class SceneReceiver {
   std::string entry_path_;
   std::vector<std::pair<std::string, uint64_t>> files_;  // (path, size) in manifest order
   size_t current_ = 0;                                   // file being written
-  uint64_t written_ = 0;                                 // bytes of the current file so far
+  rpc::ChunkTracker written_{0};                         // its bytes so far
   uint64_t bytes_received_ = 0;
   struct OpenFile;
   std::unique_ptr<OpenFile> out_;

@@ -1,20 +1,15 @@
 #include "worker/worker_node.h"
 
-#include <sstream>
-
 #include <fmt/format.h>
 #include <grpcpp/grpcpp.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
-#include <cstdlib>
 #include <deque>
 #include <functional>
-#include <fstream>
 #include <map>
 #include <mutex>
 #include <random>
@@ -30,6 +25,10 @@
 #include "common/scene_loader.h"
 #include "common/thread_name.h"
 #include "epr/v1/worker_service.grpc.pb.h"
+#include "wire/rpc/channel.h"
+#include "wire/rpc/chunked.h"
+#include "wire/rpc/status.h"
+#include "wire/rpc/token.h"
 #include "wire/tile_result_stream.h"
 #include "worker/backoff.h"
 #include "worker/job_cache.h"
@@ -65,39 +64,6 @@ constexpr size_t kMaxFailingJobs = 256;             // job failure records kept
 
 Millis size_deadline(Millis base, double bytes) {
   return base + Millis(int64_t(bytes / kSlowLinkBytesPerSecond * 1000.0));
-}
-
-std::string describe(const grpc::Status& s) {
-  static const char* const kNames[] = {
-      "OK",        "CANCELLED",      "UNKNOWN",           "INVALID_ARGUMENT",   "DEADLINE_EXCEEDED",
-      "NOT_FOUND", "ALREADY_EXISTS", "PERMISSION_DENIED", "RESOURCE_EXHAUSTED", "FAILED_PRECONDITION",
-      "ABORTED",   "OUT_OF_RANGE",   "UNIMPLEMENTED",     "INTERNAL",           "UNAVAILABLE",
-      "DATA_LOSS", "UNAUTHENTICATED"};
-  const int code = int(s.error_code());
-  const char* name = code >= 0 && code <= 16 ? kNames[code] : "?";
-  return s.error_message().empty() ? std::string(name) : fmt::format("{}: {}", name, s.error_message());
-}
-
-std::string trim(std::string s) {
-  const auto not_space = [](unsigned char c) { return !std::isspace(c); };
-  s.erase(s.begin(), std::find_if(s.begin(), s.end(), not_space));
-  s.erase(std::find_if(s.rbegin(), s.rend(), not_space).base(), s.end());
-  return s;
-}
-
-// The bearer token: the first line of token_file, else $EPR_TOKEN, else none.
-std::string read_token(const std::string& token_file, spdlog::logger& log) {
-  if (token_file.empty()) {
-    const char* env = std::getenv("EPR_TOKEN");
-    return env ? trim(env) : std::string();
-  }
-  std::ifstream in(token_file);
-  std::string line;
-  if (!in || !std::getline(in, line)) throw std::runtime_error(fmt::format("cannot read token file {}", token_file));
-  struct stat st {};
-  if (::stat(token_file.c_str(), &st) == 0 && (st.st_mode & 077))
-    log.warn("token file {} is readable by other users (chmod 600 it)", token_file);
-  return trim(line);
 }
 
 std::string default_name() {
@@ -306,7 +272,7 @@ struct WorkerNode::Impl {
   explicit Impl(WorkerNodeOptions o)
       : opts(std::move(o)),
         log(logger("worker")),
-        token(read_token(opts.token_file, *log)),
+        token(rpc::configured_token(opts.token_file).value_or("")),
         name(opts.name.empty() ? default_name() : opts.name),
         threads(opts.threads > 0 ? opts.threads : int(std::max(1u, std::thread::hardware_concurrency()))),
         jobs(size_t(std::max(1, opts.max_cached_jobs)),
@@ -341,10 +307,7 @@ struct WorkerNode::Impl {
 
   // ---- plumbing --------------------------------------------------------------------------------
 
-  void prepare(grpc::ClientContext& ctx, Millis deadline) const {
-    ctx.set_deadline(std::chrono::system_clock::now() + deadline);
-    if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
-  }
+  void prepare(grpc::ClientContext& ctx, Millis deadline) const { rpc::prepare_call(ctx, deadline, token); }
 
   // Registers a call of `s` so that stop() / the end of the session can cancel it.
   class CallScope {
@@ -418,27 +381,10 @@ struct WorkerNode::Impl {
   // Handles a failed call of the lease/heartbeat loops: the session is over unless it already is.
   void call_failed(Session& s, const char* what, const grpc::Status& status) {
     if (s.ending) return;  // our own cancellation
-    end_session(s, fmt::format("{}: {}", what, describe(status)), /*lost=*/true);
+    end_session(s, fmt::format("{}: {}", what, rpc::describe(status)), /*lost=*/true);
   }
 
   // ---- registration ------------------------------------------------------------------------------
-
-  std::shared_ptr<grpc::ChannelCredentials> credentials() const {
-    if (!opts.tls) return grpc::InsecureChannelCredentials();
-    auto read = [](const std::string& path) {
-      if (path.empty()) return std::string();
-      std::ifstream in(path);
-      if (!in) throw std::runtime_error("cannot read '" + path + "'");
-      std::stringstream ss;
-      ss << in.rdbuf();
-      return ss.str();
-    };
-    grpc::SslCredentialsOptions ssl;
-    ssl.pem_root_certs = read(opts.ca_file);
-    ssl.pem_cert_chain = read(opts.cert_file);
-    ssl.pem_private_key = read(opts.key_file);
-    return grpc::SslCredentials(ssl);
-  }
 
   std::shared_ptr<Session> connect(std::string* why) {
     auto s = std::make_shared<Session>();
@@ -447,7 +393,8 @@ struct WorkerNode::Impl {
     args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, std::max(1, opts.min_backoff_ms));
     args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, std::max(1, opts.min_backoff_ms));
     args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, std::max(opts.min_backoff_ms, opts.max_backoff_ms));
-    s->channel = grpc::CreateCustomChannel(opts.master, credentials(), args);
+    s->channel = grpc::CreateCustomChannel(
+        opts.master, rpc::channel_credentials({opts.tls, opts.ca_file, opts.cert_file, opts.key_file}), args);
     s->stub = v1::WorkerService::NewStub(s->channel);
 
     v1::WorkerInfo info;
@@ -471,7 +418,7 @@ struct WorkerNode::Impl {
       register_call = nullptr;
     }
     if (!status.ok()) {
-      *why = describe(status);
+      *why = rpc::describe(status);
       if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION)
         log->error("master {} does not speak protocol epr.v1: {}", opts.master, status.error_message());
       return nullptr;
@@ -524,19 +471,11 @@ struct WorkerNode::Impl {
     CallScope scope(*this, *s, ctx, /*cancel_on_stop=*/true);
     SceneReceiver rx(opts.cache_dir, ref.content_hash());
     auto reader = s->stub->FetchScene(&ctx, req);
-    v1::SceneChunk chunk;
-    std::optional<std::string> err;
-    while (reader->Read(&chunk)) {
-      if ((err = rx.add(chunk))) {
-        ctx.TryCancel();
-        while (reader->Read(&chunk)) {
-        }
-        break;
-      }
-    }
-    const grpc::Status status = reader->Finish();
-    if (err) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), *err));
-    if (!status.ok()) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), describe(status)));
+    const rpc::StreamEnd end =
+        rpc::read_stream<v1::SceneChunk>(ctx, *reader, [&](const v1::SceneChunk& chunk) { return rx.add(chunk); });
+    if (end.error) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), *end.error));
+    if (!end.status.ok())
+      throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), rpc::describe(end.status)));
     std::string entry;
     if (auto e = rx.finish(&entry)) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), *e));
     ++counters.scenes_fetched;
@@ -701,7 +640,7 @@ struct WorkerNode::Impl {
       const bool transient = code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::DEADLINE_EXCEEDED;
       if (transient && attempt < kSubmitAttempts && !s.lost && !h.abandoned) {
         const int delay = retry.next_ms();
-        log->warn("lease {}: SubmitTile failed ({}), retrying in {} ms", lease.lease_id(), describe(status), delay);
+        log->warn("lease {}: SubmitTile failed ({}), retrying in {} ms", lease.lease_id(), rpc::describe(status), delay);
         if (wait_for(nullptr, delay) && stopping) return false;
         continue;
       }
@@ -710,7 +649,7 @@ struct WorkerNode::Impl {
         // The master refused this result; the session is fine. A bug on one side: say so loudly.
         ++counters.tiles_refused;
         log->error("lease {} (job {} tile {}): the master refused the result: {}", lease.lease_id(), lease.job_id(),
-                   lease.tile_index(), describe(status));
+                   lease.tile_index(), rpc::describe(status));
         return true;
       }
       call_failed(s, "SubmitTile", status);
@@ -861,7 +800,7 @@ struct WorkerNode::Impl {
       if (status.ok())
         counters.tiles_returned += ids.size();
       else
-        log->warn("could not return {} leases: {}", ids.size(), describe(status));
+        log->warn("could not return {} leases: {}", ids.size(), rpc::describe(status));
     }
     v1::WorkerId wid;
     wid.set_id(s.worker_id);
@@ -869,7 +808,7 @@ struct WorkerNode::Impl {
     prepare(ctx, kUnregisterDeadline);
     v1::UnregisterResponse resp;
     const grpc::Status status = s.stub->Unregister(&ctx, wid, &resp);
-    if (!status.ok()) log->debug("Unregister: {}", describe(status));
+    if (!status.ok()) log->debug("Unregister: {}", rpc::describe(status));
     log->info("left {} ({} leases returned)", opts.master, ids.size());
   }
 

@@ -46,8 +46,8 @@ struct WorkerNodeOptions {
   int threads = 0;                               // tracing threads; 0: std::thread::hardware_concurrency()
   std::string name;                              // shown on dashboards; empty: "HOSTNAME-PID"
   std::string cache_dir = default_cache_root();  // scene cache root (scenes/HASH/...)
-  /// Bearer token file (first line; surrounding whitespace ignored). Empty: the EPR_TOKEN environment
-  /// variable if set, else no token. Sent as "authorization: Bearer <token>" on every call.
+  /// Bearer token file (the rule of wire/rpc/token.h). Empty: the EPR_TOKEN environment variable if
+  /// set, else no token. Sent as "authorization: Bearer <token>" on every call.
   std::string token_file;
   /// TLS to the master (plaintext when false). ca_file: PEM roots (empty: the system's); cert and key:
   /// a client certificate for masters that require one.
@@ -107,7 +107,7 @@ struct WorkerNodeStats {
 
 class WorkerNode {
  public:
-  /// Throws std::runtime_error if a token file is given but cannot be read.
+  /// Throws std::runtime_error (rpc::TokenError) if the token file or $EPR_TOKEN breaks the token rule.
   explicit WorkerNode(WorkerNodeOptions options);
   ~WorkerNode();  // stops and waits for run() if it is still running in another thread
   WorkerNode(const WorkerNode&) = delete;

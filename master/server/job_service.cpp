@@ -9,6 +9,7 @@
 #include "common/log.h"
 #include "master/server/reactors.h"
 #include "wire/convert.h"
+#include "wire/rpc/chunked.h"
 
 namespace epr {
 namespace {
@@ -34,6 +35,7 @@ class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
   JobWatcher(JobManager& jobs, const std::string& id, uint32_t min_interval_ms) : jobs_(jobs), min_interval_ms_(min_interval_ms) {
     auto first = jobs_.get(id);
     if (!first) {
+      finished_ = true;  // an OnCancel that follows must not finish the call again
       Finish(no_job(id));
       return;
     }
@@ -115,7 +117,7 @@ class SceneUploader final : public grpc::ServerReadReactor<v1::SceneChunk> {
       for (const auto& f : m.files()) {
         if (!is_safe_relative_path(f.path())) return Finish(invalid(fmt::format("scene file path '{}' is not safe", f.path())));
         sum += f.size_bytes();
-        sizes_.push_back(f.size_bytes());
+        received_.emplace_back(f.size_bytes());
         bundle_.files.emplace_back(f.path(), std::string());
       }
       if (sum != m.total_bytes()) return Finish(invalid("the manifest's sizes do not add up to total_bytes"));
@@ -123,9 +125,9 @@ class SceneUploader final : public grpc::ServerReadReactor<v1::SceneChunk> {
       const auto& d = chunk_.data();
       if (!manifest_seen_) return Finish(invalid("data before the manifest"));
       if (d.file_index() >= bundle_.files.size()) return Finish(invalid("data for a file the manifest does not list"));
-      auto& file = bundle_.files[d.file_index()].second;
-      if (d.offset() != file.size()) return Finish(invalid("scene data must arrive in order without gaps"));
-      if (file.size() + d.data().size() > sizes_[d.file_index()]) return Finish(invalid("more data than the manifest announced"));
+      auto& [path, file] = bundle_.files[d.file_index()];
+      if (auto err = received_[d.file_index()].add(d.offset(), d.data().size()))
+        return Finish(invalid(fmt::format("scene file '{}': {}", path, *err)));
       file += d.data();
     }
     StartRead(&chunk_);
@@ -135,8 +137,8 @@ class SceneUploader final : public grpc::ServerReadReactor<v1::SceneChunk> {
  private:
   void end() {
     if (!manifest_seen_) return Finish(invalid("no manifest"));
-    for (size_t i = 0; i < sizes_.size(); ++i)
-      if (bundle_.files[i].second.size() != sizes_[i]) return Finish(invalid(fmt::format("file '{}' is incomplete", bundle_.files[i].first)));
+    for (size_t i = 0; i < received_.size(); ++i)
+      if (!received_[i].complete()) return Finish(invalid(fmt::format("file '{}' is incomplete", bundle_.files[i].first)));
     const std::string hash = content_hash(bundle_);
     if (!expected_hash_.empty() && expected_hash_ != hash)
       return Finish(invalid(fmt::format("content hash mismatch: announced {}, computed {}", expected_hash_, hash)));
@@ -149,7 +151,7 @@ class SceneUploader final : public grpc::ServerReadReactor<v1::SceneChunk> {
   v1::SceneRef* ref_;
   v1::SceneChunk chunk_;
   SceneBundleData bundle_;
-  std::vector<uint64_t> sizes_;
+  std::vector<rpc::ChunkTracker> received_;  // per file of the manifest
   std::string expected_hash_;
   bool manifest_seen_ = false;
 };
@@ -208,7 +210,6 @@ void to_proto(const JobSnapshot& s, v1::JobStatus* out) {
 
 grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
                                                     v1::JobId* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   JobRequest jr;
   if (auto err = from_job_spec(*req, &jr.options, &jr.camera)) return finish(ctx, invalid(*err));
   const auto& scene = req->scene();
@@ -244,12 +245,10 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
 }
 
 grpc::ServerReadReactor<v1::SceneChunk>* JobServiceImpl::UploadScene(grpc::CallbackServerContext* ctx, v1::SceneRef* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return new RefusingReader<v1::SceneChunk>(st);
   return new SceneUploader(jobs_, resp);
 }
 
 grpc::ServerUnaryReactor* JobServiceImpl::GetJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   auto s = jobs_.get(req->id());
   if (!s) return finish(ctx, no_job(req->id()));
   to_proto(*s, resp);
@@ -257,13 +256,11 @@ grpc::ServerUnaryReactor* JobServiceImpl::GetJob(grpc::CallbackServerContext* ct
 }
 
 grpc::ServerWriteReactor<v1::JobStatus>* JobServiceImpl::WatchJob(grpc::CallbackServerContext* ctx, const v1::WatchJobRequest* req) {
-  if (auto st = auth_.check(ctx); !st.ok()) return new ListWriter<v1::JobStatus>({}, st);
   return new JobWatcher(jobs_, req->job_id(), req->min_interval_ms());
 }
 
 grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* ctx, const v1::ListJobsRequest* req,
                                                    v1::ListJobsResponse* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   const size_t page = req->page_size() ? std::min<size_t>(req->page_size(), 1000) : 100;
   size_t start = 0;
   if (!req->page_token().empty()) {
@@ -285,7 +282,6 @@ grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* 
 }
 
 grpc::ServerUnaryReactor* JobServiceImpl::CancelJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   if (!jobs_.cancel(req->id())) return finish(ctx, no_job(req->id()));
   to_proto(*jobs_.get(req->id()), resp);
   return finish(ctx, grpc::Status::OK);
@@ -294,7 +290,6 @@ grpc::ServerUnaryReactor* JobServiceImpl::CancelJob(grpc::CallbackServerContext*
 grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::CallbackServerContext* ctx,
                                                                        const v1::ResultRequest* req) {
   using Writer = ListWriter<v1::ResultChunk>;
-  if (auto st = auth_.check(ctx); !st.ok()) return new Writer({}, st);
   static const std::map<v1::ResultKind, std::pair<std::string, std::string>> kinds = {
       {v1::RESULT_KIND_EXR, {"exr", "image/x-exr"}},
       {v1::RESULT_KIND_PNG, {"png", "image/png"}},
@@ -323,13 +318,12 @@ grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::Cal
   h->set_total_bytes(bytes.size());
   h->set_sha256(sha256_hex(bytes));
   h->set_round(uint32_t(snap->progress.round));
-  constexpr size_t kChunk = 1u << 20;
-  for (size_t off = 0; off < bytes.size(); off += kChunk) {
-    v1::ResultChunk c;
-    c.mutable_data()->set_offset(off);
-    c.mutable_data()->set_data(bytes.substr(off, kChunk));
-    chunks.push_back(std::move(c));
-  }
+  rpc::for_each_chunk(bytes, [&](uint64_t offset, std::string_view piece) {
+    auto* d = chunks.emplace_back().mutable_data();
+    d->set_offset(offset);
+    d->set_data(piece.data(), piece.size());
+    return true;
+  });
   return new Writer(std::move(chunks));
 }
 

@@ -3,14 +3,13 @@
 #pragma once
 
 #include "epr/v1/job_service.grpc.pb.h"
-#include "master/server/auth.h"
 #include "master/server/job_manager.h"
 
 namespace epr {
 
 class JobServiceImpl final : public v1::JobService::CallbackService {
  public:
-  JobServiceImpl(JobManager& jobs, const TokenAuth& auth) : jobs_(jobs), auth_(auth) {}
+  explicit JobServiceImpl(JobManager& jobs) : jobs_(jobs) {}
 
   grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req, v1::JobId* resp) override;
   grpc::ServerReadReactor<v1::SceneChunk>* UploadScene(grpc::CallbackServerContext* ctx, v1::SceneRef* resp) override;
@@ -25,7 +24,6 @@ class JobServiceImpl final : public v1::JobService::CallbackService {
 
  private:
   JobManager& jobs_;
-  const TokenAuth& auth_;
 };
 
 /// The wire form of a job's progress (shared with tests and the monitoring endpoint's gRPC twin).

@@ -5,38 +5,21 @@
 
 #include <fmt/format.h>
 
-#include <fstream>
-#include <sstream>
-
 #include "common/log.h"
 #include "master/server/job_service.h"
 #include "master/server/monitoring.h"
 #include "master/server/worker_service.h"
+#include "wire/rpc/auth_interceptor.h"
+#include "wire/rpc/channel.h"
 
 namespace epr {
 
 MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(options)) {
-  auth_ = TokenAuth(options_.token);
-  std::shared_ptr<grpc::ServerCredentials> creds = grpc::InsecureServerCredentials();
-  if (!options_.tls_cert_file.empty() || !options_.tls_key_file.empty()) {
-    auto read = [](const std::string& path) {
-      std::ifstream in(path);
-      if (!in) throw std::runtime_error(fmt::format("cannot read '{}'", path));
-      std::stringstream ss;
-      ss << in.rdbuf();
-      return ss.str();
-    };
-    grpc::SslServerCredentialsOptions ssl;
-    ssl.pem_key_cert_pairs.push_back({read(options_.tls_key_file), read(options_.tls_cert_file)});
-    if (!options_.tls_client_ca_file.empty()) {
-      ssl.pem_root_certs = read(options_.tls_client_ca_file);
-      ssl.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
-    }
-    creds = grpc::SslServerCredentials(ssl);
-  }
+  const auto creds = rpc::server_credentials(
+      {options_.tls_cert_file, options_.tls_key_file, options_.tls_client_ca_file});
   jobs_ = std::make_unique<JobManager>(options_.jobs);
-  job_service_ = std::make_unique<JobServiceImpl>(*jobs_, auth_);
-  worker_service_ = std::make_unique<WorkerServiceImpl>(*jobs_, auth_);
+  job_service_ = std::make_unique<JobServiceImpl>(*jobs_);
+  worker_service_ = std::make_unique<WorkerServiceImpl>(*jobs_);
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
@@ -45,6 +28,11 @@ MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(opt
   builder.RegisterService(worker_service_.get());
   builder.SetMaxReceiveMessageSize(options_.max_message_bytes);
   builder.SetMaxSendMessageSize(options_.max_message_bytes);
+  if (auto auth = rpc::make_auth_interceptor(options_.token)) {
+    std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> interceptors;
+    interceptors.push_back(std::move(auth));
+    builder.experimental().SetInterceptorCreators(std::move(interceptors));
+  }
   server_ = builder.BuildAndStart();
   if (!server_ || port_ == 0) {
     jobs_->shutdown();
@@ -64,7 +52,7 @@ MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(opt
   }
   server_->GetHealthCheckService()->SetServingStatus(true);
   logger("master")->info("master listening on {} (port {}){}{}", options_.listen, port_,
-                         options_.tls_cert_file.empty() ? "" : ", TLS", auth_.enabled() ? ", bearer token required" : "");
+                         options_.tls_cert_file.empty() ? "" : ", TLS", !options_.token.empty() ? ", bearer token required" : "");
 }
 
 MasterServer::~MasterServer() { shutdown(); }

@@ -1,5 +1,6 @@
 // The master process in one object: JobManager plus the gRPC server with JobService, WorkerService
-// and the standard health service. `epr-master` is a thin main around it; `epr render` runs one
+// and the standard health service, behind the bearer-token interceptor (wire/rpc/auth_interceptor.h)
+// when a token is configured. `epr-master` is a thin main around it; `epr render` runs one
 // in-process on a loopback port, so a local render and a cluster use the same code paths.
 #pragma once
 
@@ -8,7 +9,6 @@
 
 #include <grpcpp/grpcpp.h>
 
-#include "master/server/auth.h"
 #include "master/server/job_manager.h"
 
 namespace epr {
@@ -47,7 +47,6 @@ class MasterServer {
 
  private:
   MasterServerOptions options_;
-  TokenAuth auth_;
   std::unique_ptr<JobManager> jobs_;
   std::unique_ptr<JobServiceImpl> job_service_;
   std::unique_ptr<WorkerServiceImpl> worker_service_;

@@ -42,12 +42,4 @@ class ListWriter final : public grpc::ServerWriteReactor<Message> {
   size_t i_ = 0;
 };
 
-/// A client-streaming reactor that refuses the call at once (e.g. UNAUTHENTICATED).
-template <typename Message>
-class RefusingReader final : public grpc::ServerReadReactor<Message> {
- public:
-  explicit RefusingReader(grpc::Status status) { this->Finish(std::move(status)); }
-  void OnDone() override { delete this; }
-};
-
 }  // namespace epr

@@ -5,6 +5,7 @@
 #include "common/log.h"
 #include "master/server/reactors.h"
 #include "wire/convert.h"
+#include "wire/rpc/chunked.h"
 
 namespace epr {
 namespace {
@@ -81,33 +82,8 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
 
 }  // namespace
 
-std::vector<v1::SceneChunk> scene_chunks(const SceneBundleData& bundle) {
-  constexpr size_t kChunk = 1u << 20;
-  std::vector<v1::SceneChunk> out(1);
-  auto* m = out[0].mutable_manifest();
-  m->set_content_hash(content_hash(bundle));
-  m->set_entry_path(bundle.entry_path);
-  m->set_total_bytes(bundle.total_bytes());
-  for (size_t i = 0; i < bundle.files.size(); ++i) {
-    const auto& [path, data] = bundle.files[i];
-    auto* f = m->add_files();
-    f->set_path(path);
-    f->set_size_bytes(data.size());
-    for (size_t off = 0; off < data.size(); off += kChunk) {
-      v1::SceneChunk c;
-      auto* d = c.mutable_data();
-      d->set_file_index(uint32_t(i));
-      d->set_offset(off);
-      d->set_data(data.substr(off, kChunk));
-      out.push_back(std::move(c));
-    }
-  }
-  return out;
-}
-
 grpc::ServerUnaryReactor* WorkerServiceImpl::Register(grpc::CallbackServerContext* ctx, const v1::WorkerInfo* req,
                                                       v1::RegisterResponse* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   if (req->protocol_version() != v1::PROTOCOL_VERSION_V1)
     return finish(ctx, {grpc::StatusCode::FAILED_PRECONDITION,
                         fmt::format("this master speaks protocol version 1, the worker {}", int(req->protocol_version()))});
@@ -122,7 +98,6 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::Register(grpc::CallbackServerContex
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::Heartbeat(grpc::CallbackServerContext* ctx, const v1::HeartbeatRequest* req,
                                                        v1::HeartbeatResponse* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   const std::vector<uint64_t> leases(req->lease_ids().begin(), req->lease_ids().end());
   auto states = jobs_.heartbeat(req->worker_id().id(), leases);
   if (!states) return finish(ctx, unknown_worker(req->worker_id().id()));
@@ -137,13 +112,12 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::Heartbeat(grpc::CallbackServerConte
 
 grpc::ServerWriteReactor<v1::SceneChunk>* WorkerServiceImpl::FetchScene(grpc::CallbackServerContext* ctx,
                                                                         const v1::FetchSceneRequest* req) {
-  if (auto st = auth_.check(ctx); !st.ok()) return new ListWriter<v1::SceneChunk>({}, st);
   auto bundle = jobs_.scene(req->content_hash());
   if (!bundle || !bundle->builtin.empty()) {
     return new ListWriter<v1::SceneChunk>(
         {}, {grpc::StatusCode::NOT_FOUND, fmt::format("no file scene with hash '{}'", req->content_hash())});
   }
-  return new ListWriter<v1::SceneChunk>(scene_chunks(*bundle));
+  return new ListWriter<v1::SceneChunk>(rpc::scene_chunks(*bundle));
 }
 
 namespace {
@@ -227,13 +201,11 @@ class LeaseTileReactor final : public grpc::ServerUnaryReactor {
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::LeaseTile(grpc::CallbackServerContext* ctx, const v1::LeaseRequest* req,
                                                        v1::Lease* resp) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   return new LeaseTileReactor(jobs_, ctx, *req, resp);
 }
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::ReturnLease(grpc::CallbackServerContext* ctx,
                                                          const v1::ReturnLeaseRequest* req, v1::ReturnLeaseResponse*) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   // Failures of kinds this master does not know (a newer worker) count as tile failures; the reason
   // ends up in logs and maybe a job's error, so it is kept short.
   const LeaseFailure failure = req->failure() == v1::LEASE_FAILURE_UNSPECIFIED ? LeaseFailure::kNone
@@ -248,13 +220,11 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::ReturnLease(grpc::CallbackServerCon
 
 grpc::ServerReadReactor<v1::TileResultChunk>* WorkerServiceImpl::SubmitTile(grpc::CallbackServerContext* ctx,
                                                                             v1::SubmitAck* ack) {
-  if (auto st = auth_.check(ctx); !st.ok()) return new RefusingReader<v1::TileResultChunk>(st);
   return new SubmitTileReader(jobs_, ack);
 }
 
 grpc::ServerUnaryReactor* WorkerServiceImpl::Unregister(grpc::CallbackServerContext* ctx, const v1::WorkerId* req,
                                                         v1::UnregisterResponse*) {
-  if (auto st = auth_.check(ctx); !st.ok()) return finish(ctx, st);
   jobs_.unregister_worker(req->id());
   return finish(ctx, grpc::Status::OK);
 }

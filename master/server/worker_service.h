@@ -3,14 +3,13 @@
 #pragma once
 
 #include "epr/v1/worker_service.grpc.pb.h"
-#include "master/server/auth.h"
 #include "master/server/job_manager.h"
 
 namespace epr {
 
 class WorkerServiceImpl final : public v1::WorkerService::CallbackService {
  public:
-  WorkerServiceImpl(JobManager& jobs, const TokenAuth& auth) : jobs_(jobs), auth_(auth) {}
+  explicit WorkerServiceImpl(JobManager& jobs) : jobs_(jobs) {}
 
   grpc::ServerUnaryReactor* Register(grpc::CallbackServerContext* ctx, const v1::WorkerInfo* req,
                                      v1::RegisterResponse* resp) override;
@@ -31,10 +30,6 @@ class WorkerServiceImpl final : public v1::WorkerService::CallbackService {
 
  private:
   JobManager& jobs_;
-  const TokenAuth& auth_;
 };
-
-/// Streams a scene's files as a manifest and <= 1 MiB data chunks (shared by FetchScene and tests).
-std::vector<v1::SceneChunk> scene_chunks(const SceneBundleData& bundle);
 
 }  // namespace epr

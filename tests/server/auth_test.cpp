@@ -10,10 +10,15 @@
 
 #include "epr/v1/job_service.grpc.pb.h"
 #include "epr/v1/worker_service.grpc.pb.h"
+#include "grpc/health/v1/health.grpc.pb.h"
 #include "master/server/master_server.h"
+#include "wire/convert.h"
+#include "wire/rpc/channel.h"
 
 namespace epr {
 namespace {
+
+using namespace std::chrono_literals;
 
 grpc::Status list_jobs(const std::shared_ptr<grpc::Channel>& channel, const std::string& token) {
   auto stub = v1::JobService::NewStub(channel);
@@ -53,6 +58,150 @@ TEST(Auth, BearerTokenIsRequiredWhenConfigured) {
   // Streams too: without the token the stream is refused before any chunk is looked at.
   EXPECT_EQ(submit_tile(channel, "").error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_EQ(submit_tile(channel, "s3cret-token").error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  server.shutdown();
+}
+
+// Every method of JobService and WorkerService, called without the token with a request that would
+// change the master's state if its handler acted on it, is refused and changes nothing.
+TEST(Auth, RefusedCallsActOnNothing) {
+  const std::string token = "s3cret-token";
+  MasterServerOptions o;
+  o.listen = "127.0.0.1:0";
+  o.token = token;
+  MasterServer server(o);
+  auto channel = grpc::CreateChannel(server.local_target(), grpc::InsecureChannelCredentials());
+  auto jobs = v1::JobService::NewStub(channel);
+  auto workers = v1::WorkerService::NewStub(channel);
+  auto ctx = [](const std::string& t) {
+    auto c = std::make_unique<grpc::ClientContext>();
+    rpc::prepare_call(*c, 10s, t);
+    return c;
+  };
+  constexpr auto kRefused = grpc::StatusCode::UNAUTHENTICATED;
+
+  // With the token: a running job and a worker holding one of its tiles.
+  v1::WorkerInfo info;
+  info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
+  info.set_name("holder");
+  info.set_threads(1);
+  v1::RegisterResponse reg;
+  ASSERT_TRUE(workers->Register(ctx(token).get(), info, &reg).ok());
+  v1::WorkerId worker = reg.worker_id();
+  RenderOptions ro;
+  ro.width = ro.height = 32;
+  ro.spp = 4;
+  ro.paths_per_round = 2;
+  ro.tile_size = 16;
+  const v1::JobSpec spec = to_job_spec(ro, bundle_scene("builtin:cornell"), CameraSpec{});
+  v1::JobId job;
+  ASSERT_TRUE(jobs->SubmitJob(ctx(token).get(), spec, &job).ok());
+  v1::LeaseRequest lease_req;
+  *lease_req.mutable_worker_id() = worker;
+  lease_req.set_max_wait_ms(5000);
+  v1::Lease lease;
+  ASSERT_TRUE(workers->LeaseTile(ctx(token).get(), lease_req, &lease).ok());
+  ASSERT_TRUE(lease.has_tile());
+  const uint64_t lease_id = lease.tile().lease_id();
+
+  // Without it, every call is refused.
+  v1::JobId other;
+  EXPECT_EQ(jobs->SubmitJob(ctx("").get(), spec, &other).error_code(), kRefused);
+  v1::JobStatus status;
+  EXPECT_EQ(jobs->CancelJob(ctx("").get(), job, &status).error_code(), kRefused);
+  EXPECT_EQ(jobs->GetJob(ctx("").get(), job, &status).error_code(), kRefused);
+  EXPECT_EQ(status.id(), "");
+  v1::ListJobsResponse listed;
+  EXPECT_EQ(jobs->ListJobs(ctx("").get(), v1::ListJobsRequest(), &listed).error_code(), kRefused);
+  EXPECT_EQ(listed.jobs_size(), 0);
+  {
+    auto c = ctx("");
+    v1::WatchJobRequest req;
+    req.set_job_id(job.id());
+    auto reader = jobs->WatchJob(c.get(), req);
+    EXPECT_FALSE(reader->Read(&status));
+    EXPECT_EQ(reader->Finish().error_code(), kRefused);
+  }
+  {
+    auto c = ctx("");
+    v1::ResultRequest req;
+    req.set_job_id(job.id());
+    req.set_kind(v1::RESULT_KIND_EXR);
+    req.set_allow_partial(true);
+    auto reader = jobs->FetchResult(c.get(), req);
+    v1::ResultChunk chunk;
+    EXPECT_FALSE(reader->Read(&chunk));
+    EXPECT_EQ(reader->Finish().error_code(), kRefused);
+  }
+  {
+    auto c = ctx("");
+    v1::SceneRef ref;
+    auto writer = jobs->UploadScene(c.get(), &ref);
+    SceneBundleData b;
+    b.entry_path = "t.obj";
+    b.files = {{"t.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"}};
+    v1::SceneChunk manifest;
+    manifest.mutable_manifest()->set_content_hash(content_hash(b));
+    writer->Write(manifest);
+    writer->WritesDone();
+    EXPECT_EQ(writer->Finish().error_code(), kRefused);
+  }
+  v1::RegisterResponse reg2;
+  EXPECT_EQ(workers->Register(ctx("").get(), info, &reg2).error_code(), kRefused);
+  EXPECT_EQ(reg2.worker_id().id(), "");
+  v1::Lease second;
+  EXPECT_EQ(workers->LeaseTile(ctx("").get(), lease_req, &second).error_code(), kRefused);
+  EXPECT_FALSE(second.has_tile());
+  v1::ReturnLeaseRequest ret;
+  *ret.mutable_worker_id() = worker;
+  ret.add_lease_ids(lease_id);
+  ret.set_failure(v1::LEASE_FAILURE_TILE);
+  v1::ReturnLeaseResponse ret_resp;
+  EXPECT_EQ(workers->ReturnLease(ctx("").get(), ret, &ret_resp).error_code(), kRefused);
+  {
+    auto c = ctx("");
+    v1::SubmitAck ack;
+    auto writer = workers->SubmitTile(c.get(), &ack);
+    v1::TileResultChunk header;
+    header.mutable_header()->mutable_worker_id()->set_id(worker.id());
+    header.mutable_header()->set_lease_id(lease_id);
+    header.mutable_header()->set_job_id(job.id());
+    writer->Write(header);
+    writer->WritesDone();
+    EXPECT_EQ(writer->Finish().error_code(), kRefused);
+  }
+  {
+    auto c = ctx("");
+    v1::FetchSceneRequest req;
+    *req.mutable_worker_id() = worker;
+    auto reader = workers->FetchScene(c.get(), req);
+    v1::SceneChunk chunk;
+    EXPECT_FALSE(reader->Read(&chunk));
+    EXPECT_EQ(reader->Finish().error_code(), kRefused);
+  }
+  v1::UnregisterResponse unreg;
+  EXPECT_EQ(workers->Unregister(ctx("").get(), worker, &unreg).error_code(), kRefused);
+  v1::HeartbeatRequest beat;
+  *beat.mutable_worker_id() = worker;
+  beat.add_lease_ids(lease_id);
+  v1::HeartbeatResponse beat_resp;
+  EXPECT_EQ(workers->Heartbeat(ctx("").get(), beat, &beat_resp).error_code(), kRefused);
+  EXPECT_EQ(beat_resp.leases_size(), 0);
+
+  // With the token again: one job, not cancelled, one tile leased, and the worker still holds it.
+  ASSERT_TRUE(jobs->ListJobs(ctx(token).get(), v1::ListJobsRequest(), &listed).ok());
+  ASSERT_EQ(listed.jobs_size(), 1);
+  EXPECT_EQ(listed.jobs(0).id(), job.id());
+  EXPECT_NE(listed.jobs(0).state(), v1::JOB_STATE_CANCELLED);
+  EXPECT_EQ(listed.jobs(0).tiles_leased(), 1u);
+  ASSERT_TRUE(workers->Heartbeat(ctx(token).get(), beat, &beat_resp).ok());
+  ASSERT_EQ(beat_resp.leases_size(), 1);
+  EXPECT_TRUE(beat_resp.leases(0).valid()) << "a refused ReturnLease, SubmitTile or Unregister let the lease go";
+
+  // The health service stays open for probes.
+  auto health = grpc::health::v1::Health::NewStub(channel);
+  grpc::health::v1::HealthCheckResponse serving;
+  ASSERT_TRUE(health->Check(ctx("").get(), grpc::health::v1::HealthCheckRequest(), &serving).ok());
+  EXPECT_EQ(serving.status(), grpc::health::v1::HealthCheckResponse::SERVING);
   server.shutdown();
 }
 
