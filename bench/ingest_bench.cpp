@@ -15,11 +15,11 @@
 // as the master's). Both share the machine's cores with the master either way.
 //
 // Measured per (reprojector, clients), in one process, side by side:
-//   received    vertices / (time from the first lease until JobSnapshot.vertices_received = all sent)
+//   received    vertices / (time from the first lease until JobSnapshot::counters.vertices_received = all sent)
 //   reprojected vertices / (time until ReprojectionCounts.total() = all sent)
 //   CPU         process CPU seconds in that window, split into the bench workers' threads and the rest
 //               (= the master: gRPC receive, chunk decoding, job manager, reprojection thread, llvmpipe)
-//   split       reprojection thread time (JobSnapshot.seconds_reprojecting, deep framebuffer excluded);
+//   split       reprojection thread time (JobSnapshot::counters.seconds_reprojecting, deep framebuffer excluded);
 //               assemble = TileResultAssembler as the master runs it (checks; vertices kept packed, the
 //               reprojector decodes them in place) and protobuf parse of the chunks, both measured
 //               offline on the same chunks (ns per vertex x vertices); the offline decode into
@@ -460,14 +460,14 @@ Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method
     if (!s) throw std::runtime_error("job vanished");
     // The job's seconds_reprojecting includes the deep framebuffer build; it is first published with the
     // first applied tile, which is the baseline (that tile's own reprojection, ~0.1 ms, is left out).
-    if (reproject0 < 0 && s->counts.total() > 0) reproject0 = s->seconds_reprojecting;
-    if (!f.t_recv && s->vertices_received >= total) f.t_recv = since(t0);
+    if (reproject0 < 0 && s->counts.total() > 0) reproject0 = s->counters.seconds_reprojecting;
+    if (!f.t_recv && s->counters.vertices_received >= total) f.t_recv = since(t0);
     if (!f.t_proj && s->counts.total() >= total) {
       f.t_proj = since(t0);
       cpu1 = process_cpu_seconds();
-      reproject1 = s->seconds_reprojecting;
+      reproject1 = s->counters.seconds_reprojecting;
     }
-    if (s->state == JobState::kDone || s->state == JobState::kFailed || s->state == JobState::kCancelled) {
+    if (is_terminal(s->state)) {
       if (s->state != JobState::kDone) throw std::runtime_error("job ended " + std::string(to_string(s->state)) + ": " + s->error);
       if (!f.t_proj) throw std::runtime_error("job done before all vertices were counted");
       break;

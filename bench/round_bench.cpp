@@ -283,8 +283,8 @@ BenchJob run_bench_workers(const RenderOptions& o, int threads, const fs::path& 
     if (rounds.empty() || rounds.back().first != snap->progress.round) rounds.emplace_back(snap->progress.round, Clock::now());
     if (snap->state == JobState::kDone) {
       out.fig.elapsed = snap->seconds_elapsed;
-      out.fig.tracing = snap->seconds_tracing;
-      out.fig.reproj = snap->seconds_reprojecting;
+      out.fig.tracing = snap->counters.seconds_tracing;
+      out.fig.reproj = snap->counters.seconds_reprojecting;
       out.fig.rounds = snap->progress.round;
       break;
     }

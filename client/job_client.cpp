@@ -57,18 +57,6 @@ std::string lower(std::string s) {
   return s;
 }
 
-// Where the statistics image and unknown kinds get their extension: from the header's media type,
-// falling back to the suggested file name.
-std::string extension_for(const v1::ResultHeader& h) {
-  if (h.media_type() == "image/x-exr" || h.media_type() == "image/aces") return ".exr";
-  if (h.media_type() == "image/png") return ".png";
-  if (h.media_type() == "application/json") return ".json";
-  const std::string ext = fs::path(h.suggested_filename()).extension().string();
-  const bool safe = !ext.empty() && ext.size() <= 8 &&
-                    std::all_of(ext.begin() + 1, ext.end(), [](unsigned char c) { return std::isalnum(c); });
-  return safe ? ext : ".bin";
-}
-
 }  // namespace
 
 // ---- errors and cancellation --------------------------------------------------------------------
@@ -458,30 +446,19 @@ FetchedFile JobClient::fetch(const std::string& job_id, v1::ResultKind kind, con
 
 std::vector<FetchedFile> JobClient::fetch_all(const std::string& job_id, const std::string& prefix,
                                               bool allow_partial) {
-  struct Output {
-    v1::ResultKind kind;
-    const char* suffix;  // nullptr: ".samples" + the extension of the media type
-  };
-  static const Output kOutputs[] = {
-      {v1::RESULT_KIND_EXR, ".exr"},
-      {v1::RESULT_KIND_PNG, ".png"},
-      {v1::RESULT_KIND_JSON, ".json"},
-      {v1::RESULT_KIND_PATH_TRACED_EXR, ".pathtrace.exr"},
-      {v1::RESULT_KIND_REPROJECTED_EXR, ".reprojection.exr"},
-      {v1::RESULT_KIND_COUNTS_EXR, ".counts.exr"},
-      {v1::RESULT_KIND_STATS_IMAGE, nullptr},
-  };
   std::vector<FetchedFile> files;
-  for (const Output& o : kOutputs) {
-    auto path_for = [&](const v1::ResultHeader& h) {
-      return prefix + (o.suffix ? std::string(o.suffix) : ".samples" + extension_for(h));
-    };
+  for (const ResultKindInfo& k : result_kinds()) {
+    const v1::ResultKind kind = to_proto(k.kind);
     try {
-      files.push_back(fetch_to(job_id, o.kind, path_for, allow_partial));
+      files.push_back(fetch_to(
+          job_id, kind, [&](const v1::ResultHeader&) { return prefix + std::string(k.suffix); }, allow_partial));
     } catch (const RpcError& e) {
-      const bool absent = e.code() == grpc::StatusCode::NOT_FOUND || e.code() == grpc::StatusCode::FAILED_PRECONDITION;
-      if (o.kind == v1::RESULT_KIND_EXR || !absent) throw;
-      logger("client")->debug("job {} has no {} result: {}", job_id, kind_name(o.kind), e.what());
+      // Kinds the job did not produce (reprojection kinds of a path-traced job), or that a master of
+      // an older version does not know.
+      const bool absent = e.code() == grpc::StatusCode::NOT_FOUND || e.code() == grpc::StatusCode::FAILED_PRECONDITION ||
+                          e.code() == grpc::StatusCode::INVALID_ARGUMENT;
+      if (k.kind == ResultKind::kExr || !absent) throw;
+      logger("client")->debug("job {} has no {} result: {}", job_id, k.name, e.what());
     }
   }
   return files;

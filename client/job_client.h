@@ -148,10 +148,10 @@ class JobClient {
   /// latest committed round.
   FetchedFile fetch(const std::string& job_id, v1::ResultKind kind, const std::string& path,
                     bool allow_partial = false);
-  /// Downloads every result the job has: PREFIX.exr (required), PREFIX.png, PREFIX.json,
-  /// PREFIX.pathtrace.exr, PREFIX.reprojection.exr, PREFIX.counts.exr (M, M') and PREFIX.samples.EXT
-  /// (the statistics image; EXT from its media type, .png from today's master). Kinds the master answers with NOT_FOUND
-  /// or FAILED_PRECONDITION (not produced by the job's mode) are skipped, except the EXR whose error is thrown.
+  /// Downloads every result kind the job has (common/result_kinds.h) as PREFIX + its suffix, the
+  /// files `epr render` writes. Kinds the master answers with NOT_FOUND or FAILED_PRECONDITION (not
+  /// produced by the job's mode) or INVALID_ARGUMENT (unknown to an older master) are skipped, except
+  /// the EXR, whose error is thrown.
   std::vector<FetchedFile> fetch_all(const std::string& job_id, const std::string& prefix, bool allow_partial = false);
 
  private:

@@ -15,6 +15,8 @@
 #include "common/vertex_codec.h"
 #include "master/frame_state.h"
 #include "master/gl_context.h"
+#include "master/result_files.h"
+#include "master/round_driver.h"
 #include "worker/tile_renderer.h"
 
 namespace epr {
@@ -56,9 +58,10 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   // The master's side, in this process: the GL context lives on this thread.
   std::unique_ptr<GlContext> gl;
   if (opts.mode != RenderMode::kPathTrace && opts.reproject == ReprojectMethod::kGl) gl = std::make_unique<GlContext>();
-  FrameState frame(opts, camera, scene, gl.get());
+  RoundDriver driver(opts, camera, scene, gl.get());
+  FrameState& frame = driver.frame();
   // Vertices cross the same 16-byte quantisation as on the wire, so that this render and a cluster's
-  // give the same M' (DESIGN.md: determinism).
+  // give the same M' (docs/DESIGN.md: determinism).
   const VertexCodec codec(scene.bounds());
 
   PathTracer tracer(embree, camera, opts.seed, opts.rr, opts.mis);
@@ -69,17 +72,13 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   uint64_t codec_rejected = 0;
 
   const auto t_render = std::chrono::steady_clock::now();
-  while (!frame.done()) {
-    const int k = frame.next_paths_per_pixel();
+  while (!driver.done()) {
+    const RoundPlan plan = driver.open(tiles);
     std::vector<TileResult> results(tiles.size());
     const auto t_round = std::chrono::steady_clock::now();
-    tbb::parallel_for(size_t(0), tiles.size(), [&](size_t t) {
-      const TileRect& r = tiles[t];
-      if (frame.tile_idle(r.x0, r.y0, r.x1, r.y1)) return;
-      std::vector<uint8_t> skip;
-      std::vector<uint32_t> first;
-      frame.tile_inputs(r.x0, r.y0, r.x1, r.y1, &skip, &first);
-      TileResult res = tile_renderer.render({r, skip, first, k});
+    tbb::parallel_for(size_t(0), plan.order.size(), [&](size_t i) {
+      const uint32_t t = plan.order[i];
+      TileResult res = tile_renderer.render({tiles[t], plan.skip[t], plan.first_sample[t], plan.paths_per_pixel});
       // Quantise as the wire does; records the codec refuses are not sent.
       size_t kept = 0;
       for (const VertexRecord& v : res.vertices) {
@@ -91,19 +90,14 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
     });
     seconds_tracing += since(t_round);
     // Commit in tile order (fixed order: results do not depend on which thread finished first).
-    for (size_t t = 0; t < tiles.size(); ++t) {
-      TileResult& r = results[t];
+    for (TileResult& r : results) {
       if (r.path_sum.empty()) continue;
-      frame.add_paths(r.rect.x0, r.rect.y0, r.rect.x1, r.rect.y1, r.path_sum, r.path_count);
-      frame.reproject(r.vertices);
-      std::vector<ExactSample> exact(r.visible.size());
-      for (size_t i = 0; i < r.visible.size(); ++i) exact[i] = {r.visible[i].subpixel, r.visible[i].radiance};
-      frame.add_exact(exact);
+      driver.apply(r);
       totals += r.stats;
       codec_rejected += r.stats.vertices_recorded - r.stats.culled_frustum - r.stats.culled_facing -
                         r.stats.culled_glossy - r.stats.exact_occluded - r.vertices.size() - r.visible.size();
     }
-    frame.finish_round();
+    driver.close();
     if (progress) {
       const FrameProgress& fp = frame.progress();
       RoundProgress p;
@@ -162,20 +156,14 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
 }
 
 void write_outputs(const std::string& prefix, const RenderOutputs& out) {
-  write_exr(prefix + ".exr", out.combined);
-  write_png_srgb(prefix + ".png", out.combined);
-  if (out.counts.width > 0) write_exr(prefix + ".counts.exr", out.counts);
-  if (out.mprime.width > 0) {
-    write_exr(prefix + ".pathtrace.exr", out.pathtrace);
-    write_exr(prefix + ".reprojection.exr", out.reprojection);
-    write_exr(prefix + ".samples.exr", out.mprime);
-    float max_m = 0;
-    for (float v : out.mprime.data) max_m = std::max(max_m, v);
-    write_png_srgb(prefix + ".samples.png", heat_map(out.mprime, max_m));
-  }
-  std::ofstream js(prefix + ".json");
-  if (!js) throw std::runtime_error(fmt::format("cannot write '{}.json'", prefix));
-  js << out.stats.dump(2) << "\n";
+  FrameImages images;
+  images.combined = out.combined;
+  images.pathtrace = out.pathtrace;
+  images.path_count = out.path_count;
+  images.reprojection = out.reprojection;
+  images.reprojected = out.mprime;
+  write_results(images, out.mprime.width > 0, out.stats,
+                [&](const ResultKindInfo& k) { return prefix + std::string(k.suffix); });
 }
 
 }  // namespace epr

@@ -39,8 +39,9 @@ using ProgressCallback = std::function<void(const RoundProgress&)>;
 /// Renders `opts` to completion in this process. Throws std::runtime_error (bad scene, no OSMesa, ...).
 RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& progress = {});
 
-/// Writes PREFIX.exr, PREFIX.png, PREFIX.json and, when reprojection ran, PREFIX.pathtrace.exr,
-/// PREFIX.reprojection.exr, PREFIX.samples.exr (M') and PREFIX.samples.png (M' heat map); always PREFIX.counts.exr (M, M').
+/// Writes every result kind (common/result_kinds.h) as PREFIX + its suffix: PREFIX.exr, .png, .json,
+/// .pathtrace.exr, .counts.exr (M, M') and, when reprojection ran, .reprojection.exr, .samples.exr (M')
+/// and .samples.png (M' heat map).
 void write_outputs(const std::string& prefix, const RenderOutputs& out);
 
 }  // namespace epr

@@ -1,5 +1,7 @@
 #include "common/render_options.h"
 
+#include "common/limits.h"
+
 #include <algorithm>
 #include <cmath>
 
@@ -8,22 +10,23 @@
 namespace epr {
 
 std::optional<std::string> RenderOptions::validate() const {
-  constexpr int kMaxSide = 16384;
-  if (width <= 0 || height <= 0 || width > kMaxSide || height > kMaxSide)
-    return fmt::format("image size {}x{} must be between 1x1 and {}x{}", width, height, kMaxSide, kMaxSide);
-  if (spp <= 0 || spp > 1'000'000) return fmt::format("--spp {} must be between 1 and 1000000", spp);
+  if (!limits::kImageSide.contains(width) || !limits::kImageSide.contains(height))
+    return fmt::format("image size {}x{} must be between 1x1 and {}x{}", width, height, limits::kImageSide.hi,
+                       limits::kImageSide.hi);
+  if (auto err = limits::kSpp.check(spp)) return err;
   if (paths_per_round <= 0 || paths_per_round > spp)
     return fmt::format("--paths-per-round {} must be between 1 and --spp ({})", paths_per_round, spp);
-  if (subpixels < 1 || subpixels > 8) return fmt::format("--subpixels {} must be between 1 and 8", subpixels);
-  if (!std::isfinite(epsilon) || epsilon < 0 || epsilon > 1)
+  if (auto err = limits::kSubpixels.check(subpixels)) return err;
+  if (!std::isfinite(epsilon) || !limits::kEpsilon.contains(epsilon))
     return fmt::format("--epsilon {} must be a fraction of the scene diagonal in [0, 1]", epsilon);
   if (min_paths < 1 || min_paths > spp) return fmt::format("--min-paths {} must be between 1 and --spp", min_paths);
-  if (!std::isfinite(round_growth) || round_growth < 0 || round_growth > 16)
-    return fmt::format("--round-growth {} must be between 0 and 16", round_growth);
-  if (tile_size < 4 || tile_size > 1024) return fmt::format("--tile {} must be between 4 and 1024", tile_size);
+  if (!std::isfinite(round_growth)) return fmt::format("--round-growth {} must be finite", round_growth);
+  if (auto err = limits::kRoundGrowth.check(round_growth)) return err;
+  if (auto err = limits::kTileSize.check(tile_size)) return err;
   if (threads < 0) return "--threads must be 0 (all cores) or positive";
-  if (rr.max_depth < 1 || rr.max_depth > 100000) return "--max-depth must be between 1 and 100000";
-  if (mode != RenderMode::kPathTrace && static_cast<long long>(width) * subpixels * height * subpixels > (1ll << 28))
+  if (auto err = limits::kMaxDepth.check(rr.max_depth)) return err;
+  if (mode != RenderMode::kPathTrace &&
+      static_cast<long long>(width) * subpixels * height * subpixels > limits::kMaxSubpixels)
     return "the deep framebuffer (width x height x subpixels^2) would exceed 2^28 texels";
   CameraSpec probe = camera_for(CameraSpec{});
   if (auto err = probe.validate()) return *err;

@@ -106,6 +106,16 @@ struct ReprojectionCounts {
   uint64_t invalid = 0;      // skipped: non-finite values; exact samples outside the grid
   uint64_t exact = 0;        // exact samples added
   uint64_t total() const { return accepted + occluded + culled + not_diffuse + invalid + exact; }
+  ReprojectionCounts& operator+=(const ReprojectionCounts& o) {
+    accepted += o.accepted;
+    occluded += o.occluded;
+    backfacing += o.backfacing;
+    culled += o.culled;
+    not_diffuse += o.not_diffuse;
+    invalid += o.invalid;
+    exact += o.exact;
+    return *this;
+  }
   bool operator==(const ReprojectionCounts&) const = default;
 };
 

@@ -182,4 +182,29 @@ void to_proto(const SceneBundleData& b, v1::SceneBundle* out) {
   out->set_content_hash(content_hash(b));
 }
 
+namespace {
+constexpr std::pair<ResultKind, v1::ResultKind> kResultKinds[] = {
+    {ResultKind::kExr, v1::RESULT_KIND_EXR},
+    {ResultKind::kPng, v1::RESULT_KIND_PNG},
+    {ResultKind::kJson, v1::RESULT_KIND_JSON},
+    {ResultKind::kPathtrace, v1::RESULT_KIND_PATH_TRACED_EXR},
+    {ResultKind::kReprojection, v1::RESULT_KIND_REPROJECTED_EXR},
+    {ResultKind::kCounts, v1::RESULT_KIND_COUNTS_EXR},
+    {ResultKind::kSamplesExr, v1::RESULT_KIND_SAMPLES_EXR},
+    {ResultKind::kSamplesPng, v1::RESULT_KIND_STATS_IMAGE},
+};
+}  // namespace
+
+std::optional<ResultKind> from_proto(v1::ResultKind kind) {
+  for (const auto& [ours, wire] : kResultKinds)
+    if (wire == kind) return ours;
+  return std::nullopt;
+}
+
+v1::ResultKind to_proto(ResultKind kind) {
+  for (const auto& [ours, wire] : kResultKinds)
+    if (ours == kind) return wire;
+  return v1::RESULT_KIND_UNSPECIFIED;
+}
+
 }  // namespace epr

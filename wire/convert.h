@@ -6,6 +6,7 @@
 #include <string>
 
 #include "common/render_options.h"
+#include "common/result_kinds.h"
 #include "epr/v1/job_service.pb.h"
 #include "epr/v1/worker_service.pb.h"
 #include "wire/scene_bundle.h"
@@ -19,6 +20,9 @@ void to_proto(const CameraSpec& c, v1::Camera* out);
 Bounds3 from_proto(const v1::Bounds3& b);
 void to_proto(const Bounds3& b, v1::Bounds3* out);
 RussianRoulette from_proto(const v1::RussianRouletteSettings& rr);
+/// Nullopt for RESULT_KIND_UNSPECIFIED and kinds this build does not know.
+std::optional<ResultKind> from_proto(v1::ResultKind kind);
+v1::ResultKind to_proto(ResultKind kind);
 void to_proto(const RussianRoulette& rr, v1::RussianRouletteSettings* out);
 
 /// A JobSpec for `opts` with the scene carried as `bundle`. Camera overrides are applied to

@@ -7,7 +7,7 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "worker/tile_renderer.h"
+#include "common/tile.h"
 
 namespace epr {
 namespace {

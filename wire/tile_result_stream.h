@@ -1,7 +1,7 @@
 // Both ends of WorkerService.SubmitTile's client stream (proto/epr/v1/worker_service.proto), as pure
 // code without gRPC so that every rule of the stream can be tested on its own:
 //
-//   worker  TileResultWriter: a TileResult (worker/tile_renderer.h) -> header, PixelPaths chunks,
+//   worker  TileResultWriter: a TileResult (common/tile.h) -> header, PixelPaths chunks,
 //           VertexBatch chunks (VERTEX_ENCODING_PACKED16), ExactSamples chunks, trailer.
 //   master  TileResultAssembler: checks chunk by chunk and rebuilds the tile; a protocol violation
 //           gives the reason for INVALID_ARGUMENT, non-finite radiance is dropped and counted.
@@ -41,7 +41,7 @@
 
 namespace epr {
 
-struct TileResult;  // worker/tile_renderer.h
+struct TileResult;  // common/tile.h
 
 /// The limits of RegisterResponse, plus the PixelPaths limit fixed by the proto.
 struct TileResultLimits {

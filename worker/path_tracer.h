@@ -27,22 +27,11 @@
 #include "common/camera.h"
 #include "common/render_options.h"
 #include "common/sampling.h"
+#include "common/tile.h"
 #include "common/vertex_record.h"
 #include "worker/embree_scene.h"
 
 namespace epr {
-
-struct PathStats {
-  uint64_t paths = 0;
-  uint64_t vertices = 0;         // surface hits, all depths
-  uint64_t rays = 0;             // closest-hit plus shadow rays
-  uint64_t nonfinite_dropped = 0;  // samples that came out NaN or infinite (dropped, counted)
-
-  PathStats& operator+=(const PathStats& o) {
-    paths += o.paths; vertices += o.vertices; rays += o.rays; nonfinite_dropped += o.nonfinite_dropped;
-    return *this;
-  }
-};
 
 class PathTracer {
  public:

@@ -265,7 +265,7 @@ std::string seal_header(RecordKind kind, std::string_view payload) {
 
 std::string seal(RecordKind kind, std::string_view payload) { return seal_header(kind, payload).append(payload); }
 
-std::string unseal(RecordKind kind, std::string_view bytes) {
+std::string unseal(RecordKind kind, std::string_view bytes, uint32_t* version_out) {
   if (bytes.size() < kSealHeaderBytes)
     throw CheckpointError(
         fmt::format("torn: {} bytes, shorter than the {}-byte header", bytes.size(), kSealHeaderBytes));
@@ -278,8 +278,10 @@ std::string unseal(RecordKind kind, std::string_view bytes) {
   std::memcpy(&crc, bytes.data() + 24, 4);
   std::memcpy(&header_crc, bytes.data() + 28, 4);
   if (crc32_of(bytes.substr(0, 28)) != header_crc) throw CheckpointError("corrupt header (checksum mismatch)");
-  if (version != kCheckpointVersion)
-    throw CheckpointError(fmt::format("format version {}, this master reads version {}", version, kCheckpointVersion));
+  if (version < kOldestCheckpointVersion || version > kCheckpointVersion)
+    throw CheckpointError(fmt::format("format version {}, this master reads versions {} to {}", version,
+                                      kOldestCheckpointVersion, kCheckpointVersion));
+  if (version_out) *version_out = version;
   if (k != uint32_t(kind)) throw CheckpointError(fmt::format("record kind {}, expected {}", k, uint32_t(kind)));
   const std::string_view payload = bytes.substr(kSealHeaderBytes);
   if (payload.size() != length)
@@ -295,13 +297,13 @@ void write_file_atomically(const fs::path& path, std::string_view bytes) {
   fsync_dir(path.parent_path().empty() ? fs::path(".") : path.parent_path());
 }
 
-std::string read_sealed(const fs::path& path, RecordKind kind) {
+std::string read_sealed(const fs::path& path, RecordKind kind, uint32_t* version) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw CheckpointError(fmt::format("'{}' is missing or unreadable", path.string()));
   std::ostringstream ss;
   ss << in.rdbuf();
   try {
-    return unseal(kind, ss.str());
+    return unseal(kind, ss.str(), version);
   } catch (const CheckpointError& e) {
     throw CheckpointError(fmt::format("'{}': {}", path.string(), e.what()));
   }
@@ -363,13 +365,9 @@ std::string encode(const JobProgressRecord& r) {
   w.put(r.triangles);
   put(w, r.progress);
   put(w, r.counts);
-  for (uint64_t v : {r.rays, r.vertices_received, r.non_finite, r.worker_culled, r.tiles_leased, r.tiles_committed,
-                     r.tiles_re_leased, r.tiles_dropped})
-    w.put(v);
+  JobCounters::visit(r.counters, [&](uint64_t v) { w.put(v); }, [&](double v) { w.put(v); });
   w.put(r.started_ms);
   w.put(r.finished_ms);
-  w.put(r.seconds_tracing);
-  w.put(r.seconds_reprojecting);
   w.put<uint8_t>(r.budget_exhausted);
   w.put<uint8_t>(r.frame.has_value());
   if (r.frame) put(w, *r.frame);
@@ -381,7 +379,7 @@ std::string encode(const JobProgressRecord& r) {
   return w.take();
 }
 
-JobProgressRecord decode_job_progress(std::string_view payload) {
+JobProgressRecord decode_job_progress(std::string_view payload, uint32_t version) {
   ByteReader rd(payload);
   JobProgressRecord r;
   const uint32_t state = rd.get<uint32_t>();
@@ -392,13 +390,20 @@ JobProgressRecord decode_job_progress(std::string_view payload) {
   r.triangles = rd.get<uint64_t>();
   r.progress = get_progress(rd);
   r.counts = get_counts(rd);
-  for (uint64_t* v : {&r.rays, &r.vertices_received, &r.non_finite, &r.worker_culled, &r.tiles_leased,
-                      &r.tiles_committed, &r.tiles_re_leased, &r.tiles_dropped})
-    *v = rd.get<uint64_t>();
-  r.started_ms = rd.get<int64_t>();
-  r.finished_ms = rd.get<int64_t>();
-  r.seconds_tracing = rd.get<double>();
-  r.seconds_reprojecting = rd.get<double>();
+  if (version >= 2) {
+    JobCounters::visit(r.counters, [&](uint64_t& v) { v = rd.get<uint64_t>(); }, [&](double& v) { v = rd.get<double>(); });
+    r.started_ms = rd.get<int64_t>();
+    r.finished_ms = rd.get<int64_t>();
+  } else {  // eight counters, the times, then the seconds
+    JobCounters& c = r.counters;
+    for (uint64_t* v : {&c.rays, &c.vertices_received, &c.non_finite, &c.worker_culled, &c.tiles_leased,
+                        &c.tiles_committed, &c.tiles_re_leased, &c.tiles_dropped})
+      *v = rd.get<uint64_t>();
+    r.started_ms = rd.get<int64_t>();
+    r.finished_ms = rd.get<int64_t>();
+    c.seconds_tracing = rd.get<double>();
+    c.seconds_reprojecting = rd.get<double>();
+  }
   r.budget_exhausted = rd.get_bool();
   if (rd.get_bool()) r.frame = get_frame(rd);
   const uint64_t previews = rd.get<uint64_t>();
@@ -407,6 +412,27 @@ JobProgressRecord decode_job_progress(std::string_view payload) {
     r.previews[layer] = rd.get_vector<unsigned char>();
   }
   rd.expect_end();
+  return r;
+}
+
+JobSpecRecord spec_record(const Job& job) {
+  const JobRequest& q = job.request;
+  return {job.id, job.seq, job.submitted_ms, job.scene_hash, q.options, q.camera, q.name, q.priority,
+          q.time_budget_seconds, q.request_id};
+}
+
+JobProgressRecord progress_record(const Job& job) {
+  JobProgressRecord r;
+  r.state = job.state;
+  r.error = job.error;
+  r.triangles = job.triangles;
+  r.progress = job.progress;
+  r.counts = job.counts;
+  r.counters = job.counters;
+  r.started_ms = job.started_ms;
+  r.finished_ms = job.finished_ms;
+  r.budget_exhausted = job.budget_exhausted;
+  if (job.state == JobState::kDone) r.previews = job.previews;
   return r;
 }
 
@@ -501,7 +527,9 @@ std::optional<JobProgressRecord> CheckpointStore::load_progress(const std::strin
     const fs::path path = job_dir(id) / name;
     if (!fs::exists(path)) continue;
     try {
-      return decode_job_progress(read_sealed(path, RecordKind::kJobProgress));
+      uint32_t version = 0;
+      std::string payload = read_sealed(path, RecordKind::kJobProgress, &version);
+      return decode_job_progress(payload, version);
     } catch (const CheckpointError& e) {
       if (problems) problems->push_back(e.what());
     }

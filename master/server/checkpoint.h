@@ -28,7 +28,7 @@
 #include <vector>
 
 #include "master/frame_state.h"
-#include "master/server/job_manager.h"
+#include "master/server/job.h"
 #include "wire/scene_bundle.h"
 
 namespace epr {
@@ -41,19 +41,23 @@ class CheckpointError : public std::runtime_error {
 
 enum class RecordKind : uint32_t { kEpoch = 1, kScene = 2, kJobSpec = 3, kJobProgress = 4 };
 
-inline constexpr uint32_t kCheckpointVersion = 1;
+// Version 2 added tiles_speculative and worker_failures to the progress record; version 1 files
+// are still read (those two counters then start at 0).
+inline constexpr uint32_t kCheckpointVersion = 2;
+inline constexpr uint32_t kOldestCheckpointVersion = 1;
 inline constexpr size_t kSealHeaderBytes = 32;
 
 /// Header + payload (see the file comment).
 std::string seal(RecordKind kind, std::string_view payload);
-/// The payload of a sealed file's bytes; CheckpointError saying what is wrong otherwise.
-std::string unseal(RecordKind kind, std::string_view bytes);
+/// The payload of a sealed file's bytes (and its format version in *version, if given);
+/// CheckpointError saying what is wrong otherwise.
+std::string unseal(RecordKind kind, std::string_view bytes, uint32_t* version = nullptr);
 
 /// Replaces `path` with `bytes` atomically and durably (temp file, fsync, rename, fsync of the
 /// folder). Throws std::system_error naming the file.
 void write_file_atomically(const std::filesystem::path& path, std::string_view bytes);
 /// The sealed payload of `path`; CheckpointError if it is missing or not valid.
-std::string read_sealed(const std::filesystem::path& path, RecordKind kind);
+std::string read_sealed(const std::filesystem::path& path, RecordKind kind, uint32_t* version = nullptr);
 
 /// The job as submitted: everything needed to run it again from round 0.
 struct JobSpecRecord {
@@ -76,10 +80,8 @@ struct JobProgressRecord {
   uint64_t triangles = 0;
   FrameProgress progress;
   ReprojectionCounts counts;
-  uint64_t rays = 0, vertices_received = 0, non_finite = 0, worker_culled = 0;
-  uint64_t tiles_leased = 0, tiles_committed = 0, tiles_re_leased = 0, tiles_dropped = 0;
+  JobCounters counters;
   int64_t started_ms = 0, finished_ms = 0;
-  double seconds_tracing = 0, seconds_reprojecting = 0;
   bool budget_exhausted = false;
   std::optional<FrameSnapshot> frame;                          // running jobs: what the next round starts from
   std::map<std::string, std::vector<unsigned char>> previews;  // finished jobs: layer -> PNG
@@ -88,7 +90,12 @@ struct JobProgressRecord {
 std::string encode(const JobSpecRecord& r);
 JobSpecRecord decode_job_spec(std::string_view payload);  // CheckpointError if malformed
 std::string encode(const JobProgressRecord& r);
-JobProgressRecord decode_job_progress(std::string_view payload);  // CheckpointError if malformed
+JobProgressRecord decode_job_progress(std::string_view payload, uint32_t version = kCheckpointVersion);  // CheckpointError if malformed
+
+/// The spec record of a job as submitted.
+JobSpecRecord spec_record(const Job& job);
+/// A job's progress record as of now (a finished job's with its preview PNGs; no frame).
+JobProgressRecord progress_record(const Job& job);
 
 /// The state directory: the layout above, the keep-two rotation of progress checkpoints and the
 /// fallback to the previous one. Thread-safe (one writer at a time).

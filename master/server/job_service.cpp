@@ -27,7 +27,6 @@ v1::JobState to_proto(JobState s) {
   return v1::JOB_STATE_UNSPECIFIED;
 }
 
-bool finished(JobState s) { return s == JobState::kDone || s == JobState::kFailed || s == JobState::kCancelled; }
 
 // Sends a status whenever the job changes, at most one write in flight; the newest status wins.
 class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
@@ -61,7 +60,7 @@ class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
  private:
   void offer(const JobSnapshot& s) {
     std::lock_guard lock(mu_);
-    if (finished_ || (have_written_ && s.version <= written_version_ && !finished(s.state))) return;
+    if (finished_ || (have_written_ && s.version <= written_version_ && !is_terminal(s.state))) return;
     pending_ = s;
     if (!writing_) write_locked();
   }
@@ -69,7 +68,7 @@ class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
     const JobSnapshot s = *pending_;
     pending_.reset();
     const auto now = std::chrono::steady_clock::now();
-    if (min_interval_ms_ && have_written_ && !finished(s.state) &&
+    if (min_interval_ms_ && have_written_ && !is_terminal(s.state) &&
         now - last_write_ < std::chrono::milliseconds(min_interval_ms_)) {
       pending_ = s;  // sent with the next change or the final status
       return;
@@ -77,7 +76,7 @@ class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
     to_proto(s, &out_);
     written_version_ = s.version;
     have_written_ = true;
-    last_written_final_ = finished(s.state);
+    last_written_final_ = is_terminal(s.state);
     last_write_ = now;
     writing_ = true;
     StartWrite(&out_);
@@ -183,28 +182,28 @@ void to_proto(const JobSnapshot& s, v1::JobStatus* out) {
   out->set_pixels_skipped(uint32_t(s.progress.pixels_skipped));
   out->set_paths_traced(s.progress.paths_traced);
   out->set_paths_skipped(s.progress.paths_skipped);
-  out->set_rays_traced(s.rays_traced);
-  out->set_vertices_received(s.vertices_received);
+  out->set_rays_traced(s.counters.rays);
+  out->set_vertices_received(s.counters.vertices_received);
   out->set_vertices_accepted(s.counts.accepted + s.counts.exact);
   out->set_vertices_occluded(s.counts.occluded);
-  out->set_vertices_culled(s.counts.culled + s.worker_culled);
+  out->set_vertices_culled(s.counts.culled + s.counters.worker_culled);
   out->set_vertices_not_diffuse(s.counts.not_diffuse);
-  out->set_non_finite_dropped(s.non_finite_dropped + s.counts.invalid);
-  out->set_tiles_leased(s.tiles_leased);
-  out->set_tiles_committed(s.tiles_committed);
-  out->set_tiles_re_leased(s.tiles_re_leased);
-  out->set_tiles_dropped(s.tiles_dropped);
+  out->set_non_finite_dropped(s.counters.non_finite + s.counts.invalid);
+  out->set_tiles_leased(s.counters.tiles_leased);
+  out->set_tiles_committed(s.counters.tiles_committed);
+  out->set_tiles_re_leased(s.counters.tiles_re_leased);
+  out->set_tiles_dropped(s.counters.tiles_dropped);
   out->set_workers_active(s.workers_active);
-  out->set_tiles_speculative(s.tiles_speculative);
-  out->set_worker_failures(s.worker_failures);
+  out->set_tiles_speculative(s.counters.tiles_speculative);
+  out->set_worker_failures(s.counters.worker_failures);
   out->set_workers_blocked(s.workers_blocked);
   out->set_submitted_unix_ms(s.submitted_ms);
   out->set_started_unix_ms(s.started_ms);
   out->set_finished_unix_ms(s.finished_ms);
   out->set_seconds_elapsed(s.seconds_elapsed);
   out->set_eta_seconds(s.eta_seconds);
-  out->set_seconds_tracing(s.seconds_tracing);
-  out->set_seconds_reprojecting(s.seconds_reprojecting);
+  out->set_seconds_tracing(s.counters.seconds_tracing);
+  out->set_seconds_reprojecting(s.counters.seconds_reprojecting);
   out->set_budget_exhausted(s.budget_exhausted);
 }
 
@@ -290,22 +289,15 @@ grpc::ServerUnaryReactor* JobServiceImpl::CancelJob(grpc::CallbackServerContext*
 grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::CallbackServerContext* ctx,
                                                                        const v1::ResultRequest* req) {
   using Writer = ListWriter<v1::ResultChunk>;
-  static const std::map<v1::ResultKind, std::pair<std::string, std::string>> kinds = {
-      {v1::RESULT_KIND_EXR, {"exr", "image/x-exr"}},
-      {v1::RESULT_KIND_PNG, {"png", "image/png"}},
-      {v1::RESULT_KIND_STATS_IMAGE, {"samples.png", "image/png"}},
-      {v1::RESULT_KIND_JSON, {"json", "application/json"}},
-      {v1::RESULT_KIND_PATH_TRACED_EXR, {"pathtrace.exr", "image/x-exr"}},
-      {v1::RESULT_KIND_REPROJECTED_EXR, {"reprojection.exr", "image/x-exr"}},
-      {v1::RESULT_KIND_COUNTS_EXR, {"counts.exr", "image/x-exr"}}};
-  auto k = kinds.find(req->kind());
-  if (k == kinds.end()) return new Writer({}, invalid("unknown result kind"));
+  const std::optional<ResultKind> kind = from_proto(req->kind());
+  if (!kind) return new Writer({}, invalid("unknown result kind"));
+  const ResultKindInfo& k = result_kind(*kind);
   auto snap = jobs_.get(req->job_id());
   if (!snap) return new Writer({}, no_job(req->job_id()));
   if (snap->state != JobState::kDone)
     return new Writer({}, {grpc::StatusCode::FAILED_PRECONDITION, fmt::format("job {} is {}: results exist once it is done", snap->id, to_string(snap->state))});
-  auto path = jobs_.result_path(req->job_id(), k->second.first);
-  if (!path) return new Writer({}, {grpc::StatusCode::NOT_FOUND, fmt::format("job {} has no {} result (not produced in this mode)", snap->id, k->second.first)});
+  auto path = jobs_.result_path(req->job_id(), *kind);
+  if (!path) return new Writer({}, {grpc::StatusCode::NOT_FOUND, fmt::format("job {} has no {} result (not produced in this mode)", snap->id, k.name)});
   std::ifstream in(*path, std::ios::binary);
   std::stringstream ss;
   ss << in.rdbuf();
@@ -313,8 +305,8 @@ grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::Cal
   std::vector<v1::ResultChunk> chunks(1);
   auto* h = chunks[0].mutable_header();
   h->set_kind(req->kind());
-  h->set_media_type(k->second.second);
-  h->set_suggested_filename(fmt::format("{}.{}", snap->id, k->second.first));
+  h->set_media_type(std::string(k.media_type));
+  h->set_suggested_filename(fmt::format("{}{}", snap->id, k.suffix));
   h->set_total_bytes(bytes.size());
   h->set_sha256(sha256_hex(bytes));
   h->set_round(uint32_t(snap->progress.round));

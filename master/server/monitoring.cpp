@@ -14,6 +14,7 @@
 #include "common/thread_name.h"
 #include "master/server/job_manager.h"
 #include "master/server/monitoring_format.h"
+#include "master/server/previews.h"
 
 namespace epr {
 
@@ -48,8 +49,6 @@ std::string etag_of(const std::vector<unsigned char>& bytes) {
   for (unsigned char b : bytes) h = (h ^ b) * 1099511628211ull;
   return fmt::format("\"{:016x}\"", h);
 }
-
-const std::set<std::string> kLayers = {"combined", "pathtrace", "reprojection", "samples"};
 
 }  // namespace
 
@@ -156,7 +155,7 @@ void MonitoringServer::Impl::routes() {
 void MonitoringServer::Impl::image(const httplib::Request& req, httplib::Response& res) {
   const std::string id = req.matches[1];
   const std::string layer = req.has_param("layer") ? req.get_param_value("layer") : "combined";
-  if (!kLayers.count(layer))
+  if (!is_preview_layer(layer))
     return send_error(res, 400, fmt::format("unknown layer '{}' (combined, pathtrace, reprojection or samples)", layer),
                       "bad_layer");
   auto s = jobs.get(id);

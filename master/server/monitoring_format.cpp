@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <initializer_list>
 #include <set>
@@ -21,7 +22,16 @@ double progress_fraction(const JobSnapshot& s) {
 }
 
 // Vertices the reprojection decided about, whether on the master or already on a worker.
-uint64_t reprojection_considered(const JobSnapshot& s) { return s.counts.total() + s.worker_culled; }
+uint64_t reprojection_considered(const JobSnapshot& s) { return s.counts.total() + s.counters.worker_culled; }
+
+// Reprojection decisions by outcome: culled includes what the workers culled, accepted the exact samples.
+std::array<std::pair<const char*, uint64_t>, 5> outcomes(const ReprojectionCounts& c, const JobCounters& n) {
+  return {{{"accepted", c.accepted + c.exact},
+           {"occluded", c.occluded},
+           {"culled", c.culled + n.worker_culled},
+           {"not_diffuse", c.not_diffuse},
+           {"invalid", c.invalid}}};
+}
 
 }  // namespace
 
@@ -31,10 +41,11 @@ json to_json(const JobSnapshot& s) {
   const auto& o = s.options;
   const auto& p = s.progress;
   const auto& c = s.counts;
+  const JobCounters& n = s.counters;
   const uint64_t considered = reprojection_considered(s);
-  const uint64_t accepted = c.accepted + c.exact, culled = c.culled + s.worker_culled;
+  const uint64_t accepted = c.accepted + c.exact, culled = c.culled + n.worker_culled;
   const uint64_t pixels = uint64_t(o.width) * uint64_t(o.height);
-  const double busy = s.seconds_tracing + s.seconds_reprojecting;
+  const double busy = n.seconds_tracing + n.seconds_reprojecting;
   return json{
       {"id", s.id},
       {"name", s.name},
@@ -72,33 +83,33 @@ json to_json(const JobSnapshot& s) {
         {"reprojected_mean", p.mean_reprojected}}},
       {"pixels", {{"total", pixels}, {"active", p.pixels_active}, {"skipped", p.pixels_skipped}}},
       {"eye_paths", {{"traced", p.paths_traced}, {"skipped", p.paths_skipped}}},
-      {"rays_traced", s.rays_traced},
-      {"vertices_received", s.vertices_received},
+      {"rays_traced", n.rays},
+      {"vertices_received", n.vertices_received},
       {"reprojection",
        {{"considered", considered},
         {"accepted", accepted},
         {"occluded", c.occluded},
         {"backfacing", c.backfacing},
         {"culled", culled},
-        {"culled_by_workers", s.worker_culled},
+        {"culled_by_workers", n.worker_culled},
         {"not_diffuse", c.not_diffuse},
         {"invalid", c.invalid},
         {"accepted_percent", percent(accepted, considered)},
         {"occluded_percent", percent(c.occluded, considered)},
         {"culled_percent", percent(culled, considered)}}},
-      {"non_finite_dropped", s.non_finite_dropped + c.invalid},
+      {"non_finite_dropped", n.non_finite + c.invalid},
       {"time",
-       {{"tracing_seconds", s.seconds_tracing},
-        {"reprojecting_seconds", s.seconds_reprojecting},
-        {"tracing_percent", busy > 0 ? 100.0 * s.seconds_tracing / busy : 0.0}}},
+       {{"tracing_seconds", n.seconds_tracing},
+        {"reprojecting_seconds", n.seconds_reprojecting},
+        {"tracing_percent", busy > 0 ? 100.0 * n.seconds_tracing / busy : 0.0}}},
       {"tiles",
-       {{"leased", s.tiles_leased},
-        {"committed", s.tiles_committed},
-        {"re_leased", s.tiles_re_leased},
-        {"dropped", s.tiles_dropped},
-        {"speculative", s.tiles_speculative}}},
+       {{"leased", n.tiles_leased},
+        {"committed", n.tiles_committed},
+        {"re_leased", n.tiles_re_leased},
+        {"dropped", n.tiles_dropped},
+        {"speculative", n.tiles_speculative}}},
       {"workers_active", s.workers_active},
-      {"worker_failures", s.worker_failures},
+      {"worker_failures", n.worker_failures},
       {"workers_blocked", s.workers_blocked},
       {"version", s.version},
   };
@@ -123,20 +134,8 @@ FarmTotals FarmTotals::of(const JobSnapshot& s) {
   t.rounds = uint64_t(std::max(0, s.progress.round));
   t.paths_traced = s.progress.paths_traced;
   t.paths_skipped = s.progress.paths_skipped;
-  t.rays_traced = s.rays_traced;
-  t.vertices_received = s.vertices_received;
-  t.accepted = s.counts.accepted + s.counts.exact;
-  t.occluded = s.counts.occluded;
-  t.culled = s.counts.culled + s.worker_culled;
-  t.not_diffuse = s.counts.not_diffuse;
-  t.invalid = s.counts.invalid;
-  t.non_finite_dropped = s.non_finite_dropped;
-  t.tiles_leased = s.tiles_leased;
-  t.tiles_committed = s.tiles_committed;
-  t.tiles_re_leased = s.tiles_re_leased;
-  t.tiles_dropped = s.tiles_dropped;
-  t.seconds_tracing = s.seconds_tracing;
-  t.seconds_reprojecting = s.seconds_reprojecting;
+  t.counters = s.counters;
+  t.counts = s.counts;
   return t;
 }
 
@@ -145,20 +144,8 @@ FarmTotals& FarmTotals::operator+=(const FarmTotals& o) {
   rounds += o.rounds;
   paths_traced += o.paths_traced;
   paths_skipped += o.paths_skipped;
-  rays_traced += o.rays_traced;
-  vertices_received += o.vertices_received;
-  accepted += o.accepted;
-  occluded += o.occluded;
-  culled += o.culled;
-  not_diffuse += o.not_diffuse;
-  invalid += o.invalid;
-  non_finite_dropped += o.non_finite_dropped;
-  tiles_leased += o.tiles_leased;
-  tiles_committed += o.tiles_committed;
-  tiles_re_leased += o.tiles_re_leased;
-  tiles_dropped += o.tiles_dropped;
-  seconds_tracing += o.seconds_tracing;
-  seconds_reprojecting += o.seconds_reprojecting;
+  counters += o.counters;
+  counts += o.counts;
   return *this;
 }
 
@@ -265,6 +252,8 @@ std::vector<const JobSnapshot*> labelled_jobs(const std::vector<JobSnapshot>& jo
 
 void write_farm(Exposition& e, const MetricsInput& in) {
   const FarmTotals& t = in.totals;
+  const JobCounters& n = t.counters;
+  const ReprojectionCounts& c = t.counts;
   e.single("epr_osmesa_ready", "gauge", "1 if the master's OSMesa (GL) reprojection context is up.",
            double(in.gl_ready ? 1 : 0));
 
@@ -280,30 +269,25 @@ void write_farm(Exposition& e, const MetricsInput& in) {
   e.single("epr_eye_paths_skipped_total", "counter", "Eye paths not traced because the pixel was skipped.",
            t.paths_skipped);
   e.single("epr_rays_traced_total", "counter", "Rays traced by workers (camera, bounce, shadow, exact visibility).",
-           t.rays_traced);
+           n.rays);
   e.single("epr_vertices_received_total", "counter", "Path vertices and exact samples received from workers.",
-           t.vertices_received);
+           n.vertices_received);
   e.family("epr_reprojection_vertices_total", "counter",
            "Reprojection decisions by outcome (culled includes vertices culled on workers; accepted includes exact "
            "samples).");
-  const std::pair<const char*, uint64_t> outcomes[] = {{"accepted", t.accepted},
-                                                       {"occluded", t.occluded},
-                                                       {"culled", t.culled},
-                                                       {"not_diffuse", t.not_diffuse},
-                                                       {"invalid", t.invalid}};
-  for (const auto& [name, v] : outcomes) e.sample("epr_reprojection_vertices_total", {{"outcome", name}}, v);
+  for (const auto& [name, v] : outcomes(c, n)) e.sample("epr_reprojection_vertices_total", {{"outcome", name}}, v);
   e.single("epr_non_finite_dropped_total", "counter", "Non-finite radiance values dropped (pixel sums, samples).",
-           t.non_finite_dropped);
-  e.single("epr_tiles_leased_total", "counter", "Tile leases granted (including re-leases).", t.tiles_leased);
+           n.non_finite);
+  e.single("epr_tiles_leased_total", "counter", "Tile leases granted (including re-leases).", n.tiles_leased);
   e.single("epr_tiles_committed_total", "counter", "Tile results committed (exactly once per job, round, tile).",
-           t.tiles_committed);
+           n.tiles_committed);
   e.single("epr_tiles_re_leased_total", "counter", "Leases granted for tiles whose earlier lease expired.",
-           t.tiles_re_leased);
-  e.single("epr_tiles_dropped_total", "counter", "Tile results dropped as duplicate or stale.", t.tiles_dropped);
+           n.tiles_re_leased);
+  e.single("epr_tiles_dropped_total", "counter", "Tile results dropped as duplicate or stale.", n.tiles_dropped);
   e.single("epr_tracing_seconds_total", "counter", "Worker thread time spent tracing committed tiles.",
-           t.seconds_tracing);
+           n.seconds_tracing);
   e.single("epr_reprojection_seconds_total", "counter",
-           "Master time spent reprojecting (deep framebuffer, reprojection, downsampling).", t.seconds_reprojecting);
+           "Master time spent reprojecting (deep framebuffer, reprojection, downsampling).", n.seconds_reprojecting);
   e.histogram("epr_round_duration_seconds", "Wall time of a round, from opening it to closing it.",
               in.histograms.round);
   e.histogram("epr_round_reprojection_seconds", "Master reprojection time within one round.",
@@ -373,32 +357,26 @@ void write_jobs(Exposition& e, const std::vector<JobSnapshot>& all) {
   per_job("epr_job_eye_paths_skipped_total", "counter", "Eye paths the job skipped.",
           [](const JobSnapshot& s) { return s.progress.paths_skipped; });
   per_job("epr_job_vertices_received_total", "counter", "Vertices and exact samples received for the job.",
-          [](const JobSnapshot& s) { return s.vertices_received; });
+          [](const JobSnapshot& s) { return s.counters.vertices_received; });
   e.family("epr_job_reprojection_vertices_total", "counter", "The job's reprojection decisions by outcome.");
   for (const JobSnapshot* s : jobs) {
-    const FarmTotals t = FarmTotals::of(*s);
-    const std::pair<const char*, uint64_t> outcomes[] = {{"accepted", t.accepted},
-                                                         {"occluded", t.occluded},
-                                                         {"culled", t.culled},
-                                                         {"not_diffuse", t.not_diffuse},
-                                                         {"invalid", t.invalid}};
-    for (const auto& [name, v] : outcomes)
+    for (const auto& [name, v] : outcomes(s->counts, s->counters))
       e.sample("epr_job_reprojection_vertices_total", {{"job", s->id}, {"outcome", name}}, v);
   }
   per_job("epr_job_tiles_committed_total", "counter", "Tiles committed for the job.",
-          [](const JobSnapshot& s) { return s.tiles_committed; });
+          [](const JobSnapshot& s) { return s.counters.tiles_committed; });
   per_job("epr_job_tiles_re_leased_total", "counter", "Tiles of the job re-leased after a lease expired.",
-          [](const JobSnapshot& s) { return s.tiles_re_leased; });
+          [](const JobSnapshot& s) { return s.counters.tiles_re_leased; });
   per_job("epr_job_tiles_speculative_total", "counter",
           "Speculative copies of the job's tiles handed to idle workers while a lease ran long.",
-          [](const JobSnapshot& s) { return s.tiles_speculative; });
+          [](const JobSnapshot& s) { return s.counters.tiles_speculative; });
   per_job("epr_job_worker_failures_total", "counter",
           "Failed leases of the job counted against workers (expired, refused, reported).",
-          [](const JobSnapshot& s) { return s.worker_failures; });
+          [](const JobSnapshot& s) { return s.counters.worker_failures; });
   per_job("epr_job_tracing_seconds_total", "counter", "Worker thread time spent tracing the job's tiles.",
-          [](const JobSnapshot& s) { return s.seconds_tracing; });
+          [](const JobSnapshot& s) { return s.counters.seconds_tracing; });
   per_job("epr_job_reprojection_seconds_total", "counter", "Master time spent reprojecting the job.",
-          [](const JobSnapshot& s) { return s.seconds_reprojecting; });
+          [](const JobSnapshot& s) { return s.counters.seconds_reprojecting; });
 }
 
 }  // namespace

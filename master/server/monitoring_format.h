@@ -29,10 +29,9 @@ nlohmann::json to_json(const WorkerSnapshot& w);
 
 /// Counters summed over every job the master has held.
 struct FarmTotals {
-  uint64_t jobs = 0, rounds = 0, paths_traced = 0, paths_skipped = 0, rays_traced = 0, vertices_received = 0;
-  uint64_t accepted = 0, occluded = 0, culled = 0, not_diffuse = 0, invalid = 0, non_finite_dropped = 0;
-  uint64_t tiles_leased = 0, tiles_committed = 0, tiles_re_leased = 0, tiles_dropped = 0;
-  double seconds_tracing = 0, seconds_reprojecting = 0;
+  uint64_t jobs = 0, rounds = 0, paths_traced = 0, paths_skipped = 0;
+  JobCounters counters;
+  ReprojectionCounts counts;
 
   static FarmTotals of(const JobSnapshot& s);
   FarmTotals& operator+=(const FarmTotals& o);

@@ -89,7 +89,9 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::Register(grpc::CallbackServerContex
                         fmt::format("this master speaks protocol version 1, the worker {}", int(req->protocol_version()))});
   if (req->threads() < 1 || req->threads() > 4096) return finish(ctx, invalid("threads must be between 1 and 4096"));
   if (req->name().size() > 256) return finish(ctx, invalid("worker names are limited to 256 bytes"));
-  resp->mutable_worker_id()->set_id(jobs_.register_worker(req->name(), req->threads()));
+  if (req->cached_scenes_size() > 4096) return finish(ctx, invalid("cached_scenes is limited to 4096 hashes"));
+  resp->mutable_worker_id()->set_id(jobs_.register_worker(req->name(), req->threads(),
+                                                          {req->cached_scenes().begin(), req->cached_scenes().end()}));
   resp->set_heartbeat_interval_ms(uint32_t(jobs_.options().heartbeat_interval_ms));
   resp->set_max_vertices_per_chunk(kMaxVerticesPerChunk);
   resp->set_max_chunk_bytes(kMaxChunkBytes);

@@ -197,7 +197,7 @@ TEST_F(MonitoringEndpointTest, JobJsonMatchesTheFinalStateGrpcAndStatsJson) {
   EXPECT_EQ(j["time"]["reprojecting_seconds"].get<double>(), st.seconds_reprojecting());
 
   // And the master's own statistics file of the finished job.
-  const auto stats_path = master_->jobs().result_path(id, "json");
+  const auto stats_path = master_->jobs().result_path(id, ResultKind::kJson);
   ASSERT_TRUE(stats_path);
   const json stats = json::parse(read_file(*stats_path));
   EXPECT_EQ(j["rays_traced"], stats["rays"]);

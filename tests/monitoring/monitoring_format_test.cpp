@@ -116,7 +116,7 @@ TEST(JobJson, UnknownEtaIsNullAndPercentagesUseAllDecisions) {
   s.counts.exact = 10;
   s.counts.occluded = 20;
   s.counts.culled = 5;
-  s.worker_culled = 5;
+  s.counters.worker_culled = 5;
   const json j = to_json(s);
   EXPECT_TRUE(j["eta_seconds"].is_null());
   EXPECT_EQ(j["reprojection"]["considered"], 100);

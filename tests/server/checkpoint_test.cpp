@@ -57,10 +57,12 @@ JobProgressRecord sample_progress(int round) {
   r.counts.accepted = 100 + uint64_t(round);
   r.counts.occluded = 40;
   r.counts.backfacing = 10;
-  r.rays = 12345;
-  r.tiles_committed = 9;
+  r.counters.rays = 12345;
+  r.counters.tiles_committed = 9;
+  r.counters.tiles_speculative = 2;  // kept across a restart since format version 2
+  r.counters.worker_failures = 3;
+  r.counters.seconds_tracing = 1.5;
   r.started_ms = 1'700'000'000'000;
-  r.seconds_tracing = 1.5;
   FrameSnapshot f;
   f.width = 3;
   f.height = 2;
@@ -163,8 +165,7 @@ TEST(CheckpointFormat, RecordsRoundTrip) {
   p.previews["combined"] = {1, 2, 3};
   const JobProgressRecord q = decode_job_progress(encode(p));
   EXPECT_EQ(q.state, JobState::kRunning);
-  EXPECT_EQ(q.rays, p.rays);
-  EXPECT_EQ(q.tiles_committed, p.tiles_committed);
+  EXPECT_EQ(q.counters, p.counters);
   EXPECT_EQ(q.started_ms, p.started_ms);
   EXPECT_EQ(q.counts, p.counts);
   EXPECT_EQ(q.progress.round, 3);
@@ -411,10 +412,10 @@ struct Result {
 
 Result results_of(JobManager& jobs, const std::string& id) {
   Result r;
-  for (auto [kind, image] :
-       {std::pair{"counts.exr", &r.counts}, {"pathtrace.exr", &r.pathtrace}, {"exr", &r.combined}}) {
+  for (auto [kind, image] : {std::pair{ResultKind::kCounts, &r.counts}, {ResultKind::kPathtrace, &r.pathtrace},
+                             {ResultKind::kExr, &r.combined}}) {
     const auto path = jobs.result_path(id, kind);
-    EXPECT_TRUE(path) << kind;
+    EXPECT_TRUE(path) << result_kind(kind).name;
     if (path) *image = read_image(*path);
   }
   return r;
@@ -540,8 +541,8 @@ TEST_P(JobManagerResume, DestroyedMidJobAndRecreatedOnTheSameStateDirFinishesIde
     ASSERT_TRUE(s);
     EXPECT_EQ(s->state, JobState::kDone);
     EXPECT_EQ(uint32_t(s->progress.round), undisturbed_rounds);
-    EXPECT_GT(s->tiles_committed, 0u);
-    EXPECT_TRUE(jobs.result_path(id, "counts.exr"));
+    EXPECT_GT(s->counters.tiles_committed, 0u);
+    EXPECT_TRUE(jobs.result_path(id, ResultKind::kCounts));
     EXPECT_TRUE(jobs.preview_png(id, "combined"));
     const auto again = jobs.submit(resume_request(GetParam()));
     EXPECT_EQ(again.id, id);

@@ -73,6 +73,40 @@ TEST_F(LeaseHoldTest, HeldCallGetsTheNextRoundsTileWhenTheRoundCloses) {
   EXPECT_EQ(lease.tile().tile_index(), 0u);
 }
 
+// WorkerInfo.cached_scenes: of two held calls and one tile, the worker that already holds the
+// job's scene gets it, although it asked second.
+TEST_F(LeaseHoldTest, AWorkerHoldingTheJobsSceneIsAnsweredFirst) {
+  start();
+  auto stub = v1::WorkerService::NewStub(channel_);
+  const std::string plain = register_worker(*stub, "plain");
+  std::string cached;
+  {
+    grpc::ClientContext ctx;
+    set_deadline(&ctx);
+    v1::WorkerInfo info;
+    info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
+    info.set_name("cached");
+    info.set_threads(1);
+    info.add_cached_scenes(content_hash(bundle_scene("builtin:cornell")));
+    v1::RegisterResponse r;
+    ASSERT_TRUE(stub->Register(&ctx, info, &r).ok());
+    cached = r.worker_id().id();
+  }
+  grpc::ClientContext ctx_plain, ctx_cached;
+  auto plain_call = lease_async(*stub, plain, 1500, &ctx_plain);
+  wait_parked(1);
+  auto cached_call = lease_async(*stub, cached, 1500, &ctx_cached);
+  wait_parked(2);
+  // One 16 x 16 tile in one round.
+  submit(cornell(RenderMode::kPathTrace, 16, 1, 1), bundle_scene("builtin:cornell"));
+  const auto [cst, clease] = cached_call.get();
+  const auto [pst, please] = plain_call.get();
+  ASSERT_TRUE(cst.ok()) << cst.error_message();
+  ASSERT_TRUE(pst.ok()) << pst.error_message();
+  EXPECT_TRUE(clease.has_tile()) << "the worker with the scene must get the only tile";
+  EXPECT_FALSE(please.has_tile());
+}
+
 TEST_F(LeaseHoldTest, HeldCallIsAnsweredWithAWaitWhenItsTimeIsUp) {
   start();
   auto stub = v1::WorkerService::NewStub(channel_);

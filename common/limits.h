@@ -1,0 +1,38 @@
+// The ranges of a job's settings, one table for the validation (RenderOptions::validate, the master's
+// --max-* defaults) and its messages. The proto (proto/epr/v1/*.proto) documents the same ranges;
+// tests/common/limits_test.cpp checks that every range below is written there.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include <fmt/format.h>
+
+namespace epr {
+
+template <class T>
+struct Range {
+  std::string_view what;  // as a message names it: the flag of `epr render`
+  T lo, hi;               // inclusive
+  bool contains(T v) const { return v >= lo && v <= hi; }
+  /// Nullopt if `v` is in range, else the message.
+  std::optional<std::string> check(T v) const {
+    if (contains(v)) return std::nullopt;
+    return fmt::format("{} {} must be between {} and {}", what, v, lo, hi);
+  }
+};
+
+namespace limits {
+inline constexpr Range<int> kImageSide{"--width/--height", 1, 16384};
+inline constexpr Range<int> kSpp{"--spp", 1, 1000000};
+inline constexpr Range<int> kSubpixels{"--subpixels", 1, 8};
+inline constexpr Range<int> kTileSize{"--tile", 4, 1024};
+inline constexpr Range<int> kMaxDepth{"--max-depth", 1, 100000};
+inline constexpr Range<double> kRoundGrowth{"--round-growth", 0, 16};
+inline constexpr Range<double> kEpsilon{"--epsilon", 0, 1};
+/// The deep framebuffer's subpixels (width x height x S^2) at most.
+inline constexpr long long kMaxSubpixels = 1ll << 28;
+}  // namespace limits
+
+}  // namespace epr

@@ -1,0 +1,61 @@
+#include "master/result_files.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <stdexcept>
+
+#include <fmt/format.h>
+#include <tbb/task_group.h>
+
+namespace epr {
+namespace fs = std::filesystem;
+
+Image samples_heat_map(const Image& mprime) {
+  float max_m = 0;
+  for (float v : mprime.data) max_m = std::max(max_m, v);
+  return heat_map(mprime, max_m);
+}
+
+namespace {
+
+void write_kind(const ResultKindInfo& k, const FrameImages& img, const nlohmann::json& stats, const std::string& path) {
+  switch (k.kind) {
+    case ResultKind::kExr: write_exr(path, img.combined); return;
+    case ResultKind::kPng: write_png_srgb(path, img.combined); return;
+    case ResultKind::kPathtrace: write_exr(path, img.pathtrace); return;
+    case ResultKind::kCounts: write_exr(path, counts_image(img)); return;
+    case ResultKind::kReprojection: write_exr(path, img.reprojection); return;
+    case ResultKind::kSamplesExr: write_exr(path, img.reprojected); return;
+    case ResultKind::kSamplesPng: write_png_srgb(path, samples_heat_map(img.reprojected)); return;
+    case ResultKind::kJson: {
+      std::ofstream out(path);
+      out << stats.dump(2) << "\n";
+      if (!out.flush()) throw std::runtime_error(fmt::format("cannot write '{}'", path));
+      return;
+    }
+  }
+}
+
+}  // namespace
+
+void write_results(const FrameImages& images, bool reprojects, const nlohmann::json& stats,
+                   const std::function<std::string(const ResultKindInfo&)>& path_of) {
+  // Encoded side by side: on the master the workers idle until the job is done.
+  tbb::task_group files;
+  for (const ResultKindInfo& k : result_kinds()) {
+    if (k.needs_reprojection && !reprojects) continue;
+    const std::string path = path_of(k);
+    if (path.empty()) continue;
+    files.run([&k, &images, &stats, path] {
+      // The temp name keeps the extension, which OpenImageIO picks the format by.
+      const fs::path final_path(path);
+      const fs::path tmp = final_path.parent_path() / (".tmp-" + final_path.filename().string());
+      write_kind(k, images, stats, tmp.string());
+      fs::rename(tmp, final_path);
+    });
+  }
+  files.wait();  // rethrows what a write threw
+}
+
+}  // namespace epr

@@ -1,0 +1,57 @@
+// The progressive round loop around a FrameState, one for the single-process render
+// (client/local_render.cpp) and the master (master/server/job_manager.cpp), so that both plan,
+// apply and close rounds the same way:
+//   open()   the next round's inputs per tile, and the order to trace them in (most active pixels
+//            first: the round ends on small tiles);
+//   apply()  a tile's result: path sums, then its vertices or exact samples (any order within a
+//            round; commits of one round touch disjoint pixels);
+//   close()  M', skip mask and progress; false once no round is left;
+//   images() / statistics()  the render's results.
+// Threading as FrameState: with the GL back-end, every call on the thread whose context is current.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "common/camera.h"
+#include "common/render_options.h"
+#include "common/scene.h"
+#include "common/tile.h"
+#include "master/frame_state.h"
+
+namespace epr {
+
+class GlContext;
+struct AssembledTile;
+
+struct RoundPlan {
+  uint32_t round = 0;  // rounds finished before this one
+  int paths_per_pixel = 1;
+  std::vector<std::vector<uint8_t>> skip;          // per tile, per tile pixel (empty: idle tile)
+  std::vector<std::vector<uint32_t>> first_sample;  // per tile, per tile pixel
+  std::vector<uint32_t> order;                      // the tiles that trace, most active pixels first
+};
+
+class RoundDriver {
+ public:
+  /// `gl`: the context for the "gl" reprojector (see FrameState).
+  RoundDriver(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl);
+
+  bool done() const { return frame_.done(); }
+  RoundPlan open(const std::vector<TileRect>& tiles) const;
+  void apply(const TileResult& result);
+  void apply(const AssembledTile& tile);
+  /// Ends the round; true if another is needed.
+  bool close() { return frame_.finish_round(); }
+
+  FrameState& frame() { return frame_; }
+  const FrameState& frame() const { return frame_; }
+
+ private:
+  FrameState frame_;
+};
+
+}  // namespace epr

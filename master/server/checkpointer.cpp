@@ -1,0 +1,62 @@
+#include "master/server/checkpointer.h"
+
+#include <algorithm>
+#include <chrono>
+
+#include "common/log.h"
+#include "common/thread_name.h"
+
+namespace epr {
+
+Checkpointer::Checkpointer(CheckpointStore& store, std::function<void(const std::string&, double)> written)
+    : store_(store), written_(std::move(written)), thread_([this] { loop(); }) {}
+
+Checkpointer::~Checkpointer() { stop(); }
+
+void Checkpointer::stop() {
+  {
+    std::lock_guard lock(mu_);
+    stopping_ = true;
+  }
+  cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+}
+
+void Checkpointer::queue(const std::string& job_id, const std::function<std::optional<JobProgressRecord>()>& make) {
+  std::lock_guard lock(mu_);
+  std::optional<JobProgressRecord> record = make();
+  if (!record) return;
+  auto r = std::make_shared<const JobProgressRecord>(std::move(*record));
+  auto it = std::find_if(queue_.begin(), queue_.end(), [&](const auto& q) { return q.first == job_id; });
+  if (it != queue_.end())
+    it->second = std::move(r);  // not written yet: the newer state replaces it
+  else
+    queue_.emplace_back(job_id, std::move(r));
+  cv_.notify_all();
+}
+
+void Checkpointer::loop() {
+  set_thread_name("epr-checkpoint");
+  std::unique_lock lock(mu_);
+  for (;;) {
+    cv_.wait(lock, [&] { return stopping_ || !queue_.empty(); });
+    if (queue_.empty()) return;  // stopping, everything written
+    auto [job_id, record] = std::move(queue_.front());
+    queue_.pop_front();
+    lock.unlock();
+    const auto start = std::chrono::steady_clock::now();
+    try {
+      store_.save_progress(job_id, *record);
+      const double write_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      logger("master")->debug("job {}: checkpoint ({} after round {}) written in {:.1f} ms", job_id,
+                              to_string(record->state), record->progress.round, 1e3 * write_s);
+      if (record->frame) written_(job_id, write_s);
+    } catch (const std::exception& e) {
+      logger("master")->error("job {}: cannot write its checkpoint: {}", job_id, e.what());
+    }
+    record.reset();  // frees the frame copy before waiting
+    lock.lock();
+  }
+}
+
+}  // namespace epr

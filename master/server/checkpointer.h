@@ -1,0 +1,47 @@
+// Writes the master's job checkpoints on a thread of its own, so that the reprojection thread only
+// copies the frame: a queue with at most one record per job, a newer record replacing a pending
+// older one. A job's state is read and its record queued in one step under the queue's lock
+// (queue()), so the last record queued is the job's last state.
+#pragma once
+
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <utility>
+
+#include "master/server/checkpoint.h"
+
+namespace epr {
+
+class Checkpointer {
+ public:
+  /// `written(job_id, seconds)` is called on the writer thread after each record with a frame.
+  Checkpointer(CheckpointStore& store, std::function<void(const std::string&, double)> written);
+  /// Writes what is queued, then stops.
+  ~Checkpointer();
+  Checkpointer(const Checkpointer&) = delete;
+  Checkpointer& operator=(const Checkpointer&) = delete;
+
+  /// Calls `make` under the queue's lock and queues the record it returns (none: nothing queued).
+  void queue(const std::string& job_id, const std::function<std::optional<JobProgressRecord>()>& make);
+  /// Writes what is queued and stops the thread (idempotent).
+  void stop();
+
+ private:
+  void loop();
+
+  CheckpointStore& store_;
+  std::function<void(const std::string&, double)> written_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<std::pair<std::string, std::shared_ptr<const JobProgressRecord>>> queue_;  // guarded by mu_
+  bool stopping_ = false;                                                                // guarded by mu_
+  std::thread thread_;
+};
+
+}  // namespace epr

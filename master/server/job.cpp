@@ -1,0 +1,51 @@
+#include "master/server/job.h"
+
+namespace epr {
+
+bool Job::end(JobState final_state, std::string why, int64_t now_ms) {
+  if (is_terminal(state)) return false;
+  state = final_state;
+  error = std::move(why);
+  finished_ms = now_ms;
+  round_open = false;
+  ++version;
+  return true;
+}
+
+JobSnapshot Job::snapshot(int64_t now_ms) const {
+  JobSnapshot s;
+  s.id = id;
+  s.name = request.name;
+  s.error = error;
+  s.state = state;
+  s.priority = request.priority;
+  s.options = request.options;
+  s.camera = request.camera;
+  s.scene_hash = scene_hash;
+  s.scene_builtin = bundle->builtin;
+  s.scene_bytes = bundle->total_bytes();
+  s.triangles = triangles;
+  s.progress = progress;
+  s.counts = counts;
+  s.counters = counters;
+  s.rounds_planned = rounds_planned(request.options);
+  s.workers_blocked = leases ? uint32_t(leases->blocked_count()) : 0;
+  s.submitted_ms = submitted_ms;
+  s.started_ms = started_ms;
+  s.finished_ms = finished_ms;
+  const int64_t end_ms = finished_ms ? finished_ms : now_ms;
+  s.seconds_elapsed = started_ms ? double(end_ms - started_ms) / 1000.0 : 0.0;
+  if (state == JobState::kRunning && progress.round > 0 && progress.paths_traced > 0)
+    s.eta_seconds = eta_seconds(progress, request.options.spp, s.seconds_elapsed);
+  else if (state == JobState::kDone)
+    s.eta_seconds = 0;
+  s.seconds_round_backlog = seconds_round_backlog;
+  s.seconds_round_closing = seconds_round_closing;
+  s.seconds_writing_results = seconds_writing_results;
+  s.round_checkpoints = round_checkpoints;
+  s.budget_exhausted = budget_exhausted;
+  s.version = version;
+  return s;
+}
+
+}  // namespace epr

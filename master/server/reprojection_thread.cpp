@@ -1,0 +1,355 @@
+// JobManager's reprojection thread (job_manager.h): it starts the queued job (scene, deep
+// framebuffer, checkpoint), applies committed tiles in commit order through the job's RoundDriver,
+// closes rounds and opens the next, writes the finished job's results, and takes round checkpoints.
+// It alone touches a job's driver, scene and camera; every other Job field under the manager's mutex.
+#include <chrono>
+#include <filesystem>
+
+#include <fmt/format.h>
+
+#include "common/log.h"
+#include "common/scene_loader.h"
+#include "common/thread_name.h"
+#include "master/gl_context.h"
+#include "master/result_files.h"
+#include "master/server/checkpoint.h"
+#include "master/server/checkpointer.h"
+#include "master/server/job_manager.h"
+#include "master/server/previews.h"
+
+namespace epr {
+namespace fs = std::filesystem;
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+}  // namespace
+
+// ---- the reprojection thread ----------------------------------------------------------------------
+
+void JobManager::reprojection_loop() {
+  set_thread_name("epr-reproject");
+  auto log = logger("master");
+  std::unique_ptr<GlContext> gl;
+  if (options_.reproject_backend_override != "cpu") {
+    try {
+      gl = std::make_unique<GlContext>();
+      log->info("reprojection context: {} / {}", gl->renderer(), gl->version());
+    } catch (const std::exception& e) {
+      log->warn("no OSMesa context ({}); jobs asking for GL reprojection will use the CPU reprojector", e.what());
+    }
+  }
+  {
+    MutexLock lock(mu_);
+    gl_ready_ = gl != nullptr;
+  }
+  for (;;) {
+    std::unique_ptr<Task> task;
+    std::shared_ptr<Job> to_start, to_drop;
+    {
+      MutexLock lock(mu_);
+      work_cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
+        if (stopping_ || !tasks_.empty()) return true;
+        if (active_ && is_terminal(active_->state)) return true;
+        return !active_ && jobs_.next_queued() != nullptr;
+      });
+      if (stopping_) break;
+      if (active_ && (active_->state == JobState::kCancelled || active_->state == JobState::kFailed)) {
+        to_drop = std::exchange(active_, nullptr);
+      } else if (!tasks_.empty()) {
+        task = std::move(tasks_.front());
+        tasks_.pop_front();
+        queued_vertices_ -= task->tile.vertex_count() + task->tile.exact_samples.size();
+      } else if (!active_) {
+        active_ = jobs_.next_queued();
+        to_start = active_;
+      }
+    }
+    if (to_drop) {
+      drop_job(to_drop);
+    } else if (to_start) {
+      try {
+        start_job(to_start, gl.get());
+      } catch (const std::exception& e) {
+        log->error("job {} failed to start: {}", to_start->id, e.what());
+        {
+          MutexLock lock(mu_);
+          active_.reset();
+        }
+        end_job(to_start, JobState::kFailed, e.what());
+      }
+    } else if (task) {
+      try {
+        apply_commit(*task);
+      } catch (const std::exception& e) {
+        log->error("job {}: commit failed: {}", task->job->id, e.what());
+        end_job(task->job, JobState::kFailed, e.what());
+      }
+    }
+  }
+  MutexLock lock(mu_);
+  for (const auto& [id, job] : jobs_.all()) job->driver.reset();
+}
+
+void JobManager::end_job(const std::shared_ptr<Job>& job, JobState state, const std::string& error) {
+  bool ended;
+  {
+    MutexLock lock(mu_);
+    ended = job->end(state, error, clock_());
+  }
+  work_cv_.notify_all();
+  if (ended) save_final_checkpoint(job);
+  notify(job);
+}
+
+void JobManager::drop_job(const std::shared_ptr<Job>& job) {
+  // Cancelled or failed: its last previews stay available as PNGs, the image copy goes.
+  std::shared_ptr<const FrameImages> images;
+  {
+    MutexLock lock(mu_);
+    images = std::move(job->preview_images);
+  }
+  if (images) {
+    std::map<std::string, std::vector<unsigned char>> pngs;
+    for (std::string_view layer : kPreviewLayers)
+      if (auto png = encode_preview(*images, job->preview_reprojects, layer)) pngs[std::string(layer)] = std::move(*png);
+    MutexLock lock(mu_);
+    job->previews = std::move(pngs);
+  }
+  job->driver.reset();
+  job->scene.reset();
+  notify(job);
+}
+
+void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
+  RenderOptions opts = job->request.options;
+  if (options_.reproject_backend_override == "cpu" || !gl)
+    if (opts.reproject == ReprojectMethod::kGl) opts.reproject = ReprojectMethod::kCpu;
+  job->driver.reset();
+  job->scene = std::make_unique<Scene>(load_bundle(*job->bundle, cache_dir()));
+  job->camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
+  job->driver = std::make_unique<RoundDriver>(opts, *job->camera, *job->scene, gl);
+  FrameState& frame = job->driver->frame();
+  std::shared_ptr<const JobProgressRecord> resume;
+  {
+    MutexLock lock(mu_);
+    resume = std::move(job->resume);
+  }
+  const bool had_checkpoint = resume != nullptr;
+  if (resume) {
+    try {
+      frame.restore(*resume->frame);
+    } catch (const std::exception& e) {
+      logger("master")->error("job {}: its checkpoint does not fit ({}); starting it again from round 0", job->id,
+                              e.what());
+      resume.reset();
+    }
+  }
+  {
+    MutexLock lock(mu_);
+    job->triangles = job->scene->triangle_count();
+    job->codec_bounds = job->scene->bounds();
+    if (job->state != JobState::kQueued) return;  // cancelled meanwhile
+    job->state = JobState::kRunning;
+    job->started_ms = clock_();
+    if (had_checkpoint) {
+      // The counters go on from the checkpoint's; a checkpoint that did not fit starts them again.
+      job->counters = resume ? resume->counters : JobCounters{};
+      if (resume) job->started_ms = resume->started_ms;
+      job->progress = frame.progress();
+      job->counts = frame.counts();
+      job->round = uint32_t(frame.round());
+      job->counters.seconds_reprojecting = frame.seconds_reprojecting();
+    }
+    job->leases = std::make_unique<LeaseTable>(job->id, job->tiles.size(), options_.lease_policy(), clock_,
+                                               &job->counters);
+    open_round(*job);
+    wake_parked(/*all=*/false);
+  }
+  answer_due();
+  logger("master")->info("job {} running: {} triangles, {} tiles", job->id, job->triangles, job->tiles.size());
+  notify(job);
+}
+
+void JobManager::open_round(Job& job) {
+  job.plan = job.driver->open(job.tiles);
+  job.leases->open_round(job.round, job.plan.order);
+  job.remaining = uint32_t(job.plan.order.size());
+  job.round_open = true;
+  job.round_opened_ms = clock_();
+  job.reprojecting_at_round_open = job.driver->frame().seconds_reprojecting();  // not the deep framebuffer build
+  ++job.version;
+}
+
+void JobManager::apply_commit(Task& task) {
+  Job& job = *task.job;
+  {
+    MutexLock lock(mu_);
+    if (job.state != JobState::kRunning || job.round != task.round) return;
+  }
+  job.driver->apply(task.tile);
+  // The counts at most every 100 ms (and at the round's close): GL's counters are read back, which
+  // waits for the dispatches in flight.
+  const int64_t now = clock_();
+  const bool refresh = now - job.counts_ms >= 100;
+  ReprojectionCounts counts;
+  if (refresh) {
+    counts = job.driver->frame().counts();
+    job.counts_ms = now;
+  }
+  bool round_done;
+  {
+    MutexLock lock(mu_);
+    if (refresh) job.counts = counts;
+    job.counters.seconds_reprojecting = job.driver->frame().seconds_reprojecting();
+    round_done = --job.remaining == 0;
+  }
+  if (round_done) close_round(task.job);
+}
+
+void JobManager::close_round(const std::shared_ptr<Job>& job) {
+  const auto closing = std::chrono::steady_clock::now();
+  FrameState& frame = job->driver->frame();
+  const bool more = job->driver->close();
+  bool budget_over = false, want_preview;
+  JobProgressRecord checkpoint;
+  {
+    MutexLock lock(mu_);
+    job->seconds_round_backlog += std::chrono::duration<double>(closing - job->last_commit_at).count();
+    job->progress = frame.progress();
+    job->counts = frame.counts();
+    job->counters.seconds_reprojecting = frame.seconds_reprojecting();
+    job->round_open = false;
+    const int64_t now = clock_();
+    histograms_.round.observe(double(now - job->round_opened_ms) / 1000.0);
+    histograms_.reprojection.observe(job->counters.seconds_reprojecting - job->reprojecting_at_round_open);
+    if (job->request.time_budget_seconds)
+      budget_over = double(now - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
+    want_preview = now - job->last_preview_ms >= 1000;
+    checkpoint = progress_record(*job);  // the counters as of the round's end
+  }
+  if (!more || budget_over) {
+    finish_job(job, budget_over && more);
+    return;
+  }
+  {
+    MutexLock lock(mu_);
+    if (job->state != JobState::kRunning) return;
+    ++job->round;
+    open_round(*job);
+    job->seconds_round_closing += seconds_since(closing);
+    wake_parked(/*all=*/false);
+  }
+  answer_due();
+  // The preview copy after the next round opened (workers trace meanwhile): the frame still holds the
+  // closed round's state, since only this thread applies the next round's results.
+  if (want_preview) {
+    auto images = std::make_shared<const FrameImages>(frame.images(/*preview=*/true));
+    MutexLock lock(mu_);
+    job->preview_images = std::move(images);
+    job->preview_reprojects = frame.reprojects();
+    job->previews.clear();
+    job->last_preview_ms = clock_();
+  }
+  notify(job);
+  save_round_checkpoint(job, std::move(checkpoint));  // the next round's tiles are being traced meanwhile
+}
+
+void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) {
+  const auto start = std::chrono::steady_clock::now();
+  FrameState& frame = job->driver->frame();
+  const std::string dir = job_dir(*job);
+  fs::create_directories(dir);
+  const FrameImages images = frame.images();
+  auto stored = [&](const ResultKindInfo& k) { return (fs::path(dir) / k.stored_as).string(); };
+  // The images first; the statistics, which include the time they took, after.
+  write_results(images, frame.reprojects(), {}, [&](const ResultKindInfo& k) {
+    return k.kind == ResultKind::kJson ? std::string() : stored(k);
+  });
+  nlohmann::json stats = frame.statistics(job->request.options);
+  {
+    MutexLock lock(mu_);
+    job->progress = frame.progress();
+    job->counts = frame.counts();
+    job->counters.seconds_reprojecting = frame.seconds_reprojecting();
+    job->budget_exhausted = budget_exhausted;
+    const RenderOptions& o = job->request.options;
+    const JobCounters& c = job->counters;
+    stats.update({{"job", job->id},
+                  {"scene_hash", job->scene_hash},
+                  {"triangles", job->triangles},
+                  {"width", o.width},
+                  {"height", o.height},
+                  {"spp", o.spp},
+                  {"seed", o.seed},
+                  {"rays", c.rays},
+                  {"vertices_received", c.vertices_received},
+                  {"culled_worker", c.worker_culled},
+                  {"nonfinite_dropped", c.non_finite},
+                  {"tiles_leased", c.tiles_leased},
+                  {"tiles_committed", c.tiles_committed},
+                  {"tiles_re_leased", c.tiles_re_leased},
+                  {"tiles_dropped", c.tiles_dropped},
+                  {"tiles_speculative", c.tiles_speculative},
+                  {"worker_failures", c.worker_failures},
+                  {"seconds", double(clock_() - job->started_ms) / 1000.0},
+                  {"seconds_tracing", c.seconds_tracing},
+                  {"budget_exhausted", budget_exhausted}});
+  }
+  write_results(images, frame.reprojects(), stats, [&](const ResultKindInfo& k) {
+    return k.kind == ResultKind::kJson ? stored(k) : std::string();
+  });
+  {
+    // Done once every file is in place.
+    MutexLock lock(mu_);
+    job->preview_images.reset();  // from now on the previews come from the result files
+    job->previews.clear();
+    job->seconds_writing_results = seconds_since(start);
+    job->end(JobState::kDone, "", clock_());
+    active_.reset();
+  }
+  save_final_checkpoint(job);  // after the results: a finished job's checkpoint promises them
+  job->driver.reset();
+  job->scene.reset();
+  logger("master")->info("job {} done", job->id);
+  work_cv_.notify_all();
+  notify(job);
+}
+
+// ---- round checkpoints ---------------------------------------------------------------------------
+
+void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) {
+  if (!checkpointer_) return;
+  {
+    // Not every round: a 512 x 512 frame is ~80 MB to copy and write (see checkpoint_interval_s).
+    MutexLock lock(mu_);
+    const double gap = options_.checkpoint_interval_s >= 0 ? options_.checkpoint_interval_s
+                                                           : MasterOptions::kAutoCheckpointFactor * job->checkpoint_cost_s;
+    if (job->last_checkpoint_ms && double(clock_() - job->last_checkpoint_ms) < 1000 * gap) return;
+    job->last_checkpoint_ms = clock_();
+  }
+  const auto start = std::chrono::steady_clock::now();
+  record.frame = job->driver->frame().save();  // the state after the closed round: nothing of the next is applied yet
+  const double copy_s = seconds_since(start);
+  logger("master")->debug("job {}: frame after round {} copied for its checkpoint in {:.1f} ms", job->id,
+                          record.progress.round, 1e3 * copy_s);
+  checkpointer_->queue(job->id, [&]() -> std::optional<JobProgressRecord> {
+    MutexLock lock(mu_);
+    if (job->state != JobState::kRunning) return std::nullopt;  // ended meanwhile: its final record is queued instead
+    job->checkpoint_cost_s = copy_s;  // the write's time is added when it is written
+    ++job->round_checkpoints;
+    return std::move(record);
+  });
+}
+
+void JobManager::save_final_checkpoint(const std::shared_ptr<Job>& job) {
+  if (!checkpointer_) return;
+  checkpointer_->queue(job->id, [&]() -> std::optional<JobProgressRecord> {
+    MutexLock lock(mu_);
+    return progress_record(*job);
+  });
+}
+
+}  // namespace epr
