@@ -28,6 +28,10 @@
 // leasing again, so a broken job cannot make the worker spin; the master stops leasing the job's tiles
 // to a worker that keeps failing them.
 //
+// Files: worker_node.cpp runs the node (sessions one after another, the tracing threads);
+// master_session.h makes every call to the master; courier.h runs a thread's submissions and early
+// lease calls in the background; time_accounting.h splits the threads' time by activity.
+//
 // In-process use: no globals and no signal handling; any number of WorkerNodes may run in one
 // process (the embedded `epr render` runs a master and N nodes over loopback gRPC). epr-worker's main
 // installs the signal handling and calls stop().

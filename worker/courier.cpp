@@ -1,0 +1,32 @@
+#include "worker/courier.h"
+
+#include "common/thread_name.h"
+
+namespace epr {
+
+Courier::Courier(std::string name) : name_(std::move(name)), thread_([this] { loop(); }) {}
+
+Courier::~Courier() {
+  {
+    std::lock_guard lock(mu_);
+    stopping_ = true;
+  }
+  cv_.notify_one();
+  thread_.join();
+}
+
+void Courier::loop() {
+  set_thread_name(name_);
+  std::unique_lock lock(mu_);
+  for (;;) {
+    cv_.wait(lock, [&] { return stopping_ || !tasks_.empty(); });
+    if (tasks_.empty()) return;
+    auto task = std::move(tasks_.front());
+    tasks_.pop_front();
+    lock.unlock();
+    task();
+    lock.lock();
+  }
+}
+
+}  // namespace epr

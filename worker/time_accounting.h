@@ -1,0 +1,78 @@
+// Where a worker's tracing threads spend their wall time (WorkerNodeStats::time_*, cpu): each thread
+// is in one Activity at a time; at every change the elapsed time is credited to the activities of all
+// threads, split by whether another thread was tracing meanwhile. A few changes per tile: one mutex is
+// cheap enough. A ThreadActivity follows one thread; its Doing switches the activity for a scope.
+#pragma once
+
+#include <chrono>
+#include <mutex>
+#include <utility>
+
+#include "worker/worker_node.h"
+
+namespace epr {
+
+enum class Activity { kOther, kTracing, kLeasing, kWaiting, kSubmitting };
+
+class TimeAccounting {
+ public:
+  void enter(Activity a) { change(nullptr, &a); }
+  void leave(Activity a) { change(&a, nullptr); }
+  void move(Activity from, Activity to) { change(&from, &to); }
+  void add_cpu(Activity a, double seconds);
+  /// The threads' own CPU seconds by activity (up to their last change).
+  WorkerTimeSplit cpu();
+  /// {while another thread traced, while none did}, up to now.
+  std::pair<WorkerTimeSplit, WorkerTimeSplit> split();
+
+  static constexpr int kActivities = 5;
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  static WorkerTimeSplit to_split(const double (&by)[kActivities]);
+  void change(const Activity* from, const Activity* to);
+  void advance();  // credits the time since the last change; mu_ held
+
+  std::mutex mu_;
+  Clock::time_point last_ = Clock::now();
+  int threads_in_[kActivities] = {};
+  double seconds_[kActivities][2] = {};  // [activity][another thread traced]
+  double cpu_[kActivities] = {};         // thread CPU seconds
+};
+
+/// The activity of one tracing thread, kOther from construction to destruction unless a Doing says
+/// otherwise.
+class ThreadActivity {
+ public:
+  explicit ThreadActivity(TimeAccounting& t);
+  ~ThreadActivity();
+  ThreadActivity(const ThreadActivity&) = delete;
+  ThreadActivity& operator=(const ThreadActivity&) = delete;
+
+  /// Switches the thread to `what` for its scope and back after. A null ThreadActivity: nothing.
+  class Doing {
+   public:
+    Doing(ThreadActivity* a, Activity what) : a_(a) {
+      if (!a_) return;
+      before_ = a_->current_;
+      a_->set(what);
+    }
+    ~Doing() {
+      if (a_) a_->set(before_);
+    }
+    Doing(const Doing&) = delete;
+    Doing& operator=(const Doing&) = delete;
+
+   private:
+    ThreadActivity* a_;
+    Activity before_ = Activity::kOther;
+  };
+
+ private:
+  void set(Activity a);
+  TimeAccounting& t_;
+  Activity current_ = Activity::kOther;
+  double cpu_;  // thread CPU seconds at the last change
+};
+
+}  // namespace epr
