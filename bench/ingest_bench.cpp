@@ -55,6 +55,7 @@
 #include "common/scene_loader.h"
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
+#include "master/make_reprojector.h"
 #include "master/reprojector.h"
 #include "master/server/master_server.h"
 #include "worker/tile_renderer.h"

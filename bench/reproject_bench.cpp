@@ -35,6 +35,7 @@
 #include "common/vertex_codec.h"
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
+#include "master/make_reprojector.h"
 #include "master/reprojector.h"
 #include "tests/master/test_scenes.h"
 

@@ -1,3 +1,4 @@
+#include "master/make_reprojector.h"
 #include "master/frame_state.h"
 
 #include <algorithm>

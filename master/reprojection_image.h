@@ -20,9 +20,17 @@
 #include <vector>
 
 #include "common/image.h"
-#include "master/reprojector.h"
 
 namespace epr {
+
+/// Per-subpixel accumulation, read back from a Reprojector.
+struct SubpixelAccumulation {
+  int width = 0, height = 0;  // subpixels: S * image width, S * image height
+  int subpixels = 4;          // S
+  std::vector<float> sum;       // 3 per subpixel: RGB radiance sum
+  std::vector<uint32_t> count;  // 1 per subpixel: number of samples
+  size_t size() const { return size_t(width) * size_t(height); }
+};
 
 struct PixelReprojection {
   Image radiance;               // L_rp, 3 channels, width x height pixels

@@ -52,11 +52,11 @@
 #include "common/vertex_codec.h"
 #include "common/vertex_record.h"
 #include "master/deep_framebuffer.h"
+#include "master/reprojection_image.h"
 
 namespace epr {
 
 class GlContext;
-struct PixelReprojection;
 
 /// One exact-mode sample: its visibility to the camera was decided by a ray on the worker.
 /// `subpixel` = sy * (S*W) + sx (integer subpixel coordinates, y down) -- see subpixel_index().
@@ -119,15 +119,6 @@ struct ReprojectionCounts {
   bool operator==(const ReprojectionCounts&) const = default;
 };
 
-/// Per-subpixel accumulation, read back from a Reprojector.
-struct SubpixelAccumulation {
-  int width = 0, height = 0;  // subpixels: S * image width, S * image height
-  int subpixels = 4;          // S
-  std::vector<float> sum;       // 3 per subpixel: RGB radiance sum
-  std::vector<uint32_t> count;  // 1 per subpixel: number of samples
-  size_t size() const { return size_t(width) * size_t(height); }
-};
-
 class Reprojector {
  public:
   virtual ~Reprojector() = default;
@@ -163,14 +154,5 @@ class Reprojector {
   virtual void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) = 0;
   virtual std::string_view backend() const = 0;
 };
-
-/// `backend` = "cpu" or "gl". For "gl", `gl` is the context to use (must be current on the calling
-/// thread and outlive the reprojector); if null, the reprojector creates and owns a context, current
-/// on the calling thread. The deep framebuffer's grid defines S and the subpixel grid; `camera` must
-/// be the one it was built with. Throws std::invalid_argument (bad backend name, epsilon < 0 or not
-/// finite, grid mismatch) or GlUnavailable.
-std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Camera& camera,
-                                              const DeepFramebuffer& dfb, const ReprojectorSettings& settings,
-                                              GlContext* gl = nullptr);
 
 }  // namespace epr

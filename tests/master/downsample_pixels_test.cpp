@@ -7,6 +7,7 @@
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
 #include "master/reprojection_image.h"
+#include "master/make_reprojector.h"
 #include "master/reprojector.h"
 #include "test_scenes.h"
 

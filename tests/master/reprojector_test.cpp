@@ -1,5 +1,6 @@
 // Reprojectors: known answers for the geometric cases on both back-ends, and bit-identical decisions
 // and per-subpixel counts between "gl" and "cpu" on large random and real-like vertex sets.
+#include "master/make_reprojector.h"
 #include "master/reprojector.h"
 
 #include <gtest/gtest.h>

@@ -17,6 +17,7 @@
 
 #include "common/image.h"
 #include "master/gl_context.h"
+#include "master/make_reprojector.h"
 #include "master/reprojector.h"
 #include "master/server/job_manager.h"
 #include "wire/tile_result_stream.h"
