@@ -2,7 +2,7 @@
 """Clang's thread-safety analysis over the project's sources.
 
 Reads the compile commands of a build folder (CMAKE_EXPORT_COMPILE_COMMANDS), runs each project
-source through clang++ -fsyntax-only with -Wthread-safety as an error, two at a time, and exits
+source that uses the annotations (it or its header includes common/check.h) through clang++ -fsyntax-only with -Wthread-safety as an error, two at a time, and exits
 non-zero if any file breaks a lock annotation (common/check.h: EPR_GUARDED_BY, EPR_REQUIRES, ...).
 
     python3 scripts/check_thread_safety.py build [PATH_PREFIX...]
@@ -17,6 +17,23 @@ import sys
 FOLDERS = ("common/", "wire/", "worker/", "master/", "client/")
 
 
+def annotated(root: str, rel: str) -> bool:
+    """True if the source, or a project header it includes, includes common/check.h."""
+    def read(path):
+        try:
+            with open(os.path.join(root, path), encoding="utf-8") as f:
+                return f.read()
+        except FileNotFoundError:
+            return ""
+    text = read(rel)
+    if '#include "common/check.h"' in text:
+        return True
+    for line in text.splitlines():
+        if line.startswith('#include "') and '#include "common/check.h"' in read(line.split('"')[1]):
+            return True
+    return False
+
+
 def main() -> int:
     build = sys.argv[1] if len(sys.argv) > 1 else "build"
     only = tuple(sys.argv[2:]) or FOLDERS
@@ -26,7 +43,7 @@ def main() -> int:
     jobs = []
     for c in commands:
         rel = os.path.relpath(c["file"], root)
-        if not rel.startswith(only) or not rel.endswith(".cpp"):
+        if not rel.startswith(only) or not rel.endswith(".cpp") or not annotated(root, rel):
             continue
         args = shlex.split(c["command"]) if "command" in c else list(c["arguments"])
         # Drop the compiler (and a launcher such as ccache), the output and the dependency-file flags.

@@ -5,7 +5,7 @@ set -euo pipefail
 
 PACKAGES=(
   # toolchain
-  build-essential cmake ninja-build pkg-config git clang libclang-rt-14-dev
+  build-essential cmake ninja-build pkg-config git clang libclang-rt-14-dev clang-format
   # rendering
   libembree-dev libtbb-dev libosmesa6-dev libopenimageio-dev openimageio-tools
   libtinyobjloader-dev
