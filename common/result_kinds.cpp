@@ -26,10 +26,4 @@ const ResultKindInfo& result_kind(ResultKind kind) {
   return kKinds[0];  // unreachable: every enumerator has a row
 }
 
-std::optional<ResultKind> result_kind_named(std::string_view name) {
-  for (const auto& k : kKinds)
-    if (k.name == name) return k.kind;
-  return std::nullopt;
-}
-
 }  // namespace epr

@@ -2,7 +2,6 @@
 // job folder (stored_as), the job service (media types) and the client that downloads them.
 #pragma once
 
-#include <optional>
 #include <span>
 #include <string_view>
 
@@ -31,6 +30,5 @@ struct ResultKindInfo {
 /// Every kind, in the order a render writes them (the combined EXR first).
 std::span<const ResultKindInfo> result_kinds();
 const ResultKindInfo& result_kind(ResultKind kind);
-std::optional<ResultKind> result_kind_named(std::string_view name);
 
 }  // namespace epr
