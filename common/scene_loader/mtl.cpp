@@ -32,17 +32,13 @@ MtlFile read_mtl(ObjContext& ctx, const FileRef& mtl) {
 
   MtlFile out;
   out.bytes = text.size();
-  std::vector<std::string_view> tok;
-  std::string_view raw;
-  LineReader lines(text);
+  StatementReader statements(text, file);
   std::string current;  // material being defined
   std::set<std::string> names_here;
-  while (lines.next(&raw)) {
-    const size_t ln = lines.number();
-    if (raw.find('\0') != std::string_view::npos) fail(file, ln, "NUL byte in a text file");
-    const std::string_view line = strip_comment(raw);
-    tokenize(line, &tok);
-    if (tok.empty()) continue;
+  while (statements.next()) {
+    const size_t ln = statements.line_number();
+    const std::string_view line = statements.line();
+    const std::vector<std::string_view>& tok = statements.tokens();
     const std::string_view key = tok[0];
     MtlStatement st;
     if (key == "newmtl") {

@@ -104,16 +104,12 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
   std::vector<uint32_t> corner_v;
   std::vector<int32_t> corner_vt;
   std::vector<std::array<uint32_t, 3>> face_triangles;
-  std::vector<std::string_view> tok;
   std::set<std::string, std::less<>> warned_keywords;
-  std::string_view raw;
-  LineReader lines(text);
-  while (lines.next(&raw)) {
-    const size_t ln = lines.number();
-    if (raw.find('\0') != std::string_view::npos) fail(file, ln, "NUL byte in a text file");
-    const std::string_view line = strip_comment(raw);
-    tokenize(line, &tok);
-    if (tok.empty()) continue;
+  StatementReader statements(text, file);
+  while (statements.next()) {
+    const size_t ln = statements.line_number();
+    const std::string_view line = statements.line();
+    const std::vector<std::string_view>& tok = statements.tokens();
     const std::string_view key = tok[0];
     if (key == "v") {
       if (tok.size() < 4 || tok.size() > 8)

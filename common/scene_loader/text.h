@@ -63,6 +63,33 @@ std::string quote_token(std::string_view token);
 /// A decimal number (read as a double, returned as the nearest float) that must be finite and at
 /// most `limit` in magnitude; failures raise file:line naming `what`.
 float parse_real(std::string_view tok, double limit, const std::string& file, size_t line, const char* what);
+/// The statements of an OBJ or MTL text, one per call of next(): lines split by LineReader, a NUL
+/// byte refused naming file and line, comments stripped, blank lines skipped.
+class StatementReader {
+ public:
+  StatementReader(std::string_view text, const std::string& file) : lines_(text), file_(file) {}
+  /// Moves to the next statement; false at the end of the text.
+  bool next() {
+    std::string_view raw;
+    while (lines_.next(&raw)) {
+      if (raw.find('\0') != std::string_view::npos) fail(file_, lines_.number(), "NUL byte in a text file");
+      line_ = strip_comment(raw);
+      tokenize(line_, &tokens_);
+      if (!tokens_.empty()) return true;
+    }
+    return false;
+  }
+  size_t line_number() const { return lines_.number(); }
+  std::string_view line() const { return line_; }  // without its comment and surrounding blanks
+  const std::vector<std::string_view>& tokens() const { return tokens_; }
+
+ private:
+  LineReader lines_;
+  const std::string& file_;
+  std::string_view line_;
+  std::vector<std::string_view> tokens_;
+};
+
 /// Splits an mtllib argument: blanks separate names, a backslash escapes the next character.
 std::vector<std::string> split_escaped(std::string_view s);
 
