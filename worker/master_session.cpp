@@ -11,10 +11,6 @@
 #include "worker/scene_fetch.h"
 #include "worker/tile_renderer.h"
 
-#ifndef EPR_VERSION
-#define EPR_VERSION "0.0.0"
-#endif
-
 namespace epr {
 namespace {
 
@@ -169,7 +165,6 @@ bool MasterSession::register_worker(std::string* why) {
   info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
   info.set_name(config_.name);
   info.set_threads(uint32_t(config_.threads));
-  info.set_version(EPR_VERSION);
   for (const auto& h : cached_scene_hashes(config_.cache_dir)) info.add_cached_scenes(h);
 
   grpc::ClientContext ctx;
