@@ -28,7 +28,7 @@ namespace epr {
 struct SceneFetchLimits {
   uint64_t max_total_bytes = 4ull << 30;  // sum of file sizes
   uint64_t max_files = 100000;
-  uint64_t max_chunk_bytes = 1u << 20;  // SceneFileData.data, per the proto
+  uint64_t max_chunk_bytes = rpc::kChunkBytes;  // SceneFileData.data, per the proto
 };
 
 /// The entry file of a complete cached scene ("CACHE_ROOT/scenes/HASH/ENTRY"), or nullopt if the
