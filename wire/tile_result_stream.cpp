@@ -19,7 +19,7 @@ constexpr uint32_t kExactWireBytes = 12 + 5;
 constexpr uint32_t kMaxPathCount = 1u << 20;
 // The assembler reserves at most this many vertices / exact samples on the header's word; beyond it the
 // arrays grow geometrically with the data that actually arrives. A header alone (a few bytes) must not
-// make the master allocate much: 4 Mi announced vertices used to reserve 160 MB at once, per stream.
+// make the master allocate much: reserving for 4 Mi announced vertices would take 160 MB per stream.
 constexpr uint64_t kInitialReserve = 1u << 16;
 
 uint32_t items_per_chunk(uint32_t max_chunk_bytes, uint32_t bytes_per_item, uint32_t cap) {
