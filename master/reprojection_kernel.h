@@ -1,5 +1,5 @@
 // The per-point reprojection decision, written once in C++ and mirrored line by line by the GLSL
-// compute shader in gl_reprojector.cpp (keep both in step: same operations in the same order, so
+// compute shader in gl_reprojector_shaders.cpp (keep both in step: same operations in the same order, so
 // that the CPU and GL back-ends take bit-identical decisions). Internal to master/.
 //
 // The deep framebuffer is used in a compact form, PlaneGrid: per texel the index of its entry in a

@@ -7,7 +7,7 @@
 // (ReprojectorSettings::batch_points), independent of the number of points or rounds.
 //
 // Semantics of reproject(), identical in every back-end (see reprojection_kernel.h, mirrored by the
-// GLSL in gl_reprojector.cpp), evaluated in this order per VertexRecord:
+// GLSL in gl_reprojector_shaders.cpp), evaluated in this order per VertexRecord:
 //   1. not diffuse (and reproject_glossy off)  -> counts.not_diffuse, skipped
 //   2. non-finite position, normal or radiance  -> counts.invalid, skipped
 //   3. Camera::project fails (not strictly in front of the eye) or the subpixel position

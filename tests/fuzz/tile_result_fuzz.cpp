@@ -35,7 +35,7 @@
 #include "common/vertex_codec.h"
 #include "master/reprojection_kernel.h"
 #include "wire/tile_result_stream.h"
-#include "worker/tile_renderer.h"
+#include "common/tile.h"
 
 namespace {
 
@@ -157,7 +157,7 @@ void check_tile(const Lease& l, const v1::TileResultHeader& header, const Assemb
   spec.look = (e.codec_bounds.lo + e.codec_bounds.hi) * 0.5f;
   spec.eye = spec.look + Vec3(0.f, 0.f, 3.9f + (e.codec_bounds.hi.z - e.codec_bounds.lo.z));
   const Camera cam(spec, int(e.image_width), int(e.image_height));
-  detail::KernelParams k;  // master/reprojector.cpp's make_kernel_params
+  detail::KernelParams k;  // master/reprojection_kernel.cpp's make_kernel_params
   k.eye = cam.eye();
   k.forward = cam.forward();
   k.right = cam.right();
