@@ -85,25 +85,25 @@ bool is_terminal(v1::JobState state) {
 }
 
 void CallCanceller::cancel() {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   cancelled_ = true;
   if (active_) active_->TryCancel();
 }
 
 bool CallCanceller::cancelled() const {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   return cancelled_;
 }
 
 bool CallCanceller::attach(grpc::ClientContext* ctx) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   if (cancelled_) return false;
   active_ = ctx;
   return true;
 }
 
 void CallCanceller::detach() {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   active_ = nullptr;
 }
 

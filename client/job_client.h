@@ -22,12 +22,12 @@
 #include <chrono>
 #include <functional>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "common/check.h"
 #include "common/render_options.h"
 #include "epr/v1/job_service.grpc.pb.h"
 #include "wire/scene_bundle.h"
@@ -76,18 +76,18 @@ struct SubmitOptions {
 /// cancelled it stays cancelled: calls that use it afterwards fail at once with CANCELLED.
 class CallCanceller {
  public:
-  void cancel();
-  bool cancelled() const;
+  void cancel() EPR_EXCLUDES(mu_);
+  bool cancelled() const EPR_EXCLUDES(mu_);
 
  private:
   friend class JobClient;
   // Registers the context of the call in flight; false if already cancelled.
-  bool attach(grpc::ClientContext* ctx);
-  void detach();
+  bool attach(grpc::ClientContext* ctx) EPR_EXCLUDES(mu_);
+  void detach() EPR_EXCLUDES(mu_);
 
-  mutable std::mutex mu_;
-  grpc::ClientContext* active_ = nullptr;
-  bool cancelled_ = false;
+  mutable Mutex mu_;
+  grpc::ClientContext* active_ EPR_GUARDED_BY(mu_) = nullptr;
+  bool cancelled_ EPR_GUARDED_BY(mu_) = false;
 };
 
 /// One result file written by fetch.

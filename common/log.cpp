@@ -7,6 +7,8 @@
 namespace epr {
 
 std::shared_ptr<spdlog::logger> logger(const std::string& component) {
+  // Makes the look-up and the creation one step (spdlog throws when a name is registered twice). It
+  // guards no field, only this call, so it stays a plain std::mutex with nothing to annotate.
   static std::mutex mu;
   std::lock_guard lock(mu);
   if (auto l = spdlog::get(component)) return l;

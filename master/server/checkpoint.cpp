@@ -444,7 +444,7 @@ CheckpointStore::CheckpointStore(fs::path dir) : dir_(std::move(dir)) {
 }
 
 uint64_t CheckpointStore::next_epoch() {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   uint64_t epoch = 0;
   try {
     const std::string p = read_sealed(dir_ / "epoch", RecordKind::kEpoch);
@@ -462,7 +462,7 @@ uint64_t CheckpointStore::next_epoch() {
 }
 
 void CheckpointStore::save_scene(const std::string& hash, const SceneBundleData& bundle) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   const fs::path path = dir_ / "scenes" / (hash + ".scene");
   if (fs::exists(path)) {
     try {
@@ -495,7 +495,7 @@ SceneBundleData CheckpointStore::load_scene(const std::string& hash) const {
 }
 
 void CheckpointStore::save_spec(const JobSpecRecord& spec) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   const fs::path dir = job_dir(spec.id);
   fs::create_directories(dir);
   write_file_atomically(dir / "spec.ckpt", seal(RecordKind::kJobSpec, encode(spec)));
@@ -504,7 +504,7 @@ void CheckpointStore::save_spec(const JobSpecRecord& spec) {
 void CheckpointStore::save_progress(const std::string& id, const JobProgressRecord& record) {
   const std::string payload = encode(record);
   const std::string header = seal_header(RecordKind::kJobProgress, payload);
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   const fs::path dir = job_dir(id);
   fs::create_directories(dir);
   const fs::path newest = dir / "progress.ckpt", previous = dir / "progress.prev.ckpt", tmp = temp_of(newest);
@@ -516,7 +516,7 @@ void CheckpointStore::save_progress(const std::string& id, const JobProgressReco
 }
 
 void CheckpointStore::remove_job(const std::string& id) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   std::error_code ec;
   fs::remove_all(job_dir(id), ec);
 }
@@ -538,7 +538,7 @@ std::optional<JobProgressRecord> CheckpointStore::load_progress(const std::strin
 }
 
 std::vector<CheckpointStore::LoadedJob> CheckpointStore::load_jobs(std::vector<std::string>* problems) const {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   std::vector<LoadedJob> out;
   std::error_code ec;
   for (const auto& entry : fs::directory_iterator(dir_ / "jobs", ec)) {

@@ -20,13 +20,13 @@
 #include <cstdint>
 #include <filesystem>
 #include <map>
-#include <mutex>
 #include <optional>
 #include <stdexcept>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include "common/check.h"
 #include "master/frame_state.h"
 #include "master/server/job.h"
 #include "wire/scene_bundle.h"
@@ -98,7 +98,7 @@ JobSpecRecord spec_record(const Job& job);
 JobProgressRecord progress_record(const Job& job);
 
 /// The state directory: the layout above, the keep-two rotation of progress checkpoints and the
-/// fallback to the previous one. Thread-safe (one writer at a time).
+/// fallback to the previous one. Thread-safe: the writes and load_jobs() run one at a time.
 class CheckpointStore {
  public:
   /// Creates the folders if needed; throws std::filesystem::filesystem_error if it cannot.
@@ -108,18 +108,18 @@ class CheckpointStore {
   std::filesystem::path job_dir(const std::string& id) const { return dir_ / "jobs" / id; }
 
   /// Reads the run counter (0 if there is none or it is unreadable), stores it plus one and returns that.
-  uint64_t next_epoch();
+  uint64_t next_epoch() EPR_EXCLUDES(mu_);
 
   /// Stores a scene bundle under its hash unless a valid copy is there already.
-  void save_scene(const std::string& hash, const SceneBundleData& bundle);
+  void save_scene(const std::string& hash, const SceneBundleData& bundle) EPR_EXCLUDES(mu_);
   /// The stored bundle; CheckpointError if missing, corrupt or not matching the hash.
   SceneBundleData load_scene(const std::string& hash) const;
 
-  void save_spec(const JobSpecRecord& spec);
+  void save_spec(const JobSpecRecord& spec) EPR_EXCLUDES(mu_);
   /// Makes `record` the newest progress checkpoint; the newest so far becomes the previous one.
-  void save_progress(const std::string& id, const JobProgressRecord& record);
+  void save_progress(const std::string& id, const JobProgressRecord& record) EPR_EXCLUDES(mu_);
   /// Removes a forgotten job's folder.
-  void remove_job(const std::string& id);
+  void remove_job(const std::string& id) EPR_EXCLUDES(mu_);
 
   struct LoadedJob {
     JobSpecRecord spec;
@@ -127,13 +127,15 @@ class CheckpointStore {
     std::vector<std::string> problems;          // checkpoints that were rejected, and why
   };
   /// Every job with a readable spec, in submission order; `problems` lists the folders skipped.
-  std::vector<LoadedJob> load_jobs(std::vector<std::string>* problems) const;
+  std::vector<LoadedJob> load_jobs(std::vector<std::string>* problems) const EPR_EXCLUDES(mu_);
   /// A job's newest valid progress checkpoint (falling back to the previous one).
   std::optional<JobProgressRecord> load_progress(const std::string& id, std::vector<std::string>* problems) const;
 
  private:
-  std::filesystem::path dir_;
-  mutable std::mutex mu_;
+  const std::filesystem::path dir_;
+  // Guards no field: it serialises the changes to the files under dir_ (and load_jobs' walk over
+  // them), so two writers never rotate the same job's progress checkpoints at once.
+  mutable Mutex mu_;
 };
 
 }  // namespace epr

@@ -15,7 +15,7 @@ Checkpointer::~Checkpointer() { stop(); }
 
 void Checkpointer::stop() {
   {
-    std::lock_guard lock(mu_);
+    MutexLock lock(mu_);
     stopping_ = true;
   }
   cv_.notify_all();
@@ -23,7 +23,7 @@ void Checkpointer::stop() {
 }
 
 void Checkpointer::queue(const std::string& job_id, const std::function<std::optional<JobProgressRecord>()>& make) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   std::optional<JobProgressRecord> record = make();
   if (!record) return;
   auto r = std::make_shared<const JobProgressRecord>(std::move(*record));
@@ -37,9 +37,9 @@ void Checkpointer::queue(const std::string& job_id, const std::function<std::opt
 
 void Checkpointer::loop() {
   set_thread_name("epr-checkpoint");
-  std::unique_lock lock(mu_);
+  MutexLock lock(mu_);
   for (;;) {
-    cv_.wait(lock, [&] { return stopping_ || !queue_.empty(); });
+    cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return stopping_ || !queue_.empty(); });  // with mu_ held
     if (queue_.empty()) return;  // stopping, everything written
     auto [job_id, record] = std::move(queue_.front());
     queue_.pop_front();

@@ -8,12 +8,12 @@
 #include <deque>
 #include <functional>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
 #include <utility>
 
+#include "common/check.h"
 #include "master/server/checkpoint.h"
 
 namespace epr {
@@ -28,19 +28,20 @@ class Checkpointer {
   Checkpointer& operator=(const Checkpointer&) = delete;
 
   /// Calls `make` under the queue's lock and queues the record it returns (none: nothing queued).
-  void queue(const std::string& job_id, const std::function<std::optional<JobProgressRecord>()>& make);
+  void queue(const std::string& job_id, const std::function<std::optional<JobProgressRecord>()>& make)
+      EPR_EXCLUDES(mu_);
   /// Writes what is queued and stops the thread (idempotent).
-  void stop();
+  void stop() EPR_EXCLUDES(mu_);
 
  private:
-  void loop();
+  void loop() EPR_EXCLUDES(mu_);
 
   CheckpointStore& store_;
   std::function<void(const std::string&, double)> written_;
-  std::mutex mu_;
-  std::condition_variable cv_;
-  std::deque<std::pair<std::string, std::shared_ptr<const JobProgressRecord>>> queue_;  // guarded by mu_
-  bool stopping_ = false;                                                                // guarded by mu_
+  Mutex mu_;
+  std::condition_variable_any cv_;
+  std::deque<std::pair<std::string, std::shared_ptr<const JobProgressRecord>>> queue_ EPR_GUARDED_BY(mu_);
+  bool stopping_ EPR_GUARDED_BY(mu_) = false;
   std::thread thread_;
 };
 

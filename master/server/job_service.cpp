@@ -6,6 +6,7 @@
 
 #include <fmt/format.h>
 
+#include "common/check.h"
 #include "common/log.h"
 #include "master/server/reactors.h"
 #include "wire/convert.h"
@@ -41,15 +42,15 @@ class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
     handle_ = jobs_.watch(id, [this](const JobSnapshot& s) { offer(s); });
     offer(*first);
   }
-  void OnWriteDone(bool ok) override {
-    std::lock_guard lock(mu_);
+  void OnWriteDone(bool ok) override EPR_EXCLUDES(mu_) {
+    MutexLock lock(mu_);
     writing_ = false;
     if (!ok) return finish_locked(grpc::Status(grpc::StatusCode::CANCELLED, "client went away"));
     if (last_written_final_) return finish_locked(grpc::Status::OK);
     if (pending_) write_locked();
   }
-  void OnCancel() override {
-    std::lock_guard lock(mu_);
+  void OnCancel() override EPR_EXCLUDES(mu_) {
+    MutexLock lock(mu_);
     finish_locked(grpc::Status(grpc::StatusCode::CANCELLED, "watch cancelled"));
   }
   void OnDone() override {
@@ -58,13 +59,13 @@ class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
   }
 
  private:
-  void offer(const JobSnapshot& s) {
-    std::lock_guard lock(mu_);
+  void offer(const JobSnapshot& s) EPR_EXCLUDES(mu_) {
+    MutexLock lock(mu_);
     if (finished_ || (have_written_ && s.version <= written_version_ && !is_terminal(s.state))) return;
     pending_ = s;
     if (!writing_) write_locked();
   }
-  void write_locked() {
+  void write_locked() EPR_REQUIRES(mu_) {
     const JobSnapshot s = *pending_;
     pending_.reset();
     const auto now = std::chrono::steady_clock::now();
@@ -81,7 +82,7 @@ class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
     writing_ = true;
     StartWrite(&out_);
   }
-  void finish_locked(grpc::Status st) {
+  void finish_locked(grpc::Status st) EPR_REQUIRES(mu_) {
     if (finished_) return;
     finished_ = true;
     Finish(std::move(st));
@@ -89,13 +90,16 @@ class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
 
   JobManager& jobs_;
   uint32_t min_interval_ms_;
-  uint64_t handle_ = 0;
-  std::mutex mu_;
-  v1::JobStatus out_;
-  std::optional<JobSnapshot> pending_;
-  uint64_t written_version_ = 0;
-  bool have_written_ = false, writing_ = false, finished_ = false, last_written_final_ = false;
-  std::chrono::steady_clock::time_point last_write_;
+  uint64_t handle_ = 0;  // set by the constructor, read by OnDone
+  Mutex mu_;
+  v1::JobStatus out_ EPR_GUARDED_BY(mu_);  // the write in flight (gRPC reads it until OnWriteDone)
+  std::optional<JobSnapshot> pending_ EPR_GUARDED_BY(mu_);
+  uint64_t written_version_ EPR_GUARDED_BY(mu_) = 0;
+  bool have_written_ EPR_GUARDED_BY(mu_) = false;
+  bool writing_ EPR_GUARDED_BY(mu_) = false;
+  bool finished_ EPR_GUARDED_BY(mu_) = false;
+  bool last_written_final_ EPR_GUARDED_BY(mu_) = false;
+  std::chrono::steady_clock::time_point last_write_ EPR_GUARDED_BY(mu_);
 };
 
 // Receives an uploaded scene: manifest, then each file's bytes in order.

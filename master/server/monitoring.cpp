@@ -10,6 +10,7 @@
 #include <string_view>
 #include <thread>
 
+#include "common/check.h"
 #include "common/log.h"
 #include "common/thread_name.h"
 #include "master/server/job_manager.h"
@@ -77,8 +78,8 @@ struct MonitoringServer::Impl {
   int port = 0;
   FarmTotalsTracker totals;
   std::atomic<bool> listen_returned{false};
-  std::mutex stop_mu;
-  bool stopped = false;
+  Mutex stop_mu;  // also makes a second stop() wait until the first has joined the thread
+  bool stopped EPR_GUARDED_BY(stop_mu) = false;
 
   Impl(JobManager& j, MonitoringOptions o) : jobs(j), options(std::move(o)) {}
   void routes();
@@ -225,7 +226,7 @@ std::string MonitoringServer::url() const {
 }
 
 void MonitoringServer::stop() {
-  std::lock_guard lock(impl_->stop_mu);
+  MutexLock lock(impl_->stop_mu);
   if (impl_->stopped) return;
   impl_->stopped = true;
   impl_->http.stop();

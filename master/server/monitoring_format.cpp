@@ -152,7 +152,7 @@ FarmTotals& FarmTotals::operator+=(const FarmTotals& o) {
 FarmTotals FarmTotalsTracker::update(const std::vector<JobSnapshot>& jobs) {
   std::map<std::string, FarmTotals> now;
   for (const auto& s : jobs) now[s.id] = FarmTotals::of(s);
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   for (const auto& [id, t] : live_)
     if (!now.count(id)) retired_ += t;
   live_ = std::move(now);

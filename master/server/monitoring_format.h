@@ -11,11 +11,11 @@
 #pragma once
 
 #include <map>
-#include <mutex>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
+#include "common/check.h"
 #include "master/server/duration_histogram.h"
 #include "master/server/job_manager.h"
 
@@ -41,12 +41,12 @@ struct FarmTotals {
 /// disappears from the list keeps contributing the values it had when last seen. Thread-safe.
 class FarmTotalsTracker {
  public:
-  FarmTotals update(const std::vector<JobSnapshot>& jobs);
+  FarmTotals update(const std::vector<JobSnapshot>& jobs) EPR_EXCLUDES(mu_);
 
  private:
-  std::mutex mu_;
-  std::map<std::string, FarmTotals> live_;
-  FarmTotals retired_;
+  Mutex mu_;
+  std::map<std::string, FarmTotals> live_ EPR_GUARDED_BY(mu_);
+  FarmTotals retired_ EPR_GUARDED_BY(mu_);
 };
 
 struct MetricsInput {
