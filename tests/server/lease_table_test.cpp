@@ -124,6 +124,25 @@ TEST_F(LeaseTableTest, NoSpeculativeCopyOfADeadHoldersTile) {
   EXPECT_EQ(counters.tiles_speculative, 0u);
 }
 
+TEST_F(LeaseTableTest, NoSpeculativeCopyWhenDisabled) {
+  policy.speculative_factor = 0;
+  policy.speculative_floor_ms = 0;
+  LeaseTable t = make(2);
+  t.open_round(0, {0, 1});
+  uint64_t slow = 0, fast = 0;
+  lease(t, "slow", &slow);
+  lease(t, "fast", &fast);
+  now += 1;
+  std::vector<uint64_t> losers;
+  t.commit(1, fast, &losers);
+  for (int i = 0; i < 100; ++i) {  // a thousand times the median, the holder alive throughout
+    now += 10;
+    t.extend(slow);
+    ASSERT_FALSE(lease(t, "fast"));
+  }
+  EXPECT_EQ(counters.tiles_speculative, 0u);
+}
+
 TEST_F(LeaseTableTest, SpeculationUsesThePreviousRoundsTimesUntilThisRoundCommits) {
   LeaseTable t = make(2);
   t.open_round(0, {0});

@@ -84,37 +84,8 @@ TEST_F(LeaseTest, StalledTileIsCopiedToAnIdleWorkerAndTheFirstResultWins) {
   expect_same_as_local(id, o);
 }
 
-TEST_F(LeaseTest, NoSpeculativeCopyBeforeTheThresholdNorWhenDisabled) {
-  MasterOptions mo;
-  mo.speculative_factor = 0;  // disabled
-  // Nothing else stands in the way of a copy: no floor, and the holder counts as alive throughout.
-  mo.speculative_floor_ms = 0;
-  mo.heartbeat_interval_ms = 60000;
-  start(mo);
-  const RenderOptions o = cornell(RenderMode::kPathTrace, 16, 2, 1);  // one tile per round
-  const std::string id = submit(o, bundle_scene(o.scene));
-  WireWorker a(channel_, "a"), b(channel_, "b");
-  auto t = a.lease_wait();
-  ASSERT_TRUE(t);
-  const auto round0_leased = std::chrono::steady_clock::now();
-  // Round 0 has no committed tile yet, so nothing to compare with (and copies are disabled anyway):
-  // b waits. Holding the tile for a while is the point here; no event marks a copy not happening.
-  std::this_thread::sleep_for(400ms);
-  EXPECT_FALSE(b.lease());
-  v1::SubmitAck ack;
-  ASSERT_TRUE(a.submit(a.render(*t), &ack).ok());
-  EXPECT_EQ(ack.outcome(), v1::SUBMIT_OUTCOME_COMMITTED);
-  const auto round0 = std::chrono::steady_clock::now() - round0_leased;
-  auto t2 = a.lease_wait();  // round 1
-  ASSERT_TRUE(t2);
-  // Held for three times round 0's tile: with copies enabled (factor 2) b would now get one.
-  std::this_thread::sleep_for(3 * round0 + 100ms);
-  EXPECT_FALSE(b.lease()) << "speculative_factor 0 must never copy";
-  ASSERT_TRUE(a.submit(a.render(*t2), &ack).ok());
-  const v1::JobStatus st = wait_done(id);
-  ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
-  EXPECT_EQ(st.tiles_speculative(), 0u);
-}
+// That no copy goes out before the threshold, or at all with speculative_factor 0, is lease policy:
+// tests/server/lease_table_test.cpp checks it on a clock of its own, without waiting.
 
 TEST_F(LeaseTest, DeadHoldersTileComesBackByExpiryNotByACopy) {
   MasterOptions mo;
