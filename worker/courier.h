@@ -9,9 +9,10 @@
 #include <functional>
 #include <future>
 #include <memory>
-#include <mutex>
 #include <string>
 #include <thread>
+
+#include "common/check.h"
 
 namespace epr {
 
@@ -29,7 +30,7 @@ class Courier {
     auto task = std::make_shared<std::packaged_task<decltype(f())()>>(std::move(f));
     auto result = task->get_future();
     {
-      std::lock_guard lock(mu_);
+      MutexLock lock(mu_);
       tasks_.emplace_back([task] { (*task)(); });
     }
     cv_.notify_one();
@@ -37,12 +38,12 @@ class Courier {
   }
 
  private:
-  void loop();
+  void loop() EPR_EXCLUDES(mu_);
 
-  std::mutex mu_;
-  std::condition_variable cv_;
-  std::deque<std::function<void()>> tasks_;
-  bool stopping_ = false;
+  Mutex mu_;
+  std::condition_variable_any cv_;
+  std::deque<std::function<void()>> tasks_ EPR_GUARDED_BY(mu_);
+  bool stopping_ EPR_GUARDED_BY(mu_) = false;
   const std::string name_;
   std::thread thread_;  // last: started once the members above exist
 };

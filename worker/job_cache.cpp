@@ -26,12 +26,12 @@ JobCache::JobCache(size_t max_jobs, SceneLoader loader)
     : max_jobs_(std::max<size_t>(1, max_jobs)), loader_(std::move(loader)) {}
 
 size_t JobCache::size() const {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   return jobs_.size();
 }
 
 uint64_t JobCache::scene_loads() const {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   return scene_loads_;
 }
 
@@ -43,7 +43,7 @@ std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease) {
     std::promise<std::shared_ptr<const JobContext>> promise;
     bool builder = false;
     {
-      std::lock_guard lock(mu_);
+      MutexLock lock(mu_);
       for (auto it = jobs_.begin(); it != jobs_.end(); ++it) {
         if ((*it)->job_id != lease.job_id()) continue;
         if ((*it)->ready()) {
@@ -73,11 +73,11 @@ std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease) {
       try {
         promise.set_value(build(lease));
         // Trim only now, so the new job can still share the scene of a job it pushes out.
-        std::lock_guard lock(mu_);
+        MutexLock lock(mu_);
         while (jobs_.size() > max_jobs_ && jobs_.back() != entry) jobs_.pop_back();
       } catch (...) {
         promise.set_exception(std::current_exception());
-        std::lock_guard lock(mu_);
+        MutexLock lock(mu_);
         jobs_.remove(entry);  // not cached: the next lease tries again
         throw;
       }
@@ -90,7 +90,7 @@ std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease) {
 
 std::shared_ptr<const LoadedScene> JobCache::scene_for(const v1::SceneRef& ref) {
   {
-    std::lock_guard lock(mu_);
+    MutexLock lock(mu_);
     if (auto it = scenes_.find(ref.content_hash()); it != scenes_.end())
       if (auto s = it->second.lock()) return s;
     ++scene_loads_;
@@ -98,7 +98,7 @@ std::shared_ptr<const LoadedScene> JobCache::scene_for(const v1::SceneRef& ref) 
   // Loading and the BVH build happen outside the lock; two jobs loading the same new scene at the
   // same moment both load it (rare, and correct).
   auto loaded = std::make_shared<const LoadedScene>(loader_(ref));
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   for (auto it = scenes_.begin(); it != scenes_.end();)  // forget scenes nobody holds any more
     it = it->second.expired() ? scenes_.erase(it) : std::next(it);
   scenes_[ref.content_hash()] = loaded;

@@ -13,10 +13,10 @@
 #include <list>
 #include <map>
 #include <memory>
-#include <mutex>
 #include <string>
 
 #include "common/camera.h"
+#include "common/check.h"
 #include "common/math.h"
 #include "common/scene.h"
 #include "epr/v1/worker_service.pb.h"
@@ -60,24 +60,25 @@ class JobCache {
 
   /// The job's context, building it if needed (which may take long: a scene fetch and a BVH build).
   /// Throws what the loader throws, or std::invalid_argument for unusable settings.
-  std::shared_ptr<const JobContext> get(const v1::TileLease& lease);
+  std::shared_ptr<const JobContext> get(const v1::TileLease& lease) EPR_EXCLUDES(mu_);
 
   /// Jobs currently kept.
-  size_t size() const;
+  size_t size() const EPR_EXCLUDES(mu_);
   /// Times a scene was loaded (the loader called), for tests and stats.
-  uint64_t scene_loads() const;
+  uint64_t scene_loads() const EPR_EXCLUDES(mu_);
 
  private:
   struct Entry;
-  std::shared_ptr<const JobContext> build(const v1::TileLease& lease);
-  std::shared_ptr<const LoadedScene> scene_for(const v1::SceneRef& ref);
+  // Both run without the lock: loading a scene and building its BVH take long.
+  std::shared_ptr<const JobContext> build(const v1::TileLease& lease) EPR_EXCLUDES(mu_);
+  std::shared_ptr<const LoadedScene> scene_for(const v1::SceneRef& ref) EPR_EXCLUDES(mu_);
 
   const size_t max_jobs_;
   const SceneLoader loader_;
-  mutable std::mutex mu_;
-  std::list<std::shared_ptr<Entry>> jobs_;                          // most recently used first
-  std::map<std::string, std::weak_ptr<const LoadedScene>> scenes_;  // by content hash
-  uint64_t scene_loads_ = 0;
+  mutable Mutex mu_;
+  std::list<std::shared_ptr<Entry>> jobs_ EPR_GUARDED_BY(mu_);                          // most recently used first
+  std::map<std::string, std::weak_ptr<const LoadedScene>> scenes_ EPR_GUARDED_BY(mu_);  // by content hash
+  uint64_t scene_loads_ EPR_GUARDED_BY(mu_) = 0;
 };
 
 }  // namespace epr

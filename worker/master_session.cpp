@@ -41,30 +41,32 @@ Millis size_deadline(Millis base, double bytes) {
 // ---- StopSignal -----------------------------------------------------------------------------------
 
 void StopSignal::stop(const std::string& reason) {
-  notify([&] {
+  {
+    MutexLock lock(mu_);
     if (!stopping_) reason_ = reason;
     stopping_ = true;
-  });
+  }
+  cv_.notify_all();
 }
 
 std::string StopSignal::reason() const {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   return reason_;
 }
 
 bool StopSignal::wait_for(int ms, const std::function<bool()>& until) {
-  std::unique_lock lock(mu_);
+  MutexLock lock(mu_);
   return cv_.wait_for(lock, Millis(ms), [&] { return stopping_.load() || (until && until()); });
 }
 
 void StopSignal::wait(const std::function<bool()>& until) {
-  std::unique_lock lock(mu_);
+  MutexLock lock(mu_);
   cv_.wait(lock, [&] { return stopping_.load() || until(); });
 }
 
 void StopSignal::notify(const std::function<void()>& change) {
   {
-    std::lock_guard lock(mu_);
+    MutexLock lock(mu_);
     change();
   }
   cv_.notify_all();
@@ -77,14 +79,9 @@ void StopSignal::notify(const std::function<void()>& change) {
 class MasterSession::CallScope {
  public:
   CallScope(MasterSession& s, grpc::ClientContext& ctx, bool cancel_on_stop) : s_(s), ctx_(ctx) {
-    std::lock_guard lock(s.mu_);
-    s.calls_[&ctx] = cancel_on_stop;
-    if (s.lost_ || (cancel_on_stop && s.ending_)) ctx.TryCancel();
+    s.track(ctx, cancel_on_stop);
   }
-  ~CallScope() {
-    std::lock_guard lock(s_.mu_);
-    s_.calls_.erase(&ctx_);
-  }
+  ~CallScope() { s_.untrack(ctx_); }
   CallScope(const CallScope&) = delete;
   CallScope& operator=(const CallScope&) = delete;
 
@@ -92,6 +89,17 @@ class MasterSession::CallScope {
   MasterSession& s_;
   grpc::ClientContext& ctx_;
 };
+
+void MasterSession::track(grpc::ClientContext& ctx, bool cancel_on_stop) {
+  MutexLock lock(mu_);
+  calls_[&ctx] = cancel_on_stop;
+  if (lost_ || (cancel_on_stop && ending_)) ctx.TryCancel();
+}
+
+void MasterSession::untrack(grpc::ClientContext& ctx) {
+  MutexLock lock(mu_);
+  calls_.erase(&ctx);
+}
 
 MasterSession::MasterSession(Config config, StopSignal& signal, NodeCounters& counters,
                              std::shared_ptr<spdlog::logger> log)
@@ -112,14 +120,14 @@ void MasterSession::prepare(grpc::ClientContext& ctx, Millis deadline) const {
 }
 
 std::string MasterSession::end_reason() const {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   return end_reason_;
 }
 
 void MasterSession::end(const std::string& reason, bool lost) {
   signal_.notify([&] {
     if (ending_ && !(lost && !lost_)) return;
-    std::lock_guard lock(mu_);
+    MutexLock lock(mu_);
     if (end_reason_.empty()) end_reason_ = reason;
     if (lost) lost_ = true;
     ending_ = true;
@@ -136,7 +144,7 @@ void MasterSession::call_failed(const char* what, const grpc::Status& status) {
 }
 
 std::shared_ptr<MasterSession::Hold> MasterSession::hold(uint64_t lease_id) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   auto& h = held_[lease_id];
   if (!h) {
     h = std::make_shared<Hold>();
@@ -146,12 +154,12 @@ std::shared_ptr<MasterSession::Hold> MasterSession::hold(uint64_t lease_id) {
 }
 
 void MasterSession::release(uint64_t lease_id) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   held_.erase(lease_id);
 }
 
 std::vector<uint64_t> MasterSession::held_ids(bool include_abandoned) const {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   std::vector<uint64_t> ids;
   for (const auto& [id, h] : held_)
     if (include_abandoned || !h->abandoned) ids.push_back(id);
@@ -211,7 +219,7 @@ void MasterSession::heartbeat_loop() {
       break;
     }
     healthy_ = true;
-    std::lock_guard lock(mu_);
+    MutexLock lock(mu_);
     for (const auto& state : resp.leases()) {
       if (state.valid()) continue;
       if (auto it = held_.find(state.lease_id()); it != held_.end()) it->second->abandoned = true;

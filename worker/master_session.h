@@ -17,13 +17,13 @@
 #include <functional>
 #include <map>
 #include <memory>
-#include <mutex>
 #include <string>
 #include <vector>
 
 #include <grpcpp/grpcpp.h>
 #include <spdlog/logger.h>
 
+#include "common/check.h"
 #include "common/math.h"
 #include "epr/v1/worker_service.grpc.pb.h"
 #include "wire/rpc/channel.h"
@@ -38,20 +38,20 @@ class StopSignal {
  public:
   bool stopping() const { return stopping_; }
   /// Sets the flag (the first reason is kept) and wakes every wait.
-  void stop(const std::string& reason);
-  std::string reason() const;
+  void stop(const std::string& reason) EPR_EXCLUDES(mu_);
+  std::string reason() const EPR_EXCLUDES(mu_);
   /// Waits up to `ms`; true when woken early by a stop or by `until` (read under the lock).
-  bool wait_for(int ms, const std::function<bool()>& until = nullptr);
+  bool wait_for(int ms, const std::function<bool()>& until = nullptr) EPR_EXCLUDES(mu_);
   /// Waits until a stop or `until`.
-  void wait(const std::function<bool()>& until);
+  void wait(const std::function<bool()>& until) EPR_EXCLUDES(mu_);
   /// Runs `change` under the lock, then wakes every wait: how a change their `until` reads is made.
-  void notify(const std::function<void()>& change);
+  void notify(const std::function<void()>& change) EPR_EXCLUDES(mu_);
 
  private:
-  mutable std::mutex mu_;
-  std::condition_variable cv_;
-  std::atomic<bool> stopping_{false};
-  std::string reason_;
+  mutable Mutex mu_;
+  std::condition_variable_any cv_;
+  std::atomic<bool> stopping_{false};  // read without the lock; changed under it, so no wait misses it
+  std::string reason_ EPR_GUARDED_BY(mu_);
 };
 
 /// What the node counts (WorkerNodeStats).
@@ -103,22 +103,22 @@ class MasterSession {
   bool ending() const { return ending_; }  // threads wind down (stop, or the session broke)
   bool lost() const { return lost_; }      // it broke: finished tiles are not submitted any more
   bool healthy() const { return healthy_; }  // some call after Register succeeded
-  std::string end_reason() const;
+  std::string end_reason() const EPR_EXCLUDES(mu_);
   /// Ends the session: lost (it broke: every call in flight is cancelled) or not (the worker stops:
   /// the calls that wait on the master are cancelled). Wakes every wait.
-  void end(const std::string& reason, bool lost);
+  void end(const std::string& reason, bool lost) EPR_EXCLUDES(mu_);
   /// Waits up to `ms`; true when woken early by a stop or the end of the session.
   bool wait(int ms);
 
   // ---- leases held ----
-  std::shared_ptr<Hold> hold(uint64_t lease_id);
-  void release(uint64_t lease_id);
-  std::vector<uint64_t> held_ids(bool include_abandoned) const;
+  std::shared_ptr<Hold> hold(uint64_t lease_id) EPR_EXCLUDES(mu_);
+  void release(uint64_t lease_id) EPR_EXCLUDES(mu_);
+  std::vector<uint64_t> held_ids(bool include_abandoned) const EPR_EXCLUDES(mu_);
 
   // ---- calls ----
   /// Heartbeats every heartbeat_ms() until the session ends; a lease reported invalid is marked
   /// abandoned. A failed heartbeat loses the session.
-  void heartbeat_loop();
+  void heartbeat_loop() EPR_EXCLUDES(mu_);
   /// One LeaseTile call; a tile it grants is held at once. The caller ends the session on an error.
   LeaseCall lease_tile();
   /// Submits a traced tile (SubmitTile, retried on UNAVAILABLE / DEADLINE_EXCEEDED). True once the
@@ -139,6 +139,10 @@ class MasterSession {
 
  private:
   class CallScope;
+  // CallScope's halves, here rather than in its constructor and destructor, which clang's lock
+  // analysis does not look into.
+  void track(grpc::ClientContext& ctx, bool cancel_on_stop) EPR_EXCLUDES(mu_);
+  void untrack(grpc::ClientContext& ctx) EPR_EXCLUDES(mu_);
   /// The one ReturnLease request; counts the leases returned when the master takes them. tracked:
   /// cancelled if the session is lost (false after the session ended: farewell and salvage).
   grpc::Status send_return(const std::vector<uint64_t>& ids, const std::string& reason, v1::LeaseFailure failure,
@@ -158,10 +162,10 @@ class MasterSession {
   TileResultLimits limits_;
 
   std::atomic<bool> registered_{false}, ending_{false}, lost_{false}, healthy_{false};
-  mutable std::mutex mu_;  // guards the members below
-  std::string end_reason_;
-  std::map<uint64_t, std::shared_ptr<Hold>> held_;
-  std::map<grpc::ClientContext*, bool> calls_;  // in flight -> cancelled when the worker stops
+  mutable Mutex mu_;
+  std::string end_reason_ EPR_GUARDED_BY(mu_);
+  std::map<uint64_t, std::shared_ptr<Hold>> held_ EPR_GUARDED_BY(mu_);
+  std::map<grpc::ClientContext*, bool> calls_ EPR_GUARDED_BY(mu_);  // in flight -> cancelled when the worker stops
 };
 
 }  // namespace epr

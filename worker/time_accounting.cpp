@@ -5,17 +5,17 @@
 namespace epr {
 
 void TimeAccounting::add_cpu(Activity a, double seconds) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   cpu_[int(a)] += seconds;
 }
 
 WorkerTimeSplit TimeAccounting::cpu() {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   return to_split(cpu_);
 }
 
 std::pair<WorkerTimeSplit, WorkerTimeSplit> TimeAccounting::split() {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   advance();
   double with[kActivities], without[kActivities];
   for (int a = 0; a < kActivities; ++a) {
@@ -36,7 +36,7 @@ WorkerTimeSplit TimeAccounting::to_split(const double (&by)[kActivities]) {
 }
 
 void TimeAccounting::change(const Activity* from, const Activity* to) {
-  std::lock_guard lock(mu_);
+  MutexLock lock(mu_);
   advance();
   if (from) --threads_in_[int(*from)];
   if (to) ++threads_in_[int(*to)];

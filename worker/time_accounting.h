@@ -5,9 +5,9 @@
 #pragma once
 
 #include <chrono>
-#include <mutex>
 #include <utility>
 
+#include "common/check.h"
 #include "worker/worker_node.h"
 
 namespace epr {
@@ -16,28 +16,28 @@ enum class Activity { kOther, kTracing, kLeasing, kWaiting, kSubmitting };
 
 class TimeAccounting {
  public:
-  void enter(Activity a) { change(nullptr, &a); }
-  void leave(Activity a) { change(&a, nullptr); }
-  void move(Activity from, Activity to) { change(&from, &to); }
-  void add_cpu(Activity a, double seconds);
+  void enter(Activity a) EPR_EXCLUDES(mu_) { change(nullptr, &a); }
+  void leave(Activity a) EPR_EXCLUDES(mu_) { change(&a, nullptr); }
+  void move(Activity from, Activity to) EPR_EXCLUDES(mu_) { change(&from, &to); }
+  void add_cpu(Activity a, double seconds) EPR_EXCLUDES(mu_);
   /// The threads' own CPU seconds by activity (up to their last change).
-  WorkerTimeSplit cpu();
+  WorkerTimeSplit cpu() EPR_EXCLUDES(mu_);
   /// {while another thread traced, while none did}, up to now.
-  std::pair<WorkerTimeSplit, WorkerTimeSplit> split();
+  std::pair<WorkerTimeSplit, WorkerTimeSplit> split() EPR_EXCLUDES(mu_);
 
   static constexpr int kActivities = 5;
 
  private:
   using Clock = std::chrono::steady_clock;
   static WorkerTimeSplit to_split(const double (&by)[kActivities]);
-  void change(const Activity* from, const Activity* to);
-  void advance();  // credits the time since the last change; mu_ held
+  void change(const Activity* from, const Activity* to) EPR_EXCLUDES(mu_);
+  void advance() EPR_REQUIRES(mu_);  // credits the time since the last change
 
-  std::mutex mu_;
-  Clock::time_point last_ = Clock::now();
-  int threads_in_[kActivities] = {};
-  double seconds_[kActivities][2] = {};  // [activity][another thread traced]
-  double cpu_[kActivities] = {};         // thread CPU seconds
+  Mutex mu_;
+  Clock::time_point last_ EPR_GUARDED_BY(mu_) = Clock::now();
+  int threads_in_[kActivities] EPR_GUARDED_BY(mu_) = {};
+  double seconds_[kActivities][2] EPR_GUARDED_BY(mu_) = {};  // [activity][another thread traced]
+  double cpu_[kActivities] EPR_GUARDED_BY(mu_) = {};         // thread CPU seconds
 };
 
 /// The activity of one tracing thread, kOther from construction to destruction unless a Doing says

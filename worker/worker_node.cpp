@@ -11,13 +11,13 @@
 #include <condition_variable>
 #include <future>
 #include <map>
-#include <mutex>
 #include <random>
 #include <stdexcept>
 #include <thread>
 #include <tuple>
 #include <vector>
 
+#include "common/check.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "common/thread_name.h"
@@ -70,19 +70,19 @@ struct WorkerNode::Impl {
   NodeCounters counters;
   TimeAccounting time;
 
-  std::mutex mu;  // guards the members below
-  std::condition_variable cv;  // run() ends
-  bool running = false;
-  std::shared_ptr<MasterSession> session;  // from before Register until the session's threads end
-  std::string worker_id;
-  std::map<std::string, int> job_failures;  // job id -> consecutive failures to prepare it
-  std::mt19937_64 rng;
+  Mutex mu;
+  std::condition_variable_any cv;  // run() ends
+  bool running EPR_GUARDED_BY(mu) = false;
+  std::shared_ptr<MasterSession> session EPR_GUARDED_BY(mu);  // from before Register until the session's threads end
+  std::string worker_id EPR_GUARDED_BY(mu);
+  std::map<std::string, int> job_failures EPR_GUARDED_BY(mu);  // job id -> consecutive failures to prepare it
+  std::mt19937_64 rng EPR_GUARDED_BY(mu);
 
-  void stop(const std::string& reason) {
+  void stop(const std::string& reason) EPR_EXCLUDES(mu) {
     signal.stop(reason);
     std::shared_ptr<MasterSession> s;
     {
-      std::lock_guard lock(mu);
+      MutexLock lock(mu);
       s = session;
     }
     if (s) s->end(reason, /*lost=*/false);
@@ -90,7 +90,7 @@ struct WorkerNode::Impl {
 
   // ---- scenes ------------------------------------------------------------------------------------
 
-  Scene load_scene_for(const v1::SceneRef& ref) {
+  Scene load_scene_for(const v1::SceneRef& ref) EPR_EXCLUDES(mu) {
     if (!ref.builtin().empty()) {
       SceneBundleData b;
       b.builtin = ref.builtin();
@@ -106,7 +106,7 @@ struct WorkerNode::Impl {
     if (!entry) {
       std::shared_ptr<MasterSession> s;
       {
-        std::lock_guard lock(mu);
+        MutexLock lock(mu);
         s = session;
       }
       if (!s || s->ending()) throw std::runtime_error("no master session to fetch the scene from");
@@ -116,16 +116,16 @@ struct WorkerNode::Impl {
   }
 
   // Delay before leasing again after a job could not be prepared; grows with repeated failures.
-  int job_failed(const std::string& job_id) {
-    std::lock_guard lock(mu);
+  int job_failed(const std::string& job_id) EPR_EXCLUDES(mu) {
+    MutexLock lock(mu);
     if (job_failures.size() > kMaxFailingJobs) job_failures.clear();
     const int n = job_failures[job_id]++;
     const double u = std::uniform_real_distribution<double>(0.0, 1.0)(rng);
     return backoff_delay_ms(n, 500, std::max(1000, opts.max_backoff_ms), u);
   }
 
-  void job_ok(const std::string& job_id) {
-    std::lock_guard lock(mu);
+  void job_ok(const std::string& job_id) EPR_EXCLUDES(mu) {
+    MutexLock lock(mu);
     job_failures.erase(job_id);
   }
 
@@ -251,17 +251,17 @@ struct WorkerNode::Impl {
   // ---- sessions ----------------------------------------------------------------------------------
 
   // A registered session, or nullptr with the reason in *why.
-  std::shared_ptr<MasterSession> connect(std::string* why) {
+  std::shared_ptr<MasterSession> connect(std::string* why) EPR_EXCLUDES(mu) {
     auto s = std::make_shared<MasterSession>(config, signal, counters, log);
     {
       // Published before Register, so that a stop cancels the call.
-      std::lock_guard lock(mu);
+      MutexLock lock(mu);
       if (signal.stopping()) return nullptr;
       session = s;
     }
     const bool ok = s->register_worker(why);
     if (!ok) {
-      std::lock_guard lock(mu);
+      MutexLock lock(mu);
       session.reset();
       return nullptr;
     }
@@ -269,9 +269,9 @@ struct WorkerNode::Impl {
   }
 
   // Runs one session until it ends; returns with every thread joined.
-  void run_session(const std::shared_ptr<MasterSession>& s) {
+  void run_session(const std::shared_ptr<MasterSession>& s) EPR_EXCLUDES(mu) {
     {
-      std::lock_guard lock(mu);
+      MutexLock lock(mu);
       worker_id = s->worker_id();
     }
     ++counters.registrations;
@@ -286,14 +286,14 @@ struct WorkerNode::Impl {
     for (auto& t : tracers) t.join();
     heartbeat.join();
     {
-      std::lock_guard lock(mu);
+      MutexLock lock(mu);
       session.reset();
     }
   }
 
-  void run() {
+  void run() EPR_EXCLUDES(mu) {
     {
-      std::lock_guard lock(mu);
+      MutexLock lock(mu);
       if (running) throw std::logic_error("WorkerNode::run() is already running");
       running = true;
     }
@@ -326,7 +326,7 @@ struct WorkerNode::Impl {
       signal.wait_for(delay);
     }
     {
-      std::lock_guard lock(mu);
+      MutexLock lock(mu);
       running = false;
       worker_id.clear();
     }
@@ -338,8 +338,8 @@ WorkerNode::WorkerNode(WorkerNodeOptions options) : impl_(std::make_unique<Impl>
 
 WorkerNode::~WorkerNode() {
   impl_->stop("worker destroyed");
-  std::unique_lock lock(impl_->mu);
-  impl_->cv.wait(lock, [&] { return !impl_->running; });
+  MutexLock lock(impl_->mu);
+  impl_->cv.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return !impl_->running; });  // with mu held
 }
 
 void WorkerNode::run() { impl_->run(); }
@@ -350,7 +350,7 @@ WorkerNodeStats WorkerNode::stats() const {
   const auto& c = impl_->counters;
   WorkerNodeStats s;
   {
-    std::lock_guard lock(impl_->mu);
+    MutexLock lock(impl_->mu);
     s.worker_id = impl_->worker_id;
     s.registered = impl_->session != nullptr && impl_->session->registered() && !impl_->session->ending();
   }
