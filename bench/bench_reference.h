@@ -13,16 +13,16 @@
 
 #include <sys/resource.h>
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <stdexcept>
 #include <filesystem>
-#include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -43,8 +43,7 @@ inline std::string default_cache_dir() { return std::string(EPR_SOURCE_DIR) + "/
 
 /// The options every error-measuring benchmark takes: image size, reference spp and its cache folder,
 /// tracing threads and the share of pixels the trimmed rMSE leaves out.
-inline void add_common_options(CLI::App& app, int* size, int* ref_spp, std::string* cache, int* threads,
-                               double* trim) {
+inline void add_common_options(CLI::App& app, int* size, int* ref_spp, std::string* cache, int* threads, double* trim) {
   app.add_option("--size", *size, "image side, pixels");
   app.add_option("--ref-spp", *ref_spp, "reference spp (two halves of ref-spp/2, cached)");
   app.add_option("--cache", *cache, "reference cache folder");
@@ -122,7 +121,8 @@ inline ErrorMeans errors(const Image& x, const Image& ref) {
   const size_t n = size_t(ref.width) * size_t(ref.height);
   for (size_t p = 0; p < n; ++p)
     for (int c = 0; c < 3; ++c) {
-      const double d = double(x.data[p * size_t(x.channels) + size_t(c)]) - ref.data[p * size_t(ref.channels) + size_t(c)];
+      const double d =
+          double(x.data[p * size_t(x.channels) + size_t(c)]) - ref.data[p * size_t(ref.channels) + size_t(c)];
       m.mse += d * d / 3;
     }
   m.mse /= double(n);
@@ -168,9 +168,10 @@ inline Image downsample2(const Image& a) {
   Image out(a.width / 2, a.height / 2, 3);
   for (int y = 0; y < out.height; ++y)
     for (int x = 0; x < out.width; ++x)
-      out.set_rgb(x, y, (a.rgb(2 * x, 2 * y) + a.rgb(2 * x + 1, 2 * y) + a.rgb(2 * x, 2 * y + 1) +
-                         a.rgb(2 * x + 1, 2 * y + 1)) *
-                            0.25f);
+      out.set_rgb(
+          x, y,
+          (a.rgb(2 * x, 2 * y) + a.rgb(2 * x + 1, 2 * y) + a.rgb(2 * x, 2 * y + 1) + a.rgb(2 * x + 1, 2 * y + 1)) *
+              0.25f);
   return out;
 }
 

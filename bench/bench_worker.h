@@ -3,6 +3,7 @@
 // benchmark's control. Used by ingest_bench (synthetic tile results) and round_bench (real tracing).
 #pragma once
 
+#include <grpcpp/grpcpp.h>
 #include <sys/resource.h>
 
 #include <chrono>
@@ -15,8 +16,6 @@
 #include <string>
 #include <thread>
 #include <variant>
-
-#include <grpcpp/grpcpp.h>
 
 #include "common/cpu_time.h"
 #include "epr/v1/worker_service.grpc.pb.h"
@@ -91,7 +90,8 @@ class BenchWorker {
     // As WorkerNode does: the last chunk goes with the half-close.
     bool ok = rest.empty() ? stream->Write(first, grpc::WriteOptions().set_last_message()) : stream->Write(first);
     for (size_t i = 0; ok && i < rest.size(); ++i)
-      ok = i + 1 == rest.size() ? stream->Write(rest[i], grpc::WriteOptions().set_last_message()) : stream->Write(rest[i]);
+      ok = i + 1 == rest.size() ? stream->Write(rest[i], grpc::WriteOptions().set_last_message())
+                                : stream->Write(rest[i]);
     const grpc::Status s = stream->Finish();
     if (!s.ok()) throw std::runtime_error("SubmitTile: " + s.error_message());
     return ack;

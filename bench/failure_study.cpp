@@ -13,8 +13,8 @@
 //   subpixels builtin:cornell: S = 1 / 2 / 4
 //   wall      builtin:wall: almost every vertex culled
 //   thinwall  builtin:thinwall: zero-thickness partition, light on the far side; the same without
-//             the joint test (the leak at the joints it stops) and with the back-facing test defeated (records' normals turned towards the camera, i.e. the
-//             paper's behaviour) to show what the test protects
+//             the joint test (the leak at the joints it stops) and with the back-facing test defeated (records' normals
+//             turned towards the camera, i.e. the paper's behaviour) to show what the test protects
 //   rr        builtin:cornell and an analytic furnace: Russian roulette paper / off (fixed depth 8)
 //   hidden    builtin:hiddenlight: the only emitter is hidden from the camera
 //   grazing   builtin:grazing: floor seen at grazing angles, silhouettes; S = 1, epsilon 100x
@@ -52,12 +52,12 @@
 #include <vector>
 
 #include "bench_reference.h"
-#include "tests/study/unfiltered_render.h"
 #include "client/local_render.h"
 #include "common/image.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "master/frame_state.h"
+#include "tests/study/unfiltered_render.h"
 #include "worker/embree_scene.h"
 #include "worker/tile_renderer.h"
 
@@ -292,9 +292,9 @@ std::vector<Case> make_cases(const RenderOptions& base) {
     eps.settings.push_back({f == 1 ? "3e-4 (default)" : fmt::format("{:g} x default", f),
                             with(cornell, [&](RenderOptions& o) { o.epsilon = 3e-4f * f; })});
   eps.settings.push_back({"100 x, no joint test", with(cornell, [](RenderOptions& o) {
-                                                    o.epsilon = 3e-2f;
-                                                    o.joint_test = false;
-                                                  })});
+                            o.epsilon = 3e-2f;
+                            o.joint_test = false;
+                          })});
   eps.settings.push_back({"exact", with(cornell, exact)});
   cases.push_back(eps);
   Case sub{"subpixels", cornell, {0.2f, 0.25f, 0.55f, 0.6f}, -1, {}};

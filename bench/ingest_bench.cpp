@@ -32,8 +32,10 @@
 //   ingest_bench --encode-reps 9   only the worker's encode microbenchmark (encode_microbench below)
 #include <spawn.h>
 #include <sys/wait.h>
+#include <tbb/parallel_for.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -45,9 +47,6 @@
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <CLI/CLI.hpp>
-#include <tbb/parallel_for.h>
 
 #include "bench/bench_worker.h"
 #include "client/job_client.h"
@@ -95,7 +94,8 @@ ReprojectCost reprojection_cost(const std::string& backend, const std::string& s
   const Camera cam(scene.camera, size, size);
   std::unique_ptr<GlContext> gl;
   if (backend == "gl") gl = std::make_unique<GlContext>();
-  const DeepFramebuffer dfb = gl ? build_deep_framebuffer_gl(*gl, scene, cam, S) : build_deep_framebuffer_cpu(scene, cam, S);
+  const DeepFramebuffer dfb =
+      gl ? build_deep_framebuffer_gl(*gl, scene, cam, S) : build_deep_framebuffer_cpu(scene, cam, S);
   ReprojectorSettings rs;
   rs.epsilon = default_epsilon(scene.bounds());
   auto r = make_reprojector(backend, cam, dfb, rs, gl.get());
@@ -138,7 +138,8 @@ std::vector<TileResult> trace_all_tiles(const Scene& scene, int size, int S, int
   return results;
 }
 
-Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, int tile_size, const TileResultLimits& limits) {
+Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, int tile_size,
+                          const TileResultLimits& limits) {
   Synthetic syn;
   const Scene scene = load_scene(spec);
   std::vector<TileResult> traced = trace_all_tiles(scene, size, S, k, tile_size, false);
@@ -160,8 +161,10 @@ Synthetic make_tiles_once(const std::string& spec, int size, int S, int k, int t
         d.vertex_bytes += b;
         d.vertices += c.vertices().count();
       }
-      if (first) d.header = std::move(c);
-      else d.body.push_back(std::move(c));
+      if (first)
+        d.header = std::move(c);
+      else
+        d.body.push_back(std::move(c));
       first = false;
       c = v1::TileResultChunk();
     }
@@ -232,10 +235,10 @@ struct Figures {
   std::string backend;
   int clients = 0;
   uint64_t vertices = 0, tiles = 0;
-  double t_recv = 0, t_proj = 0;      // seconds from the first lease
-  double cpu = 0, cpu_clients = 0;    // master and bench-worker CPU seconds in the window
-  double reproject = 0;               // reprojection thread seconds in the window
-  double waits = 0;                   // Wait answers at round barriers
+  double t_recv = 0, t_proj = 0;    // seconds from the first lease
+  double cpu = 0, cpu_clients = 0;  // master and bench-worker CPU seconds in the window
+  double reproject = 0;             // reprojection thread seconds in the window
+  double waits = 0;                 // Wait answers at round barriers
   double load = 0;
 };
 
@@ -315,8 +318,10 @@ std::vector<TileData> load_tiles(const std::string& path) {
       in.read(b.data(), std::streamsize(b.size()));
       v1::TileResultChunk c;
       if (!in || !c.ParseFromString(b)) throw std::runtime_error("bad chunk in " + path);
-      if (i == 0) d.header = std::move(c);
-      else d.body.push_back(std::move(c));
+      if (i == 0)
+        d.header = std::move(c);
+      else
+        d.body.push_back(std::move(c));
     }
   }
   return tiles;
@@ -469,7 +474,8 @@ Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method
       reproject1 = s->counters.seconds_reprojecting;
     }
     if (is_terminal(s->state)) {
-      if (s->state != JobState::kDone) throw std::runtime_error("job ended " + std::string(to_string(s->state)) + ": " + s->error);
+      if (s->state != JobState::kDone)
+        throw std::runtime_error("job ended " + std::string(to_string(s->state)) + ": " + s->error);
       if (!f.t_proj) throw std::runtime_error("job done before all vertices were counted");
       break;
     }
@@ -606,33 +612,36 @@ int main(int argc, char** argv) {
     return 0;
   }
 
-  std::printf("ingest_bench: %s %dx%d S=%d, k=%d paths/pixel/round, %d rounds per job, tiles %dx%d, clients %s, %u "
-              "hardware threads, load average %.2f\n",
-              rs.spec.c_str(), rs.size, rs.size, rs.S, rs.k, rs.rounds, rs.tile, rs.tile,
-              rs.in_process ? "in this process" : "in a separate process", std::thread::hardware_concurrency(),
-              load_average());
+  std::printf(
+      "ingest_bench: %s %dx%d S=%d, k=%d paths/pixel/round, %d rounds per job, tiles %dx%d, clients %s, %u "
+      "hardware threads, load average %.2f\n",
+      rs.spec.c_str(), rs.size, rs.size, rs.S, rs.k, rs.rounds, rs.tile, rs.tile,
+      rs.in_process ? "in this process" : "in a separate process", std::thread::hardware_concurrency(), load_average());
   std::fflush(stdout);
   const auto tsyn = Clock::now();
   Synthetic syn = make_tiles_once(rs.spec, rs.size, rs.S, rs.k, rs.tile, TileResultLimits{});
-  std::printf("synthetic round: %zu tiles, %.3g paths, %.3g vertices recorded, %.3g sent (%.2f per pixel, %.0f per "
-              "tile); made in %.1f s\n",
-              syn.tiles.size(), double(syn.paths), double(syn.recorded), double(syn.vertices),
-              double(syn.vertices) / (double(rs.size) * rs.size), double(syn.vertices) / double(syn.tiles.size()),
-              since(tsyn));
-  std::printf("wire: %.2f bytes/vertex for whole tile results (pixels, header, trailer included), %.2f for the "
-              "vertex batches alone\n",
-              double(syn.bytes) / double(syn.vertices), double(syn.vertex_bytes) / double(syn.vertices));
-  std::printf("offline, one thread, CPU time per vertex: worker encode (TileResultWriter) %.1f ns; master protobuf "
-              "parse %.1f ns, assemble (TileResultAssembler, vertices kept packed) %.1f ns (decoding into "
-              "VertexRecords instead: %.1f ns)\n",
-              syn.encode_ns, syn.parse_ns, syn.assemble_ns, syn.decode_ns);
+  std::printf(
+      "synthetic round: %zu tiles, %.3g paths, %.3g vertices recorded, %.3g sent (%.2f per pixel, %.0f per "
+      "tile); made in %.1f s\n",
+      syn.tiles.size(), double(syn.paths), double(syn.recorded), double(syn.vertices),
+      double(syn.vertices) / (double(rs.size) * rs.size), double(syn.vertices) / double(syn.tiles.size()), since(tsyn));
+  std::printf(
+      "wire: %.2f bytes/vertex for whole tile results (pixels, header, trailer included), %.2f for the "
+      "vertex batches alone\n",
+      double(syn.bytes) / double(syn.vertices), double(syn.vertex_bytes) / double(syn.vertices));
+  std::printf(
+      "offline, one thread, CPU time per vertex: worker encode (TileResultWriter) %.1f ns; master protobuf "
+      "parse %.1f ns, assemble (TileResultAssembler, vertices kept packed) %.1f ns (decoding into "
+      "VertexRecords instead: %.1f ns)\n",
+      syn.encode_ns, syn.parse_ns, syn.assemble_ns, syn.decode_ns);
   std::map<std::string, ReprojectCost> rcost;
   for (const std::string& b : backends) {
     rcost[b] = reprojection_cost(b, rs.spec, rs.size, rs.S, syn, 5, /*packed=*/true);
     const ReprojectCost rec = reprojection_cost(b, rs.spec, rs.size, rs.S, syn, 5, /*packed=*/false);
-    std::printf("offline reprojection (%s, per-tile calls as on the master): packed %.1f ns/vertex process CPU, %.1f ns "
-                "wall (%.1f M/s); decoded records %.1f ns CPU, %.1f ns wall\n",
-                b.c_str(), rcost[b].cpu_ns, rcost[b].wall_ns, 1e3 / rcost[b].wall_ns, rec.cpu_ns, rec.wall_ns);
+    std::printf(
+        "offline reprojection (%s, per-tile calls as on the master): packed %.1f ns/vertex process CPU, %.1f ns "
+        "wall (%.1f M/s); decoded records %.1f ns CPU, %.1f ns wall\n",
+        b.c_str(), rcost[b].cpu_ns, rcost[b].wall_ns, 1e3 / rcost[b].wall_ns, rec.cpu_ns, rec.wall_ns);
   }
   std::fflush(stdout);
 
@@ -658,40 +667,43 @@ int main(int argc, char** argv) {
     for (int c : client_counts) {
       all.push_back(run_job(master, rs, m, c, syn));
       const Figures& f = all.back();
-      std::printf("  %s, %d client(s): %.3g vertices in %.2f s (%.2f M/s reprojected), master %.2f CPU-s (%.0f "
-                  "ns/vertex), clients %.2f CPU-s, load %.2f\n",
-                  f.backend.c_str(), f.clients, double(f.vertices), f.t_proj, f.vertices / f.t_proj / 1e6, f.cpu,
-                  1e9 * f.cpu / double(f.vertices), f.cpu_clients, f.load);
+      std::printf(
+          "  %s, %d client(s): %.3g vertices in %.2f s (%.2f M/s reprojected), master %.2f CPU-s (%.0f "
+          "ns/vertex), clients %.2f CPU-s, load %.2f\n",
+          f.backend.c_str(), f.clients, double(f.vertices), f.t_proj, f.vertices / f.t_proj / 1e6, f.cpu,
+          1e9 * f.cpu / double(f.vertices), f.cpu_clients, f.load);
       std::fflush(stdout);
     }
   }
   master.shutdown();
   std::filesystem::remove_all(state_dir);
 
-  std::printf("\n%-4s %3s | %9s %9s | %8s %8s %8s | %9s %9s | %7s %7s %7s %7s | %7s %6s %7s\n", "rp", "cli",
-              "recv M/s", "reproj M/s", "master", "ns/vert", "clients", "M/mst-CPU", "M/CPU", "reproj", "parse",
-              "assmbl", "other", "rp busy", "waits", "load");
+  std::printf("\n%-4s %3s | %9s %9s | %8s %8s %8s | %9s %9s | %7s %7s %7s %7s | %7s %6s %7s\n", "rp", "cli", "recv M/s",
+              "reproj M/s", "master", "ns/vert", "clients", "M/mst-CPU", "M/CPU", "reproj", "parse", "assmbl", "other",
+              "rp busy", "waits", "load");
   for (const Figures& f : all) {
     const double v = double(f.vertices);
     const double master_cpu = f.cpu;
     const double parse = syn.parse_ns * 1e-9 * v, assemble = syn.assemble_ns * 1e-9 * v;
     const double reproj = rcost[f.backend].cpu_ns * 1e-9 * v;
     const double other = master_cpu - reproj - parse - assemble;
-    std::printf("%-4s %3d | %9.2f %9.2f | %8.2f %8.0f %8.2f | %9.2f %9.2f | %6.0f%% %6.0f%% %6.0f%% %6.0f%% | %6.0f%% "
-                "%6.0f %7.2f\n",
-                f.backend.c_str(), f.clients, v / f.t_recv / 1e6, v / f.t_proj / 1e6, master_cpu, 1e9 * master_cpu / v,
-                f.cpu_clients, v / master_cpu / 1e6, v / (master_cpu + f.cpu_clients) / 1e6, 100 * reproj / master_cpu,
-                100 * parse / master_cpu, 100 * assemble / master_cpu, 100 * other / master_cpu,
-                100 * f.reproject / f.t_proj, f.waits, f.load);
+    std::printf(
+        "%-4s %3d | %9.2f %9.2f | %8.2f %8.0f %8.2f | %9.2f %9.2f | %6.0f%% %6.0f%% %6.0f%% %6.0f%% | %6.0f%% "
+        "%6.0f %7.2f\n",
+        f.backend.c_str(), f.clients, v / f.t_recv / 1e6, v / f.t_proj / 1e6, master_cpu, 1e9 * master_cpu / v,
+        f.cpu_clients, v / master_cpu / 1e6, v / (master_cpu + f.cpu_clients) / 1e6, 100 * reproj / master_cpu,
+        100 * parse / master_cpu, 100 * assemble / master_cpu, 100 * other / master_cpu, 100 * f.reproject / f.t_proj,
+        f.waits, f.load);
   }
-  std::printf("(recv / reproj: vertices per wall second until the master had received / reprojected all of them, "
-              "bar >= 10 M/s reprojected; master: the master's CPU seconds in that window (%s), ns/vert per vertex; "
-              "clients: the bench workers' CPU seconds; M/mst-CPU: vertices per master CPU-second; M/CPU: per CPU-second "
-              "of master and clients together; reproj/parse/assmbl/other: share of master CPU -- reproj, parse and "
-              "assmbl are the offline per-vertex CPU costs x vertices, other = the rest (gRPC transport on the master, "
-              "loopback TCP, wake-ups, job manager, this bench's 0.5 ms status polling); rp busy: the reprojection "
-              "thread's wall time in the reprojector over the window; waits: Wait answers at round barriers)\n",
-              rs.in_process ? "process CPU minus the bench threads' own CPU; their gRPC client threads count here"
-                            : "this process's CPU; the clients run in another process");
+  std::printf(
+      "(recv / reproj: vertices per wall second until the master had received / reprojected all of them, "
+      "bar >= 10 M/s reprojected; master: the master's CPU seconds in that window (%s), ns/vert per vertex; "
+      "clients: the bench workers' CPU seconds; M/mst-CPU: vertices per master CPU-second; M/CPU: per CPU-second "
+      "of master and clients together; reproj/parse/assmbl/other: share of master CPU -- reproj, parse and "
+      "assmbl are the offline per-vertex CPU costs x vertices, other = the rest (gRPC transport on the master, "
+      "loopback TCP, wake-ups, job manager, this bench's 0.5 ms status polling); rp busy: the reprojection "
+      "thread's wall time in the reprojector over the window; waits: Wait answers at round barriers)\n",
+      rs.in_process ? "process CPU minus the bench threads' own CPU; their gRPC client threads count here"
+                    : "this process's CPU; the clients run in another process");
   return 0;
 }

@@ -72,8 +72,9 @@ int main(int argc, char** argv) {
     for (int n : parse_list(jobs)) {
       fs::remove_all(dir);
       fs::create_directories(dir);
-      std::vector<std::string> args = {EPR_MASTER_BIN, "--listen", "127.0.0.1:0", "--http", "", "--state-dir",
-                                       (dir / "state").string(), "--log-level", "warn"};
+      std::vector<std::string> args = {
+          EPR_MASTER_BIN,           "--listen",    "127.0.0.1:0", "--http", "", "--state-dir",
+          (dir / "state").string(), "--log-level", "warn"};
       if (reproject == "cpu") args.insert(args.end(), {"--reproject", "cpu"});
       epr::testing::Process master(args, dir / "master");
       const std::regex listening("epr-master listening on port ([0-9]+)");
@@ -97,8 +98,9 @@ int main(int argc, char** argv) {
         o.width = o.height = side;
         o.spp = spp;
         o.paths_per_round = k;
-        o.mode = mode == "pt" ? epr::RenderMode::kPathTrace : mode == "rp" ? epr::RenderMode::kReproject
-                                                                           : epr::RenderMode::kSkip;
+        o.mode = mode == "pt"   ? epr::RenderMode::kPathTrace
+                 : mode == "rp" ? epr::RenderMode::kReproject
+                                : epr::RenderMode::kSkip;
         o.reproject = reproject == "cpu" ? epr::ReprojectMethod::kCpu : epr::ReprojectMethod::kGl;
         o.rr.max_depth = max_depth;
         o.seed = uint64_t(j + 1);

@@ -35,6 +35,7 @@
 //               [--cache DIR] [--no-embedded] [--threads 0] [--trim 0.01]
 #include <sys/resource.h>
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -44,8 +45,6 @@
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <CLI/CLI.hpp>
 
 #include "bench_reference.h"
 #include "client/embedded_render.h"
@@ -77,7 +76,6 @@ double setup_seconds(const RenderOptions& o) {
   return frame.seconds_reprojecting();
 }
 
-
 // Vertex fates of an rp render, as fractions of the vertices recorded.
 struct Fates {
   double accepted = 0, occluded = 0, culled = 0, culled_worker = 0, not_diffuse = 0;
@@ -86,7 +84,8 @@ struct Fates {
 
 Fates fates(const nlohmann::json& s) {
   Fates f;
-  const double worker = num(s, "culled_frustum_worker") + num(s, "culled_facing_worker") + num(s, "culled_glossy_worker");
+  const double worker =
+      num(s, "culled_frustum_worker") + num(s, "culled_facing_worker") + num(s, "culled_glossy_worker");
   const double recorded = num(s, "vertices_recorded");
   f.recorded = recorded;
   if (recorded <= 0) return f;
@@ -122,7 +121,10 @@ void fit_curve(Row& r, double target) {
   for (const auto& [spp, err] : r.pt_curve) {
     if (!(err > 0)) continue;
     const double x = std::log(double(spp)), y = std::log(err);
-    sx += x; sy += y; sxx += x * x; sxy += x * y;
+    sx += x;
+    sy += y;
+    sxx += x * x;
+    sxy += x * y;
     ++n;
   }
   if (n < 2 || !(target > 0)) return;
@@ -150,9 +152,10 @@ int main(int argc, char** argv) {
 
   const double t_start = cpu_seconds();
   const auto w_start = std::chrono::steady_clock::now();
-  std::printf("paper_table: %dx%d, S=%d, P=%d (skip, pt), rp stats at P=%d, reference pt %d spp (2 halves), "
-              "%u hardware threads, load average %.2f\n",
-              size, size, subpixels, spp, rp_spp, ref_spp, std::thread::hardware_concurrency(), load1());
+  std::printf(
+      "paper_table: %dx%d, S=%d, P=%d (skip, pt), rp stats at P=%d, reference pt %d spp (2 halves), "
+      "%u hardware threads, load average %.2f\n",
+      size, size, subpixels, spp, rp_spp, ref_spp, std::thread::hardware_concurrency(), load1());
   std::fflush(stdout);
 
   std::vector<Row> rows;
@@ -193,9 +196,10 @@ int main(int argc, char** argv) {
         row.rp_overhead_cpu = overhead;
         row.rp_ns_per_vertex_cpu = ns;
       }
-      std::printf("  rp %-3s P=%-3d %6.1f s wall %6.1f CPU-s  tracing %.2f s, reprojecting %.3f s (%.1f%%; "
-                  "one-time setup %.3f s)\n",
-                  to_string(m), rp_spp, r.wall, r.cpu, tracing, num(s, "seconds_reprojecting"), overhead, setup);
+      std::printf(
+          "  rp %-3s P=%-3d %6.1f s wall %6.1f CPU-s  tracing %.2f s, reprojecting %.3f s (%.1f%%; "
+          "one-time setup %.3f s)\n",
+          to_string(m), rp_spp, r.wall, r.cpu, tracing, num(s, "seconds_reprojecting"), overhead, setup);
       std::fflush(stdout);
     }
 
@@ -246,33 +250,38 @@ int main(int argc, char** argv) {
     rows.push_back(row);
   }
 
-  std::printf("\n==== Vertex fates (rp, P=%d; %% of vertices x_n, n >= 2, recorded) and reprojection overhead "
-              "(%% of tracing wall time)\n",
-              rp_spp);
+  std::printf(
+      "\n==== Vertex fates (rp, P=%d; %% of vertices x_n, n >= 2, recorded) and reprojection overhead "
+      "(%% of tracing wall time)\n",
+      rp_spp);
   std::printf("%-12s %9s %8s | %8s %8s %8s %9s %7s | %15s %15s | %8s %8s\n", "scene", "triangles", "vtx/path",
               "accepted", "occluded", "culled", "(worker)", "other", "ovh gl (setup)", "ovh cpu (setup)", "ns/v gl",
               "ns/v cpu");
   for (const Row& r : rows)
-    std::printf("%-12s %9zu %8.2f | %7.1f%% %7.1f%% %7.1f%% %8.1f%% %6.2f%% | %6.1f%% (%5.1f%%) %6.1f%% (%5.1f%%) | %8.1f "
-                "%8.1f\n",
-                r.scene.c_str(), r.triangles, r.rp.per_path, r.rp.accepted, r.rp.occluded, r.rp.culled,
-                r.rp.culled_worker, r.rp.not_diffuse, r.rp_overhead_gl, r.rp_setup_gl, r.rp_overhead_cpu,
-                r.rp_setup_cpu, r.rp_ns_per_vertex_gl, r.rp_ns_per_vertex_cpu);
-  std::printf("(vtx/path: vertices x_n, n >= 2, recorded per path; setup: the one-time deep framebuffer build and "
-              "reprojector creation inside the overhead; ns/v: the rest per vertex received)\n");
+    std::printf(
+        "%-12s %9zu %8.2f | %7.1f%% %7.1f%% %7.1f%% %8.1f%% %6.2f%% | %6.1f%% (%5.1f%%) %6.1f%% (%5.1f%%) | %8.1f "
+        "%8.1f\n",
+        r.scene.c_str(), r.triangles, r.rp.per_path, r.rp.accepted, r.rp.occluded, r.rp.culled, r.rp.culled_worker,
+        r.rp.not_diffuse, r.rp_overhead_gl, r.rp_setup_gl, r.rp_overhead_cpu, r.rp_setup_cpu, r.rp_ns_per_vertex_gl,
+        r.rp_ns_per_vertex_cpu);
+  std::printf(
+      "(vtx/path: vertices x_n, n >= 2, recorded per path; setup: the one-time deep framebuffer build and "
+      "reprojector creation inside the overhead; ns/v: the rest per vertex received)\n");
 
   std::printf("\n==== Pixel skipping (P=%d) against path tracing: time\n", spp);
-  std::printf("%-12s | %7s %8s %8s | %8s %8s | %5s %8s %8s | %11s | %9s %12s\n", "scene", "traced", "skip s",
-              "CPU-s", "pt s", "CPU-s", "eq N", "s", "CPU-s", "skip/pt CPU", "pt v/path", "pt paths/CPU-s");
+  std::printf("%-12s | %7s %8s %8s | %8s %8s | %5s %8s %8s | %11s | %9s %12s\n", "scene", "traced", "skip s", "CPU-s",
+              "pt s", "CPU-s", "eq N", "s", "CPU-s", "skip/pt CPU", "pt v/path", "pt paths/CPU-s");
   for (const Row& r : rows)
     std::printf("%-12s | %6.1f%% %8.1f %8.1f | %8.1f %8.1f | %5d %8.1f %8.1f | %11.2f | %9.2f %12.3g\n",
                 r.scene.c_str(), r.skip_share, r.skip_wall, r.skip_cpu, r.pt_wall, r.pt_cpu, r.eq_spp, r.eq_wall,
                 r.eq_cpu, r.skip_cpu / r.pt_cpu, r.vertices_per_path, r.paths_per_cpu_s_pt);
-  std::printf("(pt v/path: surface vertices per path, x_1 included; pt paths/CPU-s: paths per process CPU-second of "
-              "the whole pt render)\n");
-  std::printf("\n==== Error: rMSE x 1e3 against the reference (its floor subtracted): full mean / without the "
-              "largest %.1f%% of pixels\n",
-              100 * g_trim);
+  std::printf(
+      "(pt v/path: surface vertices per path, x_1 included; pt paths/CPU-s: paths per process CPU-second of "
+      "the whole pt render)\n");
+  std::printf(
+      "\n==== Error: rMSE x 1e3 against the reference (its floor subtracted): full mean / without the "
+      "largest %.1f%% of pixels\n",
+      100 * g_trim);
   std::printf("%-12s | %19s | %19s | %19s | %19s | %7s %7s | %6s %7s %9s\n", "scene", "skip P", "pt P", "pt same CPU",
               "ref floor", "pt/skip", "eq/skip", "slope", "pt N*", "skip/pt*");
   for (const Row& r : rows) {
@@ -284,14 +293,16 @@ int main(int argc, char** argv) {
                 r.eq_err.trimmed / std::max(1e-12, r.skip_err.trimmed), r.fit_slope, r.fit_spp,
                 pt_cpu_star > 0 ? r.skip_cpu / pt_cpu_star : 0.0);
   }
-  std::printf("(trimmed errors: pt/skip, eq/skip = pt's error at P and at equal CPU time over skip's; slope: log-log "
-              "fit of pt's trimmed error over spp (P/4, P/2, eq N, P; -1 for pure variance); pt N*: the spp at which "
-              "the fit reaches skip's error; skip/pt*: skip's CPU time over pt's at N* -- the paper's claim: ~0.5)\n");
+  std::printf(
+      "(trimmed errors: pt/skip, eq/skip = pt's error at P and at equal CPU time over skip's; slope: log-log "
+      "fit of pt's trimmed error over spp (P/4, P/2, eq N, P; -1 for pure variance); pt N*: the spp at which "
+      "the fit reaches skip's error; skip/pt*: skip's CPU time over pt's at N* -- the paper's claim: ~0.5)\n");
 
   if (!no_embedded && !scenes.empty()) {
-    std::printf("\n==== Distributed overhead: %s, local (one process, direct calls) vs embedded (in-process "
-                "master + 1 worker node over loopback gRPC), load %.2f\n",
-                scenes.front().c_str(), load1());
+    std::printf(
+        "\n==== Distributed overhead: %s, local (one process, direct calls) vs embedded (in-process "
+        "master + 1 worker node over loopback gRPC), load %.2f\n",
+        scenes.front().c_str(), load1());
     std::printf("%-6s %4s | %9s %9s | %9s %9s | %9s %9s | %12s\n", "mode", "P", "local s", "CPU-s", "embed s", "CPU-s",
                 "wall x", "CPU x", "max |diff|");
     const fs::path tmp = fs::temp_directory_path() / ("paper_table_" + std::to_string(::getpid()));

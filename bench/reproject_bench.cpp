@@ -10,16 +10,18 @@
 // Each figure is the median over --runs runs of: reset, reproject all points (in the back-end's
 // batches, upload included), read the counts back (GL: waits for the GPU). The "packed" rows take
 // the same points in their 16-byte wire form (reproject_packed, decoding included) in calls of 2^20
-// vertices, of 15 000 (one 64 x 64 tile, the master's calling pattern) and of 3 800 (32 x 32 tiles). Printed per back-end:
-// wall-clock points/s and points per CPU-second of the whole process (robust when other processes
-// share the machine: divide by the cores you have for an idle-machine estimate). LP_NUM_THREADS is
-// read by llvmpipe once per process, so --lp-threads re-runs this program with each value.
+// vertices, of 15 000 (one 64 x 64 tile, the master's calling pattern) and of 3 800 (32 x 32 tiles). Printed per
+// back-end: wall-clock points/s and points per CPU-second of the whole process (robust when other processes share the
+// machine: divide by the cores you have for an idle-machine estimate). LP_NUM_THREADS is read by llvmpipe once per
+// process, so --lp-threads re-runs this program with each value.
 //
 //   reproject_bench [--runs 5] [--points 4000000] [--width 512] [--height 512] [-S 4]
 //                   [--lp-threads 1,2,4] [--cpu-threads 1,2] [--sweep] [--vertices FILE]
 #include <sys/resource.h>
+#include <tbb/global_control.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -28,9 +30,6 @@
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include <CLI/CLI.hpp>
-#include <tbb/global_control.h>
 
 #include "common/vertex_codec.h"
 #include "master/deep_framebuffer.h"
@@ -80,7 +79,8 @@ Figure measure(Reprojector& r, const std::vector<VertexRecord>& pts, int runs) {
 
 // The same, for the points in their 16-byte wire form (Reprojector::reproject_packed) in calls of
 // `call_points` vertices: the master's calling pattern is one call per tile (~3 800-15 000 vertices).
-Figure measure_packed(Reprojector& r, const std::string& packed, const VertexCodec& codec, size_t call_points, int runs) {
+Figure measure_packed(Reprojector& r, const std::string& packed, const VertexCodec& codec, size_t call_points,
+                      int runs) {
   std::vector<double> wall, cpu;
   Figure f;
   const size_t n = packed.size() / VertexCodec::kPackedBytes, call = call_points * VertexCodec::kPackedBytes;
@@ -89,7 +89,8 @@ Figure measure_packed(Reprojector& r, const std::string& packed, const VertexCod
     r.reset();
     const double c0 = cpu_seconds();
     const auto t0 = std::chrono::steady_clock::now();
-    for (size_t off = 0; off < packed.size(); off += call) r.reproject_packed(std::string_view(packed).substr(off, call), codec);
+    for (size_t off = 0; off < packed.size(); off += call)
+      r.reproject_packed(std::string_view(packed).substr(off, call), codec);
     f.counts = r.counts();
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     wall.push_back(double(n) / dt);
@@ -111,10 +112,11 @@ std::vector<VertexRecord> read_vertices(const std::string& path) {
 }
 
 void print_counts(const ReprojectionCounts& c, size_t n) {
-  std::printf("    decisions: accepted %.1f%%, occluded %.1f%% (back-facing %.1f%%), culled %.1f%%, not diffuse %.1f%%\n",
-              100.0 * double(c.accepted) / double(n), 100.0 * double(c.occluded) / double(n),
-              100.0 * double(c.backfacing) / double(n), 100.0 * double(c.culled) / double(n),
-              100.0 * double(c.not_diffuse) / double(n));
+  std::printf(
+      "    decisions: accepted %.1f%%, occluded %.1f%% (back-facing %.1f%%), culled %.1f%%, not diffuse %.1f%%\n",
+      100.0 * double(c.accepted) / double(n), 100.0 * double(c.occluded) / double(n),
+      100.0 * double(c.backfacing) / double(n), 100.0 * double(c.culled) / double(n),
+      100.0 * double(c.not_diffuse) / double(n));
 }
 
 }  // namespace
@@ -143,9 +145,10 @@ int main(int argc, char** argv) {
     for (int t : lp_threads) {
       std::printf("==== LP_NUM_THREADS=%d\n", t);
       std::fflush(stdout);
-      std::string cmd = "LP_NUM_THREADS=" + std::to_string(t) + " /proc/" + std::to_string(getpid()) + "/exe --gl-only" +
-                        " --runs " + std::to_string(runs) + " --points " + std::to_string(points) + " --width " +
-                        std::to_string(width) + " --height " + std::to_string(height) + " -S " + std::to_string(S);
+      std::string cmd = "LP_NUM_THREADS=" + std::to_string(t) + " /proc/" + std::to_string(getpid()) +
+                        "/exe --gl-only" + " --runs " + std::to_string(runs) + " --points " + std::to_string(points) +
+                        " --width " + std::to_string(width) + " --height " + std::to_string(height) + " -S " +
+                        std::to_string(S);
       if (!scene_filter.empty()) cmd += " --scene " + scene_filter;
       if (!vertices.empty()) cmd += " --vertices '" + vertices + "'";
       if (std::system(cmd.c_str()) != 0) return 1;
@@ -156,10 +159,11 @@ int main(int argc, char** argv) {
   const char* lp = std::getenv("LP_NUM_THREADS");
   double load[3] = {0, 0, 0};
   getloadavg(load, 3);
-  std::printf("reproject_bench: %dx%d pixels, S=%d (%dx%d subpixels), %d runs, median; LP_NUM_THREADS=%s; "
-              "%ld cores; load average %.2f\n",
-              width, height, S, width * S, height * S, runs, lp ? lp : "(unset = cores)", sysconf(_SC_NPROCESSORS_ONLN),
-              load[0]);
+  std::printf(
+      "reproject_bench: %dx%d pixels, S=%d (%dx%d subpixels), %d runs, median; LP_NUM_THREADS=%s; "
+      "%ld cores; load average %.2f\n",
+      width, height, S, width * S, height * S, runs, lp ? lp : "(unset = cores)", sysconf(_SC_NPROCESSORS_ONLN),
+      load[0]);
 
   std::unique_ptr<GlContext> ctx;
   if (gl_available()) {
@@ -173,7 +177,8 @@ int main(int argc, char** argv) {
     if (!scene_filter.empty() && scene_filter != name) continue;
     const Scene scene = test::scene_named(name);
     const Camera cam(scene.camera, width, height);
-    const DeepFramebuffer dfb = ctx ? build_deep_framebuffer_gl(*ctx, scene, cam, S) : build_deep_framebuffer_cpu(scene, cam, S);
+    const DeepFramebuffer dfb =
+        ctx ? build_deep_framebuffer_gl(*ctx, scene, cam, S) : build_deep_framebuffer_cpu(scene, cam, S);
     const std::vector<VertexRecord> pts =
         vertices.empty() ? test::real_like_points(scene, dfb, cam, points, 42) : read_vertices(vertices);
     ReprojectorSettings settings;
@@ -194,8 +199,9 @@ int main(int argc, char** argv) {
       print_counts(gl_fig.counts, pts.size());
       for (size_t call : {size_t(1) << 20, tile_call, size_t(3800)}) {
         const Figure f = measure_packed(*gl, packed, codec, call, runs);
-        std::printf("  gl  packed, %7zu-vertex calls:  %7.2f M points/s wall, %7.2f M points/CPU-s (%.1f ns/vertex CPU)\n",
-                    call, f.wall / 1e6, f.cpu / 1e6, 1e9 / f.cpu);
+        std::printf(
+            "  gl  packed, %7zu-vertex calls:  %7.2f M points/s wall, %7.2f M points/CPU-s (%.1f ns/vertex CPU)\n",
+            call, f.wall / 1e6, f.cpu / 1e6, 1e9 / f.cpu);
       }
       if (sweep) {
         for (int wg : {8, 16, 32, 64, 128})
@@ -230,8 +236,9 @@ int main(int argc, char** argv) {
       std::printf("\n");
       if (!ctx) print_counts(f.counts, pts.size());
       const Figure fp = measure_packed(*cpu, packed, codec, tile_call, runs);
-      std::printf("  cpu packed, %7zu-vertex calls:  %7.2f M points/s wall, %7.2f M points/CPU-s (%.1f ns/vertex CPU)\n",
-                  tile_call, fp.wall / 1e6, fp.cpu / 1e6, 1e9 / fp.cpu);
+      std::printf(
+          "  cpu packed, %7zu-vertex calls:  %7.2f M points/s wall, %7.2f M points/CPU-s (%.1f ns/vertex CPU)\n",
+          tile_call, fp.wall / 1e6, fp.cpu / 1e6, 1e9 / fp.cpu);
     }
   }
   return 0;

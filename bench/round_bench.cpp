@@ -29,6 +29,7 @@
 //
 //   round_bench [--scene builtin:cornell] [--size 512] [--spp 64] [--ppr 1] [--growth 0,0.25]
 //               [--modes skip,pt] [--tile auto] [--threads 0] [--no-bench-workers]
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -39,8 +40,6 @@
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <CLI/CLI.hpp>
 
 #include "bench/bench_worker.h"
 #include "client/embedded_render.h"
@@ -71,11 +70,11 @@ double median(std::vector<double> v) {
 }
 
 struct JobFigures {
-  double elapsed = 0;   // master: job started .. done, seconds
-  double tracing = 0;   // sum of worker tile tracing seconds
-  double reproj = 0;    // master seconds in the reprojector (incl. deep framebuffer build)
-  double wall = 0;      // the whole call (setup, outputs, fetch)
-  double cpu = 0;       // process CPU seconds of the whole call
+  double elapsed = 0;  // master: job started .. done, seconds
+  double tracing = 0;  // sum of worker tile tracing seconds
+  double reproj = 0;   // master seconds in the reprojector (incl. deep framebuffer build)
+  double wall = 0;     // the whole call (setup, outputs, fetch)
+  double cpu = 0;      // process CPU seconds of the whole call
   int rounds = 0, threads = 0;
   double median_round = 0;  // seconds between round updates (watch stream)
   double load = 0;
@@ -85,13 +84,13 @@ struct JobFigures {
   double job_cpu = 0;  // process CPU seconds from the first update showing the job running to the one showing it done
   uint64_t tiles = 0;
   double backlog = 0, closing = 0, writing = 0;  // the master's JobSnapshot::seconds_round_* and _writing_results
-  uint32_t round_checkpoints = 0;                 // JobSnapshot::round_checkpoints (--checkpoints)
+  uint32_t round_checkpoints = 0;                // JobSnapshot::round_checkpoints (--checkpoints)
   double overhead() const { return 1 - tracing / threads / elapsed; }
 };
 
-int g_tile_size = 0;  // --tile; 0: auto_tile_size() as `epr render` picks it, tapered
-bool g_taper_tiles = false;  // --taper-tiles
-bool g_checkpoints = false;  // --checkpoints
+int g_tile_size = 0;                // --tile; 0: auto_tile_size() as `epr render` picks it, tapered
+bool g_taper_tiles = false;         // --taper-tiles
+bool g_checkpoints = false;         // --checkpoints
 double g_checkpoint_interval = -1;  // --checkpoint-interval
 
 RenderOptions options(const std::string& scene, int size, int spp, RenderMode mode, int ppr, float growth) {
@@ -116,7 +115,8 @@ JobFigures run_embedded(const RenderOptions& o, int threads, const fs::path& tmp
   eo.worker_threads = threads;
   eo.state_dir = (tmp / "state").string();
   eo.checkpoints = g_checkpoints;
-  eo.checkpoint_interval_s = g_checkpoint_interval;  // `epr render` keeps its state in a temporary folder: no checkpoints
+  eo.checkpoint_interval_s =
+      g_checkpoint_interval;  // `epr render` keeps its state in a temporary folder: no checkpoints
   std::vector<std::pair<uint32_t, Clock::time_point>> rounds;
   const double c0 = process_cpu_seconds();
   const auto t0 = Clock::now();
@@ -168,12 +168,19 @@ JobFigures run_embedded(const RenderOptions& o, int threads, const fs::path& tmp
 
 struct ThreadSplit {
   double tracing = 0, submit = 0, lease = 0, waiting = 0, total = 0;  // wall seconds
-  double tracing_cpu = 0, submit_cpu = 0, lease_cpu = 0;               // the thread's CPU seconds
+  double tracing_cpu = 0, submit_cpu = 0, lease_cpu = 0;              // the thread's CPU seconds
   uint64_t tiles = 0, waits = 0;
   ThreadSplit& operator+=(const ThreadSplit& o) {
-    tracing += o.tracing; submit += o.submit; lease += o.lease; waiting += o.waiting; total += o.total;
-    tracing_cpu += o.tracing_cpu; submit_cpu += o.submit_cpu; lease_cpu += o.lease_cpu;
-    tiles += o.tiles; waits += o.waits;
+    tracing += o.tracing;
+    submit += o.submit;
+    lease += o.lease;
+    waiting += o.waiting;
+    total += o.total;
+    tracing_cpu += o.tracing_cpu;
+    submit_cpu += o.submit_cpu;
+    lease_cpu += o.lease_cpu;
+    tiles += o.tiles;
+    waits += o.waits;
     return *this;
   }
 };
@@ -280,7 +287,8 @@ BenchJob run_bench_workers(const RenderOptions& o, int threads, const fs::path& 
   for (;;) {
     auto snap = master.jobs().get(id);
     if (!snap) throw std::runtime_error("job vanished");
-    if (rounds.empty() || rounds.back().first != snap->progress.round) rounds.emplace_back(snap->progress.round, Clock::now());
+    if (rounds.empty() || rounds.back().first != snap->progress.round)
+      rounds.emplace_back(snap->progress.round, Clock::now());
     if (snap->state == JobState::kDone) {
       out.fig.elapsed = snap->seconds_elapsed;
       out.fig.tracing = snap->counters.seconds_tracing;
@@ -449,9 +457,11 @@ int main(int argc, char** argv) {
     return m == "skip" ? RenderMode::kSkip : m == "rp" ? RenderMode::kReproject : RenderMode::kPathTrace;
   };
 
-  std::printf("round_bench: %s %dx%d, P=%d, tiles %dx%d%s, %d tracing threads, %u hardware threads, load average "
-              "%.2f\n",
-              scene.c_str(), size, size, spp, g_tile_size, g_tile_size, g_taper_tiles ? " (tapered)" : "", threads, std::thread::hardware_concurrency(), load_average());
+  std::printf(
+      "round_bench: %s %dx%d, P=%d, tiles %dx%d%s, %d tracing threads, %u hardware threads, load average "
+      "%.2f\n",
+      scene.c_str(), size, size, spp, g_tile_size, g_tile_size, g_taper_tiles ? " (tapered)" : "", threads,
+      std::thread::hardware_concurrency(), load_average());
   std::fflush(stdout);
 
   struct Row {
@@ -464,48 +474,52 @@ int main(int argc, char** argv) {
   std::vector<Row> rows;
   for (const std::string& m : modes)
     for (float g : growths)
-    for (int k : pprs) {
-      Row row{m, k, g, {}, {}};
-      const RenderOptions o = options(scene, size, spp, mode_of(m), k, g);
-      if (!no_embedded) {
-        row.emb = run_embedded(o, threads, tmp);
-        std::printf("  embedded     %-4s g=%.2f k=%d: %2d rounds, job %.2f s (call %.2f s, %.2f CPU-s), tracing %.2f s / %d "
-                    "threads -> overhead %.1f%%, load %.2f\n",
-                    m.c_str(), g, k, row.emb.rounds, row.emb.elapsed, row.emb.wall, row.emb.cpu, row.emb.tracing,
-                    threads, 100 * row.emb.overhead(), row.emb.load);
-        std::fflush(stdout);
+      for (int k : pprs) {
+        Row row{m, k, g, {}, {}};
+        const RenderOptions o = options(scene, size, spp, mode_of(m), k, g);
+        if (!no_embedded) {
+          row.emb = run_embedded(o, threads, tmp);
+          std::printf(
+              "  embedded     %-4s g=%.2f k=%d: %2d rounds, job %.2f s (call %.2f s, %.2f CPU-s), tracing %.2f s / %d "
+              "threads -> overhead %.1f%%, load %.2f\n",
+              m.c_str(), g, k, row.emb.rounds, row.emb.elapsed, row.emb.wall, row.emb.cpu, row.emb.tracing, threads,
+              100 * row.emb.overhead(), row.emb.load);
+          std::fflush(stdout);
+        }
+        if (!no_bench_workers) {
+          row.bench = run_bench_workers(o, threads, tmp);
+          const JobFigures& f = row.bench.fig;
+          std::printf(
+              "  bench worker %-4s g=%.2f k=%d: %2d rounds, job %.2f s (%.2f CPU-s), tracing %.2f s / %d threads -> "
+              "overhead %.1f%%, load %.2f\n",
+              m.c_str(), g, k, f.rounds, f.elapsed, f.cpu, f.tracing, threads, 100 * f.overhead(), f.load);
+          std::fflush(stdout);
+        }
+        rows.push_back(row);
       }
-      if (!no_bench_workers) {
-        row.bench = run_bench_workers(o, threads, tmp);
-        const JobFigures& f = row.bench.fig;
-        std::printf("  bench worker %-4s g=%.2f k=%d: %2d rounds, job %.2f s (%.2f CPU-s), tracing %.2f s / %d threads -> "
-                    "overhead %.1f%%, load %.2f\n",
-                    m.c_str(), g, k, f.rounds, f.elapsed, f.cpu, f.tracing, threads, 100 * f.overhead(), f.load);
-        std::fflush(stdout);
-      }
-      rows.push_back(row);
-    }
 
   std::printf("\n==== Part 1+2: share of the job's wall time outside tracing (bar <= 10%%)\n");
-  std::printf("%-5s %4s %3s | %6s %8s %8s %9s %9s | %8s %9s %9s | %8s %8s %8s %8s %8s | %6s\n", "mode", "g", "k", "rounds",
-              "emb s", "emb ovh", "ovh/round", "round s", "bench s", "bench ovh", "ovh/round", "trace", "submit",
-              "lease", "wait", "other", "load");
+  std::printf("%-5s %4s %3s | %6s %8s %8s %9s %9s | %8s %9s %9s | %8s %8s %8s %8s %8s | %6s\n", "mode", "g", "k",
+              "rounds", "emb s", "emb ovh", "ovh/round", "round s", "bench s", "bench ovh", "ovh/round", "trace",
+              "submit", "lease", "wait", "other", "load");
   for (const Row& r : rows) {
     const JobFigures& e = r.emb;
     const JobFigures& b = r.bench.fig;
     const ThreadSplit& s = r.bench.split;
     auto share = [&](double x) { return s.total > 0 ? 100 * x / s.total : 0.0; };
-    std::printf("%-5s %4.2f %3d | %6d %8.2f %7.1f%% %7.1fms %8.3fs | %8.2f %8.1f%% %7.1fms | %7.1f%% %7.1f%% %7.1f%% %7.1f%% "
-                "%7.1f%% | %6.2f\n",
-                r.mode.c_str(), r.growth, r.ppr, e.rounds ? e.rounds : b.rounds, e.elapsed, 100 * (e.elapsed ? e.overhead() : 0),
-                e.rounds ? 1e3 * (e.elapsed - e.tracing / e.threads) / e.rounds : 0.0, e.median_round, b.elapsed,
-                100 * (b.elapsed ? b.overhead() : 0), b.rounds ? 1e3 * (b.elapsed - b.tracing / b.threads) / b.rounds : 0.0,
-                share(s.tracing), share(s.submit), share(s.lease), share(s.waiting),
-                share(s.total - s.tracing - s.submit - s.lease - s.waiting), e.load ? e.load : b.load);
+    std::printf(
+        "%-5s %4.2f %3d | %6d %8.2f %7.1f%% %7.1fms %8.3fs | %8.2f %8.1f%% %7.1fms | %7.1f%% %7.1f%% %7.1f%% %7.1f%% "
+        "%7.1f%% | %6.2f\n",
+        r.mode.c_str(), r.growth, r.ppr, e.rounds ? e.rounds : b.rounds, e.elapsed,
+        100 * (e.elapsed ? e.overhead() : 0), e.rounds ? 1e3 * (e.elapsed - e.tracing / e.threads) / e.rounds : 0.0,
+        e.median_round, b.elapsed, 100 * (b.elapsed ? b.overhead() : 0),
+        b.rounds ? 1e3 * (b.elapsed - b.tracing / b.threads) / b.rounds : 0.0, share(s.tracing), share(s.submit),
+        share(s.lease), share(s.waiting), share(s.total - s.tracing - s.submit - s.lease - s.waiting),
+        e.load ? e.load : b.load);
   }
   std::printf("\n==== The embedded WorkerNode's tracing threads over the job: where their wall time went\n");
-  std::printf("%-5s %4s %3s | %-14s | %7s %7s %7s %7s %7s %7s | %9s %9s\n", "mode", "g", "k", "while", "total",
-              "trace", "lease", "wait", "submit", "other", "idle/rnd", "tiles");
+  std::printf("%-5s %4s %3s | %-14s | %7s %7s %7s %7s %7s %7s | %9s %9s\n", "mode", "g", "k", "while", "total", "trace",
+              "lease", "wait", "submit", "other", "idle/rnd", "tiles");
   for (const Row& r : rows) {
     const JobFigures& e = r.emb;
     if (!e.rounds) continue;
@@ -520,23 +534,26 @@ int main(int argc, char** argv) {
     line("another traces", e.others);
     line("none traces", e.none);
     const WorkerTimeSplit& c = e.thread_cpu;
-    std::printf("%-5s %4.2f %3d | %-14s | %6.2fs %6.2fs %6.2fs %6.2fs %6.2fs %6.2fs | CPU view: 1 - tracing CPU / "
-                "process CPU over the job (%.2f s) = %.1f%%\n",
-                r.mode.c_str(), r.growth, r.ppr, "thread CPU", c.total(), c.tracing, c.leasing, c.waiting,
-                c.submitting, c.other, e.job_cpu, e.job_cpu > 0 ? 100 * (1 - c.tracing / e.job_cpu) : 0.0);
+    std::printf(
+        "%-5s %4.2f %3d | %-14s | %6.2fs %6.2fs %6.2fs %6.2fs %6.2fs %6.2fs | CPU view: 1 - tracing CPU / "
+        "process CPU over the job (%.2f s) = %.1f%%\n",
+        r.mode.c_str(), r.growth, r.ppr, "thread CPU", c.total(), c.tracing, c.leasing, c.waiting, c.submitting,
+        c.other, e.job_cpu, e.job_cpu > 0 ? 100 * (1 - c.tracing / e.job_cpu) : 0.0);
     std::printf("      thread-seconds %.2f over a job of %.2f s x %d threads = %.2f\n", all, e.elapsed, e.threads,
                 e.elapsed * e.threads);
-    std::printf("      master, per round: last result -> applied (backlog) %.1f ms, applied -> next round open %.1f "
-                "ms; writing the results at the end %.0f ms (%.1f%% of the job); overhead of the rounds alone "
-                "(job wall minus the results) %.1f%%\n",
-                1e3 * e.backlog / e.rounds, 1e3 * e.closing / e.rounds, 1e3 * e.writing, 100 * e.writing / e.elapsed,
-                100 * (1 - e.tracing / e.threads / (e.elapsed - e.writing)));
+    std::printf(
+        "      master, per round: last result -> applied (backlog) %.1f ms, applied -> next round open %.1f "
+        "ms; writing the results at the end %.0f ms (%.1f%% of the job); overhead of the rounds alone "
+        "(job wall minus the results) %.1f%%\n",
+        1e3 * e.backlog / e.rounds, 1e3 * e.closing / e.rounds, 1e3 * e.writing, 100 * e.writing / e.elapsed,
+        100 * (1 - e.tracing / e.threads / (e.elapsed - e.writing)));
     if (g_checkpoints) std::printf("      round checkpoints: %u of %d rounds\n", e.round_checkpoints, e.rounds);
   }
-  std::printf("(shares of the tracing threads' summed wall time from the job running to done; 'another traces': a "
-              "thread's time while another thread of the node traced -- its idle part is a round's tail; 'none "
-              "traces': while no other thread traced -- its idle part is the node waiting for the master; "
-              "idle/rnd: the idle part / threads / rounds, i.e. the wall time per round it costs)\n");
+  std::printf(
+      "(shares of the tracing threads' summed wall time from the job running to done; 'another traces': a "
+      "thread's time while another thread of the node traced -- its idle part is a round's tail; 'none "
+      "traces': while no other thread traced -- its idle part is the node waiting for the master; "
+      "idle/rnd: the idle part / threads / rounds, i.e. the wall time per round it costs)\n");
 
   std::printf("\n==== CPU view (robust to load): share of the process's CPU time not spent tracing\n");
   std::printf("%-5s %4s %3s | %9s %9s %9s | %9s %9s | %11s %11s\n", "mode", "g", "k", "trace CPU", "emb CPU", "emb ovh",
@@ -545,14 +562,15 @@ int main(int argc, char** argv) {
     const double tc = r.bench.split.tracing_cpu;
     if (tc <= 0) continue;
     const int rounds = r.bench.fig.rounds;
-    std::printf("%-5s %4.2f %3d | %9.2f %9.2f %8.1f%% %9.2f %8.1f%% | %9.1fms %11llu\n", r.mode.c_str(), r.growth, r.ppr, tc,
-                r.emb.cpu, r.emb.cpu > 0 ? 100 * (1 - tc / r.emb.cpu) : 0.0, r.bench.fig.cpu,
+    std::printf("%-5s %4.2f %3d | %9.2f %9.2f %8.1f%% %9.2f %8.1f%% | %9.1fms %11llu\n", r.mode.c_str(), r.growth,
+                r.ppr, tc, r.emb.cpu, r.emb.cpu > 0 ? 100 * (1 - tc / r.emb.cpu) : 0.0, r.bench.fig.cpu,
                 100 * (1 - tc / r.bench.fig.cpu), rounds ? 1e3 * tc / threads / rounds : 0.0,
                 (unsigned long long)r.bench.split.tiles);
   }
-  std::printf("(trace CPU: thread CPU seconds inside render_leased_tile, summed over the bench threads -- the same "
-              "paths as the embedded job, which is deterministic; emb/bench CPU: process CPU seconds of the whole "
-              "call / job; trace/round: trace CPU / threads / rounds = a round's tracing wall time on an idle machine)\n");
+  std::printf(
+      "(trace CPU: thread CPU seconds inside render_leased_tile, summed over the bench threads -- the same "
+      "paths as the embedded job, which is deterministic; emb/bench CPU: process CPU seconds of the whole "
+      "call / job; trace/round: trace CPU / threads / rounds = a round's tracing wall time on an idle machine)\n");
 
   std::printf("\nbench workers, per tile (thread CPU): ");
   for (const Row& r : rows) {
@@ -563,10 +581,11 @@ int main(int argc, char** argv) {
                 1e3 * s.lease_cpu / double(s.tiles));
   }
   std::printf("\n");
-  std::printf("(emb: render_embedded with WorkerNode; bench: bench workers retrying 1 ms after a Wait. ovh = 1 - "
-              "tracing / threads / job wall; ovh/round = (job wall - tracing / threads) / rounds; round s: median "
-              "wall between round updates; trace/submit/lease/wait/other: shares of the bench threads' wall time from "
-              "their first tile -- submit includes encoding, wait = Wait answers and the 1 ms sleeps after them)\n");
+  std::printf(
+      "(emb: render_embedded with WorkerNode; bench: bench workers retrying 1 ms after a Wait. ovh = 1 - "
+      "tracing / threads / job wall; ovh/round = (job wall - tracing / threads) / rounds; round s: median "
+      "wall between round updates; trace/submit/lease/wait/other: shares of the bench threads' wall time from "
+      "their first tile -- submit includes encoding, wait = Wait answers and the 1 ms sleeps after them)\n");
   std::fflush(stdout);
 
   if (no_master_costs) {
@@ -575,8 +594,8 @@ int main(int argc, char** argv) {
   }
   std::printf("\n==== Part 3: the master's per-round work on its own (%dx%d, median of %d), load %.2f\n", size, size,
               runs, load_average());
-  std::printf("%-5s %-4s | %12s %12s | %12s %12s | %12s %12s | %14s\n", "mode", "rp", "finish_round", "CPU",
-              "images()", "CPU", "4 PNGs", "CPU", "reproject round");
+  std::printf("%-5s %-4s | %12s %12s | %12s %12s | %12s %12s | %14s\n", "mode", "rp", "finish_round", "CPU", "images()",
+              "CPU", "4 PNGs", "CPU", "reproject round");
   for (const std::string& m : modes) {
     std::vector<ReprojectMethod> methods = {ReprojectMethod::kGl};
     if (m != "pt") methods.push_back(ReprojectMethod::kCpu);
@@ -584,19 +603,20 @@ int main(int argc, char** argv) {
       const MasterRoundCosts c = master_round_costs(scene, size, mode_of(m), rm, runs);
       std::printf("%-5s %-4s | %10.1fms %10.1fms | %10.1fms %10.1fms | %10.1fms %10.1fms | %12.1fms\n", m.c_str(),
                   m == "pt" ? "-" : to_string(rm), 1e3 * c.finish_round, 1e3 * c.finish_round_cpu, 1e3 * c.images,
-                  1e3 * c.images_cpu, 1e3 * c.previews,
-                  1e3 * c.previews_cpu, 1e3 * c.reproject_round);
+                  1e3 * c.images_cpu, 1e3 * c.previews, 1e3 * c.previews_cpu, 1e3 * c.reproject_round);
       std::fflush(stdout);
     }
   }
   const auto [rtt, rtt_cpu] = lease_rtt(2000);
-  std::printf("LeaseTile round trip on loopback: %.0f us median wall, %.0f us process CPU per call (client + "
-              "master)\n",
-              1e6 * rtt, 1e6 * rtt_cpu);
-  std::printf("(finish_round: M', skip mask and progress -- skip mode reads the accumulation back and downsamples "
-              "every round; images(): the preview copy close_round takes at most once a second; 4 PNGs: the encodes a "
-              "preview request costs, on the requesting thread; reproject round: add_paths + reproject_packed of one "
-              "round's tiles of --tile pixels)\n");
+  std::printf(
+      "LeaseTile round trip on loopback: %.0f us median wall, %.0f us process CPU per call (client + "
+      "master)\n",
+      1e6 * rtt, 1e6 * rtt_cpu);
+  std::printf(
+      "(finish_round: M', skip mask and progress -- skip mode reads the accumulation back and downsamples "
+      "every round; images(): the preview copy close_round takes at most once a second; 4 PNGs: the encodes a "
+      "preview request costs, on the requesting thread; reproject round: add_paths + reproject_packed of one "
+      "round's tiles of --tile pixels)\n");
   fs::remove_all(tmp);
   std::printf("load average at end %.2f\n", load_average());
   return 0;

@@ -35,8 +35,10 @@
 // tracing's error at P = 64 and P = 256, first and for good, as a ratio to path tracing's CPU time there
 // (bench/charts/tables.py writes the same tables from the CSVs for docs/RESULTS.md).
 // OUT/strip/: the equal-time images (pt, rp, skip at half of pt's CPU time for P = --strip-p) and skip's M'.
+#include <fmt/format.h>
 #include <sys/resource.h>
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -45,15 +47,12 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <CLI/CLI.hpp>
-#include <fmt/format.h>
-#include <nlohmann/json.hpp>
 
 #include "bench_reference.h"
 #include "client/local_render.h"
@@ -85,7 +84,7 @@ using bench::scene_name;
 struct Sample {
   int round = 0;
   double wall = 0, cpu = 0, eye_paths = 0, reprojected = 0, mean_spp = 0;
-  double spp = 0;  // paths per pixel the round schedule has reached (traced + skipped; = pt's M)
+  double spp = 0;       // paths per pixel the round schedule has reached (traced + skipped; = pt's M)
   ErrorMeans raw, err;  // err = raw - floor
 };
 
@@ -163,8 +162,8 @@ void write_csv(const fs::path& file, const std::vector<Sample>& samples) {
   f << "round,wall_s,cpu_s,eye_paths,reprojected_samples,mean_spp,rel_mse,rel_mse_trim,rmse,rel_mse_raw,"
        "rel_mse_trim_raw,rmse_raw,spp\n";
   for (const Sample& s : samples)
-    f << fmt::format("{},{:.4f},{:.4f},{:.0f},{:.0f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.4f}\n", s.round, s.wall,
-                     s.cpu, s.eye_paths, s.reprojected, s.mean_spp, s.err.full, s.err.trimmed,
+    f << fmt::format("{},{:.4f},{:.4f},{:.0f},{:.0f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.4f}\n",
+                     s.round, s.wall, s.cpu, s.eye_paths, s.reprojected, s.mean_spp, s.err.full, s.err.trimmed,
                      std::sqrt(std::max(0.0, s.err.mse)), s.raw.full, s.raw.trimmed, std::sqrt(s.raw.mse), s.spp);
 }
 
@@ -223,7 +222,9 @@ Reach time_to(const std::vector<Sample>& s, double target, bool use_cpu, bool tr
   return r;
 }
 
-double num(const json& j, const char* key) { return j.contains(key) && j[key].is_number() ? j[key].get<double>() : 0.0; }
+double num(const json& j, const char* key) {
+  return j.contains(key) && j[key].is_number() ? j[key].get<double>() : 0.0;
+}
 
 // ---------------------------------------------------------------------------------------------------
 // Cycles
@@ -295,8 +296,8 @@ void export_obj(const std::string& spec, const fs::path& dir) {
   const CameraSpec& c = s.camera;
   cam << fmt::format("--eye={:.9g},{:.9g},{:.9g} --look={:.9g},{:.9g},{:.9g} --up={:.9g},{:.9g},{:.9g} --fov={:.9g}\n",
                      c.eye.x, c.eye.y, c.eye.z, c.look.x, c.look.y, c.look.z, c.up.x, c.up.y, c.up.z, c.fov_y_degrees);
-  std::printf("exported %s: %zu triangles, %zu materials -> %s\n", spec.c_str(), s.triangle_count(),
-              s.materials.size(), (dir / (name + ".obj")).c_str());
+  std::printf("exported %s: %zu triangles, %zu materials -> %s\n", spec.c_str(), s.triangle_count(), s.materials.size(),
+              (dir / (name + ".obj")).c_str());
 }
 
 // ---------------------------------------------------------------------------------------------------
@@ -356,14 +357,10 @@ int main(int argc, char** argv) {
   if (!no_strip) fs::create_directories(out / "strip");
   const auto w_start = std::chrono::steady_clock::now();
   const double c_start = cpu_seconds();
-  json summary = {{"size", size},
-                  {"spp", spp},
-                  {"ref_spp", ref_spp},
-                  {"subpixels", subpixels},
-                  {"threads", threads},
-                  {"hardware_threads", std::thread::hardware_concurrency()},
-                  {"trim", bench::g_trim},
-                  {"load_start", load1()},
+  json summary = {{"size", size},           {"spp", spp},
+                  {"ref_spp", ref_spp},     {"subpixels", subpixels},
+                  {"threads", threads},     {"hardware_threads", std::thread::hardware_concurrency()},
+                  {"trim", bench::g_trim},  {"load_start", load1()},
                   {"scenes", json::array()}};
   std::printf("speed_accuracy: %dx%d, P=%d, reference %d spp, %u hardware threads, tracer threads %s, load %.2f\n",
               size, size, spp, ref_spp, std::thread::hardware_concurrency(),
@@ -395,8 +392,10 @@ int main(int argc, char** argv) {
     for (const std::string& mode : modes) {
       std::function<bool(int, double)> keep;
       if (!no_strip && (mode == "pt" || mode == "skip" || mode == "rp")) {
-        if (mode == "pt") keep = [&](int round, double) { return round <= strip_p; };
-        else keep = [&](int, double cpu) { return cpu <= 1.5 * strip_cpu; };
+        if (mode == "pt")
+          keep = [&](int round, double) { return round <= strip_p; };
+        else
+          keep = [&](int, double cpu) { return cpu <= 1.5 * strip_cpu; };
       }
       const double l0 = load1();
       Run run = run_mode(base, mode, ref, keep);
@@ -432,7 +431,8 @@ int main(int argc, char** argv) {
         if (!best && !runs[mode].snapshots.empty()) best = &runs[mode].snapshots.front();
         if (!best) continue;
         write_exr((out / "strip" / (tag + "_" + mode + ".exr")).string(), best->combined);
-        strip[mode] = {{"round", best->round}, {"cpu_s", best->cpu},
+        strip[mode] = {{"round", best->round},
+                       {"cpu_s", best->cpu},
                        {"rel_mse_trim", (errors(best->combined, ref.image) - ref.floor).trimmed}};
         if (mode == "skip") {
           float max_m = 0;
@@ -453,7 +453,10 @@ int main(int argc, char** argv) {
         write_csv(out / "csv" / (tag + "_cycles.csv"), cycles);
         json cj = json::array();
         for (const Sample& s : cycles)
-          cj.push_back({{"spp", s.round}, {"wall_s", s.wall}, {"cpu_s", s.cpu}, {"rel_mse_trim", s.err.trimmed},
+          cj.push_back({{"spp", s.round},
+                        {"wall_s", s.wall},
+                        {"cpu_s", s.cpu},
+                        {"rel_mse_trim", s.err.trimmed},
                         {"rel_mse", s.err.full}});
         js["cycles"] = cj;
         std::printf("  cycles: %zu renders scored\n", cycles.size());
@@ -465,12 +468,13 @@ int main(int argc, char** argv) {
     md << "### " << tag << " (" << js["triangles"].get<size_t>() << " triangles)\n\n";
     if (!rp.empty()) {
       const double rec = std::max(1.0, num(rp, "vertices_recorded"));
-      const double worker = num(rp, "culled_frustum_worker") + num(rp, "culled_facing_worker") +
-                            num(rp, "culled_glossy_worker");
+      const double worker =
+          num(rp, "culled_frustum_worker") + num(rp, "culled_facing_worker") + num(rp, "culled_glossy_worker");
       const double tracing = std::max(1e-9, num(rp, "seconds_tracing"));
       const double reproj = num(rp, "seconds_reprojecting") - num(rp, "seconds_reprojecting_harness_reads");
       md << fmt::format(
-          "| accepted | occluded | culled | reprojection overhead (rp, GL) | eye paths traced (skip) |\n|---|---|---|---|---|\n"
+          "| accepted | occluded | culled | reprojection overhead (rp, GL) | eye paths traced (skip) "
+          "|\n|---|---|---|---|---|\n"
           "| {:.1f} % | {:.1f} % | {:.1f} % | {:.1f} % | {} |\n\n",
           100 * num(rp, "accepted") / rec, 100 * num(rp, "occluded") / rec,
           100 * (num(rp, "culled_master") + worker) / rec, 100 * reproj / tracing,
@@ -512,8 +516,8 @@ int main(int argc, char** argv) {
                             fmt_ratio(c.stays, base->cpu));
           auto opt = [](std::optional<double> v) { return v ? json(*v) : json(nullptr); };
           tte[name][m][std::to_string(t)] = {{"target", metric(*base, trimmed)}, {"pt_cpu_s", base->cpu},
-                                             {"pt_wall_s", base->wall},         {"cpu_s_first", opt(c.first)},
-                                             {"cpu_s_stays", opt(c.stays)},     {"wall_s_first", opt(w.first)},
+                                             {"pt_wall_s", base->wall},          {"cpu_s_first", opt(c.first)},
+                                             {"cpu_s_stays", opt(c.stays)},      {"wall_s_first", opt(w.first)},
                                              {"wall_s_stays", opt(w.stays)}};
         }
         md << "\n";

@@ -14,14 +14,13 @@
 //
 //   trace_bench [--runs 5] [--scene SPEC ...] [--size 128] [--spp 4] [--rays 400000] [--profile-pt]
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
 #include <vector>
-
-#include <CLI/CLI.hpp>
 
 #include "common/cpu_time.h"
 #include "common/rng.h"
@@ -103,9 +102,10 @@ int main(int argc, char** argv) {
 
   double load[3] = {0, 0, 0};
   getloadavg(load, 3);
-  std::printf("trace_bench: one thread, %dx%d pixels x %d spp per run (%s), %d raw rays, %d runs (medians); "
-              "load average %.2f %.2f %.2f\n",
-              size, size, spp, mis ? "MIS" : "NEE only", nrays, runs, load[0], load[1], load[2]);
+  std::printf(
+      "trace_bench: one thread, %dx%d pixels x %d spp per run (%s), %d raw rays, %d runs (medians); "
+      "load average %.2f %.2f %.2f\n",
+      size, size, spp, mis ? "MIS" : "NEE only", nrays, runs, load[0], load[1], load[2]);
   std::printf("%-22s %9s | %-23s | %-23s | %-23s | %7s %7s | %-13s\n", "", "", "raw rays/s (M)", "pt rays/s (M)",
               "pt vertices/s (M)", "verts", "rays", "ratio verts:raw");
   std::printf("%-22s %9s | %11s %11s | %11s %11s | %11s %11s | %7s %7s | %6s %6s\n", "scene", "triangles", "wall",

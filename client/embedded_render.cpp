@@ -10,7 +10,9 @@ namespace epr {
 int embedded_threads_per_worker(const RenderOptions& opts, const EmbeddedOptions& embedded) {
   const int n = std::max(1, embedded.workers);
   const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
-  return embedded.worker_threads > 0 ? embedded.worker_threads : opts.threads > 0 ? opts.threads : std::max(1, cores / n);
+  return embedded.worker_threads > 0 ? embedded.worker_threads
+         : opts.threads > 0          ? opts.threads
+                                     : std::max(1, cores / n);
 }
 
 EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,

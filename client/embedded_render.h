@@ -16,19 +16,19 @@
 namespace epr {
 
 struct EmbeddedOptions {
-  int workers = 1;          // worker nodes in this process
-  int worker_threads = 0;   // tracing threads per worker; 0: all cores / workers
-  std::string state_dir;    // the master's state folder; empty: a temporary one
-  bool checkpoints = true;  // with an explicit state_dir: checkpoint rounds (a temporary folder never does)
+  int workers = 1;                    // worker nodes in this process
+  int worker_threads = 0;             // tracing threads per worker; 0: all cores / workers
+  std::string state_dir;              // the master's state folder; empty: a temporary one
+  bool checkpoints = true;            // with an explicit state_dir: checkpoint rounds (a temporary folder never does)
   double checkpoint_interval_s = -1;  // MasterOptions::checkpoint_interval_s (< 0: automatic)
   std::string http_listen = "127.0.0.1:0";  // the master's monitoring endpoint (dashboard); empty: none
 };
 
 struct EmbeddedResult {
-  v1::JobStatus status;              // the final status
-  std::vector<FetchedFile> files;    // what was written under the output prefix
-  std::string master_target;         // the loopback address the master listened on
-  std::string dashboard_url;         // "http://127.0.0.1:PORT/" while the render runs; empty if disabled
+  v1::JobStatus status;            // the final status
+  std::vector<FetchedFile> files;  // what was written under the output prefix
+  std::string master_target;       // the loopback address the master listened on
+  std::string dashboard_url;       // "http://127.0.0.1:PORT/" while the render runs; empty if disabled
   /// Each worker node's statistics when the job ended; their time splits cover the job only (from
   /// the first update showing it running to the one showing it done).
   std::vector<WorkerNodeStats> workers;
@@ -43,8 +43,9 @@ int embedded_threads_per_worker(const RenderOptions& opts, const EmbeddedOptions
 /// Renders `opts` to completion and writes the outputs under opts.out. `on_status` is called with
 /// every progress update (from the watch stream); `on_started` once the master is up (with its gRPC
 /// target and the dashboard URL, empty if disabled).
-EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
-                               const std::function<void(const v1::JobStatus&)>& on_status = {},
-                               const std::function<void(const std::string& master_target, const std::string& dashboard_url)>& on_started = {});
+EmbeddedResult render_embedded(
+    const RenderOptions& opts, const EmbeddedOptions& embedded,
+    const std::function<void(const v1::JobStatus&)>& on_status = {},
+    const std::function<void(const std::string& master_target, const std::string& dashboard_url)>& on_started = {});
 
 }  // namespace epr

@@ -1,15 +1,14 @@
 // epr: the command-line client. `epr render` runs the whole system on this machine.
+#include <fmt/format.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <optional>
 #include <iostream>
 #include <map>
-
-#include <CLI/CLI.hpp>
-#include <fmt/format.h>
+#include <optional>
 
 #include "client/embedded_render.h"
 #include "client/local_render.h"
@@ -48,9 +47,9 @@ void print_progress(const RoundProgress& p, int spp, bool tty) {
   const int filled = int(frac * width);
   const std::string bar = std::string(size_t(filled), '#') + std::string(size_t(width - filled), '.');
   const std::string eta = p.eta_seconds >= 0 ? fmt::format("{:.0f}s", p.eta_seconds) : "?";
-  const std::string line = fmt::format("[{}] round {:3d}  spp {:6.1f}/{} (min {:.0f})  M' {:5.1f}  active {:3.0f}%  {:6.1f}s  ETA {}",
-                                       bar, p.round, p.mean_spp, spp, p.min_spp, p.mean_mprime, 100 * p.pixels_active,
-                                       p.seconds, eta);
+  const std::string line =
+      fmt::format("[{}] round {:3d}  spp {:6.1f}/{} (min {:.0f})  M' {:5.1f}  active {:3.0f}%  {:6.1f}s  ETA {}", bar,
+                  p.round, p.mean_spp, spp, p.min_spp, p.mean_mprime, 100 * p.pixels_active, p.seconds, eta);
   std::fprintf(stderr, tty ? "\r%s" : "%s\n", line.c_str());
   std::fflush(stderr);
 }
@@ -75,7 +74,7 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
                const std::string& http) {
   finish_options(o, extra);
   if (o.tile_size == 0) {  // --tile not given
-    EmbeddedOptions eo;  // the tracing threads this render starts (one "worker" when single-process)
+    EmbeddedOptions eo;    // the tracing threads this render starts (one "worker" when single-process)
     eo.workers = single_process ? 1 : workers;
     o.tile_size = auto_tile_size(o.width, o.height, eo.workers * embedded_threads_per_worker(o, eo));
     o.taper_tiles = true;
@@ -144,9 +143,12 @@ int main(int argc, char** argv) {
   render->add_flag("--single-process", single_process,
                    "trace and reproject in this process without gRPC (the reference the cluster must equal)");
   render->add_option("--workers", local_workers, "local worker nodes (each uses all cores / workers)")
-      ->check(CLI::Range(1, 64))->capture_default_str();
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
   std::string render_http = "127.0.0.1:0";
-  render->add_option("--http", render_http, "the embedded master's dashboard address HOST:PORT (port 0: a free one; \"\" disables it)")
+  render
+      ->add_option("--http", render_http,
+                   "the embedded master's dashboard address HOST:PORT (port 0: a free one; \"\" disables it)")
       ->capture_default_str();
   RemoteCommands remote(app);  // submit, watch, get, list, cancel
 

@@ -27,7 +27,7 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
-constexpr size_t kMaxNameBytes = 256;     // JobSpec.name
+constexpr size_t kMaxNameBytes = 256;  // JobSpec.name
 
 std::string random_hex(size_t bytes) {
   std::random_device rd;
@@ -260,9 +260,8 @@ v1::JobStatus JobClient::job_id_call(const std::string& job_id, const char* what
 v1::JobStatus JobClient::get(const std::string& job_id) {
   grpc::ClientContext ctx;
   prepare(&ctx, options_.timeout);
-  return job_id_call(job_id, "GetJob", [&](const v1::JobId& req, v1::JobStatus* out) {
-    return stub_->GetJob(&ctx, req, out);
-  });
+  return job_id_call(job_id, "GetJob",
+                     [&](const v1::JobId& req, v1::JobStatus* out) { return stub_->GetJob(&ctx, req, out); });
 }
 
 std::vector<v1::JobStatus> JobClient::list(const std::vector<v1::JobState>& states, size_t limit) {
@@ -291,9 +290,8 @@ std::vector<v1::JobStatus> JobClient::list(const std::vector<v1::JobState>& stat
 v1::JobStatus JobClient::cancel(const std::string& job_id) {
   grpc::ClientContext ctx;
   prepare(&ctx, options_.timeout);
-  return job_id_call(job_id, "CancelJob", [&](const v1::JobId& req, v1::JobStatus* out) {
-    return stub_->CancelJob(&ctx, req, out);
-  });
+  return job_id_call(job_id, "CancelJob",
+                     [&](const v1::JobId& req, v1::JobStatus* out) { return stub_->CancelJob(&ctx, req, out); });
 }
 
 // ---- watching -----------------------------------------------------------------------------------
@@ -455,7 +453,8 @@ std::vector<FetchedFile> JobClient::fetch_all(const std::string& job_id, const s
     } catch (const RpcError& e) {
       // Kinds the job did not produce (reprojection kinds of a path-traced job), or that a master of
       // an older version does not know.
-      const bool absent = e.code() == grpc::StatusCode::NOT_FOUND || e.code() == grpc::StatusCode::FAILED_PRECONDITION ||
+      const bool absent = e.code() == grpc::StatusCode::NOT_FOUND ||
+                          e.code() == grpc::StatusCode::FAILED_PRECONDITION ||
                           e.code() == grpc::StatusCode::INVALID_ARGUMENT;
       if (k.kind == ResultKind::kExr || !absent) throw;
       logger("client")->debug("job {} has no {} result: {}", job_id, k.name, e.what());

@@ -1,14 +1,14 @@
 #include "client/local_render.h"
 
+#include <fmt/format.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
 #include <chrono>
 #include <cmath>
 #include <fstream>
 #include <memory>
 #include <stdexcept>
-
-#include <fmt/format.h>
-#include <tbb/global_control.h>
-#include <tbb/parallel_for.h>
 
 #include "common/log.h"
 #include "common/scene_loader.h"
@@ -30,9 +30,12 @@ VertexFilter filter_for(const RenderOptions& o) {
   VertexFilter f;
   f.subpixels = o.subpixels;
   f.reproject_glossy = o.reproject_glossy;
-  if (o.mode == RenderMode::kPathTrace) f.mode = VertexFilter::Mode::kNone;
-  else if (o.reproject == ReprojectMethod::kExact) f.mode = VertexFilter::Mode::kExact;
-  else f.mode = VertexFilter::Mode::kCull;
+  if (o.mode == RenderMode::kPathTrace)
+    f.mode = VertexFilter::Mode::kNone;
+  else if (o.reproject == ReprojectMethod::kExact)
+    f.mode = VertexFilter::Mode::kExact;
+  else
+    f.mode = VertexFilter::Mode::kCull;
   return f;
 }
 

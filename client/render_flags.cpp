@@ -1,8 +1,8 @@
 #include "client/render_flags.h"
 
-#include <cstdio>
-
 #include <fmt/format.h>
+
+#include <cstdio>
 
 namespace epr {
 namespace {
@@ -19,31 +19,42 @@ Vec3 parse_vec3(const std::string& flag, const std::string& s) {
 }  // namespace
 
 void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std::string>& extra, RenderFlagSet set) {
-  cmd->add_option("scene", o.scene, "OBJ file, scene JSON file, or builtin:NAME (cornell, conference, hall, wall, glossy, furnace)")
+  cmd->add_option("scene", o.scene,
+                  "OBJ file, scene JSON file, or builtin:NAME (cornell, conference, hall, wall, glossy, furnace)")
       ->required();
   cmd->add_option("--width", o.width, "image width in pixels")->capture_default_str();
   cmd->add_option("--height", o.height, "image height in pixels")->capture_default_str();
   cmd->add_option("--spp", o.spp, "target samples per pixel P")->capture_default_str();
-  cmd->add_option("--paths-per-round", o.paths_per_round, "paths per non-skipped pixel and round (k)")->capture_default_str();
+  cmd->add_option("--paths-per-round", o.paths_per_round, "paths per non-skipped pixel and round (k)")
+      ->capture_default_str();
   cmd->add_option("--round-growth", o.round_growth,
                   "later rounds trace floor(g x paths so far) paths (at least k); 0: k paths in every round")
       ->capture_default_str();
   cmd->add_option("--seed", o.seed, "random seed")->capture_default_str();
   cmd->add_option("--out", o.out, "output prefix: writes PREFIX.exr, PREFIX.png, PREFIX.json")->capture_default_str();
-  const std::map<std::string, RenderMode> modes{{"pt", RenderMode::kPathTrace}, {"rp", RenderMode::kReproject}, {"skip", RenderMode::kSkip}};
+  const std::map<std::string, RenderMode> modes{
+      {"pt", RenderMode::kPathTrace}, {"rp", RenderMode::kReproject}, {"skip", RenderMode::kSkip}};
   cmd->add_option("--mode", o.mode, "pt: path tracing; rp: plus reprojection; skip: plus pixel skipping")
-      ->transform(CLI::CheckedTransformer(modes, CLI::ignore_case))->capture_default_str();
-  const std::map<std::string, ReprojectMethod> methods{{"gl", ReprojectMethod::kGl}, {"cpu", ReprojectMethod::kCpu}, {"exact", ReprojectMethod::kExact}};
+      ->transform(CLI::CheckedTransformer(modes, CLI::ignore_case))
+      ->capture_default_str();
+  const std::map<std::string, ReprojectMethod> methods{
+      {"gl", ReprojectMethod::kGl}, {"cpu", ReprojectMethod::kCpu}, {"exact", ReprojectMethod::kExact}};
   cmd->add_option("--reproject", o.reproject, "gl: OSMesa deep framebuffer; cpu: CPU reference; exact: visibility rays")
-      ->transform(CLI::CheckedTransformer(methods, CLI::ignore_case))->capture_default_str();
-  cmd->add_option("--subpixels", o.subpixels, "S: deep framebuffer has S x S subpixels per pixel")->capture_default_str();
-  cmd->add_option("--epsilon", o.epsilon, "plane-test tolerance, fraction of the scene's bounding-box diagonal")->capture_default_str();
-  cmd->add_option("--min-paths", o.min_paths, "real paths a pixel traces before it may be skipped")->capture_default_str();
+      ->transform(CLI::CheckedTransformer(methods, CLI::ignore_case))
+      ->capture_default_str();
+  cmd->add_option("--subpixels", o.subpixels, "S: deep framebuffer has S x S subpixels per pixel")
+      ->capture_default_str();
+  cmd->add_option("--epsilon", o.epsilon, "plane-test tolerance, fraction of the scene's bounding-box diagonal")
+      ->capture_default_str();
+  cmd->add_option("--min-paths", o.min_paths, "real paths a pixel traces before it may be skipped")
+      ->capture_default_str();
   cmd->add_flag("--reproject-glossy", o.reproject_glossy, "also reproject glossy vertices (failure-mode study)");
-  cmd->add_flag_callback("--no-joint-test", [&o] { o.joint_test = false; },
-                "plane test without its normal and crease tests: thin walls leak at their joints (failure-mode study)");
+  cmd->add_flag_callback(
+      "--no-joint-test", [&o] { o.joint_test = false; },
+      "plane test without its normal and crease tests: thin walls leak at their joints (failure-mode study)");
   cmd->add_option("--rr", extra["rr"], "Russian roulette: paper (after 8 bounces, p=0.1), albedo, or off")
-      ->check(CLI::IsMember({"paper", "albedo", "off"}))->default_str("paper");
+      ->check(CLI::IsMember({"paper", "albedo", "off"}))
+      ->default_str("paper");
   cmd->add_option("--max-depth", extra["max-depth"],
                   "hard cap on path vertices (default 1024; with --rr off the fixed depth, default 8)");
   cmd->add_flag("--mis,!--no-mis", o.mis,
@@ -53,7 +64,8 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
     o.tile_size = 0;  // auto: run_render picks auto_tile_size() for the threads it starts, tapered
     cmd->add_option("--tile", o.tile_size,
                     fmt::format("tile size in pixels (auto: the largest of 128, 64, 32, 16 giving each tracing "
-                                "thread {} tiles a round, tapered)", kTilesPerThread))
+                                "thread {} tiles a round, tapered)",
+                                kTilesPerThread))
         ->default_str("auto");
   } else {
     cmd->add_option("--tile", o.tile_size, "tile size in pixels")->capture_default_str();
@@ -77,7 +89,9 @@ void finish_options(RenderOptions& o, const std::map<std::string, std::string>& 
   const auto rr = extra.find("rr");
   const auto depth = extra.find("max-depth");
   const std::string mode = rr == extra.end() || rr->second.empty() ? "paper" : rr->second;
-  o.rr = mode == "albedo" ? RussianRoulette::albedo() : mode == "off" ? RussianRoulette::off(8) : RussianRoulette::paper();
+  o.rr = mode == "albedo" ? RussianRoulette::albedo()
+         : mode == "off"  ? RussianRoulette::off(8)
+                          : RussianRoulette::paper();
   if (depth != extra.end() && !depth->second.empty()) {
     try {
       o.rr.max_depth = std::stoi(depth->second);

@@ -2,10 +2,9 @@
 // the same job description (DESIGN.md section 2).
 #pragma once
 
+#include <CLI/CLI.hpp>
 #include <map>
 #include <string>
-
-#include <CLI/CLI.hpp>
 
 #include "common/render_options.h"
 

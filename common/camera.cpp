@@ -1,9 +1,9 @@
 #include "common/camera.h"
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <stdexcept>
-
-#include <fmt/format.h>
 
 namespace epr {
 
@@ -15,7 +15,8 @@ std::optional<std::string> CameraSpec::validate() const {
   const Vec3 f = look - eye;
   if (!(length(f) > 1e-6f)) return "camera eye and look-at point coincide";
   if (!(length(up) > 1e-6f)) return "camera up vector is zero";
-  if (!(length(cross(normalize(f), normalize(up))) > 1e-4f)) return "camera up vector is parallel to the view direction";
+  if (!(length(cross(normalize(f), normalize(up))) > 1e-4f))
+    return "camera up vector is parallel to the view direction";
   return std::nullopt;
 }
 

@@ -26,12 +26,12 @@
 #define EPR_RELEASE(...) EPR_THREAD_ANNOTATION(release_capability(__VA_ARGS__))
 #define EPR_NO_THREAD_SAFETY_ANALYSIS EPR_THREAD_ANNOTATION(no_thread_safety_analysis)
 
-#define EPR_CHECK(cond)                                                                        \
-  do {                                                                                         \
-    if (!(cond)) {                                                                             \
-      std::fprintf(stderr, "%s:%d: invariant broken: %s\n", __FILE__, __LINE__, #cond);        \
-      std::abort();                                                                            \
-    }                                                                                          \
+#define EPR_CHECK(cond)                                                                 \
+  do {                                                                                  \
+    if (!(cond)) {                                                                      \
+      std::fprintf(stderr, "%s:%d: invariant broken: %s\n", __FILE__, __LINE__, #cond); \
+      std::abort();                                                                     \
+    }                                                                                   \
   } while (0)
 
 namespace epr {

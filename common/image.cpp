@@ -1,13 +1,13 @@
 #include "common/image.h"
 
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <memory>
 #include <stdexcept>
-
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
-#include <fmt/format.h>
 
 namespace epr {
 namespace {

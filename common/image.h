@@ -24,7 +24,10 @@ struct Image {
   void set_rgb(int x, int y, Vec3 c) {
     float* p = at(x, y);
     p[0] = c.x;
-    if (channels >= 3) { p[1] = c.y; p[2] = c.z; }
+    if (channels >= 3) {
+      p[1] = c.y;
+      p[2] = c.z;
+    }
   }
 };
 

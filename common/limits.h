@@ -3,11 +3,11 @@
 // tests/common/limits_test.cpp checks that every range below is written there.
 #pragma once
 
+#include <fmt/format.h>
+
 #include <optional>
 #include <string>
 #include <string_view>
-
-#include <fmt/format.h>
 
 namespace epr {
 

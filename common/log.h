@@ -1,10 +1,10 @@
 // One named spdlog logger per component ("common", "worker", "master", "client").
 #pragma once
 
+#include <spdlog/spdlog.h>
+
 #include <memory>
 #include <string>
-
-#include <spdlog/spdlog.h>
 
 namespace epr {
 

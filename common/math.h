@@ -34,10 +34,30 @@ struct Vec3 {
   constexpr Vec3 operator*(float s) const { return {x * s, y * s, z * s}; }
   constexpr Vec3 operator/(float s) const { return {x / s, y / s, z / s}; }
   constexpr Vec3 operator-() const { return {-x, -y, -z}; }
-  Vec3& operator+=(const Vec3& o) { x += o.x; y += o.y; z += o.z; return *this; }
-  Vec3& operator-=(const Vec3& o) { x -= o.x; y -= o.y; z -= o.z; return *this; }
-  Vec3& operator*=(const Vec3& o) { x *= o.x; y *= o.y; z *= o.z; return *this; }
-  Vec3& operator*=(float s) { x *= s; y *= s; z *= s; return *this; }
+  Vec3& operator+=(const Vec3& o) {
+    x += o.x;
+    y += o.y;
+    z += o.z;
+    return *this;
+  }
+  Vec3& operator-=(const Vec3& o) {
+    x -= o.x;
+    y -= o.y;
+    z -= o.z;
+    return *this;
+  }
+  Vec3& operator*=(const Vec3& o) {
+    x *= o.x;
+    y *= o.y;
+    z *= o.z;
+    return *this;
+  }
+  Vec3& operator*=(float s) {
+    x *= s;
+    y *= s;
+    z *= s;
+    return *this;
+  }
   constexpr bool operator==(const Vec3& o) const { return x == o.x && y == o.y && z == o.z; }
 };
 
@@ -48,18 +68,12 @@ constexpr Vec3 cross(const Vec3& a, const Vec3& b) {
 }
 inline float length(const Vec3& v) { return std::sqrt(dot(v, v)); }
 inline Vec3 normalize(const Vec3& v) { return v / length(v); }
-inline Vec3 min(const Vec3& a, const Vec3& b) {
-  return {std::min(a.x, b.x), std::min(a.y, b.y), std::min(a.z, b.z)};
-}
-inline Vec3 max(const Vec3& a, const Vec3& b) {
-  return {std::max(a.x, b.x), std::max(a.y, b.y), std::max(a.z, b.z)};
-}
+inline Vec3 min(const Vec3& a, const Vec3& b) { return {std::min(a.x, b.x), std::min(a.y, b.y), std::min(a.z, b.z)}; }
+inline Vec3 max(const Vec3& a, const Vec3& b) { return {std::max(a.x, b.x), std::max(a.y, b.y), std::max(a.z, b.z)}; }
 constexpr float max_component(const Vec3& v) { return std::max(v.x, std::max(v.y, v.z)); }
 /// Rec. 709 luminance of a linear RGB triple.
 constexpr float luminance(const Vec3& c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
-inline bool is_finite(const Vec3& v) {
-  return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
-}
+inline bool is_finite(const Vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 constexpr bool is_black(const Vec3& v) { return v.x == 0 && v.y == 0 && v.z == 0; }
 
 /// Axis-aligned box in world space.
@@ -67,7 +81,10 @@ struct Bounds3 {
   Vec3 lo{std::numeric_limits<float>::infinity()};
   Vec3 hi{-std::numeric_limits<float>::infinity()};
 
-  void extend(const Vec3& p) { lo = min(lo, p); hi = max(hi, p); }
+  void extend(const Vec3& p) {
+    lo = min(lo, p);
+    hi = max(hi, p);
+  }
   bool empty() const { return lo.x > hi.x; }
   Vec3 diagonal() const { return hi - lo; }
   float diagonal_length() const { return empty() ? 0.f : length(hi - lo); }

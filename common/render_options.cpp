@@ -1,11 +1,11 @@
 #include "common/render_options.h"
 
-#include "common/limits.h"
+#include <fmt/format.h>
 
 #include <algorithm>
 #include <cmath>
 
-#include <fmt/format.h>
+#include "common/limits.h"
 
 namespace epr {
 
@@ -72,18 +72,24 @@ int rounds_planned(const RenderOptions& o) {
 
 const char* to_string(RenderMode m) {
   switch (m) {
-    case RenderMode::kPathTrace: return "pt";
-    case RenderMode::kReproject: return "rp";
-    case RenderMode::kSkip: return "skip";
+    case RenderMode::kPathTrace:
+      return "pt";
+    case RenderMode::kReproject:
+      return "rp";
+    case RenderMode::kSkip:
+      return "skip";
   }
   return "?";
 }
 
 const char* to_string(ReprojectMethod m) {
   switch (m) {
-    case ReprojectMethod::kGl: return "gl";
-    case ReprojectMethod::kCpu: return "cpu";
-    case ReprojectMethod::kExact: return "exact";
+    case ReprojectMethod::kGl:
+      return "gl";
+    case ReprojectMethod::kCpu:
+      return "cpu";
+    case ReprojectMethod::kExact:
+      return "exact";
   }
   return "?";
 }

@@ -17,9 +17,9 @@ struct RussianRoulette {
     kOff,     // no roulette: every path stops at max_depth (biased: reprojected samples get darker)
   };
   Mode mode = Mode::kPaper;
-  int start_depth = 8;        // vertices traced before roulette starts
-  float termination = 0.1f;   // kPaper's termination probability
-  int max_depth = 1024;       // hard cap on path vertices
+  int start_depth = 8;       // vertices traced before roulette starts
+  float termination = 0.1f;  // kPaper's termination probability
+  int max_depth = 1024;      // hard cap on path vertices
 
   static RussianRoulette paper() { return {}; }
   static RussianRoulette albedo() { return {Mode::kAlbedo, 3, 0.f, 1024}; }
@@ -31,28 +31,28 @@ enum class ReprojectMethod { kGl, kCpu, kExact };
 
 struct RenderOptions {
   std::string scene = "builtin:cornell";  // OBJ path, scene JSON path or builtin:NAME[?k=v&...]
-  int width = 512, height = 512;         // pixels
-  int spp = 16;                          // target samples per pixel P (path samples + reprojected)
-  int paths_per_round = 1;               // k: paths per non-skipped pixel in the first rounds
+  int width = 512, height = 512;          // pixels
+  int spp = 16;                           // target samples per pixel P (path samples + reprojected)
+  int paths_per_round = 1;                // k: paths per non-skipped pixel in the first rounds
   // Round schedule (round_paths()): later rounds trace more paths so that every round carries enough
   // work to amortise its fixed cost (barrier, reprojection close, M' readback). 0: k in every round.
   float round_growth = 0.25f;
   uint64_t seed = 1;
-  std::string out = "render";            // output prefix
+  std::string out = "render";  // output prefix
   RenderMode mode = RenderMode::kPathTrace;
   ReprojectMethod reproject = ReprojectMethod::kGl;
-  int subpixels = 4;                     // S: S x S subpixels per pixel in the deep framebuffer
-  float epsilon = 3e-4f;                 // plane-test tolerance as a fraction of the scene's bbox diagonal
-  int min_paths = 1;                     // a pixel is never skipped before it has this many real paths
-  bool reproject_glossy = false;         // failure-mode study only
-  bool joint_test = true;                // the plane test's normal and crease tests (off: failure-mode study)
+  int subpixels = 4;              // S: S x S subpixels per pixel in the deep framebuffer
+  float epsilon = 3e-4f;          // plane-test tolerance as a fraction of the scene's bbox diagonal
+  int min_paths = 1;              // a pixel is never skipped before it has this many real paths
+  bool reproject_glossy = false;  // failure-mode study only
+  bool joint_test = true;         // the plane test's normal and crease tests (off: failure-mode study)
   RussianRoulette rr = RussianRoulette::paper();
-  bool mis = true;                       // direct light by MIS of light and BSDF samples; false: NEE only
-  int tile_size = 64;                    // pixels (`epr render` picks auto_tile_size() unless told)
-  bool taper_tiles = false;              // the last quarter of the tile rows in half-size tiles (make_tiles)
-  int threads = 0;                       // 0: all cores
-  std::optional<Vec3> eye, look, up;     // camera overrides
-  std::optional<float> fov;              // vertical, degrees
+  bool mis = true;                    // direct light by MIS of light and BSDF samples; false: NEE only
+  int tile_size = 64;                 // pixels (`epr render` picks auto_tile_size() unless told)
+  bool taper_tiles = false;           // the last quarter of the tile rows in half-size tiles (make_tiles)
+  int threads = 0;                    // 0: all cores
+  std::optional<Vec3> eye, look, up;  // camera overrides
+  std::optional<float> fov;           // vertical, degrees
 
   /// Empty if the options are usable; otherwise the reason.
   std::optional<std::string> validate() const;

@@ -20,11 +20,11 @@ enum class ResultKind {
 
 struct ResultKindInfo {
   ResultKind kind;
-  std::string_view name;        // as the monitoring endpoint and logs name it
-  std::string_view suffix;      // appended to a user's output prefix
-  std::string_view stored_as;   // the file in the master's job folder
+  std::string_view name;       // as the monitoring endpoint and logs name it
+  std::string_view suffix;     // appended to a user's output prefix
+  std::string_view stored_as;  // the file in the master's job folder
   std::string_view media_type;
-  bool needs_reprojection;      // written only when the job reprojects
+  bool needs_reprojection;  // written only when the job reprojects
 };
 
 /// Every kind, in the order a render writes them (the combined EXR first).

@@ -1,9 +1,9 @@
 #include "common/scene.h"
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <stdexcept>
-
-#include <fmt/format.h>
 
 namespace epr {
 
@@ -45,7 +45,8 @@ void Scene::validate() const {
   for (size_t i = 0; i < triangles.size(); ++i) {
     for (uint32_t v : triangles[i])
       if (v >= positions.size())
-        throw std::runtime_error(fmt::format("scene '{}': triangle {} indexes vertex {} of {}", name, i, v, positions.size()));
+        throw std::runtime_error(
+            fmt::format("scene '{}': triangle {} indexes vertex {} of {}", name, i, v, positions.size()));
     if (material_of[i] >= materials.size())
       throw std::runtime_error(fmt::format("scene '{}': triangle {} has no material", name, i));
   }

@@ -16,7 +16,7 @@ namespace {
 constexpr double kCells = double(uint64_t(1) << VertexCodec::kPositionBits);  // 2^21
 constexpr uint64_t kCoordMask = (uint64_t(1) << VertexCodec::kPositionBits) - 1;
 constexpr double kSnormMax = 32767.0;
-constexpr int kRadianceBias = 136;  // value = mantissa * 2^(E - 136); E = 128 + frexp exponent
+constexpr int kRadianceBias = 136;            // value = mantissa * 2^(E - 136); E = 128 + frexp exponent
 constexpr float kNormalErrorBound = 6.6e-5f;  // asin(sqrt(18) / 65534) = 6.47e-5, plus float rounding
 constexpr float kRadianceErrorBound = 1.0f / 255.0f;
 
@@ -241,15 +241,24 @@ size_t encode_groups(const VertexRecord* in, size_t n, const double* lo_q, const
 
 const char* to_string(EncodeError e) {
   switch (e) {
-    case EncodeError::kOk: return "ok";
-    case EncodeError::kNonFinitePosition: return "non-finite position";
-    case EncodeError::kOutsideBounds: return "position outside the quantisation box";
-    case EncodeError::kBadNormal: return "zero or non-finite normal";
-    case EncodeError::kNonFiniteRadiance: return "non-finite radiance";
-    case EncodeError::kNegativeRadiance: return "negative radiance";
-    case EncodeError::kRadianceOverflow: return "radiance above the format maximum";
-    case EncodeError::kUnknownFlags: return "flags other than diffuse";
-    case EncodeError::kCount: break;
+    case EncodeError::kOk:
+      return "ok";
+    case EncodeError::kNonFinitePosition:
+      return "non-finite position";
+    case EncodeError::kOutsideBounds:
+      return "position outside the quantisation box";
+    case EncodeError::kBadNormal:
+      return "zero or non-finite normal";
+    case EncodeError::kNonFiniteRadiance:
+      return "non-finite radiance";
+    case EncodeError::kNegativeRadiance:
+      return "negative radiance";
+    case EncodeError::kRadianceOverflow:
+      return "radiance above the format maximum";
+    case EncodeError::kUnknownFlags:
+      return "flags other than diffuse";
+    case EncodeError::kCount:
+      break;
   }
   return "unknown";
 }
@@ -359,7 +368,6 @@ void VertexCodec::store(const PackedVertex& p, unsigned char* dst) {
     for (int i = 0; i < 4; ++i) dst[12 + i] = (unsigned char)(p.radiance_bits >> (8 * i));
   }
 }
-
 
 size_t VertexCodec::encode_batch(std::span<const VertexRecord> in, std::string* out, EncodeCounts* counts) const {
   const size_t start = out->size();

@@ -60,10 +60,10 @@
 #include <algorithm>
 #include <array>
 #include <bit>
-#include <cstring>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <span>
 #include <string>
 #include <string_view>
@@ -93,12 +93,12 @@ static_assert(sizeof(PackedVertex) == 16, "PackedVertex is the 16-byte wire reco
 enum class EncodeError : uint8_t {
   kOk = 0,
   kNonFinitePosition,
-  kOutsideBounds,       // outside the quantisation box (scene bounds plus margin)
-  kBadNormal,           // zero or non-finite
-  kNonFiniteRadiance,   // NaN or infinite channel
-  kNegativeRadiance,    // a channel < 0
-  kRadianceOverflow,    // a channel >= 1.69e38 (the format's maximum)
-  kUnknownFlags,        // flags other than VertexRecord::kDiffuse: not representable
+  kOutsideBounds,      // outside the quantisation box (scene bounds plus margin)
+  kBadNormal,          // zero or non-finite
+  kNonFiniteRadiance,  // NaN or infinite channel
+  kNegativeRadiance,   // a channel < 0
+  kRadianceOverflow,   // a channel >= 1.69e38 (the format's maximum)
+  kUnknownFlags,       // flags other than VertexRecord::kDiffuse: not representable
   kCount
 };
 const char* to_string(EncodeError e);

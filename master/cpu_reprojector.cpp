@@ -1,24 +1,24 @@
 // See cpu_reprojector.h.
 #include "master/cpu_reprojector.h"
 
-#include "master/reprojection_image.h"
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
 #include <stdexcept>
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
+#include "master/reprojection_image.h"
 
 namespace epr {
 
 namespace {
 constexpr uint32_t kNone = 0xffffffffu;
-constexpr size_t kChunk = 32768;  // records per pass pair: the chunk's records stay in L2 for pass 2
-constexpr size_t kBlock = 2048;  // records per classification task (pass A's prefetches stay in L2)
+constexpr size_t kChunk = 32768;          // records per pass pair: the chunk's records stay in L2 for pass 2
+constexpr size_t kBlock = 2048;           // records per classification task (pass A's prefetches stay in L2)
 constexpr size_t kPrefetchDistance = 32;  // accumulation: cells prefetched this many targets ahead
-constexpr size_t kSerialBelow = kChunk;    // reproject_packed and accumulate: one thread below this
+constexpr size_t kSerialBelow = kChunk;   // reproject_packed and accumulate: one thread below this
 }  // namespace
 
 CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings)
@@ -97,9 +97,8 @@ void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec
       tbb::parallel_for(size_t(0), blocks, classify);
     }
     add_block_counts(block_counts);
-    accumulate(n, [src](size_t i) {
-      return VertexCodec::decode_radiance(VertexCodec::load(src + i * kBytes).radiance_bits);
-    });
+    accumulate(
+        n, [src](size_t i) { return VertexCodec::decode_radiance(VertexCodec::load(src + i * kBytes).radiance_bits); });
   }
 }
 
@@ -212,7 +211,8 @@ SubpixelAccumulation CpuReprojector::read() {
 
 void CpuReprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip, bool counts_only) {
   static_assert(sizeof(Cell) == sizeof(AccumulationCell));
-  const std::span<const AccumulationCell> cells(reinterpret_cast<const AccumulationCell*>(cells_.data()), cells_.size());
+  const std::span<const AccumulationCell> cells(reinterpret_cast<const AccumulationCell*>(cells_.data()),
+                                                cells_.size());
   downsample_cells(cells, grid_.width, grid_.height, subpixels_, skip, out, counts_only);
 }
 

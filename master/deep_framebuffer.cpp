@@ -1,13 +1,13 @@
 // CPU deep-framebuffer builder and shared helpers. See deep_framebuffer.h.
 #include "master/deep_framebuffer.h"
 
+#include <fmt/format.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <future>
 #include <stdexcept>
-
-#include <fmt/format.h>
-#include <tbb/parallel_for.h>
 
 #include "common/log.h"
 #include "master/gl_context.h"
@@ -38,10 +38,11 @@ TrianglePlane plane_of(const Scene& scene, size_t tri) {
 }
 
 void detail::check_deep_framebuffer_grid(const Camera& camera, int subpixels) {
-  if (subpixels < 1 || subpixels > 16) throw std::invalid_argument(fmt::format("subpixels {} outside [1, 16]", subpixels));
+  if (subpixels < 1 || subpixels > 16)
+    throw std::invalid_argument(fmt::format("subpixels {} outside [1, 16]", subpixels));
   if (int64_t(camera.width()) * subpixels > 16384 || int64_t(camera.height()) * subpixels > 16384)
-    throw std::invalid_argument(fmt::format("deep framebuffer {}x{} x S={} exceeds 16384 texels per axis", camera.width(),
-                                            camera.height(), subpixels));
+    throw std::invalid_argument(fmt::format("deep framebuffer {}x{} x S={} exceeds 16384 texels per axis",
+                                            camera.width(), camera.height(), subpixels));
 }
 
 namespace {
@@ -138,10 +139,11 @@ DeepFramebuffer build_deep_framebuffer_cpu(const Scene& scene, const Camera& cam
 DeepFramebuffer build_deep_framebuffer(const Scene& scene, const Camera& camera, int subpixels) {
   if (!gl_available()) return build_deep_framebuffer_cpu(scene, camera, subpixels);
   // A private context on a thread of its own, so that a context current on the caller is left alone.
-  return std::async(std::launch::async, [&] {
-           GlContext gl;
-           return build_deep_framebuffer_gl(gl, scene, camera, subpixels);
-         })
+  return std::async(std::launch::async,
+                    [&] {
+                      GlContext gl;
+                      return build_deep_framebuffer_gl(gl, scene, camera, subpixels);
+                    })
       .get();
 }
 

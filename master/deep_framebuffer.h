@@ -38,8 +38,8 @@ class GlContext;
 struct DeepFramebuffer {
   static constexpr uint32_t kNoTriangle = std::numeric_limits<uint32_t>::max();
 
-  int width = 0, height = 0;  // texels: S * image width, S * image height
-  int subpixels = 4;          // S
+  int width = 0, height = 0;        // texels: S * image width, S * image height
+  int subpixels = 4;                // S
   std::vector<float> position;      // 3 per texel: hit point, world space, metres (0 if uncovered)
   std::vector<float> normal;        // 3 per texel: unit geometric face normal (0 if uncovered)
   std::vector<float> plane_offset;  // 1 per texel: d = dot(normal, first triangle corner)

@@ -9,12 +9,12 @@
 // ample precision at every distance; geometry closer than `near` to the eye plane is clipped.
 // Outputs: the interpolated world position (RGBA32F) and the triangle index (R32UI, gl_VertexID/3).
 // Planes are filled in on the CPU from plane_of(), exactly as the CPU builder does.
+#include <fmt/format.h>
+#include <tbb/parallel_for.h>
+
 #include <cstring>
 #include <stdexcept>
 #include <vector>
-
-#include <fmt/format.h>
-#include <tbb/parallel_for.h>
 
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"

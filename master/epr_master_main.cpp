@@ -1,11 +1,10 @@
 // epr-master: the reprojection master of an eprfarm cluster.
+#include <CLI/CLI.hpp>
 #include <csignal>
+#include <cstdio>
 #include <optional>
 #include <string>
-#include <cstdio>
 #include <thread>
-
-#include <CLI/CLI.hpp>
 
 #include "common/log.h"
 #include "master/server/master_server.h"
@@ -35,7 +34,8 @@ int main(int argc, char** argv) {
   std::string log_level = "info";
   app.add_option("--listen", o.listen, "gRPC listen address for clients and workers")->capture_default_str();
   o.http_listen = "0.0.0.0:8080";
-  app.add_option("--http", o.http_listen, "monitoring HTTP address HOST:PORT (dashboard, JSON, /metrics); \"\" disables it")
+  app.add_option("--http", o.http_listen,
+                 "monitoring HTTP address HOST:PORT (dashboard, JSON, /metrics); \"\" disables it")
       ->capture_default_str();
   app.add_option("--state-dir", o.jobs.state_dir,
                  "folder for results, scenes and job checkpoints; a master restarted on the same folder resumes its "
@@ -52,28 +52,38 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--lease-timeout-ms", o.jobs.lease_timeout_ms, "a tile lease not extended for this long is re-queued")
       ->capture_default_str();
-  app.add_option("--heartbeat-ms", o.jobs.heartbeat_interval_ms, "heartbeat interval asked of workers")->capture_default_str();
-  app.add_option("--reproject", o.jobs.reproject_backend_override, "force the reprojector: cpu (default: what each job asks)")
+  app.add_option("--heartbeat-ms", o.jobs.heartbeat_interval_ms, "heartbeat interval asked of workers")
+      ->capture_default_str();
+  app.add_option("--reproject", o.jobs.reproject_backend_override,
+                 "force the reprojector: cpu (default: what each job asks)")
       ->check(CLI::IsMember({"", "cpu"}));
   app.add_option("--max-queued-vertices", o.jobs.max_queued_vertices, "back-pressure bound of the commit queue")
       ->capture_default_str();
   app.add_option("--max-image-side", o.jobs.max_image_side, "jobs with a wider or taller image are refused")
-      ->check(CLI::Range(1, 16384))->capture_default_str();
+      ->check(CLI::Range(1, 16384))
+      ->capture_default_str();
   app.add_option("--max-spp", o.jobs.max_spp, "jobs asking for more samples per pixel are refused")
-      ->check(CLI::Range(1, 1000000))->capture_default_str();
-  app.add_option("--max-scene-bytes", o.jobs.max_scene_bytes, "scene bundles (inline or uploaded) over this size are refused")
-      ->check(CLI::PositiveNumber)->capture_default_str();
+      ->check(CLI::Range(1, 1000000))
+      ->capture_default_str();
+  app.add_option("--max-scene-bytes", o.jobs.max_scene_bytes,
+                 "scene bundles (inline or uploaded) over this size are refused")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
   app.add_option("--max-jobs", o.jobs.max_jobs, "jobs kept; finished ones beyond this are forgotten oldest first")
-      ->check(CLI::PositiveNumber)->capture_default_str();
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
   app.add_option("--speculative-factor", o.jobs.speculative_factor,
                  "copy a tile to an idle worker once its lease runs this many times the round's median tile time "
                  "(0: never)")
-      ->check(CLI::Range(0.0, 1000.0))->capture_default_str();
+      ->check(CLI::Range(0.0, 1000.0))
+      ->capture_default_str();
   app.add_option("--speculative-floor-ms", o.jobs.speculative_floor_ms, "... and at least this long")
-      ->check(CLI::NonNegativeNumber)->capture_default_str();
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_option("--max-worker-failures", o.jobs.max_worker_failures,
                  "failed tiles after which a worker gets no more tiles of that job (0: never block)")
-      ->check(CLI::NonNegativeNumber)->capture_default_str();
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   std::string token_file;
   app.add_option("--token-file", token_file,
                  "file holding the bearer token clients and workers must send (else $EPR_TOKEN; none: no check)");
@@ -81,7 +91,8 @@ int main(int argc, char** argv) {
   app.add_option("--tls-key", o.tls_key_file, "PEM private key of --tls-cert");
   app.add_option("--tls-client-ca", o.tls_client_ca_file, "PEM CA: require client certificates that chain to it");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
-      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))->capture_default_str();
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   epr::set_log_level(log_level);
   o.jobs.checkpoint_interval_s = *checkpoint_interval_seconds(checkpoint_interval);

@@ -1,4 +1,3 @@
-#include "master/make_reprojector.h"
 #include "master/frame_state.h"
 
 #include <algorithm>
@@ -8,6 +7,7 @@
 
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
+#include "master/make_reprojector.h"
 
 namespace epr {
 namespace {
@@ -53,7 +53,8 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
       mprime_(size_t(opts.width) * size_t(opts.height), 0),
       reprojected_radiance_(opts.width, opts.height, 3),
       skip_(size_t(opts.width) * size_t(opts.height), 0) {
-  if (camera.width() != width_ || camera.height() != height_) throw std::invalid_argument("camera and frame sizes differ");
+  if (camera.width() != width_ || camera.height() != height_)
+    throw std::invalid_argument("camera and frame sizes differ");
   if (opts.mode != RenderMode::kPathTrace) {
     ScopedTimer t(&seconds_reprojecting_);
     ReprojectorSettings rs;
@@ -74,7 +75,8 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
 
 FrameState::~FrameState() = default;
 
-void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums, std::span<const uint32_t> counts) {
+void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums,
+                           std::span<const uint32_t> counts) {
   const size_t n = size_t(x1 - x0) * size_t(y1 - y0);
   if (x0 < 0 || y0 < 0 || x1 > width_ || y1 > height_ || x0 >= x1 || y0 >= y1 || sums.size() != n || counts.size() != n)
     throw std::invalid_argument("tile outside the frame or with the wrong number of pixels");
@@ -121,9 +123,7 @@ void FrameState::refresh_reprojection(bool active_only, bool counts_only) {
   radiance_stale_ = counts_only;
 }
 
-int FrameState::next_paths_per_pixel() const {
-  return round_paths(opts_, paths_done_);
-}
+int FrameState::next_paths_per_pixel() const { return round_paths(opts_, paths_done_); }
 
 bool FrameState::finish_round() {
   paths_done_ += next_paths_per_pixel();
@@ -273,9 +273,10 @@ FrameImages FrameState::images(bool preview) {
       const double m = path_count_[p];
       const Vec3 s{float(path_sum_[3 * p]), float(path_sum_[3 * p + 1]), float(path_sum_[3 * p + 2])};
       sum.set_rgb(x, y, s);
-      out.pathtrace.set_rgb(x, y, m > 0 ? Vec3(float(path_sum_[3 * p] / m), float(path_sum_[3 * p + 1] / m),
-                                               float(path_sum_[3 * p + 2] / m))
-                                        : Vec3(0.f));
+      out.pathtrace.set_rgb(
+          x, y,
+          m > 0 ? Vec3(float(path_sum_[3 * p] / m), float(path_sum_[3 * p + 1] / m), float(path_sum_[3 * p + 2] / m))
+                : Vec3(0.f));
       out.path_count.at(x, y)[0] = float(m);
       out.reprojected.at(x, y)[0] = float(mprime_[p]);
     }

@@ -14,11 +14,10 @@
 
 #include <cstdint>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <span>
 #include <string_view>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "common/camera.h"
 #include "common/image.h"
@@ -34,15 +33,15 @@ namespace epr {
 class GlContext;
 
 struct FrameProgress {
-  int round = 0;                 // rounds finished
-  double mean_spp = 0;           // mean over pixels of M + M'
-  double min_spp = 0;            // min over pixels of M + M'
-  double mean_paths = 0;         // mean M
-  double mean_reprojected = 0;   // mean M'
-  uint64_t pixels_active = 0;    // pixels that trace paths in the next round
-  uint64_t pixels_skipped = 0;   // pixels with M + M' >= P that trace no more (skip mode)
-  uint64_t paths_traced = 0;     // sum of M
-  uint64_t paths_skipped = 0;    // paths not traced because the pixel was skipped
+  int round = 0;                // rounds finished
+  double mean_spp = 0;          // mean over pixels of M + M'
+  double min_spp = 0;           // min over pixels of M + M'
+  double mean_paths = 0;        // mean M
+  double mean_reprojected = 0;  // mean M'
+  uint64_t pixels_active = 0;   // pixels that trace paths in the next round
+  uint64_t pixels_skipped = 0;  // pixels with M + M' >= P that trace no more (skip mode)
+  uint64_t paths_traced = 0;    // sum of M
+  uint64_t paths_skipped = 0;   // paths not traced because the pixel was skipped
 };
 
 struct FrameImages {
@@ -103,7 +102,8 @@ class FrameState {
   /// exactly on P).
   int next_paths_per_pixel() const;
   /// Inputs of a tile for the next round: skip (1 = trace nothing) and the first sample index per pixel.
-  void tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t>* skip, std::vector<uint32_t>* first_sample) const;
+  void tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t>* skip,
+                   std::vector<uint32_t>* first_sample) const;
   /// True if no pixel of the tile traces in the next round.
   bool tile_idle(int x0, int y0, int x1, int y1) const;
 
@@ -144,14 +144,14 @@ class FrameState {
   int width_, height_;
   std::unique_ptr<Reprojector> reprojector_;
   std::unique_ptr<VertexCodec> codec_;  // the wire's quantisation (scene bounds), when reprojecting
-  std::vector<double> path_sum_;      // 3 per pixel
-  std::vector<uint32_t> path_count_;  // M
-  std::vector<uint64_t> mprime_;      // M' as of the last downsample
-  Image reprojected_radiance_;        // L_rp as of the last downsample
-  bool reprojection_partial_ = false;  // the last downsample left skipped pixels as they were
-  bool radiance_stale_ = false;        // ... and L_rp of the active ones too (a counts-only refresh)
-  std::vector<uint8_t> skip_;         // 1 = no more paths for this pixel
-  int paths_done_ = 0;                // paths every active pixel has traced
+  std::vector<double> path_sum_;        // 3 per pixel
+  std::vector<uint32_t> path_count_;    // M
+  std::vector<uint64_t> mprime_;        // M' as of the last downsample
+  Image reprojected_radiance_;          // L_rp as of the last downsample
+  bool reprojection_partial_ = false;   // the last downsample left skipped pixels as they were
+  bool radiance_stale_ = false;         // ... and L_rp of the active ones too (a counts-only refresh)
+  std::vector<uint8_t> skip_;           // 1 = no more paths for this pixel
+  int paths_done_ = 0;                  // paths every active pixel has traced
   bool done_ = false;
   FrameProgress progress_;
   double seconds_reprojecting_ = 0;

@@ -2,11 +2,10 @@
 #include "master/gl_context.h"
 
 #include <GL/osmesa.h>
+#include <fmt/format.h>
 
 #include <array>
 #include <mutex>
-
-#include <fmt/format.h>
 
 #include "common/log.h"
 
@@ -39,17 +38,17 @@ GlContext::GlContext() : impl_(std::make_unique<Impl>()) {
                          0};
   impl_->ctx = OSMesaCreateContextAttribs(attribs, nullptr);
   if (!impl_->ctx)
-    throw GlUnavailable(fmt::format(
-        "OSMesa could not create an OpenGL 4.5 core-profile context (llvmpipe needs Mesa >= 20 built with "
-        "LLVM; check that GALLIUM_DRIVER is unset or 'llvmpipe', not 'softpipe'): {}",
-        kHelp));
+    throw GlUnavailable(
+        fmt::format("OSMesa could not create an OpenGL 4.5 core-profile context (llvmpipe needs Mesa >= 20 built with "
+                    "LLVM; check that GALLIUM_DRIVER is unset or 'llvmpipe', not 'softpipe'): {}",
+                    kHelp));
   make_current();
-#define EPR_GL_LOAD(ret, name, params)                                                                   \
-  fns_.name = reinterpret_cast<decltype(fns_.name)>(OSMesaGetProcAddress("gl" #name));               \
-  if (!fns_.name) {                                                                                    \
-    OSMesaDestroyContext(impl_->ctx);                                                                  \
-    impl_->ctx = nullptr;                                                                              \
-    throw GlUnavailable(fmt::format("OSMesa/llvmpipe does not provide gl{}; {}", #name, kHelp));       \
+#define EPR_GL_LOAD(ret, name, params)                                                           \
+  fns_.name = reinterpret_cast<decltype(fns_.name)>(OSMesaGetProcAddress("gl" #name));           \
+  if (!fns_.name) {                                                                              \
+    OSMesaDestroyContext(impl_->ctx);                                                            \
+    impl_->ctx = nullptr;                                                                        \
+    throw GlUnavailable(fmt::format("OSMesa/llvmpipe does not provide gl{}; {}", #name, kHelp)); \
   }
   EPR_GL_FUNCTIONS(EPR_GL_LOAD)
 #undef EPR_GL_LOAD

@@ -1,10 +1,10 @@
 // See gl_program.h.
 #include "master/gl_program.h"
 
+#include <fmt/format.h>
+
 #include <stdexcept>
 #include <vector>
-
-#include <fmt/format.h>
 
 namespace epr {
 

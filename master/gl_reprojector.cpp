@@ -1,14 +1,14 @@
 // See gl_reprojector.h; the shaders it runs are in gl_reprojector_shaders.cpp.
 #include "master/gl_reprojector.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <bit>
 #include <cstring>
 #include <stdexcept>
 #include <string>
 #include <vector>
-
-#include <fmt/format.h>
 
 #include "common/log.h"
 #include "master/gl_reprojector_shaders.h"
@@ -25,7 +25,8 @@ constexpr size_t kCounters = 5;  // per invocation: accepted, culled, backfacing
 
 std::string shader_source(const char* body, const ReprojectorSettings& s, bool narrow_planes, bool packed = false) {
   return fmt::format(
-      "#version 450\n#extension GL_NV_shader_atomic_float : require\n#define WORKGROUP_SIZE {}\n#define PREFETCH {}\n#define UNCOVERED {}\n#define PACKED {}\n"
+      "#version 450\n#extension GL_NV_shader_atomic_float : require\n#define WORKGROUP_SIZE {}\n#define PREFETCH "
+      "{}\n#define UNCOVERED {}\n#define PACKED {}\n"
       "#define GLOSSY {}\n#define COUNTERS {}u\n{}{}",
       s.workgroup_size, s.prefetch ? 1 : 0, narrow_planes ? "0xffffu" : "0xffffffffu", packed ? 1 : 0,
       s.reproject_glossy ? 1 : 0, kCounters, packed ? gl_shaders::kPackedDecode : "", body);
@@ -50,9 +51,10 @@ GlReprojector::~GlReprojector() {
   } catch (const std::exception&) {
     // GL objects can only be deleted where the context is current; leak them rather than crash.
     logger("master")->error("GlReprojector destroyed on a thread its GL context is not current on; GL objects leak");
-    for (auto* p : {&reproject_prog_, &packed_prog_, &exact_prog_, &downsample_prog_, &decode_prog_}) (void)p->release();
-    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &crease_range_buf_, &creases_buf_, &acc_buf_, &counter_buf_,
-                    &pixels_buf_, &codec_buf_})
+    for (auto* p : {&reproject_prog_, &packed_prog_, &exact_prog_, &downsample_prog_, &decode_prog_})
+      (void)p->release();
+    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &crease_range_buf_, &creases_buf_, &acc_buf_,
+                    &counter_buf_, &pixels_buf_, &codec_buf_})
       (void)p->release();
     for (auto* p : {&records_tex_, &samples_tex_, &texel_plane_tex_, &planes_tex_, &crease_range_tex_, &creases_tex_,
                     &acc_view_tex_})
@@ -68,7 +70,8 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
   ctx_->check_thread();
   detail::validate_reprojector_inputs(camera, dfb, settings_);
   if (!ctx_->has_extension("GL_NV_shader_atomic_float"))
-    throw GlUnavailable("the GL reprojector needs GL_NV_shader_atomic_float (Mesa llvmpipe has it); use the cpu back-end");
+    throw GlUnavailable(
+        "the GL reprojector needs GL_NV_shader_atomic_float (Mesa llvmpipe has it); use the cpu back-end");
   const auto& gl = ctx_->gl();
   params_ = detail::make_kernel_params(camera, dfb.subpixels, settings_.epsilon, settings_.joint_test);
   map_downsample_ = settings_.gl_map_downsample;
@@ -88,21 +91,25 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
         "subpixel grid {}x{} needs {} MiB of shader storage; this GL allows {} MiB (use the cpu back-end or a lower S)",
         grid_w_, grid_h_, cells * 16 >> 20, unsigned(max_ssbo) >> 20));
   if (kSlots * settings_.batch_points * 3 > size_t(max_tbo))
-    throw std::runtime_error(fmt::format("batch_points {} exceeds this GL's buffer-texture limit", settings_.batch_points));
+    throw std::runtime_error(
+        fmt::format("batch_points {} exceeds this GL's buffer-texture limit", settings_.batch_points));
 
   // Compact deep framebuffer; 16-bit plane indices when there are few enough planes (halves the
   // largest randomly accessed array after the accumulation).
-  const detail::PlaneGrid grid = detail::make_plane_grid(dfb, camera.eye(), params_.crease_tolerance, settings_.joint_test);
+  const detail::PlaneGrid grid =
+      detail::make_plane_grid(dfb, camera.eye(), params_.crease_tolerance, settings_.joint_test);
   const bool narrow = grid.planes.size() / 4 < 0xffff;
   reproject_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kReprojectShader, settings_, narrow));
-  packed_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kReprojectShader, settings_, narrow, true));
+  packed_prog_ =
+      std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kReprojectShader, settings_, narrow, true));
   exact_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kExactShader, settings_, narrow));
 
   // Upload ring, persistently mapped.
   const GLbitfield map_flags = GL_MAP_WRITE_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
   ring_ = std::make_unique<GlBuffer>(*ctx_);
   gl.NamedBufferStorage(ring_->id(), GLsizeiptr(kSlots * slot_bytes_), nullptr, map_flags);
-  ring_map_ = static_cast<unsigned char*>(gl.MapNamedBufferRange(ring_->id(), 0, GLsizeiptr(kSlots * slot_bytes_), map_flags));
+  ring_map_ =
+      static_cast<unsigned char*>(gl.MapNamedBufferRange(ring_->id(), 0, GLsizeiptr(kSlots * slot_bytes_), map_flags));
   if (!ring_map_) throw std::runtime_error("could not map the reprojection upload buffer");
   records_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
   gl.TextureBuffer(records_tex_->id(), GL_RGB32F, ring_->id());
@@ -149,7 +156,8 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
   gl.NamedBufferStorage(counter_buf_->id(), GLsizeiptr(invocations_ * kCounters * 4), nullptr, GL_DYNAMIC_STORAGE_BIT);
   // The packed kernels' codec parameters (lo_q, cell as doubles), set per call when they change.
   codec_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  gl.NamedBufferStorage(codec_buf_->id(), GLsizeiptr(sizeof(codec_params_)), codec_params_.data(), GL_DYNAMIC_STORAGE_BIT);
+  gl.NamedBufferStorage(codec_buf_->id(), GLsizeiptr(sizeof(codec_params_)), codec_params_.data(),
+                        GL_DYNAMIC_STORAGE_BIT);
 
   // Uniforms that never change (the same in the record and the packed kernel).
   const auto& k = params_;
@@ -198,7 +206,8 @@ unsigned char* GlReprojector::acquire_slot(int slot) {
     const GLenum r = ctx_->gl().ClientWaitSync(f, GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(600) * 1000000000ull);
     ctx_->gl().DeleteSync(f);
     f = nullptr;
-    if (r == GL_TIMEOUT_EXPIRED || r == GL_WAIT_FAILED) throw std::runtime_error("GL reprojection batch did not finish");
+    if (r == GL_TIMEOUT_EXPIRED || r == GL_WAIT_FAILED)
+      throw std::runtime_error("GL reprojection batch did not finish");
   }
   return ring_map_ + size_t(slot) * slot_bytes_;
 }
@@ -228,8 +237,8 @@ void GlReprojector::dispatch(int slot, size_t count, Kernel kernel) {
                         GLint(size_t(slot) * slot_bytes_ / (packed ? kPackedBytes : 12)));
     gl.ProgramUniform1ui(p, packed ? loc_packed_count_ : loc_count_, GLuint(count));
   }
-  const size_t groups = std::min<size_t>(size_t(settings_.workgroups),
-                                         (count + size_t(settings_.workgroup_size) - 1) / size_t(settings_.workgroup_size));
+  const size_t groups = std::min<size_t>(
+      size_t(settings_.workgroups), (count + size_t(settings_.workgroup_size) - 1) / size_t(settings_.workgroup_size));
   gl.DispatchCompute(GLuint(std::max<size_t>(groups, 1)), 1, 1);
   gl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
   fences_[slot] = gl.FenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
@@ -283,7 +292,8 @@ void GlReprojector::copy_packed(const unsigned char* src, size_t n, unsigned cha
   } else {
     for (size_t i = 0; i < n; ++i) {
       const PackedVertex v = VertexCodec::load(src + i * kPackedBytes);
-      const uint32_t w[4] = {uint32_t(v.position_bits), uint32_t(v.position_bits >> 32), v.normal_bits, v.radiance_bits};
+      const uint32_t w[4] = {uint32_t(v.position_bits), uint32_t(v.position_bits >> 32), v.normal_bits,
+                             v.radiance_bits};
       std::memcpy(dst + i * kPackedBytes, w, kPackedBytes);
     }
   }
@@ -316,7 +326,8 @@ std::vector<VertexRecord> GlReprojector::decode_packed(std::string_view packed, 
   const size_t n = packed.size() / kPackedBytes;
   std::vector<VertexRecord> out(n);
   if (n == 0) return out;
-  if (!decode_prog_) decode_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kDecodeShader, settings_, true, true));
+  if (!decode_prog_)
+    decode_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kDecodeShader, settings_, true, true));
   set_codec(codec);
   constexpr size_t kChunk = size_t(1) << 20;  // records per dispatch (64-invocation groups: < 65535 of them)
   const size_t chunk = std::min(n, kChunk);
@@ -447,8 +458,8 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
     if (!mapped) ctx_->check_error("GlReprojector::downsample_pixels (map)");
     if (mapped) {
       try {
-        downsample_cells({static_cast<const AccumulationCell*>(mapped), cells}, grid_w_, grid_h_, subpixels_, skip, result,
-                         counts_only);
+        downsample_cells({static_cast<const AccumulationCell*>(mapped), cells}, grid_w_, grid_h_, subpixels_, skip,
+                         result, counts_only);
       } catch (...) {
         gl.UnmapNamedBuffer(acc_buf_->id());
         throw;
@@ -461,7 +472,8 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
   const int W = grid_w_ / subpixels_, H = grid_h_ / subpixels_;
   const size_t pixels = size_t(W) * size_t(H);
   if (!downsample_prog_) {
-    downsample_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kDownsampleShader, settings_, true));
+    downsample_prog_ =
+        std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kDownsampleShader, settings_, true));
     pixels_buf_ = std::make_unique<GlBuffer>(*ctx_);
     gl.NamedBufferStorage(pixels_buf_->id(), GLsizeiptr(pixels * 16), nullptr, GL_DYNAMIC_STORAGE_BIT);
   }

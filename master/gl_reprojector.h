@@ -96,9 +96,11 @@ class GlReprojector final : public Reprojector {
   std::unique_ptr<GlProgram> reproject_prog_, packed_prog_, exact_prog_, downsample_prog_, decode_prog_;
   std::unique_ptr<GlBuffer> pixels_buf_;  // W x H vec4: L_rp, M' (uint bits); created on first use
   bool map_downsample_ = true;            // ReprojectorSettings::gl_map_downsample
-  std::unique_ptr<GlBuffer> ring_, texel_plane_buf_, planes_buf_, crease_range_buf_, creases_buf_, acc_buf_, counter_buf_, codec_buf_;
+  std::unique_ptr<GlBuffer> ring_, texel_plane_buf_, planes_buf_, crease_range_buf_, creases_buf_, acc_buf_,
+      counter_buf_, codec_buf_;
   std::array<double, 8> codec_params_{};  // as in codec_buf_: lo_q.xyz, 0, cell.xyz, 0
-  std::unique_ptr<GlTexture> records_tex_, samples_tex_, texel_plane_tex_, planes_tex_, crease_range_tex_, creases_tex_, acc_view_tex_;
+  std::unique_ptr<GlTexture> records_tex_, samples_tex_, texel_plane_tex_, planes_tex_, crease_range_tex_, creases_tex_,
+      acc_view_tex_;
   unsigned char* ring_map_ = nullptr;
   GLsync fences_[2] = {nullptr, nullptr};
   int next_slot_ = 0;

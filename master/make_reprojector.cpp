@@ -1,16 +1,17 @@
 #include "master/make_reprojector.h"
 
-#include <stdexcept>
-
 #include <fmt/format.h>
+
+#include <stdexcept>
 
 #include "master/cpu_reprojector.h"
 #include "master/gl_reprojector.h"
 
 namespace epr {
 
-std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Camera& camera, const DeepFramebuffer& dfb,
-                                              const ReprojectorSettings& settings, GlContext* gl) {
+std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Camera& camera,
+                                              const DeepFramebuffer& dfb, const ReprojectorSettings& settings,
+                                              GlContext* gl) {
   if (backend == "cpu") return std::make_unique<CpuReprojector>(camera, dfb, settings);
   if (backend == "gl") {
     if (gl) return std::make_unique<GlReprojector>(*gl, camera, dfb, settings);

@@ -1,10 +1,10 @@
 // See reprojection_image.h.
 #include "master/reprojection_image.h"
 
-#include <stdexcept>
-
 #include <fmt/format.h>
 #include <tbb/parallel_for.h>
+
+#include <stdexcept>
 
 namespace epr {
 
@@ -51,9 +51,10 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
           total += c.n;
           ++non_empty;
         }
-      out.radiance.set_rgb(x, y, non_empty ? Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty),
-                                                  float(mean[2] / non_empty))
-                                           : Vec3(0.f));
+      out.radiance.set_rgb(
+          x, y,
+          non_empty ? Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty), float(mean[2] / non_empty))
+                    : Vec3(0.f));
       out.count[size_t(y) * size_t(W) + size_t(x)] = total;
     }
   });
@@ -69,16 +70,19 @@ PixelReprojection downsample(const SubpixelAccumulation& acc) {
   PixelReprojection out;
   downsample_impl(
       acc.width, acc.height, S,
-      [&](size_t s) { return AccumulationCell{acc.sum[3 * s], acc.sum[3 * s + 1], acc.sum[3 * s + 2], acc.count[s]}; },
+      [&](size_t s) {
+        return AccumulationCell{acc.sum[3 * s], acc.sum[3 * s + 1], acc.sum[3 * s + 2], acc.count[s]};
+      },
       {}, &out);
   return out;
 }
 
-void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int S, std::span<const uint8_t> skip,
-                      PixelReprojection* out, bool counts_only) {
+void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int S,
+                      std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only) {
   if (S < 1 || grid_w % S != 0 || grid_h % S != 0 || cells.size() != size_t(grid_w) * size_t(grid_h))
     throw std::invalid_argument("downsample_cells: malformed subpixel grid");
-  downsample_impl(grid_w, grid_h, S, [&](size_t s) { return cells[s]; }, skip, out, counts_only);
+  downsample_impl(
+      grid_w, grid_h, S, [&](size_t s) { return cells[s]; }, skip, out, counts_only);
 }
 
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp) {
@@ -95,8 +99,9 @@ Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, co
       const double m = path_count[p], mr = double(rp.count[p]);
       if (m + mr == 0) continue;
       const Vec3 ps = path_sum.rgb(x, y), lr = rp.radiance.rgb(x, y);
-      out.set_rgb(x, y, Vec3(float((ps.x + mr * lr.x) / (m + mr)), float((ps.y + mr * lr.y) / (m + mr)),
-                             float((ps.z + mr * lr.z) / (m + mr))));
+      out.set_rgb(x, y,
+                  Vec3(float((ps.x + mr * lr.x) / (m + mr)), float((ps.y + mr * lr.y) / (m + mr)),
+                       float((ps.z + mr * lr.z) / (m + mr))));
     }
   });
   return out;

@@ -14,9 +14,8 @@
 // vectors of width * height pixels. Sizes are checked (std::invalid_argument).
 #pragma once
 
-#include <span>
-
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "common/image.h"
@@ -25,8 +24,8 @@ namespace epr {
 
 /// Per-subpixel accumulation, read back from a Reprojector.
 struct SubpixelAccumulation {
-  int width = 0, height = 0;  // subpixels: S * image width, S * image height
-  int subpixels = 4;          // S
+  int width = 0, height = 0;    // subpixels: S * image width, S * image height
+  int subpixels = 4;            // S
   std::vector<float> sum;       // 3 per subpixel: RGB radiance sum
   std::vector<uint32_t> count;  // 1 per subpixel: number of samples
   size_t size() const { return size_t(width) * size_t(height); }

@@ -2,6 +2,9 @@
 // reprojection_kernel.h.
 #include "master/reprojection_kernel.h"
 
+#include <fmt/format.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -9,9 +12,6 @@
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
-
-#include <fmt/format.h>
-#include <tbb/parallel_for.h>
 
 namespace epr {
 namespace detail {
@@ -92,7 +92,8 @@ PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float cre
       if (set.empty()) continue;
       std::sort(set.begin(), set.end());
       auto& rs = row_sets[size_t(y)];
-      row_texels[size_t(y)].insert(row_texels[size_t(y)].end(), {uint32_t(x), uint32_t(rs.size()), uint32_t(set.size())});
+      row_texels[size_t(y)].insert(row_texels[size_t(y)].end(),
+                                   {uint32_t(x), uint32_t(rs.size()), uint32_t(set.size())});
       rs.insert(rs.end(), set.begin(), set.end());
     }
   });
@@ -111,7 +112,8 @@ PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float cre
       const size_t t = dfb.index(int(rt[i]), y);
       const uint32_t own = g.texel_plane[t];
       key.assign(1, own);
-      key.insert(key.end(), row_sets[size_t(y)].begin() + rt[i + 1], row_sets[size_t(y)].begin() + rt[i + 1] + rt[i + 2]);
+      key.insert(key.end(), row_sets[size_t(y)].begin() + rt[i + 1],
+                 row_sets[size_t(y)].begin() + rt[i + 1] + rt[i + 2]);
       auto [it, inserted] = creased_entry.try_emplace(key, uint32_t(g.planes.size() / 4));
       if (inserted) {
         const std::array<float, 4> plane{g.planes[4 * size_t(own)], g.planes[4 * size_t(own) + 1],

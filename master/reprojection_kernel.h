@@ -35,11 +35,11 @@ namespace epr::detail {
 struct PlaneGrid {
   static constexpr uint32_t kUncovered = 0xffffffffu;
   int width = 0, height = 0;
-  std::vector<uint32_t> texel_plane;  // per texel: index into planes, or kUncovered
-  std::vector<float> planes;          // 4 per entry: N.x, N.y, N.z, d
+  std::vector<uint32_t> texel_plane;    // per texel: index into planes, or kUncovered
+  std::vector<float> planes;            // 4 per entry: N.x, N.y, N.z, d
   uint32_t first_creased = kUncovered;  // entries >= this one have creases (after all plain ones); none by default
-  std::vector<uint32_t> crease_range;  // 2 per creased entry (index - first_creased): first crease, count
-  std::vector<float> creases;          // 4 per crease: oriented plane N.x, N.y, N.z, d (visible side > 0)
+  std::vector<uint32_t> crease_range;   // 2 per creased entry (index - first_creased): first crease, count
+  std::vector<float> creases;           // 4 per crease: oriented plane N.x, N.y, N.z, d (visible side > 0)
   size_t creased_entries() const { return crease_range.size() / 2; }
 };
 
@@ -65,12 +65,12 @@ PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float cre
 struct KernelParams {
   Vec3 eye, forward, right, up;
   float tan_half_x = 1, tan_half_y = 1;
-  float width = 1, height = 1;    // image size in pixels (float, as in Camera::project)
-  float s = 4;                    // subpixels per axis
-  float grid_w = 4, grid_h = 4;   // S * width, S * height
+  float width = 1, height = 1;   // image size in pixels (float, as in Camera::project)
+  float s = 4;                   // subpixels per axis
+  float grid_w = 4, grid_h = 4;  // S * width, S * height
   uint32_t grid_wi = 4;
   float epsilon = 0;
-  float crease_tolerance = 0;  // epsilon * kCreaseToleranceFraction
+  float crease_tolerance = 0;                  // epsilon * kCreaseToleranceFraction
   float min_normal_cosine = kMinNormalCosine;  // -1 without the joint test
 };
 KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsilon, bool joint_test = true);
@@ -89,8 +89,8 @@ inline bool finite_bits(float v) {
 /// Step 1-2 of the semantics (done on the CPU by both back-ends, before upload for GL).
 inline bool record_is_finite(const VertexRecord& r) {
   return finite_bits(r.position.x) && finite_bits(r.position.y) && finite_bits(r.position.z) &&
-         finite_bits(r.normal.x) && finite_bits(r.normal.y) && finite_bits(r.normal.z) &&
-         finite_bits(r.radiance.x) && finite_bits(r.radiance.y) && finite_bits(r.radiance.z);
+         finite_bits(r.normal.x) && finite_bits(r.normal.y) && finite_bits(r.normal.z) && finite_bits(r.radiance.x) &&
+         finite_bits(r.radiance.y) && finite_bits(r.radiance.z);
 }
 
 /// Steps 3-4 for a finite record: projection, culling and the facing test. Returns kAccepted for a
@@ -133,7 +133,8 @@ inline Decision plane_test(const KernelParams& k, const PlaneGrid& grid, const V
 }
 
 /// Steps 3-6 for a finite record: the decision and, if accepted, the subpixel index.
-inline Decision classify(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, const Vec3& n, uint32_t* subpixel) {
+inline Decision classify(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, const Vec3& n,
+                         uint32_t* subpixel) {
   uint32_t texel = 0;
   const Decision d = project_and_face(k, p, n, &texel);
   if (d != Decision::kAccepted) return d;

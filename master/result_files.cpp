@@ -1,12 +1,12 @@
 #include "master/result_files.h"
 
+#include <fmt/format.h>
+#include <tbb/task_group.h>
+
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
-
-#include <fmt/format.h>
-#include <tbb/task_group.h>
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -21,13 +21,27 @@ namespace {
 
 void write_kind(const ResultKindInfo& k, const FrameImages& img, const nlohmann::json& stats, const std::string& path) {
   switch (k.kind) {
-    case ResultKind::kExr: write_exr(path, img.combined); return;
-    case ResultKind::kPng: write_png_srgb(path, img.combined); return;
-    case ResultKind::kPathtrace: write_exr(path, img.pathtrace); return;
-    case ResultKind::kCounts: write_exr(path, counts_image(img)); return;
-    case ResultKind::kReprojection: write_exr(path, img.reprojection); return;
-    case ResultKind::kSamplesExr: write_exr(path, img.reprojected); return;
-    case ResultKind::kSamplesPng: write_png_srgb(path, samples_heat_map(img.reprojected)); return;
+    case ResultKind::kExr:
+      write_exr(path, img.combined);
+      return;
+    case ResultKind::kPng:
+      write_png_srgb(path, img.combined);
+      return;
+    case ResultKind::kPathtrace:
+      write_exr(path, img.pathtrace);
+      return;
+    case ResultKind::kCounts:
+      write_exr(path, counts_image(img));
+      return;
+    case ResultKind::kReprojection:
+      write_exr(path, img.reprojection);
+      return;
+    case ResultKind::kSamplesExr:
+      write_exr(path, img.reprojected);
+      return;
+    case ResultKind::kSamplesPng:
+      write_png_srgb(path, samples_heat_map(img.reprojected));
+      return;
     case ResultKind::kJson: {
       std::ofstream out(path);
       out << stats.dump(2) << "\n";

@@ -12,9 +12,8 @@
 
 #include <cstdint>
 #include <memory>
-#include <vector>
-
 #include <nlohmann/json.hpp>
+#include <vector>
 
 #include "common/camera.h"
 #include "common/render_options.h"
@@ -30,7 +29,7 @@ struct AssembledTile;
 struct RoundPlan {
   uint32_t round = 0;  // rounds finished before this one
   int paths_per_pixel = 1;
-  std::vector<std::vector<uint8_t>> skip;          // per tile, per tile pixel (empty: idle tile)
+  std::vector<std::vector<uint8_t>> skip;           // per tile, per tile pixel (empty: idle tile)
   std::vector<std::vector<uint32_t>> first_sample;  // per tile, per tile pixel
   std::vector<uint32_t> order;                      // the tiles that trace, most active pixels first
 };

@@ -5,6 +5,13 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release
 cmake --build build -j "$(nproc)"
+
+# The tree's shape: every C++ file formatted by .clang-format, layers that point one way without
+# include cycles or overlong files, and clang's thread-safety analysis of the lock annotations.
+git ls-files -- '*.cpp' '*.h' | xargs clang-format --dry-run --Werror
+/usr/bin/python3 scripts/check_layers.py
+/usr/bin/python3 scripts/check_thread_safety.py build
+
 (cd build && ctest --output-on-failure -j 1 "$@")
 
 # Fuzzing (tests/fuzz/): the libFuzzer targets, built with clang and the sanitizers in build/fuzz, each

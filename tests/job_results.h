@@ -2,9 +2,8 @@
 // to end, fetching a result file, and checking a finished job against the single-process render.
 #pragma once
 
-#include <gtest/gtest.h>
-
 #include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
 
 #include <chrono>
 #include <fstream>

@@ -1,8 +1,8 @@
 #include "wire/convert.h"
 
-#include <cmath>
-
 #include <fmt/format.h>
+
+#include <cmath>
 
 namespace epr {
 
@@ -32,9 +32,15 @@ void to_proto(const Bounds3& b, v1::Bounds3* out) {
 RussianRoulette from_proto(const v1::RussianRouletteSettings& rr) {
   RussianRoulette r;
   switch (rr.mode()) {
-    case v1::RUSSIAN_ROULETTE_MODE_ALBEDO: r = RussianRoulette::albedo(); break;
-    case v1::RUSSIAN_ROULETTE_MODE_OFF: r = RussianRoulette::off(8); break;
-    default: r = RussianRoulette::paper(); break;
+    case v1::RUSSIAN_ROULETTE_MODE_ALBEDO:
+      r = RussianRoulette::albedo();
+      break;
+    case v1::RUSSIAN_ROULETTE_MODE_OFF:
+      r = RussianRoulette::off(8);
+      break;
+    default:
+      r = RussianRoulette::paper();
+      break;
   }
   if (rr.has_start_depth()) r.start_depth = int(rr.start_depth());
   if (rr.has_termination_probability()) r.termination = rr.termination_probability();
@@ -52,7 +58,9 @@ void to_proto(const RussianRoulette& r, v1::RussianRouletteSettings* out) {
 
 namespace {
 v1::RenderMode to_proto_mode(RenderMode m) {
-  return m == RenderMode::kReproject ? v1::RENDER_MODE_RP : m == RenderMode::kSkip ? v1::RENDER_MODE_SKIP : v1::RENDER_MODE_PT;
+  return m == RenderMode::kReproject ? v1::RENDER_MODE_RP
+         : m == RenderMode::kSkip    ? v1::RENDER_MODE_SKIP
+                                     : v1::RENDER_MODE_PT;
 }
 v1::ReprojectionMethod to_proto_method(ReprojectMethod m) {
   return m == ReprojectMethod::kCpu     ? v1::REPROJECTION_METHOD_CPU
@@ -100,18 +108,32 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
   o.spp = int(spec.target_spp());
   o.paths_per_round = spec.has_paths_per_round() ? int(spec.paths_per_round()) : 1;
   switch (spec.mode()) {
-    case v1::RENDER_MODE_PT: o.mode = RenderMode::kPathTrace; break;
-    case v1::RENDER_MODE_RP: o.mode = RenderMode::kReproject; break;
-    case v1::RENDER_MODE_SKIP: o.mode = RenderMode::kSkip; break;
-    default: return fmt::format("unknown render mode {}", int(spec.mode()));
+    case v1::RENDER_MODE_PT:
+      o.mode = RenderMode::kPathTrace;
+      break;
+    case v1::RENDER_MODE_RP:
+      o.mode = RenderMode::kReproject;
+      break;
+    case v1::RENDER_MODE_SKIP:
+      o.mode = RenderMode::kSkip;
+      break;
+    default:
+      return fmt::format("unknown render mode {}", int(spec.mode()));
   }
   const auto& r = spec.reprojection();
   switch (r.method()) {
     case v1::REPROJECTION_METHOD_UNSPECIFIED:
-    case v1::REPROJECTION_METHOD_GL: o.reproject = ReprojectMethod::kGl; break;
-    case v1::REPROJECTION_METHOD_CPU: o.reproject = ReprojectMethod::kCpu; break;
-    case v1::REPROJECTION_METHOD_EXACT: o.reproject = ReprojectMethod::kExact; break;
-    default: return fmt::format("unknown reprojection method {}", int(r.method()));
+    case v1::REPROJECTION_METHOD_GL:
+      o.reproject = ReprojectMethod::kGl;
+      break;
+    case v1::REPROJECTION_METHOD_CPU:
+      o.reproject = ReprojectMethod::kCpu;
+      break;
+    case v1::REPROJECTION_METHOD_EXACT:
+      o.reproject = ReprojectMethod::kExact;
+      break;
+    default:
+      return fmt::format("unknown reprojection method {}", int(r.method()));
   }
   if (r.has_subpixels()) {
     if (r.subpixels() > 64) return "subpixels must be between 1 and 8";

@@ -1,5 +1,6 @@
 #include "wire/scene_bundle.h"
 
+#include <fmt/format.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -7,11 +8,9 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
-
-#include <fmt/format.h>
-#include <nlohmann/json.hpp>
 
 #include "common/scene_loader.h"
 
@@ -94,7 +93,8 @@ SceneBundleData bundle_scene(const std::string& spec) {
     if (ext == ".obj" || ext == ".OBJ") {
       for (const auto& m : referenced_files(data, {"mtllib"})) add_sibling(m);
     } else if (ext == ".mtl" || ext == ".MTL") {
-      for (const auto& t : referenced_files(data, {"map_Kd", "map_Ka", "map_Ks", "map_Ke", "map_d", "bump", "map_bump"}))
+      for (const auto& t :
+           referenced_files(data, {"map_Kd", "map_Ka", "map_Ks", "map_Ke", "map_d", "bump", "map_bump"}))
         if (fs::exists(root / rel_dir / t)) add_sibling(t);
     } else if (ext == ".json") {
       nlohmann::json j;
@@ -139,7 +139,8 @@ std::string default_cache_root() {
 
 Scene load_bundle(const SceneBundleData& b, const std::string& cache_root) {
   if (!b.builtin.empty()) return load_scene(b.builtin);
-  if (!is_safe_relative_path(b.entry_path)) throw SceneError(fmt::format("scene entry path '{}' is not a safe relative path", b.entry_path));
+  if (!is_safe_relative_path(b.entry_path))
+    throw SceneError(fmt::format("scene entry path '{}' is not a safe relative path", b.entry_path));
   const std::string hash = content_hash(b);
   const fs::path dir = fs::path(cache_root) / "scenes" / hash;
   const fs::path done = dir / ".complete";
@@ -148,7 +149,8 @@ Scene load_bundle(const SceneBundleData& b, const std::string& cache_root) {
     const fs::path tmp = fs::path(cache_root) / "scenes" / fmt::format(".tmp-{}-{}", hash, ::getpid());
     fs::remove_all(tmp);
     for (const auto& [path, data] : b.files) {
-      if (!is_safe_relative_path(path)) throw SceneError(fmt::format("scene file path '{}' is not a safe relative path", path));
+      if (!is_safe_relative_path(path))
+        throw SceneError(fmt::format("scene file path '{}' is not a safe relative path", path));
       fs::create_directories((tmp / path).parent_path());
       std::ofstream out(tmp / path, std::ios::binary);
       out.write(data.data(), std::streamsize(data.size()));

@@ -26,6 +26,8 @@
 // the assembler holds one tile.
 #pragma once
 
+#include <grpcpp/support/sync_stream.h>
+
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -35,8 +37,6 @@
 #include "common/math.h"
 #include "common/vertex_codec.h"
 #include "common/vertex_record.h"
-#include <grpcpp/support/sync_stream.h>
-
 #include "epr/v1/worker_service.pb.h"
 
 namespace epr {
@@ -97,7 +97,7 @@ class TileResultWriter {
   v1::TileWorkerStats stats_;
   std::string packed_;                        // accepted vertices, 16 bytes each, in record order (from records)
   const std::string* packed_src_ = &packed_;  // what is sent: packed_ or the result's packed_vertices
-  std::vector<uint32_t> exact_kept_;  // indices into result.visible of the samples sent
+  std::vector<uint32_t> exact_kept_;          // indices into result.visible of the samples sent
   uint32_t pixels_per_chunk_ = 1, vertices_per_chunk_ = 1, exact_per_chunk_ = 1;
   Phase phase_ = Phase::kHeader;
   size_t cursor_ = 0;  // next pixel / vertex / exact sample of the current phase

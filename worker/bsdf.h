@@ -12,7 +12,7 @@ namespace epr {
 
 struct BsdfSample {
   Vec3 wi;
-  Vec3 weight;  // f * cos / pdf
+  Vec3 weight;    // f * cos / pdf
   float pdf = 0;  // solid-angle density of wi (the mixture of both lobes for the glossy material), 1/sr
   bool valid = false;
 };

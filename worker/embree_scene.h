@@ -7,10 +7,10 @@
 // on the "worker" logger) rather than by checking every call, as in Embree's tutorials.
 #pragma once
 
+#include <embree3/rtcore.h>
+
 #include <cstdint>
 #include <vector>
-
-#include <embree3/rtcore.h>
 
 #include "common/camera.h"
 #include "common/sampling.h"

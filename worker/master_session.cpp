@@ -136,7 +136,9 @@ void MasterSession::end(const std::string& reason, bool lost) {
   });
 }
 
-bool MasterSession::wait(int ms) { return signal_.wait_for(ms, [&] { return ending_.load(); }); }
+bool MasterSession::wait(int ms) {
+  return signal_.wait_for(ms, [&] { return ending_.load(); });
+}
 
 void MasterSession::call_failed(const char* what, const grpc::Status& status) {
   if (ending_) return;  // our own cancellation
@@ -338,7 +340,8 @@ bool MasterSession::return_leases(const std::vector<uint64_t>& ids, const std::s
 void MasterSession::farewell(const std::string& reason) {
   const auto ids = held_ids(/*include_abandoned=*/false);
   if (!ids.empty()) {
-    const grpc::Status status = send_return(ids, reason, v1::LEASE_FAILURE_UNSPECIFIED, kReturnDeadline, /*tracked=*/false);
+    const grpc::Status status =
+        send_return(ids, reason, v1::LEASE_FAILURE_UNSPECIFIED, kReturnDeadline, /*tracked=*/false);
     if (!status.ok()) log_->warn("could not return {} leases: {}", ids.size(), rpc::describe(status));
   }
   v1::WorkerId wid;

@@ -10,6 +10,9 @@
 // every wait of the node and its sessions uses, so a stop or a session's end wakes them all.
 #pragma once
 
+#include <grpcpp/grpcpp.h>
+#include <spdlog/logger.h>
+
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -19,9 +22,6 @@
 #include <memory>
 #include <string>
 #include <vector>
-
-#include <grpcpp/grpcpp.h>
-#include <spdlog/logger.h>
 
 #include "common/check.h"
 #include "common/math.h"
@@ -67,9 +67,9 @@ class MasterSession {
   struct Config {
     std::string master;  // HOST:PORT
     rpc::ClientTls tls;
-    std::string token;  // bearer token; empty: none
-    std::string name;   // WorkerInfo.name
-    int threads = 1;    // WorkerInfo.threads
+    std::string token;      // bearer token; empty: none
+    std::string name;       // WorkerInfo.name
+    int threads = 1;        // WorkerInfo.threads
     std::string cache_dir;  // WorkerInfo.cached_scenes comes from here; FetchScene writes here
     int min_backoff_ms = 100, max_backoff_ms = 5000;  // the channel's own reconnection follows these
   };
@@ -100,8 +100,8 @@ class MasterSession {
   uint32_t heartbeat_ms() const { return heartbeat_ms_; }
 
   // ---- state ----
-  bool ending() const { return ending_; }  // threads wind down (stop, or the session broke)
-  bool lost() const { return lost_; }      // it broke: finished tiles are not submitted any more
+  bool ending() const { return ending_; }    // threads wind down (stop, or the session broke)
+  bool lost() const { return lost_; }        // it broke: finished tiles are not submitted any more
   bool healthy() const { return healthy_; }  // some call after Register succeeded
   std::string end_reason() const EPR_EXCLUDES(mu_);
   /// Ends the session: lost (it broke: every call in flight is cancelled) or not (the worker stops:

@@ -10,10 +10,10 @@ namespace {
 
 // One traced vertex, kept until the path ends and radiance can be propagated back.
 struct PathVertex {
-  Vec3 position, normal;  // normal oriented towards the previous vertex
-  Vec3 le;                // emitted radiance at the vertex
-  Vec3 direct;            // D_n, the direct-light estimate (MIS-weighted, or NEE only)
-  Vec3 weight;            // f cos / pdf / q for the continuation (0 if the path ended here)
+  Vec3 position, normal;       // normal oriented towards the previous vertex
+  Vec3 le;                     // emitted radiance at the vertex
+  Vec3 direct;                 // D_n, the direct-light estimate (MIS-weighted, or NEE only)
+  Vec3 weight;                 // f cos / pdf / q for the continuation (0 if the path ended here)
   float continuation_pdf = 0;  // solid-angle pdf of the continuation direction (BSDF sampling), 1/sr
   bool diffuse = true;
 };

@@ -152,8 +152,9 @@ struct WorkerNode::Impl {
     LeasedTile tile;
     if (auto err = unpack_tile_lease(lease, &tile)) {
       // A master bug: the tile would come straight back.
-      return give_up(fmt::format("lease {} (job {} tile {}) is unusable: {}", id, lease.job_id(), lease.tile_index(), *err),
-                     "unusable lease: " + *err, v1::LEASE_FAILURE_TILE);
+      return give_up(
+          fmt::format("lease {} (job {} tile {}) is unusable: {}", id, lease.job_id(), lease.tile_index(), *err),
+          "unusable lease: " + *err, v1::LEASE_FAILURE_TILE);
     }
     std::shared_ptr<const JobContext> job;
     try {

@@ -42,6 +42,7 @@
 #include <string>
 
 #include "wire/scene_bundle.h"
+#include "worker/time_accounting.h"
 
 namespace epr {
 
@@ -60,25 +61,6 @@ struct WorkerNodeOptions {
   int max_backoff_ms = 5000;  // cap of the reconnect backoff
   int min_backoff_ms = 100;   // first reconnect delay (halved or kept, by the jitter)
   int max_cached_jobs = 3;    // per-job tracing state kept (scenes and BVHs of older jobs are dropped)
-};
-
-/// Where the tracing threads' wall time went, in thread-seconds summed over the threads (one row of
-/// WorkerNodeStats: while another tracing thread of the node traced, or while none did).
-struct WorkerTimeSplit {
-  double tracing = 0;     // inside render_leased_tile (tracing, culling, encoding the vertices)
-  double leasing = 0;     // waiting for a LeaseTile answer (the one asked for ahead, or a synchronous one)
-  double waiting = 0;     // sleeping on the master's Wait (a round barrier, no job, back-pressure)
-  double submitting = 0;  // waiting for the thread's previous tile submission to end
-  double other = 0;       // the rest: preparing a job (scene, BVH), returning leases, starting calls
-  double total() const { return tracing + leasing + waiting + submitting + other; }
-  WorkerTimeSplit& operator-=(const WorkerTimeSplit& o) {
-    tracing -= o.tracing;
-    leasing -= o.leasing;
-    waiting -= o.waiting;
-    submitting -= o.submitting;
-    other -= o.other;
-    return *this;
-  }
 };
 
 struct WorkerNodeStats {

@@ -56,8 +56,8 @@ MtlFile read_mtl(ObjContext& ctx, const FileRef& mtl) {
                          tok.size() - 1));
       for (int k = 0; k < 3; ++k)  // one number means grey
         st.value[k] = parse_real(tok[std::min(size_t(k) + 1, tok.size() - 1)], 1e6, file, ln, "colour value");
-      st.kind = key == "Kd" ? MtlStatement::Kind::kKd
-                            : (key == "Ke" ? MtlStatement::Kind::kKe : MtlStatement::Kind::kKs);
+      st.kind =
+          key == "Kd" ? MtlStatement::Kind::kKd : (key == "Ke" ? MtlStatement::Kind::kKe : MtlStatement::Kind::kKs);
     } else if (key == "Ns") {
       if (current.empty()) fail(file, ln, "Ns before any newmtl");
       if (tok.size() != 2) fail(file, ln, fmt::format("Ns needs 1 number, got {}", tok.size() - 1));

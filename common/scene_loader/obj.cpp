@@ -6,6 +6,8 @@
 //   - mtllib / usemtl: material libraries (mtl.cpp) and the material of the faces that follow;
 //   - vn is validated and not used (faces are flat); g, o, s, l, p and vp are ignored, other
 //     statements are ignored with a warning.
+#include "common/scene_loader/obj.h"
+
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -18,7 +20,6 @@
 #include <string_view>
 #include <system_error>
 
-#include "common/scene_loader/obj.h"
 #include "common/scene_loader/obj_context.h"
 #include "common/scene_loader/polygon.h"
 #include "common/scene_loader/text.h"
@@ -174,8 +175,7 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       for (const std::string& name : names) {
         mtls.push_back(resolve_inside(ctx.root, dir, display_dir, name, file, ln, "mtllib"));
         std::error_code ec;
-        if (!fs::is_regular_file(mtls.back().real, ec))
-          fail(file, ln, fmt::format("mtllib '{}' does not exist", name));
+        if (!fs::is_regular_file(mtls.back().real, ec)) fail(file, ln, fmt::format("mtllib '{}' does not exist", name));
       }
       apply_mtllib(ctx, mtls, file, ln);
     } else {

@@ -57,11 +57,11 @@ struct ObjContext {
   std::filesystem::path root;  // canonical: nothing outside it is read
   std::vector<Texture> textures;
   std::map<std::filesystem::path, int> texture_of_path;
-  size_t texture_pixels = 0;                                // total of all textures
-  std::map<std::filesystem::path, MtlFile> mtl_files;       // each MTL file read once
-  std::set<std::vector<std::filesystem::path>> mtl_lists;   // the mtllib file lists already applied
-  size_t mtl_bytes = 0;                                     // total of the applied lists' file sizes
-  std::set<std::string> defined_materials;                  // names from the MTL files read so far
+  size_t texture_pixels = 0;                               // total of all textures
+  std::map<std::filesystem::path, MtlFile> mtl_files;      // each MTL file read once
+  std::set<std::vector<std::filesystem::path>> mtl_lists;  // the mtllib file lists already applied
+  size_t mtl_bytes = 0;                                    // total of the applied lists' file sizes
+  std::set<std::string> defined_materials;                 // names from the MTL files read so far
   MaterialTable table;
 };
 

@@ -2,12 +2,12 @@
 // exporters write them, blank-separated tokens and strictly checked numbers.
 #pragma once
 
+#include <spdlog/logger.h>
+
 #include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include <spdlog/logger.h>
 
 #include "common/scene.h"
 

@@ -365,7 +365,8 @@ std::string encode(const JobProgressRecord& r) {
   w.put(r.triangles);
   put(w, r.progress);
   put(w, r.counts);
-  JobCounters::visit(r.counters, [&](uint64_t v) { w.put(v); }, [&](double v) { w.put(v); });
+  JobCounters::visit(
+      r.counters, [&](uint64_t v) { w.put(v); }, [&](double v) { w.put(v); });
   w.put(r.started_ms);
   w.put(r.finished_ms);
   w.put<uint8_t>(r.budget_exhausted);
@@ -391,7 +392,8 @@ JobProgressRecord decode_job_progress(std::string_view payload, uint32_t version
   r.progress = get_progress(rd);
   r.counts = get_counts(rd);
   if (version >= 2) {
-    JobCounters::visit(r.counters, [&](uint64_t& v) { v = rd.get<uint64_t>(); }, [&](double& v) { v = rd.get<double>(); });
+    JobCounters::visit(
+        r.counters, [&](uint64_t& v) { v = rd.get<uint64_t>(); }, [&](double& v) { v = rd.get<double>(); });
     r.started_ms = rd.get<int64_t>();
     r.finished_ms = rd.get<int64_t>();
   } else {  // eight counters, the times, then the seconds
@@ -417,8 +419,8 @@ JobProgressRecord decode_job_progress(std::string_view payload, uint32_t version
 
 JobSpecRecord spec_record(const Job& job) {
   const JobRequest& q = job.request;
-  return {job.id, job.seq, job.submitted_ms, job.scene_hash, q.options, q.camera, q.name, q.priority,
-          q.time_budget_seconds, q.request_id};
+  return {job.id,   job.seq, job.submitted_ms, job.scene_hash,        q.options,
+          q.camera, q.name,  q.priority,       q.time_budget_seconds, q.request_id};
 }
 
 JobProgressRecord progress_record(const Job& job) {

@@ -90,7 +90,8 @@ struct JobProgressRecord {
 std::string encode(const JobSpecRecord& r);
 JobSpecRecord decode_job_spec(std::string_view payload);  // CheckpointError if malformed
 std::string encode(const JobProgressRecord& r);
-JobProgressRecord decode_job_progress(std::string_view payload, uint32_t version = kCheckpointVersion);  // CheckpointError if malformed
+JobProgressRecord decode_job_progress(std::string_view payload,
+                                      uint32_t version = kCheckpointVersion);  // CheckpointError if malformed
 
 /// The spec record of a job as submitted.
 JobSpecRecord spec_record(const Job& job);

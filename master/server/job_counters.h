@@ -38,9 +38,8 @@ struct JobCounters {
   /// Visits the integer fields in a fixed order (the checkpoint encoding's), then the seconds.
   template <class Self, class Int, class Real>
   static void visit(Self& c, Int&& integer, Real&& real) {
-    for (auto* v : {&c.rays, &c.vertices_received, &c.non_finite, &c.worker_culled, &c.tiles_leased,
-                    &c.tiles_committed, &c.tiles_re_leased, &c.tiles_dropped, &c.tiles_speculative,
-                    &c.worker_failures})
+    for (auto* v : {&c.rays, &c.vertices_received, &c.non_finite, &c.worker_culled, &c.tiles_leased, &c.tiles_committed,
+                    &c.tiles_re_leased, &c.tiles_dropped, &c.tiles_speculative, &c.worker_failures})
       integer(*v);
     real(c.seconds_tracing);
     real(c.seconds_reprojecting);

@@ -1,14 +1,14 @@
 #include "master/server/job_manager.h"
 
+#include <fmt/format.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <limits>
 #include <set>
-
-#include <fmt/format.h>
-#include <unistd.h>
 
 #include "common/log.h"
 #include "common/scene_loader.h"
@@ -21,13 +21,15 @@ namespace epr {
 namespace fs = std::filesystem;
 // ---- lifecycle ------------------------------------------------------------------------------------
 
-JobManager::JobManager(MasterOptions options, MillisClock clock) : options_(std::move(options)), clock_(std::move(clock)) {
+JobManager::JobManager(MasterOptions options, MillisClock clock)
+    : options_(std::move(options)), clock_(std::move(clock)) {
   // A temporary folder is this manager's alone (several masters may live in one process) and goes
   // with it.
   static std::atomic<uint32_t> temporary_folders{0};
-  state_dir_ = options_.state_dir.empty()
-                   ? (fs::temp_directory_path() / fmt::format("epr-master-{}-{}", ::getpid(), ++temporary_folders)).string()
-                   : options_.state_dir;
+  state_dir_ =
+      options_.state_dir.empty()
+          ? (fs::temp_directory_path() / fmt::format("epr-master-{}-{}", ::getpid(), ++temporary_folders)).string()
+          : options_.state_dir;
   fs::create_directories(fs::path(state_dir_) / "jobs");
   store_ = std::make_unique<CheckpointStore>(state_dir_);
   // Lease ids are never reused, not even across restarts: the run number is their top bits.
@@ -91,11 +93,13 @@ std::optional<std::string> JobManager::validate(const JobRequest& req) const {
   if (b.builtin.empty()) {
     if (b.files.empty()) return invalid("the scene bundle is empty");
     if (b.total_bytes() > options_.max_scene_bytes)
-      return invalid(fmt::format("the scene bundle has {} bytes, over the limit of {}", b.total_bytes(), options_.max_scene_bytes));
+      return invalid(fmt::format("the scene bundle has {} bytes, over the limit of {}", b.total_bytes(),
+                                 options_.max_scene_bytes));
     bool has_entry = false;
     std::set<std::string> paths;
     for (const auto& [path, data] : b.files) {
-      if (!is_safe_relative_path(path)) return invalid(fmt::format("scene file path '{}' is not a safe relative path", path));
+      if (!is_safe_relative_path(path))
+        return invalid(fmt::format("scene file path '{}' is not a safe relative path", path));
       if (!paths.insert(path).second) return invalid(fmt::format("scene file path '{}' appears twice", path));
       has_entry |= path == b.entry_path;
     }
@@ -218,7 +222,8 @@ std::optional<std::string> JobManager::result_path(const std::string& id, Result
   return p.string();
 }
 
-std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::string& id, const std::string& layer) const {
+std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::string& id,
+                                                                  const std::string& layer) const {
   std::shared_ptr<const FrameImages> images;
   bool reprojects = false, done = false;
   std::string dir;
@@ -272,7 +277,8 @@ std::shared_ptr<const SceneBundleData> JobManager::scene(const std::string& hash
 
 // ---- workers --------------------------------------------------------------------------------------
 
-std::string JobManager::register_worker(const std::string& name, uint32_t threads, std::vector<std::string> cached_scenes) {
+std::string JobManager::register_worker(const std::string& name, uint32_t threads,
+                                        std::vector<std::string> cached_scenes) {
   MutexLock lock(mu_);
   return workers_.add(name, threads, {cached_scenes.begin(), cached_scenes.end()}, clock_());
 }
@@ -288,7 +294,7 @@ std::vector<WorkerSnapshot> JobManager::workers() const {
 }
 
 std::optional<std::vector<std::pair<bool, int64_t>>> JobManager::heartbeat(const std::string& worker,
-                                                                         const std::vector<uint64_t>& leases) {
+                                                                           const std::vector<uint64_t>& leases) {
   MutexLock lock(mu_);
   WorkerRegistry::Worker* w = workers_.touch(worker, clock_());
   if (!w) return std::nullopt;
@@ -341,7 +347,8 @@ void JobManager::wake_parked(bool all) {
   // Workers that hold the running job's scene first: they start tracing without fetching it.
   const std::string scene = active_ ? active_->scene_hash : std::string();
   parking_.wake(
-      all, clock_(), [this](const std::string& worker, bool* parkable) EPR_NO_THREAD_SAFETY_ANALYSIS {
+      all, clock_(),
+      [this](const std::string& worker, bool* parkable) EPR_NO_THREAD_SAFETY_ANALYSIS {
         return decide_lease(worker, parkable);  // called by wake(), with mu_ held
       },
       [this, &scene](const std::string& worker) EPR_NO_THREAD_SAFETY_ANALYSIS {

@@ -67,13 +67,13 @@ struct MasterOptions {
   // at most ~5 % of the master's time however large the image; 0: after every round.
   double checkpoint_interval_s = -1;
   static constexpr double kAutoCheckpointFactor = 20;
-  std::string reproject_backend_override;  // "cpu" forces the CPU reprojector (no OSMesa)
-  int worker_timeout_ms = 10000;           // a worker silent this long is forgotten
+  std::string reproject_backend_override;   // "cpu" forces the CPU reprojector (no OSMesa)
+  int worker_timeout_ms = 10000;            // a worker silent this long is forgotten
   uint64_t max_queued_vertices = 8u << 20;  // back-pressure bound of the commit queue
   size_t max_scene_bytes = 256u << 20;
   int max_image_side = limits::kImageSide.hi;
   int max_spp = limits::kSpp.hi;  // target samples per pixel of one job
-  int max_jobs = 1000;    // jobs kept (finished ones are forgotten oldest first)
+  int max_jobs = 1000;            // jobs kept (finished ones are forgotten oldest first)
   // Leases: timeout (a lease not extended by a heartbeat for this long expires), the heartbeat
   // interval asked of workers, speculative copies and the failures that block a worker (lease_table.h).
   int lease_timeout_ms = 20000;
@@ -135,7 +135,7 @@ class JobManager {
   /// Extends the listed leases; returns per lease whether it is still wanted and its deadline.
   /// Nullopt for an unknown worker.
   std::optional<std::vector<std::pair<bool, int64_t>>> heartbeat(const std::string& worker,
-                                                                  const std::vector<uint64_t>& leases) EPR_EXCLUDES(mu_);
+                                                                 const std::vector<uint64_t>& leases) EPR_EXCLUDES(mu_);
   LeaseDecision lease_tile(const std::string& worker) EPR_EXCLUDES(mu_);
   /// Like lease_tile, but a worker that would be told to wait briefly (the round is closing, every
   /// tile of the round is out, or no job has started yet) is kept waiting instead, for up to
@@ -191,7 +191,8 @@ class JobManager {
   };
 
   LeaseDecision decide_lease(const std::string& worker, bool* parkable) EPR_REQUIRES(mu_);
-  TileLeaseInfo grant(Job& job, const std::string& worker, const LeaseTable::Grant& g, uint64_t lease) EPR_REQUIRES(mu_);
+  TileLeaseInfo grant(Job& job, const std::string& worker, const LeaseTable::Grant& g, uint64_t lease)
+      EPR_REQUIRES(mu_);
   void wake_parked(bool all) EPR_REQUIRES(mu_);
   void answer_due() EPR_EXCLUDES(mu_);
   JobSnapshot snapshot(const Job& job) const EPR_REQUIRES(mu_);

@@ -1,10 +1,10 @@
 #include "master/server/job_service.h"
 
+#include <fmt/format.h>
+
 #include <atomic>
 #include <fstream>
 #include <sstream>
-
-#include <fmt/format.h>
 
 #include "common/check.h"
 #include "common/log.h"
@@ -19,20 +19,25 @@ grpc::Status no_job(const std::string& id) { return {grpc::StatusCode::NOT_FOUND
 
 v1::JobState to_proto(JobState s) {
   switch (s) {
-    case JobState::kQueued: return v1::JOB_STATE_QUEUED;
-    case JobState::kRunning: return v1::JOB_STATE_RUNNING;
-    case JobState::kDone: return v1::JOB_STATE_DONE;
-    case JobState::kFailed: return v1::JOB_STATE_FAILED;
-    case JobState::kCancelled: return v1::JOB_STATE_CANCELLED;
+    case JobState::kQueued:
+      return v1::JOB_STATE_QUEUED;
+    case JobState::kRunning:
+      return v1::JOB_STATE_RUNNING;
+    case JobState::kDone:
+      return v1::JOB_STATE_DONE;
+    case JobState::kFailed:
+      return v1::JOB_STATE_FAILED;
+    case JobState::kCancelled:
+      return v1::JOB_STATE_CANCELLED;
   }
   return v1::JOB_STATE_UNSPECIFIED;
 }
 
-
 // Sends a status whenever the job changes, at most one write in flight; the newest status wins.
 class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
  public:
-  JobWatcher(JobManager& jobs, const std::string& id, uint32_t min_interval_ms) : jobs_(jobs), min_interval_ms_(min_interval_ms) {
+  JobWatcher(JobManager& jobs, const std::string& id, uint32_t min_interval_ms)
+      : jobs_(jobs), min_interval_ms_(min_interval_ms) {
     auto first = jobs_.get(id);
     if (!first) {
       finished_ = true;  // an OnCancel that follows must not finish the call again
@@ -113,12 +118,14 @@ class SceneUploader final : public grpc::ServerReadReactor<v1::SceneChunk> {
       manifest_seen_ = true;
       const auto& m = chunk_.manifest();
       if (m.total_bytes() > jobs_.options().max_scene_bytes)
-        return Finish(invalid(fmt::format("scene of {} bytes is over the limit of {}", m.total_bytes(), jobs_.options().max_scene_bytes)));
+        return Finish(invalid(fmt::format("scene of {} bytes is over the limit of {}", m.total_bytes(),
+                                          jobs_.options().max_scene_bytes)));
       expected_hash_ = m.content_hash();
       bundle_.entry_path = m.entry_path();
       uint64_t sum = 0;
       for (const auto& f : m.files()) {
-        if (!is_safe_relative_path(f.path())) return Finish(invalid(fmt::format("scene file path '{}' is not safe", f.path())));
+        if (!is_safe_relative_path(f.path()))
+          return Finish(invalid(fmt::format("scene file path '{}' is not safe", f.path())));
         sum += f.size_bytes();
         received_.emplace_back(f.size_bytes());
         bundle_.files.emplace_back(f.path(), std::string());
@@ -141,7 +148,8 @@ class SceneUploader final : public grpc::ServerReadReactor<v1::SceneChunk> {
   void end() {
     if (!manifest_seen_) return Finish(invalid("no manifest"));
     for (size_t i = 0; i < received_.size(); ++i)
-      if (!received_[i].complete()) return Finish(invalid(fmt::format("file '{}' is incomplete", bundle_.files[i].first)));
+      if (!received_[i].complete())
+        return Finish(invalid(fmt::format("file '{}' is incomplete", bundle_.files[i].first)));
     const std::string hash = content_hash(bundle_);
     if (!expected_hash_.empty() && expected_hash_ != hash)
       return Finish(invalid(fmt::format("content hash mismatch: announced {}, computed {}", expected_hash_, hash)));
@@ -217,7 +225,9 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
   if (auto err = from_job_spec(*req, &jr.options, &jr.camera)) return finish(ctx, invalid(*err));
   const auto& scene = req->scene();
   switch (scene.source_case()) {
-    case v1::SceneBundle::kBuiltin: jr.bundle.builtin = scene.builtin(); break;
+    case v1::SceneBundle::kBuiltin:
+      jr.bundle.builtin = scene.builtin();
+      break;
     case v1::SceneBundle::kFiles:
       jr.bundle = from_proto(scene.files());
       if (!scene.content_hash().empty() && scene.content_hash() != content_hash(jr.bundle))
@@ -225,11 +235,13 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
       break;
     case v1::SceneBundle::kUploadedHash: {
       auto b = jobs_.scene(scene.uploaded_hash());
-      if (!b) return finish(ctx, {grpc::StatusCode::NOT_FOUND, fmt::format("no uploaded scene '{}'", scene.uploaded_hash())});
+      if (!b)
+        return finish(ctx, {grpc::StatusCode::NOT_FOUND, fmt::format("no uploaded scene '{}'", scene.uploaded_hash())});
       jr.bundle = *b;
       break;
     }
-    default: return finish(ctx, invalid("the job has no scene"));
+    default:
+      return finish(ctx, invalid("the job has no scene"));
   }
   if (!req->has_camera()) return finish(ctx, invalid("the job has no camera"));
   if (req->name().size() > 256) return finish(ctx, invalid("job names are limited to 256 bytes"));
@@ -247,18 +259,21 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
   return finish(ctx, grpc::Status::OK);
 }
 
-grpc::ServerReadReactor<v1::SceneChunk>* JobServiceImpl::UploadScene(grpc::CallbackServerContext* ctx, v1::SceneRef* resp) {
+grpc::ServerReadReactor<v1::SceneChunk>* JobServiceImpl::UploadScene(grpc::CallbackServerContext* ctx,
+                                                                     v1::SceneRef* resp) {
   return new SceneUploader(jobs_, resp);
 }
 
-grpc::ServerUnaryReactor* JobServiceImpl::GetJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) {
+grpc::ServerUnaryReactor* JobServiceImpl::GetJob(grpc::CallbackServerContext* ctx, const v1::JobId* req,
+                                                 v1::JobStatus* resp) {
   auto s = jobs_.get(req->id());
   if (!s) return finish(ctx, no_job(req->id()));
   to_proto(*s, resp);
   return finish(ctx, grpc::Status::OK);
 }
 
-grpc::ServerWriteReactor<v1::JobStatus>* JobServiceImpl::WatchJob(grpc::CallbackServerContext* ctx, const v1::WatchJobRequest* req) {
+grpc::ServerWriteReactor<v1::JobStatus>* JobServiceImpl::WatchJob(grpc::CallbackServerContext* ctx,
+                                                                  const v1::WatchJobRequest* req) {
   return new JobWatcher(jobs_, req->job_id(), req->min_interval_ms());
 }
 
@@ -284,7 +299,8 @@ grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* 
   return finish(ctx, grpc::Status::OK);
 }
 
-grpc::ServerUnaryReactor* JobServiceImpl::CancelJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) {
+grpc::ServerUnaryReactor* JobServiceImpl::CancelJob(grpc::CallbackServerContext* ctx, const v1::JobId* req,
+                                                    v1::JobStatus* resp) {
   if (!jobs_.cancel(req->id())) return finish(ctx, no_job(req->id()));
   to_proto(*jobs_.get(req->id()), resp);
   return finish(ctx, grpc::Status::OK);
@@ -299,9 +315,13 @@ grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::Cal
   auto snap = jobs_.get(req->job_id());
   if (!snap) return new Writer({}, no_job(req->job_id()));
   if (snap->state != JobState::kDone)
-    return new Writer({}, {grpc::StatusCode::FAILED_PRECONDITION, fmt::format("job {} is {}: results exist once it is done", snap->id, to_string(snap->state))});
+    return new Writer({},
+                      {grpc::StatusCode::FAILED_PRECONDITION,
+                       fmt::format("job {} is {}: results exist once it is done", snap->id, to_string(snap->state))});
   auto path = jobs_.result_path(req->job_id(), *kind);
-  if (!path) return new Writer({}, {grpc::StatusCode::NOT_FOUND, fmt::format("job {} has no {} result (not produced in this mode)", snap->id, k.name)});
+  if (!path)
+    return new Writer({}, {grpc::StatusCode::NOT_FOUND,
+                           fmt::format("job {} has no {} result (not produced in this mode)", snap->id, k.name)});
   std::ifstream in(*path, std::ios::binary);
   std::stringstream ss;
   ss << in.rdbuf();

@@ -11,14 +11,17 @@ class JobServiceImpl final : public v1::JobService::CallbackService {
  public:
   explicit JobServiceImpl(JobManager& jobs) : jobs_(jobs) {}
 
-  grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req, v1::JobId* resp) override;
+  grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
+                                      v1::JobId* resp) override;
   grpc::ServerReadReactor<v1::SceneChunk>* UploadScene(grpc::CallbackServerContext* ctx, v1::SceneRef* resp) override;
-  grpc::ServerUnaryReactor* GetJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) override;
+  grpc::ServerUnaryReactor* GetJob(grpc::CallbackServerContext* ctx, const v1::JobId* req,
+                                   v1::JobStatus* resp) override;
   grpc::ServerWriteReactor<v1::JobStatus>* WatchJob(grpc::CallbackServerContext* ctx,
                                                     const v1::WatchJobRequest* req) override;
   grpc::ServerUnaryReactor* ListJobs(grpc::CallbackServerContext* ctx, const v1::ListJobsRequest* req,
                                      v1::ListJobsResponse* resp) override;
-  grpc::ServerUnaryReactor* CancelJob(grpc::CallbackServerContext* ctx, const v1::JobId* req, v1::JobStatus* resp) override;
+  grpc::ServerUnaryReactor* CancelJob(grpc::CallbackServerContext* ctx, const v1::JobId* req,
+                                      v1::JobStatus* resp) override;
   grpc::ServerWriteReactor<v1::ResultChunk>* FetchResult(grpc::CallbackServerContext* ctx,
                                                          const v1::ResultRequest* req) override;
 

@@ -1,9 +1,9 @@
 #include "master/server/lease_table.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <chrono>
-
-#include <fmt/format.h>
 
 #include "common/check.h"
 #include "common/log.h"
@@ -104,7 +104,8 @@ LeaseTable::CommitOutcome LeaseTable::commit(uint32_t tile, uint64_t lease, std:
   Slot& slot = slots_[tile];
   if (slot.state == Slot::State::kCommitted || slot.state == Slot::State::kIdle) return CommitOutcome::kDuplicate;
   // Its lease had expired and the tile went back to waiting: this result still wins.
-  if (slot.state == Slot::State::kPending) pending_.erase(std::remove(pending_.begin(), pending_.end(), tile), pending_.end());
+  if (slot.state == Slot::State::kPending)
+    pending_.erase(std::remove(pending_.begin(), pending_.end(), tile), pending_.end());
   if (auto h = slot.holds.find(lease); h != slot.holds.end()) {
     if (tile_ms_round_ != round_) tile_ms_.clear();
     tile_ms_round_ = round_;
@@ -151,8 +152,8 @@ std::vector<LeaseTable::Expired> LeaseTable::expire() {
     if (slots_[e.tile].holds.size() == 1)
       log->warn("job {} tile {}: lease expired, re-queued (lease {}, worker {})", job_id_, e.tile, e.lease, e.worker);
     else
-      log->warn("job {} tile {}: lease {} of worker {} expired; another lease of the tile is still out", job_id_, e.tile,
-                e.lease, e.worker);
+      log->warn("job {} tile {}: lease {} of worker {} expired; another lease of the tile is still out", job_id_,
+                e.tile, e.lease, e.worker);
     drop_hold(e.tile, e.lease);
     count_failure(e.worker, LeaseFailure::kExpired, fmt::format("lease of tile {} expired without a result", e.tile));
   }

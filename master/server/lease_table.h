@@ -43,7 +43,7 @@ struct LeasePolicy {
   int heartbeat_interval_ms = 1000;
   double speculative_factor = 2.0;  // <= 0: no speculative copies
   int speculative_floor_ms = 1000;
-  int max_worker_failures = 3;      // <= 0: never block
+  int max_worker_failures = 3;  // <= 0: never block
 };
 
 class LeaseTable {

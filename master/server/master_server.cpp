@@ -1,9 +1,8 @@
 #include "master/server/master_server.h"
 
+#include <fmt/format.h>
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/health_check_service_interface.h>
-
-#include <fmt/format.h>
 
 #include "common/log.h"
 #include "master/server/job_service.h"
@@ -15,8 +14,8 @@
 namespace epr {
 
 MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(options)) {
-  const auto creds = rpc::server_credentials(
-      {options_.tls_cert_file, options_.tls_key_file, options_.tls_client_ca_file});
+  const auto creds =
+      rpc::server_credentials({options_.tls_cert_file, options_.tls_key_file, options_.tls_client_ca_file});
   jobs_ = std::make_unique<JobManager>(options_.jobs);
   job_service_ = std::make_unique<JobServiceImpl>(*jobs_);
   worker_service_ = std::make_unique<WorkerServiceImpl>(*jobs_);
@@ -52,7 +51,8 @@ MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(opt
   }
   server_->GetHealthCheckService()->SetServingStatus(true);
   logger("master")->info("master listening on {} (port {}){}{}", options_.listen, port_,
-                         options_.tls_cert_file.empty() ? "" : ", TLS", !options_.token.empty() ? ", bearer token required" : "");
+                         options_.tls_cert_file.empty() ? "" : ", TLS",
+                         !options_.token.empty() ? ", bearer token required" : "");
 }
 
 MasterServer::~MasterServer() { shutdown(); }

@@ -4,10 +4,10 @@
 // in-process on a loopback port, so a local render and a cluster use the same code paths.
 #pragma once
 
+#include <grpcpp/grpcpp.h>
+
 #include <memory>
 #include <string>
-
-#include <grpcpp/grpcpp.h>
 
 #include "master/server/job_manager.h"
 
@@ -16,9 +16,9 @@ namespace epr {
 struct MasterServerOptions {
   std::string listen = "0.0.0.0:50051";  // gRPC address; port 0 picks a free port
   MasterOptions jobs;
-  int max_message_bytes = 8 << 20;       // inline scenes in SubmitJob; tile chunks are <= 2 MiB
-  std::string http_listen;               // monitoring HTTP HOST:PORT (master/server/monitoring.h); empty: none
-  std::string token;                     // bearer token required from clients and workers; empty: none
+  int max_message_bytes = 8 << 20;  // inline scenes in SubmitJob; tile chunks are <= 2 MiB
+  std::string http_listen;          // monitoring HTTP HOST:PORT (master/server/monitoring.h); empty: none
+  std::string token;                // bearer token required from clients and workers; empty: none
   // TLS (all empty: plaintext). PEM files: the server's certificate chain and key, and optionally the
   // CA that client certificates must chain to (then clients without a valid certificate are refused).
   std::string tls_cert_file, tls_key_file, tls_client_ca_file;

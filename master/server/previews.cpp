@@ -17,7 +17,8 @@ bool is_preview_layer(std::string_view layer) {
   return std::find(kPreviewLayers.begin(), kPreviewLayers.end(), layer) != kPreviewLayers.end();
 }
 
-std::optional<std::vector<unsigned char>> encode_preview(const FrameImages& img, bool reprojects, std::string_view layer) {
+std::optional<std::vector<unsigned char>> encode_preview(const FrameImages& img, bool reprojects,
+                                                         std::string_view layer) {
   if (layer == "combined") return encode_png_srgb(img.combined);
   if (layer == "pathtrace") return encode_png_srgb(img.pathtrace);
   if (!reprojects) return std::nullopt;

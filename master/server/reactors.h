@@ -1,10 +1,10 @@
 // Small reactors and helpers shared by the master's callback-API services. None of them blocks.
 #pragma once
 
+#include <grpcpp/grpcpp.h>
+
 #include <string>
 #include <vector>
-
-#include <grpcpp/grpcpp.h>
 
 namespace epr {
 

@@ -2,10 +2,10 @@
 // framebuffer, checkpoint), applies committed tiles in commit order through the job's RoundDriver,
 // closes rounds and opens the next, writes the finished job's results, and takes round checkpoints.
 // It alone touches a job's driver, scene and camera; every other Job field under the manager's mutex.
+#include <fmt/format.h>
+
 #include <chrono>
 #include <filesystem>
-
-#include <fmt/format.h>
 
 #include "common/log.h"
 #include "common/scene_loader.h"
@@ -114,7 +114,8 @@ void JobManager::drop_job(const std::shared_ptr<Job>& job) {
   if (images) {
     std::map<std::string, std::vector<unsigned char>> pngs;
     for (std::string_view layer : kPreviewLayers)
-      if (auto png = encode_preview(*images, job->preview_reprojects, layer)) pngs[std::string(layer)] = std::move(*png);
+      if (auto png = encode_preview(*images, job->preview_reprojects, layer))
+        pngs[std::string(layer)] = std::move(*png);
     MutexLock lock(mu_);
     job->previews = std::move(pngs);
   }
@@ -163,8 +164,8 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
       job->round = uint32_t(frame.round());
       job->counters.seconds_reprojecting = frame.seconds_reprojecting();
     }
-    job->leases = std::make_unique<LeaseTable>(job->id, job->tiles.size(), options_.lease_policy(), clock_,
-                                               &job->counters);
+    job->leases =
+        std::make_unique<LeaseTable>(job->id, job->tiles.size(), options_.lease_policy(), clock_, &job->counters);
     open_round(*job);
     wake_parked(/*all=*/false);
   }
@@ -265,9 +266,8 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
   const FrameImages images = frame.images();
   auto stored = [&](const ResultKindInfo& k) { return (fs::path(dir) / k.stored_as).string(); };
   // The images first; the statistics, which include the time they took, after.
-  write_results(images, frame.reprojects(), {}, [&](const ResultKindInfo& k) {
-    return k.kind == ResultKind::kJson ? std::string() : stored(k);
-  });
+  write_results(images, frame.reprojects(), {},
+                [&](const ResultKindInfo& k) { return k.kind == ResultKind::kJson ? std::string() : stored(k); });
   nlohmann::json stats = frame.statistics(job->request.options);
   {
     MutexLock lock(mu_);
@@ -298,9 +298,8 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
                   {"seconds_tracing", c.seconds_tracing},
                   {"budget_exhausted", budget_exhausted}});
   }
-  write_results(images, frame.reprojects(), stats, [&](const ResultKindInfo& k) {
-    return k.kind == ResultKind::kJson ? stored(k) : std::string();
-  });
+  write_results(images, frame.reprojects(), stats,
+                [&](const ResultKindInfo& k) { return k.kind == ResultKind::kJson ? stored(k) : std::string(); });
   {
     // Done once every file is in place.
     MutexLock lock(mu_);
@@ -325,8 +324,9 @@ void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgr
   {
     // Not every round: a 512 x 512 frame is ~80 MB to copy and write (see checkpoint_interval_s).
     MutexLock lock(mu_);
-    const double gap = options_.checkpoint_interval_s >= 0 ? options_.checkpoint_interval_s
-                                                           : MasterOptions::kAutoCheckpointFactor * job->checkpoint_cost_s;
+    const double gap = options_.checkpoint_interval_s >= 0
+                           ? options_.checkpoint_interval_s
+                           : MasterOptions::kAutoCheckpointFactor * job->checkpoint_cost_s;
     if (job->last_checkpoint_ms && double(clock_() - job->last_checkpoint_ms) < 1000 * gap) return;
     job->last_checkpoint_ms = clock_();
   }
@@ -338,7 +338,7 @@ void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgr
   checkpointer_->queue(job->id, [&]() -> std::optional<JobProgressRecord> {
     MutexLock lock(mu_);
     if (job->state != JobState::kRunning) return std::nullopt;  // ended meanwhile: its final record is queued instead
-    job->checkpoint_cost_s = copy_s;  // the write's time is added when it is written
+    job->checkpoint_cost_s = copy_s;                            // the write's time is added when it is written
     ++job->round_checkpoints;
     return std::move(record);
   });

@@ -1,8 +1,8 @@
 #include "master/server/worker_registry.h"
 
-#include <algorithm>
-
 #include <fmt/format.h>
+
+#include <algorithm>
 
 #include "common/log.h"
 
@@ -66,7 +66,8 @@ std::vector<std::string> WorkerRegistry::ids() const {
 }
 
 size_t WorkerRegistry::busy() const {
-  return size_t(std::count_if(workers_.begin(), workers_.end(), [](const auto& kv) { return !kv.second.leases.empty(); }));
+  return size_t(
+      std::count_if(workers_.begin(), workers_.end(), [](const auto& kv) { return !kv.second.leases.empty(); }));
 }
 
 std::vector<WorkerSnapshot> WorkerRegistry::snapshot(int64_t now_ms) const {

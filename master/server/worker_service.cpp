@@ -23,7 +23,8 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
     if (!ok) return end_of_stream();
     if (draining_) return StartRead(&chunk_);  // a stale result: read it to the end, then say so
     if (!assembler_) {
-      if (chunk_.part_case() != v1::TileResultChunk::kHeader) return Finish(invalid("the first chunk must be the header"));
+      if (chunk_.part_case() != v1::TileResultChunk::kHeader)
+        return Finish(invalid("the first chunk must be the header"));
       bool stale = false;
       auto e = jobs_.expect(chunk_.header(), &stale);
       if (auto* why = std::get_if<std::string>(&e)) {
@@ -85,21 +86,22 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
 grpc::ServerUnaryReactor* WorkerServiceImpl::Register(grpc::CallbackServerContext* ctx, const v1::WorkerInfo* req,
                                                       v1::RegisterResponse* resp) {
   if (req->protocol_version() != v1::PROTOCOL_VERSION_V1)
-    return finish(ctx, {grpc::StatusCode::FAILED_PRECONDITION,
-                        fmt::format("this master speaks protocol version 1, the worker {}", int(req->protocol_version()))});
+    return finish(ctx,
+                  {grpc::StatusCode::FAILED_PRECONDITION,
+                   fmt::format("this master speaks protocol version 1, the worker {}", int(req->protocol_version()))});
   if (req->threads() < 1 || req->threads() > 4096) return finish(ctx, invalid("threads must be between 1 and 4096"));
   if (req->name().size() > 256) return finish(ctx, invalid("worker names are limited to 256 bytes"));
   if (req->cached_scenes_size() > 4096) return finish(ctx, invalid("cached_scenes is limited to 4096 hashes"));
-  resp->mutable_worker_id()->set_id(jobs_.register_worker(req->name(), req->threads(),
-                                                          {req->cached_scenes().begin(), req->cached_scenes().end()}));
+  resp->mutable_worker_id()->set_id(
+      jobs_.register_worker(req->name(), req->threads(), {req->cached_scenes().begin(), req->cached_scenes().end()}));
   resp->set_heartbeat_interval_ms(uint32_t(jobs_.options().heartbeat_interval_ms));
   resp->set_max_vertices_per_chunk(kMaxVerticesPerChunk);
   resp->set_max_chunk_bytes(kMaxChunkBytes);
   return finish(ctx, grpc::Status::OK);
 }
 
-grpc::ServerUnaryReactor* WorkerServiceImpl::Heartbeat(grpc::CallbackServerContext* ctx, const v1::HeartbeatRequest* req,
-                                                       v1::HeartbeatResponse* resp) {
+grpc::ServerUnaryReactor* WorkerServiceImpl::Heartbeat(grpc::CallbackServerContext* ctx,
+                                                       const v1::HeartbeatRequest* req, v1::HeartbeatResponse* resp) {
   const std::vector<uint64_t> leases(req->lease_ids().begin(), req->lease_ids().end());
   auto states = jobs_.heartbeat(req->worker_id().id(), leases);
   if (!states) return finish(ctx, unknown_worker(req->worker_id().id()));

@@ -21,7 +21,8 @@ class WorkerServiceImpl final : public v1::WorkerService::CallbackService {
                                       v1::Lease* resp) override;
   grpc::ServerUnaryReactor* ReturnLease(grpc::CallbackServerContext* ctx, const v1::ReturnLeaseRequest* req,
                                         v1::ReturnLeaseResponse* resp) override;
-  grpc::ServerReadReactor<v1::TileResultChunk>* SubmitTile(grpc::CallbackServerContext* ctx, v1::SubmitAck* ack) override;
+  grpc::ServerReadReactor<v1::TileResultChunk>* SubmitTile(grpc::CallbackServerContext* ctx,
+                                                           v1::SubmitAck* ack) override;
   grpc::ServerUnaryReactor* Unregister(grpc::CallbackServerContext* ctx, const v1::WorkerId* req,
                                        v1::UnregisterResponse* resp) override;
 

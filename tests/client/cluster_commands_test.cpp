@@ -21,8 +21,8 @@
 #include <thread>
 
 #include "client/job_client.h"
-#include "common/result_kinds.h"
 #include "client/remote_commands.h"
+#include "common/result_kinds.h"
 #include "tests/wait_until.h"
 #include "wire/scene_bundle.h"
 
@@ -97,15 +97,15 @@ class ClusterTest : public ::testing::Test {
     master_bin_ = build_binary("EPR_MASTER_BIN", "master", "epr-master");
     worker_bin_ = build_binary("EPR_WORKER_BIN", "worker", "epr-worker");
     epr_bin_ = build_binary("EPR_BIN", "client", "epr");
-    for (const auto& b : {master_bin_, worker_bin_, epr_bin_})
-      ASSERT_TRUE(fs::exists(b)) << b << " not built";
+    for (const auto& b : {master_bin_, worker_bin_, epr_bin_}) ASSERT_TRUE(fs::exists(b)) << b << " not built";
     dir_ = fs::temp_directory_path() / ("epr-cluster-test-" + std::to_string(::getpid()) + "-" +
                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
-    master_ = std::make_unique<Process>(std::vector<std::string>{master_bin_, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--reproject",
-                                                                 "cpu", "--state-dir", (dir_ / "state").string()},
-                                        dir_ / "master.log");
+    master_ = std::make_unique<Process>(
+        std::vector<std::string>{master_bin_, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--reproject", "cpu",
+                                 "--state-dir", (dir_ / "state").string()},
+        dir_ / "master.log");
     // The master prints its port once it listens.
     const std::regex listening("listening on port ([0-9]+)");
     wait_until(
@@ -197,9 +197,9 @@ TEST_F(ClusterTest, JobRunsToDoneAndEveryResultIsFetchedAndVerified) {
 
   const std::string prefix = (dir_ / "rp").string();
   const auto files = client.fetch_all(id, prefix);
-  EXPECT_EQ(suffixes(files, prefix), (std::set<std::string>{".exr", ".png", ".json", ".pathtrace.exr",
-                                                            ".reprojection.exr", ".counts.exr", ".samples.exr",
-                                                            ".samples.png"}));
+  EXPECT_EQ(suffixes(files, prefix),
+            (std::set<std::string>{".exr", ".png", ".json", ".pathtrace.exr", ".reprojection.exr", ".counts.exr",
+                                   ".samples.exr", ".samples.png"}));
   for (const auto& f : files) {
     EXPECT_EQ(fs::file_size(f.path), f.bytes) << f.path;
     EXPECT_EQ(f.round, 2u) << f.path;
@@ -380,8 +380,7 @@ TEST_F(ClusterTest, CliSubmitWaitThenListGetAndWatch) {
   const std::string id = m[1];
   EXPECT_NE(submit.err.find("DONE"), std::string::npos) << submit.err;
   // The files `epr render` writes (common/result_kinds.h).
-  for (const ResultKindInfo& k : result_kinds())
-    EXPECT_TRUE(fs::exists(prefix + std::string(k.suffix))) << k.suffix;
+  for (const ResultKindInfo& k : result_kinds()) EXPECT_TRUE(fs::exists(prefix + std::string(k.suffix))) << k.suffix;
 
   const CliRun list = epr("list");
   EXPECT_EQ(list.exit_code, kExitOk) << list.err;

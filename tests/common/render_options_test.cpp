@@ -1,7 +1,7 @@
 // auto_tile_size: the tile size `epr render` picks unless told.
-#include <gtest/gtest.h>
-
 #include "common/render_options.h"
+
+#include <gtest/gtest.h>
 
 namespace epr {
 namespace {
@@ -9,9 +9,9 @@ namespace {
 int tiles(int width, int height, int t) { return ((width + t - 1) / t) * ((height + t - 1) / t); }
 
 TEST(AutoTileSize, LargestTileGivingEveryThreadEightTiles) {
-  EXPECT_EQ(auto_tile_size(512, 512, 2), 128);   // 16 tiles for 2 threads
-  EXPECT_EQ(auto_tile_size(512, 512, 4), 64);    // 128 would give 16 < 32
-  EXPECT_EQ(auto_tile_size(512, 512, 8), 64);    // 64 tiles for 8 threads
+  EXPECT_EQ(auto_tile_size(512, 512, 2), 128);  // 16 tiles for 2 threads
+  EXPECT_EQ(auto_tile_size(512, 512, 4), 64);   // 128 would give 16 < 32
+  EXPECT_EQ(auto_tile_size(512, 512, 8), 64);   // 64 tiles for 8 threads
   EXPECT_EQ(auto_tile_size(512, 512, 16), 32);
   EXPECT_EQ(auto_tile_size(256, 256, 2), 64);
   EXPECT_EQ(auto_tile_size(1920, 1080, 2), 128);  // partial tiles at the edges count

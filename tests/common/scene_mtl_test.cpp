@@ -54,9 +54,9 @@ TEST_F(SceneMtl, ALibraryWithoutMaterialsAddsAnUnnamedBlackOne) {
 
 TEST_F(SceneMtl, MapKdSetsKdToGreyUnlessAKdCameEarlierInTheLibrary) {
   dir.write("grey.mtl",
-            "newmtl t\nmap_Kd tex.png\n"                 // no Kd yet in the library: 0.6
-            "newmtl u\nKd 0.2 0.2 0.2\n"                 //
-            "newmtl v\nmap_Kd tex.png\n"                 // u had a Kd: v keeps black
+            "newmtl t\nmap_Kd tex.png\n"                    // no Kd yet in the library: 0.6
+            "newmtl u\nKd 0.2 0.2 0.2\n"                    //
+            "newmtl v\nmap_Kd tex.png\n"                    // u had a Kd: v keeps black
             "newmtl w\nmap_Kd tex.png\nKd 0.5 0.5 0.5\n");  // a Kd after the map wins
   const Scene s = load_obj(dir.write("grey.obj", "mtllib grey.mtl\n" + kTriangle + "usemtl t\nf 1 2 3\n"));
   ASSERT_EQ(names(s), (std::vector<std::string>{"t", "u", "v", "w"}));
@@ -80,20 +80,20 @@ TEST_F(SceneMtl, TheFilesOfOneMtllibAreOneLibrary) {
 TEST_F(SceneMtl, AListOfFilesIsAddedOnceAndAnotherListAddsItsFilesAgain) {
   dir.write("x.mtl", "newmtl x\nKd 0.3 0.3 0.3\n");
   dir.write("y.mtl", "newmtl t\nmap_Kd tex.png\n");
-  const Scene s = load_obj(dir.write("lists.obj", "mtllib y.mtl\nmtllib y.mtl\n" + kTriangle +
-                                                      "f 1 2 3\nmtllib x.mtl y.mtl\nusemtl t\nf 1 2 3\n"));
+  const Scene s = load_obj(dir.write(
+      "lists.obj", "mtllib y.mtl\nmtllib y.mtl\n" + kTriangle + "f 1 2 3\nmtllib x.mtl y.mtl\nusemtl t\nf 1 2 3\n"));
   EXPECT_EQ(names(s), (std::vector<std::string>{"t", "x", "t", "default"}));
-  EXPECT_EQ(s.materials[0].kd, Vec3(0.6f));  // y.mtl alone: no Kd before its map_Kd
-  EXPECT_EQ(s.materials[2].kd, Vec3(0.f));   // after x.mtl's Kd
+  EXPECT_EQ(s.materials[0].kd, Vec3(0.6f));                 // y.mtl alone: no Kd before its map_Kd
+  EXPECT_EQ(s.materials[2].kd, Vec3(0.f));                  // after x.mtl's Kd
   EXPECT_EQ(s.material_of, (std::vector<uint32_t>{3, 0}));  // usemtl t: the first t
-  EXPECT_EQ(s.textures.size(), 1u);                          // one file, read once
+  EXPECT_EQ(s.textures.size(), 1u);                         // one file, read once
 }
 
 TEST_F(SceneMtl, GlossyOverridesStartFromKsAndNsWithNsOneByDefault) {
   dir.write("g.mtl", "newmtl g\nKd 0.2 0.2 0.2\nKs 0.5 0.4 0.3\nnewmtl h\nKs 0.1 0.1 0.1\nNs 30\n");
   dir.write("g.obj", "mtllib g.mtl\n" + kTriangle + "usemtl g\nf 1 2 3\nusemtl h\nf 1 3 2\n");
-  const Scene s = load_scene(dir.write(
-      "g.json", R"({"obj": "g.obj", "materials": {"g": {"type": "glossy"}, "h": {"type": "glossy"}}})"));
+  const Scene s = load_scene(
+      dir.write("g.json", R"({"obj": "g.obj", "materials": {"g": {"type": "glossy"}, "h": {"type": "glossy"}}})"));
   ASSERT_EQ(names(s), (std::vector<std::string>{"g", "h"}));
   EXPECT_EQ(s.materials[0].ks, Vec3(0.5f, 0.4f, 0.3f));
   EXPECT_EQ(s.materials[0].exponent, 1.f);

@@ -64,7 +64,8 @@ TEST(SceneObj, CornellObjHasTheBuiltinCornellsTrianglesBitForBit) {
   auto corner = [](const Scene& s, size_t tri, size_t k) { return s.positions[s.triangles[tri][k % 3]]; };
   auto same_triangle = [&](size_t t, size_t u) {
     for (size_t r = 0; r < 3; ++r)
-      if (same_bits(corner(obj, t, 0), corner(builtin, u, r)) && same_bits(corner(obj, t, 1), corner(builtin, u, r + 1)) &&
+      if (same_bits(corner(obj, t, 0), corner(builtin, u, r)) &&
+          same_bits(corner(obj, t, 1), corner(builtin, u, r + 1)) &&
           same_bits(corner(obj, t, 2), corner(builtin, u, r + 2)))
         return obj.material_of[t] == builtin.material_of[u];
     return false;
@@ -99,17 +100,21 @@ GeneratedObj generated_obj() {
   auto coordinate = [&]() -> std::string {
     const double x = (double(below(2000001)) - 1000000.0) / 100000.0;  // -10 .. 10
     switch (below(5)) {
-      case 0: return fmt::format("{:.6f}", x);
-      case 1: return fmt::format("{}", float(x));
-      case 2: return fmt::format("{:e}", x * 1e-3);
-      case 3: return fmt::format("{}", int(x));
-      default: return fmt::format("{:.9g}", x / 7.0);
+      case 0:
+        return fmt::format("{:.6f}", x);
+      case 1:
+        return fmt::format("{}", float(x));
+      case 2:
+        return fmt::format("{:e}", x * 1e-3);
+      case 3:
+        return fmt::format("{}", int(x));
+      default:
+        return fmt::format("{:.9g}", x / 7.0);
     }
   };
   // Unit directions of a 12-gon, 4 decimals: polygons without trigonometry.
-  static const double kDir[12][2] = {{1, 0},       {0.866, 0.5},   {0.5, 0.866},   {0, 1},
-                                     {-0.5, 0.866}, {-0.866, 0.5}, {-1, 0},        {-0.866, -0.5},
-                                     {-0.5, -0.866}, {0, -1},      {0.5, -0.866},  {0.866, -0.5}};
+  static const double kDir[12][2] = {{1, 0},  {0.866, 0.5},   {0.5, 0.866},   {0, 1},  {-0.5, 0.866}, {-0.866, 0.5},
+                                     {-1, 0}, {-0.866, -0.5}, {-0.5, -0.866}, {0, -1}, {0.5, -0.866}, {0.866, -0.5}};
   GeneratedObj g;
   g.mtl_a = "newmtl red\nKd 0.63 0.065 0.05\nnewmtl glow\nKd 0.78\nKe 17 12 4\nnewmtl red\nKd 0.1 0.1 0.1\n";
   g.mtl_b = "newmtl white\nKd 0.725 0.71 0.68\nNs 10\nnewmtl grey\nKd 0.5\n";

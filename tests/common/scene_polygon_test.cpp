@@ -1,7 +1,5 @@
 // Triangulation of OBJ faces (common/scene_loader/polygon.h). The expected triangles are those
 // tinyobjloader 2.0.0rc10 gives for the same faces.
-#include "common/scene_loader/polygon.h"
-
 #include <gtest/gtest.h>
 
 #include <array>
@@ -9,6 +7,7 @@
 #include <vector>
 
 #include "common/scene_loader.h"
+#include "common/scene_loader/polygon.h"
 #include "tests/common/scene_test_files.h"
 
 namespace epr {
@@ -76,13 +75,12 @@ TEST(ScenePolygon, SelfIntersectingPolygonsKeepTheTrianglesFound) {
 TEST(ScenePolygon, ObjFacesUseTheTriangulationWithTheirOwnIndices) {
   test::TempDir dir;
   // The U again, its corners listed from the fourth vertex of the file and with relative indices.
-  const std::string obj = dir.write(
-      "u.obj",
-      "v 9 9 9\nv 8 8 8\nv 7 7 7\n"
-      "v 0 0 0\nv 3 0 0\nv 3 2 0\nv 2 2 0\nv 2 1 0\nv 1 1 0\nv 1 2 0\nv 0 2 0\n"
-      "f -8 -7 -6 -5 -4 -3 -2 -1\n");
+  const std::string obj = dir.write("u.obj",
+                                    "v 9 9 9\nv 8 8 8\nv 7 7 7\n"
+                                    "v 0 0 0\nv 3 0 0\nv 3 2 0\nv 2 2 0\nv 2 1 0\nv 1 1 0\nv 1 2 0\nv 0 2 0\n"
+                                    "f -8 -7 -6 -5 -4 -3 -2 -1\n");
   const Scene s = load_obj(obj);
-  const std::vector<std::array<uint32_t, 3>> expected = {{4, 5, 6}, {4, 6, 7}, {4, 7, 8},
+  const std::vector<std::array<uint32_t, 3>> expected = {{4, 5, 6},  {4, 6, 7},  {4, 7, 8},
                                                          {8, 9, 10}, {8, 10, 3}, {3, 4, 8}};
   EXPECT_EQ(s.triangles, expected);
 }

@@ -53,9 +53,7 @@ double angle_between(const Vec3& a, const Vec3& b) {
   return std::atan2(std::sqrt(cx * cx + cy * cy + cz * cz), ax * bx + ay * by + az * bz);
 }
 
-double ddot(const Vec3& a, const Vec3& b) {
-  return double(a.x) * b.x + double(a.y) * b.y + double(a.z) * b.z;
-}
+double ddot(const Vec3& a, const Vec3& b) { return double(a.x) * b.x + double(a.y) * b.y + double(a.z) * b.z; }
 
 VertexRecord record(Vec3 p, Vec3 n, Vec3 l, bool diffuse = true) {
   VertexRecord v;
@@ -393,9 +391,9 @@ TEST(VertexCodecRecord, EncodeDecodeEncodeIsIdempotent) {
     const VertexCodec codec(b);
     TestRandom rng(17);
     for (int i = 0; i < 50000; ++i) {
-      const VertexRecord v = record(Vec3(rng.uniform(b.lo.x, b.hi.x), rng.uniform(b.lo.y, b.hi.y), rng.uniform(b.lo.z, b.hi.z)),
-                                    rng.unit_vector(),
-                                    Vec3(rng.uniform(0, 50), rng.uniform(0, 5), rng.uniform(0, 0.5f)), i % 2 == 0);
+      const VertexRecord v =
+          record(Vec3(rng.uniform(b.lo.x, b.hi.x), rng.uniform(b.lo.y, b.hi.y), rng.uniform(b.lo.z, b.hi.z)),
+                 rng.unit_vector(), Vec3(rng.uniform(0, 50), rng.uniform(0, 5), rng.uniform(0, 0.5f)), i % 2 == 0);
       PackedVertex p1, p2;
       ASSERT_TRUE(codec.encode(v, &p1));
       ASSERT_TRUE(codec.encode(codec.decode(p1), &p2));
@@ -440,12 +438,12 @@ TEST(VertexCodecRecord, BitsFollowTheDocumentedFormula) {
     Vec3 n;
     uint32_t bits;
   } normals[] = {
-      {{0, 0, 1}, 0x00000000u},      // o = (0, 0)
-      {{1, 0, 0}, 0x00007fffu},      // o = (1, 0)
-      {{-1, 0, 0}, 0x00008001u},     // o = (-1, 0): -32767 = 0x8001
-      {{0, -1, 0}, 0x80010000u},     // o = (0, -1)
-      {{0, 0, -1}, 0x7fff7fffu},     // folded: o = ((1 - 0) * +1, (1 - 0) * +1), sign(0) = +1
-      {{1, 1, 0}, 0x40004000u},      // o = (0.5, 0.5): 16383.5 rounds half up to 16384 = 0x4000
+      {{0, 0, 1}, 0x00000000u},   // o = (0, 0)
+      {{1, 0, 0}, 0x00007fffu},   // o = (1, 0)
+      {{-1, 0, 0}, 0x00008001u},  // o = (-1, 0): -32767 = 0x8001
+      {{0, -1, 0}, 0x80010000u},  // o = (0, -1)
+      {{0, 0, -1}, 0x7fff7fffu},  // folded: o = ((1 - 0) * +1, (1 - 0) * +1), sign(0) = +1
+      {{1, 1, 0}, 0x40004000u},   // o = (0.5, 0.5): 16383.5 rounds half up to 16384 = 0x4000
   };
   for (const auto& t : normals) {
     ASSERT_EQ(VertexCodec::encode_normal(t.n, &bits), EncodeError::kOk);

@@ -32,10 +32,10 @@
 #include <vector>
 
 #include "common/camera.h"
+#include "common/tile.h"
 #include "common/vertex_codec.h"
 #include "master/reprojection_kernel.h"
 #include "wire/tile_result_stream.h"
-#include "common/tile.h"
 
 namespace {
 

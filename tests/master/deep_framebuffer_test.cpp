@@ -99,7 +99,8 @@ TEST_F(DeepFramebufferGl, RowZeroIsTheTopOfTheImage) {
   // Quad covering only the upper half of the view (y > 0 in world = top of image).
   const Scene scene = quad_scene(-10, 10, 0.05f, 10);
   const Camera cam(head_on(), 32, 32);
-  for (const DeepFramebuffer& d : {build_deep_framebuffer_gl(*ctx_, scene, cam, 4), build_deep_framebuffer_cpu(scene, cam, 4)}) {
+  for (const DeepFramebuffer& d :
+       {build_deep_framebuffer_gl(*ctx_, scene, cam, 4), build_deep_framebuffer_cpu(scene, cam, 4)}) {
     EXPECT_TRUE(d.covered[d.index(5, 2)]) << "top row must be covered";
     EXPECT_FALSE(d.covered[d.index(5, d.height - 3)]) << "bottom row must be empty";
   }
@@ -115,7 +116,8 @@ TEST_F(DeepFramebufferGl, TexelCentresFollowCameraProjection) {
   const Ray r = cam.generate_ray(edge_rx, 20.f);
   const float x_edge = r.origin.x + r.dir.x * (-r.origin.z / r.dir.z);
   const Scene scene = quad_scene(x_edge, 5, -5, 5);
-  for (const DeepFramebuffer& d : {build_deep_framebuffer_gl(*ctx_, scene, cam, S), build_deep_framebuffer_cpu(scene, cam, S)}) {
+  for (const DeepFramebuffer& d :
+       {build_deep_framebuffer_gl(*ctx_, scene, cam, S), build_deep_framebuffer_cpu(scene, cam, S)}) {
     for (int y : {10, 80, 150}) {
       EXPECT_FALSE(d.covered[d.index(82, y)]) << "y " << y;
       EXPECT_TRUE(d.covered[d.index(83, y)]) << "y " << y;

@@ -6,8 +6,8 @@
 
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
-#include "master/reprojection_image.h"
 #include "master/make_reprojector.h"
+#include "master/reprojection_image.h"
 #include "master/reprojector.h"
 #include "test_scenes.h"
 
@@ -24,7 +24,9 @@ void expect_same(const PixelReprojection& a, const PixelReprojection& b) {
 // The Cornell box at 64 x 48 (S = 4), its GL deep framebuffer and the default epsilon.
 class DownsamplePixels : public ::testing::Test {
  protected:
-  DownsamplePixels() : dfb(build_deep_framebuffer_gl(gl, scene, cam, 4)) { rs.epsilon = default_epsilon(scene.bounds()); }
+  DownsamplePixels() : dfb(build_deep_framebuffer_gl(gl, scene, cam, 4)) {
+    rs.epsilon = default_epsilon(scene.bounds());
+  }
   const Scene scene = test::scene_named("cornell");
   const Camera cam{scene.camera, 64, 48};
   GlContext gl;

@@ -23,15 +23,16 @@ constexpr uint64_t kQMask = (uint64_t(1) << 21) - 1;
 
 PackedVertex word(uint64_t qx, uint64_t qy, uint64_t qz, bool diffuse, uint16_t ox, uint16_t oy, uint32_t radiance) {
   PackedVertex p;
-  p.position_bits = (qx & kQMask) | (qy & kQMask) << 21 | (qz & kQMask) << 42 | (diffuse ? VertexCodec::kDiffuseBit : 0);
+  p.position_bits =
+      (qx & kQMask) | (qy & kQMask) << 21 | (qz & kQMask) << 42 | (diffuse ? VertexCodec::kDiffuseBit : 0);
   p.normal_bits = uint32_t(ox) | uint32_t(oy) << 16;
   p.radiance_bits = radiance;
   return p;
 }
 
 // Random words, every quantised coordinate on every axis, and every edge case of each field: q at
-// both ends of each axis, the diffuse bit both ways, snorm16 -32768 / -32767 / -1 / 0 / 1 / 32767 in every combination (the folded lower
-// hemisphere, its equator and the poles), exponent 0 with non-zero mantissas, exponents whose values
+// both ends of each axis, the diffuse bit both ways, snorm16 -32768 / -32767 / -1 / 0 / 1 / 32767 in every combination
+// (the folded lower hemisphere, its equator and the poles), exponent 0 with non-zero mantissas, exponents whose values
 // are float subnormals (E < 10), the largest exponent and mantissa.
 std::string edge_and_random_words(size_t random_count, uint32_t seed) {
   std::vector<PackedVertex> w;
@@ -100,8 +101,8 @@ TEST_F(GlPacked, ShaderDecodesEveryFieldBitForBitAsVertexCodec) {
     ASSERT_EQ(got.size(), n);
     size_t bad_position = 0, bad_normal = 0, bad_radiance = 0, bad_flags = 0, subnormal = 0;
     for (size_t i = 0; i < n; ++i) {
-      const VertexRecord want =
-          codec.decode(VertexCodec::load(reinterpret_cast<const unsigned char*>(words.data()) + i * VertexCodec::kPackedBytes));
+      const VertexRecord want = codec.decode(
+          VertexCodec::load(reinterpret_cast<const unsigned char*>(words.data()) + i * VertexCodec::kPackedBytes));
       bad_position += !same_bits(got[i].position, want.position);
       bad_normal += !same_bits(got[i].normal, want.normal);
       bad_radiance += !same_bits(got[i].radiance, want.radiance);
@@ -125,7 +126,6 @@ TEST_F(GlPacked, ShaderDecodesEveryFieldBitForBitAsVertexCodec) {
     EXPECT_GT(subnormal, 100u) << "the set must exercise subnormal radiance";
   }
 }
-
 
 // Reprojecting packed words, GL against CPU: real-like vertices (their radiance words replaced by
 // random ones, zero and subnormal exponents included, some diffuse bits cleared) plus the random and
@@ -171,8 +171,10 @@ TEST_F(GlPacked, WordsGiveTheCpuBackendsDecisionsCountsAndSums) {
     EXPECT_GT(cc.backfacing, 10000u);
     EXPECT_GT(cc.occluded - cc.backfacing, 10000u);
     EXPECT_GT(cc.culled, 10000u);
-    if (glossy) EXPECT_EQ(cc.not_diffuse, 0u);
-    else EXPECT_GT(cc.not_diffuse, 40000u);
+    if (glossy)
+      EXPECT_EQ(cc.not_diffuse, 0u);
+    else
+      EXPECT_GT(cc.not_diffuse, 40000u);
     const SubpixelAccumulation ag = gl.read(), ac = cpu.read();
     ASSERT_EQ(ag.size(), ac.size());
     size_t count_diff = 0, single = 0, single_diff = 0, sum_diff = 0, subnormal = 0;

@@ -1,9 +1,10 @@
 // Downsampling (mean of non-empty subpixel means, M' = total count), the combination formula and
 // the skip mask, on hand-made inputs with known answers.
-#include "master/frame_state.h"
 #include "master/reprojection_image.h"
 
 #include <gtest/gtest.h>
+
+#include "master/frame_state.h"
 
 namespace epr {
 namespace {

@@ -1,6 +1,5 @@
 // Reprojectors: known answers for the geometric cases on both back-ends, and bit-identical decisions
 // and per-subpixel counts between "gl" and "cpu" on large random and real-like vertex sets.
-#include "master/make_reprojector.h"
 #include "master/reprojector.h"
 
 #include <gtest/gtest.h>
@@ -12,6 +11,7 @@
 #include "master/cpu_reprojector.h"
 #include "master/gl_context.h"
 #include "master/gl_reprojector.h"
+#include "master/make_reprojector.h"
 #include "master/reprojection_kernel.h"
 #include "test_scenes.h"
 
@@ -102,11 +102,11 @@ TEST_P(ReprojectorCase, PointsOutsideTheFrustumOrBehindTheCameraAreCulled) {
   const Camera cam(head_on(), 64, 64);
   auto r = make(scene, cam, 0.01f);
   const std::vector<VertexRecord> pts = {
-      rec({0, 0, 5}, {0, 0, 1}),       // behind the eye
-      rec({0, 0, 3}, {0, 0, 1}),       // at the eye plane: not strictly in front
-      rec({10, 0, 0}, {0, 0, 1}),      // right of the frustum
-      rec({0, -10, 0}, {0, 0, 1}),     // below
-      rec({0, 0, 0}, {0, 0, 1}),       // visible: accepted
+      rec({0, 0, 5}, {0, 0, 1}),    // behind the eye
+      rec({0, 0, 3}, {0, 0, 1}),    // at the eye plane: not strictly in front
+      rec({10, 0, 0}, {0, 0, 1}),   // right of the frustum
+      rec({0, -10, 0}, {0, 0, 1}),  // below
+      rec({0, 0, 0}, {0, 0, 1}),    // visible: accepted
   };
   r->reproject(pts);
   EXPECT_EQ(r->counts().culled, 4u);
@@ -135,10 +135,9 @@ TEST_P(ReprojectorCase, EpsilonIsAbsolutePlaneDistance) {
   const Camera cam(head_on(), 64, 64);
   const float eps = 1e-3f;
   auto r = make(scene, cam, eps);
-  r->reproject(std::vector<VertexRecord>{rec({0.2f, 0.1f, 0.5f * eps}, {0, 0, 1}),
-                                         rec({0.2f, 0.1f, -0.9f * eps}, {0, 0, 1}),
-                                         rec({0.2f, 0.1f, 2.f * eps}, {0, 0, 1}),
-                                         rec({0.2f, 0.1f, -2.f * eps}, {0, 0, 1})});
+  r->reproject(
+      std::vector<VertexRecord>{rec({0.2f, 0.1f, 0.5f * eps}, {0, 0, 1}), rec({0.2f, 0.1f, -0.9f * eps}, {0, 0, 1}),
+                                rec({0.2f, 0.1f, 2.f * eps}, {0, 0, 1}), rec({0.2f, 0.1f, -2.f * eps}, {0, 0, 1})});
   EXPECT_EQ(r->counts().accepted, 2u);
   EXPECT_EQ(r->counts().occluded, 2u);
 }
@@ -314,8 +313,7 @@ TEST_P(ReprojectorCase, GlossyInvalidAndOutOfGridInputsAreCountedAndSkipped) {
   const Camera cam(head_on(), 32, 32);
   const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
   const std::vector<VertexRecord> pts = {rec({0, 0, 0}, {0, 0, 1}, {1, 1, 1}, 0),  // glossy
-                                         rec({0, 0, 0}, {0, 0, 1}, {nan, 1, 1}),
-                                         rec({inf, 0, 0}, {0, 0, 1}),
+                                         rec({0, 0, 0}, {0, 0, 1}, {nan, 1, 1}), rec({inf, 0, 0}, {0, 0, 1}),
                                          rec({0, 0, 0}, {0, nan, 1})};
   const std::vector<ExactSample> ex = {{32 * 4 * 32 * 4, {1, 1, 1}}, {0, {inf, 0, 0}}, {5, {1, 1, 1}}};
   {
@@ -362,7 +360,7 @@ TEST_P(ReprojectorCase, PackedVerticesGiveTheSameResultAsTheirDecodedRecords) {
   const Camera cam(scene.camera, 48, 48);
   const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, cam, 4);
   auto pts = test::real_like_points(scene, dfb, cam, 40000, 21);  // more than one 32768-record chunk
-  for (size_t i = 0; i < pts.size(); i += 7) pts[i].flags = 0;   // some glossy ones
+  for (size_t i = 0; i < pts.size(); i += 7) pts[i].flags = 0;    // some glossy ones
   const VertexCodec codec(scene.bounds());
   std::string packed;
   codec.encode_batch(pts, &packed);

@@ -9,8 +9,8 @@
 // around the scene bounds with random normals (mostly culled/occluded).
 #pragma once
 
-#include <cmath>
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <random>
 #include <string>
@@ -104,7 +104,8 @@ inline void add_surface_points(const Scene& s, size_t n, std::mt19937& rng, std:
   std::uniform_real_distribution<float> u(0, 1), rad(0, 4);
   const Vec3 centre = s.bounds().centre();
   for (size_t i = 0; i < n; ++i) {
-    const size_t t = std::min(cdf.size() - 1, size_t(std::lower_bound(cdf.begin(), cdf.end(), pick(rng)) - cdf.begin()));
+    const size_t t =
+        std::min(cdf.size() - 1, size_t(std::lower_bound(cdf.begin(), cdf.end(), pick(rng)) - cdf.begin()));
     const auto& tri = s.triangles[t];
     float a = u(rng), b = u(rng);
     if (a + b > 1) a = 1 - a, b = 1 - b;
@@ -193,8 +194,8 @@ inline void add_random_points(const Scene& s, size_t n, std::mt19937& rng, std::
 }
 
 /// A shuffled mix: 50 % surface points, 30 % visible (jittered) points, 20 % random points.
-inline std::vector<VertexRecord> real_like_points(const Scene& s, const DeepFramebuffer& dfb, const Camera& cam, size_t n,
-                                                  uint32_t seed) {
+inline std::vector<VertexRecord> real_like_points(const Scene& s, const DeepFramebuffer& dfb, const Camera& cam,
+                                                  size_t n, uint32_t seed) {
   std::mt19937 rng(seed);
   std::vector<VertexRecord> v;
   v.reserve(n);

@@ -94,9 +94,11 @@ class Browser {
   bool wait_still(double seconds) {
     return wait_for(
         [&] {
-          return eval("const i = document.getElementById('preview');"
-                      "return (i.hidden || (i.complete && i.naturalWidth > 0)) && document.getAnimations().length === 0;")
-                     .get<bool>();
+          return eval(
+                     "const i = document.getElementById('preview');"
+                     "return (i.hidden || (i.complete && i.naturalWidth > 0)) && document.getAnimations().length === "
+                     "0;")
+              .get<bool>();
         },
         seconds);
   }
@@ -132,7 +134,8 @@ class Browser {
 fs::path artefact_dir() { return fs::path(EPR_ARTEFACT_DIR); }
 
 TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
-  ASSERT_TRUE(fs::exists(kChromium) && fs::exists(kChromedriver)) << "Chromium or chromedriver not installed: run scripts/setup.sh";
+  ASSERT_TRUE(fs::exists(kChromium) && fs::exists(kChromedriver))
+      << "Chromium or chromedriver not installed: run scripts/setup.sh";
   const fs::path dir = scratch_dir("browser");
   auto master = start_master();
   JobClient client(master->local_target());
@@ -186,8 +189,7 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   // round; then the running screenshot.
   for (int i = 0; i < 4; ++i) {
     worker.work_available();
-    ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["round"].get<int>() >= round_of(); }, 30, &s))
-        << s;
+    ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["round"].get<int>() >= round_of(); }, 30, &s)) << s;
   }
   const std::string bar = browser->eval("return document.querySelector('#j-bar > div').style.width;");
   EXPECT_NE(bar, "0%");

@@ -2,17 +2,17 @@
 // of a JobService that records what its handlers were given: refused calls end UNAUTHENTICATED, their
 // handlers never see the request, nothing they send reaches the client, and the health service stays
 // open.
-#include <gtest/gtest.h>
+#include "wire/rpc/auth_interceptor.h"
 
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
+#include <gtest/gtest.h>
 
 #include <mutex>
 #include <vector>
 
 #include "epr/v1/job_service.grpc.pb.h"
 #include "grpc/health/v1/health.grpc.pb.h"
-#include "wire/rpc/auth_interceptor.h"
 #include "wire/rpc/channel.h"
 #include "wire/rpc/chunked.h"
 
@@ -201,8 +201,7 @@ TEST_F(AuthInterceptor, RefusedStreamsCarryNothingEitherWay) {
     EXPECT_TRUE(reader->Finish().ok());
     EXPECT_EQ(n, 3);
   }
-  for (const std::string& s : service_.seen())
-    EXPECT_TRUE(s.empty() || s == "job-10") << "a handler saw " << s;
+  for (const std::string& s : service_.seen()) EXPECT_TRUE(s.empty() || s == "job-10") << "a handler saw " << s;
 }
 
 TEST_F(AuthInterceptor, HealthChecksNeedNoToken) {
@@ -228,11 +227,12 @@ TEST_F(AuthInterceptor, ReadStreamCancelsOnTheFirstBadMessage) {
   req.set_job_id("job-5");
   auto reader = stub_->WatchJob(&ctx, req);
   int taken = 0;
-  const StreamEnd end = read_stream<v1::JobStatus>(ctx, *reader, [&](const v1::JobStatus& st) -> std::optional<std::string> {
-    ++taken;
-    if (st.id() == "job-5#1") return "the second status is bad";
-    return std::nullopt;
-  });
+  const StreamEnd end =
+      read_stream<v1::JobStatus>(ctx, *reader, [&](const v1::JobStatus& st) -> std::optional<std::string> {
+        ++taken;
+        if (st.id() == "job-5#1") return "the second status is bad";
+        return std::nullopt;
+      });
   EXPECT_EQ(taken, 2);
   EXPECT_EQ(end.error, "the second status is bad");
   EXPECT_FALSE(end.ok());

@@ -1,8 +1,8 @@
 // Chunked transfers (wire/rpc/chunked.h): how blobs are cut, how pieces are checked on arrival, and
 // the SceneChunk stream of a scene bundle.
-#include <gtest/gtest.h>
-
 #include "wire/rpc/chunked.h"
+
+#include <gtest/gtest.h>
 
 namespace epr::rpc {
 namespace {

@@ -1,5 +1,7 @@
 // The bearer-token rule (wire/rpc/token.h): whole file, trailing white space trimmed, one token of
 // printable ASCII, $EPR_TOKEN as the fallback, a warning for files open to other users.
+#include "wire/rpc/token.h"
+
 #include <gtest/gtest.h>
 #include <spdlog/sinks/ostream_sink.h>
 #include <sys/stat.h>
@@ -9,7 +11,6 @@
 #include <sstream>
 
 #include "common/log.h"
-#include "wire/rpc/token.h"
 
 namespace epr::rpc {
 namespace {
@@ -62,7 +63,8 @@ TEST_F(TokenFile, EmptyOrMissingIsRefusedNamingTheFile) {
 TEST_F(TokenFile, OnlyOneTokenOfPrintableAsciiIsAccepted) {
   // Only trailing white space is ignored: a second line, an inner or a leading space is refused
   // rather than silently cut off (the master and its workers must read the same token).
-  for (const std::string text : {"zqfirst\nzqsecond\n", "zqtwo words\n", " zqleading\n", "zqtab\there", "zqcaf\xc3\xa9\n"}) {
+  for (const std::string text :
+       {"zqfirst\nzqsecond\n", "zqtwo words\n", " zqleading\n", "zqtab\there", "zqcaf\xc3\xa9\n"}) {
     const std::string err = error_of([&] { read_token_file(write(text)); });
     EXPECT_NE(err.find("printable ASCII"), std::string::npos) << "'" << text << "': " << err;
     EXPECT_EQ(err.find("zq"), std::string::npos) << "the error must not echo the token: " << err;

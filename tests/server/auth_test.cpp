@@ -1,12 +1,11 @@
 // Security of the master's services: bearer tokens and TLS, with refused and accepted calls over
 // real loopback channels.
+#include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
-
-#include <grpcpp/grpcpp.h>
 
 #include "epr/v1/job_service.grpc.pb.h"
 #include "epr/v1/worker_service.grpc.pb.h"
@@ -226,8 +225,10 @@ TEST(Auth, TlsServerRefusesPlaintextAndAcceptsTrustedClients) {
   std::system(("mkdir -p " + dir).c_str());
   const std::string cmd = "openssl req -x509 -newkey rsa:2048 -nodes -keyout " + dir + "/key.pem -out " + dir +
                           "/cert.pem -days 1 -subj /CN=localhost -addext subjectAltName=DNS:localhost,IP:127.0.0.1 "
-                          "> " + dir + "/openssl.log 2>&1";
-  ASSERT_EQ(std::system(cmd.c_str()), 0) << "openssl could not make a test certificate: " << read_all(dir + "/openssl.log");
+                          "> " +
+                          dir + "/openssl.log 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << "openssl could not make a test certificate: "
+                                         << read_all(dir + "/openssl.log");
   MasterServerOptions o;
   o.listen = "127.0.0.1:0";
   o.tls_cert_file = dir + "/cert.pem";

@@ -413,7 +413,8 @@ struct Result {
 
 Result results_of(JobManager& jobs, const std::string& id) {
   Result r;
-  for (auto [kind, image] : {std::pair{ResultKind::kCounts, &r.counts}, {ResultKind::kPathtrace, &r.pathtrace},
+  for (auto [kind, image] : {std::pair{ResultKind::kCounts, &r.counts},
+                             {ResultKind::kPathtrace, &r.pathtrace},
                              {ResultKind::kExr, &r.combined}}) {
     const auto path = jobs.result_path(id, kind);
     EXPECT_TRUE(path) << result_kind(kind).name;

@@ -3,13 +3,12 @@
 // real gRPC (real tracing, real stream writer) so a test can stall, fail or misbehave on purpose.
 #pragma once
 
+#include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
-#include <grpcpp/grpcpp.h>
-
 #include <filesystem>
-#include <functional>
 #include <fstream>
+#include <functional>
 #include <optional>
 #include <thread>
 

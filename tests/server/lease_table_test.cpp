@@ -13,7 +13,10 @@ struct LeaseTableTest : ::testing::Test {
                      /*speculative_floor_ms=*/10, /*max_worker_failures=*/2};
   uint64_t next_lease = 1;
 
-  LeaseTable make(size_t tiles) { return LeaseTable("j1", tiles, policy, [this] { return now; }, &counters); }
+  LeaseTable make(size_t tiles) {
+    return LeaseTable(
+        "j1", tiles, policy, [this] { return now; }, &counters);
+  }
   std::optional<LeaseTable::Grant> lease(LeaseTable& t, const std::string& worker, uint64_t* id = nullptr) {
     const uint64_t l = next_lease++;
     if (id) *id = l;
@@ -91,7 +94,7 @@ TEST_F(LeaseTableTest, ALongLeaseOfALiveHolderGetsOneSpeculativeCopyAndTheFirstR
   now += 20;
   std::vector<uint64_t> losers;
   ASSERT_EQ(t.commit(1, fast, &losers), LeaseTable::CommitOutcome::kCommitted);  // median tile time 20 ms
-  now += 15;  // tile 0 out for 35 ms < 2 x 20
+  now += 15;                                                                     // tile 0 out for 35 ms < 2 x 20
   ASSERT_TRUE(t.extend(slow));
   EXPECT_FALSE(lease(t, "fast"));
   now += 10;  // 45 ms > 2 x 20 and > the 10 ms floor; the holder's heartbeat was 10 ms ago

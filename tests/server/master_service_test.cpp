@@ -1,9 +1,8 @@
 // The master's gRPC services in-process, over a real loopback channel: valid and invalid requests,
 // and a whole job driven by a hand-written worker loop (real TileRenderer, real stream writer),
 // whose result must equal the single-process render of the same job.
-#include <gtest/gtest.h>
-
 #include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
 
 #include <fstream>
 #include <thread>
@@ -93,7 +92,8 @@ class MasterServiceTest : public ::testing::Test {
     const TileRect rect{int(t.rect().x0()), int(t.rect().y0()), int(t.rect().x1()), int(t.rect().y1())};
     const size_t n = size_t(rect.pixel_count());
     std::vector<uint8_t> skip(n, 0);
-    for (size_t i = 0; i < n && i / 8 < t.skip_bits().size(); ++i) skip[i] = (uint8_t(t.skip_bits()[i / 8]) >> (i % 8)) & 1;
+    for (size_t i = 0; i < n && i / 8 < t.skip_bits().size(); ++i)
+      skip[i] = (uint8_t(t.skip_bits()[i / 8]) >> (i % 8)) & 1;
     std::vector<uint32_t> first(n, t.uniform_first_sample_index());
     for (int i = 0; i < t.first_sample_index_size(); ++i) first[size_t(i)] = t.first_sample_index(i);
     const TileResult result = tr.render({rect, skip, first, int(t.paths_per_pixel())});

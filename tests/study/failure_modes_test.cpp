@@ -33,9 +33,9 @@
 #include "common/builtin_scenes.h"
 #include "common/scene_loader.h"
 #include "master/frame_state.h"
+#include "tests/study/unfiltered_render.h"
 #include "worker/embree_scene.h"
 #include "worker/tile_renderer.h"
-#include "tests/study/unfiltered_render.h"
 
 namespace epr {
 namespace {
@@ -69,8 +69,12 @@ RenderOptions options(const std::string& scene, RenderMode mode, uint64_t seed =
   return o;
 }
 
-RenderOptions rp(const std::string& scene, uint64_t seed = study_seed()) { return options(scene, RenderMode::kReproject, seed); }
-RenderOptions pt(const std::string& scene, uint64_t seed = study_seed()) { return options(scene, RenderMode::kPathTrace, seed); }
+RenderOptions rp(const std::string& scene, uint64_t seed = study_seed()) {
+  return options(scene, RenderMode::kReproject, seed);
+}
+RenderOptions pt(const std::string& scene, uint64_t seed = study_seed()) {
+  return options(scene, RenderMode::kPathTrace, seed);
+}
 
 uint64_t nonfinite(const Image& img) {
   uint64_t n = 0;
@@ -352,7 +356,8 @@ TEST(FailureModes, EpsilonZeroAndHundredfoldShowTheirArtefactsTheDefaultDoesNot)
     size_t n = 0;
     for (size_t p = 0; p < edges.size(); ++p) {
       if ((edges[p] != 0) != on_edges) continue;
-      for (int c = 0; c < 3; ++c) sum += std::fabs(double(a.data[p * 3 + size_t(c)]) - double(b.data[p * 3 + size_t(c)]));
+      for (int c = 0; c < 3; ++c)
+        sum += std::fabs(double(a.data[p * 3 + size_t(c)]) - double(b.data[p * 3 + size_t(c)]));
       ++n;
     }
     return sum / double(std::max<size_t>(1, n));
@@ -470,10 +475,9 @@ TEST(FailureModes, ThinWallLeaksNoLightThroughItsFaceOrItsJoints) {
       "  pt max on dark %.4g; rp max on face %.4g, on dark %.4g; without the joint test %.4g; exact max on dark %.4g; "
       "master-only face %.4g dark %.4g; defeated face max %.4g mean %.4g; lit mean %.4f; backfacing %llu\n",
       max_on(ptr.combined, dark), max_on(out.combined, face), max_on(out.combined, dark),
-      max_on(plane_only.combined, dark), max_on(exact.combined, dark),
-      max_on(master_only.images.combined, face), max_on(master_only.images.combined, dark),
-      max_on(defeated.images.combined, face), mean(defeated.images.combined, face), mean(ptr.combined, lit),
-      (unsigned long long)master_only.counts.backfacing);
+      max_on(plane_only.combined, dark), max_on(exact.combined, dark), max_on(master_only.images.combined, face),
+      max_on(master_only.images.combined, dark), max_on(defeated.images.combined, face),
+      mean(defeated.images.combined, face), mean(ptr.combined, lit), (unsigned long long)master_only.counts.backfacing);
 
   // Path tracing: no light at all in the dark room (the scene's premise).
   EXPECT_EQ(max_on(ptr.combined, dark), 0.0);

@@ -4,9 +4,8 @@
 // back-facing test (the paper's behaviour). Same rounds and sample indices as render_local.
 #pragma once
 
-#include <vector>
-
 #include <nlohmann/json.hpp>
+#include <vector>
 
 #include "common/camera.h"
 #include "common/render_options.h"

@@ -24,11 +24,10 @@
 // A wrong albedo, emission, fov or a biased estimator shifts whole regions by several percent and
 // fails all three.
 #include <gtest/gtest.h>
+#include <tbb/parallel_for.h>
 
 #include <cmath>
 #include <iostream>
-
-#include <tbb/parallel_for.h>
 
 #include "common/image.h"
 #include "common/rng.h"
@@ -113,8 +112,8 @@ TEST(CyclesReference, CornellBoxBlockMeansAgreeWithinNoise) {
       if (sigma > 0) worst_z = std::max(worst_z, diff / sigma);
       if (diff > tolerance) {
         ++failures;
-        std::cout << "over 5 sigma: block (" << bx << "," << by << ") channel " << k << ": ours " << mean << " cycles " << ref
-                      << " tolerance " << tolerance << " (se " << se_ours << ")" << std::endl;
+        std::cout << "over 5 sigma: block (" << bx << "," << by << ") channel " << k << ": ours " << mean << " cycles "
+                  << ref << " tolerance " << tolerance << " (se " << se_ours << ")" << std::endl;
       }
       ours_total[k] += mean;
       ref_total[k] += ref;

@@ -9,7 +9,6 @@
 #include "worker/path_tracer.h"
 
 #include <gtest/gtest.h>
-
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 
@@ -28,7 +27,8 @@ Scene furnace_box(float albedo, float emission) {
   m.kd = Vec3(albedo);
   m.ke = Vec3(emission);
   const uint32_t id = add_material(s, m);
-  const Vec3 p[8] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1}, {-1, -1, 1}, {1, -1, 1}, {1, 1, 1}, {-1, 1, 1}};
+  const Vec3 p[8] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1},
+                     {-1, -1, 1},  {1, -1, 1},  {1, 1, 1},  {-1, 1, 1}};
   // Faces counter-clockwise seen from inside (normals point inwards).
   add_tessellated_quad(s, p[0], p[1], p[2], p[3], id, 2);  // z = -1
   add_tessellated_quad(s, p[5], p[4], p[7], p[6], id, 2);  // z = +1
@@ -97,8 +97,7 @@ TEST_P(FurnaceTest, PixelsAndVerticesMatchAnalyticRadiance) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AlbedoRouletteAndMis, FurnaceTest,
-                         ::testing::Combine(::testing::Values(0.5f, 0.8f), ::testing::Values(0, 1),
-                                            ::testing::Bool()));
+                         ::testing::Combine(::testing::Values(0.5f, 0.8f), ::testing::Values(0, 1), ::testing::Bool()));
 
 TEST(PathTracer, WithoutRouletteAFixedDepthIsDarker) {
   // Truncating at 3 vertices loses the series' tail: expected sum_{k<3} a^k Le plus the NEE of the
@@ -174,13 +173,15 @@ TEST(PathTracer, MisAndNextEventEstimationAgreeOnTheCornellBoxAndMisIsLessNoisyN
         ++comparisons;
         if (std::abs(m_on - m_off) > tolerance) {
           ++over;
-          std::printf("block (%d,%d) channel %d: mis %.4f nee %.4f tolerance %.4f\n", bx, by, k, m_on, m_off, tolerance);
+          std::printf("block (%d,%d) channel %d: mis %.4f nee %.4f tolerance %.4f\n", bx, by, k, m_on, m_off,
+                      tolerance);
         }
         total_on[k] += m_on;
         total_off[k] += m_off;
       }
   EXPECT_LE(over, comparisons / 100) << "block/channel comparisons beyond 5 sigma";
-  for (int k = 0; k < 3; ++k) EXPECT_NEAR(total_on[k], total_off[k], 0.01 * total_off[k]) << "image mean, channel " << k;
+  for (int k = 0; k < 3; ++k)
+    EXPECT_NEAR(total_on[k], total_off[k], 0.01 * total_off[k]) << "image mean, channel " << k;
 
   // The ceiling next to the light: pixels whose camera ray hits the (non-emissive) ceiling within
   // 0.6 m of the light's centre. Per-path variance of the luminance, summed over those pixels.
@@ -201,8 +202,8 @@ TEST(PathTracer, MisAndNextEventEstimationAgreeOnTheCornellBoxAndMisIsLessNoisyN
       ++ceiling;
     }
   ASSERT_GT(ceiling, 20) << "ceiling pixels next to the light";
-  std::printf("ceiling next to the light, %d pixels: per-path variance MIS %.4g, NEE only %.4g (ratio %.2f)\n",
-              ceiling, var_on / ceiling, var_off / ceiling, var_off / var_on);
+  std::printf("ceiling next to the light, %d pixels: per-path variance MIS %.4g, NEE only %.4g (ratio %.2f)\n", ceiling,
+              var_on / ceiling, var_off / ceiling, var_off / var_on);
   RecordProperty("ceiling_variance_ratio", std::to_string(var_off / var_on));
   EXPECT_LT(var_on, var_off);
 }

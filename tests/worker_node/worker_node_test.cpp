@@ -7,7 +7,6 @@
 
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
-
 #include <spdlog/sinks/base_sink.h>
 
 #include <algorithm>

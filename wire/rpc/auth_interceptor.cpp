@@ -1,10 +1,10 @@
 #include "wire/rpc/auth_interceptor.h"
 
-#include <algorithm>
-
 #include <google/protobuf/message_lite.h>
 #include <grpc/grpc.h>
 #include <grpcpp/server_context.h>
+
+#include <algorithm>
 
 namespace epr::rpc {
 namespace {

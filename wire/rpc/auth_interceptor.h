@@ -12,14 +12,14 @@
 // without acting (tests/server/auth_test.cpp checks every method of JobService and WorkerService).
 #pragma once
 
+#include <grpcpp/support/server_interceptor.h>
+#include <grpcpp/support/status.h>
+#include <grpcpp/support/string_ref.h>
+
 #include <map>
 #include <memory>
 #include <string>
 #include <string_view>
-
-#include <grpcpp/support/server_interceptor.h>
-#include <grpcpp/support/status.h>
-#include <grpcpp/support/string_ref.h>
 
 namespace epr::rpc {
 

@@ -1,10 +1,10 @@
 #include "wire/rpc/channel.h"
 
+#include <fmt/format.h>
+
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
-
-#include <fmt/format.h>
 
 namespace epr::rpc {
 namespace {

@@ -3,11 +3,11 @@
 // (a deadline, and the bearer token when one is configured, wire/rpc/token.h).
 #pragma once
 
+#include <grpcpp/grpcpp.h>
+
 #include <chrono>
 #include <memory>
 #include <string>
-
-#include <grpcpp/grpcpp.h>
 
 namespace epr::rpc {
 

@@ -5,15 +5,15 @@
 // reads a server stream with read_stream, which cancels the call on the first bad message.
 #pragma once
 
+#include <grpcpp/client_context.h>
+#include <grpcpp/support/sync_stream.h>
+
 #include <cstdint>
 #include <functional>
 #include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include <grpcpp/client_context.h>
-#include <grpcpp/support/sync_stream.h>
 
 #include "epr/v1/scene.pb.h"
 #include "wire/scene_bundle.h"

@@ -1,9 +1,9 @@
 // Names of gRPC status codes for messages and logs, shared by the client, the worker and the master.
 #pragma once
 
-#include <string>
-
 #include <grpcpp/support/status.h>
+
+#include <string>
 
 namespace epr::rpc {
 

@@ -1,5 +1,6 @@
 #include "wire/rpc/token.h"
 
+#include <fmt/format.h>
 #include <sys/stat.h>
 
 #include <algorithm>
@@ -7,8 +8,6 @@
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
-
-#include <fmt/format.h>
 
 #include "common/log.h"
 
@@ -20,16 +19,18 @@ std::string check_token(std::string text, const std::string& source) {
   while (!text.empty() && std::isspace(static_cast<unsigned char>(text.back()))) text.pop_back();
   if (text.empty()) throw TokenError(fmt::format("{} is empty: it must hold the bearer token", source));
   if (!is_valid_token(text))
-    throw TokenError(fmt::format("{} must hold one token of printable ASCII characters, without spaces or line breaks "
-                                 "(only trailing white space is ignored)",
-                                 source));
+    throw TokenError(
+        fmt::format("{} must hold one token of printable ASCII characters, without spaces or line breaks "
+                    "(only trailing white space is ignored)",
+                    source));
   return text;
 }
 
 }  // namespace
 
 bool is_valid_token(std::string_view token) {
-  return !token.empty() && std::all_of(token.begin(), token.end(), [](unsigned char c) { return c > 0x20 && c < 0x7f; });
+  return !token.empty() &&
+         std::all_of(token.begin(), token.end(), [](unsigned char c) { return c > 0x20 && c < 0x7f; });
 }
 
 std::string read_token_file(const std::string& path) {

@@ -10,6 +10,7 @@
 // cores. Each test gets a temp folder with every process's stdout/stderr; it is kept, and the logs'
 // tails printed, when the test fails. Workers log at debug level: their lease lines say which
 // worker committed which tile, the only per-worker record the system keeps.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <unistd.h>
@@ -18,7 +19,6 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <fmt/format.h>
 #include <fstream>
 #include <functional>
 #include <map>
@@ -30,9 +30,9 @@
 #include <thread>
 #include <vector>
 
+#include "binaries.h"
 #include "common/image.h"
 #include "common/render_options.h"
-#include "binaries.h"
 #include "process.h"
 
 namespace epr::testing {
@@ -353,8 +353,8 @@ TEST(EprRender, MakesTheOutputFolderOrRefusesBeforeRendering) {
   const fs::path dir = fs::temp_directory_path() / ("epr_out_test_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
-  const std::vector<std::string> render = {kEpr, "render", "builtin:cornell", "--width", "32", "--height", "32",
-                                           "--spp", "2", "--http", ""};
+  const std::vector<std::string> render = {kEpr,    "render", "builtin:cornell", "--width", "32", "--height", "32",
+                                           "--spp", "2",      "--http",          ""};
   for (const bool single : {false, true}) {
     const fs::path prefix = dir / (single ? "single" : "embedded") / "nested" / "cornell";
     std::vector<std::string> args = render;

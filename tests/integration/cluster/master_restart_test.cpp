@@ -26,8 +26,8 @@
 #include <thread>
 #include <vector>
 
-#include "common/image.h"
 #include "binaries.h"
+#include "common/image.h"
 #include "process.h"
 
 namespace epr::testing {

@@ -18,9 +18,9 @@
 #include "client/local_render.h"
 #include "common/image.h"
 #include "epr/v1/job_service.grpc.pb.h"
+#include "tests/integration/cluster/process.h"
 #include "tests/job_results.h"
 #include "tests/running_node.h"
-#include "tests/integration/cluster/process.h"
 #include "wire/convert.h"
 #include "wire/scene_bundle.h"
 #include "worker/worker_node.h"
@@ -34,7 +34,7 @@ using epr::testing::Process;
 using epr::testing::wait_until;
 
 constexpr int kClients = 16;
-constexpr auto kCallDeadline = 30s;   // generous: the machine is shared and slow
+constexpr auto kCallDeadline = 30s;  // generous: the machine is shared and slow
 constexpr auto kWatchDeadline = 120s;
 
 // Peak resident set of a process, bytes (VmHWM of /proc/PID/status).
@@ -64,16 +64,18 @@ TEST(LoadTest, ManyClientsQueuedJobsAndChurningWorkers) {
   const fs::path dir = fs::path(::testing::TempDir()) / ("epr-load-" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
-  Process master({EPR_MASTER_BIN, "--listen", "127.0.0.1:0", "--http", "", "--state-dir", (dir / "state").string(),
-                  "--reproject", "cpu", "--log-level", "warn", "--max-image-side", "128", "--max-spp", "64",
-                  "--heartbeat-ms", "300"},
-                 dir / "master");
+  Process master(
+      {EPR_MASTER_BIN, "--listen", "127.0.0.1:0", "--http", "", "--state-dir", (dir / "state").string(), "--reproject",
+       "cpu", "--log-level", "warn", "--max-image-side", "128", "--max-spp", "64", "--heartbeat-ms", "300"},
+      dir / "master");
   std::smatch m;
   std::string err;
   const std::regex listening("epr-master listening on port ([0-9]+)");
-  ASSERT_TRUE(wait_until([&] { return std::regex_search(err = master.err(), m, listening) || !master.running(); }, 20s) &&
-              master.running())
-      << "epr-master did not start:\n" << err;
+  ASSERT_TRUE(
+      wait_until([&] { return std::regex_search(err = master.err(), m, listening) || !master.running(); }, 20s) &&
+      master.running())
+      << "epr-master did not start:\n"
+      << err;
   const std::string target = "127.0.0.1:" + m[1].str();
 
   // Workers join and leave until every job is done (each leaving one gives its leases back).
