@@ -40,14 +40,16 @@ using namespace std::chrono_literals;
 // The kills are placed by round (an early random round, then a random pause of at most 100 ms), not
 // by wall time, so that they land mid-job however loaded the machine is: an unloaded round takes
 // ~50 ms, and at least 7 rounds that trace every pixel are left.
+// 32 rounds of 8 paths (no growing rounds): the kills at rounds 1-4 leave most of the job still to
+// run, however fast the machine is.
 Args job_flags() {
   return {"builtin:cornell",
           "--width",
-          "96",
-          "--height",
-          "96",
-          "--spp",
           "128",
+          "--height",
+          "128",
+          "--spp",
+          "256",
           "--paths-per-round",
           "8",
           "--tile",
@@ -59,7 +61,9 @@ Args job_flags() {
           "--min-paths",
           "96",
           "--seed",
-          "11"};
+          "11",
+          "--round-growth",
+          "0"};
 }
 
 uint64_t test_seed() {
