@@ -38,10 +38,8 @@ using namespace std::chrono_literals;
 // A second or two of tracing for two single-threaded workers: 96x96 pixels in 9 tiles, up to 16 rounds
 // of 8 paths; every pixel traces for the first 12 rounds (min-paths), skipping thins out the rest.
 // The kills are placed by round (an early random round, then a random pause of at most 100 ms), not
-// by wall time, so that they land mid-job however loaded the machine is: an unloaded round takes
-// ~50 ms, and at least 7 rounds that trace every pixel are left.
-// 32 rounds of 8 paths (no growing rounds): the kills at rounds 1-4 leave most of the job still to
-// run, however fast the machine is.
+// by wall time, so that they land mid-job however loaded the machine is: the job is 32 rounds of 8
+// paths (no growing rounds), and a kill at round 1-4 leaves most of them to run.
 Args job_flags() {
   return {"builtin:cornell",
           "--width",
