@@ -22,6 +22,18 @@ struct LeaseTableTest : ::testing::Test {
     if (id) *id = l;
     return t.lease(worker, l);
   }
+  // Round 0 of two tiles: "slow" leases tile 0, "fast" tile 1 and commits it `fast_ms` later (the
+  // round's median tile time). The slow lease's id.
+  uint64_t slow_and_fast(LeaseTable& t, int64_t fast_ms) {
+    t.open_round(0, {0, 1});
+    uint64_t slow = 0, fast = 0;
+    lease(t, "slow", &slow);
+    lease(t, "fast", &fast);
+    now += fast_ms;
+    std::vector<uint64_t> losers;
+    t.commit(1, fast, &losers);
+    return slow;
+  }
 };
 
 TEST_F(LeaseTableTest, LeasesTilesInTheRoundsOrderThenNothing) {
@@ -115,13 +127,7 @@ TEST_F(LeaseTableTest, ALongLeaseOfALiveHolderGetsOneSpeculativeCopyAndTheFirstR
 
 TEST_F(LeaseTableTest, NoSpeculativeCopyOfADeadHoldersTile) {
   LeaseTable t = make(2);
-  t.open_round(0, {0, 1});
-  uint64_t slow = 0, fast = 0;
-  lease(t, "slow", &slow);
-  lease(t, "fast", &fast);
-  now += 5;
-  std::vector<uint64_t> losers;
-  t.commit(1, fast, &losers);
+  slow_and_fast(t, 5);
   now += 50;  // long past 2 x 5 ms, but no heartbeat for 55 ms > 1.5 heartbeat intervals
   EXPECT_FALSE(lease(t, "fast"));
   EXPECT_EQ(counters.tiles_speculative, 0u);
@@ -131,13 +137,7 @@ TEST_F(LeaseTableTest, NoSpeculativeCopyWhenDisabled) {
   policy.speculative_factor = 0;
   policy.speculative_floor_ms = 0;
   LeaseTable t = make(2);
-  t.open_round(0, {0, 1});
-  uint64_t slow = 0, fast = 0;
-  lease(t, "slow", &slow);
-  lease(t, "fast", &fast);
-  now += 1;
-  std::vector<uint64_t> losers;
-  t.commit(1, fast, &losers);
+  const uint64_t slow = slow_and_fast(t, 1);
   for (int i = 0; i < 100; ++i) {  // a thousand times the median, the holder alive throughout
     now += 10;
     t.extend(slow);
