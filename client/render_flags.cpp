@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <cstdio>
+#include <filesystem>
 
 namespace epr {
 namespace {
@@ -22,6 +23,7 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
   cmd->add_option("scene", o.scene,
                   "OBJ file, scene JSON file, or builtin:NAME (cornell, conference, hall, wall, glossy, furnace)")
       ->required();
+  o.mode = RenderMode::kSkip;  // what the project is for; --mode pt is the plain path tracer
   cmd->add_option("--width", o.width, "image width in pixels")->capture_default_str();
   cmd->add_option("--height", o.height, "image height in pixels")->capture_default_str();
   cmd->add_option("--spp", o.spp, "target samples per pixel P")->capture_default_str();
@@ -31,10 +33,13 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
                   "later rounds trace floor(g x paths so far) paths (at least k); 0: k paths in every round")
       ->capture_default_str();
   cmd->add_option("--seed", o.seed, "random seed")->capture_default_str();
-  cmd->add_option("--out", o.out, "output prefix: writes PREFIX.exr, PREFIX.png, PREFIX.json")->capture_default_str();
+  cmd->add_option("--out", o.out, "output prefix: writes PREFIX.exr, PREFIX.png, PREFIX.json")
+      ->check([](const std::string& v) { return output_prefix_error(v).value_or(""); })
+      ->capture_default_str();
   const std::map<std::string, RenderMode> modes{
       {"pt", RenderMode::kPathTrace}, {"rp", RenderMode::kReproject}, {"skip", RenderMode::kSkip}};
-  cmd->add_option("--mode", o.mode, "pt: path tracing; rp: plus reprojection; skip: plus pixel skipping")
+  cmd->add_option("--mode", o.mode,
+                  "skip: reprojection plus pixel skipping; rp: reprojection only; pt: path tracing only")
       ->transform(CLI::CheckedTransformer(modes, CLI::ignore_case))
       ->capture_default_str();
   const std::map<std::string, ReprojectMethod> methods{
@@ -77,6 +82,18 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
   for (const char* v : {"--eye", "--look", "--up"})
     cmd->add_option(v, extra[v], fmt::format("camera override x,y,z ({})", v + 2));
   cmd->add_option("--fov", o.fov, "camera override: vertical field of view in degrees");
+}
+
+std::optional<std::string> output_prefix_error(const std::string& prefix) {
+  if (prefix.empty()) return "the output prefix is empty (files would be named .exr, .png, ...)";
+  const std::string last = std::filesystem::path(prefix).filename().string();
+  if (last.empty() || last == "." || last == "..")
+    return fmt::format("'{}' names a folder, not a file prefix; give one such as '{}/render'", prefix,
+                       prefix.back() == '/' ? prefix.substr(0, prefix.size() - 1) : prefix);
+  std::error_code ec;
+  if (std::filesystem::is_directory(prefix, ec))
+    return fmt::format("'{}' is a folder; give a file prefix inside it such as '{}/render'", prefix, prefix);
+  return std::nullopt;
 }
 
 void finish_options(RenderOptions& o, const std::map<std::string, std::string>& extra) {

@@ -269,7 +269,7 @@ log "3 workers registered; on each: ${worker_health[*]}, epr-health worker --rea
 
 # ---- the job ---------------------------------------------------------------------------------------
 job=(builtin:cornell --width 64 --height 64 --spp 16 --paths-per-round 4 --tile 16 --mode skip
-     --reproject cpu --min-paths 1 --seed 11)
+     --min-paths 1 --seed 11)
 SVC_ENV=("${client_env[@]}")
 out_dir="$tmp/hosts/client/out"
 mkdir -p "$out_dir"
@@ -328,6 +328,9 @@ rc=$?
 log "job done after $((SECONDS - start)) s in all: $(tail -n 2 "$tmp/client.log" | tr '\n' ' ')"
 
 # ---- what the master saw -------------------------------------------------------------------------------
+# The default reprojector: the master's OSMesa context held the deep framebuffer (no CPU fallback).
+grep -q "reprojection context: " "$tmp/master.log" || fail "the master did not bring up its OSMesa context"
+! grep -q "will use the CPU reprojector" "$tmp/master.log" || fail "the master fell back to the CPU reprojector"
 # Mid-job: the master re-queued the dead worker's tile while the job ran, i.e. before "job ... done".
 requeued_line="$(grep -n "job $job_id tile $held_tile: lease expired, re-queued" "$tmp/master.log" | head -n 1 | cut -d: -f1)"
 done_line="$(grep -n "job $job_id done" "$tmp/master.log" | head -n 1 | cut -d: -f1)"

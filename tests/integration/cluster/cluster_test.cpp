@@ -55,8 +55,8 @@ struct Job {
   uint64_t seed = 7;
   bool mis = true;  // false: --no-mis (next event estimation only)
 
-  // The flags shared by `epr render` and `epr submit`. CPU reprojection on both sides, so that the
-  // master's --reproject cpu does not change the job.
+  // The flags shared by `epr render` and `epr submit`. The reprojector is the default (the OSMesa
+  // deep framebuffer) on both sides: the cluster runs what a user runs.
   Args flags() const {
     Args a{scene,
            "--width",
@@ -71,8 +71,6 @@ struct Job {
            std::to_string(tile),
            "--mode",
            "skip",
-           "--reproject",
-           "cpu",
            "--min-paths",
            std::to_string(min_paths),
            "--round-growth",
@@ -209,7 +207,7 @@ class ClusterTest : public ::testing::Test {
   void start_master(Args extra = {}) {
     Args argv{kMaster, "--listen", "127.0.0.1:0", "--state-dir", path("master-state")};
     // Monitoring on a free port as well: the default 0.0.0.0:8080 collides between tests run in parallel.
-    argv.insert(argv.end(), {"--http", "127.0.0.1:0", "--reproject", "cpu", "--log-level", "info"});
+    argv.insert(argv.end(), {"--http", "127.0.0.1:0", "--log-level", "info"});
     argv.insert(argv.end(), extra.begin(), extra.end());
     master_ = std::make_unique<Process>(argv, dir_ / "master");
     const std::regex listening("epr-master listening on port ([0-9]+)");
@@ -223,6 +221,17 @@ class ClusterTest : public ::testing::Test {
         10s);
     ASSERT_TRUE(up && master_->running() && m.size() == 2) << "epr-master did not start:\n" << err;
     address_ = "127.0.0.1:" + m[1].str();
+    // The default reprojector: the OSMesa context holds the deep framebuffer, no CPU fallback.
+    const bool gl_known = wait_until(
+        [&] {
+          err = master_->err();
+          return err.find("reprojection context: ") != std::string::npos ||
+                 err.find("will use the CPU reprojector") != std::string::npos;
+        },
+        30s);
+    ASSERT_TRUE(gl_known && err.find("will use the CPU reprojector") == std::string::npos)
+        << "epr-master has no OSMesa reprojector:\n"
+        << err;
   }
 
   // Starts an epr-worker with one tracing thread. Debug logs name every lease and its outcome.
