@@ -3,8 +3,12 @@
 // scene_json.cpp, on top of text.cpp (lines, tokens, numbers, errors) and path_sandbox.cpp.
 #include "common/scene_loader.h"
 
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
 #include <algorithm>
 #include <cctype>
+#include <vector>
 
 #include "common/builtin_scenes.h"
 #include "common/scene_loader/obj.h"
@@ -23,17 +27,52 @@ bool ends_with_json(const std::string& s) {
 
 }  // namespace
 
-Scene load_obj(const std::string& obj_path, const LoadOptions& opts) {
+Scene load_obj(const std::string& obj_path, const LoadOptions& opts, LoadReport* report) {
+  LoadReport local;
   const std::filesystem::path real = loader::canonical_or_fail(obj_path, obj_path);
-  Scene scene = loader::load_obj_inside({real, obj_path}, real.parent_path(), opts, nullptr);
+  Scene scene = loader::load_obj_inside({real, obj_path}, real.parent_path(), opts, report ? *report : local, nullptr);
   loader::validate_or_fail(scene, obj_path);
   return scene;
 }
 
-Scene load_scene(const std::string& spec, const LoadOptions& opts) {
+Scene load_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report) {
+  if (spec.find('\0') != std::string::npos)
+    throw SceneError(fmt::format("scene path {} contains a NUL byte", loader::quote_token(spec)));
   if (spec.rfind("builtin:", 0) == 0) return make_builtin_scene(parse_builtin_spec(spec.substr(8)), opts.max_triangles);
-  if (ends_with_json(spec)) return load_scene_json(spec, opts);
-  return load_obj(spec, opts);
+  if (ends_with_json(spec)) return load_scene_json(spec, opts, report);
+  return load_obj(spec, opts, report);
 }
+
+Scene load_job_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report) {
+  LoadReport local;
+  LoadReport& r = report ? *report : local;
+  const size_t first = r.warnings.size();
+  Scene scene = load_scene(spec, opts, &r);
+  for (size_t i = first; i < r.warnings.size(); ++i) loader::scene_log()->warn("{}", r.warnings[i]);
+  if (auto reason = unlit_reason(scene)) throw SceneError(*reason);
+  return scene;
+}
+
+std::optional<std::string> unlit_reason(const Scene& scene) {
+  std::vector<bool> used(scene.materials.size(), false);
+  for (uint32_t m : scene.material_of)
+    if (m < used.size()) used[m] = true;
+  std::vector<std::string> unused_emitters;
+  for (size_t m = 0; m < scene.materials.size(); ++m) {
+    if (!scene.materials[m].emissive()) continue;
+    if (used[m]) return std::nullopt;
+    unused_emitters.push_back("'" + scene.materials[m].name + "'");
+  }
+  const std::string how =
+      "light it by giving the material of the faces that should glow an emission: a line `Ke r g b` (e.g. `Ke 10 10 "
+      "10`) after its `newmtl` in the MTL file, or \"ke\": [10, 10, 10] for it under \"materials\" in a scene JSON";
+  if (!unused_emitters.empty())
+    return fmt::format("{} has no light: no face uses the emitting material{} {}, so the image would be black; {}",
+                       scene.name, unused_emitters.size() > 1 ? "s" : "", fmt::join(unused_emitters, ", "), how);
+  return fmt::format("{} has no light: no material has an emission (Ke), so the image would be black; {}", scene.name,
+                     how);
+}
+
+std::string read_scene_file(const FileRef& f, size_t max_bytes) { return loader::read_file(f, max_bytes); }
 
 }  // namespace epr

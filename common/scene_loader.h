@@ -8,9 +8,17 @@
 //     path/to/file.obj: reason         (a problem with the whole file: missing, too large, no faces)
 //
 // Files named by a scene (mtllib, map_Kd, the JSON's "obj") must stay inside the scene's folder:
-// absolute paths and paths that leave the folder, also through symlinks, are rejected.
+// absolute paths and paths that leave the folder, also through symlinks, are rejected. Every file
+// must be a regular file within LoadOptions::max_file_bytes, checked before it is read: FIFOs,
+// devices, sockets and directories are refused (without blocking), as are paths with a NUL byte.
+//
+// Warnings (ignored statements, dropped triangles, clamped colours...) go to the LoadReport, naming
+// the files as the user wrote them; the loader itself logs them at debug level only, so that the
+// master and the workers, which load a job's scene again from their caches, stay quiet about them.
+// load_job_scene() is the load a user sees: it shows them, once.
 #pragma once
 
+#include <optional>
 #include <string>
 
 #include "common/scene.h"
@@ -20,15 +28,27 @@ namespace epr {
 
 /// spec is: an OBJ path; a scene JSON path (*.json); or "builtin:NAME" / "builtin:NAME?tess=N" (see
 /// builtin_scenes.h for the parameters).
-Scene load_scene(const std::string& spec, const LoadOptions& = {});
+Scene load_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* = nullptr);
 
 /// An OBJ file with its MTL files and Kd textures. Materials are Lambertian (Kd or map_Kd, Ke for
 /// emitters); faces without a material get a grey default (kd 0.8). The camera is CameraSpec's
 /// default (the Cornell box's conventional camera): OBJ files carry none. Zero-area triangles are
 /// dropped with a warning that names the line of the first; an OBJ with nothing else is an error.
-Scene load_obj(const std::string& obj_path, const LoadOptions& = {});
+Scene load_obj(const std::string& obj_path, const LoadOptions& = {}, LoadReport* = nullptr);
 
 /// A scene JSON file: an OBJ or a built-in scene plus camera and material overrides.
-Scene load_scene_json(const std::string& json_path, const LoadOptions& = {});
+Scene load_scene_json(const std::string& json_path, const LoadOptions& = {}, LoadReport* = nullptr);
+
+/// load_scene for a render the user asked for: logs the warnings (at warn level, once) and refuses a
+/// scene without light (unlit_reason) with SceneError.
+Scene load_job_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* = nullptr);
+
+/// Nullopt if some triangle emits light (its material has a Ke other than 0 0 0); else why the image
+/// would be black and how to light the scene, naming scene.name.
+std::optional<std::string> unlit_reason(const Scene& scene);
+
+/// The bytes of a scene file, read as the loader reads them: a regular file of at most max_bytes,
+/// checked before anything is read; failures raise SceneError naming f.display.
+std::string read_scene_file(const FileRef& f, size_t max_bytes);
 
 }  // namespace epr

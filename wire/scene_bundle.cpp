@@ -1,3 +1,4 @@
+// Scene bundles (scene_bundle.h): made from the files the loader reads, hashed, cached and loaded.
 #include "wire/scene_bundle.h"
 
 #include <fmt/format.h>
@@ -7,9 +8,6 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <functional>
-#include <nlohmann/json.hpp>
-#include <set>
 #include <sstream>
 
 #include "common/scene_loader.h"
@@ -17,31 +15,6 @@
 namespace epr {
 namespace fs = std::filesystem;
 namespace {
-
-std::string read_file(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  if (!in) throw SceneError(fmt::format("{}: cannot read file", p.string()));
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-// File names that an OBJ's `mtllib` or an MTL's `map_*` lines reference (last token of the line).
-std::vector<std::string> referenced_files(const std::string& text, const std::vector<std::string>& keywords) {
-  std::vector<std::string> out;
-  std::istringstream in(text);
-  std::string line;
-  while (std::getline(in, line)) {
-    std::istringstream ls(line);
-    std::string key;
-    ls >> key;
-    if (std::find(keywords.begin(), keywords.end(), key) == keywords.end()) continue;
-    std::string rest, tok;
-    while (ls >> tok) rest = tok;  // options such as -bm come before the name
-    if (!rest.empty()) out.push_back(rest);
-  }
-  return out;
-}
 
 void put_u64(std::string& s, uint64_t v) {
   for (int i = 0; i < 8; ++i) s.push_back(char((v >> (8 * i)) & 0xff));
@@ -57,6 +30,7 @@ size_t SceneBundleData::total_bytes() const {
 
 bool is_safe_relative_path(const std::string& path) {
   if (path.empty() || path.size() > 1024 || path[0] == '/' || path.find('\\') != std::string::npos) return false;
+  if (path.find('\0') != std::string::npos) return false;  // a file name would end there
   std::istringstream in(path);
   std::string part;
   size_t parts = 0;
@@ -69,45 +43,24 @@ bool is_safe_relative_path(const std::string& path) {
 
 SceneBundleData bundle_scene(const std::string& spec) {
   SceneBundleData b;
-  if (spec.rfind("builtin:", 0) == 0) {
+  if (spec.rfind("builtin:", 0) == 0 && spec.find('\0') == std::string::npos) {
     b.builtin = spec;
     return b;
   }
-  const fs::path entry = fs::weakly_canonical(spec);
-  const fs::path root = entry.parent_path();
-  std::set<std::string> seen;
-  // Adds root/rel and whatever it references, depth first.
-  std::function<void(const std::string&)> add = [&](const std::string& rel) {
-    if (seen.count(rel)) return;
-    const fs::path full = fs::weakly_canonical(root / rel);
-    const std::string rel_norm = fs::relative(full, root).generic_string();
-    if (!is_safe_relative_path(rel_norm))
-      throw SceneError(fmt::format("{}: '{}' lies outside the scene folder {}", spec, rel, root.string()));
-    if (seen.count(rel_norm)) return;
-    seen.insert(rel_norm);
-    const std::string data = read_file(full);
-    b.files.emplace_back(rel_norm, data);
-    const std::string ext = full.extension().string();
-    const fs::path rel_dir = fs::path(rel_norm).parent_path();
-    auto add_sibling = [&](const std::string& name) { add((rel_dir / name).generic_string()); };
-    if (ext == ".obj" || ext == ".OBJ") {
-      for (const auto& m : referenced_files(data, {"mtllib"})) add_sibling(m);
-    } else if (ext == ".mtl" || ext == ".MTL") {
-      for (const auto& t :
-           referenced_files(data, {"map_Kd", "map_Ka", "map_Ks", "map_Ke", "map_d", "bump", "map_bump"}))
-        if (fs::exists(root / rel_dir / t)) add_sibling(t);
-    } else if (ext == ".json") {
-      nlohmann::json j;
-      try {
-        j = nlohmann::json::parse(data);
-      } catch (const std::exception&) {
-        return;  // the loader reports the parse error with its line
-      }
-      if (j.is_object() && j.contains("obj") && j["obj"].is_string()) add_sibling(j["obj"].get<std::string>());
-    }
-  };
-  add(entry.filename().string());
-  b.entry_path = entry.filename().string();
+  // The scene is loaded here, so that its files are the ones the loader reads (one parser for both),
+  // its warnings are shown once, on the user's side, and a broken or unlit scene fails before upload.
+  const LoadOptions opts;
+  LoadReport report;
+  load_job_scene(spec, opts, &report);
+  if (report.files.empty()) throw SceneError(fmt::format("{}: the scene reads no file", spec));
+  const fs::path root = report.files.front().real.parent_path();
+  for (const FileRef& f : report.files) {
+    const std::string rel = f.real.lexically_relative(root).generic_string();
+    if (!is_safe_relative_path(rel))
+      throw SceneError(fmt::format("{}: '{}' lies outside the scene folder {}", spec, f.display, root.string()));
+    b.files.emplace_back(rel, read_scene_file(f, opts.max_file_bytes));
+  }
+  b.entry_path = report.files.front().real.filename().string();
   std::sort(b.files.begin(), b.files.end());
   return b;
 }
@@ -161,7 +114,10 @@ Scene load_bundle(const SceneBundleData& b, const std::string& cache_root) {
     fs::rename(tmp, dir, ec);
     if (ec) fs::remove_all(tmp);  // another process won the race: its copy is identical
   }
+  // The client showed the warnings; here they stay at debug level. A scene without light is refused
+  // (the check of raw submissions, which no client loaded first).
   Scene s = load_scene((dir / b.entry_path).string());
+  if (auto reason = unlit_reason(s)) throw SceneError(*reason);
   return s;
 }
 

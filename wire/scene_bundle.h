@@ -21,18 +21,21 @@ struct SceneBundleData {
   size_t total_bytes() const;
 };
 
-/// Reads `spec` (OBJ path, scene JSON path or builtin:NAME) and what it references.
-/// Throws SceneError naming the file when something cannot be read or escapes the scene folder.
+/// Loads `spec` (OBJ path, scene JSON path or builtin:NAME) as load_job_scene() does (its warnings
+/// logged once, a scene without light refused) and bundles the files that load read. Throws
+/// SceneError naming the file when the scene is broken, unlit, or a file cannot be read.
 SceneBundleData bundle_scene(const std::string& spec);
 
 /// Lowercase hex SHA-256 over the canonical serialisation (files) or "epr-builtin-v1\n" + builtin.
 std::string content_hash(const SceneBundleData& bundle);
 
-/// Checks a relative path: no leading '/', no '\', no empty, "." or ".." components, <= 1024 bytes.
+/// Checks a relative path: no leading '/', no '\', no NUL byte, no empty, "." or ".." components,
+/// <= 1024 bytes.
 bool is_safe_relative_path(const std::string& path);
 
 /// Writes the bundle's files below `cache_root`/HASH/ (once; an existing complete copy is reused)
-/// and loads the scene. Built-ins are generated directly.
+/// and loads the scene, its warnings at debug level only; a scene without light (unlit_reason) is
+/// refused with SceneError. Built-ins are generated directly.
 Scene load_bundle(const SceneBundleData& bundle, const std::string& cache_root);
 
 /// The folder scenes are cached in: $EPR_CACHE_DIR, else $XDG_CACHE_HOME/eprfarm, else ~/.cache/eprfarm.

@@ -25,7 +25,7 @@ namespace fs = std::filesystem;
 
 /// Validates an MTL file and loads its textures.
 MtlFile read_mtl(ObjContext& ctx, const FileRef& mtl) {
-  const std::string text = read_file(mtl, ctx.opts.max_file_bytes);
+  const std::string text = read_file(mtl, ctx.opts.max_file_bytes, &ctx.report);
   const fs::path dir = mtl.real.parent_path();
   const std::string display_dir = fs::path(mtl.display).parent_path().string();
   const std::string& file = mtl.display;
@@ -45,7 +45,8 @@ MtlFile read_mtl(ObjContext& ctx, const FileRef& mtl) {
       if (tok.size() < 2) fail(file, ln, "newmtl without a material name");
       current = std::string(tok[1]);
       if (!names_here.insert(current).second || ctx.defined_materials.count(current))
-        scene_log()->warn("{}:{}: material '{}' is defined again; the first definition is used", file, ln, current);
+        warn(ctx.report,
+             fmt::format("{}:{}: material '{}' is defined again; the first definition is used", file, ln, current));
       st.kind = MtlStatement::Kind::kNewmtl;
       st.name = current;
     } else if (key == "Kd" || key == "Ke" || key == "Ks") {

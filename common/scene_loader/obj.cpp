@@ -164,8 +164,8 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       if (tok.size() < 2) fail(file, ln, "usemtl without a material name");
       const std::string name(tok[1]);
       if (!ctx.defined_materials.count(name))
-        scene_log()->warn("{}:{}: material '{}' is not defined by an earlier mtllib; using the default grey", file, ln,
-                          name);
+        warn(ctx.report, fmt::format("{}:{}: material '{}' is not defined by an earlier mtllib; using the default grey",
+                                     file, ln, name));
       const auto it = ctx.table.first_of_name.find(name);
       material = it == ctx.table.first_of_name.end() ? -1 : it->second;
     } else if (key == "mtllib") {
@@ -174,24 +174,26 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       std::vector<FileRef> mtls;
       for (const std::string& name : names) {
         mtls.push_back(resolve_inside(ctx.root, dir, display_dir, name, file, ln, "mtllib"));
-        std::error_code ec;
-        if (!fs::is_regular_file(mtls.back().real, ec)) fail(file, ln, fmt::format("mtllib '{}' does not exist", name));
+        if (auto problem = file_problem(mtls.back().real, ctx.opts.max_file_bytes))
+          fail(file, ln, fmt::format("mtllib '{}' {}", name, *problem));
       }
       apply_mtllib(ctx, mtls, file, ln);
     } else {
       static const std::set<std::string, std::less<>> kIgnored = {"g", "o", "s", "l", "p", "vp"};
       if (!kIgnored.count(key) && warned_keywords.insert(std::string(key)).second)
-        scene_log()->warn("{}:{}: unsupported statement {} ignored", file, ln, quote_token(key));
+        warn(ctx.report, fmt::format("{}:{}: unsupported statement {} ignored", file, ln, quote_token(key)));
     }
   }
   if (faces == 0) fail_file(file, "no faces");
   return mesh;
 }
 
-Vec3 clamped_colour(Vec3 v, float hi, const std::string& file, const std::string& material, const char* what) {
+Vec3 clamped_colour(LoadReport& report, Vec3 v, float hi, const std::string& file, const std::string& material,
+                    const char* what) {
   const Vec3 clamped(std::clamp(v.x, 0.f, hi), std::clamp(v.y, 0.f, hi), std::clamp(v.z, 0.f, hi));
   if (!(clamped == v))
-    scene_log()->warn("{}: material '{}': {} ({}, {}, {}) clamped to [0, {}]", file, material, what, v.x, v.y, v.z, hi);
+    warn(report,
+         fmt::format("{}: material '{}': {} ({}, {}, {}) clamped to [0, {}]", file, material, what, v.x, v.y, v.z, hi));
   return clamped;
 }
 
@@ -204,12 +206,12 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
   for (const MtlMaterial& m : ctx.table.materials) {
     Material mat;
     mat.name = m.name;
-    mat.kd = clamped_colour(m.kd, 1.f, file, m.name, "Kd");
-    mat.ke = clamped_colour(m.ke, 1e6f, file, m.name, "Ke");
+    mat.kd = clamped_colour(ctx.report, m.kd, 1.f, file, m.name, "Kd");
+    mat.ke = clamped_colour(ctx.report, m.ke, 1e6f, file, m.name, "Ke");
     mat.kd_texture = m.texture;
     add_material(scene, std::move(mat));
     if (glossy)
-      glossy->push_back({clamped_colour(m.ks, 1.f, file, m.name, "Ks"),
+      glossy->push_back({clamped_colour(ctx.report, m.ks, 1.f, file, m.name, "Ks"),
                          m.ns > 0 && std::isfinite(m.ns) ? m.ns : Material{}.exponent});
   }
   scene.textures = std::move(ctx.textures);
@@ -261,19 +263,20 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
   const std::string first = first_line > 0 ? " (the first on this line)" : "";
   if (scene.triangles.empty())
     throw SceneError(fmt::format("{}: all {} triangles are degenerate (zero area){}", where, degenerate, first));
-  if (degenerate > 0) scene_log()->warn("{}: dropped {} degenerate (zero-area) triangles{}", where, degenerate, first);
+  if (degenerate > 0)
+    warn(ctx.report, fmt::format("{}: dropped {} degenerate (zero-area) triangles{}", where, degenerate, first));
   if (uses_texture) scene.uvs = std::move(uvs);
   if (textured_without_uv)
-    scene_log()->warn("{}: some textured faces have no texture coordinates; they use texel (0, 0)", file);
+    warn(ctx.report, fmt::format("{}: some textured faces have no texture coordinates; they use texel (0, 0)", file));
   return scene;
 }
 
 }  // namespace
 
-Scene load_obj_inside(const FileRef& obj, const fs::path& root, const LoadOptions& opts,
+Scene load_obj_inside(const FileRef& obj, const fs::path& root, const LoadOptions& opts, LoadReport& report,
                       std::vector<GlossyDefaults>* glossy) {
-  const std::string text = read_file(obj, opts.max_file_bytes);
-  ObjContext ctx(opts, root);
+  const std::string text = read_file(obj, opts.max_file_bytes, &report);
+  ObjContext ctx(opts, root, report);
   ObjMesh mesh = read_obj(ctx, obj, text);
   return build_scene(ctx, mesh, obj.display, glossy);
 }

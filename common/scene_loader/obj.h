@@ -17,9 +17,10 @@ struct GlossyDefaults {
   float exponent = Material{}.exponent;
 };
 
-/// Loads `obj`, reading nothing outside `root`. With `glossy`, appends each material's Ks and Ns
-/// (index for index with the scene's materials). The scene is not yet validated (Scene::validate).
+/// Loads `obj`, reading nothing outside `root`; the files read and the warnings go to `report`. With
+/// `glossy`, appends each material's Ks and Ns (index for index with the scene's materials). The
+/// scene is not yet validated (Scene::validate).
 Scene load_obj_inside(const FileRef& obj, const std::filesystem::path& root, const LoadOptions& opts,
-                      std::vector<GlossyDefaults>* glossy);
+                      LoadReport& report, std::vector<GlossyDefaults>* glossy);
 
 }  // namespace epr::loader

@@ -51,10 +51,12 @@ struct MaterialTable {
 };
 
 struct ObjContext {
-  ObjContext(const LoadOptions& o, std::filesystem::path r) : opts(o), root(std::move(r)) {}
+  ObjContext(const LoadOptions& o, std::filesystem::path r, LoadReport& rep)
+      : opts(o), root(std::move(r)), report(rep) {}
 
   const LoadOptions& opts;
   std::filesystem::path root;  // canonical: nothing outside it is read
+  LoadReport& report;          // the files read and the warnings
   std::vector<Texture> textures;
   std::map<std::filesystem::path, int> texture_of_path;
   size_t texture_pixels = 0;                               // total of all textures

@@ -1,24 +1,32 @@
 // The scene folder as a sandbox: files named by a scene (mtllib, map_Kd, the JSON's "obj") are
 // resolved against the naming file's folder and must stay inside the scene's root folder, also
-// through symlinks; absolute paths are refused. Files are read whole, with a size limit.
+// through symlinks; absolute paths are refused. Files are read whole, with a size limit, and only
+// if they are regular files: FIFOs, devices, sockets and directories are refused without blocking.
 #pragma once
 
 #include <cstddef>
 #include <filesystem>
+#include <optional>
 #include <string>
+
+#include "common/scene_error.h"  // FileRef, LoadReport
 
 namespace epr::loader {
 
-/// Where a file is read from and how messages name it.
-struct FileRef {
-  std::filesystem::path real;  // canonical path that is opened
-  std::string display;         // path as the user wrote it (joined to the referring file's folder)
-};
+/// Why `p` cannot be read as a scene file of at most max_bytes ("does not exist", "is a directory",
+/// "is a FIFO (named pipe), not a regular file", "has N bytes, over the limit of M"), or nullopt.
+/// Never blocks, and never opens what is not a regular file.
+std::optional<std::string> file_problem(const std::filesystem::path& p, size_t max_bytes);
 
-/// Whole file, checked to be a regular file of at most max_bytes; failures name f.display.
-std::string read_file(const FileRef& f, size_t max_bytes);
+/// Whole file, checked as file_problem() does before anything is read; failures name f.display.
+/// With `report`, adds f to report->files.
+std::string read_file(const FileRef& f, size_t max_bytes, LoadReport* report = nullptr);
 
-/// The canonical form of `p` (symlinks resolved as far as the path exists); failures name `display`.
+/// Adds `f` to report->files unless it is there.
+void record_file(const FileRef& f, LoadReport* report);
+
+/// The canonical form of `p` (symlinks resolved as far as the path exists); failures (also a NUL byte
+/// in the path) name `display`.
 std::filesystem::path canonical_or_fail(const std::filesystem::path& p, const std::string& display);
 
 /// Resolves `name`, written in `file` at `line`, relative to `dir` (whose display form is

@@ -132,11 +132,12 @@ class JsonLines {
 
 class JsonSceneReader {
  public:
-  JsonSceneReader(const std::string& path, const LoadOptions& opts) : path_(path), opts_(opts) {}
+  JsonSceneReader(const std::string& path, const LoadOptions& opts, LoadReport& report)
+      : path_(path), opts_(opts), report_(report) {}
 
   Scene read() {
     const FileRef self{canonical_or_fail(path_, path_), path_};
-    const std::string text = read_file(self, std::min(opts_.max_file_bytes, kMaxJsonBytes));
+    const std::string text = read_file(self, std::min(opts_.max_file_bytes, kMaxJsonBytes), &report_);
     nlohmann::json doc;
     try {
       doc = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/true, /*ignore_comments=*/true);
@@ -164,9 +165,9 @@ class JsonSceneReader {
       const fs::path root = self.real.parent_path();
       const std::string display_dir = fs::path(path_).parent_path().string();
       const FileRef ref = resolve_inside(root, root, display_dir, obj, path_, line("/obj"), "obj");
-      std::error_code ec;
-      if (!fs::is_regular_file(ref.real, ec)) error("/obj", fmt::format("obj file '{}' does not exist", obj));
-      scene = load_obj_inside(ref, root, opts_, &glossy);
+      if (auto problem = file_problem(ref.real, opts_.max_file_bytes))
+        error("/obj", fmt::format("obj file '{}' {}", obj, *problem));
+      scene = load_obj_inside(ref, root, opts_, report_, &glossy);
     } else {
       BuiltinSpec spec;
       try {
@@ -306,22 +307,26 @@ class JsonSceneReader {
           }
         }
         if (!m.diffuse() && is_black(m.ks))
-          scene_log()->warn("{}:{}: glossy material '{}' has ks 0 and renders as diffuse", path_, line(p), name);
+          warn(report_,
+               fmt::format("{}:{}: glossy material '{}' has ks 0 and renders as diffuse", path_, line(p), name));
         if (max_component(m.kd + m.ks) > 1.f)
-          scene_log()->warn("{}:{}: material '{}' reflects more than it receives (kd + ks > 1)", path_, line(p), name);
+          warn(report_,
+               fmt::format("{}:{}: material '{}' reflects more than it receives (kd + ks > 1)", path_, line(p), name));
       }
     }
   }
 
   std::string path_;
   const LoadOptions& opts_;
+  LoadReport& report_;
   std::unique_ptr<JsonLines> lines_;
 };
 
 }  // namespace
 
-Scene load_scene_json(const std::string& json_path, const LoadOptions& opts) {
-  return JsonSceneReader(json_path, opts).read();
+Scene load_scene_json(const std::string& json_path, const LoadOptions& opts, LoadReport* report) {
+  LoadReport local;
+  return JsonSceneReader(json_path, opts, report ? *report : local).read();
 }
 
 }  // namespace epr

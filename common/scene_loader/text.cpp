@@ -15,6 +15,11 @@ namespace epr::loader {
 
 std::shared_ptr<spdlog::logger> scene_log() { return logger("common"); }
 
+void warn(LoadReport& report, std::string message) {
+  scene_log()->debug("scene warning: {}", message);
+  report.warnings.push_back(std::move(message));
+}
+
 void fail(const std::string& file, size_t line, const std::string& reason) {
   throw SceneError(fmt::format("{}:{}: {}", file, line, reason));
 }

@@ -10,11 +10,16 @@
 #include <vector>
 
 #include "common/scene.h"
+#include "common/scene_error.h"
 
 namespace epr::loader {
 
-/// The logger warnings about scene input go to ("common").
+/// The logger of scene input ("common").
 std::shared_ptr<spdlog::logger> scene_log();
+
+/// Adds a warning about the scene's input to `report` (and logs it at debug level: it is shown to the
+/// user by whoever loads the scene for them, once).
+void warn(LoadReport& report, std::string message);
 
 /// Raises SceneError "file:line: reason".
 [[noreturn]] void fail(const std::string& file, size_t line, const std::string& reason);

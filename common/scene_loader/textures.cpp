@@ -44,12 +44,9 @@ int load_texture(ObjContext& ctx, const std::string& name, const fs::path& dir, 
   const FileRef ref = resolve_inside(ctx.root, dir, display_dir, portable, file, line, "texture");
   if (auto it = ctx.texture_of_path.find(ref.real); it != ctx.texture_of_path.end()) return it->second;
 
-  std::error_code ec;
-  if (!fs::is_regular_file(ref.real, ec)) fail(file, line, fmt::format("texture '{}' does not exist", name));
-  const auto bytes = fs::file_size(ref.real, ec);
-  if (ec || bytes > ctx.opts.max_file_bytes)
-    fail(file, line,
-         fmt::format("texture '{}' is over the file size limit of {} bytes", name, ctx.opts.max_file_bytes));
+  // A regular file within the size limit (OpenImageIO would block on a FIFO, read a device for ever).
+  if (auto problem = file_problem(ref.real, ctx.opts.max_file_bytes))
+    fail(file, line, fmt::format("texture '{}' {}", name, *problem));
   {
     // Check the size before read_image allocates it.
     auto in = OIIO::ImageInput::open(ref.real.string());
@@ -77,8 +74,9 @@ int load_texture(ObjContext& ctx, const std::string& name, const fs::path& dir, 
   ctx.texture_pixels += size_t(img.width) * size_t(img.height);
   ctx.textures.push_back(to_texture(img, name, file, line, &clamped));
   if (clamped > 0)
-    scene_log()->warn("{}:{}: texture '{}': {} values outside [0, 1] clamped (it is a diffuse albedo)", file, line,
-                      name, clamped);
+    warn(ctx.report, fmt::format("{}:{}: texture '{}': {} values outside [0, 1] clamped (it is a diffuse albedo)", file,
+                                 line, name, clamped));
+  record_file(ref, &ctx.report);
   const int index = int(ctx.textures.size() - 1);
   ctx.texture_of_path.emplace(ref.real, index);
   return index;
