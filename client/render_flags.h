@@ -4,6 +4,7 @@
 
 #include <CLI/CLI.hpp>
 #include <map>
+#include <optional>
 #include <string>
 
 #include "common/render_options.h"
@@ -17,6 +18,11 @@ enum class RenderFlagSet { kLocal, kRemote };
 /// than a plain conversion land in `extra` as text; finish_options turns them into options.
 void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std::string>& extra,
                       RenderFlagSet set = RenderFlagSet::kLocal);
+
+/// Why `prefix` cannot be an output prefix (PREFIX.exr, PREFIX.png, ... are written): it is empty,
+/// ends in '/', ends in "." or "..", or names a folder, so the files would be hidden or land
+/// elsewhere. nullopt when it is usable.
+std::optional<std::string> output_prefix_error(const std::string& prefix);
 
 /// Applies the `extra` flags (camera overrides, Russian roulette) to `o`.
 /// Throws CLI::ValidationError naming the flag for malformed values.
