@@ -128,7 +128,9 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   }
 
   const double seconds = since(t_start);
-  out.stats = frame.statistics(opts);
+  // The same vertices a master counts as culled on the workers (JobCounters::worker_culled).
+  out.stats = frame.statistics(
+      opts, totals.culled_frustum + totals.culled_facing + totals.culled_glossy + totals.exact_occluded);
   out.stats.update({
       {"scene", scene.name},
       {"triangles", scene.triangle_count()},

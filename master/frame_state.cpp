@@ -8,6 +8,7 @@
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
 #include "master/make_reprojector.h"
+#include "master/reprojection_outcomes.h"
 
 namespace epr {
 namespace {
@@ -286,10 +287,9 @@ FrameImages FrameState::images(bool preview) {
   return out;
 }
 
-nlohmann::json FrameState::statistics(const RenderOptions& opts) const {
+nlohmann::json FrameState::statistics(const RenderOptions& opts, uint64_t worker_culled) const {
   const ReprojectionCounts c = counts();
-  const double tested = double(c.accepted + c.occluded + c.culled);
-  auto pct = [&](uint64_t v) { return tested > 0 ? 100.0 * double(v) / tested : 0.0; };
+  const ReprojectionOutcomes o = ReprojectionOutcomes::of(c, worker_culled);
   const FrameProgress& p = progress();
   return {
       {"mode", to_string(opts.mode)},
@@ -311,12 +311,14 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts) const {
       {"occluded", c.occluded},
       {"backfacing", c.backfacing},
       {"culled_master", c.culled},
+      {"culled_worker", o.culled_by_workers},
       {"not_diffuse", c.not_diffuse},
       {"invalid", c.invalid},
       {"exact_samples", c.exact},
-      {"accepted_percent", pct(c.accepted)},
-      {"occluded_percent", pct(c.occluded)},
-      {"culled_percent", pct(c.culled)},
+      {"considered", o.considered},
+      {"accepted_percent", o.accepted_percent()},
+      {"occluded_percent", o.occluded_percent()},
+      {"culled_percent", o.culled_percent()},
       {"seconds_reprojecting", seconds_reprojecting()},
       {"seconds_downsampling", seconds_downsampling()},
   };

@@ -113,8 +113,9 @@ class FrameState {
   /// Part of seconds_reprojecting(): reading the accumulation back and downsampling it.
   double seconds_downsampling() const { return seconds_downsampling_; }
   bool reprojects() const { return reprojector_ != nullptr; }
-  /// Counts, percentages and timings as JSON (the statistics file of a render).
-  nlohmann::json statistics(const RenderOptions& opts) const;
+  /// Counts, percentages and timings as JSON (the statistics file of a render). `worker_culled`: the
+  /// vertices the workers culled before sending; the percentages count them (ReprojectionOutcomes).
+  nlohmann::json statistics(const RenderOptions& opts, uint64_t worker_culled) const;
   /// The state as of now (call between rounds); reads the accumulation back when reprojecting.
   FrameSnapshot save();
   /// Continues from `snapshot`. Throws std::invalid_argument (naming the mismatch) if it was not

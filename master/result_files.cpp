@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <stdexcept>
 
 namespace epr {
@@ -51,7 +52,39 @@ void write_kind(const ResultKindInfo& k, const FrameImages& img, const nlohmann:
   }
 }
 
+std::string read_bytes(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  if (!in) throw std::runtime_error(fmt::format("cannot read '{}'", path.string()));
+  return ss.str();
+}
+
 }  // namespace
+
+std::string encode_result(const ResultKindInfo& k, const FrameImages& images, const nlohmann::json& stats,
+                          const std::string& scratch_path) {
+  auto bytes = [](const std::vector<unsigned char>& v) { return std::string(v.begin(), v.end()); };
+  switch (k.kind) {
+    case ResultKind::kJson:
+      return stats.dump(2) + "\n";
+    case ResultKind::kPng:
+      return bytes(encode_png_srgb(images.combined));
+    case ResultKind::kSamplesPng:
+      return bytes(encode_png_srgb(samples_heat_map(images.reprojected)));
+    default:
+      break;
+  }
+  struct Remove {
+    const std::string& path;
+    ~Remove() {
+      std::error_code ec;
+      fs::remove(path, ec);
+    }
+  } remove{scratch_path};
+  write_kind(k, images, stats, scratch_path);
+  return read_bytes(scratch_path);
+}
 
 void write_results(const FrameImages& images, bool reprojects, const nlohmann::json& stats,
                    const std::function<std::string(const ResultKindInfo&)>& path_of) {

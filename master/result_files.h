@@ -20,4 +20,9 @@ Image samples_heat_map(const Image& mprime);
 void write_results(const FrameImages& images, bool reprojects, const nlohmann::json& stats,
                    const std::function<std::string(const ResultKindInfo&)>& path_of);
 
+/// The bytes of one kind's file, as write_results() would write it. EXR kinds are written to
+/// `scratch_path` (a file name ending in the kind's extension) and read back; the file is removed.
+std::string encode_result(const ResultKindInfo& kind, const FrameImages& images, const nlohmann::json& stats,
+                          const std::string& scratch_path);
+
 }  // namespace epr

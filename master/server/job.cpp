@@ -15,6 +15,7 @@ bool Job::end(JobState final_state, std::string why, int64_t now_ms) {
 JobSnapshot Job::snapshot(int64_t now_ms) const {
   JobSnapshot s;
   s.id = id;
+  s.seq = seq;
   s.name = request.name;
   s.error = error;
   s.state = state;
@@ -46,6 +47,29 @@ JobSnapshot Job::snapshot(int64_t now_ms) const {
   s.budget_exhausted = budget_exhausted;
   s.version = version;
   return s;
+}
+
+void Job::add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t now_ms) const {
+  const RenderOptions& o = request.options;
+  stats->update({{"job", id},
+                 {"scene_hash", scene_hash},
+                 {"triangles", triangles},
+                 {"width", o.width},
+                 {"height", o.height},
+                 {"spp", o.spp},
+                 {"seed", o.seed},
+                 {"rays", c.rays},
+                 {"vertices_received", c.vertices_received},
+                 {"nonfinite_dropped", c.non_finite},
+                 {"tiles_leased", c.tiles_leased},
+                 {"tiles_committed", c.tiles_committed},
+                 {"tiles_re_leased", c.tiles_re_leased},
+                 {"tiles_dropped", c.tiles_dropped},
+                 {"tiles_speculative", c.tiles_speculative},
+                 {"worker_failures", c.worker_failures},
+                 {"seconds", double(now_ms - started_ms) / 1000.0},
+                 {"seconds_tracing", c.seconds_tracing},
+                 {"budget_exhausted", budget_exhausted}});
 }
 
 }  // namespace epr

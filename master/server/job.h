@@ -39,6 +39,7 @@ struct JobRequest {
 /// A consistent copy of a job's progress.
 struct JobSnapshot {
   std::string id, name, error;
+  uint64_t seq = 0;  // submission order
   JobState state = JobState::kQueued;
   int priority = 0;
   RenderOptions options;
@@ -100,10 +101,14 @@ struct Job {
   // Set when the job was running when the master stopped: it continues from this record.
   std::shared_ptr<const JobProgressRecord> resume;
 
-  // Previews: a copy of the images taken at most once a second when a round closes, and the PNGs
-  // encoded from it on demand by whoever asks (never on the reprojection thread). A finished job's
-  // previews come from its result files; a cancelled or failed one keeps its last PNGs.
+  // Previews: a copy of the images and statistics taken at most once a second when a round closes,
+  // and the PNGs encoded from it on demand by whoever asks (never on the reprojection thread). The copy
+  // is also what a running job's partial results are encoded from; a cancelled or failed job's copy is
+  // written to its folder as its (partial) results. A finished job's previews come from its result
+  // files; a cancelled or failed one keeps its last PNGs.
   std::shared_ptr<const FrameImages> preview_images;
+  std::shared_ptr<const nlohmann::json> preview_stats;  // the statistics file as of the copy
+  int preview_round = 0;                                // the closed round the copy reflects
   bool preview_reprojects = false;
   std::map<std::string, std::vector<unsigned char>> previews;  // layer -> PNG
   int64_t last_preview_ms = 0;
@@ -118,6 +123,9 @@ struct Job {
   bool end(JobState final_state, std::string why, int64_t now_ms);
   /// The job's state as a snapshot; `workers_active` is the caller's to fill in.
   JobSnapshot snapshot(int64_t now_ms) const;
+  /// Adds the job's settings and counters (`c`: as of the round the statistics describe) to the
+  /// statistics file that FrameState::statistics() began.
+  void add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t now_ms) const;
 };
 
 }  // namespace epr

@@ -15,7 +15,6 @@
 #include "common/thread_name.h"
 #include "master/server/checkpoint.h"
 #include "master/server/checkpointer.h"
-#include "master/server/previews.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -209,43 +208,6 @@ void JobManager::notify(const std::shared_ptr<Job>& job) {
   for (auto& l : listeners) l(snap);
 }
 
-std::optional<std::string> JobManager::result_path(const std::string& id, ResultKind kind) const {
-  std::string dir;
-  {
-    MutexLock lock(mu_);
-    auto job = jobs_.find(id);
-    if (!job || job->state != JobState::kDone) return std::nullopt;
-    dir = job_dir(*job);
-  }
-  const fs::path p = fs::path(dir) / result_kind(kind).stored_as;
-  if (!fs::exists(p)) return std::nullopt;
-  return p.string();
-}
-
-std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::string& id,
-                                                                  const std::string& layer) const {
-  std::shared_ptr<const FrameImages> images;
-  bool reprojects = false, done = false;
-  std::string dir;
-  {
-    MutexLock lock(mu_);
-    auto job = jobs_.find(id);
-    if (!job) return std::nullopt;
-    if (auto p = job->previews.find(layer); p != job->previews.end()) return p->second;
-    images = job->preview_images;
-    reprojects = job->preview_reprojects;
-    done = job->state == JobState::kDone;
-    dir = job_dir(*job);
-  }
-  // Encoded here, on the caller's thread, without the mutex: the rounds go on meanwhile.
-  auto png = images ? encode_preview(*images, reprojects, layer) : done ? result_preview(dir, layer) : std::nullopt;
-  if (!png) return std::nullopt;
-  MutexLock lock(mu_);
-  auto job = jobs_.find(id);
-  if (job && job->preview_images == images && (images || job->state == JobState::kDone)) job->previews[layer] = *png;
-  return png;
-}
-
 std::string JobManager::add_scene(SceneBundleData bundle) {
   const std::string hash = content_hash(bundle);
   MutexLock lock(mu_);
@@ -254,19 +216,43 @@ std::string JobManager::add_scene(SceneBundleData bundle) {
   return hash;
 }
 
-std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle) const {
+std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera) const {
   const std::string cache = cache_dir();
+  const std::string hash = content_hash(bundle);
+  {
+    MutexLock lock(mu_);
+    ++scene_checks_[hash];  // discard_checked_scene() leaves the cached files alone meanwhile
+  }
+  std::optional<std::string> error;
   try {
     const Scene s = load_bundle(bundle, cache);
-    if (s.triangle_count() == 0) return "the scene has no triangles";
+    if (s.triangle_count() == 0) error = "the scene has no triangles";
+    if (scene_camera) *scene_camera = s.camera;
   } catch (const std::exception& e) {
     // Name files as the client knows them, not by their place in the master's cache.
     std::string msg = e.what();
-    const std::string prefix = (fs::path(cache) / "scenes" / content_hash(bundle)).string() + "/";
+    const std::string prefix = (fs::path(cache) / "scenes" / hash).string() + "/";
     for (size_t p; (p = msg.find(prefix)) != std::string::npos;) msg.erase(p, prefix.size());
-    return msg;
+    error = std::move(msg);
   }
-  return std::nullopt;
+  MutexLock lock(mu_);
+  if (--scene_checks_[hash] == 0) scene_checks_.erase(hash);
+  return error;
+}
+
+void JobManager::discard_checked_scene(const std::string& hash) {
+  if (hash.empty()) return;
+  // Under the mutex: a job that is added later loads the scene (and caches it again) only after this.
+  MutexLock lock(mu_);
+  if (scene_checks_.count(hash)) return;
+  for (const auto& [id, job] : jobs_.all())
+    if (job->scene_hash == hash) return;
+  const fs::path scenes = fs::path(cache_dir()) / "scenes";
+  std::error_code ec;
+  fs::remove_all(scenes / hash, ec);
+  // A copy whose writing failed half-way (load_bundle writes into .tmp-HASH-PID first).
+  for (fs::directory_iterator it(scenes, ec), end; !ec && it != end; it.increment(ec))
+    if (it->path().filename().string().rfind(".tmp-" + hash + "-", 0) == 0) fs::remove_all(it->path(), ec);
 }
 
 std::shared_ptr<const SceneBundleData> JobManager::scene(const std::string& hash) const {

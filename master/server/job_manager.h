@@ -5,7 +5,7 @@
 //   lease_parking.h   LeaseTile calls kept waiting until a tile may be there
 //   round_driver.h    the round loop around FrameState (shared with the single-process render)
 //   checkpointer.h    the thread that writes checkpoints (checkpoint.h: their format and folder)
-//   previews.h        preview PNGs; result_files.h the finished job's files
+//   previews.h        preview PNGs; result_files.h the finished job's files (job_results.cpp serves both)
 // gRPC services (job_service.h, worker_service.h) only translate between the wire and this class.
 //
 // Threads:
@@ -113,6 +113,19 @@ class JobManager {
   void unwatch(uint64_t handle) EPR_EXCLUDES(mu_);
   /// Path of a finished job's result file, if it exists.
   std::optional<std::string> result_path(const std::string& id, ResultKind kind) const EPR_EXCLUDES(mu_);
+  /// One result file of a job, as FetchResult serves it.
+  struct ResultFile {
+    enum class Error { kNone, kNoJob, kNotReady, kNotProduced, kFailed };
+    Error error = Error::kNone;
+    std::string why;  // with an error: the reason, for the client
+    std::string bytes;
+    int round = 0;         // the closed round the file reflects
+    bool partial = false;  // the job is not done
+  };
+  /// A done job's file; a cancelled or failed job's last preview copy (partial); with
+  /// `allow_partial`, a running job's latest preview copy (partial: a closed round, taken at most
+  /// about a second after the one before), encoded on the calling thread.
+  ResultFile result_file(const std::string& id, ResultKind kind, bool allow_partial) const EPR_EXCLUDES(mu_);
   /// PNG of a preview layer (previews.h) as of a round that closed at most a second after the
   /// previous preview (encoded on demand, on the calling thread), or of the finished job's results.
   std::optional<std::vector<unsigned char>> preview_png(const std::string& id, const std::string& layer) const
@@ -123,7 +136,12 @@ class JobManager {
   /// Stores an uploaded scene under its content hash.
   std::string add_scene(SceneBundleData bundle) EPR_EXCLUDES(mu_);
   /// Loads the scene to check it; the reason (naming file and line inside the bundle) if it is bad.
-  std::optional<std::string> check_scene(const SceneBundleData& bundle) const;
+  /// `scene_camera`, if given, receives the scene's own camera.
+  std::optional<std::string> check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera = nullptr) const
+      EPR_EXCLUDES(mu_);
+  /// Removes what check_scene() left in the scene cache (scenes/HASH) for a submission that was
+  /// refused, unless a job or another check still uses it. Built-in scenes are never cached.
+  void discard_checked_scene(const std::string& content_hash) EPR_EXCLUDES(mu_);
   /// The scene files of a hash, for FetchScene.
   std::shared_ptr<const SceneBundleData> scene(const std::string& hash) const EPR_EXCLUDES(mu_);
 
@@ -227,6 +245,7 @@ class JobManager {
   WorkerRegistry workers_ EPR_GUARDED_BY(mu_);
   LeaseParking parking_ EPR_GUARDED_BY(mu_);
   std::map<std::string, std::shared_ptr<const SceneBundleData>> scenes_ EPR_GUARDED_BY(mu_);
+  mutable std::map<std::string, int> scene_checks_ EPR_GUARDED_BY(mu_);  // check_scene() calls under way, by hash
   std::deque<std::unique_ptr<Task>> tasks_ EPR_GUARDED_BY(mu_);
   uint64_t queued_vertices_ EPR_GUARDED_BY(mu_) = 0;
   uint64_t next_lease_ EPR_GUARDED_BY(mu_) = 1;

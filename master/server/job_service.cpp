@@ -2,12 +2,13 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <atomic>
-#include <fstream>
-#include <sstream>
+#include <optional>
 
 #include "common/check.h"
 #include "common/log.h"
+#include "master/reprojection_outcomes.h"
 #include "master/server/reactors.h"
 #include "wire/convert.h"
 #include "wire/rpc/chunked.h"
@@ -196,10 +197,11 @@ void to_proto(const JobSnapshot& s, v1::JobStatus* out) {
   out->set_paths_skipped(s.progress.paths_skipped);
   out->set_rays_traced(s.counters.rays);
   out->set_vertices_received(s.counters.vertices_received);
-  out->set_vertices_accepted(s.counts.accepted + s.counts.exact);
-  out->set_vertices_occluded(s.counts.occluded);
-  out->set_vertices_culled(s.counts.culled + s.counters.worker_culled);
-  out->set_vertices_not_diffuse(s.counts.not_diffuse);
+  const ReprojectionOutcomes outcomes = ReprojectionOutcomes::of(s.counts, s.counters.worker_culled);
+  out->set_vertices_accepted(outcomes.accepted);
+  out->set_vertices_occluded(outcomes.occluded);
+  out->set_vertices_culled(outcomes.culled);
+  out->set_vertices_not_diffuse(outcomes.not_diffuse);
   out->set_non_finite_dropped(s.counters.non_finite + s.counts.invalid);
   out->set_tiles_leased(s.counters.tiles_leased);
   out->set_tiles_committed(s.counters.tiles_committed);
@@ -243,18 +245,29 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
     default:
       return finish(ctx, invalid("the job has no scene"));
   }
-  if (!req->has_camera()) return finish(ctx, invalid("the job has no camera"));
   if (req->name().size() > 256) return finish(ctx, invalid("job names are limited to 256 bytes"));
   jr.name = req->name();
   jr.priority = req->priority();
   jr.request_id = req->request_id();
   if (req->has_time_budget_seconds()) jr.time_budget_seconds = req->time_budget_seconds();
   // The limits first (cheap, and a huge bundle is not parsed), then the scene itself, so that a
-  // malformed file is an INVALID_ARGUMENT naming file and line, not a job that fails later.
+  // malformed file is an INVALID_ARGUMENT naming file and line, not a job that fails later. Without a
+  // camera in the spec the job takes the scene's own.
   if (auto err = jobs_.validate(jr)) return finish(ctx, invalid(*err));
-  if (auto err = jobs_.check_scene(jr.bundle)) return finish(ctx, invalid(*err));
+  CameraSpec scene_camera;
+  // From here on the scene is in the master's cache: a refusal removes it again.
+  const std::string hash = content_hash(jr.bundle);
+  auto refuse = [&](const std::string& why) {
+    jobs_.discard_checked_scene(hash);
+    return finish(ctx, invalid(why));
+  };
+  if (auto err = jobs_.check_scene(jr.bundle, &scene_camera)) return refuse(*err);
+  if (!req->has_camera()) {
+    if (auto err = scene_camera.validate()) return refuse("the scene's own camera: " + *err);
+    jr.camera = scene_camera;
+  }
   const auto r = jobs_.submit(std::move(jr));
-  if (!r.error.empty()) return finish(ctx, invalid(r.error));
+  if (!r.error.empty()) return refuse(r.error);
   resp->set_id(r.id);
   return finish(ctx, grpc::Status::OK);
 }
@@ -277,25 +290,29 @@ grpc::ServerWriteReactor<v1::JobStatus>* JobServiceImpl::WatchJob(grpc::Callback
   return new JobWatcher(jobs_, req->job_id(), req->min_interval_ms());
 }
 
+// Newest first. The page token is the submission number of the last job sent: the next page holds
+// the older jobs, so jobs submitted between two pages neither repeat nor shift one.
 grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* ctx, const v1::ListJobsRequest* req,
                                                    v1::ListJobsResponse* resp) {
   const size_t page = req->page_size() ? std::min<size_t>(req->page_size(), 1000) : 100;
-  size_t start = 0;
+  std::optional<uint64_t> before;
   if (!req->page_token().empty()) {
     try {
-      start = std::stoul(req->page_token());
+      size_t used = 0;
+      before = std::stoull(req->page_token(), &used);
+      if (used != req->page_token().size()) throw std::invalid_argument("trailing characters");
     } catch (const std::exception&) {
       return finish(ctx, invalid("malformed page_token"));
     }
   }
-  std::vector<JobSnapshot> all = jobs_.list();
   std::vector<JobSnapshot> selected;
-  for (auto& s : all)
-    if (req->states().empty() ||
-        std::find(req->states().begin(), req->states().end(), to_proto(s.state)) != req->states().end())
+  for (auto& s : jobs_.list())
+    if ((!before || s.seq < *before) && (req->states().empty() || std::find(req->states().begin(), req->states().end(),
+                                                                            to_proto(s.state)) != req->states().end()))
       selected.push_back(std::move(s));
-  for (size_t i = start; i < selected.size() && i < start + page; ++i) to_proto(selected[i], resp->add_jobs());
-  if (start + page < selected.size()) resp->set_next_page_token(std::to_string(start + page));
+  std::sort(selected.begin(), selected.end(), [](const JobSnapshot& a, const JobSnapshot& b) { return a.seq > b.seq; });
+  for (size_t i = 0; i < selected.size() && i < page; ++i) to_proto(selected[i], resp->add_jobs());
+  if (selected.size() > page) resp->set_next_page_token(std::to_string(selected[page - 1].seq));
   return finish(ctx, grpc::Status::OK);
 }
 
@@ -312,28 +329,30 @@ grpc::ServerWriteReactor<v1::ResultChunk>* JobServiceImpl::FetchResult(grpc::Cal
   const std::optional<ResultKind> kind = from_proto(req->kind());
   if (!kind) return new Writer({}, invalid("unknown result kind"));
   const ResultKindInfo& k = result_kind(*kind);
-  auto snap = jobs_.get(req->job_id());
-  if (!snap) return new Writer({}, no_job(req->job_id()));
-  if (snap->state != JobState::kDone)
-    return new Writer({},
-                      {grpc::StatusCode::FAILED_PRECONDITION,
-                       fmt::format("job {} is {}: results exist once it is done", snap->id, to_string(snap->state))});
-  auto path = jobs_.result_path(req->job_id(), *kind);
-  if (!path)
-    return new Writer({}, {grpc::StatusCode::NOT_FOUND,
-                           fmt::format("job {} has no {} result (not produced in this mode)", snap->id, k.name)});
-  std::ifstream in(*path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  const std::string bytes = ss.str();
+  const JobManager::ResultFile file = jobs_.result_file(req->job_id(), *kind, req->allow_partial());
+  using Error = JobManager::ResultFile::Error;
+  switch (file.error) {
+    case Error::kNone:
+      break;
+    case Error::kNoJob:
+      return new Writer({}, no_job(req->job_id()));
+    case Error::kNotReady:
+      return new Writer({}, {grpc::StatusCode::FAILED_PRECONDITION, file.why});
+    case Error::kNotProduced:
+      return new Writer({}, {grpc::StatusCode::NOT_FOUND, file.why});
+    case Error::kFailed:
+      return new Writer({}, {grpc::StatusCode::INTERNAL, file.why});
+  }
+  const std::string& bytes = file.bytes;
   std::vector<v1::ResultChunk> chunks(1);
   auto* h = chunks[0].mutable_header();
   h->set_kind(req->kind());
   h->set_media_type(std::string(k.media_type));
-  h->set_suggested_filename(fmt::format("{}{}", snap->id, k.suffix));
+  h->set_suggested_filename(fmt::format("{}{}", req->job_id(), k.suffix));
   h->set_total_bytes(bytes.size());
   h->set_sha256(sha256_hex(bytes));
-  h->set_round(uint32_t(snap->progress.round));
+  h->set_round(uint32_t(file.round));
+  h->set_partial(file.partial);
   rpc::for_each_chunk(bytes, [&](uint64_t offset, std::string_view piece) {
     auto* d = chunks.emplace_back().mutable_data();
     d->set_offset(offset);

@@ -9,28 +9,27 @@
 #include <set>
 #include <utility>
 
+#include "master/reprojection_outcomes.h"
+
 namespace epr {
 namespace {
 
 using json = nlohmann::json;
-
-double percent(uint64_t part, uint64_t total) { return total ? 100.0 * double(part) / double(total) : 0.0; }
 
 double progress_fraction(const JobSnapshot& s) {
   if (s.state == JobState::kDone) return 1.0;
   return std::clamp(s.progress.mean_spp / std::max(1, s.options.spp), 0.0, 1.0);
 }
 
-// Vertices the reprojection decided about, whether on the master or already on a worker.
-uint64_t reprojection_considered(const JobSnapshot& s) { return s.counts.total() + s.counters.worker_culled; }
-
-// Reprojection decisions by outcome: culled includes what the workers culled, accepted the exact samples.
+// Reprojection decisions by outcome (ReprojectionOutcomes: culled includes what the workers culled,
+// accepted the exact samples).
 std::array<std::pair<const char*, uint64_t>, 5> outcomes(const ReprojectionCounts& c, const JobCounters& n) {
-  return {{{"accepted", c.accepted + c.exact},
-           {"occluded", c.occluded},
-           {"culled", c.culled + n.worker_culled},
-           {"not_diffuse", c.not_diffuse},
-           {"invalid", c.invalid}}};
+  const ReprojectionOutcomes o = ReprojectionOutcomes::of(c, n.worker_culled);
+  return {{{"accepted", o.accepted},
+           {"occluded", o.occluded},
+           {"culled", o.culled},
+           {"not_diffuse", o.not_diffuse},
+           {"invalid", o.invalid}}};
 }
 
 }  // namespace
@@ -42,8 +41,7 @@ json to_json(const JobSnapshot& s) {
   const auto& p = s.progress;
   const auto& c = s.counts;
   const JobCounters& n = s.counters;
-  const uint64_t considered = reprojection_considered(s);
-  const uint64_t accepted = c.accepted + c.exact, culled = c.culled + n.worker_culled;
+  const ReprojectionOutcomes r = ReprojectionOutcomes::of(c, n.worker_culled);
   const uint64_t pixels = uint64_t(o.width) * uint64_t(o.height);
   const double busy = n.seconds_tracing + n.seconds_reprojecting;
   return json{
@@ -86,17 +84,17 @@ json to_json(const JobSnapshot& s) {
       {"rays_traced", n.rays},
       {"vertices_received", n.vertices_received},
       {"reprojection",
-       {{"considered", considered},
-        {"accepted", accepted},
-        {"occluded", c.occluded},
+       {{"considered", r.considered},
+        {"accepted", r.accepted},
+        {"occluded", r.occluded},
         {"backfacing", c.backfacing},
-        {"culled", culled},
-        {"culled_by_workers", n.worker_culled},
-        {"not_diffuse", c.not_diffuse},
-        {"invalid", c.invalid},
-        {"accepted_percent", percent(accepted, considered)},
-        {"occluded_percent", percent(c.occluded, considered)},
-        {"culled_percent", percent(culled, considered)}}},
+        {"culled", r.culled},
+        {"culled_by_workers", r.culled_by_workers},
+        {"not_diffuse", r.not_diffuse},
+        {"invalid", r.invalid},
+        {"accepted_percent", r.accepted_percent()},
+        {"occluded_percent", r.occluded_percent()},
+        {"culled_percent", r.culled_percent()}}},
       {"non_finite_dropped", n.non_finite + c.invalid},
       {"time",
        {{"tracing_seconds", n.seconds_tracing},

@@ -105,19 +105,33 @@ void JobManager::end_job(const std::shared_ptr<Job>& job, JobState state, const 
 }
 
 void JobManager::drop_job(const std::shared_ptr<Job>& job) {
-  // Cancelled or failed: its last previews stay available as PNGs, the image copy goes.
+  // Cancelled or failed: the last preview copy becomes the job's (partial) result files and PNG
+  // previews; the image copy goes once they are written (until then it serves both).
   std::shared_ptr<const FrameImages> images;
+  nlohmann::json stats;
+  std::string dir;
   {
     MutexLock lock(mu_);
-    images = std::move(job->preview_images);
+    images = job->preview_images;
+    if (job->preview_stats) stats = *job->preview_stats;
+    stats.update({{"partial", true}, {"state", to_string(job->state)}});
+    dir = job_dir(*job);
   }
   if (images) {
+    try {
+      fs::create_directories(dir);
+      write_results(*images, job->preview_reprojects, stats,
+                    [&](const ResultKindInfo& k) { return (fs::path(dir) / k.stored_as).string(); });
+    } catch (const std::exception& e) {
+      logger("master")->error("job {}: cannot store its partial results: {}", job->id, e.what());
+    }
     std::map<std::string, std::vector<unsigned char>> pngs;
     for (std::string_view layer : kPreviewLayers)
       if (auto png = encode_preview(*images, job->preview_reprojects, layer))
         pngs[std::string(layer)] = std::move(*png);
     MutexLock lock(mu_);
     job->previews = std::move(pngs);
+    job->preview_images.reset();
   }
   job->driver.reset();
   job->scene.reset();
@@ -216,6 +230,7 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
   const bool more = job->driver->close();
   bool budget_over = false, want_preview;
   JobProgressRecord checkpoint;
+  JobCounters at_close;
   {
     MutexLock lock(mu_);
     job->seconds_round_backlog += std::chrono::duration<double>(closing - job->last_commit_at).count();
@@ -230,6 +245,7 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
       budget_over = double(now - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
     want_preview = now - job->last_preview_ms >= 1000;
     checkpoint = progress_record(*job);  // the counters as of the round's end
+    at_close = job->counters;
   }
   if (!more || budget_over) {
     finish_job(job, budget_over && more);
@@ -248,8 +264,12 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
   // closed round's state, since only this thread applies the next round's results.
   if (want_preview) {
     auto images = std::make_shared<const FrameImages>(frame.images(/*preview=*/true));
+    nlohmann::json stats = frame.statistics(job->request.options, at_close.worker_culled);
     MutexLock lock(mu_);
+    job->add_statistics(&stats, at_close, clock_());
     job->preview_images = std::move(images);
+    job->preview_stats = std::make_shared<const nlohmann::json>(std::move(stats));
+    job->preview_round = frame.round();
     job->preview_reprojects = frame.reprojects();
     job->previews.clear();
     job->last_preview_ms = clock_();
@@ -268,35 +288,20 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
   // The images first; the statistics, which include the time they took, after.
   write_results(images, frame.reprojects(), {},
                 [&](const ResultKindInfo& k) { return k.kind == ResultKind::kJson ? std::string() : stored(k); });
-  nlohmann::json stats = frame.statistics(job->request.options);
+  uint64_t worker_culled;
+  {
+    MutexLock lock(mu_);
+    worker_culled = job->counters.worker_culled;  // every tile is applied: no commit changes it now
+  }
+  nlohmann::json stats = frame.statistics(job->request.options, worker_culled);
   {
     MutexLock lock(mu_);
     job->progress = frame.progress();
     job->counts = frame.counts();
     job->counters.seconds_reprojecting = frame.seconds_reprojecting();
     job->budget_exhausted = budget_exhausted;
-    const RenderOptions& o = job->request.options;
-    const JobCounters& c = job->counters;
-    stats.update({{"job", job->id},
-                  {"scene_hash", job->scene_hash},
-                  {"triangles", job->triangles},
-                  {"width", o.width},
-                  {"height", o.height},
-                  {"spp", o.spp},
-                  {"seed", o.seed},
-                  {"rays", c.rays},
-                  {"vertices_received", c.vertices_received},
-                  {"culled_worker", c.worker_culled},
-                  {"nonfinite_dropped", c.non_finite},
-                  {"tiles_leased", c.tiles_leased},
-                  {"tiles_committed", c.tiles_committed},
-                  {"tiles_re_leased", c.tiles_re_leased},
-                  {"tiles_dropped", c.tiles_dropped},
-                  {"tiles_speculative", c.tiles_speculative},
-                  {"worker_failures", c.worker_failures},
-                  {"seconds", double(clock_() - job->started_ms) / 1000.0},
-                  {"seconds_tracing", c.seconds_tracing},
-                  {"budget_exhausted", budget_exhausted}});
+    job->add_statistics(&stats, job->counters, clock_());
+    stats["partial"] = false;
   }
   write_results(images, frame.reprojects(), stats,
                 [&](const ResultKindInfo& k) { return k.kind == ResultKind::kJson ? stored(k) : std::string(); });

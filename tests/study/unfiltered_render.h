@@ -45,7 +45,7 @@ inline UnfilteredRender render_unfiltered(RenderOptions o, bool defeat_facing, b
     frame.reproject(res.vertices);
     frame.finish_round();
   }
-  return {frame.images(), frame.counts(), frame.statistics(o)};
+  return {frame.images(), frame.counts(), frame.statistics(o, 0)};  // kAll: no vertex is culled before reprojection
 }
 
 }  // namespace epr
