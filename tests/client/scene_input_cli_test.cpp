@@ -1,0 +1,149 @@
+// Scene input through the real `epr` binary (issue 16): a scene's warnings are printed once, naming
+// the user's file; an unlit scene is refused before anything renders, saying how to light it; FIFOs,
+// devices and directories named as scene files fail at once; a texture whose name has blanks renders
+// through the embedded cluster (which bundles the scene) as it does in a single process.
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "common/image.h"
+#include "tests/common/scene_test_files.h"
+
+namespace epr {
+namespace {
+
+namespace fs = std::filesystem;
+using test::TempDir;
+
+// The `epr` executable: $EPR_BIN, else client/epr beside the test binary's tests/ folder.
+std::string epr_binary() {
+  if (const char* env = std::getenv("EPR_BIN"); env && *env) return env;
+  return (fs::read_symlink("/proc/self/exe").parent_path().parent_path() / "client" / "epr").string();
+}
+
+struct EprRun {
+  int exit_code = -1;
+  std::string output;  // stdout and stderr
+};
+
+/// Runs `epr ARGS` in `cwd` with its scene cache below `cwd`/cache (shell quoting is the caller's).
+EprRun run_epr(const std::string& cwd, const std::string& args) {
+  const std::string cmd =
+      "cd '" + cwd + "' && EPR_CACHE_DIR='" + cwd + "/cache' '" + epr_binary() + "' " + args + " 2>&1 </dev/null";
+  EprRun r;
+  FILE* p = ::popen(cmd.c_str(), "r");
+  if (!p) return r;
+  std::array<char, 4096> buf;
+  size_t n;
+  while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.output.append(buf.data(), n);
+  const int status = ::pclose(p);
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+size_t count(const std::string& text, const std::string& part) {
+  size_t n = 0;
+  for (size_t p = text.find(part); p != std::string::npos; p = text.find(part, p + 1)) ++n;
+  return n;
+}
+
+bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
+
+// A wall (material `wall`) under a glowing ceiling (material `glow`), in the default camera's view.
+const std::string kRoom =
+    "v -1 0 -1\nv 1 0 -1\nv 1 2 -1\nv -1 2 -1\nv -1 2 1\nv 1 2 1\n"
+    "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+    "usemtl wall\nf 1/1 2/2 3/3 4/4\nusemtl glow\nf 4 3 6 5\n";
+const std::string kFast = " --width 16 --height 16 --spp 2 --mode pt";
+
+class SceneInputCli : public ::testing::Test {
+ protected:
+  void SetUp() override { ASSERT_TRUE(fs::exists(epr_binary())) << "epr not found at " << epr_binary(); }
+  TempDir dir;
+};
+
+// The master and the worker load the scene again from their caches: only the client's load shows
+// its warnings, once, naming the file as the user named it.
+TEST_F(SceneInputCli, RenderPrintsEachWarningOnceNamingTheUsersFile) {
+  dir.write("scene/m.mtl", "newmtl wall\nKd 0.5 0.5 0.5\nnewmtl glow\nKd 0 0 0\nKe 5 5 5\n");
+  dir.write("scene/w.obj", "mtllib m.mtl\n" + kRoom + "curv 0 1 2\n");
+  const EprRun r = run_epr(dir.path(""), "render scene/w.obj" + kFast + " --out out/w");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(count(r.output, "unsupported statement 'curv' ignored"), 1u) << r.output;
+  EXPECT_TRUE(contains(r.output, "scene/w.obj:16: unsupported statement 'curv' ignored")) << r.output;
+  EXPECT_FALSE(contains(r.output, "/scenes/")) << "a cache path is named:\n" << r.output;
+}
+
+// No emitter: refused by `render` (embedded and single-process) and by `submit` before it connects.
+TEST_F(SceneInputCli, UnlitSceneIsRefusedSayingHowToLightIt) {
+  dir.write("m.mtl", "newmtl wall\nKd 0.5 0.5 0.5\nnewmtl glow\nKd 0.8 0.8 0.8\nKe 0 0 0\n");
+  dir.write("dark.obj", "mtllib m.mtl\n" + kRoom);
+  for (const std::string args :
+       {"render dark.obj" + kFast + " --out out/a", "render --single-process dark.obj" + kFast + " --out out/b",
+        std::string("submit --master 127.0.0.1:1 dark.obj")}) {
+    SCOPED_TRACE(args);
+    const EprRun r = run_epr(dir.path(""), args);
+    EXPECT_NE(r.exit_code, 0) << r.output;
+    EXPECT_TRUE(contains(r.output, "dark.obj has no light: no material has an emission (Ke)")) << r.output;
+    EXPECT_TRUE(contains(r.output, "Ke 10 10 10")) << r.output;
+  }
+  EXPECT_FALSE(fs::exists(dir.path("out/a.exr")));
+  EXPECT_FALSE(fs::exists(dir.path("out/b.exr")));
+}
+
+// Each fails at once naming the file (a FIFO once blocked the bundler, /dev/zero filled memory).
+TEST_F(SceneInputCli, FifosDevicesAndDirectoriesFailAtOnce) {
+  ASSERT_EQ(::mkfifo(dir.path("pipe.obj").c_str(), 0600), 0);
+  ASSERT_EQ(::mkfifo(dir.path("pipe.png").c_str(), 0600), 0);
+  fs::create_directories(dir.path("x.obj"));
+  dir.write("t.mtl", "newmtl wall\nmap_Kd pipe.png\nnewmtl glow\nKe 5 5 5\n");
+  dir.write("t.obj", "mtllib t.mtl\n" + kRoom);
+  const struct {
+    std::string scene, expect;
+  } cases[] = {{"pipe.obj", "pipe.obj: is a FIFO (named pipe), not a regular file"},
+               {"t.obj", "t.mtl:2: texture 'pipe.png' is a FIFO"},
+               {"x.obj", "x.obj: is a directory"},
+               {"/dev/zero", "/dev/zero: is a character device, not a regular file"}};
+  for (const auto& c : cases)
+    for (const std::string mode : {"", " --single-process"}) {
+      SCOPED_TRACE(c.scene + mode);
+      const EprRun r = run_epr(dir.path(""), "render " + c.scene + mode + kFast + " --out out/f");
+      EXPECT_NE(r.exit_code, 0) << r.output;
+      EXPECT_TRUE(contains(r.output, c.expect)) << r.output;
+    }
+}
+
+// `map_Kd -s 1 1 1 tex/my texture.png`: the single-process render reads the file itself, the embedded
+// cluster gets it in the bundle; both images are the same, bit for bit.
+TEST_F(SceneInputCli, TextureNameWithBlanksRendersTheSameThroughTheCluster) {
+  Image tex(8, 8, 3);
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) tex.set_rgb(x, y, (x + y) % 2 ? Vec3(0.9f, 0.2f, 0.1f) : Vec3(0.1f, 0.3f, 0.9f));
+  fs::create_directories(dir.path("scene/tex"));
+  write_png_srgb(dir.path("scene/tex/my texture.png"), tex);
+  dir.write("scene/m.mtl", "newmtl wall\nmap_Kd -s 1 1 1 tex/my texture.png\nnewmtl glow\nKd 0 0 0\nKe 5 5 5\n");
+  dir.write("scene/room.obj", "mtllib m.mtl\n" + kRoom);
+  const std::string flags = " --width 24 --height 24 --spp 4 --mode pt --seed 3 --threads 2";
+  const EprRun local = run_epr(dir.path(""), "render --single-process scene/room.obj" + flags + " --out out/local");
+  ASSERT_EQ(local.exit_code, 0) << local.output;
+  const EprRun cluster = run_epr(dir.path(""), "render scene/room.obj" + flags + " --out out/cluster");
+  ASSERT_EQ(cluster.exit_code, 0) << cluster.output;
+  const Image a = read_image(dir.path("out/local.exr")), b = read_image(dir.path("out/cluster.exr"));
+  ASSERT_EQ(a.width, b.width);
+  ASSERT_EQ(a.height, b.height);
+  EXPECT_TRUE(a.data == b.data) << "the cluster's image differs from the single-process one";
+  double sum = 0;
+  for (float v : a.data) sum += v;
+  EXPECT_GT(sum, 0.0) << "the room is lit";
+}
+
+}  // namespace
+}  // namespace epr
