@@ -415,5 +415,63 @@ TEST_F(ClusterTest, CliExitCodesForUnknownAndCancelledJobs) {
   EXPECT_EQ(epr("watch " + id).exit_code, kExitJobFailed);
 }
 
+TEST_F(ClusterTest, CliListLimitShowsTheNewestJobs) {
+  std::vector<std::string> ids;
+  for (int i = 0; i < 3; ++i) {  // no worker: they wait
+    const CliRun submit = epr("submit builtin:cornell --width 32 --height 32 --spp 4 --name job-" + std::to_string(i));
+    ASSERT_EQ(submit.exit_code, kExitOk) << submit.err;
+    ids.push_back(submit.out.substr(0, submit.out.find('\n')));
+  }
+  const CliRun one = epr("list --limit 1");
+  ASSERT_EQ(one.exit_code, kExitOk) << one.err;
+  EXPECT_NE(one.out.find(ids[2]), std::string::npos) << one.out;
+  EXPECT_EQ(one.out.find(ids[0]), std::string::npos) << one.out;
+  EXPECT_EQ(one.out.find(ids[1]), std::string::npos) << one.out;
+  const CliRun all = epr("list");
+  ASSERT_EQ(all.exit_code, kExitOk) << all.err;
+  EXPECT_LT(all.out.find(ids[2]), all.out.find(ids[1])) << all.out;
+  EXPECT_LT(all.out.find(ids[1]), all.out.find(ids[0])) << all.out;
+}
+
+TEST_F(ClusterTest, CliGetPartialOfARunningJobAndGetOfACancelledOne) {
+  start_worker();
+  // Far more rounds than the test lasts: the job is still running when it is cancelled.
+  const CliRun submit =
+      epr("submit builtin:cornell --width 32 --height 32 --spp 20000 --paths-per-round 1 --tile 16 --mode rp "
+          "--reproject cpu");
+  ASSERT_EQ(submit.exit_code, kExitOk) << submit.err;
+  const std::string id = submit.out.substr(0, submit.out.find('\n'));
+  JobClient client(target_, client_options());
+  ASSERT_TRUE(wait_until([&] { return client.get(id).round() >= 1; }, 60s, 20ms));
+
+  const CliRun refused = epr("get " + id + " --out " + (dir_ / "no").string());
+  EXPECT_EQ(refused.exit_code, kExitJobFailed) << refused.err;
+  EXPECT_FALSE(fs::exists(dir_ / "no.exr"));
+  // The round's copy follows the round's close: fetched once it is there.
+  const std::string running = (dir_ / "running").string();
+  CliRun partial;
+  EXPECT_TRUE(wait_until(
+      [&] {
+        partial = epr("get " + id + " --partial --out " + running);
+        return partial.exit_code == kExitOk;
+      },
+      30s, 50ms))
+      << partial.err;
+  EXPECT_NE(partial.err.find("partial"), std::string::npos) << partial.err;
+  EXPECT_TRUE(starts_with(read_file(running + ".exr"), "\x76\x2f\x31\x01")) << "not OpenEXR";
+  const auto stats = nlohmann::json::parse(read_file(running + ".json"), nullptr, false);
+  EXPECT_EQ(stats.value("partial", false), true) << read_file(running + ".json");
+
+  const CliRun cancel = epr("cancel " + id);
+  ASSERT_EQ(cancel.exit_code, kExitOk) << cancel.err;
+  const std::string cancelled = (dir_ / "cancelled").string();
+  const CliRun get = epr("get " + id + " --out " + cancelled);
+  EXPECT_EQ(get.exit_code, kExitOk) << get.err;
+  EXPECT_NE(get.err.find("partial"), std::string::npos) << get.err;
+  EXPECT_TRUE(starts_with(read_file(cancelled + ".exr"), "\x76\x2f\x31\x01")) << "not OpenEXR";
+  EXPECT_TRUE(fs::exists(cancelled + ".samples.png"));
+  EXPECT_EQ(nlohmann::json::parse(read_file(cancelled + ".json")).value("state", ""), "cancelled");
+}
+
 }  // namespace
 }  // namespace epr
