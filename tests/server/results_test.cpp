@@ -170,6 +170,16 @@ TEST_F(ResultsTest, RunningJobServesItsLatestRoundOnlyWhenAskedAndACancelledJobK
   EXPECT_EQ(c["partial"], true);
   EXPECT_EQ(c["state"], "cancelled");
   EXPECT_EQ(c["rounds"], 1);
+
+  // A master restarted on the same state directory serves them too.
+  server_->shutdown();
+  server_.reset();
+  start();
+  const Fetched restarted = fetch(id, v1::RESULT_KIND_EXR, false);
+  ASSERT_TRUE(restarted.status.ok()) << restarted.status.error_message();
+  EXPECT_TRUE(restarted.header.partial());
+  EXPECT_EQ(restarted.header.round(), 1u);
+  EXPECT_EQ(image(restarted).data, running.data);
 }
 
 TEST_F(ResultsTest, JobCancelledBeforeItsFirstRoundHasNoResults) {
