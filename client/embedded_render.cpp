@@ -1,11 +1,21 @@
 #include "client/embedded_render.h"
 
+#include <fmt/format.h>
+#include <signal.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdlib>
+#include <cstring>
 #include <filesystem>
+#include <regex>
 #include <thread>
 
 #include "master/server/master_server.h"
 
 namespace epr {
+namespace fs = std::filesystem;
 
 int embedded_threads_per_worker(const RenderOptions& opts, const EmbeddedOptions& embedded) {
   const int n = std::max(1, embedded.workers);
@@ -15,13 +25,75 @@ int embedded_threads_per_worker(const RenderOptions& opts, const EmbeddedOptions
                                      : std::max(1, cores / n);
 }
 
+// ---- private state folders ----------------------------------------------------------------------
+
+PrivateStateDir::PrivateStateDir() {
+  std::string tmpl = (fs::temp_directory_path() / fmt::format("epr-render-{}-XXXXXX", ::getpid())).string();
+  if (!::mkdtemp(tmpl.data()))
+    throw std::runtime_error(fmt::format("cannot create a state folder like {}: {}", tmpl, std::strerror(errno)));
+  path_ = tmpl;
+  try {
+    lock_ = std::make_unique<StateDirLock>(path_);
+  } catch (...) {
+    remove();
+    throw;
+  }
+}
+
+void PrivateStateDir::remove() {
+  if (path_.empty()) return;
+  std::error_code ec;
+  fs::remove_all(path_, ec);
+  lock_.reset();
+  path_.clear();
+}
+
+std::vector<std::string> remove_stale_state_dirs() {
+  // epr-render-PID-XXXXXX (PrivateStateDir), epr-master-PID-N (a master's own temporary folder) and
+  // epr-worker-cache-PID-XXXXXX (a worker's fallback scene cache, worker/scene_fetch.h CacheRoot).
+  static const std::regex kName(R"(epr-(render|master|worker-cache)-(\d+)-[A-Za-z0-9]+)");
+  std::vector<std::string> removed;
+  std::error_code ec;
+  const fs::path tmp = fs::temp_directory_path(ec);
+  if (ec) return removed;
+  for (fs::directory_iterator it(tmp, ec), end; !ec && it != end; it.increment(ec)) {
+    std::smatch m;
+    const std::string name = it->path().filename().string();
+    if (!std::regex_match(name, m, kName)) continue;
+    struct stat st {};
+    if (::lstat(it->path().c_str(), &st) != 0 || !S_ISDIR(st.st_mode) || st.st_uid != ::geteuid()) continue;
+    const long pid = std::strtol(m[2].str().c_str(), nullptr, 10);
+    if (pid <= 0 || pid == ::getpid()) continue;
+    // kill(pid, 0) fails with ESRCH only when no such process exists (EPERM: it exists, not ours).
+    if (!(::kill(pid_t(pid), 0) != 0 && errno == ESRCH)) continue;
+    if (StateDirLock::holder(it->path().string())) continue;  // a process in another pid namespace
+    std::error_code rm;
+    fs::remove_all(it->path(), rm);
+    if (!rm) removed.push_back(it->path().string());
+  }
+  return removed;
+}
+
+// ---- the render ---------------------------------------------------------------------------------
+
 EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
                                const std::function<void(const v1::JobStatus&)>& on_status,
                                const std::function<void(const std::string&, const std::string&)>& on_started) {
+  // The state folder: the caller's (locked: one master per folder), else a private one that goes
+  // with this function (declared first: removed after the master is gone).
+  std::unique_ptr<PrivateStateDir> private_dir;
+  std::unique_ptr<StateDirLock> lock;
   MasterServerOptions mo;
   mo.listen = "127.0.0.1:0";
-  mo.jobs.state_dir = embedded.state_dir;
-  mo.jobs.checkpoints = embedded.checkpoints;
+  if (embedded.state_dir.empty()) {
+    private_dir = std::make_unique<PrivateStateDir>();
+    mo.jobs.state_dir = private_dir->path();
+    mo.jobs.checkpoints = false;
+  } else {
+    lock = std::make_unique<StateDirLock>(embedded.state_dir);
+    mo.jobs.state_dir = embedded.state_dir;
+    mo.jobs.checkpoints = embedded.checkpoints;
+  }
   mo.jobs.checkpoint_interval_s = embedded.checkpoint_interval_s;
   mo.http_listen = embedded.http_listen;
   MasterServer master(mo);
@@ -29,6 +101,13 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
   result.master_target = master.local_target();
   result.dashboard_url = master.dashboard_url();
   if (on_started) on_started(result.master_target, result.dashboard_url);
+
+  CallCanceller own_canceller;
+  CallCanceller* canceller = embedded.canceller ? embedded.canceller : &own_canceller;
+  struct Refusal {  // a worker the master refused for good: the render cannot go on
+    Mutex mu;
+    std::string why EPR_GUARDED_BY(mu);
+  } refusal;
 
   const int n = std::max(1, embedded.workers);
   const int threads = embedded_threads_per_worker(opts, embedded);
@@ -40,7 +119,15 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
     wo.threads = threads;
     wo.name = "local-" + std::to_string(i);
     nodes.push_back(std::make_unique<WorkerNode>(wo));
-    runners.emplace_back([node = nodes.back().get()] { node->run(); });
+    runners.emplace_back([&, node = nodes.back().get()] {
+      if (auto why = node->run()) {
+        {
+          MutexLock l(refusal.mu);
+          if (refusal.why.empty()) refusal.why = *why;
+        }
+        canceller->cancel();
+      }
+    });
   }
   auto stop_workers = [&] {
     for (auto& node : nodes) node->stop();
@@ -48,28 +135,47 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
       if (t.joinable()) t.join();
   };
 
+  JobClientOptions co;
+  co.upload_progress = embedded.upload_progress;
+  if (embedded.timeout_seconds > 0)
+    co.end_by = std::chrono::system_clock::now() +
+                std::chrono::milliseconds(int64_t(std::min(embedded.timeout_seconds, 1e9) * 1000));
   try {
-    JobClient client(result.master_target);
+    JobClient client(result.master_target, co);
     const std::string id = client.submit(opts);
     std::vector<WorkerNodeStats> at_start;
-    result.status = client.watch(id, [&](const v1::JobStatus& s) {
-      if (at_start.empty() && s.state() != v1::JOB_STATE_QUEUED)
-        for (auto& node : nodes) at_start.push_back(node->stats());
-      if (s.state() == v1::JOB_STATE_DONE && result.workers.empty())
-        for (size_t i = 0; i < nodes.size(); ++i) {
-          WorkerNodeStats w = nodes[i]->stats();
-          if (i < at_start.size()) {
-            w.time_others_tracing -= at_start[i].time_others_tracing;
-            w.time_none_tracing -= at_start[i].time_none_tracing;
-            w.cpu -= at_start[i].cpu;
-          }
-          result.workers.push_back(std::move(w));
-        }
-      if (on_status) on_status(s);
-      return true;
-    });
+    result.status = client.watch(
+        id,
+        [&](const v1::JobStatus& s) {
+          if (at_start.empty() && s.state() != v1::JOB_STATE_QUEUED)
+            for (auto& node : nodes) at_start.push_back(node->stats());
+          if (s.state() == v1::JOB_STATE_DONE && result.workers.empty())
+            for (size_t i = 0; i < nodes.size(); ++i) {
+              WorkerNodeStats w = nodes[i]->stats();
+              if (i < at_start.size()) {
+                w.time_others_tracing -= at_start[i].time_others_tracing;
+                w.time_none_tracing -= at_start[i].time_none_tracing;
+                w.cpu -= at_start[i].cpu;
+              }
+              result.workers.push_back(std::move(w));
+            }
+          if (on_status) on_status(s);
+          return true;
+        },
+        0, canceller);
     result.master_view = master.jobs().get(id);
     if (result.status.state() == v1::JOB_STATE_DONE) result.files = client.fetch_all(id, opts.out);
+  } catch (const RpcError& e) {
+    stop_workers();
+    master.shutdown();
+    {
+      MutexLock l(refusal.mu);
+      if (!refusal.why.empty()) throw std::runtime_error(refusal.why);
+    }
+    if (co.end_by && std::chrono::system_clock::now() >= *co.end_by)
+      throw std::runtime_error(fmt::format("the render did not finish within its time limit of {:g} s ({})",
+                                           embedded.timeout_seconds, e.what()));
+    throw;
   } catch (...) {
     stop_workers();
     master.shutdown();

@@ -1,9 +1,14 @@
 // The embedded default (DESIGN.md section 2): `epr render` starts a master in this process on a
 // loopback port, plus local workers connected to it over real gRPC, submits the job with the same
 // client a cluster user has, watches it and fetches the outputs. Same code paths as a cluster.
+//
+// The master's state folder is private unless given: TMPDIR/epr-render-PID-XXXXXX, locked while the
+// render runs (master/server/state_dir_lock.h) and removed when it ends, however it ends short of
+// SIGKILL; remove_stale_state_dirs() clears what killed renders left.
 #pragma once
 
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -11,6 +16,7 @@
 #include "client/job_client.h"
 #include "common/render_options.h"
 #include "master/server/job_manager.h"
+#include "master/server/state_dir_lock.h"
 #include "worker/worker_node.h"
 
 namespace epr {
@@ -22,7 +28,33 @@ struct EmbeddedOptions {
   bool checkpoints = true;            // with an explicit state_dir: checkpoint rounds (a temporary folder never does)
   double checkpoint_interval_s = -1;  // MasterOptions::checkpoint_interval_s (< 0: automatic)
   std::string http_listen = "127.0.0.1:0";  // the master's monitoring endpoint (dashboard); empty: none
+  double timeout_seconds = 0;               // the whole render (upload, rounds, results); 0: no limit
+  // cancel() from another thread (a signal) ends the render: render_embedded throws RpcError CANCELLED.
+  CallCanceller* canceller = nullptr;
+  UploadProgressCallback upload_progress = print_upload_progress;
 };
+
+/// A private state folder for one embedded master: TMPDIR/epr-render-PID-XXXXXX, created and locked
+/// by the constructor (std::runtime_error if it cannot be), removed by remove() or the destructor.
+class PrivateStateDir {
+ public:
+  PrivateStateDir();
+  ~PrivateStateDir() { remove(); }
+  PrivateStateDir(const PrivateStateDir&) = delete;
+  PrivateStateDir& operator=(const PrivateStateDir&) = delete;
+  const std::string& path() const { return path_; }
+  /// Removes the folder now (idempotent). Not async-signal-safe.
+  void remove();
+
+ private:
+  std::string path_;
+  std::unique_ptr<StateDirLock> lock_;
+};
+
+/// Removes the temporary folders of processes that are gone: TMPDIR/epr-render-PID-*,
+/// TMPDIR/epr-master-PID-N and TMPDIR/epr-worker-cache-PID-* of this user whose PID is not running
+/// and whose lock is not held. Returns the folders removed.
+std::vector<std::string> remove_stale_state_dirs();
 
 struct EmbeddedResult {
   v1::JobStatus status;            // the final status

@@ -1,14 +1,18 @@
 // epr: the command-line client. `epr render` runs the whole system on this machine.
 #include <fmt/format.h>
+#include <pthread.h>
+#include <signal.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
+#include <atomic>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
 #include <optional>
+#include <thread>
 
 #include "client/embedded_render.h"
 #include "client/local_render.h"
@@ -19,6 +23,43 @@
 namespace {
 
 using namespace epr;
+
+// SIGINT and SIGTERM during an embedded render: the first cancels the render, which then stops its
+// workers and master and removes the master's private folder on the way out; a second one exits at
+// once. The signals are blocked in every thread (the mask is set before any thread starts and is
+// inherited) and taken by one thread that waits for them, never by a handler.
+class InterruptWatch {
+ public:
+  explicit InterruptWatch(CallCanceller& canceller) {
+    sigemptyset(&signals_);
+    sigaddset(&signals_, SIGINT);
+    sigaddset(&signals_, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &signals_, nullptr);
+    thread_ = std::thread([this, &canceller] {
+      while (!done_) {
+        const timespec poll{0, 100'000'000};
+        const int sig = sigtimedwait(&signals_, nullptr, &poll);
+        if (sig <= 0) continue;
+        if (signal_) std::_Exit(128 + sig);
+        signal_ = sig;
+        std::fprintf(stderr, "\nepr render: %s: stopping (send it again to exit at once)\n",
+                     sig == SIGINT ? "SIGINT" : "SIGTERM");
+        canceller.cancel();
+      }
+    });
+  }
+  ~InterruptWatch() {
+    done_ = true;
+    thread_.join();
+  }
+  int signal() const { return signal_; }  // the first signal taken; 0: none
+
+ private:
+  sigset_t signals_;
+  std::atomic<bool> done_{false};
+  std::atomic<int> signal_{0};
+  std::thread thread_;
+};
 
 // Makes the folder of the output prefix and checks that files can be written there, before a render
 // whose outputs would otherwise be lost at its end. The reason when that is impossible.
@@ -71,8 +112,12 @@ void print_status(const v1::JobStatus& s, bool tty) {
 }
 
 int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra, bool single_process, int workers,
-               const std::string& http) {
+               const std::string& http, double timeout_seconds) {
   finish_options(o, extra);
+  if (auto err = output_prefix_error(o.out)) {
+    std::fprintf(stderr, "epr render: --out: %s\n", err->c_str());
+    return 2;
+  }
   if (o.tile_size == 0) {  // --tile not given
     EmbeddedOptions eo;    // the tracing threads this render starts (one "worker" when single-process)
     eo.workers = single_process ? 1 : workers;
@@ -97,15 +142,31 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
                    o.out.c_str(), out.stats.value("seconds", 0.0), out.stats.value("paths_per_second", 0.0));
       return 0;
     }
+    remove_stale_state_dirs();  // what killed renders left behind
+    CallCanceller canceller;
+    InterruptWatch interrupts(canceller);
     EmbeddedOptions eo;
     eo.workers = workers;
     eo.http_listen = http;
-    const EmbeddedResult r = render_embedded(
-        o, eo, [&](const v1::JobStatus& s) { print_status(s, tty); },
-        [&](const std::string& target, const std::string& dashboard) {
-          std::fprintf(stderr, "master on %s with %d local worker(s)\n", target.c_str(), workers);
-          if (!dashboard.empty()) std::fprintf(stderr, "dashboard: %s\n", dashboard.c_str());
-        });
+    eo.timeout_seconds = timeout_seconds;
+    eo.canceller = &canceller;
+    std::optional<EmbeddedResult> result;
+    try {
+      result = render_embedded(
+          o, eo, [&](const v1::JobStatus& s) { print_status(s, tty); },
+          [&](const std::string& target, const std::string& dashboard) {
+            std::fprintf(stderr, "master on %s with %d local worker(s)\n", target.c_str(), workers);
+            if (!dashboard.empty()) std::fprintf(stderr, "dashboard: %s\n", dashboard.c_str());
+          });
+    } catch (const std::exception& e) {
+      if (interrupts.signal()) {
+        std::fprintf(stderr, "epr render: stopped by %s; nothing written\n",
+                     interrupts.signal() == SIGINT ? "SIGINT" : "SIGTERM");
+        return 128 + interrupts.signal();
+      }
+      throw;
+    }
+    const EmbeddedResult& r = *result;
     if (tty) std::fprintf(stderr, "\n");
     if (r.status.state() != v1::JOB_STATE_DONE) {
       std::fprintf(stderr, "epr render: the job ended %s: %s\n", v1::JobState_Name(r.status.state()).c_str(),
@@ -145,6 +206,12 @@ int main(int argc, char** argv) {
   render->add_option("--workers", local_workers, "local worker nodes (each uses all cores / workers)")
       ->check(CLI::Range(1, 64))
       ->capture_default_str();
+  double render_timeout = 0;
+  render
+      ->add_option("--timeout", render_timeout,
+                   "seconds the whole render may take (scene upload, rounds, results); 0: no limit")
+      ->check(CLI::Range(0.0, 1e9))
+      ->capture_default_str();
   std::string render_http = "127.0.0.1:0";
   render
       ->add_option("--http", render_http,
@@ -160,7 +227,8 @@ int main(int argc, char** argv) {
   set_log_level(log_level);
   if (auto code = remote.run()) return *code;
   try {
-    if (render->parsed()) return run_render(render_opts, render_extra, single_process, local_workers, render_http);
+    if (render->parsed())
+      return run_render(render_opts, render_extra, single_process, local_workers, render_http, render_timeout);
   } catch (const CLI::ValidationError& e) {
     std::fprintf(stderr, "epr: %s\n", e.what());
     return 2;

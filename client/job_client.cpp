@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -128,7 +129,26 @@ JobClient::JobClient(std::shared_ptr<grpc::Channel> channel, const std::string& 
       stub_(v1::JobService::NewStub(channel_)) {}
 
 void JobClient::prepare(grpc::ClientContext* ctx, std::chrono::milliseconds timeout) const {
-  rpc::prepare_call(*ctx, timeout, options_.token);
+  rpc::prepare_call(*ctx, bounded(timeout), options_.token);
+}
+
+std::chrono::milliseconds JobClient::bounded(std::chrono::milliseconds timeout) const {
+  if (!options_.end_by) return timeout;
+  const auto left =
+      std::chrono::duration_cast<std::chrono::milliseconds>(*options_.end_by - std::chrono::system_clock::now());
+  return std::max(std::chrono::milliseconds(1), std::min(timeout, left));
+}
+
+bool JobClient::past_end_by() const { return options_.end_by && std::chrono::system_clock::now() >= *options_.end_by; }
+
+void print_upload_progress(const UploadProgress& p) {
+  const double mib = 1024.0 * 1024.0;
+  if (p.done)
+    std::fprintf(stderr, "uploaded the scene (%.1f MiB) in %.1f s\n", double(p.total) / mib, p.seconds);
+  else
+    std::fprintf(stderr, "uploading the scene: %.1f of %.1f MiB (%.0f%%)\n", double(p.sent) / mib,
+                 double(p.total) / mib, p.total ? 100.0 * double(p.sent) / double(p.total) : 100.0);
+  std::fflush(stderr);
 }
 
 void JobClient::fail(const grpc::Status& s, const std::string& call) const {
@@ -146,7 +166,7 @@ void JobClient::fail(const grpc::Status& s, const std::string& call) const {
 }
 
 void JobClient::check_reachable() {
-  const auto deadline = std::chrono::system_clock::now() + options_.timeout;
+  const auto deadline = std::chrono::system_clock::now() + bounded(options_.timeout);
   grpc_connectivity_state state = channel_->GetState(/*try_to_connect=*/true);
   while (state != GRPC_CHANNEL_READY) {
     if (state == GRPC_CHANNEL_TRANSIENT_FAILURE || state == GRPC_CHANNEL_SHUTDOWN)
@@ -203,9 +223,18 @@ std::string JobClient::submit(const v1::JobSpec& spec) {
   // With a request id the master deduplicates, so a call that timed out (and may have queued the job)
   // is safe to repeat once.
   const int attempts = spec.request_id().empty() ? 1 : 2;
+  // The master loads a file scene before it answers: the deadline grows with the scene's size.
+  uint64_t scene_bytes = 0;
+  for (const auto& f : spec.scene().files().files()) scene_bytes += f.data().size();
+  if (spec.scene().has_uploaded_hash()) {
+    MutexLock lock(mu_);
+    if (auto it = uploaded_bytes_.find(spec.scene().uploaded_hash()); it != uploaded_bytes_.end())
+      scene_bytes = it->second;
+  }
+  const auto timeout = rpc::scaled_deadline(options_.timeout, scene_bytes, options_.min_scene_load_bytes_per_second);
   for (int attempt = 1;; ++attempt) {
     grpc::ClientContext ctx;
-    prepare(&ctx, options_.timeout);
+    prepare(&ctx, timeout);
     v1::JobId id;
     const grpc::Status s = stub_->SubmitJob(&ctx, spec, &id);
     if (s.ok()) {
@@ -214,7 +243,7 @@ std::string JobClient::submit(const v1::JobSpec& spec) {
                        fmt::format("master at {} answered SubmitJob without a job id", target_));
       return id.id();
     }
-    if (s.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED && attempt < attempts) {
+    if (s.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED && attempt < attempts && !past_end_by()) {
       logger("client")->warn("SubmitJob to {} timed out; retrying with the same request id", target_);
       continue;
     }
@@ -225,22 +254,46 @@ std::string JobClient::submit(const v1::JobSpec& spec) {
 std::string JobClient::upload_scene(const SceneBundleData& bundle) {
   if (!bundle.builtin.empty()) throw std::invalid_argument("built-in scenes are not uploaded");
   const std::string hash = content_hash(bundle);
+  const uint64_t total = bundle.total_bytes();
   check_reachable();
   grpc::ClientContext ctx;
-  prepare(&ctx, options_.transfer_timeout);
+  prepare(&ctx, rpc::scaled_deadline(options_.timeout, total, options_.min_transfer_bytes_per_second));
   v1::SceneRef ref;
   auto writer = stub_->UploadScene(&ctx, &ref);
 
   // A false Write means the master has already answered (e.g. it knows the hash): stop sending and
-  // read its answer.
-  if (rpc::send_scene(bundle, [&](const v1::SceneChunk& chunk) { return writer->Write(chunk); })) writer->WritesDone();
+  // read its answer. Progress goes out at most once a second.
+  const auto t0 = Clock::now();
+  auto reported = t0;
+  UploadProgress progress{0, total, 0, false};
+  auto send = [&](const v1::SceneChunk& chunk) {
+    if (!writer->Write(chunk)) return false;
+    progress.sent += chunk.data().data().size();
+    if (options_.upload_progress && Clock::now() - reported >= std::chrono::seconds(1)) {
+      reported = Clock::now();
+      progress.seconds = std::chrono::duration<double>(reported - t0).count();
+      options_.upload_progress(progress);
+    }
+    return true;
+  };
+  if (rpc::send_scene(bundle, send)) writer->WritesDone();
   const grpc::Status s = writer->Finish();
   if (!s.ok()) fail(s, "UploadScene");
   if (ref.content_hash() != hash)
     throw RpcError(
         grpc::Status(grpc::StatusCode::DATA_LOSS, "hash mismatch"),
         fmt::format("master at {} stored the uploaded scene as {}, expected {}", target_, ref.content_hash(), hash));
-  logger("client")->info("uploaded scene {} ({} bytes) to {}", hash, bundle.total_bytes(), target_);
+  {
+    MutexLock lock(mu_);
+    uploaded_bytes_[hash] = total;
+  }
+  if (options_.upload_progress) {
+    progress.sent = total;  // also when the master already had the scene
+    progress.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    progress.done = true;
+    options_.upload_progress(progress);
+  }
+  logger("client")->info("uploaded scene {} ({} bytes) to {}", hash, total, target_);
   return hash;
 }
 
@@ -339,6 +392,7 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
     if (canceller) canceller->detach();
     if (stopped || (last && is_terminal(last->state()))) return *last;
     if (canceller && canceller->cancelled()) fail(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"), "WatchJob");
+    if (past_end_by()) fail(grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the time limit ran out"), "WatchJob");
 
     const auto code = s.error_code();
     if (code == grpc::StatusCode::DEADLINE_EXCEEDED && last && !lost) continue;  // refresh the call

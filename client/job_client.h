@@ -2,14 +2,19 @@
 // `epr` cluster commands (submit, watch, get, list, cancel) and the embedded default `epr render`,
 // which submits to an in-process master over loopback.
 //
-// Every call has a deadline, so nothing hangs on a master that is down or silent:
-//   * unary calls (GetJob, ListJobs, CancelJob, SubmitJob): JobClientOptions::timeout;
-//   * streams whose length depends on data (UploadScene, FetchResult): transfer_timeout, after a
-//     reachability check bounded by `timeout`;
+// Every call has a deadline, so nothing hangs on a master that is down or silent, and deadlines
+// follow the work a call carries (rpc::scaled_deadline):
+//   * unary calls (GetJob, ListJobs, CancelJob): JobClientOptions::timeout;
+//   * SubmitJob: `timeout` plus the time the master may take to load the job's file scene (its size
+//     at min_scene_load_bytes_per_second): the master parses the scene before it answers;
+//   * UploadScene: `timeout` plus the scene's size at min_transfer_bytes_per_second, after a
+//     reachability check bounded by `timeout`; upload_progress reports the bytes sent;
+//   * FetchResult (its size is known only once it starts): transfer_timeout, after the same check;
 //   * WatchJob has no natural end: each call runs for at most watch_call_timeout and is then
 //     re-issued (the master sends the current status first, so nothing is lost). If the master goes
 //     away mid-watch (restart: jobs resume from their checkpoint), the watch reconnects for up to
 //     watch_reconnect_timeout before it gives up. A CallCanceller stops it from another thread.
+// JobClientOptions::end_by bounds all of them at once: a whole job's time limit (`epr render --timeout`).
 //
 // Errors are thrown as RpcError, carrying the grpc::Status and a message that names the master,
 // e.g. "cannot reach master at localhost:50051 (UNAVAILABLE: failed to connect to all addresses)".
@@ -21,6 +26,7 @@
 
 #include <chrono>
 #include <functional>
+#include <map>
 #include <memory>
 #include <optional>
 #include <stdexcept>
@@ -48,6 +54,17 @@ class RpcError : public std::runtime_error {
   grpc::Status status_;
 };
 
+/// How far an upload has come: reported at most about once a second, and once when it is done.
+struct UploadProgress {
+  uint64_t sent = 0, total = 0;  // bytes of scene files
+  double seconds = 0;            // since the upload began
+  bool done = false;
+};
+using UploadProgressCallback = std::function<void(const UploadProgress&)>;
+
+/// The default UploadProgressCallback: a line on stderr ("uploading the scene: 12.0 of 200.0 MiB (6%)").
+void print_upload_progress(const UploadProgress& p);
+
 struct JobClientOptions {
   bool tls = false;
   std::string ca_file;  // PEM roots for TLS; empty: the system's roots
@@ -57,6 +74,11 @@ struct JobClientOptions {
   std::chrono::milliseconds transfer_timeout{600'000};        // a whole upload or result download
   std::chrono::milliseconds watch_call_timeout{300'000};      // one WatchJob call before re-issuing it
   std::chrono::milliseconds watch_reconnect_timeout{60'000};  // master unreachable mid-watch: give up after
+  double min_transfer_bytes_per_second = 256 * 1024;          // slowest upload accepted
+  double min_scene_load_bytes_per_second = 1e6;               // slowest scene parse on the master accepted
+  // Every call ends by then (DEADLINE_EXCEEDED); unset: no limit beyond each call's own deadline.
+  std::optional<std::chrono::system_clock::time_point> end_by;
+  UploadProgressCallback upload_progress = print_upload_progress;  // empty: no report
   // File scenes up to this size travel inline in the JobSpec (the master's message limit is 4 MiB for
   // the whole spec); larger ones are streamed with UploadScene first.
   size_t inline_scene_limit = 3u << 20;
@@ -126,6 +148,7 @@ class JobClient {
   /// Queues `opts` as a job; returns its id.
   std::string submit(const RenderOptions& opts, const SubmitOptions& submit = {});
   /// Queues a ready spec (retrying once after a deadline when spec.request_id is set); returns its id.
+  /// The deadline allows for loading its file scene (inline, or uploaded by this client).
   std::string submit(const v1::JobSpec& spec);
   /// Streams a file scene to the master; returns its content hash (for SceneBundle.uploaded_hash).
   std::string upload_scene(const SceneBundleData& bundle);
@@ -156,6 +179,9 @@ class JobClient {
 
  private:
   void prepare(grpc::ClientContext* ctx, std::chrono::milliseconds timeout) const;
+  /// `timeout`, cut to what is left before options().end_by (at least 1 ms).
+  std::chrono::milliseconds bounded(std::chrono::milliseconds timeout) const;
+  bool past_end_by() const;
   [[noreturn]] void fail(const grpc::Status& status, const std::string& call) const;
   template <class Call>
   v1::JobStatus job_id_call(const std::string& job_id, const char* what, Call&& call) const;
@@ -166,6 +192,8 @@ class JobClient {
   JobClientOptions options_;
   std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<v1::JobService::Stub> stub_;
+  mutable Mutex mu_;
+  std::map<std::string, uint64_t> uploaded_bytes_ EPR_GUARDED_BY(mu_);  // scenes this client uploaded, by hash
 };
 
 /// "DONE", "RUNNING", ... for messages and tables.

@@ -8,6 +8,7 @@
 
 #include "common/log.h"
 #include "master/server/master_server.h"
+#include "master/server/state_dir_lock.h"
 #include "wire/rpc/token.h"
 
 namespace {
@@ -39,7 +40,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--state-dir", o.jobs.state_dir,
                  "folder for results, scenes and job checkpoints; a master restarted on the same folder resumes its "
-                 "jobs (default: a temp folder, no checkpoints, removed when the master exits)");
+                 "jobs; one master per folder (it is locked while the master runs) (default: a temp folder, no "
+                 "checkpoints, removed when the master exits)");
   app.add_flag("!--no-checkpoints", o.jobs.checkpoints,
                "do not checkpoint jobs (a restarted master then starts unfinished jobs again)");
   std::string checkpoint_interval = "auto";
@@ -110,6 +112,9 @@ int main(int argc, char** argv) {
   std::signal(SIGTERM, on_signal);
   std::signal(SIGINT, on_signal);
   try {
+    // One master per state directory: a second one would write into the first one's jobs.
+    std::optional<epr::StateDirLock> lock;
+    if (!o.jobs.state_dir.empty()) lock.emplace(o.jobs.state_dir);
     epr::MasterServer server(o);
     std::fprintf(stderr, "epr-master listening on port %d\n", server.port());
     if (server.http_port()) std::fprintf(stderr, "dashboard: %s\n", server.dashboard_url().c_str());

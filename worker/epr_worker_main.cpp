@@ -1,11 +1,13 @@
 // epr-worker: a render farm worker. Connects to epr-master, leases tiles, traces them, streams the
-// results back, until SIGTERM / SIGINT (leases are given back) or the master's Shutdown.
-// A second signal while stopping exits at once.
+// results back, until SIGTERM / SIGINT (leases are given back) or the master's Shutdown. A second
+// signal while stopping exits at once. Exits 1 with the reason when the master refuses the worker for
+// good (a name or thread count over its limits, a wrong token).
 #include <pthread.h>
 #include <signal.h>
 
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <cstdio>
 #include <cstdlib>
 #include <thread>
 
@@ -21,7 +23,13 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   app.add_option("--name", opts.name, "name shown on the master's dashboard (default HOSTNAME-PID)");
-  app.add_option("--cache-dir", opts.cache_dir, "scene cache folder")->capture_default_str();
+  app.add_option("--cache-dir", opts.cache_dir,
+                 "scene cache folder (a private temporary one, removed at exit, when it cannot be written)")
+      ->capture_default_str();
+  uint64_t cache_max_mb = opts.cache_max_bytes >> 20;
+  app.add_option("--cache-max-mb", cache_max_mb, "scene cache size bound, MiB: least recently used scenes go first")
+      ->check(CLI::Range(uint64_t(1), uint64_t(1) << 30))
+      ->capture_default_str();
   app.add_flag("--tls", opts.tls, "connect to the master over TLS");
   app.add_option("--ca-file", opts.ca_file, "PEM roots that sign the master's certificate (default: the system's)");
   app.add_option("--tls-cert", opts.cert_file, "PEM client certificate, for masters that require one");
@@ -36,6 +44,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
+  opts.cache_max_bytes = cache_max_mb << 20;
   epr::set_log_level(log_level);
   auto log = epr::logger("worker");
 
@@ -65,9 +74,13 @@ int main(int argc, char** argv) {
         node.stop();
       }
     });
-    node.run();
+    const std::optional<std::string> refused = node.run();
     done = true;
     signal_thread.join();
+    if (refused) {
+      std::fprintf(stderr, "epr-worker: %s\n", refused->c_str());
+      return 1;
+    }
   } catch (const std::exception& e) {
     log->error("{}", e.what());
     return 1;

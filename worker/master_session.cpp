@@ -170,7 +170,7 @@ std::vector<uint64_t> MasterSession::held_ids(bool include_abandoned) const {
 
 // ---- calls ----------------------------------------------------------------------------------------
 
-bool MasterSession::register_worker(std::string* why) {
+grpc::Status MasterSession::register_worker() {
   v1::WorkerInfo info;
   info.set_protocol_version(v1::PROTOCOL_VERSION_V1);
   info.set_name(config_.name);
@@ -185,23 +185,15 @@ bool MasterSession::register_worker(std::string* why) {
     CallScope scope(*this, ctx, /*cancel_on_stop=*/true);
     status = stub_->Register(&ctx, info, &resp);
   }
-  if (!status.ok()) {
-    *why = rpc::describe(status);
-    if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION)
-      log_->error("master {} does not speak protocol epr.v1: {}", config_.master, status.error_message());
-    return false;
-  }
+  if (!status.ok()) return status;
   const std::string& id = resp.worker_id().id();
-  if (id.empty() || id.size() > 64) {
-    *why = "Register answered without a usable worker id";
-    return false;
-  }
+  if (id.empty() || id.size() > 64) return {grpc::StatusCode::UNKNOWN, "Register answered without a usable worker id"};
   worker_id_ = id;
   heartbeat_ms_ = std::clamp<uint32_t>(resp.heartbeat_interval_ms() ? resp.heartbeat_interval_ms() : 1000, 50, 60000);
   if (resp.max_vertices_per_chunk()) limits_.max_vertices_per_chunk = resp.max_vertices_per_chunk();
   if (resp.max_chunk_bytes()) limits_.max_chunk_bytes = resp.max_chunk_bytes();
   registered_ = true;
-  return true;
+  return grpc::Status::OK;
 }
 
 void MasterSession::heartbeat_loop() {

@@ -93,8 +93,9 @@ class MasterSession {
   MasterSession& operator=(const MasterSession&) = delete;
 
   // ---- registration ----
-  /// Register; false with the reason in *why when the master did not accept the worker.
-  bool register_worker(std::string* why);
+  /// Register: OK once the master accepted the worker, else its answer (rpc::is_transient tells
+  /// whether registering again may help).
+  grpc::Status register_worker();
   const std::string& worker_id() const { return worker_id_; }
   bool registered() const { return registered_; }
   uint32_t heartbeat_ms() const { return heartbeat_ms_; }

@@ -4,6 +4,8 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -45,7 +47,87 @@ bool write_atomically(const fs::path& path, const std::string& data) {
   return !ec;
 }
 
+// Bytes of the regular files below `dir`.
+uint64_t folder_bytes(const fs::path& dir) {
+  uint64_t n = 0;
+  std::error_code ec;
+  for (fs::recursive_directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    std::error_code e;
+    if (it->is_regular_file(e)) n += it->file_size(e);
+  }
+  return n;
+}
+
+// The reason `dir` cannot hold the cache (created if missing, a file written into it), or nullopt.
+std::optional<std::string> unwritable(const fs::path& dir) {
+  std::error_code ec;
+  fs::create_directories(dir / "scenes", ec);
+  if (ec) return fmt::format("cannot create {}: {}", (dir / "scenes").string(), ec.message());
+  std::string probe = (dir / "scenes" / ".write-check-XXXXXX").string();
+  const int fd = ::mkstemp(probe.data());
+  if (fd < 0) return fmt::format("cannot write into {}: {}", (dir / "scenes").string(), std::strerror(errno));
+  ::close(fd);
+  fs::remove(probe, ec);
+  return std::nullopt;
+}
+
 }  // namespace
+
+void touch_cached_scene(const std::string& cache_root, const std::string& hash) {
+  if (!is_content_hash(hash)) return;
+  std::error_code ec;
+  fs::last_write_time(scene_dir(cache_root, hash) / kCompleteMarker, fs::file_time_type::clock::now(), ec);
+}
+
+std::vector<std::string> trim_scene_cache(const std::string& cache_root, uint64_t max_bytes, const std::string& keep) {
+  struct Cached {
+    fs::file_time_type used;
+    std::string hash;
+    uint64_t bytes;
+  };
+  std::vector<Cached> scenes;
+  uint64_t total = 0;
+  for (const std::string& hash : cached_scene_hashes(cache_root)) {
+    std::error_code ec;
+    const fs::path dir = scene_dir(cache_root, hash);
+    const auto used = fs::last_write_time(dir / kCompleteMarker, ec);
+    if (ec) continue;
+    scenes.push_back({used, hash, folder_bytes(dir)});
+    total += scenes.back().bytes;
+  }
+  std::sort(scenes.begin(), scenes.end(), [](const Cached& a, const Cached& b) { return a.used < b.used; });
+  std::vector<std::string> removed;
+  for (const Cached& c : scenes) {
+    if (total <= max_bytes) break;
+    if (c.hash == keep) continue;
+    // The marker goes first: a half-removed folder is never taken for a complete scene.
+    std::error_code ec;
+    const fs::path dir = scene_dir(cache_root, c.hash);
+    fs::remove(dir / kCompleteMarker, ec);
+    fs::remove_all(dir, ec);
+    total -= c.bytes;
+    removed.push_back(c.hash);
+  }
+  return removed;
+}
+
+CacheRoot::CacheRoot(const std::string& wanted) : path_(wanted) {
+  auto why = unwritable(wanted);
+  if (!why) return;
+  std::string tmpl = (fs::temp_directory_path() / fmt::format("epr-worker-cache-{}-XXXXXX", ::getpid())).string();
+  if (!::mkdtemp(tmpl.data()))
+    throw std::runtime_error(
+        fmt::format("no scene cache: {}, and cannot create {}: {}", *why, tmpl, std::strerror(errno)));
+  path_ = tmpl;
+  fallback_reason_ = *why;
+  if (auto err = unwritable(path_)) throw std::runtime_error(fmt::format("no scene cache: {}, and {}", *why, *err));
+}
+
+CacheRoot::~CacheRoot() {
+  if (fallback_reason_.empty()) return;
+  std::error_code ec;
+  fs::remove_all(path_, ec);
+}
 
 struct SceneReceiver::OpenFile {
   std::ofstream out;

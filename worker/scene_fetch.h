@@ -12,6 +12,11 @@
 // and renames the folder into place, so a crash or a bad stream never leaves half a scene behind. The
 // temporary folder name is unique per receiver, so several workers in one process (the embedded
 // render) can fetch the same scene at once: the first rename wins, the others discard their copy.
+//
+// The cache is bounded by size: trim_scene_cache removes the least recently used complete scenes
+// (a scene is used when a job loads it: touch_cached_scene sets its .complete marker's modification
+// time). CacheRoot picks the folder: the configured one when it can be written, else a private
+// temporary one (a HOME that is not writable must not stop a worker).
 #pragma once
 
 #include <cstdint>
@@ -40,6 +45,33 @@ std::vector<std::string> cached_scene_hashes(const std::string& cache_root);
 
 /// True for a lowercase hex SHA-256 (64 characters), the only form a cache folder name may take.
 bool is_content_hash(const std::string& s);
+
+/// Marks a cached scene as used now (the order trim_scene_cache follows). No-op if it is not cached.
+void touch_cached_scene(const std::string& cache_root, const std::string& content_hash);
+
+/// Removes complete cached scenes, least recently used first, until those left take at most
+/// `max_bytes`; never `keep` (the scene a job is about to load). Returns the hashes removed.
+std::vector<std::string> trim_scene_cache(const std::string& cache_root, uint64_t max_bytes,
+                                          const std::string& keep = "");
+
+/// The worker's cache folder: `wanted` when it can be created and written into; otherwise a private
+/// folder TMPDIR/epr-worker-cache-PID-XXXXXX, removed when this object is destroyed. Throws
+/// std::runtime_error if neither can be made.
+class CacheRoot {
+ public:
+  explicit CacheRoot(const std::string& wanted);
+  ~CacheRoot();
+  CacheRoot(const CacheRoot&) = delete;
+  CacheRoot& operator=(const CacheRoot&) = delete;
+
+  const std::string& path() const { return path_; }
+  /// Why `wanted` is not used; empty when it is.
+  const std::string& fallback_reason() const { return fallback_reason_; }
+
+ private:
+  std::string path_;
+  std::string fallback_reason_;
+};
 
 class SceneReceiver {
  public:

@@ -21,6 +21,7 @@
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "common/thread_name.h"
+#include "wire/rpc/status.h"
 #include "wire/rpc/token.h"
 #include "worker/backoff.h"
 #include "worker/courier.h"
@@ -49,21 +50,28 @@ struct WorkerNode::Impl {
       : opts(std::move(o)),
         log(logger("worker")),
         threads(opts.threads > 0 ? opts.threads : int(std::max(1u, std::thread::hardware_concurrency()))),
+        cache(opts.cache_dir),
         config{opts.master,
                {opts.tls, opts.ca_file, opts.cert_file, opts.key_file},
                rpc::configured_token(opts.token_file).value_or(""),
                opts.name.empty() ? default_name() : opts.name,
                threads,
-               opts.cache_dir,
+               cache.path(),
                opts.min_backoff_ms,
                opts.max_backoff_ms},
         jobs(size_t(std::max(1, opts.max_cached_jobs)),
              [this](const v1::SceneRef& ref) { return load_scene_for(ref); }),
-        rng(std::random_device{}()) {}
+        rng(std::random_device{}()) {
+    if (!cache.fallback_reason().empty())
+      log->warn("scene cache: {}; using {} instead (removed when the worker ends)", cache.fallback_reason(),
+                cache.path());
+    trim_scene_cache(cache.path(), opts.cache_max_bytes);  // the bound may be lower than last time
+  }
 
   WorkerNodeOptions opts;
   std::shared_ptr<spdlog::logger> log;
   int threads;
+  CacheRoot cache;
   MasterSession::Config config;
   JobCache jobs;
   StopSignal signal;
@@ -102,8 +110,11 @@ struct WorkerNode::Impl {
     if (!is_content_hash(ref.content_hash()))
       throw std::runtime_error(
           fmt::format("scene reference '{}' is neither a built-in nor a content hash", ref.content_hash()));
-    std::optional<std::string> entry = cached_scene_entry(opts.cache_dir, ref.content_hash());
-    if (!entry) {
+    const std::string& root = cache.path();
+    std::optional<std::string> entry = cached_scene_entry(root, ref.content_hash());
+    if (entry) {
+      touch_cached_scene(root, ref.content_hash());
+    } else {
       std::shared_ptr<MasterSession> s;
       {
         MutexLock lock(mu);
@@ -111,6 +122,8 @@ struct WorkerNode::Impl {
       }
       if (!s || s->ending()) throw std::runtime_error("no master session to fetch the scene from");
       entry = s->fetch_scene(ref);
+      for (const std::string& gone : trim_scene_cache(root, opts.cache_max_bytes, ref.content_hash()))
+        log->info("scene cache over {} MiB: removed scene {} (least recently used)", opts.cache_max_bytes >> 20, gone);
     }
     return load_scene(*entry);
   }
@@ -251,8 +264,8 @@ struct WorkerNode::Impl {
 
   // ---- sessions ----------------------------------------------------------------------------------
 
-  // A registered session, or nullptr with the reason in *why.
-  std::shared_ptr<MasterSession> connect(std::string* why) EPR_EXCLUDES(mu) {
+  // A registered session, or nullptr with the master's answer in *status.
+  std::shared_ptr<MasterSession> connect(grpc::Status* status) EPR_EXCLUDES(mu) {
     auto s = std::make_shared<MasterSession>(config, signal, counters, log);
     {
       // Published before Register, so that a stop cancels the call.
@@ -260,8 +273,8 @@ struct WorkerNode::Impl {
       if (signal.stopping()) return nullptr;
       session = s;
     }
-    const bool ok = s->register_worker(why);
-    if (!ok) {
+    *status = s->register_worker();
+    if (!status->ok()) {
       MutexLock lock(mu);
       session.reset();
       return nullptr;
@@ -292,18 +305,26 @@ struct WorkerNode::Impl {
     }
   }
 
-  void run() EPR_EXCLUDES(mu) {
+  std::optional<std::string> run() EPR_EXCLUDES(mu) {
     {
       MutexLock lock(mu);
       if (running) throw std::logic_error("WorkerNode::run() is already running");
       running = true;
     }
+    std::optional<std::string> refused;
     Backoff backoff(opts.min_backoff_ms, opts.max_backoff_ms, std::random_device{}());
     while (!signal.stopping()) {
-      std::string why;
-      const std::shared_ptr<MasterSession> s = connect(&why);
+      grpc::Status status;
+      const std::shared_ptr<MasterSession> s = connect(&status);
       if (!s) {
         if (signal.stopping()) break;
+        const std::string why = rpc::describe(status);
+        if (!rpc::is_transient(status.error_code())) {
+          // Registering again would be refused the same way.
+          refused = fmt::format("the master at {} refused worker '{}': {}", opts.master, config.name, why);
+          log->error("{}; not retrying", *refused);
+          break;
+        }
         const int delay = backoff.next_ms();
         // Warn on attempts 1, 2, 4, 8, ...: a master that stays away does not flood the log.
         const int attempt = backoff.attempts();
@@ -332,6 +353,7 @@ struct WorkerNode::Impl {
       worker_id.clear();
     }
     cv.notify_all();
+    return refused;
   }
 };
 
@@ -343,7 +365,7 @@ WorkerNode::~WorkerNode() {
   impl_->cv.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return !impl_->running; });  // with mu held
 }
 
-void WorkerNode::run() { impl_->run(); }
+std::optional<std::string> WorkerNode::run() { return impl_->run(); }
 
 void WorkerNode::stop() { impl_->stop("stop requested"); }
 

@@ -15,18 +15,19 @@
 // answers it the moment the next round opens (LeaseRequest.max_wait_ms).
 //
 // Scenes: built-ins are generated locally from SceneRef.builtin; file scenes are fetched with
-// FetchScene once and cached on disk by content hash (worker/scene_fetch.h). Per-job state (scene,
-// BVH, camera, path tracer) is kept for the last few jobs (worker/job_cache.h).
+// FetchScene once and cached on disk by content hash, up to cache_max_bytes (worker/scene_fetch.h). Per-job state
+// (scene, BVH, camera, path tracer) is kept for the last few jobs (worker/job_cache.h).
 //
 // Failure handling: every RPC has a deadline. When the master is unreachable or answers an RPC with
 // an error (UNAVAILABLE, NOT_FOUND for an unknown worker id after a master restart, ...), the worker
 // abandons its session: it gives its leases back if it still can, waits with exponential backoff and
-// jitter (capped at max_backoff_ms) and registers again. It never exits on its own except on the
-// master's Shutdown. A lease the heartbeat reports invalid is abandoned between two strips of rows.
-// A job whose scene cannot be loaded (or a tile whose lease is unusable or whose tracing throws) gets
-// its lease returned as failed (ReturnLeaseRequest.failure) and the thread waits (with backoff) before
-// leasing again, so a broken job cannot make the worker spin; the master stops leasing the job's tiles
-// to a worker that keeps failing them.
+// jitter (capped at max_backoff_ms) and registers again. It ends on its own only on the master's
+// Shutdown, or when Register fails with a permanent error (rpc::is_transient: a name or thread count
+// over the master's limits, a wrong token, another protocol), which registering again cannot mend. A lease the
+// heartbeat reports invalid is abandoned between two strips of rows. A job whose scene cannot be loaded (or a tile
+// whose lease is unusable or whose tracing throws) gets its lease returned as failed (ReturnLeaseRequest.failure) and
+// the thread waits (with backoff) before leasing again, so a broken job cannot make the worker spin; the master stops
+// leasing the job's tiles to a worker that keeps failing them.
 //
 // Files: worker_node.cpp runs the node (sessions one after another, the tracing threads);
 // master_session.h makes every call to the master; courier.h runs a thread's submissions and early
@@ -39,6 +40,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "wire/scene_bundle.h"
@@ -47,10 +49,13 @@
 namespace epr {
 
 struct WorkerNodeOptions {
-  std::string master = "localhost:50051";        // HOST:PORT of epr-master's gRPC endpoint
-  int threads = 0;                               // tracing threads; 0: std::thread::hardware_concurrency()
-  std::string name;                              // shown on dashboards; empty: "HOSTNAME-PID"
-  std::string cache_dir = default_cache_root();  // scene cache root (scenes/HASH/...)
+  std::string master = "localhost:50051";  // HOST:PORT of epr-master's gRPC endpoint
+  int threads = 0;                         // tracing threads; 0: std::thread::hardware_concurrency()
+  std::string name;                        // shown on dashboards; empty: "HOSTNAME-PID"
+  // Scene cache root (scenes/HASH/...); when it cannot be written, a private temporary folder removed
+  // with the node (worker/scene_fetch.h CacheRoot).
+  std::string cache_dir = default_cache_root();
+  uint64_t cache_max_bytes = uint64_t(2048) << 20;  // scenes beyond this go, least recently used first
   /// Bearer token file (the rule of wire/rpc/token.h). Empty: the EPR_TOKEN environment variable if
   /// set, else no token. Sent as "authorization: Bearer <token>" on every call.
   std::string token_file;
@@ -93,15 +98,17 @@ struct WorkerNodeStats {
 
 class WorkerNode {
  public:
-  /// Throws std::runtime_error (rpc::TokenError) if the token file or $EPR_TOKEN breaks the token rule.
+  /// Throws std::runtime_error (rpc::TokenError) if the token file or $EPR_TOKEN breaks the token rule,
+  /// or if no scene cache folder can be made (CacheRoot).
   explicit WorkerNode(WorkerNodeOptions options);
   ~WorkerNode();  // stops and waits for run() if it is still running in another thread
   WorkerNode(const WorkerNode&) = delete;
   WorkerNode& operator=(const WorkerNode&) = delete;
 
   /// Works until stop() or the master's Shutdown; then gives back the leases it holds (ReturnLease),
-  /// unregisters and returns. Call once.
-  void run();
+  /// unregisters and returns nullopt. Returns the master's reason instead when it refuses the
+  /// registration for good (a permanent error, see the file comment). Call once.
+  std::optional<std::string> run();
   /// Thread-safe and non-blocking (safe to call from any thread, not from a signal handler): makes
   /// run() wind down — tracing is abandoned between strips, waits are interrupted — and return.
   void stop();

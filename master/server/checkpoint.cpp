@@ -16,6 +16,7 @@
 #include <system_error>
 #include <type_traits>
 
+#include "common/log.h"
 #include "epr/v1/job_service.pb.h"
 #include "wire/convert.h"
 
@@ -453,8 +454,14 @@ uint64_t CheckpointStore::next_epoch() {
     ByteReader rd(p);
     epoch = rd.get<uint64_t>();
     rd.expect_end();
-  } catch (const CheckpointError&) {
-    epoch = 0;  // first run in this folder (or the counter was lost: lease ids carry a clock part too)
+  } catch (const CheckpointError& e) {
+    // No file: the first run in this folder. A torn or corrupt one is replaced (lease ids carry a clock
+    // part too, so a counter that starts again cannot repeat them), but not silently.
+    std::error_code ec;
+    if (fs::exists(dir_ / "epoch", ec))
+      logger("master")->warn("state file {} is unreadable ({}); replaced, the run counter starts again at 1",
+                             (dir_ / "epoch").string(), e.what());
+    epoch = 0;
   }
   ++epoch;
   ByteWriter w;

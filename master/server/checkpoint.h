@@ -3,6 +3,7 @@
 //
 // Layout of the state directory:
 //   epoch                       this master's run counter (lease ids carry it, see JobManager)
+//   lock                        locked by the master using the folder (master/server/state_dir_lock.h)
 //   scenes/HASH.scene           each scene bundle once, by content hash
 //   jobs/ID/spec.ckpt           the job as submitted (written once, at submit)
 //   jobs/ID/progress.ckpt       state, counters and FrameState after the newest closed round

@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -317,6 +318,49 @@ TEST_F(WorkerNodeTest, StopReturnsLeasesAndAnotherWorkerFinishes) {
   second.stop();
   EXPECT_EQ(s1.tiles_committed + second.stats().tiles_committed, st.tiles_committed());
   expect_same_as_local(id, o);
+}
+
+// A registration the master refuses for good (a name over its 256-byte limit) ends run() with the
+// master's reason instead of a retry loop that would never end.
+TEST_F(WorkerNodeTest, PermanentRefusalEndsRunWithTheReason) {
+  WorkerNodeOptions wo = node_options(1);
+  wo.name = std::string(300, 'n');
+  WorkerNode node(wo);
+  auto run = std::async(std::launch::async, [&] { return node.run(); });
+  if (run.wait_for(60s) != std::future_status::ready) {
+    node.stop();
+    FAIL() << "run() kept retrying a permanent INVALID_ARGUMENT";
+  }
+  const std::optional<std::string> why = run.get();
+  ASSERT_TRUE(why.has_value());
+  EXPECT_NE(why->find("INVALID_ARGUMENT"), std::string::npos) << *why;
+  EXPECT_NE(why->find("256 bytes"), std::string::npos) << *why;
+  EXPECT_NE(why->find(master_->local_target()), std::string::npos) << *why;
+  EXPECT_EQ(node.stats().registrations, 0u);
+}
+
+// A cache folder that cannot be created (a HOME that is not writable) does not stop the worker: it
+// fetches into a private temporary folder, which is gone once the node is.
+TEST_F(WorkerNodeTest, UnwritableCacheFallsBackToAPrivateFolder) {
+  RenderOptions o = cornell_options(RenderMode::kPathTrace, ReprojectMethod::kCpu, 16, 1, 1);
+  o.scene = kCornellObj;
+  const std::string id = submit(o, bundle_scene(kCornellObj));
+  WorkerNodeOptions wo = node_options(1);
+  wo.cache_dir = "/dev/null/epr-cache";  // below a file: cannot be created, not even by root
+  std::string fallback;
+  {
+    WarningsAbout warned("worker", "/dev/null/epr-cache");
+    RunningNode node(wo);
+    const v1::JobStatus st = wait_done(id);
+    ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
+    EXPECT_EQ(node.stats().scenes_fetched, 1u);
+    EXPECT_EQ(warned.count(), 1) << "the fallback is announced once, naming the folder";
+    for (const auto& e : fs::directory_iterator(fs::temp_directory_path()))
+      if (e.path().filename().string().rfind("epr-worker-cache-" + std::to_string(::getpid()) + "-", 0) == 0)
+        fallback = e.path().string();
+    EXPECT_FALSE(fallback.empty()) << "no private cache folder while the node runs";
+  }
+  EXPECT_FALSE(fs::exists(fallback)) << fallback << " is left behind";
 }
 
 }  // namespace

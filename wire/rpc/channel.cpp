@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -44,6 +45,11 @@ std::shared_ptr<grpc::ServerCredentials> server_credentials(const ServerTls& tls
 void prepare_call(grpc::ClientContext& ctx, std::chrono::milliseconds timeout, const std::string& token) {
   ctx.set_deadline(std::chrono::system_clock::now() + timeout);
   if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
+}
+
+std::chrono::milliseconds scaled_deadline(std::chrono::milliseconds base, uint64_t bytes, double bytes_per_second) {
+  const double ms = double(bytes) / std::max(1.0, bytes_per_second) * 1000.0;
+  return base + std::chrono::milliseconds(int64_t(std::min(ms, 1e12)));  // at most ~30 years: no overflow
 }
 
 }  // namespace epr::rpc

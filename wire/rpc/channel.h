@@ -6,6 +6,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include <chrono>
+#include <cstdint>
 #include <memory>
 #include <string>
 
@@ -35,5 +36,9 @@ std::shared_ptr<grpc::ServerCredentials> server_credentials(const ServerTls& tls
 /// Sets the call's deadline to now + `timeout` and, if `token` is not empty, adds
 /// "authorization: Bearer <token>".
 void prepare_call(grpc::ClientContext& ctx, std::chrono::milliseconds timeout, const std::string& token);
+
+/// The deadline of a call whose work grows with `bytes` (a transfer, a scene the master parses):
+/// `base` plus the time `bytes` take at `bytes_per_second`, the slowest rate still accepted.
+std::chrono::milliseconds scaled_deadline(std::chrono::milliseconds base, uint64_t bytes, double bytes_per_second);
 
 }  // namespace epr::rpc
