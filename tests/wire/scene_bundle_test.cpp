@@ -105,6 +105,29 @@ TEST(SceneBundle, TextureNamesWithBlanksAndOptionsAreBundled) {
     }
 }
 
+// The shipped scenes and a scene JSON naming an OBJ in a subfolder bundle the files they read and
+// load from the bundle as they load locally.
+TEST(SceneBundle, FileScenesLoadFromTheirBundlesAsTheyLoadLocally) {
+  TempDir dir;
+  dir.write("scene/models/lit.mtl", kLitMtl);
+  dir.write("scene/models/room.obj", "mtllib lit.mtl\n" + kTriangles + "usemtl glow\nf 1 2 3\n");
+  const std::string json = dir.write("scene/room.json", R"({"obj": "models/room.obj", "camera": {"fov": 50}})");
+  std::vector<std::string> specs = {json};
+  for (const auto& e : fs::recursive_directory_iterator(EPR_SOURCE_DIR "/scenes"))
+    if (e.path().extension() == ".obj" || e.path().extension() == ".json") specs.push_back(e.path().string());
+  for (const std::string& spec : specs) {
+    SCOPED_TRACE(spec);
+    const SceneBundleData b = bundle_scene(spec);
+    const Scene local = load_scene(spec), bundled = load_bundle(b, dir.path("cache"));
+    EXPECT_EQ(bundled.positions, local.positions);
+    EXPECT_EQ(bundled.material_of, local.material_of);
+    EXPECT_EQ(bundled.camera.fov_y_degrees, local.camera.fov_y_degrees);
+  }
+  std::vector<std::string> paths;
+  for (const auto& f : bundle_scene(json).files) paths.push_back(f.first);
+  EXPECT_EQ(paths, (std::vector<std::string>{"models/lit.mtl", "models/room.obj", "room.json"}));
+}
+
 // A FIFO, a device or a directory named as a scene file is refused naming it; nothing blocks or
 // reads without end.
 TEST(SceneBundle, OnlyRegularFilesAreBundled) {
