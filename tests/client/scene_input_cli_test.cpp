@@ -75,11 +75,14 @@ class SceneInputCli : public ::testing::Test {
 TEST_F(SceneInputCli, RenderPrintsEachWarningOnceNamingTheUsersFile) {
   dir.write("scene/m.mtl", "newmtl wall\nKd 0.5 0.5 0.5\nnewmtl glow\nKd 0 0 0\nKe 5 5 5\n");
   dir.write("scene/w.obj", "mtllib m.mtl\n" + kRoom + "curv 0 1 2\n");
-  const EprRun r = run_epr(dir.path(""), "render scene/w.obj" + kFast + " --out out/w");
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_EQ(count(r.output, "unsupported statement 'curv' ignored"), 1u) << r.output;
-  EXPECT_TRUE(contains(r.output, "scene/w.obj:16: unsupported statement 'curv' ignored")) << r.output;
-  EXPECT_FALSE(contains(r.output, "/scenes/")) << "a cache path is named:\n" << r.output;
+  for (const std::string mode : {"", " --single-process"}) {
+    SCOPED_TRACE(mode);
+    const EprRun r = run_epr(dir.path(""), "render scene/w.obj" + mode + kFast + " --out out/w");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_EQ(count(r.output, "unsupported statement 'curv' ignored"), 1u) << r.output;
+    EXPECT_TRUE(contains(r.output, "scene/w.obj:16: unsupported statement 'curv' ignored")) << r.output;
+    EXPECT_FALSE(contains(r.output, "/scenes/")) << "a cache path is named:\n" << r.output;
+  }
 }
 
 // No emitter: refused by `render` (embedded and single-process) and by `submit` before it connects.
