@@ -396,8 +396,9 @@ v1::JobStatus JobClient::watch(const std::string& job_id, const WatchCallback& o
 
     const auto code = s.error_code();
     if (code == grpc::StatusCode::DEADLINE_EXCEEDED && last && !lost) continue;  // refresh the call
-    const bool went_away =
-        s.ok() || code == grpc::StatusCode::UNAVAILABLE || code == grpc::StatusCode::DEADLINE_EXCEEDED;
+    // The stream ended without the job's end, or with a failure a later call may not meet again
+    // (rpc::is_transient: the master away, busy or restarting); any other error is final.
+    const bool went_away = s.ok() || rpc::is_transient(code);
     if (!last || !went_away)
       fail(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "stream ended early") : s, "WatchJob");
     // The master went away after we saw the job (a restart: jobs resume from their checkpoint).

@@ -189,6 +189,15 @@ TEST_F(ProcessHardening, FileSceneRendersWithAnUnwritableHome) {
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_TRUE(fs::exists(dir_ / "x.exr"));
   for (const auto& e : fs::directory_iterator(dir_ / "tmp")) ADD_FAILURE() << e.path() << " left behind";
+
+  // $XDG_CACHE_HOME names the cache when it is set.
+  const fs::path xdg = dir_ / "xdg";
+  const RunResult x = run(with_env(epr({"render", kCornellObj, "--width", "16", "--height", "16", "--spp", "1",
+                                        "--http", "", "--out", (dir_ / "y").string()}),
+                                   {"HOME=/dev/null", "XDG_CACHE_HOME=" + xdg.string()}),
+                          "render-xdg");
+  EXPECT_EQ(x.code, 0) << x.err;
+  EXPECT_FALSE(fs::is_empty(xdg / "eprfarm" / "scenes")) << "the fetched scene is not cached under $XDG_CACHE_HOME";
 }
 
 TEST_F(ProcessHardening, LargeSceneIsUploadedWithProgressShown) {
