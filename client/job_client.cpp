@@ -157,6 +157,8 @@ void JobClient::fail(const grpc::Status& s, const std::string& call) const {
     case grpc::StatusCode::UNAVAILABLE:
       throw RpcError(s, fmt::format("cannot reach master at {} ({})", target_, detail));
     case grpc::StatusCode::DEADLINE_EXCEEDED:
+      if (past_end_by())
+        throw RpcError(s, fmt::format("the time limit ran out during {} (master at {})", call, target_));
       throw RpcError(s, fmt::format("master at {} did not answer {} in time ({})", target_, call, detail));
     case grpc::StatusCode::CANCELLED:
       throw RpcError(s, fmt::format("{} to master at {} was cancelled", call, target_));

@@ -29,6 +29,7 @@ struct ConnectionFlags {
   std::string master;
   std::string token_file;
   double timeout_seconds = 10;
+  bool whole_job = false;  // submit: --timeout bounds the whole submission (JobClientOptions::end_by)
   bool tls = false;
   std::string ca_file;
 };
@@ -38,15 +39,25 @@ std::string default_master() {
   return env && *env ? env : "localhost:50051";
 }
 
-void add_connection_flags(CLI::App* cmd, ConnectionFlags& f) {
+void add_connection_flags(CLI::App* cmd, ConnectionFlags& f, bool whole_job = false) {
   f.master = default_master();
   cmd->add_option("--master", f.master, "master address HOST:PORT (default: $EPR_MASTER, else localhost:50051)")
       ->capture_default_str();
   cmd->add_option("--token-file", f.token_file,
                   "file holding the bearer token for the master (default: $EPR_TOKEN; never pass tokens as flags)");
-  cmd->add_option("--timeout", f.timeout_seconds, "deadline of each request to the master, seconds")
-      ->check(CLI::Range(0.001, 86400.0))
-      ->capture_default_str();
+  f.whole_job = whole_job;
+  if (whole_job) {
+    f.timeout_seconds = 0;
+    cmd->add_option("--timeout", f.timeout_seconds,
+                    "seconds the whole submission may take: scene upload, SubmitJob and, with --wait, the job and "
+                    "its results; 0: no limit (each request still has a deadline that grows with its size)")
+        ->check(CLI::Range(0.0, 1e9))
+        ->capture_default_str();
+  } else {
+    cmd->add_option("--timeout", f.timeout_seconds, "deadline of each request to the master, seconds")
+        ->check(CLI::Range(0.001, 86400.0))
+        ->capture_default_str();
+  }
   cmd->add_flag("--tls", f.tls, "connect with TLS (system CA roots unless --ca-file)");
   cmd->add_option("--ca-file", f.ca_file, "PEM file of CA roots for TLS (implies --tls)")->check(CLI::ExistingFile);
 }
@@ -67,7 +78,11 @@ std::unique_ptr<JobClient> make_client(const ConnectionFlags& f) {
   o.tls = f.tls || !f.ca_file.empty();
   o.ca_file = f.ca_file;
   o.token = read_token(f);
-  o.timeout = std::chrono::milliseconds(std::llround(f.timeout_seconds * 1000));
+  const auto timeout = std::chrono::milliseconds(std::llround(f.timeout_seconds * 1000));
+  if (!f.whole_job)
+    o.timeout = timeout;
+  else if (f.timeout_seconds > 0)
+    o.end_by = std::chrono::system_clock::now() + timeout;
   return std::make_unique<JobClient>(f.master, o);
 }
 
@@ -236,7 +251,7 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
       ->add_option("--time-budget", s.time_budget, "wall-clock budget in seconds: the job ends DONE when it runs out")
       ->check(CLI::PositiveNumber);
   s.submit->add_flag("--wait", s.wait, "follow the job with a progress line and fetch its results to --out at the end");
-  add_connection_flags(s.submit, s.submit_conn);
+  add_connection_flags(s.submit, s.submit_conn, /*whole_job=*/true);
 
   s.watch = app.add_subcommand("watch", "follow a job's progress until it ends (exit 0 DONE, 1 FAILED/CANCELLED)");
   s.watch->add_option("job", s.watch_job, "job id")->required();

@@ -8,7 +8,7 @@
 //
 // Every command takes --master HOST:PORT (default $EPR_MASTER, else localhost:50051), --token-file
 // (else $EPR_TOKEN; tokens never go on the command line), --tls / --ca-file and --timeout SECONDS
-// for unary calls. Exit codes: see ExitCode.
+// for unary calls (submit: for the whole submission, 0 = no limit). Exit codes: see ExitCode.
 #pragma once
 
 #include <CLI/CLI.hpp>

@@ -221,6 +221,20 @@ TEST_F(ProcessHardening, TimeoutEndsTheWholeRender) {
   EXPECT_TRUE(render_dirs().empty());
 }
 
+TEST_F(ProcessHardening, SubmitTimeoutEndsTheWholeSubmission) {
+  // No worker: the job stays queued, and `submit --wait` would wait for ever.
+  std::unique_ptr<Process> master;
+  const int port = start_master(master, "master");
+  ASSERT_NE(port, 0) << master->err();
+  const RunResult r =
+      run(with_env(epr({"submit", "builtin:cornell", "--spp", "1", "--wait", "--timeout", "2", "--master",
+                        "127.0.0.1:" + std::to_string(port), "--out", (dir_ / "x").string()})),
+          "submit", 120s);
+  EXPECT_FALSE(r.timed_out);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("the time limit ran out during WatchJob"), std::string::npos) << r.err;
+}
+
 TEST_F(ProcessHardening, OutputPrefixThatIsEmptyOrAFolderIsRefused) {
   fs::create_directories(dir_ / "out");
   const std::string folder = (dir_ / "out").string();
