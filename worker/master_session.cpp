@@ -5,6 +5,7 @@
 #include <algorithm>
 
 #include "common/thread_name.h"
+#include "wire/rpc/channel.h"
 #include "wire/rpc/chunked.h"
 #include "wire/rpc/status.h"
 #include "worker/backoff.h"
@@ -33,7 +34,7 @@ constexpr double kSlowLinkBytesPerSecond = 1e6;
 constexpr int kSubmitAttempts = 3;  // SubmitTile tries on UNAVAILABLE / DEADLINE_EXCEEDED
 
 Millis size_deadline(Millis base, double bytes) {
-  return base + Millis(int64_t(bytes / kSlowLinkBytesPerSecond * 1000.0));
+  return rpc::scaled_deadline(base, uint64_t(std::max(0.0, bytes)), kSlowLinkBytesPerSecond);
 }
 
 }  // namespace
