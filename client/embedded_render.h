@@ -22,9 +22,11 @@
 namespace epr {
 
 struct EmbeddedOptions {
-  int workers = 1;                    // worker nodes in this process
-  int worker_threads = 0;             // tracing threads per worker; 0: all cores / workers
-  std::string state_dir;              // the master's state folder; empty: a temporary one
+  int workers = 1;         // worker nodes in this process
+  int worker_threads = 0;  // tracing threads per worker; 0: all cores / workers
+  // The master's state folder, locked while the render runs (StateDirLocked if another master holds
+  // it); empty: a private temporary one (PrivateStateDir).
+  std::string state_dir;
   bool checkpoints = true;            // with an explicit state_dir: checkpoint rounds (a temporary folder never does)
   double checkpoint_interval_s = -1;  // MasterOptions::checkpoint_interval_s (< 0: automatic)
   std::string http_listen = "127.0.0.1:0";  // the master's monitoring endpoint (dashboard); empty: none
@@ -74,7 +76,9 @@ int embedded_threads_per_worker(const RenderOptions& opts, const EmbeddedOptions
 
 /// Renders `opts` to completion and writes the outputs under opts.out. `on_status` is called with
 /// every progress update (from the watch stream); `on_started` once the master is up (with its gRPC
-/// target and the dashboard URL, empty if disabled).
+/// target and the dashboard URL, empty if disabled). Throws std::runtime_error with the master's
+/// reason when it refuses a local worker for good, or when timeout_seconds runs out; RpcError
+/// CANCELLED when embedded.canceller fires.
 EmbeddedResult render_embedded(
     const RenderOptions& opts, const EmbeddedOptions& embedded,
     const std::function<void(const v1::JobStatus&)>& on_status = {},
