@@ -114,8 +114,8 @@ std::optional<std::string> JobManager::validate(const JobRequest& req) const {
 }
 
 JobManager::SubmitResult JobManager::submit(JobRequest req) {
-  if (auto err = validate(req)) return {"", *err};
   const std::string hash = content_hash(req.bundle);
+  if (auto err = validate(req)) return {"", *err, hash};
   try {
     if (checkpointer_) store_->save_scene(hash, req.bundle);
   } catch (const std::exception& e) {
@@ -125,7 +125,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
   std::vector<std::string> forgotten;
   {
     MutexLock lock(mu_);
-    if (auto earlier = jobs_.find_request(req.request_id)) return {earlier->id, ""};
+    if (auto earlier = jobs_.find_request(req.request_id)) return {earlier->id, "", hash};
     job = std::make_shared<Job>();
     job->seq = jobs_.next_seq();
     job->submitted_ms = clock_();
@@ -149,7 +149,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
                          o.height, o.spp, to_string(o.mode));
   work_cv_.notify_all();
   notify(job);
-  return {job->id, ""};
+  return {job->id, "", hash};
 }
 
 JobSnapshot JobManager::snapshot(const Job& job) const {

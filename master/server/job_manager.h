@@ -99,8 +99,9 @@ class JobManager {
 
   // ---- clients -----------------------------------------------------------------------------------
   struct SubmitResult {
-    std::string id;     // the new (or, for a repeated request_id, the earlier) job
-    std::string error;  // non-empty: why the request is invalid (INVALID_ARGUMENT)
+    std::string id;          // the new (or, for a repeated request_id, the earlier) job
+    std::string error;       // non-empty: why the request is invalid (INVALID_ARGUMENT)
+    std::string scene_hash;  // the request's scene
   };
   SubmitResult submit(JobRequest request) EPR_EXCLUDES(mu_);
   std::optional<JobSnapshot> get(const std::string& id) const EPR_EXCLUDES(mu_);

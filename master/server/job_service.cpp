@@ -256,18 +256,17 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
   if (auto err = jobs_.validate(jr)) return finish(ctx, invalid(*err));
   CameraSpec scene_camera;
   // From here on the scene is in the master's cache: a refusal removes it again.
-  const std::string hash = content_hash(jr.bundle);
-  auto refuse = [&](const std::string& why) {
+  auto refuse = [&](const std::string& why, const std::string& hash) {
     jobs_.discard_checked_scene(hash);
     return finish(ctx, invalid(why));
   };
-  if (auto err = jobs_.check_scene(jr.bundle, &scene_camera)) return refuse(*err);
+  if (auto err = jobs_.check_scene(jr.bundle, &scene_camera)) return refuse(*err, content_hash(jr.bundle));
   if (!req->has_camera()) {
-    if (auto err = scene_camera.validate()) return refuse("the scene's own camera: " + *err);
+    if (auto err = scene_camera.validate()) return refuse("the scene's own camera: " + *err, content_hash(jr.bundle));
     jr.camera = scene_camera;
   }
   const auto r = jobs_.submit(std::move(jr));
-  if (!r.error.empty()) return refuse(r.error);
+  if (!r.error.empty()) return refuse(r.error, r.scene_hash);
   resp->set_id(r.id);
   return finish(ctx, grpc::Status::OK);
 }
