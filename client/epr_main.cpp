@@ -158,7 +158,7 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
             std::fprintf(stderr, "master on %s with %d local worker(s)\n", target.c_str(), workers);
             if (!dashboard.empty()) std::fprintf(stderr, "dashboard: %s\n", dashboard.c_str());
           });
-    } catch (const std::exception& e) {
+    } catch (const std::exception&) {
       if (interrupts.signal()) {
         std::fprintf(stderr, "epr render: stopped by %s; nothing written\n",
                      interrupts.signal() == SIGINT ? "SIGINT" : "SIGTERM");
