@@ -79,6 +79,9 @@ std::vector<std::string> remove_stale_state_dirs() {
 EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
                                const std::function<void(const v1::JobStatus&)>& on_status,
                                const std::function<void(const std::string&, const std::string&)>& on_started) {
+  // The scene first: a file that cannot be read or a scene without light is refused before a master
+  // and workers start.
+  SceneBundleData bundle = bundle_scene(opts.scene);
   // The state folder: the caller's (locked: one master per folder), else a private one that goes
   // with this function (declared first: removed after the master is gone).
   std::unique_ptr<PrivateStateDir> private_dir;
@@ -142,7 +145,7 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
                 std::chrono::milliseconds(int64_t(std::min(embedded.timeout_seconds, 1e9) * 1000));
   try {
     JobClient client(result.master_target, co);
-    const std::string id = client.submit(opts);
+    const std::string id = client.submit(client.make_job_spec(opts, std::move(bundle)));
     std::vector<WorkerNodeStats> at_start;
     result.status = client.watch(
         id,

@@ -184,7 +184,10 @@ void JobClient::check_reachable() {
 // ---- submitting ---------------------------------------------------------------------------------
 
 v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, const SubmitOptions& submit) {
-  SceneBundleData bundle = bundle_scene(opts.scene);
+  return make_job_spec(opts, bundle_scene(opts.scene), submit);
+}
+
+v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, SceneBundleData bundle, const SubmitOptions& submit) {
   if (!bundle.builtin.empty())
     parse_builtin_spec(bundle.builtin.substr(8));  // unknown names fail here, not on the master
   // The job names its camera explicitly (the master requires one): the overrides, completed from the

@@ -145,6 +145,8 @@ class JobClient {
   /// and scene JSON files are loaded locally for it) with the overrides applied. Throws SceneError for
   /// unreadable scenes or unknown built-ins, std::invalid_argument for a bad camera or name.
   v1::JobSpec make_job_spec(const RenderOptions& opts, const SubmitOptions& submit = {});
+  /// The same with the scene already bundled (bundle_scene(opts.scene)).
+  v1::JobSpec make_job_spec(const RenderOptions& opts, SceneBundleData bundle, const SubmitOptions& submit = {});
   /// Queues `opts` as a job; returns its id.
   std::string submit(const RenderOptions& opts, const SubmitOptions& submit = {});
   /// Queues a ready spec (retrying once after a deadline when spec.request_id is set); returns its id.

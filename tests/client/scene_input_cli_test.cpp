@@ -97,6 +97,7 @@ TEST_F(SceneInputCli, UnlitSceneIsRefusedSayingHowToLightIt) {
     EXPECT_NE(r.exit_code, 0) << r.output;
     EXPECT_TRUE(contains(r.output, "dark.obj has no light: no material has an emission (Ke)")) << r.output;
     EXPECT_TRUE(contains(r.output, "Ke 10 10 10")) << r.output;
+    EXPECT_FALSE(contains(r.output, "master on ")) << "refused before a master started: " << r.output;
   }
   EXPECT_FALSE(fs::exists(dir.path("out/a.exr")));
   EXPECT_FALSE(fs::exists(dir.path("out/b.exr")));

@@ -212,14 +212,17 @@ TEST_F(LeaseTest, JobFailsWithTheReasonWhenEveryRegisteredWorkerIsBlocked) {
 
 TEST_F(LeaseTest, SceneNoWorkerCanLoadFailsTheJobAndTheMasterServesTheNext) {
   start();
-  // A worker whose scene cache sits under a regular file: it cannot store a fetched file scene.
-  std::ofstream(dir_ / "not-a-dir") << "x";
+  // A worker whose cache holds a regular file where the scene's folder goes: the cache itself is
+  // writable (no fallback folder), but the fetched file scene cannot be moved into place.
+  const SceneBundleData bundle = bundle_scene(kCornellObj);
   WorkerNodeOptions no = node_options("broken-cache", 1);
-  no.cache_dir = (dir_ / "not-a-dir" / "cache").string();
+  no.cache_dir = (dir_ / "cache").string();
+  fs::create_directories(dir_ / "cache" / "scenes");
+  std::ofstream(dir_ / "cache" / "scenes" / content_hash(bundle)) << "x";
   no.max_backoff_ms = 1000;
   RenderOptions o = cornell(RenderMode::kPathTrace, 24, 2, 1);
   o.scene = kCornellObj;
-  const std::string bad_job = submit(o, bundle_scene(kCornellObj));
+  const std::string bad_job = submit(o, bundle);
   const RenderOptions b = cornell(RenderMode::kPathTrace, 24, 2, 1);
   const std::string good_job = submit(b, bundle_scene(b.scene));  // queued behind it
 
