@@ -41,6 +41,7 @@ MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(opt
     MonitoringOptions mo;
     mo.listen = options_.http_listen;
     mo.cpu_reprojector = options_.jobs.reproject_backend_override == "cpu";
+    mo.token = options_.token;  // the monitoring pages need the same bearer token (but /healthz, /readyz)
     try {
       monitoring_ = std::make_unique<MonitoringServer>(*jobs_, mo);
     } catch (...) {

@@ -16,6 +16,9 @@
 #include "master/server/job_manager.h"
 #include "master/server/monitoring_format.h"
 #include "master/server/previews.h"
+#include "wire/rpc/auth_interceptor.h"
+#include "wire/rpc/token.h"
+#include "wire/sha256.h"
 
 namespace epr {
 
@@ -43,6 +46,54 @@ json workers_json(const JobManager& jobs) {
   for (const auto& w : jobs.workers()) out.push_back(to_json(w));
   return out;
 }
+
+// The session cookie's name and value for `token`: a digest, so a cookie taken from a browser
+// opens the monitoring pages only, never the gRPC services.
+constexpr std::string_view kCookie = "epr_session";
+std::string session_of(const std::string& token) {
+  Sha256 h;
+  h.update(std::string("eprfarm monitoring session\n"));
+  h.update(token);
+  return h.hex();
+}
+
+// The value of cookie `name` in a Cookie header ("a=1; b=2"); empty if absent.
+std::string cookie_value(const std::string& header, std::string_view name) {
+  size_t at = 0;
+  while (at < header.size()) {
+    size_t end = header.find(';', at);
+    if (end == std::string::npos) end = header.size();
+    std::string_view pair(header.data() + at, end - at);
+    while (!pair.empty() && pair.front() == ' ') pair.remove_prefix(1);
+    if (pair.size() > name.size() && pair.substr(0, name.size()) == name && pair[name.size()] == '=')
+      return std::string(pair.substr(name.size() + 1));
+    at = end + 1;
+  }
+  return {};
+}
+
+// GET / without a token: a form that sends the token to /login, which sets the session cookie.
+constexpr std::string_view kLoginPage = R"(<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>eprfarm: sign in</title>
+<style>body{font:15px system-ui,sans-serif;background:#f4f5f7;display:flex;justify-content:center;padding-top:15vh}
+form{background:#fff;border:1px solid #e3e6ec;border-radius:8px;padding:20px 24px;width:340px}
+input{width:100%;margin:8px 0 12px;padding:6px;font:inherit}#error{color:#d64545;min-height:1.4em}</style></head>
+<body><form id="login"><b>eprfarm monitoring</b><p>This master requires its bearer token.</p>
+<label>Token<input id="token" type="password" autocomplete="current-password" autofocus></label>
+<button type="submit">Sign in</button><div id="error"></div></form>
+<script>
+document.getElementById("login").onsubmit = async (ev) => {
+  ev.preventDefault();
+  const error = document.getElementById("error");
+  try {
+    const r = await fetch("login", { cache: "no-store",
+      headers: { Authorization: "Bearer " + document.getElementById("token").value.trim() } });
+    if (r.ok) { location.reload(); return; }
+    error.textContent = r.status === 401 ? "That token is not valid for this master." : "HTTP " + r.status;
+  } catch (e) { error.textContent = "The token must be printable ASCII without spaces."; }
+};
+</script></body></html>
+)";
 
 // A short strong validator of the image bytes (FNV-1a, 64 bit).
 std::string etag_of(const std::vector<unsigned char>& bytes) {
@@ -72,7 +123,8 @@ std::optional<std::pair<std::string, int>> parse_host_port(const std::string& ad
 struct MonitoringServer::Impl {
   JobManager& jobs;
   MonitoringOptions options;
-  httplib::Server http;
+  std::unique_ptr<httplib::Server> server;
+  httplib::Server& http;
   std::thread thread;
   std::string host;
   int port = 0;
@@ -81,17 +133,31 @@ struct MonitoringServer::Impl {
   Mutex stop_mu;  // also makes a second stop() wait until the first has joined the thread
   bool stopped EPR_GUARDED_BY(stop_mu) = false;
 
-  Impl(JobManager& j, MonitoringOptions o) : jobs(j), options(std::move(o)) {}
+  // With a token: the bearer check, and the same check of the session cookie against its digest.
+  std::optional<rpc::BearerTokenCheck> bearer, session;
+  std::string session_cookie;
+
+  Impl(JobManager& j, MonitoringOptions o)
+      : jobs(j), options(std::move(o)), server(make_http_server(options.limits)), http(*server) {}
   void routes();
+  bool authorized(const httplib::Request& req) const;
+  void unauthorized(const httplib::Request& req, httplib::Response& res) const;
   void image(const httplib::Request& req, httplib::Response& res);
 };
 
 void MonitoringServer::Impl::routes() {
-  http.set_pre_routing_handler([](const httplib::Request& req, httplib::Response& res) {
-    if (req.method == "GET" || req.method == "HEAD") return httplib::Server::HandlerResponse::Unhandled;
-    res.set_header("Allow", "GET, HEAD");
-    send_error(res, 405, fmt::format("the monitoring endpoint is read-only ({} is not allowed)", req.method));
-    return httplib::Server::HandlerResponse::Handled;
+  http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
+    http_request_headers_received();
+    if (req.method != "GET" && req.method != "HEAD") {
+      res.set_header("Allow", "GET, HEAD");
+      send_error(res, 405, fmt::format("the monitoring endpoint is read-only ({} is not allowed)", req.method));
+      return httplib::Server::HandlerResponse::Handled;
+    }
+    if (bearer && req.path != "/healthz" && req.path != "/readyz" && !authorized(req)) {
+      unauthorized(req, res);
+      return httplib::Server::HandlerResponse::Handled;
+    }
+    return httplib::Server::HandlerResponse::Unhandled;
   });
   http.set_error_handler([](const httplib::Request&, httplib::Response& res) {
     if (res.body.empty())
@@ -112,6 +178,13 @@ void MonitoringServer::Impl::routes() {
   http.Get("/", [](const httplib::Request&, httplib::Response& res) {
     res.set_header("Cache-Control", "no-cache");
     res.set_content(std::string(dashboard_html()), "text/html; charset=utf-8");
+  });
+  http.Get("/login", [this](const httplib::Request&, httplib::Response& res) {
+    res.status = 204;
+    res.set_header("Cache-Control", "no-store");
+    // A session cookie (no Max-Age): it ends with the browser session.
+    if (bearer)
+      res.set_header("Set-Cookie", fmt::format("{}={}; Path=/; HttpOnly; SameSite=Strict", kCookie, session_cookie));
   });
   http.Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
     send_json(res, 200, {{"status", "ok"}});
@@ -153,6 +226,34 @@ void MonitoringServer::Impl::routes() {
   });
 }
 
+bool MonitoringServer::Impl::authorized(const httplib::Request& req) const {
+  using Metadata = std::multimap<grpc::string_ref, grpc::string_ref>;
+  if (req.has_header("Authorization")) {
+    const std::string value = req.get_header_value("Authorization");
+    return bearer->check(Metadata{{"authorization", value}}).ok();
+  }
+  const std::string cookie = cookie_value(req.get_header_value("Cookie"), kCookie);
+  if (cookie.empty()) return false;
+  const std::string value = "Bearer " + cookie;
+  return session->check(Metadata{{"authorization", value}}).ok();
+}
+
+void MonitoringServer::Impl::unauthorized(const httplib::Request& req, httplib::Response& res) const {
+  const bool sent = req.has_header("Authorization") || !cookie_value(req.get_header_value("Cookie"), kCookie).empty();
+  res.set_header("WWW-Authenticate",
+                 sent ? R"(Bearer realm="eprfarm", error="invalid_token")" : R"(Bearer realm="eprfarm")");
+  if (req.path == "/") {
+    res.status = 401;
+    res.set_header("Cache-Control", "no-store");
+    res.set_content(std::string(kLoginPage), "text/html; charset=utf-8");
+    return;
+  }
+  send_error(res, 401,
+             sent ? "the bearer token is not valid for this master"
+                  : "this master requires a bearer token (Authorization: Bearer TOKEN)",
+             "unauthorized");
+}
+
 void MonitoringServer::Impl::image(const httplib::Request& req, httplib::Response& res) {
   const std::string id = req.matches[1];
   const std::string layer = req.has_param("layer") ? req.get_param_value("layer") : "combined";
@@ -186,8 +287,13 @@ MonitoringServer::MonitoringServer(JobManager& jobs, MonitoringOptions options)
   auto hp = parse_host_port(impl_->options.listen);
   if (!hp) throw std::runtime_error(fmt::format("monitoring address '{}' is not HOST:PORT", impl_->options.listen));
   impl_->host = hp->first;
-  const int threads = std::max(1, impl_->options.threads);
-  impl_->http.new_task_queue = [threads] { return new httplib::ThreadPool(size_t(threads)); };
+  if (!impl_->options.token.empty()) {
+    if (!rpc::is_valid_token(impl_->options.token))
+      throw std::runtime_error("the monitoring token must be printable ASCII without spaces");
+    impl_->bearer.emplace(impl_->options.token);
+    impl_->session_cookie = session_of(impl_->options.token);
+    impl_->session.emplace(impl_->session_cookie);
+  }
   impl_->http.set_payload_max_length(64 << 10);  // nothing is uploaded here
   // cpp-httplib's default sets SO_REUSEPORT, which lets a second master bind the same port and take
   // half of the requests; SO_REUSEADDR alone allows a quick restart but refuses a port in use.
@@ -195,11 +301,8 @@ MonitoringServer::MonitoringServer(JobManager& jobs, MonitoringOptions options)
     int yes = 1;
     setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof(yes));
   });
-  impl_->http.set_read_timeout(5, 0);
-  impl_->http.set_write_timeout(5, 0);
   impl_->routes();
-  impl_->port = hp->second == 0 ? impl_->http.bind_to_any_port(impl_->host)
-                                : (impl_->http.bind_to_port(impl_->host, hp->second) ? hp->second : -1);
+  impl_->port = bind_http_server(impl_->http, impl_->host, hp->second);
   if (impl_->port <= 0)
     throw std::runtime_error(
         fmt::format("cannot serve HTTP on {} (address in use or invalid?)", impl_->options.listen));

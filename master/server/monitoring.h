@@ -18,8 +18,18 @@
 //   GET /api/v1/workers                     {"workers":[...]}
 //   GET /metrics                            Prometheus text format 0.0.4 (monitoring_format.h)
 //
+//   GET /login                              with a valid Authorization header: 204 and the session
+//                                           cookie (below); the dashboard's login form calls it
+//
 // Any other method gets 405 {"error":...} with "Allow: GET, HEAD". Unknown paths get 404 JSON.
-// Threads: cpp-httplib's pool (MonitoringOptions::threads); handlers only copy JobManager snapshots.
+//
+// With a token (MonitoringOptions::token, the master's --token-file), every path but /healthz and
+// /readyz needs "Authorization: Bearer TOKEN" or the session cookie that /login sets (HttpOnly,
+// SameSite=Strict, a digest of the token rather than the token); both are compared in constant time.
+// Otherwise 401 with "WWW-Authenticate: Bearer": JSON, or for GET / a login page.
+//
+// Connections: master/server/http_server.h (a thread per connection up to a cap, header deadline,
+// keep-alive limits); handlers only copy JobManager snapshots.
 #pragma once
 
 #include <memory>
@@ -27,19 +37,23 @@
 #include <string>
 #include <utility>
 
+#include "master/server/http_server.h"
+
 namespace epr {
 
 class JobManager;
 
 struct MonitoringOptions {
   std::string listen = "0.0.0.0:8080";  // HOST:PORT ("[::]:8080" for IPv6); port 0 picks a free port
-  int threads = 4;                      // HTTP worker threads
   bool cpu_reprojector = false;         // the master forces the CPU reprojector: ready without OSMesa
+  std::string token;                    // bearer token required on all but /healthz and /readyz; empty: open
+  HttpLimits limits;                    // connections, deadlines, keep-alive
 };
 
 class MonitoringServer {
  public:
-  /// Binds and starts serving; throws std::runtime_error if the address is malformed or cannot be bound.
+  /// Binds and starts serving; throws std::runtime_error if the address is malformed or cannot be bound,
+  /// or the token is not one token (wire/rpc/token.h).
   MonitoringServer(JobManager& jobs, MonitoringOptions options);
   ~MonitoringServer();
   MonitoringServer(const MonitoringServer&) = delete;

@@ -48,12 +48,14 @@ bool wait_for(F done, double seconds) {
                           std::chrono::milliseconds(20));
 }
 
-/// An in-process master (gRPC and HTTP on free loopback ports).
-inline std::unique_ptr<MasterServer> start_master(const std::string& reproject_override = "cpu") {
+/// An in-process master (gRPC and HTTP on free loopback ports); `token`: the bearer token it requires.
+inline std::unique_ptr<MasterServer> start_master(const std::string& reproject_override = "cpu",
+                                                  const std::string& token = "") {
   MasterServerOptions o;
   o.listen = "127.0.0.1:0";
   o.http_listen = "127.0.0.1:0";
   o.jobs.reproject_backend_override = reproject_override;
+  o.token = token;
   return std::make_unique<MasterServer>(o);
 }
 
@@ -160,8 +162,10 @@ inline double sample(const json& families, const std::string& name, const json& 
 /// when asked, so rounds close exactly when the test wants.
 class ManualWorker {
  public:
-  explicit ManualWorker(const std::string& target)
-      : stub_(v1::WorkerService::NewStub(grpc::CreateChannel(target, grpc::InsecureChannelCredentials()))) {
+  /// `token`: the master's bearer token, if it requires one.
+  explicit ManualWorker(const std::string& target, std::string token = "")
+      : stub_(v1::WorkerService::NewStub(grpc::CreateChannel(target, grpc::InsecureChannelCredentials()))),
+        token_(std::move(token)) {
     register_worker();
   }
 
@@ -201,8 +205,9 @@ class ManualWorker {
   }
 
  private:
-  static void deadline(grpc::ClientContext* ctx) {
+  void deadline(grpc::ClientContext* ctx) const {
     ctx->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+    if (!token_.empty()) ctx->AddMetadata("authorization", "Bearer " + token_);
   }
 
   void register_worker() {
@@ -254,6 +259,7 @@ class ManualWorker {
   }
 
   std::unique_ptr<v1::WorkerService::Stub> stub_;
+  std::string token_;
   std::string id_;
   std::string traced_job_;
   std::unique_ptr<Scene> scene_;
