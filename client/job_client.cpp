@@ -143,7 +143,12 @@ bool JobClient::past_end_by() const { return options_.end_by && std::chrono::sys
 
 void print_upload_progress(const UploadProgress& p) {
   const double mib = 1024.0 * 1024.0;
-  if (p.done)
+  using Stage = UploadProgress::Stage;
+  if (p.stage == Stage::kLoading)
+    std::fprintf(stderr, "the master is loading the scene (%.1f MiB)\n", double(p.total) / mib);
+  else if (p.stage == Stage::kLoaded)
+    std::fprintf(stderr, "the master loaded the scene in %.1f s\n", p.seconds);
+  else if (p.done)
     std::fprintf(stderr, "uploaded the scene (%.1f MiB) in %.1f s\n", double(p.total) / mib, p.seconds);
   else
     std::fprintf(stderr, "uploading the scene: %.1f of %.1f MiB (%.0f%%)\n", double(p.sent) / mib,
@@ -237,6 +242,9 @@ std::string JobClient::submit(const v1::JobSpec& spec) {
       scene_bytes = it->second;
   }
   const auto timeout = rpc::scaled_deadline(options_.timeout, scene_bytes, options_.min_scene_load_bytes_per_second);
+  const bool report = options_.upload_progress && scene_bytes >= UploadProgress::kLoadReportBytes;
+  const auto t0 = std::chrono::steady_clock::now();
+  if (report) options_.upload_progress({scene_bytes, scene_bytes, 0, true, UploadProgress::Stage::kLoading});
   for (int attempt = 1;; ++attempt) {
     grpc::ClientContext ctx;
     prepare(&ctx, timeout);
@@ -246,6 +254,10 @@ std::string JobClient::submit(const v1::JobSpec& spec) {
       if (id.id().empty())
         throw RpcError(grpc::Status(grpc::StatusCode::INTERNAL, "empty job id"),
                        fmt::format("master at {} answered SubmitJob without a job id", target_));
+      if (report)
+        options_.upload_progress({scene_bytes, scene_bytes,
+                                  std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), true,
+                                  UploadProgress::Stage::kLoaded});
       return id.id();
     }
     if (s.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED && attempt < attempts && !past_end_by()) {
@@ -296,6 +308,7 @@ std::string JobClient::upload_scene(const SceneBundleData& bundle) {
     progress.sent = total;  // also when the master already had the scene
     progress.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
     progress.done = true;
+    progress.stage = UploadProgress::Stage::kUploaded;
     options_.upload_progress(progress);
   }
   logger("client")->info("uploaded scene {} ({} bytes) to {}", hash, total, target_);

@@ -54,11 +54,16 @@ class RpcError : public std::runtime_error {
   grpc::Status status_;
 };
 
-/// How far an upload has come: reported at most about once a second, and once when it is done.
+/// How far an upload has come: reported at most about once a second, and once when it is done. A
+/// scene of at least kLoadReportBytes is reported twice more: as the master starts loading it (on
+/// SubmitJob, which answers once the scene is loaded and checked) and when it has.
 struct UploadProgress {
+  enum class Stage { kUploading, kUploaded, kLoading, kLoaded };
+  static constexpr uint64_t kLoadReportBytes = 1 << 20;
   uint64_t sent = 0, total = 0;  // bytes of scene files
-  double seconds = 0;            // since the upload began
-  bool done = false;
+  double seconds = 0;            // since the stage began (kLoaded: the master's load and check)
+  bool done = false;             // the upload is complete (every stage but kUploading)
+  Stage stage = Stage::kUploading;
 };
 using UploadProgressCallback = std::function<void(const UploadProgress&)>;
 

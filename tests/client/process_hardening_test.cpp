@@ -207,6 +207,8 @@ TEST_F(ProcessHardening, LargeSceneIsUploadedWithProgressShown) {
                           "render");
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("uploaded the scene ("), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("the master is loading the scene ("), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("the master loaded the scene in "), std::string::npos) << r.err;
   EXPECT_TRUE(fs::exists(dir_ / "x.exr"));
 }
 
