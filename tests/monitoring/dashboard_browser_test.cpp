@@ -1,7 +1,9 @@
 // The dashboard in a real browser: Debian's Chromium, headless, driven by chromedriver over the
 // WebDriver protocol (plain HTTP, cpp-httplib). The test drives the render's rounds itself
 // (ManualWorker), so "progress advances" and "the preview changes between rounds" are checked at
-// known moments rather than raced against a free-running render. It reads what the page shows from
+// known moments rather than raced against a free-running render. The master requires a bearer token,
+// so the test first signs in through the page's login form (a wrong token is refused, the right one
+// sets the HttpOnly session cookie the page's requests then carry). It reads what the page shows from
 // window.eprDashboard (kept by the page from the same JSON it renders) and from the DOM, and saves
 // screenshots to <build>/Testing/monitoring/ (dashboard_running.png, dashboard_samples.png,
 // dashboard_done.png).
@@ -137,8 +139,11 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
   ASSERT_TRUE(fs::exists(kChromium) && fs::exists(kChromedriver))
       << "Chromium or chromedriver not installed: run scripts/setup.sh";
   const fs::path dir = scratch_dir("browser");
-  auto master = start_master();
-  JobClient client(master->local_target());
+  const std::string token = "browser-test-token";
+  auto master = start_master("cpu", token);
+  JobClientOptions co;
+  co.token = token;
+  JobClient client(master->local_target(), co);
   RenderOptions o = small_job(24);
   o.width = 160;
   o.height = 120;
@@ -154,9 +159,27 @@ TEST(DashboardBrowser, ProgressAndPreviewAdvanceRoundByRound) {
     FAIL() << e.what();
   }
   browser->open(master->dashboard_url());
+  // Signed out: the login page, no dashboard. A wrong token is refused on the page.
+  EXPECT_TRUE(browser->state().is_null());
+  auto sign_in = [&](const std::string& t) {
+    browser->eval("document.getElementById('token').value = " + json(t).dump() +
+                  "; document.getElementById('login').requestSubmit(); return null;");
+  };
+  sign_in(token + "-wrong");
+  ASSERT_TRUE(wait_for(
+      [&] { return browser->eval("const e = document.getElementById('error'); return e ? e.textContent : '';") != ""; },
+      30));
+  EXPECT_NE(browser->eval("return document.getElementById('error').textContent;").get<std::string>().find("not valid"),
+            std::string::npos);
+  EXPECT_TRUE(browser->state().is_null());
+  sign_in(token);
   json s;
+  ASSERT_TRUE(browser->wait_state([&](const json& st) { return st["polls"].get<int>() >= 1; }, 30, &s))
+      << "the dashboard did not open after signing in";
+  // The session cookie is HttpOnly: the page's scripts cannot read it.
+  EXPECT_EQ(browser->eval("return document.cookie;"), "");
   // Before the first round: the job is listed and selected, and the preview is a placeholder.
-  ManualWorker worker(master->local_target());
+  ManualWorker worker(master->local_target(), token);
   ASSERT_TRUE(
       browser->wait_state([&](const json& st) { return st["jobId"] == id && st["polls"].get<int>() >= 1; }, 30, &s))
       << s;
