@@ -116,13 +116,20 @@ int count_closed(const std::vector<int>& fds) {
   return int(std::count_if(fds.begin(), fds.end(), [](int fd) { return closed_by_server(fd); }));
 }
 
-TEST(MonitoringConnections, HealthzAnswersWithinASecondWhile200SlowAndIdleConnectionsAreOpen) {
-  auto master = start_master();
+// A monitoring server on a free loopback port with these connection limits.
+MonitoringOptions on_loopback(const HttpLimits& limits) {
   MonitoringOptions o;
   o.listen = "127.0.0.1:0";
-  o.limits.idle_seconds = 120;   // the idle connections stay for the whole test
-  o.limits.header_seconds = 12;  // the slow ones until after the probes
-  MonitoringServer server(master->jobs(), o);
+  o.limits = limits;
+  return o;
+}
+
+TEST(MonitoringConnections, HealthzAnswersWithinASecondWhile200SlowAndIdleConnectionsAreOpen) {
+  auto master = start_master();
+  HttpLimits limits;
+  limits.idle_seconds = 120;   // the idle connections stay for the whole test
+  limits.header_seconds = 12;  // the slow ones until after the probes
+  MonitoringServer server(master->jobs(), on_loopback(limits));
 
   IdleConnections idle(server.port(), 100);
   SlowSenders slow(server.port(), 100);
@@ -199,11 +206,10 @@ TEST(MonitoringConnections, TheMastersDefaultsCloseIdleAndSlowConnections) {
 
 TEST(MonitoringConnections, ConnectionsBeyondTheCapAreAnswered503AndClosed) {
   auto master = start_master();
-  MonitoringOptions o;
-  o.listen = "127.0.0.1:0";
-  o.limits.max_connections = 4;
-  o.limits.idle_seconds = 120;
-  MonitoringServer server(master->jobs(), o);
+  HttpLimits limits;
+  limits.max_connections = 4;
+  limits.idle_seconds = 120;
+  MonitoringServer server(master->jobs(), on_loopback(limits));
   auto held = std::make_unique<IdleConnections>(server.port(), 4);
   // Each held connection has its thread once it answers a request (it then waits for the next one).
   for (int fd : held->fds) {
@@ -228,10 +234,9 @@ TEST(MonitoringConnections, ConnectionsBeyondTheCapAreAnswered503AndClosed) {
 
 TEST(MonitoringConnections, KeepAliveEndsAfterMaxRequests) {
   auto master = start_master();
-  MonitoringOptions o;
-  o.listen = "127.0.0.1:0";
-  o.limits.max_requests = 3;
-  MonitoringServer server(master->jobs(), o);
+  HttpLimits limits;
+  limits.max_requests = 3;
+  MonitoringServer server(master->jobs(), on_loopback(limits));
   const int fd = connect_to(server.port());
   std::string got;
   for (int i = 0; i < 3; ++i) {

@@ -16,6 +16,7 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <regex>
 #include <sstream>
 #include <string>
@@ -169,12 +170,18 @@ class ManualWorker {
     register_worker();
   }
 
-  /// Leases, traces and submits tiles until the master has none to give; returns how many were committed.
+  /// Leases, traces and submits the tiles of one round until the master has none to give; returns how
+  /// many were committed. A tile of a later round (the round closed between two leases) is kept for
+  /// the next call, so that each call closes at most one round.
   int work_available() {
     int committed = 0;
+    std::optional<uint32_t> round;
     for (;;) {
       v1::Lease lease;
-      {
+      if (next_) {
+        lease = std::move(*next_);
+        next_.reset();
+      } else {
         grpc::ClientContext ctx;
         deadline(&ctx);
         v1::LeaseRequest req;
@@ -190,6 +197,11 @@ class ManualWorker {
         }
       }
       if (!lease.has_tile()) return committed;
+      if (round && lease.tile().round() != *round) {
+        next_ = std::move(lease);
+        return committed;
+      }
+      round = lease.tile().round();
       committed += submit(lease.tile()) ? 1 : 0;
     }
   }
@@ -261,6 +273,7 @@ class ManualWorker {
   std::unique_ptr<v1::WorkerService::Stub> stub_;
   std::string token_;
   std::string id_;
+  std::optional<v1::Lease> next_;  // a tile of the next round, leased before this round was done
   std::string traced_job_;
   std::unique_ptr<Scene> scene_;
   std::unique_ptr<EmbreeScene> embree_;
