@@ -16,7 +16,7 @@
 // process, so --lp-threads re-runs this program with each value.
 //
 //   reproject_bench [--runs 5] [--points 4000000] [--width 512] [--height 512] [-S 4]
-//                   [--lp-threads 1,2,4] [--cpu-threads 1,2] [--sweep] [--vertices FILE]
+//                   [--lp-threads 1,2,4] [--cpu-threads 1,2] [--sweep] [--vertices FILE] [--cpu-only]
 #include <sys/resource.h>
 #include <tbb/global_control.h>
 #include <unistd.h>
@@ -126,7 +126,7 @@ int main(int argc, char** argv) {
   int runs = 5, width = 512, height = 512, S = 4;
   size_t points = 4'000'000;
   std::vector<int> lp_threads, cpu_threads = {1, 2};
-  bool sweep = false, gl_only = false;
+  bool sweep = false, gl_only = false, cpu_only = false;
   std::string vertices, scene_filter;
   app.add_option("--runs", runs, "runs per figure (median)");
   app.add_option("--points", points, "points per vertex set");
@@ -137,6 +137,7 @@ int main(int argc, char** argv) {
   app.add_option("--cpu-threads", cpu_threads, "TBB thread counts for the CPU back-end")->delimiter(',');
   app.add_flag("--sweep", sweep, "also sweep GL workgroup shapes and prefetch");
   app.add_flag("--gl-only", gl_only, "only the GL back-end (used by --lp-threads)");
+  app.add_flag("--cpu-only", cpu_only, "only the CPU back-end (the deep framebuffer is still built with GL if available)");
   app.add_option("--vertices", vertices, "raw VertexRecord file instead of generated sets (scene: --scene)");
   app.add_option("--scene", scene_filter, "only this scene (cornell or hall)");
   CLI11_PARSE(app, argc, argv);
@@ -191,7 +192,7 @@ int main(int argc, char** argv) {
                 scene.triangle_count(), 100.0 * double(dfb.covered_count()) / double(dfb.texel_count()), pts.size());
 
     Figure gl_fig;
-    if (ctx) {
+    if (ctx && !cpu_only) {
       auto gl = make_reprojector("gl", cam, dfb, settings, ctx.get());
       gl_fig = measure(*gl, pts, runs);
       std::printf("  gl  (wg %d x %d, prefetch %s): %7.2f M points/s wall, %7.2f M points/CPU-s\n", settings.workgroups,
@@ -232,9 +233,9 @@ int main(int argc, char** argv) {
       const Figure f = measure(*cpu, pts, runs);
       std::printf("  cpu (%d TBB thread%s):            %7.2f M points/s wall, %7.2f M points/CPU-s", threads,
                   threads == 1 ? " " : "s", f.wall / 1e6, f.cpu / 1e6);
-      if (ctx) std::printf("   GL/CPU = %.2f", gl_fig.wall / f.wall);
+      if (ctx && !cpu_only) std::printf("   GL/CPU = %.2f", gl_fig.wall / f.wall);
       std::printf("\n");
-      if (!ctx) print_counts(f.counts, pts.size());
+      if (!ctx || cpu_only) print_counts(f.counts, pts.size());
       const Figure fp = measure_packed(*cpu, packed, codec, tile_call, runs);
       std::printf(
           "  cpu packed, %7zu-vertex calls:  %7.2f M points/s wall, %7.2f M points/CPU-s (%.1f ns/vertex CPU)\n",
