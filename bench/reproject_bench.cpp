@@ -137,7 +137,8 @@ int main(int argc, char** argv) {
   app.add_option("--cpu-threads", cpu_threads, "TBB thread counts for the CPU back-end")->delimiter(',');
   app.add_flag("--sweep", sweep, "also sweep GL workgroup shapes and prefetch");
   app.add_flag("--gl-only", gl_only, "only the GL back-end (used by --lp-threads)");
-  app.add_flag("--cpu-only", cpu_only, "only the CPU back-end (the deep framebuffer is still built with GL if available)");
+  app.add_flag("--cpu-only", cpu_only,
+               "only the CPU back-end (the deep framebuffer is still built with GL if available)");
   app.add_option("--vertices", vertices, "raw VertexRecord file instead of generated sets (scene: --scene)");
   app.add_option("--scene", scene_filter, "only this scene (cornell or hall)");
   CLI11_PARSE(app, argc, argv);

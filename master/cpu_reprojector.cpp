@@ -15,10 +15,15 @@ namespace epr {
 
 namespace {
 constexpr uint32_t kNone = 0xffffffffu;
-constexpr size_t kChunk = 32768;          // records per pass pair: the chunk's records stay in L2 for pass 2
-constexpr size_t kBlock = 2048;           // records per classification task (pass A's prefetches stay in L2)
-constexpr size_t kPrefetchDistance = 32;  // accumulation: cells prefetched this many targets ahead
-constexpr size_t kSerialBelow = kChunk;   // reproject_packed and accumulate: one thread below this
+constexpr size_t kChunk = 32768;           // records per pass pair and two threads: a block's records stay in L2
+constexpr size_t kMaxChunk = 16 * kChunk;  // (32 threads and more)
+constexpr size_t kBlock = 2048;            // records per classification task (pass A's prefetches stay in L2)
+constexpr size_t kPrefetchDistance = 32;   // accumulation: cells prefetched this many targets ahead
+constexpr size_t kSerialBelow = kChunk;    // calls of fewer records: one thread
+constexpr size_t kOwnersPerThread = 4;     // accumulation tasks per thread (load balance)
+constexpr size_t kMaxOwners = 256;
+constexpr size_t kStripesPerOwner = 16;
+constexpr uint32_t kMinStripeShift = 6, kMaxStripeShift = 20;
 }  // namespace
 
 CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings)
@@ -29,6 +34,101 @@ CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb,
   grid_ = detail::make_plane_grid(dfb, camera.eye(), params_.crease_tolerance, settings_.joint_test);
   cells_.resize(dfb.texel_count());
   target_.resize(kChunk);
+}
+
+CpuReprojector::Owners CpuReprojector::owners_for(size_t n) const {
+  const size_t threads = size_t(std::max(1, tbb::this_task_arena::max_concurrency()));
+  Owners o;
+  if (n < kSerialBelow || threads == 1) return o;
+  while (o.tasks < kOwnersPerThread * threads && o.tasks < kMaxOwners) o.tasks *= 2;
+  o.mask = uint32_t(o.tasks - 1);
+  o.shift = kMinStripeShift;
+  while (o.shift < kMaxStripeShift && (cells_.size() >> (o.shift + 1)) >= kStripesPerOwner * o.tasks) ++o.shift;
+  return o;
+}
+
+size_t CpuReprojector::chunk_for(const Owners& o) {
+  const size_t threads = size_t(std::max(1, tbb::this_task_arena::max_concurrency()));
+  const size_t chunk = o.tasks == 1 ? kChunk : std::clamp(kChunk * (threads / 2), kChunk, kMaxChunk);
+  if (target_.size() < chunk) target_.resize(chunk);
+  if (o.tasks > 1) {
+    if (binned_.size() < chunk) binned_.resize(chunk);
+    const size_t starts = (chunk + kBlock - 1) / kBlock * (o.tasks + 1);
+    if (bin_start_.size() < starts) bin_start_.resize(starts);
+  }
+  return chunk;
+}
+
+// Counting sort of one block's accepted records by owner, each owner's in input order.
+template <class Radiance>
+void CpuReprojector::bin_block(size_t block, size_t begin, size_t end, const Owners& o, const Radiance& radiance_of) {
+  uint32_t* start = &bin_start_[block * (o.tasks + 1)];
+  std::fill(start, start + o.tasks + 1, 0u);
+  for (size_t i = begin; i < end; ++i) {
+    const uint32_t t = target_[i];
+    if (t != kNone) ++start[((t >> o.shift) & o.mask) + 1];
+  }
+  std::array<uint32_t, kMaxOwners> cursor;
+  for (size_t k = 0; k < o.tasks; ++k) {
+    start[k + 1] += start[k];
+    cursor[k] = start[k];
+  }
+  Entry* out = &binned_[begin];
+  for (size_t i = begin; i < end; ++i) {
+    const uint32_t t = target_[i];
+    if (t == kNone) continue;
+    const Vec3 L = radiance_of(i);
+    out[cursor[(t >> o.shift) & o.mask]++] = {t, L.x, L.y, L.z};
+  }
+}
+
+// One task per owner: its bins of blocks 0, 1, ... in turn (so its subpixels get their records in
+// input order), cells prefetched kPrefetchDistance records ahead across the bins.
+void CpuReprojector::accumulate_owned(size_t blocks, const Owners& o) {
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, o.tasks, 1),
+      [&](const tbb::blocked_range<size_t>& owners) {
+        for (size_t k = owners.begin(); k < owners.end(); ++k) {
+          auto lo = [&](size_t b) { return b * kBlock + bin_start_[b * (o.tasks + 1) + k]; };
+          auto hi = [&](size_t b) { return b * kBlock + bin_start_[b * (o.tasks + 1) + k + 1]; };
+          size_t pb = 0, pi = lo(0), pend = hi(0);  // the prefetch cursor
+          auto prefetch_next = [&] {
+            while (pi == pend && ++pb < blocks) pi = lo(pb), pend = hi(pb);
+            if (pb < blocks) __builtin_prefetch(&cells_[binned_[pi++].target], 1);
+          };
+          for (size_t d = 0; d < kPrefetchDistance; ++d) prefetch_next();
+          for (size_t b = 0; b < blocks; ++b) {
+            for (size_t i = lo(b), e = hi(b); i < e; ++i) {
+              prefetch_next();
+              const Entry& en = binned_[i];
+              Cell& c = cells_[en.target];
+              c.r += en.r;
+              c.g += en.g;
+              c.b += en.b;
+              c.n += 1;
+            }
+          }
+        }
+      },
+      tbb::simple_partitioner());
+}
+
+template <class Radiance>
+void CpuReprojector::accumulate_serial(size_t n, const Radiance& radiance_of) {
+  for (size_t i = 0; i < n; ++i) {
+    if (i + kPrefetchDistance < n) {
+      const uint32_t ahead = target_[i + kPrefetchDistance];
+      if (ahead != kNone) __builtin_prefetch(&cells_[ahead], 1);
+    }
+    const uint32_t t = target_[i];
+    if (t == kNone) continue;
+    const Vec3 L = radiance_of(i);
+    Cell& c = cells_[t];
+    c.r += L.x;
+    c.g += L.y;
+    c.b += L.z;
+    c.n += 1;
+  }
 }
 
 void CpuReprojector::add_block_counts(const std::vector<std::array<uint32_t, 6>>& block_counts) {
@@ -50,10 +150,15 @@ void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec
   constexpr size_t kBytes = VertexCodec::kPackedBytes;
   const size_t total = packed.size() / kBytes;
   const auto* base = reinterpret_cast<const unsigned char*>(packed.data());
-  if (position_.size() < kChunk) position_.resize(kChunk), normal_.resize(kChunk);
-  for (size_t off = 0; off < total; off += kChunk) {
-    const size_t n = std::min(kChunk, total - off);
+  const Owners owners = owners_for(total);
+  const size_t chunk = chunk_for(owners);
+  if (position_.size() < chunk) position_.resize(chunk), normal_.resize(chunk);
+  for (size_t off = 0; off < total; off += chunk) {
+    const size_t n = std::min(chunk, total - off);
     const unsigned char* src = base + off * kBytes;
+    auto radiance_of = [src](size_t i) {
+      return VertexCodec::decode_radiance(VertexCodec::load(src + i * kBytes).radiance_bits);
+    };
     const size_t blocks = (n + kBlock - 1) / kBlock;
     std::vector<std::array<uint32_t, 6>> block_counts(blocks);
     auto classify = [&](size_t b) {
@@ -87,52 +192,30 @@ void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec
         if (d != detail::Decision::kAccepted) target_[i] = kNone;
       }
       block_counts[b] = c;
+      if (owners.tasks > 1) bin_block(b, begin, end, owners, radiance_of);
     };
     // A tile's worth of vertices (the master's calls): on the calling thread. Waking TBB's threads
     // (which then spin a while) costs more CPU than it saves there, and the master shares its cores
     // with gRPC; whole frames (the single-process render) go parallel.
-    if (n < kSerialBelow) {
+    if (owners.tasks == 1) {
       for (size_t b = 0; b < blocks; ++b) classify(b);
+      add_block_counts(block_counts);
+      accumulate_serial(n, radiance_of);
     } else {
       tbb::parallel_for(size_t(0), blocks, classify);
+      add_block_counts(block_counts);
+      accumulate_owned(blocks, owners);
     }
-    add_block_counts(block_counts);
-    accumulate(
-        n, [src](size_t i) { return VertexCodec::decode_radiance(VertexCodec::load(src + i * kBytes).radiance_bits); });
   }
 }
 
-template <class Radiance>
-void CpuReprojector::accumulate(size_t n, const Radiance& radiance_of) {
-  // Row ranges of the grid; each task owns one, so no two tasks touch the same cell.
-  // Small batches (a tile's worth) in one range: waking TBB's threads would cost more than it saves.
-  const size_t cells = cells_.size();
-  const size_t ranges =
-      n < kSerialBelow ? 1 : std::clamp<size_t>(size_t(tbb::this_task_arena::max_concurrency()) * 2, 1, 64);
-  tbb::parallel_for(size_t(0), ranges, [&](size_t r) {
-    const uint32_t lo = uint32_t(cells * r / ranges), hi = uint32_t(cells * (r + 1) / ranges);
-    const uint32_t span = hi - lo;
-    for (size_t i = 0; i < n; ++i) {
-      if (i + kPrefetchDistance < n) {
-        const uint32_t ahead = target_[i + kPrefetchDistance];
-        if (ahead - lo < span) __builtin_prefetch(&cells_[ahead], 1);
-      }
-      const uint32_t t = target_[i];
-      if (t - lo >= span) continue;  // also skips kNone
-      const Vec3 L = radiance_of(i);
-      Cell& c = cells_[t];
-      c.r += L.x;
-      c.g += L.y;
-      c.b += L.z;
-      c.n += 1;
-    }
-  });
-}
-
 void CpuReprojector::reproject(std::span<const VertexRecord> records) {
-  for (size_t off = 0; off < records.size(); off += kChunk) {
-    const size_t n = std::min(kChunk, records.size() - off);
+  const Owners owners = owners_for(records.size());
+  const size_t chunk = chunk_for(owners);
+  for (size_t off = 0; off < records.size(); off += chunk) {
+    const size_t n = std::min(chunk, records.size() - off);
     const VertexRecord* rec = records.data() + off;
+    auto radiance_of = [rec](size_t i) { return rec[i].radiance; };
     const size_t blocks = (n + kBlock - 1) / kBlock;
     // Per block: accepted, culled, backfacing, occluded, not_diffuse, invalid.
     std::vector<std::array<uint32_t, 6>> block_counts(blocks);
@@ -170,16 +253,23 @@ void CpuReprojector::reproject(std::span<const VertexRecord> records) {
         if (d != detail::Decision::kAccepted) target_[i] = kNone;
       }
       block_counts[b] = c;
+      if (owners.tasks > 1) bin_block(b, begin, end, owners, radiance_of);
     });
     add_block_counts(block_counts);
-    accumulate(n, [rec](size_t i) { return rec[i].radiance; });
+    if (owners.tasks > 1)
+      accumulate_owned(blocks, owners);
+    else
+      accumulate_serial(n, radiance_of);
   }
 }
 
 void CpuReprojector::add_exact(std::span<const ExactSample> samples) {
-  for (size_t off = 0; off < samples.size(); off += kChunk) {
-    const size_t n = std::min(kChunk, samples.size() - off);
+  const Owners owners = owners_for(samples.size());
+  const size_t chunk = chunk_for(owners);
+  for (size_t off = 0; off < samples.size(); off += chunk) {
+    const size_t n = std::min(chunk, samples.size() - off);
     const ExactSample* s = samples.data() + off;
+    auto radiance_of = [s](size_t i) { return s[i].radiance; };
     uint64_t valid = 0;
     for (size_t i = 0; i < n; ++i) {
       const bool ok = s[i].subpixel < cells_.size() && detail::finite_bits(s[i].radiance.x) &&
@@ -189,7 +279,15 @@ void CpuReprojector::add_exact(std::span<const ExactSample> samples) {
     }
     counts_.exact += valid;
     counts_.invalid += n - valid;
-    accumulate(n, [s](size_t i) { return s[i].radiance; });
+    if (owners.tasks > 1) {
+      const size_t blocks = (n + kBlock - 1) / kBlock;
+      tbb::parallel_for(size_t(0), blocks, [&](size_t b) {
+        bin_block(b, b * kBlock, std::min(n, (b + 1) * kBlock), owners, radiance_of);
+      });
+      accumulate_owned(blocks, owners);
+    } else {
+      accumulate_serial(n, radiance_of);
+    }
   }
 }
 

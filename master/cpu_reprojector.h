@@ -1,17 +1,25 @@
 // The CPU reprojector ("cpu"): the reference for the GL back-end and the fallback without OSMesa.
 //
-// Records are processed in chunks of 32768 (small enough for the chunk's records to stay in L2
-// between the passes; ReprojectorSettings::batch_points is only the GL upload batch), each in two
-// parallel (TBB) passes:
-//   1. classify: every record's decision and target subpixel (reprojection_kernel.h), counts per
-//      block; projection and facing first for a block of 2048, prefetching the deep-framebuffer
-//      entries, then the plane tests, so that the random lookups overlap instead of stalling;
-//   2. accumulate: the subpixel grid is split into row ranges, one task per range scans the batch's
-//      targets and adds the radiance of those in its range -- no atomics, and every subpixel receives
-//      its samples in input order, so sums are deterministic whatever the thread count. Cells are
-//      prefetched a few targets ahead.
+// Records are processed in chunks (32768 records per two threads, at most 16 times that: small enough
+// for a block's records to stay in L2 between the passes; ReprojectorSettings::batch_points is only
+// the GL upload batch), each in two parallel (TBB) passes:
+//   1. classify, per block of 2048 records: every record's decision and target subpixel
+//      (reprojection_kernel.h) and the block's counts -- projection and facing first, prefetching the
+//      deep-framebuffer entries, then the plane tests, so that the random lookups overlap instead of
+//      stalling; then the block's accepted records are binned by owner (a counting sort of the block,
+//      each owner's records in their input order, with their radiance);
+//   2. accumulate, one task per owner: the subpixel grid is cut into stripes of 2^k consecutive
+//      subpixels (a few rows; ~16 stripes per owner), stripe j belonging to owner j mod T, T a power
+//      of two >= 4x the threads (interleaved screen bands: every owner gets a share of every part of
+//      the image, so a culled sky or a dense floor does not unbalance them). An owner reads its bin
+//      of every block, in block order, and adds the radiance to its own cells -- no atomics, no two
+//      tasks write the same memory, and every subpixel receives its samples in input order, so the
+//      sums are those of the serial loop bit for bit, whatever the thread count. Cells are
+//      prefetched a few records ahead.
+// Calls of fewer than 32768 records (the master's one call per tile) and single-thread arenas take
+// the serial path: classify, then one in-order loop over the targets.
 // Memory: the grid (16 bytes per subpixel), the compact deep framebuffer (4 bytes per texel plus the
-// plane table) and 128 KiB of scratch.
+// plane table) and ~22 bytes of scratch per chunk record (0.7 MiB at 2 threads).
 #pragma once
 
 #include <array>
@@ -42,8 +50,22 @@ class CpuReprojector final : public Reprojector {
     float r = 0, g = 0, b = 0;
     uint32_t n = 0;
   };
+  struct Entry {  // an accepted record, binned by owner
+    uint32_t target;
+    float r, g, b;
+  };
+  struct Owners {        // the partition of the grid among accumulation tasks; tasks == 1: serial
+    uint32_t shift = 0;  // stripe j = subpixels [j << shift, (j + 1) << shift)
+    uint32_t mask = 0;   // owner of stripe j: j & mask
+    size_t tasks = 1;
+  };
+  Owners owners_for(size_t n) const;
+  size_t chunk_for(const Owners& o);  // records per chunk; sizes the scratch
   template <class Radiance>
-  void accumulate(size_t n, const Radiance& radiance_of);
+  void bin_block(size_t block, size_t begin, size_t end, const Owners& o, const Radiance& radiance_of);
+  void accumulate_owned(size_t blocks, const Owners& o);
+  template <class Radiance>
+  void accumulate_serial(size_t n, const Radiance& radiance_of);
   void add_block_counts(const std::vector<std::array<uint32_t, 6>>& block_counts);
 
   ReprojectorSettings settings_;
@@ -51,9 +73,11 @@ class CpuReprojector final : public Reprojector {
   detail::PlaneGrid grid_;
   int subpixels_;
   std::vector<Cell> cells_;
-  std::vector<uint32_t> target_;  // per batch point: subpixel index or kNone
-  std::vector<Vec3> position_;    // reproject_packed: per batch point, the decoded position of a candidate
-  std::vector<Vec3> normal_;      // reproject_packed: ... and its decoded normal
+  std::vector<uint32_t> target_;     // per batch point: subpixel index or kNone
+  std::vector<Vec3> position_;       // reproject_packed: per batch point, the decoded position of a candidate
+  std::vector<Vec3> normal_;         // reproject_packed: ... and its decoded normal
+  std::vector<Entry> binned_;        // per chunk record: its block's accepted records, grouped by owner
+  std::vector<uint32_t> bin_start_;  // per block: tasks + 1 offsets of its owners' bins (from the block's start)
   ReprojectionCounts counts_;
 };
 
