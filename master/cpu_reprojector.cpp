@@ -2,6 +2,7 @@
 #include "master/cpu_reprojector.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
@@ -36,8 +37,18 @@ CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb,
   target_.resize(kChunk);
 }
 
+namespace {
+// The threads this call may use: the arena's, capped by a tbb::global_control (epr render --threads,
+// reproject_bench --cpu-threads).
+size_t usable_threads() {
+  const size_t arena = size_t(std::max(1, tbb::this_task_arena::max_concurrency()));
+  const size_t limit = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  return std::max<size_t>(1, std::min(arena, limit));
+}
+}  // namespace
+
 CpuReprojector::Owners CpuReprojector::owners_for(size_t n) const {
-  const size_t threads = size_t(std::max(1, tbb::this_task_arena::max_concurrency()));
+  const size_t threads = usable_threads();
   Owners o;
   if (n < kSerialBelow || threads == 1) return o;
   while (o.tasks < kOwnersPerThread * threads && o.tasks < kMaxOwners) o.tasks *= 2;
@@ -48,7 +59,7 @@ CpuReprojector::Owners CpuReprojector::owners_for(size_t n) const {
 }
 
 size_t CpuReprojector::chunk_for(const Owners& o) {
-  const size_t threads = size_t(std::max(1, tbb::this_task_arena::max_concurrency()));
+  const size_t threads = usable_threads();
   const size_t chunk = o.tasks == 1 ? kChunk : std::clamp(kChunk * (threads / 2), kChunk, kMaxChunk);
   if (target_.size() < chunk) target_.resize(chunk);
   if (o.tasks > 1) {

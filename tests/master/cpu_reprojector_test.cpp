@@ -4,6 +4,7 @@
 #include "master/cpu_reprojector.h"
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -92,6 +93,8 @@ TEST(CpuReprojector, PartitionedAccumulationEqualsTheSerialLoopBitForBit) {
   ASSERT_GT(exact.size(), 32768u) << "large enough for the parallel path";
 
   auto run = [&](int threads, std::span<const VertexRecord> records) {
+    // The reprojector uses the arena's threads up to the global limit (by default the cores).
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, 64);
     tbb::task_arena arena(threads);
     CpuReprojector r(cam, dfb, settings);
     arena.execute([&] {
