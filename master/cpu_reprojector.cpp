@@ -16,8 +16,8 @@ namespace epr {
 
 namespace {
 constexpr uint32_t kNone = 0xffffffffu;
-constexpr size_t kChunk = 32768;           // records per pass pair and two threads: a block's records stay in L2
-constexpr size_t kMaxChunk = 16 * kChunk;  // (32 threads and more)
+constexpr size_t kChunk = 32768;           // records per pass pair (per thread when parallel)
+constexpr size_t kMaxChunk = 16 * kChunk;  // (16 threads and more)
 constexpr size_t kBlock = 2048;            // records per classification task (pass A's prefetches stay in L2)
 constexpr size_t kPrefetchDistance = 32;   // accumulation: cells prefetched this many targets ahead
 constexpr size_t kSerialBelow = kChunk;    // calls of fewer records: one thread
@@ -60,7 +60,7 @@ CpuReprojector::Owners CpuReprojector::owners_for(size_t n) const {
 
 size_t CpuReprojector::chunk_for(const Owners& o) {
   const size_t threads = usable_threads();
-  const size_t chunk = o.tasks == 1 ? kChunk : std::clamp(kChunk * (threads / 2), kChunk, kMaxChunk);
+  const size_t chunk = o.tasks == 1 ? kChunk : std::min(kChunk * threads, kMaxChunk);
   if (target_.size() < chunk) target_.resize(chunk);
   if (o.tasks > 1) {
     if (binned_.size() < chunk) binned_.resize(chunk);

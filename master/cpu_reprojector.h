@@ -1,13 +1,13 @@
 // The CPU reprojector ("cpu"): the reference for the GL back-end and the fallback without OSMesa.
 //
-// Records are processed in chunks (32768 records per two threads, at most 16 times that: small enough
-// for a block's records to stay in L2 between the passes; ReprojectorSettings::batch_points is only
-// the GL upload batch), each in two parallel (TBB) passes:
-//   1. classify, per block of 2048 records: every record's decision and target subpixel
-//      (reprojection_kernel.h) and the block's counts -- projection and facing first, prefetching the
-//      deep-framebuffer entries, then the plane tests, so that the random lookups overlap instead of
-//      stalling; then the block's accepted records are binned by owner (a counting sort of the block,
-//      each owner's records in their input order, with their radiance);
+// Records are processed in chunks (32768 records per thread, at most 2^19; ReprojectorSettings::
+// batch_points is only the GL upload batch), each in two parallel (TBB) passes:
+//   1. classify, per block of 2048 records (small enough to stay in L2 between the block's passes):
+//      every record's decision and target subpixel (reprojection_kernel.h) and the block's counts --
+//      projection and facing first, prefetching the deep-framebuffer entries, then the plane tests,
+//      so that the random lookups overlap instead of stalling; then the block's accepted records are
+//      binned by owner (a counting sort of the block, each owner's records in their input order,
+//      with their radiance);
 //   2. accumulate, one task per owner: the subpixel grid is cut into stripes of 2^k consecutive
 //      subpixels (a few rows; ~16 stripes per owner), stripe j belonging to owner j mod T, T a power
 //      of two >= 4x the threads (interleaved screen bands: every owner gets a share of every part of
@@ -16,10 +16,12 @@
 //      tasks write the same memory, and every subpixel receives its samples in input order, so the
 //      sums are those of the serial loop bit for bit, whatever the thread count. Cells are
 //      prefetched a few records ahead.
-// Calls of fewer than 32768 records (the master's one call per tile) and single-thread arenas take
-// the serial path: classify, then one in-order loop over the targets.
+// Calls of fewer than 32768 records (the master's one call per tile) and calls allowed one thread (the
+// arena's concurrency capped by tbb::global_control) take the serial path: classify, then one
+// in-order loop over the targets.
 // Memory: the grid (16 bytes per subpixel), the compact deep framebuffer (4 bytes per texel plus the
-// plane table) and ~22 bytes of scratch per chunk record (0.7 MiB at 2 threads).
+// plane table) and ~20 bytes of scratch per chunk record (44 with reproject_packed): 1.3-2.9 MiB at
+// 2 threads, at most 10-22 MiB.
 #pragma once
 
 #include <array>
