@@ -71,13 +71,18 @@ size_t CpuReprojector::chunk_for(const Owners& o) {
 }
 
 // Counting sort of one block's accepted records by owner, each owner's in input order.
+// `counted`: the classification has already counted the block's records per owner into
+// start[owner + 1] (see bin_counts).
 template <class Radiance>
-void CpuReprojector::bin_block(size_t block, size_t begin, size_t end, const Owners& o, const Radiance& radiance_of) {
+void CpuReprojector::bin_block(size_t block, size_t begin, size_t end, const Owners& o, const Radiance& radiance_of,
+                               bool counted) {
   uint32_t* start = &bin_start_[block * (o.tasks + 1)];
-  std::fill(start, start + o.tasks + 1, 0u);
-  for (size_t i = begin; i < end; ++i) {
-    const uint32_t t = target_[i];
-    if (t != kNone) ++start[((t >> o.shift) & o.mask) + 1];
+  if (!counted) {
+    std::fill(start, start + o.tasks + 1, 0u);
+    for (size_t i = begin; i < end; ++i) {
+      const uint32_t t = target_[i];
+      if (t != kNone) ++start[((t >> o.shift) & o.mask) + 1];
+    }
   }
   std::array<uint32_t, kMaxOwners> cursor;
   for (size_t k = 0; k < o.tasks; ++k) {
@@ -91,6 +96,13 @@ void CpuReprojector::bin_block(size_t block, size_t begin, size_t end, const Own
     const Vec3 L = radiance_of(i);
     out[cursor[(t >> o.shift) & o.mask]++] = {t, L.x, L.y, L.z};
   }
+}
+
+uint32_t* CpuReprojector::bin_counts(size_t block, const Owners& o) {
+  if (o.tasks == 1) return nullptr;
+  uint32_t* start = &bin_start_[block * (o.tasks + 1)];
+  std::fill(start, start + o.tasks + 1, 0u);
+  return start;
 }
 
 // One task per owner: its bins of blocks 0, 1, ... in turn (so its subpixels get their records in
@@ -195,15 +207,19 @@ void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec
         normal_[i] = nrm;
         __builtin_prefetch(&grid_.texel_plane[texel]);
       }
+      uint32_t* owned = bin_counts(b, owners);
       for (size_t i = begin; i < end; ++i) {
         const uint32_t texel = target_[i];
         if (texel == kNone) continue;
         const detail::Decision d = detail::plane_test(params_, grid_, position_[i], normal_[i], texel);
         ++c[size_t(d)];
-        if (d != detail::Decision::kAccepted) target_[i] = kNone;
+        if (d != detail::Decision::kAccepted)
+          target_[i] = kNone;
+        else if (owned)
+          ++owned[((texel >> owners.shift) & owners.mask) + 1];
       }
       block_counts[b] = c;
-      if (owners.tasks > 1) bin_block(b, begin, end, owners, radiance_of);
+      if (owned) bin_block(b, begin, end, owners, radiance_of, true);
     };
     // A tile's worth of vertices (the master's calls): on the calling thread. Waking TBB's threads
     // (which then spin a while) costs more CPU than it saves there, and the master shares its cores
@@ -255,16 +271,20 @@ void CpuReprojector::reproject(std::span<const VertexRecord> records) {
         target_[i] = texel;
         __builtin_prefetch(&grid_.texel_plane[texel]);
       }
-      // Pass B: the plane test of the candidates.
+      // Pass B: the plane test of the candidates (counted per owner when parallel).
+      uint32_t* owned = bin_counts(b, owners);
       for (size_t i = begin; i < end; ++i) {
         const uint32_t texel = target_[i];
         if (texel == kNone) continue;
         const detail::Decision d = detail::plane_test(params_, grid_, rec[i].position, rec[i].normal, texel);
         ++c[size_t(d)];
-        if (d != detail::Decision::kAccepted) target_[i] = kNone;
+        if (d != detail::Decision::kAccepted)
+          target_[i] = kNone;
+        else if (owned)
+          ++owned[((texel >> owners.shift) & owners.mask) + 1];
       }
       block_counts[b] = c;
-      if (owners.tasks > 1) bin_block(b, begin, end, owners, radiance_of);
+      if (owned) bin_block(b, begin, end, owners, radiance_of, true);
     });
     add_block_counts(block_counts);
     if (owners.tasks > 1)
@@ -293,7 +313,7 @@ void CpuReprojector::add_exact(std::span<const ExactSample> samples) {
     if (owners.tasks > 1) {
       const size_t blocks = (n + kBlock - 1) / kBlock;
       tbb::parallel_for(size_t(0), blocks, [&](size_t b) {
-        bin_block(b, b * kBlock, std::min(n, (b + 1) * kBlock), owners, radiance_of);
+        bin_block(b, b * kBlock, std::min(n, (b + 1) * kBlock), owners, radiance_of, false);
       });
       accumulate_owned(blocks, owners);
     } else {

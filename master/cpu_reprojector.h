@@ -62,9 +62,10 @@ class CpuReprojector final : public Reprojector {
     size_t tasks = 1;
   };
   Owners owners_for(size_t n) const;
-  size_t chunk_for(const Owners& o);  // records per chunk; sizes the scratch
+  size_t chunk_for(const Owners& o);                    // records per chunk; sizes the scratch
+  uint32_t* bin_counts(size_t block, const Owners& o);  // the block's zeroed per-owner counts, or null
   template <class Radiance>
-  void bin_block(size_t block, size_t begin, size_t end, const Owners& o, const Radiance& radiance_of);
+  void bin_block(size_t block, size_t begin, size_t end, const Owners& o, const Radiance& radiance_of, bool counted);
   void accumulate_owned(size_t blocks, const Owners& o);
   template <class Radiance>
   void accumulate_serial(size_t n, const Radiance& radiance_of);
