@@ -9,7 +9,7 @@
 //      binned by owner (a counting sort of the block, each owner's records in their input order,
 //      with their radiance);
 //   2. accumulate, one task per owner: the subpixel grid is cut into stripes of 2^k consecutive
-//      subpixels (a few rows; ~16 stripes per owner), stripe j belonging to owner j mod T, T a power
+//      subpixels (16-32 stripes per owner), stripe j belonging to owner j mod T, T a power
 //      of two >= 4x the threads (interleaved screen bands: every owner gets a share of every part of
 //      the image, so a culled sky or a dense floor does not unbalance them). An owner reads its bin
 //      of every block, in block order, and adds the radiance to its own cells -- no atomics, no two
