@@ -28,12 +28,15 @@ constexpr uint32_t kMinStripeShift = 6, kMaxStripeShift = 20;
 }  // namespace
 
 CpuReprojector::CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings)
+    : CpuReprojector(camera, detail::plane_grid_for(camera, dfb, settings), settings) {}
+
+CpuReprojector::CpuReprojector(const Camera& camera, detail::PlaneGrid grid, const ReprojectorSettings& settings)
     : settings_(settings),
-      params_(detail::make_kernel_params(camera, dfb.subpixels, settings.epsilon, settings.joint_test)),
-      subpixels_(dfb.subpixels) {
-  detail::validate_reprojector_inputs(camera, dfb, settings);
-  grid_ = detail::make_plane_grid(dfb, camera.eye(), params_.crease_tolerance, settings_.joint_test);
-  cells_.resize(dfb.texel_count());
+      params_(detail::make_kernel_params(camera, grid.subpixels, settings.epsilon, settings.joint_test)),
+      grid_(std::move(grid)),
+      subpixels_(grid_.subpixels) {
+  detail::validate_reprojector_inputs(camera, grid_, settings);
+  cells_.resize(grid_.texel_plane.size());
   target_.resize(kChunk);
 }
 

@@ -35,6 +35,8 @@ namespace epr {
 class CpuReprojector final : public Reprojector {
  public:
   CpuReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
+  /// From the compact deep framebuffer (built for `settings`, see detail::validate_reprojector_inputs).
+  CpuReprojector(const Camera& camera, detail::PlaneGrid grid, const ReprojectorSettings& settings);
 
   void reproject(std::span<const VertexRecord> records) override;
   void reproject_packed(std::string_view packed, const VertexCodec& codec) override;

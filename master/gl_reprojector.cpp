@@ -37,12 +37,23 @@ std::string shader_source(const char* body, const ReprojectorSettings& s, bool n
 GlReprojector::GlReprojector(GlContext& ctx, const Camera& camera, const DeepFramebuffer& dfb,
                              const ReprojectorSettings& settings)
     : ctx_(&ctx), settings_(settings) {
-  init(camera, dfb);
+  init(camera, detail::plane_grid_for(camera, dfb, settings));
 }
 
 GlReprojector::GlReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings)
     : owned_ctx_(std::make_unique<GlContext>()), ctx_(owned_ctx_.get()), settings_(settings) {
-  init(camera, dfb);
+  init(camera, detail::plane_grid_for(camera, dfb, settings));
+}
+
+GlReprojector::GlReprojector(GlContext& ctx, const Camera& camera, const detail::PlaneGrid& grid,
+                             const ReprojectorSettings& settings)
+    : ctx_(&ctx), settings_(settings) {
+  init(camera, grid);
+}
+
+GlReprojector::GlReprojector(const Camera& camera, const detail::PlaneGrid& grid, const ReprojectorSettings& settings)
+    : owned_ctx_(std::make_unique<GlContext>()), ctx_(owned_ctx_.get()), settings_(settings) {
+  init(camera, grid);
 }
 
 GlReprojector::~GlReprojector() {
@@ -66,22 +77,22 @@ GlReprojector::~GlReprojector() {
     if (f) ctx_->gl().DeleteSync(f);
 }
 
-void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
+void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
   ctx_->check_thread();
-  detail::validate_reprojector_inputs(camera, dfb, settings_);
+  detail::validate_reprojector_inputs(camera, grid, settings_);
   if (!ctx_->has_extension("GL_NV_shader_atomic_float"))
     throw GlUnavailable(
         "the GL reprojector needs GL_NV_shader_atomic_float (Mesa llvmpipe has it); use the cpu back-end");
   const auto& gl = ctx_->gl();
-  params_ = detail::make_kernel_params(camera, dfb.subpixels, settings_.epsilon, settings_.joint_test);
+  params_ = detail::make_kernel_params(camera, grid.subpixels, settings_.epsilon, settings_.joint_test);
   map_downsample_ = settings_.gl_map_downsample;
-  subpixels_ = dfb.subpixels;
-  grid_w_ = dfb.width;
-  grid_h_ = dfb.height;
+  subpixels_ = grid.subpixels;
+  grid_w_ = grid.width;
+  grid_h_ = grid.height;
   settings_.batch_points = (settings_.batch_points + 3) / 4 * 4;  // slots stay 16-byte aligned
   slot_bytes_ = settings_.batch_points * kRecordBytes;
   invocations_ = size_t(settings_.workgroups) * size_t(settings_.workgroup_size);
-  const size_t cells = dfb.texel_count();
+  const size_t cells = grid.texel_plane.size();
 
   GLint max_ssbo = 0, max_tbo = 0;
   gl.GetIntegerv(GL_MAX_SHADER_STORAGE_BLOCK_SIZE, &max_ssbo);
@@ -96,8 +107,6 @@ void GlReprojector::init(const Camera& camera, const DeepFramebuffer& dfb) {
 
   // Compact deep framebuffer; 16-bit plane indices when there are few enough planes (halves the
   // largest randomly accessed array after the accumulation).
-  const detail::PlaneGrid grid =
-      detail::make_plane_grid(dfb, camera.eye(), params_.crease_tolerance, settings_.joint_test);
   const bool narrow = grid.planes.size() / 4 < 0xffff;
   reproject_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kReprojectShader, settings_, narrow));
   packed_prog_ =

@@ -55,6 +55,10 @@ class GlReprojector final : public Reprojector {
   GlReprojector(GlContext& ctx, const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
   /// Creates and owns a context, current on the calling thread.
   GlReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
+  /// From the compact deep framebuffer (built for `settings`, see detail::validate_reprojector_inputs).
+  GlReprojector(GlContext& ctx, const Camera& camera, const detail::PlaneGrid& grid,
+                const ReprojectorSettings& settings);
+  GlReprojector(const Camera& camera, const detail::PlaneGrid& grid, const ReprojectorSettings& settings);
   ~GlReprojector() override;
 
   void reproject(std::span<const VertexRecord> records) override;
@@ -75,7 +79,7 @@ class GlReprojector final : public Reprojector {
   std::vector<VertexRecord> decode_packed(std::string_view packed, const VertexCodec& codec);
 
  private:
-  void init(const Camera& camera, const DeepFramebuffer& dfb);
+  void init(const Camera& camera, const detail::PlaneGrid& grid);
   /// Waits until `slot` of the upload ring is free and returns its mapped bytes.
   unsigned char* acquire_slot(int slot);
   enum class Kernel { kRecords, kPacked, kExact };

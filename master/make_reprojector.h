@@ -5,6 +5,7 @@
 #include <memory>
 #include <string_view>
 
+#include "master/reprojection_kernel.h"
 #include "master/reprojector.h"
 
 namespace epr {
@@ -17,5 +18,8 @@ namespace epr {
 std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Camera& camera,
                                               const DeepFramebuffer& dfb, const ReprojectorSettings& settings,
                                               GlContext* gl = nullptr);
+/// The same from the compact deep framebuffer (detail::PlaneGrid, built for `settings`).
+std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Camera& camera, detail::PlaneGrid grid,
+                                              const ReprojectorSettings& settings, GlContext* gl = nullptr);
 
 }  // namespace epr

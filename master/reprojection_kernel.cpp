@@ -20,6 +20,9 @@ PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float cre
   PlaneGrid g;
   g.width = dfb.width;
   g.height = dfb.height;
+  g.subpixels = dfb.subpixels;
+  g.crease_tolerance = crease_tolerance;
+  g.has_creases = creases;
   g.texel_plane.assign(dfb.texel_count(), PlaneGrid::kUncovered);
   struct Key {
     uint32_t b[4];
@@ -153,19 +156,45 @@ KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsil
   return k;
 }
 
-void validate_reprojector_inputs(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& s) {
+namespace {
+void validate_settings(const ReprojectorSettings& s) {
   if (!(std::isfinite(s.epsilon) && s.epsilon >= 0))
     throw std::invalid_argument(fmt::format("reprojection epsilon {} must be finite and >= 0 (metres)", s.epsilon));
+  if (s.batch_points < 1024 || s.batch_points > (size_t(1) << 24))
+    throw std::invalid_argument(fmt::format("batch_points {} outside [1024, 2^24]", s.batch_points));
+  if (s.workgroup_size < 1 || s.workgroup_size > 1024 || s.workgroups < 1 || s.workgroups > 65535)
+    throw std::invalid_argument("workgroup_size must be in [1, 1024] and workgroups in [1, 65535]");
+}
+}  // namespace
+
+void validate_reprojector_inputs(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& s) {
+  validate_settings(s);
   if (dfb.subpixels < 1 || dfb.width != camera.width() * dfb.subpixels || dfb.height != camera.height() * dfb.subpixels)
     throw std::invalid_argument(fmt::format("deep framebuffer {}x{} (S={}) does not match the {}x{} camera", dfb.width,
                                             dfb.height, dfb.subpixels, camera.width(), camera.height()));
   const size_t n = dfb.texel_count();
   if (dfb.covered.size() != n || dfb.normal.size() != 3 * n || dfb.plane_offset.size() != n)
     throw std::invalid_argument("deep framebuffer arrays do not match its size");
-  if (s.batch_points < 1024 || s.batch_points > (size_t(1) << 24))
-    throw std::invalid_argument(fmt::format("batch_points {} outside [1024, 2^24]", s.batch_points));
-  if (s.workgroup_size < 1 || s.workgroup_size > 1024 || s.workgroups < 1 || s.workgroups > 65535)
-    throw std::invalid_argument("workgroup_size must be in [1, 1024] and workgroups in [1, 65535]");
+}
+
+void validate_reprojector_inputs(const Camera& camera, const PlaneGrid& grid, const ReprojectorSettings& s) {
+  validate_settings(s);
+  if (grid.subpixels < 1 || grid.width != camera.width() * grid.subpixels ||
+      grid.height != camera.height() * grid.subpixels)
+    throw std::invalid_argument(fmt::format("plane grid {}x{} (S={}) does not match the {}x{} camera", grid.width,
+                                            grid.height, grid.subpixels, camera.width(), camera.height()));
+  if (grid.texel_plane.size() != size_t(grid.width) * size_t(grid.height))
+    throw std::invalid_argument("plane grid arrays do not match its size");
+  const float tolerance = s.epsilon * kCreaseToleranceFraction;
+  if (grid.has_creases != s.joint_test || (s.joint_test && grid.crease_tolerance != tolerance))
+    throw std::invalid_argument(
+        fmt::format("plane grid built with creases {} at tolerance {}, the reprojector wants {} at {}",
+                    grid.has_creases, grid.crease_tolerance, s.joint_test, tolerance));
+}
+
+PlaneGrid plane_grid_for(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings) {
+  validate_reprojector_inputs(camera, dfb, settings);
+  return make_plane_grid(dfb, camera.eye(), settings.epsilon * kCreaseToleranceFraction, settings.joint_test);
 }
 
 }  // namespace detail

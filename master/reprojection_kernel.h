@@ -34,7 +34,10 @@ namespace epr::detail {
 
 struct PlaneGrid {
   static constexpr uint32_t kUncovered = 0xffffffffu;
-  int width = 0, height = 0;
+  int width = 0, height = 0;            // texels: S * image width, S * image height
+  int subpixels = 1;                    // S
+  float crease_tolerance = 0;           // metres, as built (must match the reprojector's settings)
+  bool has_creases = false;             // built with creases (the joint test)
   std::vector<uint32_t> texel_plane;    // per texel: index into planes, or kUncovered
   std::vector<float> planes;            // 4 per entry: N.x, N.y, N.z, d
   uint32_t first_creased = kUncovered;  // entries >= this one have creases (after all plain ones); none by default
@@ -61,6 +64,9 @@ inline constexpr float kMinNormalCosine = 0.5f;
 /// metres. Without `creases` every entry is plain (first_creased = number of entries).
 PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float crease_tolerance, bool creases = true);
 
+/// The plane grid a reprojector with `settings` needs for `dfb` (validated against `camera`).
+PlaneGrid plane_grid_for(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
+
 /// Uniform inputs of the kernel (the GL shader receives the same values as uniforms).
 struct KernelParams {
   Vec3 eye, forward, right, up;
@@ -77,6 +83,9 @@ KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsil
 
 /// Throws std::invalid_argument for bad settings or a deep framebuffer that does not fit the camera.
 void validate_reprojector_inputs(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& s);
+/// The same for a plane grid: its size and S must fit the camera, and its crease tolerance and
+/// creases must be those `s` asks for.
+void validate_reprojector_inputs(const Camera& camera, const PlaneGrid& grid, const ReprojectorSettings& s);
 
 enum class Decision : uint8_t { kAccepted, kCulled, kBackfacing, kOccluded };
 
