@@ -19,6 +19,7 @@
 //
 //   reproject_bench [--runs 5] [--points 4000000] [--width 512] [--height 512] [-S 4]
 //                   [--lp-threads 1,2,4] [--cpu-threads 1,2] [--sweep] [--vertices FILE] [--cpu-only]
+//                   [--band-cells N] (GL: split the grid into bands of at most N subpixels)
 #include <sys/resource.h>
 #include <tbb/global_control.h>
 #include <unistd.h>
@@ -36,6 +37,7 @@
 #include "common/vertex_codec.h"
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
+#include "master/gl_reprojector.h"
 #include "master/make_reprojector.h"
 #include "master/reprojector.h"
 #include "tests/master/test_scenes.h"
@@ -129,6 +131,7 @@ int main(int argc, char** argv) {
   size_t points = 4'000'000;
   std::vector<int> lp_threads, cpu_threads = {1, 2};
   bool sweep = false, gl_only = false, cpu_only = false;
+  size_t band_cells = 0;
   std::string vertices, scene_filter;
   app.add_option("--runs", runs, "runs per figure (median)");
   app.add_option("--points", points, "points per vertex set");
@@ -143,6 +146,8 @@ int main(int argc, char** argv) {
                "only the CPU back-end (the deep framebuffer is still built with GL if available)");
   app.add_option("--vertices", vertices, "raw VertexRecord file instead of generated sets (scene: --scene)");
   app.add_option("--scene", scene_filter, "only this scene (cornell or hall)");
+  app.add_option("--band-cells", band_cells,
+                 "GL: at most this many subpixels per band (gl_max_band_cells; 0: GL's limits)");
   CLI11_PARSE(app, argc, argv);
 
   if (!lp_threads.empty()) {
@@ -152,7 +157,7 @@ int main(int argc, char** argv) {
       std::string cmd = "LP_NUM_THREADS=" + std::to_string(t) + " /proc/" + std::to_string(getpid()) +
                         "/exe --gl-only" + " --runs " + std::to_string(runs) + " --points " + std::to_string(points) +
                         " --width " + std::to_string(width) + " --height " + std::to_string(height) + " -S " +
-                        std::to_string(S);
+                        std::to_string(S) + " --band-cells " + std::to_string(band_cells);
       if (!scene_filter.empty()) cmd += " --scene " + scene_filter;
       if (!vertices.empty()) cmd += " --vertices '" + vertices + "'";
       if (std::system(cmd.c_str()) != 0) return 1;
@@ -187,6 +192,7 @@ int main(int argc, char** argv) {
         vertices.empty() ? test::real_like_points(scene, dfb, cam, points, 42) : read_vertices(vertices);
     ReprojectorSettings settings;
     settings.epsilon = default_epsilon(scene.bounds());
+    settings.gl_max_band_cells = band_cells;
     const VertexCodec codec(scene.bounds());
     std::string packed;  // the representable points in their wire form
     codec.encode_batch(pts, &packed);
@@ -198,8 +204,11 @@ int main(int argc, char** argv) {
     if (ctx && !cpu_only) {
       auto gl = make_reprojector("gl", cam, dfb, settings, ctx.get());
       gl_fig = measure(*gl, pts, runs);
-      std::printf("  gl  (wg %d x %d, prefetch %s): %7.2f M points/s wall, %7.2f M points/CPU-s\n", settings.workgroups,
-                  settings.workgroup_size, settings.prefetch ? "on" : "off", gl_fig.wall / 1e6, gl_fig.cpu / 1e6);
+      const auto* glr = dynamic_cast<const GlReprojector*>(gl.get());
+      std::printf("  gl  (wg %d x %d, prefetch %s, %zu band%s): %7.2f M points/s wall, %7.2f M points/CPU-s\n",
+                  settings.workgroups, settings.workgroup_size, settings.prefetch ? "on" : "off",
+                  glr ? glr->band_count() : 0, glr && glr->band_count() == 1 ? "" : "s", gl_fig.wall / 1e6,
+                  gl_fig.cpu / 1e6);
       print_counts(gl_fig.counts, pts.size());
       for (size_t call : {size_t(1) << 20, tile_call, size_t(3800)}) {
         const Figure f = measure_packed(*gl, packed, codec, call, runs);

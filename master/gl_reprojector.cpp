@@ -2,6 +2,7 @@
 #include "master/gl_reprojector.h"
 
 #include <fmt/format.h>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <bit>
@@ -64,12 +65,15 @@ GlReprojector::~GlReprojector() {
     logger("master")->error("GlReprojector destroyed on a thread its GL context is not current on; GL objects leak");
     for (auto* p : {&reproject_prog_, &packed_prog_, &exact_prog_, &downsample_prog_, &decode_prog_})
       (void)p->release();
-    for (auto* p : {&ring_, &texel_plane_buf_, &planes_buf_, &crease_range_buf_, &creases_buf_, &acc_buf_,
-                    &counter_buf_, &pixels_buf_, &codec_buf_})
+    for (auto* p : {&ring_, &planes_buf_, &crease_range_buf_, &creases_buf_, &counter_buf_, &pixels_buf_, &codec_buf_})
       (void)p->release();
-    for (auto* p : {&records_tex_, &samples_tex_, &texel_plane_tex_, &planes_tex_, &crease_range_tex_, &creases_tex_,
-                    &acc_view_tex_})
-      (void)p->release();
+    for (auto* p : {&records_tex_, &samples_tex_, &planes_tex_, &crease_range_tex_, &creases_tex_}) (void)p->release();
+    for (Band& b : bands_) {
+      (void)b.acc.release();
+      (void)b.texel_plane.release();
+      (void)b.acc_view.release();
+      (void)b.texel_plane_tex.release();
+    }
     (void)owned_ctx_.release();
     return;
   }
@@ -92,18 +96,48 @@ void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
   settings_.batch_points = (settings_.batch_points + 3) / 4 * 4;  // slots stay 16-byte aligned
   slot_bytes_ = settings_.batch_points * kRecordBytes;
   invocations_ = size_t(settings_.workgroups) * size_t(settings_.workgroup_size);
-  const size_t cells = grid.texel_plane.size();
+  const size_t cells = size_t(grid_w_) * size_t(grid_h_);
+  if (grid.texel_plane.size() != cells) throw std::invalid_argument("plane grid: texel_plane is not width x height");
+  if (cells > size_t(UINT32_MAX))
+    throw std::runtime_error(
+        fmt::format("subpixel grid {}x{}: more subpixels than 32-bit indices address", grid_w_, grid_h_));
 
+  // Bands of whole pixel rows, each within the largest SSBO and buffer texture this GL allows.
   GLint max_ssbo = 0, max_tbo = 0;
   gl.GetIntegerv(GL_MAX_SHADER_STORAGE_BLOCK_SIZE, &max_ssbo);
   gl.GetIntegerv(GL_MAX_TEXTURE_BUFFER_SIZE, &max_tbo);
-  if (cells * 16 > size_t(unsigned(max_ssbo)) || cells > size_t(max_tbo))
-    throw std::runtime_error(fmt::format(
-        "subpixel grid {}x{} needs {} MiB of shader storage; this GL allows {} MiB (use the cpu back-end or a lower S)",
-        grid_w_, grid_h_, cells * 16 >> 20, unsigned(max_ssbo) >> 20));
-  if (kSlots * settings_.batch_points * 3 > size_t(max_tbo))
+  const size_t ssbo_bytes = size_t(std::max(max_ssbo, 0)), tbo_texels = size_t(std::max(max_tbo, 0));
+  if (kSlots * settings_.batch_points * 3 > tbo_texels)
     throw std::runtime_error(
         fmt::format("batch_points {} exceeds this GL's buffer-texture limit", settings_.batch_points));
+  size_t limit = std::min(ssbo_bytes / 16, tbo_texels);  // subpixels per band
+  if (settings_.gl_max_band_cells) limit = std::min(limit, settings_.gl_max_band_cells);
+  const size_t pixel_row_cells = size_t(grid_w_) * size_t(subpixels_);  // S grid rows
+  const size_t max_pixel_rows = limit / pixel_row_cells;
+  if (max_pixel_rows == 0)
+    throw std::runtime_error(fmt::format(
+        "subpixel grid {}x{}: one row of pixels ({} subpixels) exceeds this GL's limits ({} MiB of shader storage, {} "
+        "buffer-texture texels{})",
+        grid_w_, grid_h_, pixel_row_cells, ssbo_bytes >> 20, tbo_texels,
+        settings_.gl_max_band_cells ? fmt::format(", gl_max_band_cells {}", settings_.gl_max_band_cells) : ""));
+  const size_t pixel_rows = size_t(grid_h_ / subpixels_);
+  const size_t n_bands = (pixel_rows + max_pixel_rows - 1) / max_pixel_rows;
+  const int band_rows = int((pixel_rows + n_bands - 1) / n_bands) * subpixels_;  // equal bands but the last
+  band_cells_ = size_t(band_rows) * size_t(grid_w_);
+  bands_.clear();
+  for (int row0 = 0; row0 < grid_h_; row0 += band_rows) {
+    Band b;
+    b.row0 = row0;
+    b.rows = std::min(band_rows, grid_h_ - row0);
+    b.first_cell = size_t(row0) * size_t(grid_w_);
+    b.cells = size_t(b.rows) * size_t(grid_w_);
+    bands_.push_back(std::move(b));
+  }
+  if (bands_.size() > 1) {
+    bin_band_.resize(std::max(settings_.batch_points, slot_bytes_ / kPackedBytes));
+    bin_count_.resize(bands_.size());
+    bin_offset_.resize(bands_.size());
+  }
 
   // Compact deep framebuffer; 16-bit plane indices when there are few enough planes (halves the
   // largest randomly accessed array after the accumulation).
@@ -125,17 +159,35 @@ void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
   samples_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
   gl.TextureBuffer(samples_tex_->id(), GL_RGBA32UI, ring_->id());
 
-  texel_plane_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  texel_plane_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-  if (narrow) {
-    std::vector<uint16_t> narrow_index(cells);
-    for (size_t i = 0; i < cells; ++i) narrow_index[i] = uint16_t(grid.texel_plane[i]);  // kUncovered -> 0xffff
-    gl.NamedBufferStorage(texel_plane_buf_->id(), GLsizeiptr(cells * 2), narrow_index.data(), 0);
-    gl.TextureBuffer(texel_plane_tex_->id(), GL_R16UI, texel_plane_buf_->id());
-  } else {
-    gl.NamedBufferStorage(texel_plane_buf_->id(), GLsizeiptr(cells * 4), grid.texel_plane.data(), 0);
-    gl.TextureBuffer(texel_plane_tex_->id(), GL_R32UI, texel_plane_buf_->id());
+  // Per band: the plane index of its texels (narrow: converted and uploaded a chunk at a time, so the
+  // CPU side never holds more than a chunk of it) and the accumulation, mappable for reading (the
+  // round's downsample reads the cells in place, see downsample_pixels_into).
+  constexpr size_t kChunk = size_t(1) << 20;
+  std::vector<uint16_t> staging;
+  for (Band& b : bands_) {
+    b.texel_plane = std::make_unique<GlBuffer>(*ctx_);
+    b.texel_plane_tex = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
+    const uint32_t* src = grid.texel_plane.data() + b.first_cell;
+    if (narrow) {
+      gl.NamedBufferStorage(b.texel_plane->id(), GLsizeiptr(b.cells * 2), nullptr, GL_DYNAMIC_STORAGE_BIT);
+      for (size_t off = 0; off < b.cells; off += kChunk) {
+        const size_t m = std::min(kChunk, b.cells - off);
+        staging.resize(m);
+        for (size_t i = 0; i < m; ++i) staging[i] = uint16_t(src[off + i]);  // kUncovered -> 0xffff
+        gl.NamedBufferSubData(b.texel_plane->id(), GLintptr(off * 2), GLsizeiptr(m * 2), staging.data());
+      }
+      gl.TextureBuffer(b.texel_plane_tex->id(), GL_R16UI, b.texel_plane->id());
+    } else {
+      gl.NamedBufferStorage(b.texel_plane->id(), GLsizeiptr(b.cells * 4), src, 0);
+      gl.TextureBuffer(b.texel_plane_tex->id(), GL_R32UI, b.texel_plane->id());
+    }
+    b.acc = std::make_unique<GlBuffer>(*ctx_);
+    gl.NamedBufferStorage(b.acc->id(), GLsizeiptr(b.cells * 16), nullptr, GL_DYNAMIC_STORAGE_BIT | GL_MAP_READ_BIT);
+    b.acc_view = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
+    gl.TextureBuffer(b.acc_view->id(), GL_RGBA32UI, b.acc->id());
+    ctx_->check_error("GlReprojector setup (band buffers)");
   }
+  staging = {};
   std::vector<float> planes = grid.planes;
   if (planes.empty()) planes.assign(4, 0.f);  // GL wants a non-empty buffer
   planes_buf_ = std::make_unique<GlBuffer>(*ctx_);
@@ -155,12 +207,7 @@ void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
   creases_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
   gl.TextureBuffer(creases_tex_->id(), GL_RGBA32F, creases_buf_->id());
 
-  // Accumulation and counters.
-  acc_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  // Mappable for reading: the round's downsample reads the cells in place (downsample_pixels).
-  gl.NamedBufferStorage(acc_buf_->id(), GLsizeiptr(cells * 16), nullptr, GL_DYNAMIC_STORAGE_BIT | GL_MAP_READ_BIT);
-  acc_view_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-  gl.TextureBuffer(acc_view_tex_->id(), GL_RGBA32UI, acc_buf_->id());
+  // Counters.
   counter_buf_ = std::make_unique<GlBuffer>(*ctx_);
   gl.NamedBufferStorage(counter_buf_->id(), GLsizeiptr(invocations_ * kCounters * 4), nullptr, GL_DYNAMIC_STORAGE_BIT);
   // The packed kernels' codec parameters (lo_q, cell as doubles), set per call when they change.
@@ -203,6 +250,9 @@ void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
   gl.ProgramUniform1i(e, exact_prog_->uniform("samples"), 4);
   loc_exact_first_ = exact_prog_->uniform("first");
   loc_exact_count_ = exact_prog_->uniform("count");
+  loc_base_ = reproject_prog_->uniform("band_base");
+  loc_packed_base_ = packed_prog_->uniform("band_base");
+  loc_exact_base_ = exact_prog_->uniform("band_base");
 
   static_assert(kCounters == kGpuCounters);
   reset();
@@ -221,63 +271,141 @@ unsigned char* GlReprojector::acquire_slot(int slot) {
   return ring_map_ + size_t(slot) * slot_bytes_;
 }
 
-void GlReprojector::dispatch(int slot, size_t count, Kernel kernel) {
+void GlReprojector::bind_band(const Band& b, Kernel kernel) {
   const auto& gl = ctx_->gl();
-  gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, acc_buf_->id());
+  gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, b.acc->id());
+  if (kernel == Kernel::kExact) {
+    gl.ProgramUniform1ui(exact_prog_->id(), loc_exact_base_, GLuint(b.first_cell));
+    return;
+  }
+  gl.BindTextureUnit(1, b.texel_plane_tex->id());
+  if (settings_.prefetch) gl.BindTextureUnit(3, b.acc_view->id());
+  if (kernel == Kernel::kPacked)
+    gl.ProgramUniform1ui(packed_prog_->id(), loc_packed_base_, GLuint(b.first_cell));
+  else
+    gl.ProgramUniform1ui(reproject_prog_->id(), loc_base_, GLuint(b.first_cell));
+}
+
+void GlReprojector::dispatch(int slot, size_t first_record, size_t count, Kernel kernel) {
+  const auto& gl = ctx_->gl();
   gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, counter_buf_->id());
   if (kernel == Kernel::kExact) {
     gl.UseProgram(exact_prog_->id());
     gl.BindTextureUnit(4, samples_tex_->id());
-    gl.ProgramUniform1i(exact_prog_->id(), loc_exact_first_, GLint(size_t(slot) * slot_bytes_ / 16));
+    gl.ProgramUniform1i(exact_prog_->id(), loc_exact_first_, GLint(size_t(slot) * slot_bytes_ / 16 + first_record));
     gl.ProgramUniform1ui(exact_prog_->id(), loc_exact_count_, GLuint(count));
   } else {
     const bool packed = kernel == Kernel::kPacked;
     const GLuint p = packed ? packed_prog_->id() : reproject_prog_->id();
     gl.UseProgram(p);
-    // The packed kernel reads the ring as RGBA32UI texels (one per 16-byte record).
+    // The packed kernel reads the ring as RGBA32UI texels (one per 16-byte record), the record
+    // kernel as RGB32F texels (three per record).
     gl.BindTextureUnit(0, packed ? samples_tex_->id() : records_tex_->id());
-    gl.BindTextureUnit(1, texel_plane_tex_->id());
     gl.BindTextureUnit(2, planes_tex_->id());
     gl.BindTextureUnit(5, crease_range_tex_->id());
     gl.BindTextureUnit(6, creases_tex_->id());
-    if (settings_.prefetch) gl.BindTextureUnit(3, acc_view_tex_->id());
     if (packed) gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, codec_buf_->id());
-    gl.ProgramUniform1i(p, packed ? loc_packed_first_ : loc_first_,
-                        GLint(size_t(slot) * slot_bytes_ / (packed ? kPackedBytes : 12)));
+    const size_t first = packed ? size_t(slot) * slot_bytes_ / kPackedBytes + first_record
+                                : size_t(slot) * slot_bytes_ / 12 + 3 * first_record;
+    gl.ProgramUniform1i(p, packed ? loc_packed_first_ : loc_first_, GLint(first));
     gl.ProgramUniform1ui(p, packed ? loc_packed_count_ : loc_count_, GLuint(count));
   }
   const size_t groups = std::min<size_t>(
       size_t(settings_.workgroups), (count + size_t(settings_.workgroup_size) - 1) / size_t(settings_.workgroup_size));
   gl.DispatchCompute(GLuint(std::max<size_t>(groups, 1)), 1, 1);
   gl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
-  fences_[slot] = gl.FenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
   gl.UseProgram(0);
+}
+
+void GlReprojector::fence(int slot) { fences_[slot] = ctx_->gl().FenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0); }
+
+void GlReprojector::bin_offsets(size_t n) {
+  std::fill(bin_count_.begin(), bin_count_.end(), size_t(0));
+  for (size_t j = 0; j < n; ++j)
+    if (bin_band_[j] != kNoBand) ++bin_count_[bin_band_[j]];
+  size_t offset = 0;
+  for (size_t b = 0; b < bands_.size(); ++b) {
+    bin_offset_[b] = offset;
+    offset += bin_count_[b];
+  }
+}
+
+void GlReprojector::dispatch_bands(int slot, Kernel kernel) {
+  bool any = false;
+  for (size_t b = 0; b < bands_.size(); ++b) {
+    if (!bin_count_[b]) continue;
+    bind_band(bands_[b], kernel);
+    dispatch(slot, bin_offset_[b] - bin_count_[b], bin_count_[b], kernel);  // bin_offset_: the group's end by now
+    any = true;
+  }
+  if (any) fence(slot);
 }
 
 void GlReprojector::reproject(std::span<const VertexRecord> records) {
   ctx_->check_thread();
   static_assert(sizeof(VertexRecord) == 40 && offsetof(VertexRecord, radiance) == 24);
+  const bool banded = bands_.size() > 1;
   size_t i = 0;
   while (i < records.size()) {
     const int slot = next_slot_;
     next_slot_ = (next_slot_ + 1) % kSlots;
     unsigned char* out = acquire_slot(slot);
     size_t n = 0;
-    // Filter (steps 1-2 of the semantics) and copy the 36 bytes of float data of each record.
-    for (; i < records.size() && n < settings_.batch_points; ++i) {
-      const VertexRecord& r = records[i];
-      if (!r.diffuse() && !settings_.reproject_glossy) {
-        ++cpu_counts_.not_diffuse;
-        continue;
+    if (!banded) {
+      // Filter (steps 1-2 of the semantics) and copy the 36 bytes of float data of each record.
+      for (; i < records.size() && n < settings_.batch_points; ++i) {
+        const VertexRecord& r = records[i];
+        if (!r.diffuse() && !settings_.reproject_glossy) {
+          ++cpu_counts_.not_diffuse;
+          continue;
+        }
+        if (!detail::record_is_finite(r)) {
+          ++cpu_counts_.invalid;
+          continue;
+        }
+        std::memcpy(out + n * kRecordBytes, &r, kRecordBytes);
+        ++n;
       }
-      if (!detail::record_is_finite(r)) {
-        ++cpu_counts_.invalid;
-        continue;
+      if (n) {
+        bind_band(bands_[0], Kernel::kRecords);
+        dispatch(slot, 0, n, Kernel::kRecords);
+        fence(slot);
       }
-      std::memcpy(out + n * kRecordBytes, &r, kRecordBytes);
-      ++n;
+    } else {
+      // Steps 1-4 on the CPU as far as the band (the shader repeats 3-4 with the same arithmetic
+      // and reaches the same texel), then the records grouped by band.
+      const size_t first = i, m = std::min(records.size() - i, settings_.batch_points);
+      for (size_t j = 0; j < m; ++j) {
+        const VertexRecord& r = records[first + j];
+        uint32_t band = kNoBand, texel = 0;
+        if (!r.diffuse() && !settings_.reproject_glossy) {
+          ++cpu_counts_.not_diffuse;
+        } else if (!detail::record_is_finite(r)) {
+          ++cpu_counts_.invalid;
+        } else {
+          switch (detail::project_and_face(params_, r.position, r.normal, &texel)) {
+            case detail::Decision::kCulled:
+              ++cpu_counts_.culled;
+              break;
+            case detail::Decision::kBackfacing:
+              ++cpu_counts_.backfacing;
+              ++cpu_counts_.occluded;
+              break;
+            default:
+              band = uint32_t(texel / band_cells_);
+          }
+        }
+        bin_band_[j] = band;
+      }
+      i += m;
+      bin_offsets(m);
+      for (size_t j = 0; j < m; ++j) {
+        if (bin_band_[j] == kNoBand) continue;
+        std::memcpy(out + (bin_offset_[bin_band_[j]]++) * kRecordBytes, &records[first + j], kRecordBytes);
+        ++n;
+      }
+      dispatch_bands(slot, Kernel::kRecords);
     }
-    if (n) dispatch(slot, n, Kernel::kRecords);
     points_since_fold_ += n;
     if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
   }
@@ -309,7 +437,8 @@ void GlReprojector::copy_packed(const unsigned char* src, size_t n, unsigned cha
 }
 
 // The wire records are copied into the upload slot as they are; the shader decodes them (each field
-// only when the vertex gets that far) and counts the glossy ones.
+// only when the vertex gets that far) and counts the glossy ones. With several bands the CPU decodes
+// position and normal first to find the band (and counts glossy, culled and back-facing records).
 void GlReprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
   ctx_->check_thread();
   const size_t total = packed.size() / kPackedBytes;
@@ -317,13 +446,50 @@ void GlReprojector::reproject_packed(std::string_view packed, const VertexCodec&
   set_codec(codec);
   const auto* src = reinterpret_cast<const unsigned char*>(packed.data());
   const size_t per_slot = slot_bytes_ / kPackedBytes;
+  const bool banded = bands_.size() > 1;
   for (size_t i = 0; i < total;) {
     const int slot = next_slot_;
     next_slot_ = (next_slot_ + 1) % kSlots;
-    const size_t n = std::min(total - i, per_slot);
-    copy_packed(src + i * kPackedBytes, n, acquire_slot(slot));
-    dispatch(slot, n, Kernel::kPacked);
-    i += n;
+    const size_t m = std::min(total - i, per_slot);
+    unsigned char* out = acquire_slot(slot);
+    size_t n = 0;
+    if (!banded) {
+      copy_packed(src + i * kPackedBytes, m, out);
+      bind_band(bands_[0], Kernel::kPacked);
+      dispatch(slot, 0, m, Kernel::kPacked);
+      fence(slot);
+      n = m;
+    } else {
+      for (size_t j = 0; j < m; ++j) {
+        const PackedVertex v = VertexCodec::load(src + (i + j) * kPackedBytes);
+        uint32_t band = kNoBand, texel = 0;
+        if (!settings_.reproject_glossy && !VertexCodec::decode_diffuse(v.position_bits)) {
+          ++cpu_counts_.not_diffuse;
+        } else {
+          switch (detail::project_and_face(params_, codec.decode_position(v.position_bits),
+                                           VertexCodec::decode_normal(v.normal_bits), &texel)) {
+            case detail::Decision::kCulled:
+              ++cpu_counts_.culled;
+              break;
+            case detail::Decision::kBackfacing:
+              ++cpu_counts_.backfacing;
+              ++cpu_counts_.occluded;
+              break;
+            default:
+              band = uint32_t(texel / band_cells_);
+          }
+        }
+        bin_band_[j] = band;
+      }
+      bin_offsets(m);
+      for (size_t j = 0; j < m; ++j) {
+        if (bin_band_[j] == kNoBand) continue;
+        copy_packed(src + (i + j) * kPackedBytes, 1, out + (bin_offset_[bin_band_[j]]++) * kPackedBytes);
+        ++n;
+      }
+      dispatch_bands(slot, Kernel::kPacked);
+    }
+    i += m;
     points_since_fold_ += n;
     if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
   }
@@ -383,24 +549,51 @@ void GlReprojector::add_exact(std::span<const ExactSample> samples) {
   ctx_->check_thread();
   const size_t per_slot = slot_bytes_ / sizeof(ExactSample);
   const size_t cells = size_t(grid_w_) * size_t(grid_h_);
+  const bool banded = bands_.size() > 1;
+  const auto valid = [&](const ExactSample& s) {
+    return s.subpixel < cells && detail::finite_bits(s.radiance.x) && detail::finite_bits(s.radiance.y) &&
+           detail::finite_bits(s.radiance.z);
+  };
   size_t i = 0;
   while (i < samples.size()) {
     const int slot = next_slot_;
     next_slot_ = (next_slot_ + 1) % kSlots;
     unsigned char* out = acquire_slot(slot);
     size_t n = 0;
-    for (; i < samples.size() && n < per_slot; ++i) {
-      const ExactSample& s = samples[i];
-      if (!(s.subpixel < cells && detail::finite_bits(s.radiance.x) && detail::finite_bits(s.radiance.y) &&
-            detail::finite_bits(s.radiance.z))) {
-        ++cpu_counts_.invalid;
-        continue;
+    if (!banded) {
+      for (; i < samples.size() && n < per_slot; ++i) {
+        const ExactSample& s = samples[i];
+        if (!valid(s)) {
+          ++cpu_counts_.invalid;
+          continue;
+        }
+        std::memcpy(out + n * sizeof(ExactSample), &s, sizeof(ExactSample));
+        ++n;
       }
-      std::memcpy(out + n * sizeof(ExactSample), &s, sizeof(ExactSample));
-      ++n;
+      if (n) {
+        bind_band(bands_[0], Kernel::kExact);
+        dispatch(slot, 0, n, Kernel::kExact);
+        fence(slot);
+      }
+    } else {
+      const size_t first = i, m = std::min(samples.size() - i, per_slot);
+      for (size_t j = 0; j < m; ++j) {
+        const ExactSample& s = samples[first + j];
+        const bool ok = valid(s);
+        cpu_counts_.invalid += !ok;
+        bin_band_[j] = ok ? uint32_t(s.subpixel / band_cells_) : kNoBand;
+      }
+      i += m;
+      bin_offsets(m);
+      for (size_t j = 0; j < m; ++j) {
+        if (bin_band_[j] == kNoBand) continue;
+        std::memcpy(out + (bin_offset_[bin_band_[j]]++) * sizeof(ExactSample), &samples[first + j],
+                    sizeof(ExactSample));
+        ++n;
+      }
+      dispatch_bands(slot, Kernel::kExact);
     }
     cpu_counts_.exact += n;
-    if (n) dispatch(slot, n, Kernel::kExact);
   }
 }
 
@@ -425,31 +618,114 @@ ReprojectionCounts GlReprojector::counts() const {
   const std::array<uint64_t, kGpuCounters> gpu = read_gpu_counters();
   ReprojectionCounts r = cpu_counts_;
   r.not_diffuse += folded_[4] + gpu[4];
-  r.accepted = folded_[0] + gpu[0];
-  r.culled = folded_[1] + gpu[1];
-  r.backfacing = folded_[2] + gpu[2];
-  r.occluded = r.backfacing + folded_[3] + gpu[3];
+  r.accepted += folded_[0] + gpu[0];
+  r.culled += folded_[1] + gpu[1];
+  r.backfacing += folded_[2] + gpu[2];
+  r.occluded += folded_[2] + gpu[2] + folded_[3] + gpu[3];
   return r;
+}
+
+namespace {
+
+// reprojection_image.cpp's downsample (downsample_cells) for cells kept in bands: `row(gy)` points to
+// the cells of grid row gy. Same operations in the same order, so the same results.
+template <class RowAt>
+void downsample_rows(int grid_w, int grid_h, int S, const RowAt& row, std::span<const uint8_t> skip,
+                     PixelReprojection* outp, bool counts_only) {
+  const int W = grid_w / S, H = grid_h / S;
+  const size_t pixels = size_t(W) * size_t(H);
+  PixelReprojection& out = *outp;
+  if (out.radiance.width != W || out.radiance.height != H || out.radiance.channels != 3 || out.count.size() != pixels) {
+    out = PixelReprojection{Image(W, H, 3), std::vector<uint64_t>(pixels, 0)};
+    skip = {};
+    counts_only = false;
+  }
+  if (!skip.empty() && skip.size() != pixels) throw std::invalid_argument("downsample: skip mask of the wrong size");
+  tbb::parallel_for(0, H, [&](int y) {
+    for (int x = 0; x < W; ++x) {
+      if (!skip.empty() && skip[size_t(y) * size_t(W) + size_t(x)]) continue;
+      uint64_t total = 0;
+      if (counts_only) {
+        for (int j = 0; j < S; ++j) {
+          const AccumulationCell* c = row(y * S + j) + size_t(x * S);
+          for (int i = 0; i < S; ++i) total += c[i].n;
+        }
+        out.count[size_t(y) * size_t(W) + size_t(x)] = total;
+        continue;
+      }
+      double mean[3] = {0, 0, 0};
+      int non_empty = 0;
+      for (int j = 0; j < S; ++j) {
+        const AccumulationCell* r = row(y * S + j) + size_t(x * S);
+        for (int i = 0; i < S; ++i) {
+          const AccumulationCell c = r[i];
+          if (c.n == 0) continue;
+          mean[0] += double(c.r) / double(c.n);
+          mean[1] += double(c.g) / double(c.n);
+          mean[2] += double(c.b) / double(c.n);
+          total += c.n;
+          ++non_empty;
+        }
+      }
+      out.radiance.set_rgb(
+          x, y,
+          non_empty ? Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty), float(mean[2] / non_empty))
+                    : Vec3(0.f));
+      out.count[size_t(y) * size_t(W) + size_t(x)] = total;
+    }
+  });
+}
+
+}  // namespace
+
+// Maps every band's accumulation for reading (waits for the dispatches that write them); returns
+// false (nothing mapped) if one cannot be mapped.
+bool GlReprojector::map_bands(std::vector<const AccumulationCell*>* mapped) {
+  const auto& gl = ctx_->gl();
+  gl.MemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+  mapped->assign(bands_.size(), nullptr);
+  for (size_t b = 0; b < bands_.size(); ++b) {
+    (*mapped)[b] = static_cast<const AccumulationCell*>(
+        gl.MapNamedBufferRange(bands_[b].acc->id(), 0, GLsizeiptr(bands_[b].cells * 16), GL_MAP_READ_BIT));
+    if (!(*mapped)[b]) {
+      unmap_bands(b);
+      return false;
+    }
+  }
+  return true;
+}
+
+void GlReprojector::unmap_bands(size_t n) {
+  for (size_t b = 0; b < n; ++b) ctx_->gl().UnmapNamedBuffer(bands_[b].acc->id());
 }
 
 SubpixelAccumulation GlReprojector::read() {
   ctx_->check_thread();
   const size_t cells = size_t(grid_w_) * size_t(grid_h_);
-  std::vector<float> raw(4 * cells);
-  ctx_->gl().GetNamedBufferSubData(acc_buf_->id(), 0, GLsizeiptr(raw.size() * 4), raw.data());
-  ctx_->check_error("GlReprojector::read");
   SubpixelAccumulation a;
   a.width = grid_w_;
   a.height = grid_h_;
   a.subpixels = subpixels_;
   a.sum.resize(3 * cells);
   a.count.resize(cells);
-  for (size_t i = 0; i < cells; ++i) {
-    a.sum[3 * i] = raw[4 * i];
-    a.sum[3 * i + 1] = raw[4 * i + 1];
-    a.sum[3 * i + 2] = raw[4 * i + 2];
-    std::memcpy(&a.count[i], &raw[4 * i + 3], 4);
+  std::vector<const AccumulationCell*> mapped;
+  if (!map_bands(&mapped)) {
+    ctx_->check_error("GlReprojector::read (map)");
+    throw std::runtime_error("GlReprojector::read: cannot map the accumulation");
   }
+  for (size_t b = 0; b < bands_.size(); ++b) {
+    const AccumulationCell* c = mapped[b];
+    float* sum = a.sum.data() + 3 * bands_[b].first_cell;
+    uint32_t* count = a.count.data() + bands_[b].first_cell;
+    for (size_t k = 0; k < bands_[b].cells; ++k) {
+      sum[3 * k] = c[k].r;
+      sum[3 * k + 1] = c[k].g;
+      sum[3 * k + 2] = c[k].b;
+      count[k] = c[k].n;
+    }
+  }
+  unmap_bands(bands_.size());
+  ctx_->check_error("GlReprojector::read");
   return a;
 }
 
@@ -461,53 +737,68 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
     // by the CPU code in place: on a software GL (llvmpipe) the buffer is host memory, and this is
     // several times cheaper than a compute pass plus its read-back. Same result as
     // downsample(read()).
-    const size_t cells = size_t(grid_w_) * size_t(grid_h_);
-    gl.MemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
-    const void* mapped = gl.MapNamedBufferRange(acc_buf_->id(), 0, GLsizeiptr(cells * 16), GL_MAP_READ_BIT);
-    if (!mapped) ctx_->check_error("GlReprojector::downsample_pixels (map)");
-    if (mapped) {
+    std::vector<const AccumulationCell*> mapped;
+    if (!map_bands(&mapped))
+      ctx_->check_error("GlReprojector::downsample_pixels (map)");
+    else {
       try {
-        downsample_cells({static_cast<const AccumulationCell*>(mapped), cells}, grid_w_, grid_h_, subpixels_, skip,
-                         result, counts_only);
+        if (bands_.size() == 1) {
+          downsample_cells({mapped[0], bands_[0].cells}, grid_w_, grid_h_, subpixels_, skip, result, counts_only);
+        } else {
+          const int band_rows = bands_[0].rows;
+          const auto row = [&](int gy) {
+            const size_t b = size_t(gy / band_rows);
+            return mapped[b] + size_t(gy - bands_[b].row0) * size_t(grid_w_);
+          };
+          downsample_rows(grid_w_, grid_h_, subpixels_, row, skip, result, counts_only);
+        }
       } catch (...) {
-        gl.UnmapNamedBuffer(acc_buf_->id());
+        unmap_bands(bands_.size());
         throw;
       }
-      gl.UnmapNamedBuffer(acc_buf_->id());
+      unmap_bands(bands_.size());
       ctx_->check_error("GlReprojector::downsample_pixels");
       return;
     }
   }
+  // The compute pass, band by band; it writes every pixel (no mask).
   const int W = grid_w_ / subpixels_, H = grid_h_ / subpixels_;
-  const size_t pixels = size_t(W) * size_t(H);
+  const size_t band_pixels = size_t(W) * size_t(bands_[0].rows / subpixels_);  // the largest band's
   if (!downsample_prog_) {
     downsample_prog_ =
         std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kDownsampleShader, settings_, true));
     pixels_buf_ = std::make_unique<GlBuffer>(*ctx_);
-    gl.NamedBufferStorage(pixels_buf_->id(), GLsizeiptr(pixels * 16), nullptr, GL_DYNAMIC_STORAGE_BIT);
+    gl.NamedBufferStorage(pixels_buf_->id(), GLsizeiptr(band_pixels * 16), nullptr, GL_DYNAMIC_STORAGE_BIT);
   }
+  PixelReprojection out{Image(W, H, 3), std::vector<uint64_t>(size_t(W) * size_t(H), 0)};
+  std::vector<float> raw(4 * band_pixels);
   const GLuint p = downsample_prog_->id();
-  gl.UseProgram(p);
-  gl.ProgramUniform1ui(p, downsample_prog_->uniform("image_w"), GLuint(W));
-  gl.ProgramUniform1ui(p, downsample_prog_->uniform("image_h"), GLuint(H));
-  gl.ProgramUniform1ui(p, downsample_prog_->uniform("subpixels"), GLuint(subpixels_));
-  gl.ProgramUniform1ui(p, downsample_prog_->uniform("grid_w"), GLuint(grid_w_));
-  gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, acc_buf_->id());
-  gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, pixels_buf_->id());
-  gl.DispatchCompute(GLuint((pixels + 63) / 64), 1, 1);
-  gl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
-  gl.UseProgram(0);
-  std::vector<float> raw(4 * pixels);
-  gl.GetNamedBufferSubData(pixels_buf_->id(), 0, GLsizeiptr(raw.size() * 4), raw.data());
-  ctx_->check_error("GlReprojector::downsample_pixels");
-  PixelReprojection out{Image(W, H, 3), std::vector<uint64_t>(pixels, 0)};
-  for (size_t i = 0; i < pixels; ++i) {
-    out.radiance.data[3 * i] = raw[4 * i];
-    out.radiance.data[3 * i + 1] = raw[4 * i + 1];
-    out.radiance.data[3 * i + 2] = raw[4 * i + 2];
-    uint32_t n;
-    std::memcpy(&n, &raw[4 * i + 3], 4);
-    out.count[i] = n;
+  for (const Band& b : bands_) {
+    const int h = b.rows / subpixels_;
+    const size_t pixels = size_t(W) * size_t(h), first_pixel = size_t(b.row0 / subpixels_) * size_t(W);
+    gl.UseProgram(p);
+    gl.ProgramUniform1ui(p, downsample_prog_->uniform("image_w"), GLuint(W));
+    gl.ProgramUniform1ui(p, downsample_prog_->uniform("image_h"), GLuint(h));
+    gl.ProgramUniform1ui(p, downsample_prog_->uniform("subpixels"), GLuint(subpixels_));
+    gl.ProgramUniform1ui(p, downsample_prog_->uniform("grid_w"), GLuint(grid_w_));
+    gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, b.acc->id());
+    gl.BindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, pixels_buf_->id());
+    // 64 pixels per workgroup, in rows of at most 65535 workgroups (the guaranteed maximum count).
+    const size_t groups = (pixels + 63) / 64;
+    gl.DispatchCompute(GLuint(std::min<size_t>(groups, 65535)), GLuint((groups + 65534) / 65535), 1);
+    gl.MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    gl.UseProgram(0);
+    gl.GetNamedBufferSubData(pixels_buf_->id(), 0, GLsizeiptr(pixels * 16), raw.data());
+    ctx_->check_error("GlReprojector::downsample_pixels");
+    for (size_t i = 0; i < pixels; ++i) {
+      const size_t q = first_pixel + i;
+      out.radiance.data[3 * q] = raw[4 * i];
+      out.radiance.data[3 * q + 1] = raw[4 * i + 1];
+      out.radiance.data[3 * q + 2] = raw[4 * i + 2];
+      uint32_t n;
+      std::memcpy(&n, &raw[4 * i + 3], 4);
+      out.count[q] = n;
+    }
   }
   *result = std::move(out);  // every pixel: the compute pass has no mask
 }
@@ -515,7 +806,8 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
 void GlReprojector::reset() {
   ctx_->check_thread();
   const GLuint zero = 0;
-  ctx_->gl().ClearNamedBufferData(acc_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+  for (const Band& b : bands_)
+    ctx_->gl().ClearNamedBufferData(b.acc->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
   ctx_->gl().ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
   cpu_counts_ = {};
   folded_ = {};
@@ -529,16 +821,19 @@ void GlReprojector::restore(const SubpixelAccumulation& acc, const ReprojectionC
       acc.count.size() != cells)
     throw std::invalid_argument("the accumulation to restore is not of this reprojector's subpixel grid");
   if (counts.occluded < counts.backfacing) throw std::invalid_argument("occluded counts include the backfacing ones");
-  // The SSBO layout: {float r, g, b; uint n} per subpixel.
-  std::vector<float> raw(4 * cells);
-  for (size_t i = 0; i < cells; ++i) {
-    raw[4 * i] = acc.sum[3 * i];
-    raw[4 * i + 1] = acc.sum[3 * i + 1];
-    raw[4 * i + 2] = acc.sum[3 * i + 2];
-    std::memcpy(&raw[4 * i + 3], &acc.count[i], 4);
-  }
+  // The SSBO layout, {float r, g, b; uint n} per subpixel, a chunk at a time.
   const auto& gl = ctx_->gl();
-  gl.NamedBufferSubData(acc_buf_->id(), 0, GLsizeiptr(raw.size() * 4), raw.data());
+  constexpr size_t kChunk = size_t(1) << 20;
+  std::vector<AccumulationCell> raw(std::min(kChunk, cells));
+  for (const Band& b : bands_)
+    for (size_t off = 0; off < b.cells; off += kChunk) {
+      const size_t m = std::min(kChunk, b.cells - off);
+      for (size_t k = 0; k < m; ++k) {
+        const size_t i = b.first_cell + off + k;
+        raw[k] = {acc.sum[3 * i], acc.sum[3 * i + 1], acc.sum[3 * i + 2], acc.count[i]};
+      }
+      gl.NamedBufferSubData(b.acc->id(), GLintptr(off * 16), GLsizeiptr(m * 16), raw.data());
+    }
   const GLuint zero = 0;
   gl.ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
   ctx_->check_error("GlReprojector::restore");

@@ -81,6 +81,7 @@ uniform uint count;   // records in the batch
 uniform vec3 eye, forward_, right_, up_;
 uniform float tan_half_x, tan_half_y, width_, height_, s, grid_w, grid_h, epsilon, crease_tolerance, min_normal_cosine;
 uniform uint grid_wi, first_creased;
+uniform uint band_base;  // the bound band's first subpixel: `cells` and `texel_plane` hold that band
 
 void main() {
   uint gid = gl_GlobalInvocationID.x;
@@ -124,7 +125,7 @@ void main() {
     precise float ez = eye.z - p.z;
     precise float facing = n.x * ex + n.y * ey + n.z * ez;
     if (!(facing > 0.0)) { n_backfacing++; continue; }
-    uint idx = uint(gy) * grid_wi + uint(gx);
+    uint idx = uint(gy) * grid_wi + uint(gx) - band_base;
 #if PREFETCH
     // Issue the cell's cache miss as a vector gather now, next to the plane-index gather, so that
     // both misses overlap; the atomics below then hit the cache. (The value is used so that the
@@ -201,21 +202,24 @@ struct Cell { float r, g, b; uint n; };
 layout(std430, binding = 0) buffer Accumulation { Cell cells[]; };
 uniform int first;
 uniform uint count;
+uniform uint band_base;  // the bound band's first subpixel
 void main() {
   uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
   for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) {
     uvec4 e = texelFetch(samples, first + int(i));
-    atomicAdd(cells[e.x].r, uintBitsToFloat(e.y));
-    atomicAdd(cells[e.x].g, uintBitsToFloat(e.z));
-    atomicAdd(cells[e.x].b, uintBitsToFloat(e.w));
-    atomicAdd(cells[e.x].n, 1u);
+    uint c = e.x - band_base;
+    atomicAdd(cells[c].r, uintBitsToFloat(e.y));
+    atomicAdd(cells[c].g, uintBitsToFloat(e.z));
+    atomicAdd(cells[c].b, uintBitsToFloat(e.w));
+    atomicAdd(cells[c].n, 1u);
   }
 }
 )";
 
 // Downsampling next to the accumulation: one invocation per pixel averages the means of its non-empty
 // subpixels and sums their counts (reprojection_image.h), so a round's end reads back W x H pixels
-// instead of the whole S*W x S*H grid (16x less for S = 4).
+// instead of the whole S*W x S*H grid (16x less for S = 4). Run per band: image_h is the band's
+// pixel rows and `cells` the band's accumulation.
 const char* const kDownsampleShader = R"(
 layout(local_size_x = 64) in;
 struct Cell { float r, g, b; uint n; };
@@ -226,7 +230,8 @@ uniform uint image_h;
 uniform uint subpixels;
 uniform uint grid_w;
 void main() {
-  uint p = gl_GlobalInvocationID.x;
+  // 64 pixels per workgroup; workgroups in rows of gl_NumWorkGroups.x (the count per dimension is bounded).
+  uint p = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * 64u + gl_LocalInvocationID.x;
   if (p >= image_w * image_h) return;
   uint x = p % image_w, y = p / image_w;
   vec3 mean = vec3(0.0);

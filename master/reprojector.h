@@ -92,6 +92,9 @@ struct ReprojectorSettings {
   // GL: downsample at a round's end by mapping the accumulation and running the CPU downsample on it
   // (cheaper on llvmpipe, whose buffers are host memory) instead of a compute pass and a read-back.
   bool gl_map_downsample = true;
+  // GL: at most this many subpixels per band of the accumulation (0: as many as GL's buffer limits
+  // allow; see gl_reprojector.h, Limits). Tests lower it to get several bands on small frames.
+  size_t gl_max_band_cells = 0;
   // GL: the shader's 32-bit per-invocation counters are folded into 64-bit host totals after this
   // many points (2^31 keeps every counter far from overflow; tests lower it).
   uint64_t counter_fold_points = uint64_t(1) << 31;
