@@ -54,85 +54,115 @@ struct CpuTriangle {
 
 }  // namespace
 
-DeepFramebuffer build_deep_framebuffer_cpu(const Scene& scene, const Camera& camera, int subpixels) {
-  detail::check_deep_framebuffer_grid(camera, subpixels);
-  const int S = subpixels, W = camera.width() * S, H = camera.height() * S;
-  DeepFramebuffer dfb;
-  dfb.resize(W, H, S);
-  const float near = kNearPlane * scene.bounds().diagonal_length();
+namespace {
 
-  // Per triangle: Moller-Trumbore data and a conservative texel bounding box (whole grid when a
-  // corner is at or behind the near plane: no clipping needed, the ray test is exact anyway).
-  std::vector<CpuTriangle> tris(scene.triangle_count());
-  tbb::parallel_for(size_t(0), tris.size(), [&](size_t t) {
-    const auto& idx = scene.triangles[t];
-    const Vec3 a = scene.positions[idx[0]], b = scene.positions[idx[1]], c = scene.positions[idx[2]];
-    CpuTriangle& ct = tris[t];
-    ct.v0 = a;
-    ct.e1 = b - a;
-    ct.e2 = c - a;
-    float lo_x = INFINITY, lo_y = INFINITY, hi_x = -INFINITY, hi_y = -INFINITY;
-    bool all_in_front = true;
-    for (const Vec3& p : {a, b, c}) {
-      float rx, ry;
-      if (dot(p - camera.eye(), camera.forward()) <= near || !camera.project(p, &rx, &ry)) {
-        all_in_front = false;
-        break;
-      }
-      lo_x = std::min(lo_x, rx * float(S)), hi_x = std::max(hi_x, rx * float(S));
-      lo_y = std::min(lo_y, ry * float(S)), hi_y = std::max(hi_y, ry * float(S));
-    }
-    if (!all_in_front) {
-      ct.x0 = 0, ct.y0 = 0, ct.x1 = W - 1, ct.y1 = H - 1;
-      return;
-    }
-    // Texel centres i + 0.5 in [lo, hi], widened by one texel against rounding.
-    auto clampi = [](double v, int lo, int hi) { return int(std::clamp(v, double(lo), double(hi))); };
-    ct.x0 = clampi(std::floor(lo_x - 0.5) - 1, 0, W), ct.x1 = clampi(std::ceil(hi_x - 0.5) + 1, -1, W - 1);
-    ct.y0 = clampi(std::floor(lo_y - 0.5) - 1, 0, H), ct.y1 = clampi(std::ceil(hi_y - 0.5) + 1, -1, H - 1);
-  });
-
-  constexpr int kBand = 16;
-  std::vector<float> depth(dfb.texel_count(), INFINITY);
-  tbb::parallel_for(0, (H + kBand - 1) / kBand, [&](int band) {
-    const int ya = band * kBand, yb = std::min(H, ya + kBand) - 1;
-    for (size_t t = 0; t < tris.size(); ++t) {
-      const CpuTriangle& ct = tris[t];
-      if (ct.x0 > ct.x1 || ct.y1 < ya || ct.y0 > yb) continue;
-      for (int y = std::max(ya, ct.y0); y <= std::min(yb, ct.y1); ++y)
-        for (int x = ct.x0; x <= ct.x1; ++x) {
-          const Ray r = camera.generate_ray((float(x) + 0.5f) / float(S), (float(y) + 0.5f) / float(S));
-          // Moller-Trumbore, edges inclusive.
-          const Vec3 p = cross(r.dir, ct.e2);
-          const float det = dot(ct.e1, p);
-          if (det == 0.f || !std::isfinite(det)) continue;
-          const float inv = 1.f / det;
-          const Vec3 s = r.origin - ct.v0;
-          const float u = dot(s, p) * inv;
-          if (!(u >= 0.f && u <= 1.f)) continue;
-          const Vec3 q = cross(s, ct.e1);
-          const float v = dot(r.dir, q) * inv;
-          if (!(v >= 0.f && u + v <= 1.f)) continue;
-          const float tt = dot(ct.e2, q) * inv;
-          if (!(tt * dot(r.dir, camera.forward()) > near)) continue;
-          const size_t k = dfb.index(x, y);
-          if (!(tt < depth[k])) continue;  // ties keep the lower triangle index
-          depth[k] = tt;
-          dfb.triangle[k] = uint32_t(t);
-          const Vec3 hit = r.origin + r.dir * tt;
-          dfb.position[3 * k] = hit.x, dfb.position[3 * k + 1] = hit.y, dfb.position[3 * k + 2] = hit.z;
+class CpuBands final : public detail::DeepFramebufferBands {
+ public:
+  CpuBands(const Scene& scene, const Camera& camera, int subpixels)
+      : scene_(scene), camera_(camera), S_(subpixels), W_(camera.width() * subpixels), H_(camera.height() * subpixels) {
+    detail::check_deep_framebuffer_grid(camera, subpixels);
+    near_ = kNearPlane * scene.bounds().diagonal_length();
+    // Per triangle: Moller-Trumbore data and a conservative texel bounding box of the full grid (whole
+    // grid when a corner is at or behind the near plane: no clipping needed, the ray test is exact anyway).
+    tris_.resize(scene.triangle_count());
+    const int S = S_, W = W_, H = H_;
+    const float near = near_;
+    tbb::parallel_for(size_t(0), tris_.size(), [&](size_t t) {
+      const auto& idx = scene.triangles[t];
+      const Vec3 a = scene.positions[idx[0]], b = scene.positions[idx[1]], c = scene.positions[idx[2]];
+      CpuTriangle& ct = tris_[t];
+      ct.v0 = a;
+      ct.e1 = b - a;
+      ct.e2 = c - a;
+      float lo_x = INFINITY, lo_y = INFINITY, hi_x = -INFINITY, hi_y = -INFINITY;
+      bool all_in_front = true;
+      for (const Vec3& p : {a, b, c}) {
+        float rx, ry;
+        if (dot(p - camera.eye(), camera.forward()) <= near || !camera.project(p, &rx, &ry)) {
+          all_in_front = false;
+          break;
         }
-    }
-  });
+        lo_x = std::min(lo_x, rx * float(S)), hi_x = std::max(hi_x, rx * float(S));
+        lo_y = std::min(lo_y, ry * float(S)), hi_y = std::max(hi_y, ry * float(S));
+      }
+      if (!all_in_front) {
+        ct.x0 = 0, ct.y0 = 0, ct.x1 = W - 1, ct.y1 = H - 1;
+        return;
+      }
+      // Texel centres i + 0.5 in [lo, hi], widened by one texel against rounding.
+      auto clampi = [](double v, int lo, int hi) { return int(std::clamp(v, double(lo), double(hi))); };
+      ct.x0 = clampi(std::floor(lo_x - 0.5) - 1, 0, W), ct.x1 = clampi(std::ceil(hi_x - 0.5) + 1, -1, W - 1);
+      ct.y0 = clampi(std::floor(lo_y - 0.5) - 1, 0, H), ct.y1 = clampi(std::ceil(hi_y - 0.5) + 1, -1, H - 1);
+    });
+  }
 
-  // Planes from the triangle table (identical to the GL builder's).
-  tbb::parallel_for(size_t(0), dfb.texel_count(), [&](size_t k) {
-    if (dfb.triangle[k] == DeepFramebuffer::kNoTriangle) return;
-    const TrianglePlane pl = plane_of(scene, dfb.triangle[k]);
-    dfb.covered[k] = 1;
-    dfb.normal[3 * k] = pl.normal.x, dfb.normal[3 * k + 1] = pl.normal.y, dfb.normal[3 * k + 2] = pl.normal.z;
-    dfb.plane_offset[k] = pl.offset;
-  });
+  int max_rows() const override { return H_; }
+
+  void build(int row0, int row1, DeepFramebuffer* out) override {
+    if (row0 < 0 || row1 > H_ || row0 >= row1) throw std::invalid_argument("deep framebuffer band outside the grid");
+    DeepFramebuffer& dfb = *out;
+    dfb.resize(W_, row1 - row0, S_);
+    dfb.first_row = row0;
+    const Camera& camera = camera_;
+    const int S = S_;
+    const float near = near_;
+    // Per texel, the nearest hit of the ray through its centre; chunks of kBand grid rows in parallel.
+    constexpr int kBand = 16;
+    depth_.assign(dfb.texel_count(), INFINITY);
+    const int first_chunk = row0 / kBand, last_chunk = (row1 - 1) / kBand;
+    tbb::parallel_for(first_chunk, last_chunk + 1, [&](int band) {
+      const int ya = std::max(row0, band * kBand), yb = std::min(row1, band * kBand + kBand) - 1;
+      for (size_t t = 0; t < tris_.size(); ++t) {
+        const CpuTriangle& ct = tris_[t];
+        if (ct.x0 > ct.x1 || ct.y1 < ya || ct.y0 > yb) continue;
+        for (int y = std::max(ya, ct.y0); y <= std::min(yb, ct.y1); ++y)
+          for (int x = ct.x0; x <= ct.x1; ++x) {
+            const Ray r = camera.generate_ray((float(x) + 0.5f) / float(S), (float(y) + 0.5f) / float(S));
+            // Moller-Trumbore, edges inclusive.
+            float u, v, tt;
+            if (!detail::ray_triangle(r, ct.v0, ct.e1, ct.e2, &u, &v, &tt)) continue;
+            if (!(u >= 0.f && u <= 1.f) || !(v >= 0.f && u + v <= 1.f)) continue;
+            if (!(tt * dot(r.dir, camera.forward()) > near)) continue;
+            const size_t k = dfb.index(x, y - row0);
+            if (!(tt < depth_[k])) continue;  // ties keep the lower triangle index
+            depth_[k] = tt;
+            dfb.triangle[k] = uint32_t(t);
+            const Vec3 hit = r.origin + r.dir * tt;
+            dfb.position[3 * k] = hit.x, dfb.position[3 * k + 1] = hit.y, dfb.position[3 * k + 2] = hit.z;
+          }
+      }
+    });
+
+    // Planes from the triangle table (identical to the GL builder's).
+    tbb::parallel_for(size_t(0), dfb.texel_count(), [&](size_t k) {
+      if (dfb.triangle[k] == DeepFramebuffer::kNoTriangle) return;
+      const TrianglePlane pl = plane_of(scene_, dfb.triangle[k]);
+      dfb.covered[k] = 1;
+      dfb.normal[3 * k] = pl.normal.x, dfb.normal[3 * k + 1] = pl.normal.y, dfb.normal[3 * k + 2] = pl.normal.z;
+      dfb.plane_offset[k] = pl.offset;
+    });
+  }
+
+ private:
+  const Scene& scene_;
+  const Camera& camera_;
+  int S_, W_, H_;
+  float near_ = 0;
+  std::vector<CpuTriangle> tris_;
+  std::vector<float> depth_;  // per texel of the current band
+};
+
+}  // namespace
+
+std::unique_ptr<detail::DeepFramebufferBands> detail::cpu_deep_framebuffer_bands(const Scene& scene,
+                                                                                 const Camera& camera, int subpixels) {
+  return std::make_unique<CpuBands>(scene, camera, subpixels);
+}
+
+DeepFramebuffer build_deep_framebuffer_cpu(const Scene& scene, const Camera& camera, int subpixels) {
+  CpuBands bands(scene, camera, subpixels);
+  DeepFramebuffer dfb;
+  bands.build(0, camera.height() * subpixels, &dfb);
   return dfb;
 }
 

@@ -20,11 +20,15 @@
 // Both agree on which triangle covers a texel except where a triangle edge passes (nearly) through
 // the texel centre (GL uses the top-left fill rule, the CPU an inclusive barycentric test) and for
 // geometry closer to the eye than the near plane (GL clips at kNearPlane * scene diagonal).
-// Positions agree to float rounding (GL interpolates perspective-correctly, the CPU intersects).
+// GL only picks the triangle; the position is then computed on the CPU by both builders the same way
+// (detail::ray_triangle on the texel-centre ray), so it is bit-identical wherever the triangles agree
+// and does not depend on how the GL builder's bands place the texel in its framebuffer.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <vector>
 
 #include "common/camera.h"
@@ -38,8 +42,9 @@ class GlContext;
 struct DeepFramebuffer {
   static constexpr uint32_t kNoTriangle = std::numeric_limits<uint32_t>::max();
 
-  int width = 0, height = 0;        // texels: S * image width, S * image height
+  int width = 0, height = 0;        // texels: S * image width, S * image height (of the band, for a band)
   int subpixels = 4;                // S
+  int first_row = 0;                // grid row of row 0 (0 but for a band of a larger grid)
   std::vector<float> position;      // 3 per texel: hit point, world space, metres (0 if uncovered)
   std::vector<float> normal;        // 3 per texel: unit geometric face normal (0 if uncovered)
   std::vector<float> plane_offset;  // 1 per texel: d = dot(normal, first triangle corner)
@@ -73,8 +78,45 @@ DeepFramebuffer build_deep_framebuffer_gl(GlContext& gl, const Scene& scene, con
 DeepFramebuffer build_deep_framebuffer_cpu(const Scene& scene, const Camera& camera, int subpixels = 4);
 
 namespace detail {
+/// Moller-Trumbore of ray `r` against the triangle (v0, v0 + e1, v0 + e2): barycentrics u, v and the
+/// ray parameter t; false if the determinant is 0 or not finite. Both builders' positions come from it.
+inline bool ray_triangle(const Ray& r, const Vec3& v0, const Vec3& e1, const Vec3& e2, float* u, float* v, float* t) {
+  const Vec3 p = cross(r.dir, e2);
+  const float det = dot(e1, p);
+  if (det == 0.f || !std::isfinite(det)) return false;
+  const float inv = 1.f / det;
+  const Vec3 s = r.origin - v0;
+  *u = dot(s, p) * inv;
+  const Vec3 q = cross(s, e1);
+  *v = dot(r.dir, q) * inv;
+  *t = dot(e2, q) * inv;
+  return true;
+}
+
 /// Throws std::invalid_argument unless 1 <= S <= 16 and the grid fits 16384 texels per axis.
 void check_deep_framebuffer_grid(const Camera& camera, int subpixels);
+
+/// A deep-framebuffer builder that produces the grid band by band: build(r0, r1, band) fills `band`
+/// with rows [r0, r1) of the full grid (band->first_row = r0), each texel exactly as the full-frame
+/// builder of the same kind computes it. Bands may come in any order and overlap.
+class DeepFramebufferBands {
+ public:
+  virtual ~DeepFramebufferBands() = default;
+  virtual void build(int row0, int row1, DeepFramebuffer* band) = 0;
+  virtual int max_rows() const = 0;  // the most rows one build() call takes
+};
+
+/// The CPU builder's bands (any height).
+std::unique_ptr<DeepFramebufferBands> cpu_deep_framebuffer_bands(const Scene& scene, const Camera& camera,
+                                                                 int subpixels);
+/// The GL builder's bands of at most `max_rows` rows: each band is rasterised into a framebuffer of
+/// that height with the full grid's viewport shifted up by the band's first row (the triangle of a
+/// texel is the full frame's: the shift is a whole number of rows; see the file comment for positions). Refuses (throws
+/// std::runtime_error naming the limit) what this GL cannot do: band textures over
+/// GL_MAX_TEXTURE_SIZE, a grid over GL_MAX_VIEWPORT_DIMS or a shift beyond GL_VIEWPORT_BOUNDS_RANGE.
+/// `gl` must be current on the calling thread and outlive the result.
+std::unique_ptr<DeepFramebufferBands> gl_deep_framebuffer_bands(GlContext& gl, const Scene& scene, const Camera& camera,
+                                                                int subpixels, int max_rows);
 }  // namespace detail
 
 /// "gl" if an OSMesa context can be created (then uses a private one), else "cpu".

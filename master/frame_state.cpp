@@ -8,6 +8,7 @@
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
 #include "master/make_reprojector.h"
+#include "master/plane_grid_builder.h"
 #include "master/reprojection_outcomes.h"
 
 namespace epr {
@@ -64,11 +65,14 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     rs.joint_test = opts.joint_test;
     // Exact mode decides visibility with rays on the workers; the accumulation is the same, so the
     // CPU back-end (no GL needed) holds it.
+    // The deep framebuffer is built band by band straight into the compact plane grid.
     const bool use_gl = opts.reproject == ReprojectMethod::kGl;
-    const DeepFramebuffer dfb = use_gl && gl ? build_deep_framebuffer_gl(*gl, scene, camera, opts.subpixels)
-                                : use_gl     ? build_deep_framebuffer(scene, camera, opts.subpixels)
-                                             : build_deep_framebuffer_cpu(scene, camera, opts.subpixels);
-    reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, dfb, rs, gl);
+    const float tolerance = rs.epsilon * detail::kCreaseToleranceFraction;
+    detail::PlaneGrid grid =
+        use_gl && gl ? detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, gl)
+        : use_gl     ? detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test)
+                     : detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
+    reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
   }
   progress_.pixels_active = uint64_t(width_) * uint64_t(height_);

@@ -3,6 +3,7 @@
 #include "master/reprojection_kernel.h"
 
 #include <fmt/format.h>
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -16,124 +17,170 @@
 namespace epr {
 namespace detail {
 
-PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float crease_tolerance, bool creases) {
-  PlaneGrid g;
-  g.width = dfb.width;
-  g.height = dfb.height;
-  g.subpixels = dfb.subpixels;
-  g.crease_tolerance = crease_tolerance;
-  g.has_creases = creases;
-  g.texel_plane.assign(dfb.texel_count(), PlaneGrid::kUncovered);
-  struct Key {
-    uint32_t b[4];
-    bool operator==(const Key& o) const { return std::memcmp(b, o.b, 16) == 0; }
-  };
-  struct Hash {
-    size_t operator()(const Key& k) const {
-      uint64_t h = 0x9e3779b97f4a7c15ull;
-      for (uint32_t v : k.b) h = (h ^ v) * 0xbf58476d1ce4e5b9ull;
-      return size_t(h ^ (h >> 31));
-    }
-  };
-  // Plain entries: one per distinct plane.
-  std::unordered_map<Key, uint32_t, Hash> index;
+size_t PlaneGridBuilder::KeyHash::operator()(const Key& k) const {
+  uint64_t h = 0x9e3779b97f4a7c15ull;
+  for (uint32_t v : k.b) h = (h ^ v) * 0xbf58476d1ce4e5b9ull;
+  return size_t(h ^ (h >> 31));
+}
+
+size_t PlaneGridBuilder::SetHash::operator()(const std::vector<uint32_t>& v) const {
+  uint64_t h = 0x9e3779b97f4a7c15ull;
+  for (uint32_t x : v) h = (h ^ x) * 0xbf58476d1ce4e5b9ull;
+  return size_t(h ^ (h >> 31));
+}
+
+PlaneGridBuilder::PlaneGridBuilder(int width, int height, int subpixels, const Vec3& eye, float crease_tolerance,
+                                   bool creases)
+    : eye_(eye) {
+  if (width < 0 || height < 0 || int64_t(width) * height >= int64_t(kCreasedBit))
+    throw std::invalid_argument(fmt::format("plane grid {}x{} too large", width, height));
+  g_.width = width;
+  g_.height = height;
+  g_.subpixels = subpixels;
+  g_.crease_tolerance = crease_tolerance;
+  g_.has_creases = creases;
+  g_.texel_plane.assign(size_t(width) * size_t(height), PlaneGrid::kUncovered);
+}
+
+void PlaneGridBuilder::add_band(const DeepFramebuffer& band, int row0, int row1) {
+  const int W = g_.width, H = g_.height;
+  const int b0 = band.first_row, b1 = band.first_row + band.height;
+  if (band.width != W || band.subpixels != g_.subpixels || row0 != next_row_ || row1 < row0 || row1 > H ||
+      b0 > std::max(0, row0 - 1) || b1 < std::min(H, row1 + 1) || b0 < 0 || b1 > H)
+    throw std::invalid_argument(fmt::format(
+        "deep framebuffer band of rows [{}, {}) ({} wide, S={}) cannot give rows [{}, {}) of a {}x{} grid (S={}) "
+        "after row {}",
+        b0, b1, band.width, band.subpixels, row0, row1, W, H, g_.subpixels, next_row_));
+  if (row0 == row1) return;
+  // Plain entries: one per distinct plane, numbered in texel order. The band's rows come in grid order
+  // and rows seen before (the halo above) find their planes already numbered, so the numbering is the
+  // full frame's.
+  band_plain_.assign(band.texel_count(), PlaneGrid::kUncovered);
   Key last{};
   uint32_t last_plane = PlaneGrid::kUncovered;
-  for (size_t t = 0; t < dfb.texel_count(); ++t) {
-    if (!dfb.covered[t]) continue;
-    const float v[4] = {dfb.normal[3 * t], dfb.normal[3 * t + 1], dfb.normal[3 * t + 2], dfb.plane_offset[t]};
+  for (size_t t = 0; t < band.texel_count(); ++t) {
+    if (!band.covered[t]) continue;
+    const float v[4] = {band.normal[3 * t], band.normal[3 * t + 1], band.normal[3 * t + 2], band.plane_offset[t]};
     Key key;
     std::memcpy(key.b, v, 16);
     if (last_plane == PlaneGrid::kUncovered || !(key == last)) {
-      auto [it, inserted] = index.try_emplace(key, uint32_t(index.size()));
-      if (inserted) g.planes.insert(g.planes.end(), v, v + 4);
+      auto [it, inserted] = plain_.try_emplace(key, uint32_t(plain_.size()));
+      if (inserted) g_.planes.insert(g_.planes.end(), v, v + 4);
       last = key;
       last_plane = it->second;
     }
-    g.texel_plane[t] = last_plane;
+    band_plain_[t] = last_plane;
   }
-  g.first_creased = uint32_t(g.planes.size() / 4);
-  if (!creases) return g;
+  // Band row of grid row y: y - b0.
+  std::copy(band_plain_.begin() + ptrdiff_t(size_t(row0 - b0) * W),
+            band_plain_.begin() + ptrdiff_t(size_t(row1 - b0) * W),
+            g_.texel_plane.begin() + ptrdiff_t(size_t(row0) * W));
+  next_row_ = row1;
+  if (!g_.has_creases) return;
 
   // Crease sets: per texel, the other planes its 8 neighbours see, each as 2 * plane + (1 if flipped),
   // sorted. Rows in parallel; the sets are interned below in texel order (deterministic indices).
-  const int W = dfb.width, H = dfb.height;
-  auto row_sets = std::vector<std::vector<uint32_t>>(size_t(H));    // concatenated sets of a row
-  auto row_texels = std::vector<std::vector<uint32_t>>(size_t(H));  // (texel x, set begin, set size) per creased texel
+  const int n = row1 - row0;
+  row_sets_.resize(size_t(n));    // concatenated sets of a row
+  row_texels_.resize(size_t(n));  // (texel x, set begin, set size) per creased texel
+  const float crease_tolerance = g_.crease_tolerance;
+  const std::vector<float>& planes = g_.planes;
   // Another entry of the same plane (a zero of the other sign, or the opposite winding): not a crease;
   // oriented by the eye it would cut the far half of the texel's own epsilon band.
   auto same_plane = [&](uint32_t a, uint32_t b) {
-    const float* x = &g.planes[4 * size_t(a)];
-    const float* y = &g.planes[4 * size_t(b)];
+    const float* x = &planes[4 * size_t(a)];
+    const float* y = &planes[4 * size_t(b)];
     const bool same = x[0] == y[0] && x[1] == y[1] && x[2] == y[2] && x[3] == y[3];
     const bool opposite = x[0] == -y[0] && x[1] == -y[1] && x[2] == -y[2] && x[3] == -y[3];
     return same || opposite;
   };
   auto oriented = [&](uint32_t q, const Vec3& point, double* side) {
-    const float* pl = &g.planes[4 * size_t(q)];
+    const float* pl = &planes[4 * size_t(q)];
     *side = double(pl[0]) * point.x + double(pl[1]) * point.y + double(pl[2]) * point.z - double(pl[3]);
     return std::fabs(*side) > double(crease_tolerance);
   };
-  tbb::parallel_for(0, H, [&](int y) {
+  tbb::parallel_for(row0, row1, [&](int y) {
+    auto& rs = row_sets_[size_t(y - row0)];
+    auto& rt = row_texels_[size_t(y - row0)];
+    rs.clear();
+    rt.clear();
     std::vector<uint32_t> set;
     for (int x = 0; x < W; ++x) {
-      const size_t t = dfb.index(x, y);
-      const uint32_t own = g.texel_plane[t];
+      const size_t t = band.index(x, y - b0);
+      const uint32_t own = band_plain_[t];
       if (own == PlaneGrid::kUncovered) continue;
       set.clear();
       for (int dy = -1; dy <= 1; ++dy)
         for (int dx = -1; dx <= 1; ++dx) {
           const int nx = x + dx, ny = y + dy;
           if ((dx == 0 && dy == 0) || nx < 0 || ny < 0 || nx >= W || ny >= H) continue;
-          const uint32_t q = g.texel_plane[dfb.index(nx, ny)];
+          const uint32_t q = band_plain_[band.index(nx, ny - b0)];
           if (q == PlaneGrid::kUncovered || q == own || same_plane(own, q)) continue;
           double side = 0;
-          if (!oriented(q, dfb.position_at(t), &side) && !oriented(q, eye, &side)) continue;
+          if (!oriented(q, band.position_at(t), &side) && !oriented(q, eye_, &side)) continue;
           const uint32_t code = 2 * q + (side < 0 ? 1u : 0u);
           if (std::find(set.begin(), set.end(), code) == set.end()) set.push_back(code);
         }
       if (set.empty()) continue;
       std::sort(set.begin(), set.end());
-      auto& rs = row_sets[size_t(y)];
-      row_texels[size_t(y)].insert(row_texels[size_t(y)].end(),
-                                   {uint32_t(x), uint32_t(rs.size()), uint32_t(set.size())});
+      rt.insert(rt.end(), {uint32_t(x), uint32_t(rs.size()), uint32_t(set.size())});
       rs.insert(rs.end(), set.begin(), set.end());
     }
   });
-  struct SetHash {
-    size_t operator()(const std::vector<uint32_t>& v) const {
-      uint64_t h = 0x9e3779b97f4a7c15ull;
-      for (uint32_t x : v) h = (h ^ x) * 0xbf58476d1ce4e5b9ull;
-      return size_t(h ^ (h >> 31));
-    }
-  };
-  std::unordered_map<std::vector<uint32_t>, uint32_t, SetHash> creased_entry;  // (own plane, codes...) -> entry
+  // Creased entries, numbered in texel order from 0 (finish() moves them after the plain ones).
   std::vector<uint32_t> key;
-  for (int y = 0; y < H; ++y) {
-    const auto& rt = row_texels[size_t(y)];
+  for (int y = row0; y < row1; ++y) {
+    const auto& rt = row_texels_[size_t(y - row0)];
+    const auto& rs = row_sets_[size_t(y - row0)];
     for (size_t i = 0; i < rt.size(); i += 3) {
-      const size_t t = dfb.index(int(rt[i]), y);
-      const uint32_t own = g.texel_plane[t];
+      const uint32_t own = band_plain_[band.index(int(rt[i]), y - b0)];
       key.assign(1, own);
-      key.insert(key.end(), row_sets[size_t(y)].begin() + rt[i + 1],
-                 row_sets[size_t(y)].begin() + rt[i + 1] + rt[i + 2]);
-      auto [it, inserted] = creased_entry.try_emplace(key, uint32_t(g.planes.size() / 4));
+      key.insert(key.end(), rs.begin() + rt[i + 1], rs.begin() + rt[i + 1] + rt[i + 2]);
+      auto [it, inserted] = creased_.try_emplace(key, uint32_t(creased_planes_.size() / 4));
       if (inserted) {
-        const std::array<float, 4> plane{g.planes[4 * size_t(own)], g.planes[4 * size_t(own) + 1],
-                                         g.planes[4 * size_t(own) + 2], g.planes[4 * size_t(own) + 3]};
-        g.planes.insert(g.planes.end(), plane.begin(), plane.end());
-        g.crease_range.push_back(uint32_t(g.creases.size() / 4));
-        g.crease_range.push_back(uint32_t(key.size() - 1));
+        const std::array<float, 4> plane{g_.planes[4 * size_t(own)], g_.planes[4 * size_t(own) + 1],
+                                         g_.planes[4 * size_t(own) + 2], g_.planes[4 * size_t(own) + 3]};
+        creased_planes_.insert(creased_planes_.end(), plane.begin(), plane.end());
+        g_.crease_range.push_back(uint32_t(g_.creases.size() / 4));
+        g_.crease_range.push_back(uint32_t(key.size() - 1));
         for (size_t c = 1; c < key.size(); ++c) {
           const float s = (key[c] & 1u) ? -1.f : 1.f;
-          const float* pl = &g.planes[4 * size_t(key[c] >> 1)];
-          g.creases.insert(g.creases.end(), {s * pl[0], s * pl[1], s * pl[2], s * pl[3]});
+          const float* pl = &g_.planes[4 * size_t(key[c] >> 1)];
+          g_.creases.insert(g_.creases.end(), {s * pl[0], s * pl[1], s * pl[2], s * pl[3]});
         }
       }
-      g.texel_plane[t] = it->second;
+      g_.texel_plane[size_t(y) * W + rt[i]] = kCreasedBit | it->second;
     }
   }
-  return g;
+}
+
+PlaneGrid PlaneGridBuilder::finish() {
+  if (next_row_ != g_.height)
+    throw std::logic_error(fmt::format("plane grid: {} of {} rows added", next_row_, g_.height));
+  g_.first_creased = uint32_t(g_.planes.size() / 4);
+  if (!creased_planes_.empty()) {
+    g_.planes.insert(g_.planes.end(), creased_planes_.begin(), creased_planes_.end());
+    const uint32_t first = g_.first_creased;
+    std::vector<uint32_t>& tp = g_.texel_plane;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, tp.size(), size_t(1) << 16), [&](const auto& r) {
+      for (size_t t = r.begin(); t != r.end(); ++t)
+        if (tp[t] != PlaneGrid::kUncovered && (tp[t] & kCreasedBit)) tp[t] = first + (tp[t] & ~kCreasedBit);
+    });
+  }
+  plain_.clear();
+  creased_.clear();
+  creased_planes_ = {};
+  band_plain_ = {};
+  row_sets_ = {};
+  row_texels_ = {};
+  next_row_ = 0;
+  return std::move(g_);
+}
+
+PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float crease_tolerance, bool creases) {
+  PlaneGridBuilder b(dfb.width, dfb.height, dfb.subpixels, eye, crease_tolerance, creases);
+  b.add_band(dfb, 0, dfb.height);
+  return b.finish();
 }
 
 KernelParams make_kernel_params(const Camera& camera, int subpixels, float epsilon, bool joint_test) {

@@ -23,6 +23,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <unordered_map>
 #include <vector>
 
 #include "common/camera.h"
@@ -63,6 +64,43 @@ inline constexpr float kMinNormalCosine = 0.5f;
 /// `eye` orients creases the texel's own point cannot (see the file comment); `crease_tolerance` in
 /// metres. Without `creases` every entry is plain (first_creased = number of entries).
 PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float crease_tolerance, bool creases = true);
+
+/// make_plane_grid band of rows by band of rows, without the full deep framebuffer: add_band() the
+/// grid's rows in order, then finish(). The result is the same whatever the bands (plain planes and
+/// crease sets are interned in texel order either way); make_plane_grid is one band.
+class PlaneGridBuilder {
+ public:
+  PlaneGridBuilder(int width, int height, int subpixels, const Vec3& eye, float crease_tolerance, bool creases);
+  /// Takes grid rows [row0, row1) from `band` (rows [band.first_row, band.first_row + band.height) of
+  /// the grid), which must also hold the rows just above and below them that exist (the crease
+  /// neighbours). row0 must be the previous call's row1 (0 the first time).
+  void add_band(const DeepFramebuffer& band, int row0, int row1);
+  int rows_done() const { return next_row_; }
+  /// The plane grid; all rows must have been added. The builder is left empty.
+  PlaneGrid finish();
+
+ private:
+  // Creased texels hold kCreasedBit | (creased entry) until finish() knows the number of plain entries.
+  static constexpr uint32_t kCreasedBit = 0x80000000u;
+  struct Key {
+    uint32_t b[4];
+    bool operator==(const Key& o) const { return std::memcmp(b, o.b, 16) == 0; }
+  };
+  struct KeyHash {
+    size_t operator()(const Key& k) const;
+  };
+  struct SetHash {
+    size_t operator()(const std::vector<uint32_t>& v) const;
+  };
+  PlaneGrid g_;
+  Vec3 eye_;
+  int next_row_ = 0;
+  std::unordered_map<Key, uint32_t, KeyHash> plain_;                      // plane -> plain entry
+  std::unordered_map<std::vector<uint32_t>, uint32_t, SetHash> creased_;  // (own plane, codes...) -> creased entry
+  std::vector<float> creased_planes_;                                     // 4 per creased entry
+  std::vector<uint32_t> band_plain_;                                      // plain entry per texel of the band
+  std::vector<std::vector<uint32_t>> row_sets_, row_texels_;              // crease sets of the band's rows
+};
 
 /// The plane grid a reprojector with `settings` needs for `dfb` (validated against `camera`).
 PlaneGrid plane_grid_for(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
