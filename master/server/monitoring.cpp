@@ -260,9 +260,19 @@ void MonitoringServer::Impl::image(const httplib::Request& req, httplib::Respons
   if (!is_preview_layer(layer))
     return send_error(res, 400, fmt::format("unknown layer '{}' (combined, pathtrace, reprojection or samples)", layer),
                       "bad_layer");
+  int max_side = kPreviewMaxSide;
+  if (req.has_param("max")) {
+    const auto bound = parse_preview_bound(req.get_param_value("max"));
+    if (!bound)
+      return send_error(res, 400,
+                        fmt::format("max must be a positive integer (the preview's longest side, {} .. {} pixels)",
+                                    kPreviewMinBound, kPreviewMaxBound),
+                        "bad_max");
+    max_side = *bound;
+  }
   auto s = jobs.get(id);
   if (!s) return send_error(res, 404, fmt::format("no job '{}'", id), "no_job");
-  auto png = jobs.preview_png(id, layer);
+  auto png = jobs.preview_png(id, preview_key(layer, max_side));
   if (!png) {
     const bool reprojects = s->options.mode != RenderMode::kPathTrace;
     const bool pending = reprojects || layer == "combined" || layer == "pathtrace";
@@ -275,6 +285,8 @@ void MonitoringServer::Impl::image(const httplib::Request& req, httplib::Respons
   const std::string etag = etag_of(*png);
   res.set_header("ETag", etag);
   res.set_header("Cache-Control", "no-cache");
+  // The image's own size, which a downscaled preview is not.
+  res.set_header("X-Image-Size", fmt::format("{}x{}", s->options.width, s->options.height));
   if (req.get_header_value("If-None-Match") == etag) {
     res.status = 304;
     return;

@@ -10,7 +10,11 @@
 //   GET /api/v1/jobs/{id}                   one job (monitoring_format.h) plus "workers"; 404 JSON if unknown
 //   GET /api/v1/jobs/{id}/image.png?layer=  combined (default) | pathtrace | reprojection | samples: the
 //                                           preview after the last round that refreshed it (sRGB PNG,
-//                                           `samples` is the M' heat map). 404 JSON {"error","reason"} when
+//                                           `samples` is the M' heat map), at most 1024 pixels on its
+//                                           longest side (&max=N: 64 .. 8192, rounded down to a power of
+//                                           two; 400 "bad_max" if not a positive integer), box-filtered by
+//                                           a whole factor (previews.h); X-Image-Size: the image's WxH.
+//                                           404 JSON {"error","reason"} when
 //                                           the job is unknown ("no_job"), has no preview yet ("pending",
 //                                           before its first round closes) or has no such layer
 //                                           ("layer_unavailable": pt mode has no reprojection layers);
