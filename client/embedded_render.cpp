@@ -6,13 +6,17 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <regex>
 #include <thread>
 
+#include "common/log.h"
+#include "common/result_kinds.h"
 #include "master/server/master_server.h"
+#include "wire/convert.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -76,12 +80,42 @@ std::vector<std::string> remove_stale_state_dirs() {
 
 // ---- the render ---------------------------------------------------------------------------------
 
+namespace {
+
+// A done job's files from an in-process master's state folder to PREFIX.*: each moved (`keep`
+// false: the folder goes with the render) or copied into a temp name beside its place, then renamed.
+std::vector<FetchedFile> take_local_results(const JobManager& jobs, const std::string& id, const std::string& prefix,
+                                            bool keep, uint32_t round) {
+  std::vector<FetchedFile> files;
+  for (const ResultKindInfo& k : result_kinds()) {
+    const std::optional<std::string> from = jobs.result_path(id, k.kind);
+    if (!from) {
+      if (k.kind == ResultKind::kExr) throw std::runtime_error(fmt::format("job {} has no {} result", id, k.name));
+      continue;
+    }
+    const fs::path to(prefix + std::string(k.suffix));
+    if (!to.parent_path().empty()) fs::create_directories(to.parent_path());
+    const fs::path tmp = to.parent_path() / (".tmp-" + to.filename().string());
+    std::error_code ec;
+    if (!keep) fs::rename(*from, tmp, ec);  // another file system: EXDEV, copied instead
+    if (keep || ec) fs::copy_file(*from, tmp, fs::copy_options::overwrite_existing);
+    fs::rename(tmp, to);
+    files.push_back({to_proto(k.kind), to.string(), uint64_t(fs::file_size(to)), round, false});
+  }
+  return files;
+}
+
+}  // namespace
+
 EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions& embedded,
                                const std::function<void(const v1::JobStatus&)>& on_status,
                                const std::function<void(const std::string&, const std::string&)>& on_started) {
+  const auto started = std::chrono::steady_clock::now();
+  auto since_start = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count(); };
   // The scene first: a file that cannot be read or a scene without light is refused before a master
   // and workers start.
   SceneBundleData bundle = bundle_scene(opts.scene);
+  logger("client")->info("scene bundled: {:.2f} s", since_start());
   // The state folder: the caller's (locked: one master per folder), else a private one that goes
   // with this function (declared first: removed after the master is gone).
   std::unique_ptr<PrivateStateDir> private_dir;
@@ -98,8 +132,13 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
     mo.jobs.checkpoints = embedded.checkpoints;
   }
   mo.jobs.checkpoint_interval_s = embedded.checkpoint_interval_s;
+  mo.jobs.memory_budget_bytes = embedded.memory_budget_bytes;
+  // A benchmark knob (epr-master --reproject-batch-records): 0 applies every tile in its own call.
+  if (const char* batch = std::getenv("EPR_REPROJECT_BATCH_RECORDS"))
+    mo.jobs.reproject_batch_records = std::strtoull(batch, nullptr, 10);
   mo.http_listen = embedded.http_listen;
   MasterServer master(mo);
+  logger("client")->info("master started: {:.2f} s", since_start());
   EmbeddedResult result;
   result.master_target = master.local_target();
   result.dashboard_url = master.dashboard_url();
@@ -167,7 +206,14 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
         },
         0, canceller);
     result.master_view = master.jobs().get(id);
-    if (result.status.state() == v1::JOB_STATE_DONE) result.files = client.fetch_all(id, opts.out);
+    logger("client")->info("job {} watched to its end: {:.2f} s since the render began", id, since_start());
+    if (result.status.state() == v1::JOB_STATE_DONE) {
+      // The master is in this process: its files are taken from its state folder (moved out of a
+      // private one, copied from the caller's), not streamed through gRPC.
+      result.files =
+          take_local_results(master.jobs(), id, opts.out, !embedded.state_dir.empty(), uint32_t(result.status.round()));
+      logger("client")->info("results in place: {:.2f} s", since_start());
+    }
   } catch (const RpcError& e) {
     stop_workers();
     master.shutdown();
@@ -186,6 +232,7 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
   }
   stop_workers();
   master.shutdown();
+  logger("client")->info("workers and master stopped: {:.2f} s", since_start());
   return result;
 }
 

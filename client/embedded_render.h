@@ -31,6 +31,7 @@ struct EmbeddedOptions {
   double checkpoint_interval_s = -1;  // MasterOptions::checkpoint_interval_s (< 0: automatic)
   std::string http_listen = "127.0.0.1:0";  // the master's monitoring endpoint (dashboard); empty: none
   double timeout_seconds = 0;               // the whole render (upload, rounds, results); 0: no limit
+  uint64_t memory_budget_bytes = 0;         // the master's MasterOptions::memory_budget_bytes (0: no limit)
   // cancel() from another thread (a signal) ends the render: render_embedded throws RpcError CANCELLED.
   CallCanceller* canceller = nullptr;
   UploadProgressCallback upload_progress = print_upload_progress;

@@ -19,6 +19,7 @@
 #include "client/remote_commands.h"
 #include "client/render_flags.h"
 #include "common/log.h"
+#include "master/memory_estimate.h"
 
 namespace {
 
@@ -112,7 +113,7 @@ void print_status(const v1::JobStatus& s, bool tty) {
 }
 
 int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra, bool single_process, int workers,
-               const std::string& http, double timeout_seconds) {
+               const std::string& http, double timeout_seconds, const std::string& memory_budget) {
   finish_options(o, extra);
   if (auto err = output_prefix_error(o.out)) {
     std::fprintf(stderr, "epr render: --out: %s\n", err->c_str());
@@ -126,6 +127,14 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
   }
   if (auto err = o.validate()) {
     std::fprintf(stderr, "epr render: %s\n", err->c_str());
+    return 2;
+  }
+  // A frame this machine cannot hold is refused before anything starts, with what it would need.
+  const uint64_t budget = memory_budget.empty()  ? default_memory_budget()
+                          : memory_budget == "0" ? 0
+                                                 : *parse_byte_size(memory_budget);
+  if (auto err = memory_budget_error(o, /*checkpoints=*/false, budget)) {
+    std::fprintf(stderr, "epr render: %s (--memory-budget)\n", err->c_str());
     return 2;
   }
   if (auto err = prepare_output_folder(o.out)) {
@@ -149,6 +158,7 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
     eo.workers = workers;
     eo.http_listen = http;
     eo.timeout_seconds = timeout_seconds;
+    eo.memory_budget_bytes = budget;
     eo.canceller = &canceller;
     std::optional<EmbeddedResult> result;
     try {
@@ -217,6 +227,14 @@ int main(int argc, char** argv) {
       ->add_option("--http", render_http,
                    "the embedded master's dashboard address HOST:PORT (port 0: a free one; \"\" disables it)")
       ->capture_default_str();
+  std::string render_memory_budget;
+  render
+      ->add_option("--memory-budget", render_memory_budget,
+                   "refuse a frame whose estimated master memory exceeds this: bytes, or with a suffix K, M, G, T "
+                   "(8G); 0: no limit (default: 80% of this machine's physical memory)")
+      ->check([](const std::string& v) -> std::string {
+        return v == "0" || parse_byte_size(v) ? "" : "expected bytes like 8G, 512M or 0, got '" + v + "'";
+      });
   RemoteCommands remote(app);  // submit, watch, get, list, cancel
 
   try {
@@ -228,7 +246,8 @@ int main(int argc, char** argv) {
   if (auto code = remote.run()) return *code;
   try {
     if (render->parsed())
-      return run_render(render_opts, render_extra, single_process, local_workers, render_http, render_timeout);
+      return run_render(render_opts, render_extra, single_process, local_workers, render_http, render_timeout,
+                        render_memory_budget);
   } catch (const CLI::ValidationError& e) {
     std::fprintf(stderr, "epr: %s\n", e.what());
     return 2;

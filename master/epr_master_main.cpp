@@ -7,6 +7,7 @@
 #include <thread>
 
 #include "common/log.h"
+#include "master/memory_estimate.h"
 #include "master/server/master_server.h"
 #include "master/server/state_dir_lock.h"
 #include "wire/rpc/token.h"
@@ -61,6 +62,17 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"", "cpu"}));
   app.add_option("--max-queued-vertices", o.jobs.max_queued_vertices, "back-pressure bound of the commit queue")
       ->capture_default_str();
+  app.add_option("--reproject-batch-records", o.jobs.reproject_batch_records,
+                 "records (vertices) of queued tiles of one round applied in one reprojector call; 0: one call per "
+                 "tile")
+      ->capture_default_str();
+  std::string memory_budget;
+  app.add_option("--memory-budget", memory_budget,
+                 "jobs whose estimated master memory exceeds this are refused at submission: bytes, or with a "
+                 "suffix K, M, G, T (8G); 0: no limit (default: 80% of this machine's physical memory)")
+      ->check([](const std::string& v) -> std::string {
+        return v == "0" || epr::parse_byte_size(v) ? "" : "expected bytes like 8G, 512M or 0, got '" + v + "'";
+      });
   app.add_option("--max-image-side", o.jobs.max_image_side, "jobs with a wider or taller image are refused")
       ->check(CLI::Range(1, 16384))
       ->capture_default_str();
@@ -98,6 +110,9 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   epr::set_log_level(log_level);
   o.jobs.checkpoint_interval_s = *checkpoint_interval_seconds(checkpoint_interval);
+  o.jobs.memory_budget_bytes = memory_budget.empty()  ? epr::default_memory_budget()
+                               : memory_budget == "0" ? 0
+                                                      : *epr::parse_byte_size(memory_budget);
 
   if ((o.tls_cert_file.empty()) != (o.tls_key_file.empty())) {
     std::fprintf(stderr, "epr-master: --tls-cert and --tls-key go together\n");

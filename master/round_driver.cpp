@@ -1,6 +1,7 @@
 #include "master/round_driver.h"
 
 #include <algorithm>
+#include <bit>
 
 #include "wire/tile_result_stream.h"
 
@@ -47,6 +48,69 @@ void RoundDriver::apply(const AssembledTile& t) {
   std::vector<ExactSample> exact(t.exact_samples.size());
   for (size_t i = 0; i < exact.size(); ++i) exact[i] = {t.exact_samples[i].first, t.exact_samples[i].second};
   frame_.add_exact(exact);
+}
+
+namespace {
+
+// Which kinds of vertices a tile carries: bit 0 decoded, bit 1 packed, bit 2 exact samples.
+unsigned kinds_of(const AssembledTile& t) {
+  return (t.vertices.empty() ? 0u : 1u) | (t.packed_vertices.empty() ? 0u : 2u) | (t.exact_samples.empty() ? 0u : 4u);
+}
+
+}  // namespace
+
+void RoundDriver::apply(std::span<const AssembledTile* const> tiles) {
+  size_t i = 0;
+  while (i < tiles.size()) {
+    // The longest run from i whose tiles together carry one kind of vertex at most: concatenating
+    // them keeps every vertex in apply()'s order.
+    unsigned kinds = kinds_of(*tiles[i]);
+    if (std::popcount(kinds) > 1) {
+      apply(*tiles[i++]);
+      continue;
+    }
+    size_t end = i + 1;
+    while (end < tiles.size()) {
+      const unsigned k = kinds_of(*tiles[end]);
+      if (k != 0 && kinds != 0 && k != kinds) break;
+      if (std::popcount(k) > 1) break;
+      kinds |= k;
+      ++end;
+    }
+    if (end == i + 1) {
+      apply(*tiles[i++]);
+      continue;
+    }
+    size_t records = 0;
+    for (size_t j = i; j < end; ++j) {
+      const AssembledTile& t = *tiles[j];
+      frame_.add_paths(int(t.x0), int(t.y0), int(t.x1), int(t.y1), t.path_sum, t.path_count);
+      records += t.vertices.size() + t.packed_vertices.size() + t.exact_samples.size();
+    }
+    if (kinds == 1) {
+      vertex_batch_.clear();
+      vertex_batch_.reserve(records);
+      for (size_t j = i; j < end; ++j)
+        vertex_batch_.insert(vertex_batch_.end(), tiles[j]->vertices.begin(), tiles[j]->vertices.end());
+      frame_.reproject(vertex_batch_);
+    } else if (kinds == 2) {
+      packed_batch_.clear();
+      packed_batch_.reserve(records);  // bytes here
+      for (size_t j = i; j < end; ++j) packed_batch_ += tiles[j]->packed_vertices;
+      frame_.reproject_packed(packed_batch_);
+    } else if (kinds == 4) {
+      exact_batch_.clear();
+      exact_batch_.reserve(records);
+      for (size_t j = i; j < end; ++j)
+        for (const auto& [subpixel, radiance] : tiles[j]->exact_samples) exact_batch_.push_back({subpixel, radiance});
+      frame_.add_exact(exact_batch_);
+    }
+    i = end;
+  }
+  // Large batches are not kept between calls.
+  if (packed_batch_.capacity() > 4 * kBatchRecords * VertexCodec::kPackedBytes) std::string().swap(packed_batch_);
+  if (vertex_batch_.capacity() > 4 * kBatchRecords) std::vector<VertexRecord>().swap(vertex_batch_);
+  if (exact_batch_.capacity() > 4 * kBatchRecords) std::vector<ExactSample>().swap(exact_batch_);
 }
 
 }  // namespace epr

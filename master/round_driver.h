@@ -4,7 +4,8 @@
 //   open()   the next round's inputs per tile, and the order to trace them in (most active pixels
 //            first: the round ends on small tiles);
 //   apply()  a tile's result: path sums, then its vertices or exact samples (any order within a
-//            round; commits of one round touch disjoint pixels);
+//            round; commits of one round touch disjoint pixels); or several tiles of one round in
+//            one go (one reprojector call for all their vertices, the same state as one by one);
 //   close()  M', skip mask and progress; false once no round is left;
 //   images() / statistics()  the render's results.
 // Threading as FrameState: with the GL back-end, every call on the thread whose context is current.
@@ -13,6 +14,8 @@
 #include <cstdint>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <span>
+#include <string>
 #include <vector>
 
 #include "common/camera.h"
@@ -43,6 +46,15 @@ class RoundDriver {
   RoundPlan open(const std::vector<TileRect>& tiles) const;
   void apply(const TileResult& result);
   void apply(const AssembledTile& tile);
+  /// The tiles of one round in the order given, with the same result as apply() of each in turn, bit
+  /// for bit: their path sums, then their vertices concatenated in that order and reprojected in one
+  /// call (the reprojector adds in input order; one large call runs on every core where per-tile
+  /// calls stay serial). Runs of tiles whose vertices are of one kind (decoded, packed or exact) go
+  /// together; a tile with several kinds is applied alone, so that the order stays apply()'s.
+  void apply(std::span<const AssembledTile* const> tiles);
+  /// Records per apply(span) call the master aims for (its reprojection thread drains the commit
+  /// queue up to this many): large enough for the parallel CPU path, small enough to copy cheaply.
+  static constexpr size_t kBatchRecords = size_t(1) << 20;
   /// Ends the round; true if another is needed.
   bool close() { return frame_.finish_round(); }
 
@@ -51,6 +63,9 @@ class RoundDriver {
 
  private:
   FrameState frame_;
+  std::string packed_batch_;                // apply(span)'s concatenated packed vertices (kept: reused)
+  std::vector<VertexRecord> vertex_batch_;  // ... decoded vertices
+  std::vector<ExactSample> exact_batch_;    // ... exact samples
 };
 
 }  // namespace epr

@@ -70,7 +70,14 @@ struct MasterOptions {
   std::string reproject_backend_override;   // "cpu" forces the CPU reprojector (no OSMesa)
   int worker_timeout_ms = 10000;            // a worker silent this long is forgotten
   uint64_t max_queued_vertices = 8u << 20;  // back-pressure bound of the commit queue
+  // The reprojection thread applies the queued commits of one job and round together, up to this
+  // many records per reprojector call (0: one call per tile, as before; for comparisons).
+  uint64_t reproject_batch_records = uint64_t(1) << 20;
   size_t max_scene_bytes = 256u << 20;
+  // Jobs whose estimated master memory (master/memory_estimate.h) exceeds this are refused at
+  // submission (INVALID_ARGUMENT, naming what they need); 0: no limit. epr-master's --memory-budget
+  // defaults to 80 % of the machine's physical memory.
+  uint64_t memory_budget_bytes = 0;
   int max_image_side = limits::kImageSide.hi;
   int max_spp = limits::kSpp.hi;  // target samples per pixel of one job
   int max_jobs = 1000;            // jobs kept (finished ones are forgotten oldest first)
@@ -226,7 +233,8 @@ class JobManager {
   void reprojection_loop() EPR_EXCLUDES(mu_);
   void start_job(const std::shared_ptr<Job>& job, GlContext* gl) EPR_EXCLUDES(mu_);
   void open_round(Job& job) EPR_REQUIRES(mu_);
-  void apply_commit(Task& task) EPR_EXCLUDES(mu_);
+  /// Applies queued commits of one job and round, in commit order (RoundDriver::apply of a span).
+  void apply_commits(const std::vector<std::unique_ptr<Task>>& batch) EPR_EXCLUDES(mu_);
   void close_round(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
   void finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) EPR_EXCLUDES(mu_);
   void end_job(const std::shared_ptr<Job>& job, JobState state, const std::string& error) EPR_EXCLUDES(mu_);

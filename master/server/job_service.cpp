@@ -8,6 +8,7 @@
 
 #include "common/check.h"
 #include "common/log.h"
+#include "master/memory_estimate.h"
 #include "master/reprojection_outcomes.h"
 #include "master/server/reactors.h"
 #include "wire/convert.h"
@@ -254,6 +255,12 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
   // malformed file is an INVALID_ARGUMENT naming file and line, not a job that fails later. Without a
   // camera in the spec the job takes the scene's own.
   if (auto err = jobs_.validate(jr)) return finish(ctx, invalid(*err));
+  // A frame this master cannot hold is refused now, with what it would need, not after the setup.
+  // INVALID_ARGUMENT rather than RESOURCE_EXHAUSTED: clients retry the latter, and the same request
+  // never fits this master.
+  const MasterOptions& mo = jobs_.options();
+  if (auto err = memory_budget_error(jr.options, mo.checkpoints && !mo.state_dir.empty(), mo.memory_budget_bytes))
+    return finish(ctx, invalid(*err));
   CameraSpec scene_camera;
   // From here on the scene is in the master's cache: a refusal removes it again.
   auto refuse = [&](const std::string& why, const std::string& hash) {
