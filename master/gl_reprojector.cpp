@@ -134,7 +134,8 @@ void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
     bands_.push_back(std::move(b));
   }
   if (bands_.size() > 1) {
-    bin_band_.resize(std::max(settings_.batch_points, slot_bytes_ / kPackedBytes));
+    pending_.resize(slot_bytes_);
+    bin_band_.resize(slot_bytes_ / kPackedBytes);
     bin_count_.resize(bands_.size());
     bin_offset_.resize(bands_.size());
   }
@@ -341,70 +342,87 @@ void GlReprojector::dispatch_bands(int slot, Kernel kernel) {
   if (any) fence(slot);
 }
 
+namespace {
+size_t record_bytes(bool records) { return records ? kRecordBytes : kPackedBytes; }
+}  // namespace
+
+unsigned char* GlReprojector::pending_record(Kernel kernel) {
+  if (pending_n_ && pending_kernel_ != kernel) flush_pending();
+  const size_t bytes = record_bytes(kernel == Kernel::kRecords);
+  if ((pending_n_ + 1) * bytes > slot_bytes_) flush_pending();
+  pending_kernel_ = kernel;
+  return pending_.data() + (pending_n_++) * bytes;
+}
+
+void GlReprojector::flush_pending() {
+  if (!pending_n_) return;
+  const int slot = next_slot_;
+  next_slot_ = (next_slot_ + 1) % kSlots;
+  unsigned char* out = acquire_slot(slot);
+  const size_t bytes = record_bytes(pending_kernel_ == Kernel::kRecords), n = pending_n_;
+  pending_n_ = 0;
+  bin_offsets(n);
+  for (size_t j = 0; j < n; ++j) std::memcpy(out + (bin_offset_[bin_band_[j]]++) * bytes, &pending_[j * bytes], bytes);
+  dispatch_bands(slot, pending_kernel_);
+  if (pending_kernel_ != Kernel::kExact) {
+    points_since_fold_ += n;
+    if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
+  }
+}
+
 void GlReprojector::reproject(std::span<const VertexRecord> records) {
   ctx_->check_thread();
   static_assert(sizeof(VertexRecord) == 40 && offsetof(VertexRecord, radiance) == 24);
-  const bool banded = bands_.size() > 1;
+  if (bands_.size() > 1) {
+    // Steps 1-4 on the CPU as far as the band (the shader repeats 3-4 with the same arithmetic and
+    // reaches the same texel); the candidates wait in pending_.
+    for (const VertexRecord& r : records) {
+      uint32_t texel = 0;
+      if (!r.diffuse() && !settings_.reproject_glossy) {
+        ++cpu_counts_.not_diffuse;
+      } else if (!detail::record_is_finite(r)) {
+        ++cpu_counts_.invalid;
+      } else {
+        switch (detail::project_and_face(params_, r.position, r.normal, &texel)) {
+          case detail::Decision::kCulled:
+            ++cpu_counts_.culled;
+            break;
+          case detail::Decision::kBackfacing:
+            ++cpu_counts_.backfacing;
+            ++cpu_counts_.occluded;
+            break;
+          default:
+            std::memcpy(pending_record(Kernel::kRecords), &r, kRecordBytes);
+            bin_band_[pending_n_ - 1] = uint32_t(texel / band_cells_);
+        }
+      }
+    }
+    return;
+  }
   size_t i = 0;
   while (i < records.size()) {
     const int slot = next_slot_;
     next_slot_ = (next_slot_ + 1) % kSlots;
     unsigned char* out = acquire_slot(slot);
     size_t n = 0;
-    if (!banded) {
-      // Filter (steps 1-2 of the semantics) and copy the 36 bytes of float data of each record.
-      for (; i < records.size() && n < settings_.batch_points; ++i) {
-        const VertexRecord& r = records[i];
-        if (!r.diffuse() && !settings_.reproject_glossy) {
-          ++cpu_counts_.not_diffuse;
-          continue;
-        }
-        if (!detail::record_is_finite(r)) {
-          ++cpu_counts_.invalid;
-          continue;
-        }
-        std::memcpy(out + n * kRecordBytes, &r, kRecordBytes);
-        ++n;
+    // Filter (steps 1-2 of the semantics) and copy the 36 bytes of float data of each record.
+    for (; i < records.size() && n < settings_.batch_points; ++i) {
+      const VertexRecord& r = records[i];
+      if (!r.diffuse() && !settings_.reproject_glossy) {
+        ++cpu_counts_.not_diffuse;
+        continue;
       }
-      if (n) {
-        bind_band(bands_[0], Kernel::kRecords);
-        dispatch(slot, 0, n, Kernel::kRecords);
-        fence(slot);
+      if (!detail::record_is_finite(r)) {
+        ++cpu_counts_.invalid;
+        continue;
       }
-    } else {
-      // Steps 1-4 on the CPU as far as the band (the shader repeats 3-4 with the same arithmetic
-      // and reaches the same texel), then the records grouped by band.
-      const size_t first = i, m = std::min(records.size() - i, settings_.batch_points);
-      for (size_t j = 0; j < m; ++j) {
-        const VertexRecord& r = records[first + j];
-        uint32_t band = kNoBand, texel = 0;
-        if (!r.diffuse() && !settings_.reproject_glossy) {
-          ++cpu_counts_.not_diffuse;
-        } else if (!detail::record_is_finite(r)) {
-          ++cpu_counts_.invalid;
-        } else {
-          switch (detail::project_and_face(params_, r.position, r.normal, &texel)) {
-            case detail::Decision::kCulled:
-              ++cpu_counts_.culled;
-              break;
-            case detail::Decision::kBackfacing:
-              ++cpu_counts_.backfacing;
-              ++cpu_counts_.occluded;
-              break;
-            default:
-              band = uint32_t(texel / band_cells_);
-          }
-        }
-        bin_band_[j] = band;
-      }
-      i += m;
-      bin_offsets(m);
-      for (size_t j = 0; j < m; ++j) {
-        if (bin_band_[j] == kNoBand) continue;
-        std::memcpy(out + (bin_offset_[bin_band_[j]]++) * kRecordBytes, &records[first + j], kRecordBytes);
-        ++n;
-      }
-      dispatch_bands(slot, Kernel::kRecords);
+      std::memcpy(out + n * kRecordBytes, &r, kRecordBytes);
+      ++n;
+    }
+    if (n) {
+      bind_band(bands_[0], Kernel::kRecords);
+      dispatch(slot, 0, n, Kernel::kRecords);
+      fence(slot);
     }
     points_since_fold_ += n;
     if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
@@ -418,6 +436,7 @@ void GlReprojector::set_codec(const VertexCodec& codec) {
     p[4 + a] = codec.quantisation_cell()[a];
   }
   if (p == codec_params_) return;
+  if (pending_n_ && pending_kernel_ == Kernel::kPacked) flush_pending();  // decoded with the former parameters
   codec_params_ = p;
   // Ordered after the dispatches already issued, which read the former parameters.
   ctx_->gl().NamedBufferSubData(codec_buf_->id(), 0, GLsizeiptr(sizeof(p)), p.data());
@@ -438,7 +457,8 @@ void GlReprojector::copy_packed(const unsigned char* src, size_t n, unsigned cha
 
 // The wire records are copied into the upload slot as they are; the shader decodes them (each field
 // only when the vertex gets that far) and counts the glossy ones. With several bands the CPU decodes
-// position and normal first to find the band (and counts glossy, culled and back-facing records).
+// position and normal first to find the band (and counts glossy, culled and back-facing records);
+// the candidates wait in pending_.
 void GlReprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
   ctx_->check_thread();
   const size_t total = packed.size() / kPackedBytes;
@@ -446,50 +466,39 @@ void GlReprojector::reproject_packed(std::string_view packed, const VertexCodec&
   set_codec(codec);
   const auto* src = reinterpret_cast<const unsigned char*>(packed.data());
   const size_t per_slot = slot_bytes_ / kPackedBytes;
-  const bool banded = bands_.size() > 1;
+  if (bands_.size() > 1) {
+    for (size_t i = 0; i < total; ++i) {
+      const PackedVertex v = VertexCodec::load(src + i * kPackedBytes);
+      uint32_t texel = 0;
+      if (!settings_.reproject_glossy && !VertexCodec::decode_diffuse(v.position_bits)) {
+        ++cpu_counts_.not_diffuse;
+        continue;
+      }
+      switch (detail::project_and_face(params_, codec.decode_position(v.position_bits),
+                                       VertexCodec::decode_normal(v.normal_bits), &texel)) {
+        case detail::Decision::kCulled:
+          ++cpu_counts_.culled;
+          break;
+        case detail::Decision::kBackfacing:
+          ++cpu_counts_.backfacing;
+          ++cpu_counts_.occluded;
+          break;
+        default:
+          copy_packed(src + i * kPackedBytes, 1, pending_record(Kernel::kPacked));
+          bin_band_[pending_n_ - 1] = uint32_t(texel / band_cells_);
+      }
+    }
+    return;
+  }
   for (size_t i = 0; i < total;) {
     const int slot = next_slot_;
     next_slot_ = (next_slot_ + 1) % kSlots;
-    const size_t m = std::min(total - i, per_slot);
-    unsigned char* out = acquire_slot(slot);
-    size_t n = 0;
-    if (!banded) {
-      copy_packed(src + i * kPackedBytes, m, out);
-      bind_band(bands_[0], Kernel::kPacked);
-      dispatch(slot, 0, m, Kernel::kPacked);
-      fence(slot);
-      n = m;
-    } else {
-      for (size_t j = 0; j < m; ++j) {
-        const PackedVertex v = VertexCodec::load(src + (i + j) * kPackedBytes);
-        uint32_t band = kNoBand, texel = 0;
-        if (!settings_.reproject_glossy && !VertexCodec::decode_diffuse(v.position_bits)) {
-          ++cpu_counts_.not_diffuse;
-        } else {
-          switch (detail::project_and_face(params_, codec.decode_position(v.position_bits),
-                                           VertexCodec::decode_normal(v.normal_bits), &texel)) {
-            case detail::Decision::kCulled:
-              ++cpu_counts_.culled;
-              break;
-            case detail::Decision::kBackfacing:
-              ++cpu_counts_.backfacing;
-              ++cpu_counts_.occluded;
-              break;
-            default:
-              band = uint32_t(texel / band_cells_);
-          }
-        }
-        bin_band_[j] = band;
-      }
-      bin_offsets(m);
-      for (size_t j = 0; j < m; ++j) {
-        if (bin_band_[j] == kNoBand) continue;
-        copy_packed(src + (i + j) * kPackedBytes, 1, out + (bin_offset_[bin_band_[j]]++) * kPackedBytes);
-        ++n;
-      }
-      dispatch_bands(slot, Kernel::kPacked);
-    }
-    i += m;
+    const size_t n = std::min(total - i, per_slot);
+    copy_packed(src + i * kPackedBytes, n, acquire_slot(slot));
+    bind_band(bands_[0], Kernel::kPacked);
+    dispatch(slot, 0, n, Kernel::kPacked);
+    fence(slot);
+    i += n;
     points_since_fold_ += n;
     if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
   }
@@ -549,49 +558,41 @@ void GlReprojector::add_exact(std::span<const ExactSample> samples) {
   ctx_->check_thread();
   const size_t per_slot = slot_bytes_ / sizeof(ExactSample);
   const size_t cells = size_t(grid_w_) * size_t(grid_h_);
-  const bool banded = bands_.size() > 1;
   const auto valid = [&](const ExactSample& s) {
     return s.subpixel < cells && detail::finite_bits(s.radiance.x) && detail::finite_bits(s.radiance.y) &&
            detail::finite_bits(s.radiance.z);
   };
+  if (bands_.size() > 1) {
+    for (const ExactSample& s : samples) {
+      if (!valid(s)) {
+        ++cpu_counts_.invalid;
+        continue;
+      }
+      std::memcpy(pending_record(Kernel::kExact), &s, sizeof(ExactSample));
+      bin_band_[pending_n_ - 1] = s.subpixel / uint32_t(band_cells_);
+      ++cpu_counts_.exact;
+    }
+    return;
+  }
   size_t i = 0;
   while (i < samples.size()) {
     const int slot = next_slot_;
     next_slot_ = (next_slot_ + 1) % kSlots;
     unsigned char* out = acquire_slot(slot);
     size_t n = 0;
-    if (!banded) {
-      for (; i < samples.size() && n < per_slot; ++i) {
-        const ExactSample& s = samples[i];
-        if (!valid(s)) {
-          ++cpu_counts_.invalid;
-          continue;
-        }
-        std::memcpy(out + n * sizeof(ExactSample), &s, sizeof(ExactSample));
-        ++n;
+    for (; i < samples.size() && n < per_slot; ++i) {
+      const ExactSample& s = samples[i];
+      if (!valid(s)) {
+        ++cpu_counts_.invalid;
+        continue;
       }
-      if (n) {
-        bind_band(bands_[0], Kernel::kExact);
-        dispatch(slot, 0, n, Kernel::kExact);
-        fence(slot);
-      }
-    } else {
-      const size_t first = i, m = std::min(samples.size() - i, per_slot);
-      for (size_t j = 0; j < m; ++j) {
-        const ExactSample& s = samples[first + j];
-        const bool ok = valid(s);
-        cpu_counts_.invalid += !ok;
-        bin_band_[j] = ok ? uint32_t(s.subpixel / band_cells_) : kNoBand;
-      }
-      i += m;
-      bin_offsets(m);
-      for (size_t j = 0; j < m; ++j) {
-        if (bin_band_[j] == kNoBand) continue;
-        std::memcpy(out + (bin_offset_[bin_band_[j]]++) * sizeof(ExactSample), &samples[first + j],
-                    sizeof(ExactSample));
-        ++n;
-      }
-      dispatch_bands(slot, Kernel::kExact);
+      std::memcpy(out + n * sizeof(ExactSample), &s, sizeof(ExactSample));
+      ++n;
+    }
+    if (n) {
+      bind_band(bands_[0], Kernel::kExact);
+      dispatch(slot, 0, n, Kernel::kExact);
+      fence(slot);
     }
     cpu_counts_.exact += n;
   }
@@ -615,6 +616,9 @@ void GlReprojector::fold_counters() {
 
 ReprojectionCounts GlReprojector::counts() const {
   ctx_->check_thread();
+  // The pending records' decisions are the GPU's: dispatch them (a const call that completes the
+  // work already submitted).
+  const_cast<GlReprojector*>(this)->flush_pending();
   const std::array<uint64_t, kGpuCounters> gpu = read_gpu_counters();
   ReprojectionCounts r = cpu_counts_;
   r.not_diffuse += folded_[4] + gpu[4];
@@ -701,6 +705,7 @@ void GlReprojector::unmap_bands(size_t n) {
 
 SubpixelAccumulation GlReprojector::read() {
   ctx_->check_thread();
+  flush_pending();
   const size_t cells = size_t(grid_w_) * size_t(grid_h_);
   SubpixelAccumulation a;
   a.width = grid_w_;
@@ -731,6 +736,7 @@ SubpixelAccumulation GlReprojector::read() {
 
 void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<const uint8_t> skip, bool counts_only) {
   ctx_->check_thread();
+  flush_pending();
   const auto& gl = ctx_->gl();
   if (map_downsample_) {
     // The accumulation mapped for reading (waits for the dispatches that write it) and downsampled
@@ -805,6 +811,7 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
 
 void GlReprojector::reset() {
   ctx_->check_thread();
+  pending_n_ = 0;  // submitted before the reset: dropped with the rest
   const GLuint zero = 0;
   for (const Band& b : bands_)
     ctx_->gl().ClearNamedBufferData(b.acc->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
@@ -837,6 +844,7 @@ void GlReprojector::restore(const SubpixelAccumulation& acc, const ReprojectionC
   const GLuint zero = 0;
   gl.ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
   ctx_->check_error("GlReprojector::restore");
+  pending_n_ = 0;  // replaced by the restored state
   // The GPU decides accepted, culled and occluded (backfacing apart); the CPU the rest.
   folded_ = {counts.accepted, counts.culled, counts.backfacing, counts.occluded - counts.backfacing, 0};
   cpu_counts_ = {};

@@ -139,10 +139,21 @@ class GlReprojector final : public Reprojector {
   };
   std::vector<Band> bands_;
   size_t band_cells_ = 0;  // subpixels of every band but the last: band of subpixel i = i / band_cells_
-  /// Per record of the slot being filled (several bands only): its band, or kNoBand if it is not uploaded.
+  // Several bands: records are binned on arrival and gathered in pending_ (the CPU side, up to a
+  // slot's worth, across calls) so that small calls (one tile each) do not cost a dispatch per band;
+  // flush_pending() copies them into a slot grouped by band and dispatches each band's group. Every
+  // call that reads or replaces the accumulation or the counts flushes first (reset and restore
+  // drop them).
   static constexpr uint32_t kNoBand = 0xffffffffu;
-  std::vector<uint32_t> bin_band_;
+  std::vector<unsigned char> pending_;
+  std::vector<uint32_t> bin_band_;  // per pending record: its band
+  size_t pending_n_ = 0;
+  Kernel pending_kernel_ = Kernel::kRecords;
   std::vector<size_t> bin_count_, bin_offset_;  // per band: records in the slot, next free record
+  /// Makes room for a record of `kernel` in pending_ (flushing it if full or of another kernel) and
+  /// returns where its bytes go; the caller sets bin_band_[pending_n_ - 1].
+  unsigned char* pending_record(Kernel kernel);
+  void flush_pending();
   /// Counts the records of bin_band_[0, n) per band and turns them into offsets in the slot.
   void bin_offsets(size_t n);
   /// Dispatches `kernel` over the slot's records grouped by band (bin_count_), then fences the slot.

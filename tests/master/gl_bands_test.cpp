@@ -120,6 +120,9 @@ TEST_F(GlBands, DecisionsCountsAndSumsMatchTheCpuBackendOnEveryBanding) {
   for (size_t i = 0; i < pts.size(); i += 13) pts[i].flags = 0;  // glossy
   pts[5].position.x = std::numeric_limits<float>::quiet_NaN();   // invalid
   const VertexCodec codec(scene.bounds());
+  Bounds3 wider = scene.bounds();
+  wider.extend(wider.hi + Vec3(0.01f, 0.02f, 0.f));
+  const VertexCodec other_codec(wider);
   std::string words;
   codec.encode_batch(pts, &words);
   std::vector<ExactSample> exact;
@@ -161,10 +164,13 @@ TEST_F(GlBands, DecisionsCountsAndSumsMatchTheCpuBackendOnEveryBanding) {
     }
     {
       SCOPED_TRACE("reproject_packed");
+      // Tile-sized calls; every third with another quantisation (records still waiting for their
+      // dispatch are decoded with the parameters they came with).
       const size_t call = 15000 * VertexCodec::kPackedBytes;
-      for (size_t off = 0; off < words.size(); off += call) {
-        gl.reproject_packed(std::string_view(words).substr(off, call), codec);
-        cpu.reproject_packed(std::string_view(words).substr(off, call), codec);
+      for (size_t off = 0, k = 0; off < words.size(); off += call, ++k) {
+        const VertexCodec& c = k % 3 == 2 ? other_codec : codec;
+        gl.reproject_packed(std::string_view(words).substr(off, call), c);
+        cpu.reproject_packed(std::string_view(words).substr(off, call), c);
       }
       expect_same_counts(gl.counts(), cpu.counts());
       expect_same_accumulation(gl.read(), cpu.read());
@@ -228,6 +234,7 @@ TEST_F(GlBands, DecisionsCountsAndSumsMatchTheCpuBackendOnEveryBanding) {
       cpu.reproject(more);
       expect_same_counts(restored.counts(), cpu.counts());
       expect_same_accumulation(restored.read(), cpu.read());
+      restored.reproject(more);  // still waiting for its dispatch when reset() drops it
       restored.reset();
       EXPECT_EQ(restored.counts(), ReprojectionCounts{});
       const SubpixelAccumulation zero = restored.read();
