@@ -1,10 +1,15 @@
 // Peak memory of the master against image size and number of jobs: for each size x jobs pair, a fresh
 // epr-master process gets that many jobs at once (queued behind one another), in-process WorkerNodes
 // render them, and the master's VmHWM (/proc/PID/status) is read once every job is done. Prints one
-// row per pair with the wall time and the load average. See docs/BENCHMARKS.md section 7.
+// row per pair with the wall time and the load average, and what the jobs added to the idle master's
+// RSS per pixel and per subpixel of one job (peak minus the RSS before the first submission), and the
+// longest frame-state set-up the master logged (its deep framebuffer / plane grid and accumulation).
+// Square sides with --sizes, any frames with --frames 1920x1080,3840x2160. See docs/BENCHMARKS.md
+// section 7.
 #include <grpcpp/grpcpp.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -33,6 +38,20 @@ std::vector<int> parse_list(const std::string& s) {
   return out;
 }
 
+// "1920x1080,3840x2160" -> {{1920, 1080}, {3840, 2160}}; a plain number is a square side.
+std::vector<std::pair<int, int>> parse_frames(const std::string& s) {
+  std::vector<std::pair<int, int>> out;
+  std::stringstream ss(s);
+  for (std::string item; std::getline(ss, item, ',');) {
+    const size_t x = item.find('x');
+    if (x == std::string::npos)
+      out.emplace_back(std::stoi(item), std::stoi(item));
+    else
+      out.emplace_back(std::stoi(item.substr(0, x)), std::stoi(item.substr(x + 1)));
+  }
+  return out;
+}
+
 // VmHWM and VmRSS of a process, bytes.
 std::pair<uint64_t, uint64_t> memory_of(pid_t pid) {
   std::ifstream in("/proc/" + std::to_string(pid) + "/status");
@@ -48,9 +67,17 @@ std::pair<uint64_t, uint64_t> memory_of(pid_t pid) {
 
 int main(int argc, char** argv) {
   CLI::App app{"load_bench: epr-master peak RSS against image size and number of jobs"};
-  std::string sizes = "256,512,1024", jobs = "1,4,16", mode = "skip", reproject = "cpu";
-  int spp = 2, k = 1, threads = 2, max_depth = 4;
+  std::string sizes = "256,512,1024", frames, jobs = "1,4,16", mode = "skip", reproject = "cpu";
+  int spp = 2, k = 1, threads = 2, max_depth = 4, subpixels = 4;
   app.add_option("--sizes", sizes, "image sides (square images)")->capture_default_str();
+  app.add_option("--frames", frames, "image sizes WxH, e.g. 1920x1080,3840x2160 (instead of --sizes)");
+  app.add_option("--subpixels", subpixels, "S, subpixels per axis")->capture_default_str();
+  std::string master_bin = EPR_MASTER_BIN;
+  bool checkpoints = true;
+  app.add_flag("--checkpoints,!--no-checkpoints", checkpoints,
+               "run the master with a state directory (checkpoints after rounds), as by default");
+  app.add_option("--master-bin", master_bin, "the epr-master to measure (e.g. an older build, side by side)")
+      ->capture_default_str();
   app.add_option("--jobs", jobs, "numbers of jobs submitted at once")->capture_default_str();
   app.add_option("--spp", spp, "samples per pixel of each job")->capture_default_str();
   app.add_option("--paths-per-round", k, "paths per pixel and round")->capture_default_str();
@@ -64,18 +91,22 @@ int main(int argc, char** argv) {
   epr::set_log_level("warn");
 
   const fs::path dir = fs::temp_directory_path() / ("epr-load-bench-" + std::to_string(::getpid()));
-  std::printf("# epr-master peak RSS (VmHWM); %s, spp %d, k %d, max depth %d, %s reprojector, %d tracing threads\n",
-              mode.c_str(), spp, k, max_depth, reproject.c_str(), threads);
-  std::printf("%6s %5s %10s %14s %12s %9s %7s\n", "side", "jobs", "pixels", "peak RSS MiB", "end RSS MiB", "seconds",
-              "load");
-  for (int side : parse_list(sizes)) {
+  std::printf(
+      "# epr-master peak RSS (VmHWM); %s, spp %d, k %d, max depth %d, S %d, %s reprojector, %d tracing threads\n"
+      "# B/pixel, B/subpixel: (peak - idle RSS) over the pixels (subpixels) of one job\n",
+      mode.c_str(), spp, k, max_depth, subpixels, reproject.c_str(), threads);
+  std::printf("%10s %5s %10s %14s %12s %9s %8s %8s %8s %9s %7s\n", "frame", "jobs", "pixels", "peak RSS MiB",
+              "end RSS MiB", "idle MiB", "B/pixel", "B/subpx", "setup s", "seconds", "load");
+  const auto frame_list = frames.empty() ? parse_frames(sizes) : parse_frames(frames);
+  for (const auto& [fw, fh] : frame_list) {
     for (int n : parse_list(jobs)) {
       fs::remove_all(dir);
       fs::create_directories(dir);
       std::vector<std::string> args = {
-          EPR_MASTER_BIN,           "--listen",    "127.0.0.1:0", "--http", "", "--state-dir",
-          (dir / "state").string(), "--log-level", "warn"};
+          master_bin,    "--listen", "127.0.0.1:0", "--http", "", "--state-dir", (dir / "state").string(),
+          "--log-level", "info"};
       if (reproject == "cpu") args.insert(args.end(), {"--reproject", "cpu"});
+      if (!checkpoints) args.erase(args.begin() + 5, args.begin() + 7);  // no --state-dir: no checkpoints
       epr::testing::Process master(args, dir / "master");
       const std::regex listening("epr-master listening on port ([0-9]+)");
       std::smatch m;
@@ -90,12 +121,15 @@ int main(int argc, char** argv) {
         return 1;
       }
       const std::string target = "127.0.0.1:" + m[1].str();
+      const uint64_t idle = memory_of(master.pid()).second;
       auto stub = epr::v1::JobService::NewStub(grpc::CreateChannel(target, grpc::InsecureChannelCredentials()));
       const auto start = std::chrono::steady_clock::now();
       std::vector<std::string> ids;
       for (int j = 0; j < n; ++j) {
         epr::RenderOptions o;
-        o.width = o.height = side;
+        o.width = fw;
+        o.height = fh;
+        o.subpixels = subpixels;
         o.spp = spp;
         o.paths_per_round = k;
         o.mode = mode == "pt"   ? epr::RenderMode::kPathTrace
@@ -150,8 +184,19 @@ int main(int argc, char** argv) {
       node_thread.join();
       master.stop();
       if (!ok) return 1;
-      std::printf("%6d %5d %10llu %14.1f %12.1f %9.1f %7.2f\n", side, n, (unsigned long long)side * side * n,
-                  double(hwm) / (1 << 20), double(rss) / (1 << 20), seconds, epr::bench::load_average());
+      const double pixels = double(fw) * fh, added = double(hwm) - double(idle);
+      // The longest set-up of a job's frame state (deep framebuffer or plane grid, accumulation), from
+      // the master's log.
+      double setup = -1;
+      const std::string log = master.err();
+      const std::regex setup_line(R"(frame state \(deep framebuffer, accumulation\) ([0-9.]+) s)");
+      for (auto it = std::sregex_iterator(log.begin(), log.end(), setup_line); it != std::sregex_iterator(); ++it)
+        setup = std::max(setup, std::stod((*it)[1].str()));
+      const std::string frame = std::to_string(fw) + "x" + std::to_string(fh);
+      std::printf("%10s %5d %10llu %14.1f %12.1f %9.1f %8.1f %8.2f %8.2f %9.1f %7.2f\n", frame.c_str(), n,
+                  (unsigned long long)fw * fh * n, double(hwm) / (1 << 20), double(rss) / (1 << 20),
+                  double(idle) / (1 << 20), added / pixels, added / (pixels * subpixels * subpixels), setup, seconds,
+                  epr::bench::load_average());
       std::fflush(stdout);
     }
   }
