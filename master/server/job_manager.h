@@ -267,6 +267,8 @@ class JobManager {
   std::unique_ptr<Checkpointer> checkpointer_;  // with options_.checkpoints and an explicit state_dir
   uint64_t epoch_ = 0;
   std::thread reprojection_thread_, reaper_thread_;
+  // Reprojection thread only: apply_commits() calls and the tiles they applied (for the log).
+  uint64_t batches_applied_ = 0, tiles_applied_ = 0;
 };
 
 }  // namespace epr

@@ -228,6 +228,8 @@ void JobManager::apply_commits(const std::vector<std::unique_ptr<Task>>& batch) 
   tiles.reserve(batch.size());
   for (const auto& t : batch) tiles.push_back(&t->tile);
   job.driver->apply(tiles);
+  ++batches_applied_;
+  tiles_applied_ += tiles.size();
   // The counts at most every 100 ms (and at the round's close): GL's counters are read back, which
   // waits for the dispatches in flight.
   const int64_t now = clock_();
@@ -350,8 +352,10 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
   save_final_checkpoint(job);  // after the results: a finished job's checkpoint promises them
   job->driver.reset();
   job->scene.reset();
-  logger("master")->info("job {} done: images {:.2f} s, result files {:.2f} s, freeing the frame {:.2f} s", job->id,
-                         images_s, results_s - images_s, seconds_since(start) - results_s);
+  logger("master")->info(
+      "job {} done: images {:.2f} s, result files {:.2f} s, freeing the frame {:.2f} s; {} tiles applied in {} batches "
+      "(this master so far)",
+      job->id, images_s, results_s - images_s, seconds_since(start) - results_s, tiles_applied_, batches_applied_);
   work_cv_.notify_all();
   notify(job);
 }
