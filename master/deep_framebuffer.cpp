@@ -24,6 +24,7 @@ void DeepFramebuffer::resize(int w, int h, int s) {
   width = w;
   height = h;
   subpixels = s;
+  first_row = 0;
   const size_t n = texel_count();
   position.assign(3 * n, 0.f);
   normal.assign(3 * n, 0.f);
@@ -35,6 +36,12 @@ void DeepFramebuffer::resize(int w, int h, int s) {
 TrianglePlane plane_of(const Scene& scene, size_t tri) {
   const Vec3 n = scene.geometric_normal(tri);
   return {n, dot(n, scene.positions[scene.triangles[tri][0]])};
+}
+
+std::vector<TrianglePlane> detail::triangle_planes(const Scene& scene) {
+  std::vector<TrianglePlane> planes(scene.triangle_count());
+  tbb::parallel_for(size_t(0), planes.size(), [&](size_t t) { planes[t] = plane_of(scene, t); });
+  return planes;
 }
 
 void detail::check_deep_framebuffer_grid(const Camera& camera, int subpixels) {
@@ -62,6 +69,7 @@ class CpuBands final : public detail::DeepFramebufferBands {
       : scene_(scene), camera_(camera), S_(subpixels), W_(camera.width() * subpixels), H_(camera.height() * subpixels) {
     detail::check_deep_framebuffer_grid(camera, subpixels);
     near_ = kNearPlane * scene.bounds().diagonal_length();
+    planes_ = detail::triangle_planes(scene);
     // Per triangle: Moller-Trumbore data and a conservative texel bounding box of the full grid (whole
     // grid when a corner is at or behind the near plane: no clipping needed, the ray test is exact anyway).
     tris_.resize(scene.triangle_count());
@@ -136,7 +144,7 @@ class CpuBands final : public detail::DeepFramebufferBands {
     // Planes from the triangle table (identical to the GL builder's).
     tbb::parallel_for(size_t(0), dfb.texel_count(), [&](size_t k) {
       if (dfb.triangle[k] == DeepFramebuffer::kNoTriangle) return;
-      const TrianglePlane pl = plane_of(scene_, dfb.triangle[k]);
+      const TrianglePlane& pl = planes_[dfb.triangle[k]];
       dfb.covered[k] = 1;
       dfb.normal[3 * k] = pl.normal.x, dfb.normal[3 * k + 1] = pl.normal.y, dfb.normal[3 * k + 2] = pl.normal.z;
       dfb.plane_offset[k] = pl.offset;
@@ -149,7 +157,8 @@ class CpuBands final : public detail::DeepFramebufferBands {
   int S_, W_, H_;
   float near_ = 0;
   std::vector<CpuTriangle> tris_;
-  std::vector<float> depth_;  // per texel of the current band
+  std::vector<TrianglePlane> planes_;  // per triangle
+  std::vector<float> depth_;           // per texel of the current band
 };
 
 }  // namespace

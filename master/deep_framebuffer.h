@@ -56,7 +56,7 @@ struct DeepFramebuffer {
   Vec3 position_at(size_t t) const { return {position[3 * t], position[3 * t + 1], position[3 * t + 2]}; }
   Vec3 normal_at(size_t t) const { return {normal[3 * t], normal[3 * t + 1], normal[3 * t + 2]}; }
   size_t covered_count() const;
-  /// Allocates all arrays for a width x height grid, everything uncovered.
+  /// Allocates all arrays for a width x height grid (first_row 0), everything uncovered.
   void resize(int w, int h, int s);
 };
 
@@ -66,6 +66,10 @@ struct TrianglePlane {
   float offset = 0;
 };
 TrianglePlane plane_of(const Scene& scene, size_t triangle);
+namespace detail {
+/// plane_of of every triangle (both builders look the planes of their texels up here).
+std::vector<TrianglePlane> triangle_planes(const Scene& scene);
+}  // namespace detail
 
 /// Near clipping distance of the GL builder, as a fraction of the scene's bounding-box diagonal.
 inline constexpr float kNearPlane = 1e-5f;

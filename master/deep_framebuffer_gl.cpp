@@ -7,7 +7,7 @@
 // ry measured DOWNWARDS: GL row j is raster row j, so glGetTextureImage's first row is the top of
 // the image and no flip is needed. Depth is reversed Z (near / z_v, GL_GREATER, 32-bit float):
 // ample precision at every distance; geometry closer than `near` to the eye plane is clipped.
-// Output: the triangle index (R32UI, gl_VertexID/3). Planes are filled in on the CPU from plane_of()
+// Output: the triangle index (R32UI, gl_VertexID/3). Planes are filled in on the CPU from plane_of() (per triangle)
 // and positions from detail::ray_triangle on the texel-centre ray, exactly as the CPU builder does.
 // Bands: a framebuffer of the band's height; the viewport is the full grid's moved down by the band's
 // first row, so the rasteriser sees every triangle where the full frame has it (whole-row shift).
@@ -72,6 +72,7 @@ class GlBands final : public detail::DeepFramebufferBands {
     rows_ = std::clamp(max_rows, 1, H_);
     const size_t ncorners = 3 * scene.triangle_count();
     ncorners_ = ncorners;
+    planes_ = detail::triangle_planes(scene);
     GLint max_tbo = 0, max_tex = 0, max_fb[2] = {0, 0}, max_vp[2] = {0, 0}, vp_range[2] = {0, 0};
     gl.GetIntegerv(GL_MAX_TEXTURE_BUFFER_SIZE, &max_tbo);
     gl.GetIntegerv(GL_MAX_TEXTURE_SIZE, &max_tex);
@@ -180,7 +181,7 @@ class GlBands final : public detail::DeepFramebufferBands {
       const uint32_t t = tri_[k];
       if (t == DeepFramebuffer::kNoTriangle || t >= scene.triangle_count()) return;
       dfb.triangle[k] = t;
-      const TrianglePlane pl = plane_of(scene, t);
+      const TrianglePlane& pl = planes_[t];
       dfb.covered[k] = 1;
       // The CPU builder's hit of the texel-centre ray (a corner if the ray runs in the plane).
       const int x = int(k % size_t(W)), y = row0 + int(k / size_t(W));
@@ -206,7 +207,8 @@ class GlBands final : public detail::DeepFramebufferBands {
   GlBuffer corner_buf_;
   GlTexture corner_tex_, tri_tex_, depth_tex_;
   GLuint fbo_ = 0, vao_ = 0;
-  std::vector<uint32_t> tri_;  // read-back triangle indices of the current band
+  std::vector<uint32_t> tri_;          // read-back triangle indices of the current band
+  std::vector<TrianglePlane> planes_;  // per triangle
 };
 
 }  // namespace
