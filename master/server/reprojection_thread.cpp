@@ -290,10 +290,11 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
   notify(job);  // watchers (`epr watch`) hear of the round now, not after the copy below
   // The preview copy after the next round opened (workers trace meanwhile): the frame still holds the
   // closed round's state, since only this thread applies the next round's results.
-  // The copy costs the reprojection thread ~44 bytes per pixel of work (about a second at 3840 x 2160,
-  // during which no tile is applied): the next one waits at least ten times as long as this one took
-  // (at least the second), so copies take at most ~10 % of the thread. The previews (downscaled,
-  // previews.h) and `epr get --partial` serve the latest copy; they say which round it reflects.
+  // The copy costs the reprojection thread ~44 bytes per pixel of work (1.4-5.5 s at 3840 x 2160 on the
+  // loaded 2-core test machine, during which no tile is applied): the next one waits at least ten times
+  // as long as this one took (at least the second), so copies take at most ~10 % of the thread. The
+  // previews (downscaled, previews.h) and `epr get --partial` serve the latest copy; they say which
+  // round it reflects.
   if (want_preview) {
     const int64_t copy_started = clock_();
     auto images = std::make_shared<const FrameImages>(frame.images(/*preview=*/true));
