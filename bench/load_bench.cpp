@@ -183,7 +183,10 @@ int main(int argc, char** argv) {
       node.stop();
       node_thread.join();
       master.stop();
-      if (!ok) return 1;
+      if (!ok) {
+        fs::remove_all(dir);
+        return 1;
+      }
       const double pixels = double(fw) * fh, added = double(hwm) - double(idle);
       // The longest set-up of a job's frame state (deep framebuffer or plane grid, accumulation), from
       // the master's log.
