@@ -35,11 +35,11 @@ void write_with(OIIO::ImageOutput& out, const std::string& name, const OIIO::Ima
 
 }  // namespace
 
-void write_exr(const std::string& path, const Image& img) {
+void write_exr(const std::string& path, const Image& img, const char* compression) {
   auto out = OIIO::ImageOutput::create(path);
   if (!out) throw std::runtime_error(fmt::format("cannot write '{}': {}", path, OIIO::geterror()));
   OIIO::ImageSpec spec(img.width, img.height, img.channels, OIIO::TypeDesc::FLOAT);
-  spec.attribute("compression", "zip");
+  spec.attribute("compression", compression);
   write_with(*out, path, spec, OIIO::TypeDesc::FLOAT, img.data.data());
 }
 

@@ -31,8 +31,9 @@ struct Image {
   }
 };
 
-/// Linear 32-bit float OpenEXR. Throws std::runtime_error naming the file on failure.
-void write_exr(const std::string& path, const Image& img);
+/// Linear 32-bit float OpenEXR, `compression` as OpenImageIO names it ("zip", "none", ...). Throws
+/// std::runtime_error naming the file on failure.
+void write_exr(const std::string& path, const Image& img, const char* compression = "zip");
 /// 8-bit PNG; colour is clamped to [0,1] and encoded with the sRGB transfer curve.
 void write_png_srgb(const std::string& path, const Image& img);
 /// The same PNG encoded to bytes in memory (for previews served over the network).

@@ -3,9 +3,6 @@
 // counts, M' and the images -- with batches large enough for the CPU reprojector's parallel path.
 #include <gtest/gtest.h>
 
-#include <chrono>
-#include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <ctime>
 #include <random>
@@ -150,62 +147,6 @@ TEST(RoundDriverBatch, TheComparisonSeesTheOrder) {
   const FrameSnapshot x = a.frame().save(), y = b.frame().save();
   EXPECT_TRUE(same_bits(x.accumulation.count, y.accumulation.count));
   EXPECT_FALSE(same_bits(x.accumulation.sum, y.accumulation.sum));
-}
-
-}  // namespace
-}  // namespace epr
-
-// Not a test: the master's reprojection throughput with a backlog of committed tiles, one call per
-// tile against batches (run with --gtest_also_run_disabled_tests; EPR_BATCH_BENCH_ROUNDS repeats).
-namespace epr {
-namespace {
-
-double cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
-}
-
-TEST(RoundDriverBatch, DISABLED_Throughput) {
-  Scene scene = test::scene_named("hall");
-  RenderOptions opts;
-  opts.width = 1280;
-  opts.height = 720;
-  opts.mode = RenderMode::kSkip;
-  opts.reproject = ReprojectMethod::kCpu;
-  opts.tile_size = 128;
-  const Camera camera(scene.camera, opts.width, opts.height);
-  const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, camera, opts.subpixels);
-  const VertexCodec codec(scene.bounds());
-  std::vector<AssembledTile> tiles;
-  for (const TileRect& r : make_tiles(opts)) {  // 60 tiles of 15000 vertices
-    AssembledTile a;
-    a.x0 = uint32_t(r.x0), a.y0 = uint32_t(r.y0), a.x1 = uint32_t(r.x1), a.y1 = uint32_t(r.y1);
-    const size_t n = size_t(r.x1 - r.x0) * size_t(r.y1 - r.y0);
-    a.path_sum.assign(n, Vec3(0.5f));
-    a.path_count.assign(n, 1);
-    codec.encode_batch(test::real_like_points(scene, dfb, camera, 15000, uint32_t(tiles.size())), &a.packed_vertices);
-    tiles.push_back(std::move(a));
-  }
-  std::vector<const AssembledTile*> ptrs;
-  size_t records = 0;
-  for (const AssembledTile& t : tiles) ptrs.push_back(&t), records += t.vertex_count();
-  RoundDriver driver(opts, camera, scene, nullptr);
-  const int rounds = std::getenv("EPR_BATCH_BENCH_ROUNDS") ? std::atoi(std::getenv("EPR_BATCH_BENCH_ROUNDS")) : 5;
-  for (int r = 0; r < rounds; ++r)
-    for (int batched = 0; batched < 2; ++batched) {
-      const auto t0 = std::chrono::steady_clock::now();
-      const double c0 = cpu_seconds();
-      if (batched)
-        driver.apply(ptrs);
-      else
-        for (const AssembledTile* t : ptrs) driver.apply(*t);
-      const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      const double cpu = cpu_seconds() - c0;
-      std::printf("%-9s %zu records: %.3f s wall (%.1f M records/s), %.3f CPU-s (%.1f ns CPU/record)\n",
-                  batched ? "batched" : "per tile", records, wall, 1e-6 * double(records) / wall, cpu,
-                  1e9 * cpu / double(records));
-    }
 }
 
 }  // namespace
