@@ -362,4 +362,25 @@ void CpuReprojector::restore(const SubpixelAccumulation& acc, const Reprojection
   counts_ = counts;
 }
 
+void CpuReprojector::visit_cells(size_t max_cells,
+                                 const std::function<void(std::span<const AccumulationCell>)>& visit) {
+  static_assert(sizeof(Cell) == sizeof(AccumulationCell));
+  const auto* cells = reinterpret_cast<const AccumulationCell*>(cells_.data());
+  for (size_t off = 0; off < cells_.size(); off += max_cells)
+    visit({cells + off, std::min(max_cells, cells_.size() - off)});
+}
+
+void CpuReprojector::restore_cells(const std::function<void(std::span<AccumulationCell>)>& fill,
+                                   const ReprojectionCounts& counts) {
+  constexpr size_t kChunk = size_t(1) << 20;
+  auto* cells = reinterpret_cast<AccumulationCell*>(cells_.data());
+  try {
+    for (size_t off = 0; off < cells_.size(); off += kChunk) fill({cells + off, std::min(kChunk, cells_.size() - off)});
+  } catch (...) {
+    reset();
+    throw;
+  }
+  counts_ = counts;
+}
+
 }  // namespace epr

@@ -47,6 +47,10 @@ class CpuReprojector final : public Reprojector {
                               bool counts_only = false) override;
   void reset() override;
   void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) override;
+  void visit_cells(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) override;
+  void restore_cells(const std::function<void(std::span<AccumulationCell>)>& fill,
+                     const ReprojectionCounts& counts) override;
+  size_t cell_count() const override { return cells_.size(); }
   std::string_view backend() const override { return "cpu"; }
 
  private:

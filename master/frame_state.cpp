@@ -227,6 +227,78 @@ FrameSnapshot FrameState::save() {
   return s;
 }
 
+FrameView FrameState::view() {
+  FrameView v;
+  v.width = width_;
+  v.height = height_;
+  v.path_sum = path_sum_;
+  v.path_count = path_count_;
+  v.mprime = mprime_;
+  v.reprojected = reprojected_radiance_.data;
+  v.skip = skip_;
+  v.paths_done = paths_done_;
+  v.done = done_;
+  v.progress = progress_;
+  v.seconds_reprojecting = seconds_reprojecting_;
+  v.seconds_downsampling = seconds_downsampling_;
+  if (reprojector_) {
+    v.has_accumulation = true;
+    v.grid_width = opts_.subpixels * width_;
+    v.grid_height = opts_.subpixels * height_;
+    v.subpixels = opts_.subpixels;
+    v.counts = reprojector_->counts();
+    Reprojector* r = reprojector_.get();
+    v.visit_cells = [r](size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) {
+      r->visit_cells(max_cells, visit);
+    };
+  }
+  return v;
+}
+
+FrameView view_of(const FrameSnapshot& s) {
+  FrameView v;
+  v.width = s.width;
+  v.height = s.height;
+  v.path_sum = s.path_sum;
+  v.path_count = s.path_count;
+  v.mprime = s.mprime;
+  v.reprojected = s.reprojected;
+  v.skip = s.skip;
+  v.paths_done = s.paths_done;
+  v.done = s.done;
+  v.progress = s.progress;
+  v.seconds_reprojecting = s.seconds_reprojecting;
+  v.seconds_downsampling = s.seconds_downsampling;
+  v.has_accumulation = s.has_accumulation;
+  if (s.has_accumulation) {
+    const SubpixelAccumulation* a = &s.accumulation;
+    v.grid_width = a->width;
+    v.grid_height = a->height;
+    v.subpixels = a->subpixels;
+    v.counts = s.counts;
+    const auto* cells = &s.cells;
+    v.visit_cells = [a, cells](size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) {
+      const size_t n = a->size();
+      if (!*cells && (a->sum.size() != 3 * n || a->count.size() != n))
+        throw std::invalid_argument("the snapshot's accumulation does not match its grid size");
+      std::vector<AccumulationCell> chunk(std::min(max_cells, n));
+      for (size_t off = 0; off < n; off += max_cells) {
+        const size_t m = std::min(max_cells, n - off);
+        if (*cells) {
+          (*cells)(off, {chunk.data(), m});
+        } else {
+          for (size_t k = 0; k < m; ++k) {
+            const size_t i = off + k;
+            chunk[k] = {a->sum[3 * i], a->sum[3 * i + 1], a->sum[3 * i + 2], a->count[i]};
+          }
+        }
+        visit({chunk.data(), m});
+      }
+    };
+  }
+  return v;
+}
+
 void FrameState::restore(const FrameSnapshot& s) {
   const size_t n = size_t(width_) * size_t(height_);
   if (s.width != width_ || s.height != height_)
@@ -241,7 +313,25 @@ void FrameState::restore(const FrameSnapshot& s) {
                                     : "the snapshot has no reprojection accumulation");
   if (s.paths_done < 0 || s.paths_done > opts_.spp)
     throw std::invalid_argument("the snapshot's path count is out of range");
-  if (reprojector_) reprojector_->restore(s.accumulation, s.counts);  // checks the grid; throws before any change below
+  if (reprojector_ && s.cells) {
+    // From a source read on demand (a checkpoint file): the grid is checked first; if the source
+    // fails midway the reprojector is reset and the exception propagates, the rest unchanged.
+    const SubpixelAccumulation& a = s.accumulation;
+    if (a.width != opts_.subpixels * width_ || a.height != opts_.subpixels * height_ ||
+        a.subpixels != opts_.subpixels || a.size() != reprojector_->cell_count())
+      throw std::invalid_argument("the accumulation to restore is not of this reprojector's subpixel grid");
+    if (s.counts.occluded < s.counts.backfacing)
+      throw std::invalid_argument("occluded counts include the backfacing ones");
+    size_t next = 0;
+    reprojector_->restore_cells(
+        [&](std::span<AccumulationCell> out) {
+          s.cells(next, out);
+          next += out.size();
+        },
+        s.counts);
+  } else if (reprojector_) {
+    reprojector_->restore(s.accumulation, s.counts);  // checks the grid; throws before any change below
+  }
   path_sum_ = s.path_sum;
   path_count_ = s.path_count;
   mprime_ = s.mprime;

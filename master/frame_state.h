@@ -13,6 +13,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <span>
@@ -69,7 +70,35 @@ struct FrameSnapshot {
   bool has_accumulation = false;  // false for path tracing (no reprojector)
   SubpixelAccumulation accumulation;
   ReprojectionCounts counts;
+  // Instead of accumulation.sum and .count (then empty; width, height and subpixels still set): the
+  // cells read on demand, e.g. from a checkpoint file -- cells(first, out) fills `out` with the cells
+  // from subpixel `first` on; throws (CheckpointError) if the source turns out damaged.
+  std::function<void(size_t first, std::span<AccumulationCell> out)> cells;
 };
+
+/// A FrameState's state as of now, by reference (FrameState::view()), for checkpoints written
+/// without copying it: valid until the FrameState changes. The same fields as FrameSnapshot.
+struct FrameView {
+  int width = 0, height = 0;
+  std::span<const double> path_sum;
+  std::span<const uint32_t> path_count;
+  std::span<const uint64_t> mprime;
+  std::span<const float> reprojected;
+  std::span<const uint8_t> skip;
+  int paths_done = 0;
+  bool done = false;
+  FrameProgress progress;
+  double seconds_reprojecting = 0, seconds_downsampling = 0;
+  bool has_accumulation = false;
+  int grid_width = 0, grid_height = 0, subpixels = 0;  // the accumulation's
+  ReprojectionCounts counts;
+  /// Visits the accumulation's cells in subpixel order, spans of at most max_cells (Reprojector::visit_cells).
+  std::function<void(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>&)> visit_cells;
+};
+
+/// A view of a snapshot (its accumulation converted to cells a span at a time, or taken from
+/// `cells`); valid while the snapshot lives.
+FrameView view_of(const FrameSnapshot& snapshot);
 
 /// M and M' per pixel as one 2-channel image (the counts result).
 Image counts_image(const FrameImages& images);
@@ -118,6 +147,9 @@ class FrameState {
   nlohmann::json statistics(const RenderOptions& opts, uint64_t worker_culled) const;
   /// The state as of now (call between rounds); reads the accumulation back when reprojecting.
   FrameSnapshot save();
+  /// The state as of now by reference (call between rounds), for a checkpoint written straight from
+  /// it: nothing is copied; the accumulation is visited in place (GL: one band mapped at a time).
+  FrameView view();
   /// Continues from `snapshot`. Throws std::invalid_argument (naming the mismatch) if it was not
   /// taken from a FrameState of the same size and reprojection set-up; the state is then unchanged.
   void restore(const FrameSnapshot& snapshot);

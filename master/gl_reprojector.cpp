@@ -854,4 +854,57 @@ void GlReprojector::restore(const SubpixelAccumulation& acc, const ReprojectionC
   points_since_fold_ = 0;
 }
 
+void GlReprojector::visit_cells(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) {
+  ctx_->check_thread();
+  flush_pending();
+  const auto& gl = ctx_->gl();
+  // One band mapped at a time (on llvmpipe the buffer is host memory: nothing is copied).
+  for (const Band& b : bands_) {
+    const auto* c = static_cast<const AccumulationCell*>(
+        gl.MapNamedBufferRange(b.acc->id(), 0, GLsizeiptr(b.cells * 16), GL_MAP_READ_BIT));
+    if (!c) {
+      ctx_->check_error("GlReprojector::visit_cells (map)");
+      throw std::runtime_error("GlReprojector::visit_cells: cannot map the accumulation");
+    }
+    try {
+      for (size_t off = 0; off < b.cells; off += max_cells) visit({c + off, std::min(max_cells, b.cells - off)});
+    } catch (...) {
+      gl.UnmapNamedBuffer(b.acc->id());
+      throw;
+    }
+    gl.UnmapNamedBuffer(b.acc->id());
+  }
+  ctx_->check_error("GlReprojector::visit_cells");
+}
+
+void GlReprojector::restore_cells(const std::function<void(std::span<AccumulationCell>)>& fill,
+                                  const ReprojectionCounts& counts) {
+  ctx_->check_thread();
+  if (counts.occluded < counts.backfacing) throw std::invalid_argument("occluded counts include the backfacing ones");
+  const auto& gl = ctx_->gl();
+  constexpr size_t kChunk = size_t(1) << 20;
+  std::vector<AccumulationCell> raw(std::min(kChunk, cell_count()));
+  try {
+    for (const Band& b : bands_)
+      for (size_t off = 0; off < b.cells; off += kChunk) {
+        const size_t m = std::min(kChunk, b.cells - off);
+        fill({raw.data(), m});
+        gl.NamedBufferSubData(b.acc->id(), GLintptr(off * 16), GLsizeiptr(m * 16), raw.data());
+      }
+  } catch (...) {
+    reset();
+    throw;
+  }
+  const GLuint zero = 0;
+  gl.ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+  ctx_->check_error("GlReprojector::restore_cells");
+  pending_n_ = 0;  // replaced by the restored state
+  folded_ = {counts.accepted, counts.culled, counts.backfacing, counts.occluded - counts.backfacing, 0};
+  cpu_counts_ = {};
+  cpu_counts_.not_diffuse = counts.not_diffuse;
+  cpu_counts_.invalid = counts.invalid;
+  cpu_counts_.exact = counts.exact;
+  points_since_fold_ = 0;
+}
+
 }  // namespace epr

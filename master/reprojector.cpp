@@ -23,6 +23,43 @@ void Reprojector::downsample_pixels_into(PixelReprojection* out, std::span<const
   *out = downsample(read());
 }
 
+void Reprojector::visit_cells(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) {
+  const SubpixelAccumulation a = read();
+  std::vector<AccumulationCell> chunk(std::min(max_cells, a.size()));
+  for (size_t off = 0; off < a.size(); off += max_cells) {
+    const size_t m = std::min(max_cells, a.size() - off);
+    for (size_t k = 0; k < m; ++k) {
+      const size_t i = off + k;
+      chunk[k] = {a.sum[3 * i], a.sum[3 * i + 1], a.sum[3 * i + 2], a.count[i]};
+    }
+    visit({chunk.data(), m});
+  }
+}
+
+void Reprojector::restore_cells(const std::function<void(std::span<AccumulationCell>)>& fill,
+                                const ReprojectionCounts& counts) {
+  SubpixelAccumulation a = read();  // the grid's size
+  constexpr size_t kChunk = size_t(1) << 20;
+  std::vector<AccumulationCell> chunk(std::min(kChunk, a.size()));
+  try {
+    for (size_t off = 0; off < a.size(); off += kChunk) {
+      const size_t m = std::min(kChunk, a.size() - off);
+      fill({chunk.data(), m});
+      for (size_t k = 0; k < m; ++k) {
+        const size_t i = off + k;
+        a.sum[3 * i] = chunk[k].r;
+        a.sum[3 * i + 1] = chunk[k].g;
+        a.sum[3 * i + 2] = chunk[k].b;
+        a.count[i] = chunk[k].n;
+      }
+    }
+  } catch (...) {
+    reset();
+    throw;
+  }
+  restore(a, counts);
+}
+
 void Reprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
   constexpr size_t kBatch = 32768;  // records decoded at a time: bounded scratch memory
   std::vector<VertexRecord> records;

@@ -42,6 +42,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <span>
 #include <string_view>
@@ -155,6 +156,21 @@ class Reprojector {
   /// the samples had been added to this reprojector. Throws std::invalid_argument if `acc` is not of
   /// this reprojector's grid (the state is then unchanged).
   virtual void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) = 0;
+  /// Visits the accumulation in subpixel order (row-major, as read() lays it out) as consecutive spans
+  /// of cells, none longer than `max_cells` (> 0), without copying the grid: the CPU back-end passes
+  /// its cells in place, GL maps one band at a time (synchronising with outstanding work). For
+  /// checkpoints written straight from the live accumulation. The spans are valid during the call
+  /// only; `visit` must not call this reprojector. The default copies read() a span at a time.
+  virtual void visit_cells(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit);
+  /// The counterpart of restore() in bounded memory: `fill` is called with consecutive spans of cells
+  /// in subpixel order (at most ~1M cells each; together the whole grid) and writes the checkpoint's
+  /// values into them; the counts become `counts`. If `fill` throws, the accumulation and the counts
+  /// are reset (zero) and the exception propagates. The default fills a SubpixelAccumulation and calls
+  /// restore().
+  virtual void restore_cells(const std::function<void(std::span<AccumulationCell>)>& fill,
+                             const ReprojectionCounts& counts);
+  /// Subpixels of the grid (S*W x S*H).
+  virtual size_t cell_count() const = 0;
   virtual std::string_view backend() const = 0;
 };
 

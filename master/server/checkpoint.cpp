@@ -3,16 +3,19 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <zlib.h>
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cerrno>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <initializer_list>
-#include <sstream>
+#include <span>
 #include <system_error>
 #include <type_traits>
 
@@ -28,6 +31,15 @@ namespace {
 
 constexpr char kMagic[8] = {'E', 'P', 'R', 'S', 'T', 'A', 'T', 'E'};
 
+uLong crc32_update(uLong crc, std::string_view bytes) {
+  for (size_t off = 0; off < bytes.size();) {
+    const size_t n = std::min<size_t>(bytes.size() - off, size_t(1) << 30);
+    crc = crc32(crc, reinterpret_cast<const Bytef*>(bytes.data() + off), uInt(n));
+    off += n;
+  }
+  return crc;
+}
+
 uint32_t crc32_of(std::string_view bytes) {
   uLong crc = crc32(0L, Z_NULL, 0);
   // zlib takes lengths as uInt: feed large payloads in pieces.
@@ -41,40 +53,68 @@ uint32_t crc32_of(std::string_view bytes) {
 
 // ---- payload encoding ------------------------------------------------------------------------------
 
+// Appends to a string, or (with a sink) hands the bytes on in chunks of about kChunk: small values
+// are gathered in a bounded buffer, large arrays go to the sink straight from their memory.
 class ByteWriter {
  public:
+  static constexpr size_t kChunk = size_t(4) << 20;
+  ByteWriter() = default;
+  explicit ByteWriter(std::function<void(std::string_view)> sink) : sink_(std::move(sink)) {}
   template <class T>
   void put(const T& v) {
     static_assert(std::is_trivially_copyable_v<T>);
-    out_.append(reinterpret_cast<const char*>(&v), sizeof(T));
+    put_bytes(&v, sizeof(T));
+  }
+  void put_bytes(const void* data, size_t n) {
+    const char* p = static_cast<const char*>(data);
+    if (!sink_ || n < kChunk / 4) {
+      out_.append(p, n);
+      if (sink_ && out_.size() >= kChunk) flush();
+      return;
+    }
+    flush();
+    for (size_t off = 0; off < n; off += kChunk) sink_(std::string_view(p + off, std::min(kChunk, n - off)));
   }
   void put_string(std::string_view s) {
     put<uint64_t>(s.size());
-    out_.append(s);
+    put_bytes(s.data(), s.size());
+  }
+  template <class T>
+  void put_vector(std::span<const T> v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    put<uint64_t>(v.size());
+    put_bytes(v.data(), v.size_bytes());
   }
   template <class T>
   void put_vector(const std::vector<T>& v) {
-    static_assert(std::is_trivially_copyable_v<T>);
-    put<uint64_t>(v.size());
-    out_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
+    put_vector(std::span<const T>(v));
   }
-  void reserve(size_t bytes) { out_.reserve(bytes); }
+  /// Hands what is buffered to the sink (a no-op without one).
+  void flush() {
+    if (sink_ && !out_.empty()) {
+      sink_(out_);
+      out_.clear();
+    }
+  }
   std::string take() { return std::move(out_); }
 
  private:
+  std::function<void(std::string_view)> sink_;
   std::string out_;
 };
 
+// Reads from a string, or (with a source) from a file a chunk at a time: `source(buf, n)` returns
+// the next bytes, at most n (0: the end).
 class ByteReader {
  public:
-  explicit ByteReader(std::string_view in) : in_(in) {}
+  explicit ByteReader(std::string_view in) : in_(in), left_(0) {}
+  ByteReader(std::function<size_t(char*, size_t)> source, uint64_t length)
+      : source_(std::move(source)), left_(length) {}
   template <class T>
   T get() {
     static_assert(std::is_trivially_copyable_v<T>);
-    need(sizeof(T));
     T v;
-    std::memcpy(&v, in_.data() + pos_, sizeof(T));
-    pos_ += sizeof(T);
+    get_bytes(&v, sizeof(T));
     return v;
   }
   bool get_bool() {
@@ -84,30 +124,71 @@ class ByteReader {
   }
   std::string get_string() {
     const uint64_t n = get<uint64_t>();
-    need(n);
-    std::string s(in_.substr(pos_, n));
-    pos_ += n;
+    if (n > remaining()) throw CheckpointError("malformed payload: it ends early");
+    std::string s(n, '\0');
+    get_bytes(s.data(), n);
     return s;
   }
   template <class T>
   std::vector<T> get_vector() {
     const uint64_t n = get<uint64_t>();
-    if (n > (in_.size() - pos_) / sizeof(T)) throw CheckpointError("malformed payload: an array runs past its end");
+    if (n > remaining() / sizeof(T)) throw CheckpointError("malformed payload: an array runs past its end");
     std::vector<T> v(n);
-    std::memcpy(v.data(), in_.data() + pos_, n * sizeof(T));
-    pos_ += n * sizeof(T);
+    get_bytes(v.data(), n * sizeof(T));
     return v;
   }
-  void expect_end() const {
-    if (pos_ != in_.size()) throw CheckpointError("malformed payload: trailing bytes");
+  void get_bytes(void* dst, uint64_t n) {
+    if (n > remaining()) throw CheckpointError("malformed payload: it ends early");
+    char* d = static_cast<char*>(dst);
+    while (n > 0) {
+      if (pos_ == in_.size()) refill();
+      const size_t m = size_t(std::min<uint64_t>(n, in_.size() - pos_));
+      std::memcpy(d, in_.data() + pos_, m);
+      pos_ += m;
+      d += m;
+      n -= m;
+    }
   }
+  /// Passes over n bytes (a file source: seeks, reads nothing).
+  void skip(uint64_t n) {
+    if (n > remaining()) throw CheckpointError("malformed payload: it ends early");
+    const size_t here = size_t(std::min<uint64_t>(n, in_.size() - pos_));
+    pos_ += here;
+    n -= here;
+    if (n > 0) {
+      skip_source_(n);
+      left_ -= n;
+      consumed_ += n;
+    }
+  }
+  /// Bytes read so far.
+  uint64_t offset() const { return consumed_ + pos_; }
+  uint64_t remaining() const { return (in_.size() - pos_) + left_; }
+  void expect_end() const {
+    if (remaining() != 0) throw CheckpointError("malformed payload: trailing bytes");
+  }
+  std::function<void(uint64_t)> skip_source_;  // a file source: how to pass over bytes unread
 
  private:
-  void need(uint64_t n) const {
-    if (n > in_.size() - pos_) throw CheckpointError("malformed payload: it ends early");
+  void refill() {
+    consumed_ += in_.size();
+    buf_.resize(size_t(std::min<uint64_t>(left_, ByteWriter::kChunk)));
+    size_t got = 0;
+    while (got < buf_.size()) {
+      const size_t n = source_(buf_.data() + got, buf_.size() - got);
+      if (n == 0) throw CheckpointError("torn: the file ends early");
+      got += n;
+    }
+    left_ -= got;
+    in_ = buf_;
+    pos_ = 0;
   }
+  std::function<size_t(char*, size_t)> source_;
+  std::string buf_;
   std::string_view in_;
   size_t pos_ = 0;
+  uint64_t left_;  // bytes of the source not in in_ yet
+  uint64_t consumed_ = 0;
 };
 
 void put(ByteWriter& w, const FrameProgress& p) {
@@ -147,7 +228,10 @@ ReprojectionCounts get_counts(ByteReader& r) {
   return c;
 }
 
-void put(ByteWriter& w, const FrameSnapshot& f) {
+// Cells of the accumulation per span handed to the writer (4 MiB).
+constexpr size_t kCellsPerSpan = size_t(1) << 18;
+
+void put(ByteWriter& w, const FrameView& f) {
   w.put<int32_t>(f.width);
   w.put<int32_t>(f.height);
   w.put_vector(f.path_sum);
@@ -162,39 +246,71 @@ void put(ByteWriter& w, const FrameSnapshot& f) {
   w.put(f.seconds_downsampling);
   w.put<uint8_t>(f.has_accumulation);
   if (f.has_accumulation) {
-    const SubpixelAccumulation& a = f.accumulation;
-    w.put<int32_t>(a.width);
-    w.put<int32_t>(a.height);
-    w.put<int32_t>(a.subpixels);
-    w.put_vector(a.sum);
-    w.put_vector(a.count);
+    w.put<int32_t>(f.grid_width);
+    w.put<int32_t>(f.grid_height);
+    w.put<int32_t>(f.subpixels);
     put(w, f.counts);
+    // Version 3: the cells as the back-ends hold them, {float r, g, b; uint32 n} per subpixel in
+    // subpixel order, written a span at a time straight from the accumulation.
+    const uint64_t cells = uint64_t(f.grid_width) * uint64_t(f.grid_height);
+    w.put<uint64_t>(cells);
+    uint64_t written = 0;
+    f.visit_cells(kCellsPerSpan, [&](std::span<const AccumulationCell> span) {
+      w.put_bytes(span.data(), span.size_bytes());
+      written += span.size();
+    });
+    if (written != cells) throw std::logic_error("the accumulation visited is not of the frame's grid");
   }
+}
+
+// The frame up to its accumulation's cells; returns the number of cells that follow (0 without).
+uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f) {
+  f->width = r.get<int32_t>();
+  f->height = r.get<int32_t>();
+  f->path_sum = r.get_vector<double>();
+  f->path_count = r.get_vector<uint32_t>();
+  f->mprime = r.get_vector<uint64_t>();
+  f->reprojected = r.get_vector<float>();
+  f->skip = r.get_vector<uint8_t>();
+  f->paths_done = r.get<int32_t>();
+  f->done = r.get_bool();
+  f->progress = get_progress(r);
+  f->seconds_reprojecting = r.get<double>();
+  f->seconds_downsampling = r.get<double>();
+  f->has_accumulation = r.get_bool();
+  if (!f->has_accumulation) return 0;
+  SubpixelAccumulation& a = f->accumulation;
+  a.width = r.get<int32_t>();
+  a.height = r.get<int32_t>();
+  a.subpixels = r.get<int32_t>();
+  f->counts = get_counts(r);
+  const uint64_t cells = r.get<uint64_t>();
+  if (a.width < 0 || a.height < 0 || cells != uint64_t(a.width) * uint64_t(a.height))
+    throw CheckpointError("malformed payload: the accumulation's size does not match its grid");
+  if (cells > r.remaining() / sizeof(AccumulationCell))
+    throw CheckpointError("malformed payload: the accumulation runs past its end");
+  return cells;
 }
 
 FrameSnapshot get_frame(ByteReader& r) {
   FrameSnapshot f;
-  f.width = r.get<int32_t>();
-  f.height = r.get<int32_t>();
-  f.path_sum = r.get_vector<double>();
-  f.path_count = r.get_vector<uint32_t>();
-  f.mprime = r.get_vector<uint64_t>();
-  f.reprojected = r.get_vector<float>();
-  f.skip = r.get_vector<uint8_t>();
-  f.paths_done = r.get<int32_t>();
-  f.done = r.get_bool();
-  f.progress = get_progress(r);
-  f.seconds_reprojecting = r.get<double>();
-  f.seconds_downsampling = r.get<double>();
-  f.has_accumulation = r.get_bool();
+  const uint64_t cells = get_frame_head(r, &f);
   if (f.has_accumulation) {
     SubpixelAccumulation& a = f.accumulation;
-    a.width = r.get<int32_t>();
-    a.height = r.get<int32_t>();
-    a.subpixels = r.get<int32_t>();
-    a.sum = r.get_vector<float>();
-    a.count = r.get_vector<uint32_t>();
-    f.counts = get_counts(r);
+    a.sum.resize(3 * cells);
+    a.count.resize(cells);
+    std::vector<AccumulationCell> chunk(std::min<uint64_t>(cells, kCellsPerSpan));
+    for (uint64_t off = 0; off < cells; off += chunk.size()) {
+      const size_t m = size_t(std::min<uint64_t>(chunk.size(), cells - off));
+      r.get_bytes(chunk.data(), m * sizeof(AccumulationCell));
+      for (size_t k = 0; k < m; ++k) {
+        const size_t i = size_t(off) + k;
+        a.sum[3 * i] = chunk[k].r;
+        a.sum[3 * i + 1] = chunk[k].g;
+        a.sum[3 * i + 2] = chunk[k].b;
+        a.count[i] = chunk[k].n;
+      }
+    }
   }
   return f;
 }
@@ -249,11 +365,10 @@ fs::path temp_of(const fs::path& path) { return fs::path(path.string() + ".tmp")
 // ---- sealing ---------------------------------------------------------------------------------------
 
 namespace {
-std::string seal_header(RecordKind kind, std::string_view payload) {
+std::string seal_header(RecordKind kind, uint64_t length, uint32_t crc) {
   std::string out(kSealHeaderBytes, '\0');
   std::memcpy(out.data(), kMagic, 8);
-  const uint32_t version = kCheckpointVersion, k = uint32_t(kind), crc = crc32_of(payload);
-  const uint64_t length = payload.size();
+  const uint32_t version = kCheckpointVersion, k = uint32_t(kind);
   std::memcpy(out.data() + 8, &version, 4);
   std::memcpy(out.data() + 12, &k, 4);
   std::memcpy(out.data() + 16, &length, 8);
@@ -264,30 +379,55 @@ std::string seal_header(RecordKind kind, std::string_view payload) {
 }
 }  // namespace
 
-std::string seal(RecordKind kind, std::string_view payload) { return seal_header(kind, payload).append(payload); }
+std::string seal(RecordKind kind, std::string_view payload) {
+  return seal_header(kind, payload.size(), crc32_of(payload)).append(payload);
+}
 
-std::string unseal(RecordKind kind, std::string_view bytes, uint32_t* version_out) {
+namespace {
+struct SealHeader {
+  uint32_t version = 0;
+  uint64_t length = 0;
+  uint32_t crc = 0;
+};
+
+// Checks a sealed file's first kSealHeaderBytes (magic, header checksum, version, kind).
+SealHeader check_header(RecordKind kind, std::string_view bytes) {
   if (bytes.size() < kSealHeaderBytes)
     throw CheckpointError(
         fmt::format("torn: {} bytes, shorter than the {}-byte header", bytes.size(), kSealHeaderBytes));
   if (std::memcmp(bytes.data(), kMagic, 8) != 0) throw CheckpointError("not a state file (bad magic)");
-  uint32_t version, k, crc, header_crc;
-  uint64_t length;
-  std::memcpy(&version, bytes.data() + 8, 4);
+  SealHeader h;
+  uint32_t k, header_crc;
+  std::memcpy(&h.version, bytes.data() + 8, 4);
   std::memcpy(&k, bytes.data() + 12, 4);
-  std::memcpy(&length, bytes.data() + 16, 8);
-  std::memcpy(&crc, bytes.data() + 24, 4);
+  std::memcpy(&h.length, bytes.data() + 16, 8);
+  std::memcpy(&h.crc, bytes.data() + 24, 4);
   std::memcpy(&header_crc, bytes.data() + 28, 4);
   if (crc32_of(bytes.substr(0, 28)) != header_crc) throw CheckpointError("corrupt header (checksum mismatch)");
-  if (version < kOldestCheckpointVersion || version > kCheckpointVersion)
-    throw CheckpointError(fmt::format("format version {}, this master reads versions {} to {}", version,
+  if (h.version < kOldestCheckpointVersion || h.version > kCheckpointVersion)
+    throw CheckpointError(fmt::format("format version {}, this master reads versions {} to {}", h.version,
                                       kOldestCheckpointVersion, kCheckpointVersion));
-  if (version_out) *version_out = version;
   if (k != uint32_t(kind)) throw CheckpointError(fmt::format("record kind {}, expected {}", k, uint32_t(kind)));
+  return h;
+}
+
+// A frame is read from format version kOldestFrameVersion on.
+void check_progress_version(uint32_t version) {
+  if (version < kOldestFrameVersion)
+    throw CheckpointError(fmt::format(
+        "its frame is of format version {}: this master reads frames of version {} or newer (the accumulation's "
+        "layout changed), so the job starts again from round 0",
+        version, kOldestFrameVersion));
+}
+}  // namespace
+
+std::string unseal(RecordKind kind, std::string_view bytes, uint32_t* version_out) {
+  const SealHeader h = check_header(kind, bytes);
+  if (version_out) *version_out = h.version;
   const std::string_view payload = bytes.substr(kSealHeaderBytes);
-  if (payload.size() != length)
-    throw CheckpointError(fmt::format("torn: the payload has {} bytes, the header says {}", payload.size(), length));
-  if (crc32_of(payload) != crc) throw CheckpointError("corrupt payload (checksum mismatch)");
+  if (payload.size() != h.length)
+    throw CheckpointError(fmt::format("torn: the payload has {} bytes, the header says {}", payload.size(), h.length));
+  if (crc32_of(payload) != h.crc) throw CheckpointError("corrupt payload (checksum mismatch)");
   return std::string(payload);
 }
 
@@ -299,12 +439,14 @@ void write_file_atomically(const fs::path& path, std::string_view bytes) {
 }
 
 std::string read_sealed(const fs::path& path, RecordKind kind, uint32_t* version) {
-  std::ifstream in(path, std::ios::binary);
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw CheckpointError(fmt::format("'{}' is missing or unreadable", path.string()));
-  std::ostringstream ss;
-  ss << in.rdbuf();
+  std::string bytes(size_t(in.tellg()), '\0');
+  in.seekg(0);
+  if (!in.read(bytes.data(), std::streamsize(bytes.size())))
+    throw CheckpointError(fmt::format("'{}' is unreadable", path.string()));
   try {
-    return unseal(kind, ss.str(), version);
+    return unseal(kind, bytes, version);
   } catch (const CheckpointError& e) {
     throw CheckpointError(fmt::format("'{}': {}", path.string(), e.what()));
   }
@@ -354,13 +496,9 @@ JobSpecRecord decode_job_spec(std::string_view payload) {
   return r;
 }
 
-std::string encode(const JobProgressRecord& r) {
-  ByteWriter w;
-  if (r.frame) {  // one allocation for the arrays
-    const FrameSnapshot& f = *r.frame;
-    w.reserve(4096 + f.path_sum.size() * 8 + f.path_count.size() * 4 + f.mprime.size() * 8 + f.reprojected.size() * 4 +
-              f.skip.size() + f.accumulation.sum.size() * 4 + f.accumulation.count.size() * 4);
-  }
+namespace {
+// The progress record; its frame is `frame` (if given, else r.frame's).
+void put_progress_record(ByteWriter& w, const JobProgressRecord& r, const FrameView* frame) {
   w.put<uint32_t>(uint32_t(r.state));
   w.put_string(r.error);
   w.put(r.triangles);
@@ -371,50 +509,71 @@ std::string encode(const JobProgressRecord& r) {
   w.put(r.started_ms);
   w.put(r.finished_ms);
   w.put<uint8_t>(r.budget_exhausted);
-  w.put<uint8_t>(r.frame.has_value());
-  if (r.frame) put(w, *r.frame);
+  w.put<uint8_t>(frame || r.frame);
+  if (frame)
+    put(w, *frame);
+  else if (r.frame)
+    put(w, view_of(*r.frame));
   w.put<uint64_t>(r.previews.size());
   for (const auto& [layer, png] : r.previews) {
     w.put_string(layer);
     w.put_vector(png);
   }
+}
+
+// The record's fields before its frame.
+void get_progress_head(ByteReader& rd, JobProgressRecord* r, uint32_t version) {
+  const uint32_t state = rd.get<uint32_t>();
+  if (state > uint32_t(JobState::kCancelled))
+    throw CheckpointError(fmt::format("malformed payload: job state {}", state));
+  r->state = JobState(state);
+  r->error = rd.get_string();
+  r->triangles = rd.get<uint64_t>();
+  r->progress = get_progress(rd);
+  r->counts = get_counts(rd);
+  if (version >= 2) {
+    JobCounters::visit(
+        r->counters, [&](uint64_t& v) { v = rd.get<uint64_t>(); }, [&](double& v) { v = rd.get<double>(); });
+    r->started_ms = rd.get<int64_t>();
+    r->finished_ms = rd.get<int64_t>();
+  } else {  // eight counters, the times, then the seconds
+    JobCounters& c = r->counters;
+    for (uint64_t* v : {&c.rays, &c.vertices_received, &c.non_finite, &c.worker_culled, &c.tiles_leased,
+                        &c.tiles_committed, &c.tiles_re_leased, &c.tiles_dropped})
+      *v = rd.get<uint64_t>();
+    r->started_ms = rd.get<int64_t>();
+    r->finished_ms = rd.get<int64_t>();
+    c.seconds_tracing = rd.get<double>();
+    c.seconds_reprojecting = rd.get<double>();
+  }
+  r->budget_exhausted = rd.get_bool();
+}
+
+void get_previews(ByteReader& rd, JobProgressRecord* r) {
+  const uint64_t previews = rd.get<uint64_t>();
+  for (uint64_t i = 0; i < previews; ++i) {
+    std::string layer = rd.get_string();
+    r->previews[layer] = rd.get_vector<unsigned char>();
+  }
+  rd.expect_end();
+}
+}  // namespace
+
+std::string encode(const JobProgressRecord& r) {
+  ByteWriter w;
+  put_progress_record(w, r, nullptr);
   return w.take();
 }
 
 JobProgressRecord decode_job_progress(std::string_view payload, uint32_t version) {
   ByteReader rd(payload);
   JobProgressRecord r;
-  const uint32_t state = rd.get<uint32_t>();
-  if (state > uint32_t(JobState::kCancelled))
-    throw CheckpointError(fmt::format("malformed payload: job state {}", state));
-  r.state = JobState(state);
-  r.error = rd.get_string();
-  r.triangles = rd.get<uint64_t>();
-  r.progress = get_progress(rd);
-  r.counts = get_counts(rd);
-  if (version >= 2) {
-    JobCounters::visit(
-        r.counters, [&](uint64_t& v) { v = rd.get<uint64_t>(); }, [&](double& v) { v = rd.get<double>(); });
-    r.started_ms = rd.get<int64_t>();
-    r.finished_ms = rd.get<int64_t>();
-  } else {  // eight counters, the times, then the seconds
-    JobCounters& c = r.counters;
-    for (uint64_t* v : {&c.rays, &c.vertices_received, &c.non_finite, &c.worker_culled, &c.tiles_leased,
-                        &c.tiles_committed, &c.tiles_re_leased, &c.tiles_dropped})
-      *v = rd.get<uint64_t>();
-    r.started_ms = rd.get<int64_t>();
-    r.finished_ms = rd.get<int64_t>();
-    c.seconds_tracing = rd.get<double>();
-    c.seconds_reprojecting = rd.get<double>();
+  get_progress_head(rd, &r, version);
+  if (rd.get_bool()) {
+    check_progress_version(version);
+    r.frame = get_frame(rd);
   }
-  r.budget_exhausted = rd.get_bool();
-  if (rd.get_bool()) r.frame = get_frame(rd);
-  const uint64_t previews = rd.get<uint64_t>();
-  for (uint64_t i = 0; i < previews; ++i) {
-    std::string layer = rd.get_string();
-    r.previews[layer] = rd.get_vector<unsigned char>();
-  }
-  rd.expect_end();
+  get_previews(rd, &r);
   return r;
 }
 
@@ -510,18 +669,171 @@ void CheckpointStore::save_spec(const JobSpecRecord& spec) {
   write_file_atomically(dir / "spec.ckpt", seal(RecordKind::kJobSpec, encode(spec)));
 }
 
-void CheckpointStore::save_progress(const std::string& id, const JobProgressRecord& record) {
-  const std::string payload = encode(record);
-  const std::string header = seal_header(RecordKind::kJobProgress, payload);
-  MutexLock lock(mu_);
+namespace {
+// An open file descriptor, closed with the last reference.
+struct Fd {
+  int fd = -1;
+  explicit Fd(int f) : fd(f) {}
+  Fd(const Fd&) = delete;
+  Fd& operator=(const Fd&) = delete;
+  ~Fd() {
+    if (fd >= 0) ::close(fd);
+  }
+};
+
+// Reads exactly n bytes at `offset` (fewer only at the end of the file); throws on errors.
+size_t pread_full(int fd, char* buf, size_t n, uint64_t offset, const fs::path& path) {
+  size_t got = 0;
+  while (got < n) {
+    const ssize_t k = ::pread(fd, buf + got, n - got, off_t(offset + got));
+    if (k < 0 && errno == EINTR) continue;
+    if (k < 0) throw CheckpointError(fmt::format("'{}' cannot be read: {}", path.string(), std::strerror(errno)));
+    if (k == 0) break;
+    got += size_t(k);
+  }
+  return got;
+}
+
+std::atomic<uint64_t> temp_counter{0};
+}  // namespace
+
+fs::path CheckpointStore::write_progress_file(const std::string& id, const JobProgressRecord& record,
+                                              const FrameView* frame) const {
   const fs::path dir = job_dir(id);
   fs::create_directories(dir);
-  const fs::path newest = dir / "progress.ckpt", previous = dir / "progress.prev.ckpt", tmp = temp_of(newest);
-  write_and_sync(tmp, {header, payload});
+  const fs::path tmp = dir / fmt::format("progress.ckpt.{}.tmp", temp_counter.fetch_add(1));
+  const int raw = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (raw < 0) throw_errno("cannot create", tmp);
+  Fd fd(raw);
+  try {
+    uLong crc = crc32(0L, Z_NULL, 0);
+    uint64_t length = 0;
+    auto write_all = [&](std::string_view bytes, uint64_t offset) {
+      for (size_t off = 0; off < bytes.size();) {
+        const ssize_t n = ::pwrite(fd.fd, bytes.data() + off, bytes.size() - off, off_t(offset + off));
+        if (n < 0 && errno == EINTR) continue;
+        if (n <= 0) throw_errno("cannot write", tmp);
+        off += size_t(n);
+      }
+    };
+    // The payload in chunks after room for the header, which is written last (its length and checksum).
+    ByteWriter w([&](std::string_view bytes) {
+      write_all(bytes, kSealHeaderBytes + length);
+      crc = crc32_update(crc, bytes);
+      length += bytes.size();
+    });
+    put_progress_record(w, record, frame);
+    w.flush();
+    write_all(seal_header(RecordKind::kJobProgress, length, uint32_t(crc)), 0);
+  } catch (...) {
+    std::error_code ec;
+    fs::remove(tmp, ec);
+    throw;
+  }
+  return tmp;
+}
+
+void CheckpointStore::commit_progress(const std::string& id, const fs::path& written) {
+  {
+    const int fd = ::open(written.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) throw_errno("cannot open", written);
+    const int rc = ::fsync(fd);
+    const int e = errno;
+    ::close(fd);
+    errno = e;
+    if (rc != 0) throw_errno("cannot fsync", written);
+  }
+  MutexLock lock(mu_);
+  const fs::path dir = job_dir(id);
+  const fs::path newest = dir / "progress.ckpt", previous = dir / "progress.prev.ckpt";
   // A crash between the renames leaves only the previous checkpoint, which the loader then uses.
   if (fs::exists(newest)) rename_or_throw(newest, previous);
-  rename_or_throw(tmp, newest);
+  rename_or_throw(written, newest);
   fsync_dir(dir);
+}
+
+void CheckpointStore::save_progress(const std::string& id, const JobProgressRecord& record) {
+  const fs::path tmp = write_progress_file(id, record, nullptr);
+  try {
+    commit_progress(id, tmp);
+  } catch (...) {
+    std::error_code ec;
+    fs::remove(tmp, ec);
+    throw;
+  }
+}
+
+JobProgressRecord CheckpointStore::read_progress(const fs::path& path, std::vector<std::string>* problems) {
+  const int raw = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (raw < 0) throw CheckpointError(fmt::format("'{}' is missing or unreadable", path.string()));
+  auto fd = std::make_shared<Fd>(raw);
+  try {
+    // The header, then the payload's checksum in one pass of bounded memory; then the record,
+    // its accumulation left in the file (read by FrameState::restore when the job starts).
+    std::string head(kSealHeaderBytes, '\0');
+    head.resize(pread_full(fd->fd, head.data(), head.size(), 0, path));
+    const SealHeader h = check_header(RecordKind::kJobProgress, head);
+    struct stat st {};
+    if (::fstat(fd->fd, &st) != 0) throw CheckpointError("cannot stat the file");
+    const uint64_t payload_bytes = uint64_t(st.st_size) - kSealHeaderBytes;
+    if (payload_bytes != h.length)
+      throw CheckpointError(fmt::format("torn: the payload has {} bytes, the header says {}", payload_bytes, h.length));
+    {
+      std::string buf(ByteWriter::kChunk, '\0');
+      uLong crc = crc32(0L, Z_NULL, 0);
+      for (uint64_t off = 0; off < h.length;) {
+        const size_t n = pread_full(fd->fd, buf.data(), size_t(std::min<uint64_t>(buf.size(), h.length - off)),
+                                    kSealHeaderBytes + off, path);
+        if (n == 0) throw CheckpointError("torn: the file ends early");
+        crc = crc32_update(crc, std::string_view(buf.data(), n));
+        off += n;
+      }
+      if (uint32_t(crc) != h.crc) throw CheckpointError("corrupt payload (checksum mismatch)");
+    }
+    uint64_t next = kSealHeaderBytes;
+    ByteReader rd(
+        [&](char* dst, size_t n) {
+          const size_t got = pread_full(fd->fd, dst, n, next, path);
+          next += got;
+          return got;
+        },
+        h.length);
+    rd.skip_source_ = [&](uint64_t n) { next += n; };
+    JobProgressRecord r;
+    get_progress_head(rd, &r, h.version);
+    const bool has_frame = rd.get_bool();
+    if (has_frame && h.version < kOldestFrameVersion) {
+      // A running job's record of an older format: its counters are kept, its frame is not (the
+      // job starts again from round 0).
+      if (problems)
+        problems->push_back(
+            fmt::format("'{}': its frame is of format version {}: this master reads frames of version "
+                        "{} or newer (the accumulation's layout changed); starting from round 0",
+                        path.string(), h.version, kOldestFrameVersion));
+      return r;
+    }
+    if (has_frame) {
+      FrameSnapshot f;
+      const uint64_t cells = get_frame_head(rd, &f);
+      if (f.has_accumulation) {
+        const uint64_t at = kSealHeaderBytes + rd.offset();
+        rd.skip(cells * sizeof(AccumulationCell));
+        // The cells straight from the file (kept open: the file may be renamed meanwhile, never rewritten).
+        f.cells = [fd, at, cells, path](size_t first, std::span<AccumulationCell> out) {
+          if (first + out.size() > cells) throw std::logic_error("cells asked for beyond the accumulation");
+          const size_t bytes = out.size_bytes();
+          if (pread_full(fd->fd, reinterpret_cast<char*>(out.data()), bytes, at + first * sizeof(AccumulationCell),
+                         path) != bytes)
+            throw CheckpointError(fmt::format("'{}': torn: the accumulation ends early", path.string()));
+        };
+      }
+      r.frame = std::move(f);
+    }
+    get_previews(rd, &r);
+    return r;
+  } catch (const CheckpointError& e) {
+    throw CheckpointError(fmt::format("'{}': {}", path.string(), e.what()));
+  }
 }
 
 void CheckpointStore::remove_job(const std::string& id) {
@@ -536,9 +848,7 @@ std::optional<JobProgressRecord> CheckpointStore::load_progress(const std::strin
     const fs::path path = job_dir(id) / name;
     if (!fs::exists(path)) continue;
     try {
-      uint32_t version = 0;
-      std::string payload = read_sealed(path, RecordKind::kJobProgress, &version);
-      return decode_job_progress(payload, version);
+      return read_progress(path, problems);
     } catch (const CheckpointError& e) {
       if (problems) problems->push_back(e.what());
     }
@@ -552,6 +862,9 @@ std::vector<CheckpointStore::LoadedJob> CheckpointStore::load_jobs(std::vector<s
   std::error_code ec;
   for (const auto& entry : fs::directory_iterator(dir_ / "jobs", ec)) {
     if (!entry.is_directory()) continue;
+    // Temp files of checkpoints never committed (the master stopped while writing one): removed.
+    for (const auto& f : fs::directory_iterator(entry.path(), ec))
+      if (f.path().extension() == ".tmp") fs::remove(f.path(), ec);
     const fs::path spec_path = entry.path() / "spec.ckpt";
     LoadedJob job;
     try {

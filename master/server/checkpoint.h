@@ -43,9 +43,14 @@ class CheckpointError : public std::runtime_error {
 enum class RecordKind : uint32_t { kEpoch = 1, kScene = 2, kJobSpec = 3, kJobProgress = 4 };
 
 // Version 2 added tiles_speculative and worker_failures to the progress record; version 1 files
-// are still read (those two counters then start at 0).
-inline constexpr uint32_t kCheckpointVersion = 2;
+// are still read (those two counters then start at 0). Version 3 stores the accumulation of a
+// progress record's frame as the back-ends' cells ({float r, g, b; uint32 n} per subpixel, written
+// span by span straight from the live accumulation) instead of separate sum and count arrays: the
+// frame of an older progress record is refused (the record's other fields are read; the job starts
+// again from round 0, the reason logged). Other records did not change.
+inline constexpr uint32_t kCheckpointVersion = 3;
 inline constexpr uint32_t kOldestCheckpointVersion = 1;
+inline constexpr uint32_t kOldestFrameVersion = 3;
 inline constexpr size_t kSealHeaderBytes = 32;
 
 /// Header + payload (see the file comment).
@@ -120,6 +125,20 @@ class CheckpointStore {
   void save_spec(const JobSpecRecord& spec) EPR_EXCLUDES(mu_);
   /// Makes `record` the newest progress checkpoint; the newest so far becomes the previous one.
   void save_progress(const std::string& id, const JobProgressRecord& record) EPR_EXCLUDES(mu_);
+  /// save_progress() in two steps, for a round checkpoint of a running job written without copying
+  /// its frame. write_progress_file() streams the record into a temp file of its own in the job's
+  /// folder, in chunks of a few MiB (no whole-file buffer), its frame taken from `frame` when given
+  /// (the live FrameState's view: call it where nothing changes the frame meanwhile) -- no fsync;
+  /// it returns the temp file. commit_progress() fsyncs it and makes it the newest checkpoint (on
+  /// any thread). A temp file not committed is removed by the caller (or by load_jobs()).
+  std::filesystem::path write_progress_file(const std::string& id, const JobProgressRecord& record,
+                                            const FrameView* frame = nullptr) const;
+  void commit_progress(const std::string& id, const std::filesystem::path& written) EPR_EXCLUDES(mu_);
+  /// A progress file read in bounded memory: its checksum checked in one pass, its frame's per-pixel
+  /// arrays read, its accumulation left in the file: FrameSnapshot::cells reads it (from the file
+  /// kept open) when the frame is restored. A frame of an older format is dropped with a note in
+  /// *problems. CheckpointError if the file is not valid.
+  static JobProgressRecord read_progress(const std::filesystem::path& path, std::vector<std::string>* problems);
   /// Removes a forgotten job's folder.
   void remove_job(const std::string& id) EPR_EXCLUDES(mu_);
 

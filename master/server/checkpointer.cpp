@@ -22,17 +22,37 @@ void Checkpointer::stop() {
   if (thread_.joinable()) thread_.join();
 }
 
+void Checkpointer::push(const std::string& job_id, Item item) {
+  auto it = std::find_if(queue_.begin(), queue_.end(), [&](const auto& q) { return q.first == job_id; });
+  if (it != queue_.end()) {
+    // Not written yet: the newer state replaces it.
+    if (!it->second.written.empty()) {
+      std::error_code ec;
+      std::filesystem::remove(it->second.written, ec);
+    }
+    it->second = std::move(item);
+  } else {
+    queue_.emplace_back(job_id, std::move(item));
+  }
+  cv_.notify_all();
+}
+
 void Checkpointer::queue(const std::string& job_id, const std::function<std::optional<JobProgressRecord>()>& make) {
   MutexLock lock(mu_);
   std::optional<JobProgressRecord> record = make();
   if (!record) return;
-  auto r = std::make_shared<const JobProgressRecord>(std::move(*record));
-  auto it = std::find_if(queue_.begin(), queue_.end(), [&](const auto& q) { return q.first == job_id; });
-  if (it != queue_.end())
-    it->second = std::move(r);  // not written yet: the newer state replaces it
-  else
-    queue_.emplace_back(job_id, std::move(r));
-  cv_.notify_all();
+  push(job_id, {std::make_shared<const JobProgressRecord>(std::move(*record)), {}});
+}
+
+void Checkpointer::queue_written(const std::string& job_id, std::filesystem::path written,
+                                 const std::function<bool()>& accept) {
+  MutexLock lock(mu_);
+  if (!accept()) {
+    std::error_code ec;
+    std::filesystem::remove(written, ec);
+    return;
+  }
+  push(job_id, {nullptr, std::move(written)});
 }
 
 void Checkpointer::loop() {
@@ -41,20 +61,32 @@ void Checkpointer::loop() {
   for (;;) {
     cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return stopping_ || !queue_.empty(); });  // with mu_ held
     if (queue_.empty()) return;  // stopping, everything written
-    auto [job_id, record] = std::move(queue_.front());
+    auto [job_id, item] = std::move(queue_.front());
     queue_.pop_front();
     lock.unlock();
     const auto start = std::chrono::steady_clock::now();
     try {
-      store_.save_progress(job_id, *record);
-      const double write_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-      logger("master")->debug("job {}: checkpoint ({} after round {}) written in {:.1f} ms", job_id,
-                              to_string(record->state), record->progress.round, 1e3 * write_s);
-      if (record->frame) written_(job_id, write_s);
+      if (item.record) {
+        store_.save_progress(job_id, *item.record);
+        const double write_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        logger("master")->debug("job {}: checkpoint ({} after round {}) written in {:.1f} ms", job_id,
+                                to_string(item.record->state), item.record->progress.round, 1e3 * write_s);
+        if (item.record->frame) written_(job_id, write_s);
+      } else {
+        store_.commit_progress(job_id, item.written);
+        const double commit_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        logger("master")->debug("job {}: round checkpoint synced and put in place in {:.1f} ms", job_id,
+                                1e3 * commit_s);
+        written_(job_id, commit_s);
+      }
     } catch (const std::exception& e) {
       logger("master")->error("job {}: cannot write its checkpoint: {}", job_id, e.what());
+      if (!item.written.empty()) {
+        std::error_code ec;
+        std::filesystem::remove(item.written, ec);
+      }
     }
-    record.reset();  // frees the frame copy before waiting
+    item = {};  // frees a frame copy before waiting
     lock.lock();
   }
 }

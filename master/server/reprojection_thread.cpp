@@ -314,49 +314,61 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
 
 void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) {
   const auto start = std::chrono::steady_clock::now();
-  FrameState& frame = job->driver->frame();
   const std::string dir = job_dir(*job);
   fs::create_directories(dir);
-  const FrameImages images = frame.images();
-  const double images_s = seconds_since(start);
-  auto stored = [&](const ResultKindInfo& k) { return (fs::path(dir) / k.stored_as).string(); };
-  // The images first; the statistics, which include the time they took, after.
-  write_results(images, frame.reprojects(), {},
-                [&](const ResultKindInfo& k) { return k.kind == ResultKind::kJson ? std::string() : stored(k); });
-  uint64_t worker_culled;
+  FrameImages images;
+  bool reprojects;
+  nlohmann::json stats;
   {
-    MutexLock lock(mu_);
-    worker_culled = job->counters.worker_culled;  // every tile is applied: no commit changes it now
-  }
-  nlohmann::json stats = frame.statistics(job->request.options, worker_culled);
-  {
+    FrameState& frame = job->driver->frame();
+    images = frame.images();
+    reprojects = frame.reprojects();
+    uint64_t worker_culled;
+    {
+      MutexLock lock(mu_);
+      worker_culled = job->counters.worker_culled;  // every tile is applied: no commit changes it now
+    }
+    stats = frame.statistics(job->request.options, worker_culled);
     MutexLock lock(mu_);
     job->progress = frame.progress();
     job->counts = frame.counts();
     job->counters.seconds_reprojecting = frame.seconds_reprojecting();
     job->budget_exhausted = budget_exhausted;
+    // The result files replace the preview copy: it goes now, not after they are written, so that
+    // writing them does not add to the job's peak memory (previews meanwhile: none).
+    job->preview_images.reset();
+    job->previews.clear();
+  }
+  const double images_s = seconds_since(start);
+  // Everything the images came from -- the frame state (accumulation, deep framebuffer, per-pixel
+  // arrays) and the scene -- goes before the result files are written, for the same reason.
+  job->driver.reset();
+  job->scene.reset();
+  const double freed_s = seconds_since(start);
+  auto stored = [&](const ResultKindInfo& k) { return (fs::path(dir) / k.stored_as).string(); };
+  // The images first; the statistics, which include the time they took, after.
+  write_results(images, reprojects, {},
+                [&](const ResultKindInfo& k) { return k.kind == ResultKind::kJson ? std::string() : stored(k); });
+  {
+    MutexLock lock(mu_);
     job->add_statistics(&stats, job->counters, clock_());
     stats["partial"] = false;
   }
-  write_results(images, frame.reprojects(), stats,
+  write_results(images, reprojects, stats,
                 [&](const ResultKindInfo& k) { return k.kind == ResultKind::kJson ? stored(k) : std::string(); });
   {
     // Done once every file is in place.
     MutexLock lock(mu_);
-    job->preview_images.reset();  // from now on the previews come from the result files
-    job->previews.clear();
     job->seconds_writing_results = seconds_since(start);
     job->end(JobState::kDone, "", clock_());
     active_.reset();
   }
   const double results_s = seconds_since(start);
   save_final_checkpoint(job);  // after the results: a finished job's checkpoint promises them
-  job->driver.reset();
-  job->scene.reset();
   logger("master")->info(
-      "job {} done: images {:.2f} s, result files {:.2f} s, freeing the frame {:.2f} s; {} tiles applied in {} batches "
+      "job {} done: images {:.2f} s, freeing the frame {:.2f} s, result files {:.2f} s; {} tiles applied in {} batches "
       "(this master so far)",
-      job->id, images_s, results_s - images_s, seconds_since(start) - results_s, tiles_applied_, batches_applied_);
+      job->id, images_s, freed_s - images_s, results_s - freed_s, tiles_applied_, batches_applied_);
   work_cv_.notify_all();
   notify(job);
 }
@@ -366,7 +378,7 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
 void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) {
   if (!checkpointer_) return;
   {
-    // Not every round: a 512 x 512 frame is ~80 MB to copy and write (see checkpoint_interval_s).
+    // Not every round: a 512 x 512 frame is ~80 MB to write (see checkpoint_interval_s).
     MutexLock lock(mu_);
     const double gap = options_.checkpoint_interval_s >= 0
                            ? options_.checkpoint_interval_s
@@ -374,17 +386,30 @@ void JobManager::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgr
     if (job->last_checkpoint_ms && double(clock_() - job->last_checkpoint_ms) < 1000 * gap) return;
     job->last_checkpoint_ms = clock_();
   }
+  // Written here, straight from the live frame -- the state after the closed round: nothing of the next
+  // one is applied yet, and only this thread applies it -- a few MiB at a time, the accumulation
+  // visited in place (GL: one band mapped at a time): no copy of the frame, whatever its size. The
+  // checkpointer thread then fsyncs the file and puts it in place. The write's time counts towards
+  // the interval (checkpoint_cost_s), so that checkpoints stay a small share of the job's time.
   const auto start = std::chrono::steady_clock::now();
-  record.frame = job->driver->frame().save();  // the state after the closed round: nothing of the next is applied yet
-  const double copy_s = seconds_since(start);
-  logger("master")->debug("job {}: frame after round {} copied for its checkpoint in {:.1f} ms", job->id,
-                          record.progress.round, 1e3 * copy_s);
-  checkpointer_->queue(job->id, [&]() -> std::optional<JobProgressRecord> {
+  fs::path written;
+  try {
+    const FrameView view = job->driver->frame().view();
+    written = store_->write_progress_file(job->id, record, &view);
+  } catch (const std::exception& e) {
+    logger("master")->error("job {}: cannot write its checkpoint after round {}: {}", job->id, record.progress.round,
+                            e.what());
+    return;
+  }
+  const double write_s = seconds_since(start);
+  logger("master")->debug("job {}: frame after round {} written for its checkpoint in {:.1f} ms", job->id,
+                          record.progress.round, 1e3 * write_s);
+  checkpointer_->queue_written(job->id, std::move(written), [&] {
     MutexLock lock(mu_);
-    if (job->state != JobState::kRunning) return std::nullopt;  // ended meanwhile: its final record is queued instead
-    job->checkpoint_cost_s = copy_s;                            // the write's time is added when it is written
+    if (job->state != JobState::kRunning) return false;  // ended meanwhile: its final record is queued instead
+    job->checkpoint_cost_s = write_s;                    // the commit's time is added when it is committed
     ++job->round_checkpoints;
-    return std::move(record);
+    return true;
   });
 }
 

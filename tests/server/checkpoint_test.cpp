@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 #include <unistd.h>
+#include <zlib.h>
 
 #include <chrono>
 #include <cmath>
@@ -17,6 +18,7 @@
 
 #include "common/image.h"
 #include "master/gl_context.h"
+#include "master/gl_reprojector.h"
 #include "master/make_reprojector.h"
 #include "master/reprojector.h"
 #include "master/server/job_manager.h"
@@ -339,6 +341,200 @@ TEST(CheckpointReprojector, AccumulationMovesBetweenCpuAndGlAndContinuesIdentica
   EXPECT_THROW(g->restore(wrong, half_counts), std::invalid_argument);
   EXPECT_THROW(cpu->restore(wrong, half_counts), std::invalid_argument);
   EXPECT_EQ(cpu->read().count, full.count);
+}
+
+// ---- checkpoints written straight from the live frame (format version 3) ------------------------------
+
+// Every cell of a visit, in order.
+std::vector<AccumulationCell> visited(Reprojector& r, size_t max_cells) {
+  std::vector<AccumulationCell> out;
+  r.visit_cells(max_cells, [&](std::span<const AccumulationCell> s) {
+    EXPECT_LE(s.size(), max_cells);
+    out.insert(out.end(), s.begin(), s.end());
+  });
+  return out;
+}
+
+bool same_cells(const std::vector<AccumulationCell>& a, const SubpixelAccumulation& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i)
+    if (std::memcmp(&a[i].r, &b.sum[3 * i], 12) != 0 || a[i].n != b.count[i]) return false;
+  return true;
+}
+
+TEST(CheckpointStreamed, CellsVisitedInPlaceAndRestoredIdenticallyWithSeveralGlBands) {
+  const Scene scene = load_bundle(bundle_scene("builtin:cornell"), default_cache_root());
+  const Camera camera(CameraSpec{}, 24, 16);
+  const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, camera, 2);
+  ReprojectorSettings rs;
+  rs.epsilon = default_epsilon(scene.bounds());
+  const auto first = traced_vertices(scene, camera, 1, 2), second = traced_vertices(scene, camera, 2, 2);
+  GlContext gl;
+  for (const char* backend : {"cpu", "gl"})
+    for (size_t band_cells : {size_t(0), size_t(48 * 2 * 3)}) {  // GL: one band; 3 pixel rows per band (6 bands)
+      if (std::string(backend) == "cpu" && band_cells) continue;
+      SCOPED_TRACE(std::string(backend) + " band_cells " + std::to_string(band_cells));
+      ReprojectorSettings s = rs;
+      s.gl_max_band_cells = band_cells;
+      auto a = make_reprojector(backend, camera, dfb, s, &gl);
+      if (band_cells) {
+        auto* g = dynamic_cast<GlReprojector*>(a.get());
+        ASSERT_TRUE(g);
+        ASSERT_GT(g->band_count(), 2u);
+      }
+      a->reproject(first);
+      const SubpixelAccumulation acc = a->read();
+      EXPECT_EQ(a->cell_count(), acc.size());
+      const std::vector<AccumulationCell> cells = visited(*a, 100);  // spans smaller than a band
+      EXPECT_TRUE(same_cells(cells, acc));
+      EXPECT_TRUE(same_cells(visited(*a, size_t(1) << 20), acc));
+      // Restored span by span into a fresh reprojector: the same cells and counts, bit for bit.
+      auto b = make_reprojector(backend, camera, dfb, s, &gl);
+      size_t next = 0;
+      b->restore_cells(
+          [&](std::span<AccumulationCell> out) {
+            ASSERT_LE(next + out.size(), cells.size());
+            std::copy(cells.begin() + long(next), cells.begin() + long(next + out.size()), out.begin());
+            next += out.size();
+          },
+          a->counts());
+      EXPECT_EQ(next, cells.size());
+      const SubpixelAccumulation back = b->read();
+      EXPECT_EQ(back.sum, acc.sum);
+      EXPECT_EQ(back.count, acc.count);
+      EXPECT_EQ(b->counts(), a->counts());
+      // ... and both continue alike (the counts exactly).
+      a->reproject(second);
+      b->reproject(second);
+      EXPECT_EQ(b->read().count, a->read().count);
+      EXPECT_EQ(b->counts(), a->counts());
+      // A source that fails midway leaves the reprojector reset, and the error propagates.
+      size_t calls = 0;
+      EXPECT_THROW(b->restore_cells(
+                       [&](std::span<AccumulationCell> out) {
+                         ++calls;
+                         std::fill(out.begin(), out.end(), AccumulationCell{1, 1, 1, 1});
+                         throw CheckpointError("torn");  // after writing into the cells
+                       },
+                       a->counts()),
+                   CheckpointError);
+      const SubpixelAccumulation reset = b->read();
+      EXPECT_TRUE(std::all_of(reset.count.begin(), reset.count.end(), [](uint32_t n) { return n == 0; }));
+      EXPECT_EQ(b->counts(), ReprojectionCounts{});
+    }
+}
+
+TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
+  const Scene scene = load_bundle(bundle_scene("builtin:cornell"), default_cache_root());
+  const Camera camera(CameraSpec{}, 24, 16);
+  const auto first = traced_vertices(scene, camera, 1, 2), second = traced_vertices(scene, camera, 2, 2);
+  GlContext gl;
+  for (ReprojectMethod method : {ReprojectMethod::kCpu, ReprojectMethod::kGl}) {
+    SCOPED_TRACE(to_string(method));
+    const fs::path dir = fresh_dir("streamed");
+    CheckpointStore store(dir);
+    RenderOptions o;
+    o.width = 24;
+    o.height = 16;
+    o.spp = 16;
+    o.paths_per_round = 4;
+    o.mode = RenderMode::kSkip;
+    o.reproject = method;
+    o.subpixels = 2;
+    o.min_paths = 4;
+    FrameState a(o, camera, scene, &gl);
+    std::vector<Vec3> sums;
+    std::vector<uint32_t> counts;
+    for (int i = 0; i < 24 * 16; ++i) {
+      sums.push_back(Vec3(0.25f * float(i % 7), 0.5f, float(i) / 100.f));
+      counts.push_back(4);
+    }
+    a.add_paths(0, 0, 24, 16, sums, counts);
+    a.reproject(first);
+    ASSERT_TRUE(a.finish_round());
+
+    JobProgressRecord meta = sample_progress(1);
+    meta.frame.reset();
+    const FrameView view = a.view();
+    const fs::path tmp = store.write_progress_file("j", meta, &view);
+    EXPECT_TRUE(fs::exists(tmp));
+    store.commit_progress("j", tmp);
+    EXPECT_FALSE(fs::exists(tmp));
+    std::vector<std::string> problems;
+    const auto loaded = store.load_progress("j", &problems);
+    ASSERT_TRUE(loaded) << (problems.empty() ? "" : problems[0]);
+    EXPECT_EQ(loaded->counters, meta.counters);
+    ASSERT_TRUE(loaded->frame);
+    EXPECT_TRUE(loaded->frame->cells) << "the accumulation stays in the file until restored";
+    EXPECT_TRUE(loaded->frame->accumulation.sum.empty());
+
+    // The whole file, decoded in memory, holds the same frame as the live state's copy.
+    const FrameSnapshot copy = a.save();
+    uint32_t version = 0;
+    const std::string payload = read_sealed(dir / "jobs" / "j" / "progress.ckpt", RecordKind::kJobProgress, &version);
+    const JobProgressRecord whole = decode_job_progress(payload, version);
+    EXPECT_EQ(version, kCheckpointVersion);
+    ASSERT_TRUE(whole.frame);
+    EXPECT_EQ(whole.frame->accumulation.sum, copy.accumulation.sum);
+    EXPECT_EQ(whole.frame->accumulation.count, copy.accumulation.count);
+
+    FrameState b(o, camera, scene, &gl);
+    b.restore(*loaded->frame);
+    const FrameSnapshot restored = b.save();
+    EXPECT_EQ(restored.path_sum, copy.path_sum);
+    EXPECT_EQ(restored.path_count, copy.path_count);
+    EXPECT_EQ(restored.mprime, copy.mprime);
+    EXPECT_EQ(restored.reprojected, copy.reprojected);
+    EXPECT_EQ(restored.skip, copy.skip);
+    EXPECT_EQ(restored.paths_done, copy.paths_done);
+    EXPECT_EQ(restored.accumulation.sum, copy.accumulation.sum);
+    EXPECT_EQ(restored.accumulation.count, copy.accumulation.count);
+    EXPECT_EQ(restored.counts, copy.counts);
+
+    // Both continue alike: M' and the counts exactly.
+    for (FrameState* f : {&a, &b}) {
+      f->add_paths(0, 0, 24, 16, sums, counts);
+      f->reproject(second);
+      f->finish_round();
+    }
+    EXPECT_EQ(b.reprojected_counts(), a.reprojected_counts());
+    EXPECT_EQ(b.counts(), a.counts());
+    fs::remove_all(dir);
+  }
+}
+
+TEST(CheckpointStreamed, OlderFramesAreRefusedWithAReasonAndStaleTempFilesRemoved) {
+  const fs::path dir = fresh_dir("oldframe");
+  CheckpointStore store(dir);
+  JobSpecRecord spec;
+  spec.id = "j1";
+  spec.seq = 1;
+  spec.scene_hash = "h";
+  spec.options.width = spec.options.height = 8;
+  store.save_spec(spec);
+  // A version-2 record with a frame: the same bytes under a version-2 seal (its frame would be of the
+  // old layout; it is refused before it is read).
+  const std::string payload = encode(sample_progress(2));
+  std::string sealed = seal(RecordKind::kJobProgress, payload);
+  const uint32_t v2 = 2;
+  std::memcpy(sealed.data() + 8, &v2, 4);
+  // Re-seal the header's own checksum.
+  uLong crc = crc32(0L, Z_NULL, 0);
+  crc = crc32(crc, reinterpret_cast<const Bytef*>(sealed.data()), 28);
+  const uint32_t header_crc = uint32_t(crc);
+  std::memcpy(sealed.data() + 28, &header_crc, 4);
+  write_bytes(dir / "jobs" / "j1" / "progress.ckpt", sealed);
+  write_bytes(dir / "jobs" / "j1" / "progress.ckpt.7.tmp", "left over");
+  std::vector<std::string> problems;
+  const auto jobs = store.load_jobs(&problems);
+  ASSERT_EQ(jobs.size(), 1u);
+  ASSERT_TRUE(jobs[0].progress);
+  EXPECT_FALSE(jobs[0].progress->frame);
+  EXPECT_EQ(jobs[0].progress->counters, sample_progress(2).counters);
+  ASSERT_EQ(jobs[0].problems.size(), 1u);
+  EXPECT_NE(jobs[0].problems[0].find("version 2"), std::string::npos) << jobs[0].problems[0];
+  EXPECT_FALSE(fs::exists(dir / "jobs" / "j1" / "progress.ckpt.7.tmp"));
+  fs::remove_all(dir);
 }
 
 // ---- a JobManager destroyed mid-job resumes on the same state directory ---------------------------------
