@@ -63,7 +63,7 @@ struct MasterOptions {
   bool checkpoints = true;
   // Seconds at least between a job's round checkpoints (the first round is always checkpointed).
   // < 0, the default: automatic, kAutoCheckpointFactor x what the job's last checkpoint cost (the
-  // frame copy on the reprojection thread plus encoding and writing it), so that checkpoints take
+  // reprojection thread's write from the live frame plus the fsync and rename), so that checkpoints take
   // at most ~5 % of the master's time however large the image; 0: after every round.
   double checkpoint_interval_s = -1;
   static constexpr double kAutoCheckpointFactor = 20;
