@@ -2,7 +2,6 @@
 #include "master/gl_reprojector.h"
 
 #include <fmt/format.h>
-#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <bit>
@@ -629,59 +628,6 @@ ReprojectionCounts GlReprojector::counts() const {
   return r;
 }
 
-namespace {
-
-// reprojection_image.cpp's downsample (downsample_cells) for cells kept in bands: `row(gy)` points to
-// the cells of grid row gy. Same operations in the same order, so the same results.
-template <class RowAt>
-void downsample_rows(int grid_w, int grid_h, int S, const RowAt& row, std::span<const uint8_t> skip,
-                     PixelReprojection* outp, bool counts_only) {
-  const int W = grid_w / S, H = grid_h / S;
-  const size_t pixels = size_t(W) * size_t(H);
-  PixelReprojection& out = *outp;
-  if (out.radiance.width != W || out.radiance.height != H || out.radiance.channels != 3 || out.count.size() != pixels) {
-    out = PixelReprojection{Image(W, H, 3), std::vector<uint64_t>(pixels, 0)};
-    skip = {};
-    counts_only = false;
-  }
-  if (!skip.empty() && skip.size() != pixels) throw std::invalid_argument("downsample: skip mask of the wrong size");
-  tbb::parallel_for(0, H, [&](int y) {
-    for (int x = 0; x < W; ++x) {
-      if (!skip.empty() && skip[size_t(y) * size_t(W) + size_t(x)]) continue;
-      uint64_t total = 0;
-      if (counts_only) {
-        for (int j = 0; j < S; ++j) {
-          const AccumulationCell* c = row(y * S + j) + size_t(x * S);
-          for (int i = 0; i < S; ++i) total += c[i].n;
-        }
-        out.count[size_t(y) * size_t(W) + size_t(x)] = total;
-        continue;
-      }
-      double mean[3] = {0, 0, 0};
-      int non_empty = 0;
-      for (int j = 0; j < S; ++j) {
-        const AccumulationCell* r = row(y * S + j) + size_t(x * S);
-        for (int i = 0; i < S; ++i) {
-          const AccumulationCell c = r[i];
-          if (c.n == 0) continue;
-          mean[0] += double(c.r) / double(c.n);
-          mean[1] += double(c.g) / double(c.n);
-          mean[2] += double(c.b) / double(c.n);
-          total += c.n;
-          ++non_empty;
-        }
-      }
-      out.radiance.set_rgb(
-          x, y,
-          non_empty ? Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty), float(mean[2] / non_empty))
-                    : Vec3(0.f));
-      out.count[size_t(y) * size_t(W) + size_t(x)] = total;
-    }
-  });
-}
-
-}  // namespace
-
 // Maps every band's accumulation for reading (waits for the dispatches that write them); returns
 // false (nothing mapped) if one cannot be mapped.
 bool GlReprojector::map_bands(std::vector<const AccumulationCell*>* mapped) {
@@ -751,12 +697,7 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
         if (bands_.size() == 1) {
           downsample_cells({mapped[0], bands_[0].cells}, grid_w_, grid_h_, subpixels_, skip, result, counts_only);
         } else {
-          const int band_rows = bands_[0].rows;
-          const auto row = [&](int gy) {
-            const size_t b = size_t(gy / band_rows);
-            return mapped[b] + size_t(gy - bands_[b].row0) * size_t(grid_w_);
-          };
-          downsample_rows(grid_w_, grid_h_, subpixels_, row, skip, result, counts_only);
+          downsample_bands(mapped, bands_[0].rows, grid_w_, grid_h_, subpixels_, skip, result, counts_only);
         }
       } catch (...) {
         unmap_bands(bands_.size());

@@ -10,7 +10,8 @@ namespace epr {
 
 namespace {
 
-// The downsampling, for any storage of the cells: `cell(s)` returns subpixel s. Only pixels p with
+// The downsampling, for any storage of the cells: `cell(gy, gx)` returns the subpixel of grid row gy
+// and column gx. Only pixels p with
 // skip[p] == 0 (every pixel if `skip` is empty, or if *out is not W x H: it is then reallocated);
 // `counts_only`: only the counts (not on a reallocated *out, whose radiance would be left empty).
 template <class CellAt>
@@ -30,10 +31,8 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
       if (!skip.empty() && skip[size_t(y) * size_t(W) + size_t(x)]) continue;
       if (counts_only) {
         uint64_t total = 0;
-        for (int j = 0; j < S; ++j) {
-          const size_t row = size_t(y * S + j) * size_t(grid_w) + size_t(x * S);
-          for (int i = 0; i < S; ++i) total += cell(row + size_t(i)).n;
-        }
+        for (int j = 0; j < S; ++j)
+          for (int i = 0; i < S; ++i) total += cell(y * S + j, x * S + i).n;
         out.count[size_t(y) * size_t(W) + size_t(x)] = total;
         continue;
       }
@@ -42,8 +41,7 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
       int non_empty = 0;
       for (int j = 0; j < S; ++j)
         for (int i = 0; i < S; ++i) {
-          const size_t s = size_t(y * S + j) * size_t(grid_w) + size_t(x * S + i);
-          const AccumulationCell c = cell(s);
+          const AccumulationCell c = cell(y * S + j, x * S + i);
           if (c.n == 0) continue;
           mean[0] += double(c.r) / double(c.n);
           mean[1] += double(c.g) / double(c.n);
@@ -70,7 +68,8 @@ PixelReprojection downsample(const SubpixelAccumulation& acc) {
   PixelReprojection out;
   downsample_impl(
       acc.width, acc.height, S,
-      [&](size_t s) {
+      [&](int gy, int gx) {
+        const size_t s = size_t(gy) * size_t(acc.width) + size_t(gx);
         return AccumulationCell{acc.sum[3 * s], acc.sum[3 * s + 1], acc.sum[3 * s + 2], acc.count[s]};
       },
       {}, &out);
@@ -82,7 +81,21 @@ void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int g
   if (S < 1 || grid_w % S != 0 || grid_h % S != 0 || cells.size() != size_t(grid_w) * size_t(grid_h))
     throw std::invalid_argument("downsample_cells: malformed subpixel grid");
   downsample_impl(
-      grid_w, grid_h, S, [&](size_t s) { return cells[s]; }, skip, out, counts_only);
+      grid_w, grid_h, S, [&](int gy, int gx) { return cells[size_t(gy) * size_t(grid_w) + size_t(gx)]; }, skip, out,
+      counts_only);
+}
+
+void downsample_bands(std::span<const AccumulationCell* const> bands, int band_rows, int grid_w, int grid_h, int S,
+                      std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only) {
+  if (S < 1 || grid_w % S != 0 || grid_h % S != 0 || band_rows < 1 ||
+      bands.size() != size_t((grid_h + band_rows - 1) / band_rows))
+    throw std::invalid_argument("downsample_bands: malformed subpixel grid");
+  downsample_impl(
+      grid_w, grid_h, S,
+      [&](int gy, int gx) {
+        return bands[size_t(gy / band_rows)][size_t(gy % band_rows) * size_t(grid_w) + size_t(gx)];
+      },
+      skip, out, counts_only);
 }
 
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp) {

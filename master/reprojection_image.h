@@ -53,6 +53,10 @@ static_assert(sizeof(AccumulationCell) == 16);
 /// skip round's decision needs no radiance, and the sum of counts costs no divisions.
 void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int subpixels,
                       std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only = false);
+/// The same for a grid kept in bands of `band_rows` grid rows (the last may be shorter): bands[b]
+/// holds grid rows [b * band_rows, (b + 1) * band_rows), row-major.
+void downsample_bands(std::span<const AccumulationCell* const> bands, int band_rows, int grid_w, int grid_h,
+                      int subpixels, std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only = false);
 
 /// L(p) = (path_sum + M' L_rp) / (M + M'). `path_sum` is the sum (not the mean) of p's M path samples.
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& reprojected);
