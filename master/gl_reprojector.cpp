@@ -769,30 +769,16 @@ void GlReprojector::restore(const SubpixelAccumulation& acc, const ReprojectionC
       acc.count.size() != cells)
     throw std::invalid_argument("the accumulation to restore is not of this reprojector's subpixel grid");
   if (counts.occluded < counts.backfacing) throw std::invalid_argument("occluded counts include the backfacing ones");
-  // The SSBO layout, {float r, g, b; uint n} per subpixel, a chunk at a time.
-  const auto& gl = ctx_->gl();
-  constexpr size_t kChunk = size_t(1) << 20;
-  std::vector<AccumulationCell> raw(std::min(kChunk, cells));
-  for (const Band& b : bands_)
-    for (size_t off = 0; off < b.cells; off += kChunk) {
-      const size_t m = std::min(kChunk, b.cells - off);
-      for (size_t k = 0; k < m; ++k) {
-        const size_t i = b.first_cell + off + k;
-        raw[k] = {acc.sum[3 * i], acc.sum[3 * i + 1], acc.sum[3 * i + 2], acc.count[i]};
-      }
-      gl.NamedBufferSubData(b.acc->id(), GLintptr(off * 16), GLsizeiptr(m * 16), raw.data());
-    }
-  const GLuint zero = 0;
-  gl.ClearNamedBufferData(counter_buf_->id(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
-  ctx_->check_error("GlReprojector::restore");
-  pending_n_ = 0;  // replaced by the restored state
-  // The GPU decides accepted, culled and occluded (backfacing apart); the CPU the rest.
-  folded_ = {counts.accepted, counts.culled, counts.backfacing, counts.occluded - counts.backfacing, 0};
-  cpu_counts_ = {};
-  cpu_counts_.not_diffuse = counts.not_diffuse;
-  cpu_counts_.invalid = counts.invalid;
-  cpu_counts_.exact = counts.exact;
-  points_since_fold_ = 0;
+  // The SSBO layout, {float r, g, b; uint n} per subpixel, filled a chunk at a time.
+  size_t next = 0;
+  restore_cells(
+      [&](std::span<AccumulationCell> out) {
+        for (AccumulationCell& c : out) {
+          c = {acc.sum[3 * next], acc.sum[3 * next + 1], acc.sum[3 * next + 2], acc.count[next]};
+          ++next;
+        }
+      },
+      counts);
 }
 
 void GlReprojector::visit_cells(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) {
