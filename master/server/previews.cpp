@@ -1,5 +1,7 @@
 #include "master/server/previews.h"
 
+#include <OpenImageIO/imageio.h>
+
 #include <algorithm>
 #include <charconv>
 #include <filesystem>
@@ -46,16 +48,14 @@ std::vector<unsigned char> encode_scaled(const Image& img, int max_side) {
   return encode_png_srgb(k > 1 ? box_downscale(img, k) : img);
 }
 
-// Width and height from a PNG's IHDR chunk; {0, 0} if the bytes are not a PNG.
-std::pair<int, int> png_size(const std::vector<unsigned char>& b) {
-  static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  if (b.size() < 24 || !std::equal(sig, sig + 8, b.begin()) ||
-      std::string_view("IHDR") != std::string_view(reinterpret_cast<const char*>(&b[12]), 4))
+// Width and height of an image file from its header (OpenImageIO); {0, 0} if it cannot be read.
+std::pair<int, int> image_size(const fs::path& p) {
+  auto in = OIIO::ImageInput::open(p.string());
+  if (!in) {
+    (void)OIIO::geterror();
     return {0, 0};
-  auto be32 = [&](size_t at) {
-    return int(uint32_t(b[at]) << 24 | uint32_t(b[at + 1]) << 16 | uint32_t(b[at + 2]) << 8 | uint32_t(b[at + 3]));
-  };
-  return {be32(16), be32(20)};
+  }
+  return {in->spec().width, in->spec().height};
 }
 
 }  // namespace
@@ -135,16 +135,16 @@ std::optional<std::vector<unsigned char>> result_preview(const std::string& dir,
     return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
   };
   // The stored PNG as it is when it fits the bound; otherwise the float image, downscaled.
-  auto fits = [&](const std::optional<std::vector<unsigned char>>& png) {
-    if (!png) return false;
-    const auto [w, h] = png_size(*png);
+  auto fits = [&](const fs::path& png) {
+    const auto [w, h] = image_size(png);
     return w > 0 && preview_factor(w, h, k->max_side) == 1;
   };
   try {
     if (k->layer == "combined" || k->layer == "samples") {
       const bool combined = k->layer == "combined";
-      auto png = bytes(stored(combined ? ResultKind::kPng : ResultKind::kSamplesPng));
-      if (!png || fits(png)) return png;
+      const fs::path png_path = stored(combined ? ResultKind::kPng : ResultKind::kSamplesPng);
+      auto png = bytes(png_path);
+      if (!png || fits(png_path)) return png;
       const fs::path exr = stored(combined ? ResultKind::kExr : ResultKind::kSamplesExr);
       if (!fs::exists(exr)) return png;  // nothing to downscale from: the stored PNG as it is
       const Image img = read_image(exr.string());
