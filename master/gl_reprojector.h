@@ -58,6 +58,7 @@
 
 #include <array>
 #include <memory>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -108,6 +109,9 @@ class GlReprojector final : public Reprojector {
 
  private:
   void init(const Camera& camera, const detail::PlaneGrid& grid);
+  /// The #version line and the #defines of `s` before a shader body.
+  static std::string shader_source(const char* body, const ReprojectorSettings& s, bool narrow_planes,
+                                   bool packed = false);
   /// Waits until `slot` of the upload ring is free and returns its mapped bytes.
   unsigned char* acquire_slot(int slot);
   enum class Kernel { kRecords, kPacked, kExact };

@@ -21,6 +21,7 @@
 
 #include "common/log.h"
 #include "epr/v1/job_service.pb.h"
+#include "master/server/checkpoint_payload.h"
 #include "wire/convert.h"
 
 namespace epr {
@@ -28,6 +29,14 @@ namespace fs = std::filesystem;
 static_assert(std::endian::native == std::endian::little, "checkpoints are written in little-endian order");
 
 namespace {
+
+using checkpoint_io::ByteReader;
+using checkpoint_io::ByteWriter;
+using checkpoint_io::get_counts;
+using checkpoint_io::get_frame;
+using checkpoint_io::get_frame_head;
+using checkpoint_io::get_progress;
+using checkpoint_io::put;
 
 constexpr char kMagic[8] = {'E', 'P', 'R', 'S', 'T', 'A', 'T', 'E'};
 
@@ -40,280 +49,7 @@ uLong crc32_update(uLong crc, std::string_view bytes) {
   return crc;
 }
 
-uint32_t crc32_of(std::string_view bytes) {
-  uLong crc = crc32(0L, Z_NULL, 0);
-  // zlib takes lengths as uInt: feed large payloads in pieces.
-  for (size_t off = 0; off < bytes.size();) {
-    const size_t n = std::min<size_t>(bytes.size() - off, size_t(1) << 30);
-    crc = crc32(crc, reinterpret_cast<const Bytef*>(bytes.data() + off), uInt(n));
-    off += n;
-  }
-  return uint32_t(crc);
-}
-
-// ---- payload encoding ------------------------------------------------------------------------------
-
-// Appends to a string, or (with a sink) hands the bytes on in chunks of about kChunk: small values
-// are gathered in a bounded buffer, large arrays go to the sink straight from their memory.
-class ByteWriter {
- public:
-  static constexpr size_t kChunk = size_t(4) << 20;
-  ByteWriter() = default;
-  explicit ByteWriter(std::function<void(std::string_view)> sink) : sink_(std::move(sink)) {}
-  template <class T>
-  void put(const T& v) {
-    static_assert(std::is_trivially_copyable_v<T>);
-    put_bytes(&v, sizeof(T));
-  }
-  void put_bytes(const void* data, size_t n) {
-    const char* p = static_cast<const char*>(data);
-    if (!sink_ || n < kChunk / 4) {
-      out_.append(p, n);
-      if (sink_ && out_.size() >= kChunk) flush();
-      return;
-    }
-    flush();
-    for (size_t off = 0; off < n; off += kChunk) sink_(std::string_view(p + off, std::min(kChunk, n - off)));
-  }
-  void put_string(std::string_view s) {
-    put<uint64_t>(s.size());
-    put_bytes(s.data(), s.size());
-  }
-  template <class T>
-  void put_vector(std::span<const T> v) {
-    static_assert(std::is_trivially_copyable_v<T>);
-    put<uint64_t>(v.size());
-    put_bytes(v.data(), v.size_bytes());
-  }
-  template <class T>
-  void put_vector(const std::vector<T>& v) {
-    put_vector(std::span<const T>(v));
-  }
-  /// Hands what is buffered to the sink (a no-op without one).
-  void flush() {
-    if (sink_ && !out_.empty()) {
-      sink_(out_);
-      out_.clear();
-    }
-  }
-  std::string take() { return std::move(out_); }
-
- private:
-  std::function<void(std::string_view)> sink_;
-  std::string out_;
-};
-
-// Reads from a string, or (with a source) from a file a chunk at a time: `source(buf, n)` returns
-// the next bytes, at most n (0: the end).
-class ByteReader {
- public:
-  explicit ByteReader(std::string_view in) : in_(in), left_(0) {}
-  ByteReader(std::function<size_t(char*, size_t)> source, uint64_t length)
-      : source_(std::move(source)), left_(length) {}
-  template <class T>
-  T get() {
-    static_assert(std::is_trivially_copyable_v<T>);
-    T v;
-    get_bytes(&v, sizeof(T));
-    return v;
-  }
-  bool get_bool() {
-    const auto b = get<uint8_t>();
-    if (b > 1) throw CheckpointError("malformed payload: a flag is neither 0 nor 1");
-    return b != 0;
-  }
-  std::string get_string() {
-    const uint64_t n = get<uint64_t>();
-    if (n > remaining()) throw CheckpointError("malformed payload: it ends early");
-    std::string s(n, '\0');
-    get_bytes(s.data(), n);
-    return s;
-  }
-  template <class T>
-  std::vector<T> get_vector() {
-    const uint64_t n = get<uint64_t>();
-    if (n > remaining() / sizeof(T)) throw CheckpointError("malformed payload: an array runs past its end");
-    std::vector<T> v(n);
-    get_bytes(v.data(), n * sizeof(T));
-    return v;
-  }
-  void get_bytes(void* dst, uint64_t n) {
-    if (n > remaining()) throw CheckpointError("malformed payload: it ends early");
-    char* d = static_cast<char*>(dst);
-    while (n > 0) {
-      if (pos_ == in_.size()) refill();
-      const size_t m = size_t(std::min<uint64_t>(n, in_.size() - pos_));
-      std::memcpy(d, in_.data() + pos_, m);
-      pos_ += m;
-      d += m;
-      n -= m;
-    }
-  }
-  /// Passes over n bytes (a file source: seeks, reads nothing).
-  void skip(uint64_t n) {
-    if (n > remaining()) throw CheckpointError("malformed payload: it ends early");
-    const size_t here = size_t(std::min<uint64_t>(n, in_.size() - pos_));
-    pos_ += here;
-    n -= here;
-    if (n > 0) {
-      skip_source_(n);
-      left_ -= n;
-      consumed_ += n;
-    }
-  }
-  /// Bytes read so far.
-  uint64_t offset() const { return consumed_ + pos_; }
-  uint64_t remaining() const { return (in_.size() - pos_) + left_; }
-  void expect_end() const {
-    if (remaining() != 0) throw CheckpointError("malformed payload: trailing bytes");
-  }
-  std::function<void(uint64_t)> skip_source_;  // a file source: how to pass over bytes unread
-
- private:
-  void refill() {
-    consumed_ += in_.size();
-    buf_.resize(size_t(std::min<uint64_t>(left_, ByteWriter::kChunk)));
-    size_t got = 0;
-    while (got < buf_.size()) {
-      const size_t n = source_(buf_.data() + got, buf_.size() - got);
-      if (n == 0) throw CheckpointError("torn: the file ends early");
-      got += n;
-    }
-    left_ -= got;
-    in_ = buf_;
-    pos_ = 0;
-  }
-  std::function<size_t(char*, size_t)> source_;
-  std::string buf_;
-  std::string_view in_;
-  size_t pos_ = 0;
-  uint64_t left_;  // bytes of the source not in in_ yet
-  uint64_t consumed_ = 0;
-};
-
-void put(ByteWriter& w, const FrameProgress& p) {
-  w.put<int32_t>(p.round);
-  w.put(p.mean_spp);
-  w.put(p.min_spp);
-  w.put(p.mean_paths);
-  w.put(p.mean_reprojected);
-  w.put(p.pixels_active);
-  w.put(p.pixels_skipped);
-  w.put(p.paths_traced);
-  w.put(p.paths_skipped);
-}
-
-FrameProgress get_progress(ByteReader& r) {
-  FrameProgress p;
-  p.round = r.get<int32_t>();
-  p.mean_spp = r.get<double>();
-  p.min_spp = r.get<double>();
-  p.mean_paths = r.get<double>();
-  p.mean_reprojected = r.get<double>();
-  p.pixels_active = r.get<uint64_t>();
-  p.pixels_skipped = r.get<uint64_t>();
-  p.paths_traced = r.get<uint64_t>();
-  p.paths_skipped = r.get<uint64_t>();
-  return p;
-}
-
-void put(ByteWriter& w, const ReprojectionCounts& c) {
-  for (uint64_t v : {c.accepted, c.occluded, c.backfacing, c.culled, c.not_diffuse, c.invalid, c.exact}) w.put(v);
-}
-
-ReprojectionCounts get_counts(ByteReader& r) {
-  ReprojectionCounts c;
-  for (uint64_t* v : {&c.accepted, &c.occluded, &c.backfacing, &c.culled, &c.not_diffuse, &c.invalid, &c.exact})
-    *v = r.get<uint64_t>();
-  return c;
-}
-
-// Cells of the accumulation per span handed to the writer (4 MiB).
-constexpr size_t kCellsPerSpan = size_t(1) << 18;
-
-void put(ByteWriter& w, const FrameView& f) {
-  w.put<int32_t>(f.width);
-  w.put<int32_t>(f.height);
-  w.put_vector(f.path_sum);
-  w.put_vector(f.path_count);
-  w.put_vector(f.mprime);
-  w.put_vector(f.reprojected);
-  w.put_vector(f.skip);
-  w.put<int32_t>(f.paths_done);
-  w.put<uint8_t>(f.done);
-  put(w, f.progress);
-  w.put(f.seconds_reprojecting);
-  w.put(f.seconds_downsampling);
-  w.put<uint8_t>(f.has_accumulation);
-  if (f.has_accumulation) {
-    w.put<int32_t>(f.grid_width);
-    w.put<int32_t>(f.grid_height);
-    w.put<int32_t>(f.subpixels);
-    put(w, f.counts);
-    // Version 3: the cells as the back-ends hold them, {float r, g, b; uint32 n} per subpixel in
-    // subpixel order, written a span at a time straight from the accumulation.
-    const uint64_t cells = uint64_t(f.grid_width) * uint64_t(f.grid_height);
-    w.put<uint64_t>(cells);
-    uint64_t written = 0;
-    f.visit_cells(kCellsPerSpan, [&](std::span<const AccumulationCell> span) {
-      w.put_bytes(span.data(), span.size_bytes());
-      written += span.size();
-    });
-    if (written != cells) throw std::logic_error("the accumulation visited is not of the frame's grid");
-  }
-}
-
-// The frame up to its accumulation's cells; returns the number of cells that follow (0 without).
-uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f) {
-  f->width = r.get<int32_t>();
-  f->height = r.get<int32_t>();
-  f->path_sum = r.get_vector<double>();
-  f->path_count = r.get_vector<uint32_t>();
-  f->mprime = r.get_vector<uint64_t>();
-  f->reprojected = r.get_vector<float>();
-  f->skip = r.get_vector<uint8_t>();
-  f->paths_done = r.get<int32_t>();
-  f->done = r.get_bool();
-  f->progress = get_progress(r);
-  f->seconds_reprojecting = r.get<double>();
-  f->seconds_downsampling = r.get<double>();
-  f->has_accumulation = r.get_bool();
-  if (!f->has_accumulation) return 0;
-  SubpixelAccumulation& a = f->accumulation;
-  a.width = r.get<int32_t>();
-  a.height = r.get<int32_t>();
-  a.subpixels = r.get<int32_t>();
-  f->counts = get_counts(r);
-  const uint64_t cells = r.get<uint64_t>();
-  if (a.width < 0 || a.height < 0 || cells != uint64_t(a.width) * uint64_t(a.height))
-    throw CheckpointError("malformed payload: the accumulation's size does not match its grid");
-  if (cells > r.remaining() / sizeof(AccumulationCell))
-    throw CheckpointError("malformed payload: the accumulation runs past its end");
-  return cells;
-}
-
-FrameSnapshot get_frame(ByteReader& r) {
-  FrameSnapshot f;
-  const uint64_t cells = get_frame_head(r, &f);
-  if (f.has_accumulation) {
-    SubpixelAccumulation& a = f.accumulation;
-    a.sum.resize(3 * cells);
-    a.count.resize(cells);
-    std::vector<AccumulationCell> chunk(std::min<uint64_t>(cells, kCellsPerSpan));
-    for (uint64_t off = 0; off < cells; off += chunk.size()) {
-      const size_t m = size_t(std::min<uint64_t>(chunk.size(), cells - off));
-      r.get_bytes(chunk.data(), m * sizeof(AccumulationCell));
-      for (size_t k = 0; k < m; ++k) {
-        const size_t i = size_t(off) + k;
-        a.sum[3 * i] = chunk[k].r;
-        a.sum[3 * i + 1] = chunk[k].g;
-        a.sum[3 * i + 2] = chunk[k].b;
-        a.count[i] = chunk[k].n;
-      }
-    }
-  }
-  return f;
-}
+uint32_t crc32_of(std::string_view bytes) { return uint32_t(crc32_update(crc32(0L, Z_NULL, 0), bytes)); }
 
 // ---- files -----------------------------------------------------------------------------------------
 

@@ -29,16 +29,11 @@
 
 #include "common/check.h"
 #include "master/frame_state.h"
+#include "master/server/checkpoint_error.h"
 #include "master/server/job.h"
 #include "wire/scene_bundle.h"
 
 namespace epr {
-
-/// A state file that is missing, torn, corrupt or of another format version.
-class CheckpointError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
 
 enum class RecordKind : uint32_t { kEpoch = 1, kScene = 2, kJobSpec = 3, kJobProgress = 4 };
 
