@@ -31,8 +31,10 @@ inline constexpr Range<int> kTileSize{"--tile", 4, 1024};
 inline constexpr Range<int> kMaxDepth{"--max-depth", 1, 100000};
 inline constexpr Range<double> kRoundGrowth{"--round-growth", 0, 16};
 inline constexpr Range<double> kEpsilon{"--epsilon", 0, 1};
-/// The deep framebuffer's subpixels (width x height x S^2) at most.
+/// The deep framebuffer's subpixels (width x height x S^2) at most, and its texels per axis
+/// (width x S, height x S) at most: the largest GL viewport the deep framebuffer is rasterised into.
 inline constexpr long long kMaxSubpixels = 1ll << 28;
+inline constexpr int kMaxGridSide = 16384;
 }  // namespace limits
 
 }  // namespace epr

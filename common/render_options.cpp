@@ -25,9 +25,22 @@ std::optional<std::string> RenderOptions::validate() const {
   if (auto err = limits::kTileSize.check(tile_size)) return err;
   if (threads < 0) return "--threads must be 0 (all cores) or positive";
   if (auto err = limits::kMaxDepth.check(rr.max_depth)) return err;
-  if (mode != RenderMode::kPathTrace &&
-      static_cast<long long>(width) * subpixels * height * subpixels > limits::kMaxSubpixels)
-    return "the deep framebuffer (width x height x subpixels^2) would exceed 2^28 texels";
+  if (mode != RenderMode::kPathTrace) {
+    const auto fits = [&](int s) {
+      return static_cast<long long>(width) * s * height * s <= limits::kMaxSubpixels &&
+             static_cast<long long>(std::max(width, height)) * s <= limits::kMaxGridSide;
+    };
+    if (!fits(subpixels)) {
+      int largest = subpixels;
+      while (largest > 0 && !fits(largest)) --largest;
+      return fmt::format(
+          "a {}x{} frame at --subpixels {} needs a {}x{} deep framebuffer, over its limits of {} texels per axis "
+          "and 2^28 texels; {}",
+          width, height, subpixels, static_cast<long long>(width) * subpixels,
+          static_cast<long long>(height) * subpixels, limits::kMaxGridSide,
+          largest > 0 ? fmt::format("--subpixels {} fits", largest) : std::string("use --mode pt"));
+    }
+  }
   CameraSpec probe = camera_for(CameraSpec{});
   if (auto err = probe.validate()) return *err;
   return std::nullopt;

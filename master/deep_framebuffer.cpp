@@ -9,6 +9,7 @@
 #include <future>
 #include <stdexcept>
 
+#include "common/limits.h"
 #include "common/log.h"
 #include "master/gl_context.h"
 
@@ -47,9 +48,10 @@ std::vector<TrianglePlane> detail::triangle_planes(const Scene& scene) {
 void detail::check_deep_framebuffer_grid(const Camera& camera, int subpixels) {
   if (subpixels < 1 || subpixels > 16)
     throw std::invalid_argument(fmt::format("subpixels {} outside [1, 16]", subpixels));
-  if (int64_t(camera.width()) * subpixels > 16384 || int64_t(camera.height()) * subpixels > 16384)
-    throw std::invalid_argument(fmt::format("deep framebuffer {}x{} x S={} exceeds 16384 texels per axis",
-                                            camera.width(), camera.height(), subpixels));
+  if (int64_t(camera.width()) * subpixels > limits::kMaxGridSide ||
+      int64_t(camera.height()) * subpixels > limits::kMaxGridSide)
+    throw std::invalid_argument(fmt::format("deep framebuffer {}x{} x S={} exceeds {} texels per axis", camera.width(),
+                                            camera.height(), subpixels, limits::kMaxGridSide));
 }
 
 namespace {

@@ -85,5 +85,29 @@ TEST(Limits, ValidationAcceptsTheEndsOfEachRangeAndRefusesJustOutside) {
   EXPECT_NE(err->find("--tile 2 must be between 4 and 1024"), std::string::npos) << *err;
 }
 
+TEST(Limits, AGridTheMasterCannotBuildIsRefusedAtValidationNamingTheSubpixelsThatFit) {
+  RenderOptions o;
+  o.mode = RenderMode::kSkip;
+  o.subpixels = 4;
+  o.width = 3840, o.height = 2160;  // 15360 x 8640: fits both limits
+  EXPECT_FALSE(o.validate());
+  o.width = 5000, o.height = 100;  // 20000 texels wide: few texels, too wide
+  auto err = o.validate();
+  ASSERT_TRUE(err);
+  EXPECT_NE(err->find("20000x400 deep framebuffer"), std::string::npos) << *err;
+  EXPECT_NE(err->find("--subpixels 3 fits"), std::string::npos) << *err;
+  o.width = 7680, o.height = 4320;  // 8K: 2^28 texels are reached at S = 2
+  err = o.validate();
+  ASSERT_TRUE(err);
+  EXPECT_NE(err->find("--subpixels 2 fits"), std::string::npos) << *err;
+  o.width = o.height = limits::kImageSide.hi;  // S = 1 is 2^28 texels exactly
+  o.subpixels = 2;
+  err = o.validate();
+  ASSERT_TRUE(err);
+  EXPECT_NE(err->find("--subpixels 1 fits"), std::string::npos) << *err;
+  o.mode = RenderMode::kPathTrace;  // no deep framebuffer
+  EXPECT_FALSE(o.validate());
+}
+
 }  // namespace
 }  // namespace epr
