@@ -1,0 +1,34 @@
+"""eprfarm: a Python client for the eprfarm render farm's master (epr.v1.JobService).
+
+    import eprfarm
+    c = eprfarm.Client("localhost:50051")
+    job = c.submit("builtin:cornell", width=256, height=256, spp=64)
+    for status in c.watch(job):
+        print(status.state, status.round, f"{status.percent:.0f}%")
+    c.get(job, out="cornell")                # cornell.exr, cornell.png, cornell.json, ...
+    images = c.get(job, as_arrays=True)      # {"combined": numpy float32 (H, W, 3), ...}
+
+See client.Client for the options (token, TLS, deadlines) and errors.EprError for the errors.
+"""
+
+from .client import Client
+from .status import RESULT_KINDS, FetchedFile, JobStatus, ResultBytes, ResultKind, decode_exr
+from .errors import EprError, JobError, RpcError, SceneError, TokenError
+from .scene import SceneBundle, bundle_scene
+
+__all__ = [
+    "Client",
+    "JobStatus",
+    "FetchedFile",
+    "ResultBytes",
+    "ResultKind",
+    "RESULT_KINDS",
+    "decode_exr",
+    "EprError",
+    "RpcError",
+    "JobError",
+    "SceneError",
+    "TokenError",
+    "SceneBundle",
+    "bundle_scene",
+]

@@ -1,0 +1,66 @@
+"""One master's connection: its address, gRPC channel and JobService stub."""
+
+from __future__ import annotations
+
+import threading
+from typing import List, Optional
+
+import grpc
+
+from .errors import RpcError
+from .proto import job_service_pb2_grpc as pb_grpc
+
+
+class Endpoint:
+    """One master: its address, channel and JobService stub."""
+
+    def __init__(self, target: str, credentials: Optional[grpc.ChannelCredentials]):
+        self.target = target
+        options = [
+            ("grpc.max_receive_message_length", 64 << 20),  # ListJobs pages of large statuses
+            ("grpc.primary_user_agent", "eprfarm-python"),
+        ]
+        if credentials is None:
+            self.channel = grpc.insecure_channel(target, options=options)
+        else:
+            self.channel = grpc.secure_channel(target, credentials, options=options)
+        self.stub = pb_grpc.JobServiceStub(self.channel)
+
+    def check_reachable(self, timeout: float) -> None:
+        """Raises RpcError unless a connection is established within `timeout` seconds; fails at once
+        when the connection is refused."""
+        settled = threading.Event()
+        outcome: List[grpc.ChannelConnectivity] = []
+
+        def on_state(state: grpc.ChannelConnectivity) -> None:
+            if not settled.is_set() and state in (
+                grpc.ChannelConnectivity.READY,
+                grpc.ChannelConnectivity.TRANSIENT_FAILURE,
+                grpc.ChannelConnectivity.SHUTDOWN,
+            ):
+                outcome.append(state)
+                settled.set()
+
+        self.channel.subscribe(on_state, try_to_connect=True)
+        try:
+            if not settled.wait(timeout):
+                raise RpcError(
+                    grpc.StatusCode.DEADLINE_EXCEEDED,
+                    "no connection",
+                    f"cannot reach master at {self.target} (no connection within {timeout:g} s)",
+                    "connect",
+                    self.target,
+                )
+            if outcome[0] != grpc.ChannelConnectivity.READY:
+                raise RpcError(
+                    grpc.StatusCode.UNAVAILABLE,
+                    "connection failed",
+                    f"cannot reach master at {self.target} (UNAVAILABLE: connection failed)",
+                    "connect",
+                    self.target,
+                )
+        finally:
+            self.channel.unsubscribe(on_state)
+
+    def close(self) -> None:
+        self.channel.close()

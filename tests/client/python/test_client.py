@@ -1,0 +1,516 @@
+#!/usr/bin/python3
+"""The Python client (client/python) against a real epr-master and epr-worker on loopback.
+
+    test_client.py --package-dir BUILD/client/python --epr EPR --master EPR_MASTER --worker EPR_WORKER
+
+--package-dir holds the eprfarm package with its generated stubs (the build tree's copy, CMake
+target eprfarm_python). Checks: a render submitted, watched and fetched through the package has the
+pixels of the same job submitted with `epr` (same seed); file scenes are bundled as `epr` bundles
+them (same content hash, inline and uploaded; the path sandbox); cancel; the master's errors
+(INVALID_ARGUMENT, NOT_FOUND, UNAUTHENTICATED with their reasons; UNAVAILABLE); token rules; and
+`pip install` of client/python into a venv. Run with Debian's /usr/bin/python3 (python3-grpcio,
+python3-protobuf, python3-numpy, python3-openimageio, python3-venv).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import unittest
+from typing import List, Optional
+
+SOURCE_DIR = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))
+ARGS = argparse.Namespace()
+
+# The job both clients render: small, a few rounds, a seed other than the default.
+JOB = {"width": 48, "height": 40, "spp": 8, "seed": 7, "mode": "skip"}
+JOB_FLAGS = ["--width", "48", "--height", "40", "--spp", "8", "--seed", "7", "--mode", "skip"]
+
+
+def wait_for(predicate, timeout: float, interval: float = 0.05):
+    """predicate()'s first true value within `timeout` seconds, else None."""
+    end = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value or time.monotonic() > end:
+            return value
+        time.sleep(interval)
+
+
+class Process:
+    """A program running in the background, its output in a log file."""
+
+    def __init__(self, argv: List[str], log_path: str, env: Optional[dict] = None):
+        self.log_path = log_path
+        self._log = open(log_path, "wb")
+        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, env=env)
+
+    def output(self) -> str:
+        with open(self.log_path, "rb") as f:
+            return f.read().decode(errors="replace")
+
+    def running(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self) -> None:
+        if self.running():
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+
+
+class Farm:
+    """epr-master on a free loopback port with a temporary --state-dir, and optionally an epr-worker."""
+
+    def __init__(self, folder: str, master_args: List[str] = (), worker: bool = True):
+        self.folder = folder
+        self.processes: List[Process] = []
+        self.master = self._start(
+            [ARGS.master, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--state-dir", self.path("state")]
+            + list(master_args),
+            "master.log",
+        )
+        match = wait_for(lambda: re.search(r"epr-master listening on port ([0-9]+)", self.master.output()), 20)
+        if not match:
+            self.stop()
+            raise RuntimeError(f"epr-master did not start:\n{self.master.output()}")
+        self.address = f"127.0.0.1:{match.group(1)}"
+        if worker:
+            self._start(
+                [ARGS.worker, "--master", self.address, "--threads", "2", "--cache-dir", self.path("cache")]
+                + (["--token-file", master_args[master_args.index("--token-file") + 1]]
+                   if "--token-file" in master_args else []),
+                "worker.log",
+            )
+
+    def path(self, name: str) -> str:
+        return os.path.join(self.folder, name)
+
+    def _start(self, argv: List[str], log: str) -> Process:
+        p = Process(argv, self.path(log))
+        self.processes.append(p)
+        return p
+
+    def logs(self) -> str:
+        return "\n".join(f"--- {os.path.basename(p.log_path)}\n{p.output()[-4000:]}" for p in self.processes)
+
+    def stop(self) -> None:
+        for p in reversed(self.processes):
+            p.stop()
+
+
+def epr(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    """Runs the C++ client to its end."""
+    return subprocess.run([ARGS.epr, *args], capture_output=True, text=True, timeout=timeout)
+
+
+def free_port() -> int:
+    """A loopback port nothing listens on (bound, then released)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def write_textured_scene(folder: str) -> str:
+    """The Cornell box OBJ with its MTL in `folder`, one material textured from tex/checker.png through
+    map_Kd with texture options, plus files the scene does not name. Returns the OBJ's path."""
+    import numpy as np
+    import OpenImageIO as oiio
+
+    src = os.path.join(SOURCE_DIR, "scenes", "cornell-box")
+    os.makedirs(os.path.join(folder, "tex"))
+    shutil.copy(os.path.join(src, "CornellBox-Original.obj"), os.path.join(folder, "box.obj"))
+    with open(os.path.join(src, "CornellBox-Original.mtl")) as f:
+        mtl = f.read()
+    # The first material gets a texture, named with options that take words before the file name.
+    mtl = re.sub(r"(newmtl [^\n]*\n)", r"\1map_Kd -s 1 1 1 -clamp on tex/checker.png # a comment\n", mtl, count=1)
+    with open(os.path.join(folder, "CornellBox-Original.mtl"), "w") as f:
+        f.write(mtl)
+    checker = np.indices((8, 8)).sum(axis=0) % 2
+    pixels = np.repeat(checker[:, :, None], 3, axis=2).astype(np.uint8) * 200 + 20
+    out = oiio.ImageOutput.create(os.path.join(folder, "tex", "checker.png"))
+    out.open(os.path.join(folder, "tex", "checker.png"), oiio.ImageSpec(8, 8, 3, "uint8"))
+    out.write_image(pixels)
+    out.close()
+    with open(os.path.join(folder, "unused.png"), "wb") as f:
+        f.write(b"not part of the scene")
+    return os.path.join(folder, "box.obj")
+
+
+class ClusterTest(unittest.TestCase):
+    """A master and a worker without a token."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="epr-python-client-")
+        cls.farm = Farm(cls.tmp)
+        cls.client = eprfarm.Client(cls.farm.address)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.client.close()
+        cls.farm.stop()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def run(self, result=None):
+        # On a failure, the programs' logs help more than the assertion alone.
+        failures = len(result.failures) + len(result.errors) if result else 0
+        outcome = super().run(result)
+        if result and len(result.failures) + len(result.errors) > failures:
+            print(self.farm.logs(), file=sys.stderr)
+        return outcome
+
+    def test_render_matches_epr(self):
+        import numpy as np
+
+        job = self.client.submit("builtin:cornell", **JOB)
+        statuses = list(self.client.watch(job))
+        last = statuses[-1]
+        self.assertEqual(last.state, "DONE", last.error_message)
+        self.assertTrue(last.terminal)
+        self.assertTrue(all(not s.terminal for s in statuses[:-1]))
+        self.assertEqual((last.width, last.height, last.target_spp, last.mode), (48, 40, 8, "skip"))
+        self.assertEqual(last.proto.seed, 7)
+        self.assertEqual(last.percent, 100.0)
+        self.assertGreaterEqual(last.spp_min, 8)
+        rounds = [s.round for s in statuses]
+        self.assertEqual(rounds, sorted(rounds))
+        self.assertGreater(last.round, 1)
+        self.assertGreater(last.paths_traced, 0)
+        percents = [s.percent for s in statuses]
+        self.assertEqual(percents, sorted(percents))
+
+        files = self.client.get(job, out=os.path.join(self.tmp, "py", "cornell"))
+        self.assertEqual(
+            [f.kind for f in files],
+            ["exr", "png", "json", "pathtrace.exr", "counts.exr", "reprojection.exr", "samples.exr", "samples.png"],
+        )
+        for f in files:
+            self.assertEqual(os.path.getsize(f.path), f.bytes, f.path)
+            self.assertEqual((f.round, f.partial), (last.round, False))
+        self.assertEqual([n for n in os.listdir(os.path.join(self.tmp, "py")) if ".part-" in n], [])
+        arrays = self.client.get(job, as_arrays=True)
+        self.assertEqual(sorted(arrays), ["combined", "counts", "pathtrace", "reprojection", "samples"])
+        self.assertEqual(arrays["combined"].shape, (40, 48, 3))
+        self.assertEqual(arrays["counts"].shape, (40, 48, 2))
+        self.assertEqual(arrays["combined"].dtype, np.float32)
+        self.assertTrue(np.isfinite(arrays["combined"]).all())
+        self.assertGreater(float(arrays["combined"].mean()), 0.01)  # the box is lit
+        self.assertTrue((arrays["counts"][:, :, 0] >= 1).all())  # every pixel traced a path (min_paths 1)
+        with open(files[0].path, "rb") as f:
+            self.assertTrue(np.array_equal(eprfarm.decode_exr(f.read()), arrays["combined"]))
+
+        # The same job through the C++ client: the same pixels, counts and PNG.
+        prefix = os.path.join(self.tmp, "cpp", "cornell")
+        r = epr("submit", "builtin:cornell", *JOB_FLAGS, "--master", self.farm.address, "--wait", "--out", prefix)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        for f in files:
+            with open(prefix + f.path[len(os.path.join(self.tmp, "py", "cornell")) :], "rb") as cpp:
+                theirs = cpp.read()
+            if f.kind.endswith("exr"):
+                ours = arrays[{"exr": "combined"}.get(f.kind, f.kind.split(".")[0])]
+                self.assertTrue(np.array_equal(eprfarm.decode_exr(theirs), ours), f.kind)
+            elif f.kind.endswith("png"):
+                with open(f.path, "rb") as mine:
+                    self.assertEqual(mine.read(), theirs, f.kind)
+
+    def test_scene_files_bundled_as_epr_does(self):
+        scene = write_textured_scene(os.path.join(self.tmp, "textured"))
+        bundle = eprfarm.bundle_scene(scene)
+        self.assertEqual(bundle.entry_path, "box.obj")
+        self.assertEqual([p for p, _ in bundle.files], ["CornellBox-Original.mtl", "box.obj", "tex/checker.png"])
+
+        def submitted_hash(job: str) -> str:
+            status = self.client.cancel(job)  # the bundle is what matters here, not the render
+            return status.proto.scene.content_hash
+
+        inline = submitted_hash(self.client.submit(scene, width=16, height=16, spp=1))
+        r = epr("submit", scene, "--width", "16", "--height", "16", "--spp", "1", "--master", self.farm.address)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        theirs = submitted_hash(r.stdout.strip())
+        self.assertEqual(inline, theirs)
+        self.assertEqual(inline, bundle.content_hash())
+
+        # Over the inline limit the scene goes through UploadScene first and the job names its hash.
+        uploader = eprfarm.Client(self.farm.address)
+        uploader.inline_scene_limit = 0
+        progress = []
+        uploader.upload_progress = lambda sent, total: progress.append((sent, total))
+        spec = uploader.job_spec(scene, width=16, height=16, spp=1)
+        self.assertEqual(spec.scene.WhichOneof("source"), "uploaded_hash")
+        self.assertEqual(spec.scene.uploaded_hash, theirs)
+        self.assertEqual(progress[-1], (bundle.total_bytes, bundle.total_bytes))
+        self.assertEqual(submitted_hash(uploader.submit_spec(spec)), theirs)
+        uploader.close()
+
+        # A scene JSON naming the OBJ (with comments, which the loader ignores) brings its files along.
+        with open(os.path.join(self.tmp, "textured", "scene.json"), "w") as f:
+            f.write('// the textured box\n{ "obj": "box.obj", /* the OBJ */ "camera": {"fov": 40} }\n')
+        json_scene = os.path.join(self.tmp, "textured", "scene.json")
+        self.assertEqual(
+            [p for p, _ in eprfarm.bundle_scene(json_scene).files],
+            ["CornellBox-Original.mtl", "box.obj", "scene.json", "tex/checker.png"],
+        )
+        ours = submitted_hash(self.client.submit(json_scene, width=16, height=16, spp=1))
+        r = epr("submit", json_scene, "--width", "16", "--height", "16", "--spp", "1", "--master", self.farm.address)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertEqual(ours, submitted_hash(r.stdout.strip()))
+
+    def test_cancel(self):
+        job = self.client.submit("builtin:cornell", width=64, height=64, spp=100000, mode="pt", name="long")
+        # Watch until a round has committed; leaving the loop early cancels the stream.
+        for status in self.client.watch(job):
+            if status.round >= 1:
+                break
+        self.assertEqual(status.state, "RUNNING")
+        self.assertEqual(status.name, "long")
+        with self.assertRaises(eprfarm.JobError) as ctx:
+            self.client.get(job)
+        self.assertEqual(ctx.exception.state, "RUNNING")
+        self.assertIn("partial=True", str(ctx.exception))
+        preview = self.client.fetch_bytes(job, "exr", partial=True)
+        self.assertTrue(preview.partial)
+        self.assertEqual(preview.media_type, "image/x-exr")
+
+        after = self.client.cancel(job)
+        self.assertEqual(after.state, "CANCELLED")
+        self.assertTrue(after.terminal)
+        self.assertEqual(self.client.status(job).state, "CANCELLED")
+        self.assertEqual([s.state for s in self.client.watch(job)], ["CANCELLED"])
+        self.assertIn(job, [j.id for j in self.client.list(states=["cancelled"])])
+        self.assertNotIn(job, [j.id for j in self.client.list(states=["done", "running"])])
+        # The last committed round stays fetchable, marked partial.
+        arrays = self.client.get(job, as_arrays=True)
+        self.assertEqual(arrays["combined"].shape, (64, 64, 3))
+        self.assertNotIn("reprojection", arrays)  # PT produces no reprojection results
+        files = self.client.get(job, out=os.path.join(self.tmp, "cancelled", "long"))
+        self.assertTrue(all(f.partial for f in files))
+        self.assertEqual(self.client.cancel(job).state, "CANCELLED")  # cancelling again changes nothing
+
+    def test_master_errors(self):
+        with self.assertRaises(eprfarm.RpcError) as ctx:
+            self.client.submit("builtin:cornell", spp=0)
+        e = ctx.exception
+        self.assertEqual(e.code, grpc.StatusCode.INVALID_ARGUMENT)
+        self.assertEqual(e.reason, "--spp 0 must be between 1 and 1000000")
+        self.assertIn("refused SubmitJob: INVALID_ARGUMENT: --spp 0", str(e))
+        self.assertFalse(e.unreachable)
+
+        with self.assertRaises(eprfarm.RpcError) as ctx:
+            self.client.submit("builtin:nosuchscene", width=8, height=8, spp=1)
+        self.assertEqual(ctx.exception.code, grpc.StatusCode.INVALID_ARGUMENT)
+        self.assertIn("nosuchscene", ctx.exception.reason)
+
+        for call in (self.client.status, self.client.cancel, lambda j: list(self.client.watch(j))):
+            with self.assertRaises(eprfarm.RpcError) as ctx:
+                call("j999999-none")
+            self.assertEqual(ctx.exception.code, grpc.StatusCode.NOT_FOUND)
+            self.assertIn("j999999-none", ctx.exception.reason)
+
+        down = eprfarm.Client(f"127.0.0.1:{free_port()}", timeout=5)
+        for call in (lambda: down.status("x"), lambda: list(down.watch("x"))):
+            with self.assertRaises(eprfarm.RpcError) as ctx:
+                call()
+            self.assertEqual(ctx.exception.code, grpc.StatusCode.UNAVAILABLE)
+            self.assertTrue(ctx.exception.unreachable)
+            self.assertIn("cannot reach master at 127.0.0.1:", str(ctx.exception))
+        down.close()
+
+        with self.assertRaises(ValueError):
+            self.client.submit("builtin:cornell", eye=(0, 1, 3))  # a camera needs all four parts
+        with self.assertRaises(ValueError):
+            self.client.submit("builtin:cornell", mode="fast")
+
+
+class TokenTest(unittest.TestCase):
+    """A master that requires a bearer token (--token-file)."""
+
+    TOKEN = "s3cret-token_for.tests"
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="epr-python-token-")
+        cls.token_file = os.path.join(cls.tmp, "token")
+        with open(cls.token_file, "w") as f:
+            f.write(cls.TOKEN + "\n")
+        os.chmod(cls.token_file, 0o600)
+        cls.farm = Farm(cls.tmp, ["--token-file", cls.token_file], worker=False)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.farm.stop()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def setUp(self):
+        self.saved_env = os.environ.pop("EPR_TOKEN", None)
+
+    def tearDown(self):
+        os.environ.pop("EPR_TOKEN", None)
+        if self.saved_env is not None:
+            os.environ["EPR_TOKEN"] = self.saved_env
+
+    def assert_unauthenticated(self, client):
+        with self.assertRaises(eprfarm.RpcError) as ctx:
+            client.list()
+        e = ctx.exception
+        self.assertEqual(e.code, grpc.StatusCode.UNAUTHENTICATED)
+        self.assertTrue(e.reason, "the master gives a reason")
+        self.assertIn("UNAUTHENTICATED", str(e))
+        self.assertIn("token", str(e))
+        return e
+
+    def test_wrong_or_missing_token(self):
+        self.assert_unauthenticated(eprfarm.Client(self.farm.address, token="wrong-token"))
+        self.assert_unauthenticated(eprfarm.Client(self.farm.address))
+        os.environ["EPR_TOKEN"] = "also-wrong"
+        self.assert_unauthenticated(eprfarm.Client(self.farm.address))
+
+    def test_right_token(self):
+        for client in (
+            eprfarm.Client(self.farm.address, token_file=self.token_file),
+            eprfarm.Client(self.farm.address, token=self.TOKEN),
+        ):
+            job = client.submit("builtin:cornell", width=8, height=8, spp=1)
+            self.assertIn(job, [j.id for j in client.list()])
+            self.assertEqual(client.cancel(job).state, "CANCELLED")
+            client.close()
+        os.environ["EPR_TOKEN"] = self.TOKEN
+        self.assertIsInstance(eprfarm.Client(self.farm.address).list(), list)
+
+    def test_token_rules(self):
+        bad = os.path.join(self.tmp, "bad-token")
+        for content, message in (("two words\n", "printable ASCII"), ("\n \n", "is empty")):
+            with open(bad, "w") as f:
+                f.write(content)
+            with self.assertRaises(eprfarm.TokenError) as ctx:
+                eprfarm.Client(self.farm.address, token_file=bad)
+            self.assertIn(message, str(ctx.exception))
+            self.assertIn(bad, str(ctx.exception))
+        with self.assertRaises(eprfarm.TokenError):
+            eprfarm.Client(self.farm.address, token_file=os.path.join(self.tmp, "missing"))
+        with self.assertRaises(ValueError):
+            eprfarm.Client(self.farm.address, token="has space")
+        os.environ["EPR_TOKEN"] = "a b"
+        with self.assertRaises(eprfarm.TokenError) as ctx:
+            eprfarm.Client(self.farm.address)
+        self.assertIn("$EPR_TOKEN", str(ctx.exception))
+
+
+class SceneSandboxTest(unittest.TestCase):
+    """Scene bundling without a master: files must stay inside the scene's folder and be regular."""
+
+    def setUp(self):
+        self.tmp = tempfile.mkdtemp(prefix="epr-python-scene-")
+        self.folder = os.path.join(self.tmp, "scene")
+        os.makedirs(self.folder)
+
+    def tearDown(self):
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def obj(self, mtllib_line: str) -> str:
+        path = os.path.join(self.folder, "m.obj")
+        with open(path, "w") as f:
+            f.write(f"# test\n{mtllib_line}\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+        return path
+
+    def assert_refused(self, scene: str, *fragments: str):
+        with self.assertRaises(eprfarm.SceneError) as ctx:
+            eprfarm.bundle_scene(scene)
+        for fragment in fragments:
+            self.assertIn(fragment, str(ctx.exception))
+
+    def test_sandbox(self):
+        with open(os.path.join(self.tmp, "outside.mtl"), "w") as f:
+            f.write("newmtl x\nKd 1 1 1\n")
+        self.assert_refused(self.obj("mtllib ../outside.mtl"), "m.obj:2:", "mtllib '../outside.mtl' leaves the scene folder")
+        self.assert_refused(self.obj("mtllib /etc/passwd"), "is an absolute path")
+        os.symlink(os.path.join(self.tmp, "outside.mtl"), os.path.join(self.folder, "link.mtl"))
+        self.assert_refused(self.obj("mtllib link.mtl"), "leaves the scene folder")
+        self.assert_refused(self.obj("mtllib missing.mtl"), "mtllib 'missing.mtl' does not exist")
+        os.mkfifo(os.path.join(self.folder, "pipe.mtl"))
+        self.assert_refused(self.obj("mtllib pipe.mtl"), "is a FIFO (named pipe), not a regular file")
+        self.assert_refused(os.path.join(self.folder, "nothing.obj"), "nothing.obj: does not exist")
+        with open(os.path.join(self.folder, "in.mtl"), "w") as f:
+            f.write("newmtl a\nmap_Kd ../outside.png\n")
+        self.assert_refused(self.obj("mtllib in.mtl"), "in.mtl:2:", "texture '../outside.png' leaves the scene folder")
+
+    def test_escaped_names_and_comments(self):
+        with open(os.path.join(self.folder, "a b.mtl"), "w") as f:
+            f.write("newmtl a\nKd 1 1 1\n")
+        with open(os.path.join(self.folder, "c.mtl"), "w") as f:
+            f.write("newmtl c\nKe 1 1 1\n")
+        bundle = eprfarm.bundle_scene(self.obj("mtllib a\\ b.mtl c.mtl # d.mtl"))
+        self.assertEqual([p for p, _ in bundle.files], ["a b.mtl", "c.mtl", "m.obj"])
+        self.assertEqual(len(bundle.content_hash()), 64)
+
+
+class PipInstallTest(unittest.TestCase):
+    """`pip install ./client/python` into a venv over Debian's packages, offline."""
+
+    def test_pip_install(self):
+        tmp = tempfile.mkdtemp(prefix="epr-python-pip-")
+        try:
+            # A copy of what the package build reads, so that the build leaves the source tree alone.
+            repo = os.path.join(tmp, "repo")
+            shutil.copytree(
+                os.path.join(SOURCE_DIR, "client", "python"),
+                os.path.join(repo, "client", "python"),
+                ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"),
+            )
+            shutil.copytree(os.path.join(SOURCE_DIR, "proto"), os.path.join(repo, "proto"))
+            shutil.copy(os.path.join(SOURCE_DIR, "CMakeLists.txt"), repo)
+            venv = os.path.join(tmp, "venv")
+            subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", venv], check=True)
+            python = os.path.join(venv, "bin", "python")
+            r = subprocess.run(
+                [python, "-m", "pip", "install", "--no-index", "--quiet", os.path.join(repo, "client", "python")],
+                capture_output=True,
+                text=True,
+                cwd=tmp,
+            )
+            self.assertEqual(r.returncode, 0, r.stdout + r.stderr)
+            r = subprocess.run(
+                [python, "-c", "import eprfarm, eprfarm.proto.job_service_pb2_grpc as g; "
+                 "print(eprfarm.__file__); print(g.JobServiceStub.__name__)"],
+                capture_output=True,
+                text=True,
+                cwd=tmp,
+            )
+            self.assertEqual(r.returncode, 0, r.stderr)
+            self.assertTrue(r.stdout.startswith(venv), r.stdout)
+            self.assertIn("JobServiceStub", r.stdout)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def main() -> int:
+    global eprfarm, grpc
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--package-dir", required=True, help="folder holding the eprfarm package with its stubs")
+    parser.add_argument("--epr", required=True)
+    parser.add_argument("--master", required=True)
+    parser.add_argument("--worker", required=True)
+    args, rest = parser.parse_known_args()
+    ARGS.__dict__.update(vars(args))
+    sys.path.insert(0, os.path.abspath(args.package_dir))
+    import grpc
+    import eprfarm
+
+    program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
+    return 0 if program.result.wasSuccessful() else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
