@@ -76,22 +76,12 @@ class Farm:
 
     def __init__(self, folder: str, master_args: List[str] = (), worker: bool = True):
         self.folder = folder
+        self.master_args = list(master_args)
         self.processes: List[Process] = []
-        self.master = self._start(
-            [ARGS.master, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--state-dir", self.path("state")]
-            + list(master_args),
-            "master.log",
-        )
-        match = wait_for(lambda: re.search(r"epr-master listening on port ([0-9]+)", self.master.output()), 20)
-        if not match:
-            self.stop()
-            raise RuntimeError(f"epr-master did not start:\n{self.master.output()}")
-        self.address = f"127.0.0.1:{match.group(1)}"
+        self.master = self.start_master("127.0.0.1:0")
         if worker:
             self._start(
-                [ARGS.worker, "--master", self.address, "--threads", "2", "--cache-dir", self.path("cache")]
-                + (["--token-file", master_args[master_args.index("--token-file") + 1]]
-                   if "--token-file" in master_args else []),
+                [ARGS.worker, "--master", self.address, "--threads", "2", "--cache-dir", self.path("cache")],
                 "worker.log",
             )
 
@@ -102,6 +92,27 @@ class Farm:
         p = Process(argv, self.path(log))
         self.processes.append(p)
         return p
+
+    def start_master(self, listen: str) -> Process:
+        """Starts epr-master on `listen` (port 0: a free one) and waits until it says its port."""
+        runs = sum(1 for p in self.processes if os.path.basename(p.log_path).startswith("master"))
+        master = self._start(
+            [ARGS.master, "--listen", listen, "--http", "127.0.0.1:0", "--state-dir", self.path("state")]
+            + self.master_args,
+            f"master-{runs}.log",
+        )
+        match = wait_for(lambda: re.search(r"epr-master listening on port ([0-9]+)", master.output()), 20)
+        if not match:
+            self.stop()
+            raise RuntimeError(f"epr-master did not start:\n{master.output()}")
+        self.address = f"127.0.0.1:{match.group(1)}"
+        return master
+
+    def restart_master(self) -> None:
+        """Kills the master (SIGKILL: no goodbye) and starts it again on the same port and state folder."""
+        self.master.proc.kill()
+        self.master.proc.wait()
+        self.master = self.start_master(self.address)
 
     def logs(self) -> str:
         return "\n".join(f"--- {os.path.basename(p.log_path)}\n{p.output()[-4000:]}" for p in self.processes)
@@ -406,6 +417,77 @@ class TokenTest(unittest.TestCase):
         with self.assertRaises(eprfarm.TokenError) as ctx:
             eprfarm.Client(self.farm.address)
         self.assertIn("$EPR_TOKEN", str(ctx.exception))
+
+
+class TlsTest(unittest.TestCase):
+    """A master serving gRPC over TLS (--tls-cert, --tls-key) with a test certificate made by openssl."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="epr-python-tls-")
+        cls.cert = os.path.join(cls.tmp, "cert.pem")
+        key = os.path.join(cls.tmp, "key.pem")
+        subprocess.run(
+            ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", key, "-out", cls.cert, "-days", "1",
+             "-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1"],
+            check=True,
+            capture_output=True,
+        )
+        cls.farm = Farm(cls.tmp, ["--tls-cert", cls.cert, "--tls-key", key], worker=False)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.farm.stop()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def test_tls(self):
+        trusted = eprfarm.Client(self.farm.address, ca_file=self.cert)  # ca_file implies tls
+        job = trusted.submit("builtin:cornell", width=8, height=8, spp=1)
+        self.assertEqual(trusted.cancel(job).state, "CANCELLED")
+        trusted.close()
+        # Plain text to a TLS master, and TLS trusting only the system's roots, which do not know the
+        # test certificate: no connection.
+        for client in (eprfarm.Client(self.farm.address, timeout=5), eprfarm.Client(self.farm.address, tls=True)):
+            with self.assertRaises(eprfarm.RpcError) as ctx:
+                client.list()
+            self.assertTrue(ctx.exception.unreachable, ctx.exception)
+            client.close()
+        with self.assertRaises(ValueError):
+            eprfarm.Client(self.farm.address, ca_file=os.path.join(self.tmp, "missing.pem"))
+
+
+class MasterRestartTest(unittest.TestCase):
+    """A watch outlives a restart of its master: the job resumes from the state folder, the watch
+    reconnects and follows it to its end."""
+
+    def setUp(self):
+        self.tmp = tempfile.mkdtemp(prefix="epr-python-restart-")
+        self.farm = Farm(self.tmp)
+
+    def tearDown(self):
+        self.farm.stop()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def test_watch_reconnects(self):
+        client = eprfarm.Client(self.farm.address, watch_reconnect_timeout=30)
+        job = client.submit("builtin:cornell", width=32, height=32, spp=100000, mode="pt")
+        statuses = []
+        restarted = cancelled = False
+        with self.assertLogs("eprfarm", "WARNING") as logs:
+            for status in client.watch(job):
+                statuses.append(status)
+                if not restarted and status.round >= 1:
+                    self.farm.restart_master()
+                    restarted = True
+                elif restarted and not cancelled:
+                    # The new master resumed the job; only it can answer the cancel and report the end.
+                    self.assertEqual(client.cancel(job).state, "CANCELLED")
+                    cancelled = True
+        self.assertTrue(restarted and cancelled)
+        self.assertTrue(any(f"lost the watch of job {job}" in line for line in logs.output), logs.output)
+        self.assertEqual(statuses[-1].state, "CANCELLED")
+        self.assertEqual({s.id for s in statuses}, {job})
+        client.close()
 
 
 class SceneSandboxTest(unittest.TestCase):
