@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from typing import List, Optional
 
 import grpc
@@ -25,10 +26,12 @@ class Endpoint:
         else:
             self.channel = grpc.secure_channel(target, credentials, options=options)
         self.stub = pb_grpc.JobServiceStub(self.channel)
+        self._unsubscribed_at = 0.0  # monotonic time the last connection check ended
 
     def check_reachable(self, timeout: float) -> None:
         """Raises RpcError unless a connection is established within `timeout` seconds; fails at once
-        when the connection is refused."""
+        when the connection is refused (also while the channel still reports a failed attempt: gRPC
+        tries again after its reconnection backoff, as the C++ client's channel does)."""
         settled = threading.Event()
         outcome: List[grpc.ChannelConnectivity] = []
 
@@ -61,6 +64,10 @@ class Endpoint:
                 )
         finally:
             self.channel.unsubscribe(on_state)
+            self._unsubscribed_at = time.monotonic()
 
     def close(self) -> None:
+        # grpcio's connectivity polling thread notices an unsubscribe within 0.2 s; a channel closed
+        # before that makes it print a "Channel closed!" traceback (gRPC issue 18995). Let it stop.
+        time.sleep(max(0.0, self._unsubscribed_at + 0.25 - time.monotonic()))
         self.channel.close()

@@ -108,10 +108,14 @@ class Farm:
         self.address = f"127.0.0.1:{match.group(1)}"
         return master
 
-    def restart_master(self) -> None:
-        """Kills the master (SIGKILL: no goodbye) and starts it again on the same port and state folder."""
+    def kill_master(self) -> None:
+        """Kills the master with SIGKILL: no goodbye to anyone."""
         self.master.proc.kill()
         self.master.proc.wait()
+
+    def restart_master(self) -> None:
+        """Kills the master and starts it again on the same port and state folder."""
+        self.kill_master()
         self.master = self.start_master(self.address)
 
     def logs(self) -> str:
@@ -487,6 +491,35 @@ class MasterRestartTest(unittest.TestCase):
         self.assertTrue(any(f"lost the watch of job {job}" in line for line in logs.output), logs.output)
         self.assertEqual(statuses[-1].state, "CANCELLED")
         self.assertEqual({s.id for s in statuses}, {job})
+        client.close()
+
+    def test_calls_after_master_restart(self):
+        import numpy as np
+
+        client = eprfarm.Client(self.farm.address)
+        job = client.submit("builtin:cornell", width=16, height=16, spp=2, mode="pt")
+        self.assertEqual(client.wait(job).state, "DONE")
+        before = eprfarm.decode_exr(client.fetch_bytes(job, "exr").data)
+        self.farm.kill_master()
+        with self.assertRaises(eprfarm.RpcError) as ctx:
+            client.status(job)
+        self.assertTrue(ctx.exception.unreachable)
+        # The master back on its port and state folder: the same client reaches it again once the
+        # channel's reconnection backoff has passed, and the job is DONE with the same image (if the
+        # master was killed before the job's end was checkpointed, it runs its last rounds again).
+        self.farm.master = self.farm.start_master(self.farm.address)
+
+        def answers() -> bool:
+            try:
+                return bool(client.status(job))
+            except eprfarm.RpcError as e:
+                self.assertTrue(e.unreachable, e)
+                return False
+
+        self.assertTrue(wait_for(answers, 20, 0.2))
+        self.assertEqual(client.wait(job).state, "DONE")
+        after = eprfarm.decode_exr(client.fetch_bytes(job, "exr").data)
+        self.assertTrue(np.array_equal(before, after))
         client.close()
 
 
