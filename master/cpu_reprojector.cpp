@@ -36,7 +36,17 @@ CpuReprojector::CpuReprojector(const Camera& camera, detail::PlaneGrid grid, con
       grid_(std::move(grid)),
       subpixels_(grid_.subpixels) {
   detail::validate_reprojector_inputs(camera, grid_, settings);
-  cells_.resize(grid_.texel_plane.size());
+  const size_t texels = grid_.texel_plane.size();
+  // 16-bit plane indices when the table has fewer than 0xffff entries (as GL): kUncovered -> 0xffff.
+  // Narrowed before the accumulation is allocated, so that both indices are never held beside it.
+  if (grid_.planes.size() / 4 < kNarrowUncovered) {
+    narrow_plane_.resize(grid_.texel_plane.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, narrow_plane_.size()), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t i = r.begin(); i < r.end(); ++i) narrow_plane_[i] = uint16_t(grid_.texel_plane[i]);
+    });
+    std::vector<uint32_t>().swap(grid_.texel_plane);
+  }
+  cells_.resize(texels);
   target_.resize(kChunk);
 }
 
@@ -208,13 +218,13 @@ void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec
         target_[i] = texel;
         position_[i] = pos;
         normal_[i] = nrm;
-        __builtin_prefetch(&grid_.texel_plane[texel]);
+        prefetch_plane(texel);
       }
       uint32_t* owned = bin_counts(b, owners);
       for (size_t i = begin; i < end; ++i) {
         const uint32_t texel = target_[i];
         if (texel == kNone) continue;
-        const detail::Decision d = detail::plane_test(params_, grid_, position_[i], normal_[i], texel);
+        const detail::Decision d = detail::plane_test_entry(params_, grid_, position_[i], normal_[i], plane_of(texel));
         ++c[size_t(d)];
         if (d != detail::Decision::kAccepted)
           target_[i] = kNone;
@@ -272,14 +282,15 @@ void CpuReprojector::reproject(std::span<const VertexRecord> records) {
           continue;
         }
         target_[i] = texel;
-        __builtin_prefetch(&grid_.texel_plane[texel]);
+        prefetch_plane(texel);
       }
       // Pass B: the plane test of the candidates (counted per owner when parallel).
       uint32_t* owned = bin_counts(b, owners);
       for (size_t i = begin; i < end; ++i) {
         const uint32_t texel = target_[i];
         if (texel == kNone) continue;
-        const detail::Decision d = detail::plane_test(params_, grid_, rec[i].position, rec[i].normal, texel);
+        const detail::Decision d =
+            detail::plane_test_entry(params_, grid_, rec[i].position, rec[i].normal, plane_of(texel));
         ++c[size_t(d)];
         if (d != detail::Decision::kAccepted)
           target_[i] = kNone;

@@ -19,9 +19,9 @@
 // Calls of fewer than 32768 records (the master's one call per tile) and calls allowed one thread (the
 // arena's concurrency capped by tbb::global_control) take the serial path: classify, then one
 // in-order loop over the targets.
-// Memory: the grid (16 bytes per subpixel), the compact deep framebuffer (4 bytes per texel plus the
-// plane table) and ~20 bytes of scratch per chunk record (44 with reproject_packed): 1.3-2.9 MiB at
-// 2 threads, at most 10-22 MiB.
+// Memory: the grid (16 bytes per subpixel), the compact deep framebuffer (2 bytes per texel when the
+// plane table has fewer than 65535 entries, else 4, plus the table) and ~20 bytes of scratch per chunk record (44 with
+// reproject_packed): 1.3-2.9 MiB at 2 threads, at most 10-22 MiB.
 #pragma once
 
 #include <array>
@@ -67,6 +67,19 @@ class CpuReprojector final : public Reprojector {
     uint32_t mask = 0;   // owner of stripe j: j & mask
     size_t tasks = 1;
   };
+  static constexpr uint16_t kNarrowUncovered = 0xffff;
+  // The texel's plane-table entry (PlaneGrid::kUncovered if none), from whichever index is held.
+  uint32_t plane_of(uint32_t texel) const {
+    if (narrow_plane_.empty()) return grid_.texel_plane[texel];
+    const uint16_t p = narrow_plane_[texel];
+    return p == kNarrowUncovered ? detail::PlaneGrid::kUncovered : p;
+  }
+  void prefetch_plane(uint32_t texel) const {
+    if (narrow_plane_.empty())
+      __builtin_prefetch(&grid_.texel_plane[texel]);
+    else
+      __builtin_prefetch(&narrow_plane_[texel]);
+  }
   Owners owners_for(size_t n) const;
   size_t chunk_for(const Owners& o);                    // records per chunk; sizes the scratch
   uint32_t* bin_counts(size_t block, const Owners& o);  // the block's zeroed per-owner counts, or null
@@ -79,7 +92,8 @@ class CpuReprojector final : public Reprojector {
 
   ReprojectorSettings settings_;
   detail::KernelParams params_;
-  detail::PlaneGrid grid_;
+  detail::PlaneGrid grid_;              // its texel_plane is emptied when narrow_plane_ holds the index
+  std::vector<uint16_t> narrow_plane_;  // per texel: the plane entry in 16 bits (0xffff: uncovered), or empty
   int subpixels_;
   std::vector<Cell> cells_;
   std::vector<uint32_t> target_;     // per batch point: subpixel index or kNone

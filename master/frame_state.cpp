@@ -1,5 +1,7 @@
 #include "master/frame_state.h"
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <chrono>
 #include <stdexcept>
@@ -53,7 +55,6 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
       path_sum_(size_t(opts.width) * size_t(opts.height) * 3, 0.0),
       path_count_(size_t(opts.width) * size_t(opts.height), 0),
       mprime_(size_t(opts.width) * size_t(opts.height), 0),
-      reprojected_radiance_(opts.width, opts.height, 3),
       skip_(size_t(opts.width) * size_t(opts.height), 0) {
   if (camera.width() != width_ || camera.height() != height_)
     throw std::invalid_argument("camera and frame sizes differ");
@@ -114,18 +115,28 @@ void FrameState::add_exact(std::span<const ExactSample> samples) {
   reprojector_->add_exact(samples);
 }
 
-void FrameState::refresh_reprojection(bool active_only, bool counts_only) {
+void FrameState::refresh_counts(bool active_only) {
   if (!reprojector_) return;
   ScopedTimer t(&seconds_reprojecting_);
   ScopedTimer d(&seconds_downsampling_);
-  PixelReprojection pr{std::move(reprojected_radiance_), std::move(mprime_)};
-  counts_only = counts_only && active_only;
+  PixelReprojection pr{Image(), std::move(mprime_)};
   reprojector_->downsample_pixels_into(&pr, active_only ? std::span<const uint8_t>(skip_) : std::span<const uint8_t>(),
-                                       counts_only);
+                                       /*counts_only=*/true);
   mprime_ = std::move(pr.count);
-  reprojected_radiance_ = std::move(pr.radiance);
   reprojection_partial_ = active_only;
-  radiance_stale_ = counts_only;
+}
+
+Image FrameState::reprojected_radiance(bool counts_too) {
+  ScopedTimer t(&seconds_reprojecting_);
+  ScopedTimer d(&seconds_downsampling_);
+  PixelReprojection pr;
+  if (counts_too) pr.count = std::move(mprime_);
+  reprojector_->downsample_pixels_into(&pr);
+  if (counts_too) {
+    mprime_ = std::move(pr.count);
+    reprojection_partial_ = false;
+  }
+  return std::move(pr.radiance);
 }
 
 int FrameState::next_paths_per_pixel() const { return round_paths(opts_, paths_done_); }
@@ -139,9 +150,9 @@ bool FrameState::finish_round() {
   // brought up to date for the last round and the images. The progress figures below see skipped
   // pixels' M' as of the last round they were active in, until the last round refreshes every pixel.
   if (paths_done_ >= opts_.spp) {
-    refresh_reprojection(false);
+    refresh_counts(false);
   } else if (skipping) {
-    refresh_reprojection(true, /*counts_only=*/true);
+    refresh_counts(true);
   }
   const uint64_t target = uint64_t(opts_.spp);
   uint64_t active = 0, skipped = 0;
@@ -156,7 +167,7 @@ bool FrameState::finish_round() {
     active += !skip_[p];
   }
   done_ = active == 0 || paths_done_ >= opts_.spp;
-  if (done_ && (reprojection_partial_ || radiance_stale_)) refresh_reprojection(false);
+  if (done_ && reprojection_partial_) refresh_counts(false);
   progress_.pixels_active = active;
   progress_.pixels_skipped += skipped;
   update_sample_progress();
@@ -212,7 +223,6 @@ FrameSnapshot FrameState::save() {
   s.path_sum = path_sum_;
   s.path_count = path_count_;
   s.mprime = mprime_;
-  s.reprojected = reprojected_radiance_.data;
   s.skip = skip_;
   s.paths_done = paths_done_;
   s.done = done_;
@@ -234,7 +244,6 @@ FrameView FrameState::view() {
   v.path_sum = path_sum_;
   v.path_count = path_count_;
   v.mprime = mprime_;
-  v.reprojected = reprojected_radiance_.data;
   v.skip = skip_;
   v.paths_done = paths_done_;
   v.done = done_;
@@ -304,8 +313,8 @@ void FrameState::restore(const FrameSnapshot& s) {
   if (s.width != width_ || s.height != height_)
     throw std::invalid_argument("the snapshot is of a " + std::to_string(s.width) + "x" + std::to_string(s.height) +
                                 " frame, this frame is " + std::to_string(width_) + "x" + std::to_string(height_));
-  if (s.path_sum.size() != 3 * n || s.path_count.size() != n || s.mprime.size() != n || s.reprojected.size() != 3 * n ||
-      s.skip.size() != n)
+  if (s.path_sum.size() != 3 * n || s.path_count.size() != n || s.mprime.size() != n ||
+      (!s.reprojected.empty() && s.reprojected.size() != 3 * n) || s.skip.size() != n)
     throw std::invalid_argument("the snapshot's per-pixel arrays do not match the frame size");
   if (s.has_accumulation != (reprojector_ != nullptr))
     throw std::invalid_argument(s.has_accumulation
@@ -335,7 +344,6 @@ void FrameState::restore(const FrameSnapshot& s) {
   path_sum_ = s.path_sum;
   path_count_ = s.path_count;
   mprime_ = s.mprime;
-  reprojected_radiance_.data = s.reprojected;
   skip_ = s.skip;
   paths_done_ = s.paths_done;
   done_ = s.done;
@@ -343,41 +351,38 @@ void FrameState::restore(const FrameSnapshot& s) {
   seconds_reprojecting_ = s.seconds_reprojecting;
   seconds_downsampling_ = s.seconds_downsampling;
   reprojection_partial_ = reprojector_ != nullptr;  // the snapshot may hold a partial refresh
-  radiance_stale_ = reprojection_partial_;
 }
 
 FrameImages FrameState::images(bool preview) {
-  // Skip mode: the last round refreshed only the active pixels; bring the skipped ones up to date
-  // too, unless a preview does without them.
-  if (reprojector_ && opts_.mode != RenderMode::kSkip) {
-    refresh_reprojection(false);
-  } else if (reprojector_ && reprojection_partial_ && !preview) {
-    refresh_reprojection(false);
-    update_sample_progress();  // M' of the skipped pixels changed
-  } else if (reprojector_ && radiance_stale_) {
-    refresh_reprojection(true);  // a preview: L_rp of the active pixels (the round refreshed M' alone)
-  }
   FrameImages out;
-  Image sum(width_, height_, 3);
+  // L_rp is not kept between rounds: it is downsampled from the accumulation here, every pixel. M'
+  // comes along (and is kept) unless this is a skip-mode preview, which shows the skipped pixels' M'
+  // as of the last round they were active in (their L_rp is current).
+  if (reprojector_) {
+    const bool was_partial = reprojection_partial_;
+    const bool keep_counts = preview && opts_.mode == RenderMode::kSkip;
+    out.reprojection = reprojected_radiance(!keep_counts);
+    if (was_partial && !reprojection_partial_) update_sample_progress();  // M' of the skipped pixels changed
+  }
   out.pathtrace = Image(width_, height_, 3);
   out.path_count = Image(width_, height_, 1);
   out.reprojected = Image(width_, height_, 1);
-  for (int y = 0; y < height_; ++y)
+  if (reprojector_) out.combined = Image(width_, height_, 3);
+  tbb::parallel_for(0, height_, [&](int y) {
     for (int x = 0; x < width_; ++x) {
       const size_t p = pixel(x, y);
       const double m = path_count_[p];
-      const Vec3 s{float(path_sum_[3 * p]), float(path_sum_[3 * p + 1]), float(path_sum_[3 * p + 2])};
-      sum.set_rgb(x, y, s);
-      out.pathtrace.set_rgb(
-          x, y,
-          m > 0 ? Vec3(float(path_sum_[3 * p] / m), float(path_sum_[3 * p + 1] / m), float(path_sum_[3 * p + 2] / m))
-                : Vec3(0.f));
+      const double* ps = &path_sum_[3 * p];
+      out.pathtrace.set_rgb(x, y, m > 0 ? Vec3(float(ps[0] / m), float(ps[1] / m), float(ps[2] / m)) : Vec3(0.f));
       out.path_count.at(x, y)[0] = float(m);
       out.reprojected.at(x, y)[0] = float(mprime_[p]);
+      if (reprojector_)
+        out.combined.set_rgb(x, y,
+                             combine_pixel(Vec3(float(ps[0]), float(ps[1]), float(ps[2])), path_count_[p], mprime_[p],
+                                           out.reprojection.rgb(x, y)));
     }
-  out.reprojection = reprojected_radiance_;
-  PixelReprojection pr{reprojected_radiance_, mprime_};
-  out.combined = reprojector_ ? combine(sum, path_count_, pr) : out.pathtrace;
+  });
+  if (!reprojector_) out.combined = out.pathtrace;
   return out;
 }
 

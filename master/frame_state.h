@@ -61,7 +61,8 @@ struct FrameSnapshot {
   std::vector<double> path_sum;      // 3 per pixel
   std::vector<uint32_t> path_count;  // M
   std::vector<uint64_t> mprime;      // M' as of the last downsample
-  std::vector<float> reprojected;    // L_rp as of the last downsample, 3 per pixel
+  std::vector<float>
+      reprojected;  // empty (L_rp is downsampled when needed); older checkpoints' 3 per pixel are ignored
   std::vector<uint8_t> skip;
   int paths_done = 0;
   bool done = false;
@@ -83,7 +84,7 @@ struct FrameView {
   std::span<const double> path_sum;
   std::span<const uint32_t> path_count;
   std::span<const uint64_t> mprime;
-  std::span<const float> reprojected;
+  std::span<const float> reprojected;  // empty (FrameSnapshot::reprojected)
   std::span<const uint8_t> skip;
   int paths_done = 0;
   bool done = false;
@@ -153,10 +154,10 @@ class FrameState {
   /// Continues from `snapshot`. Throws std::invalid_argument (naming the mismatch) if it was not
   /// taken from a FrameState of the same size and reprojection set-up; the state is then unchanged.
   void restore(const FrameSnapshot& snapshot);
-  /// The images as of the last finished round (L_rp and M' read back from the accumulation). A skip
-  /// round refreshes only the active pixels' M'; with `preview` the active pixels' L_rp is brought up
-  /// to date and the skipped pixels stay as of the last round they were active in (no read-back for
-  /// them), without it every pixel is.
+  /// The images as of the last finished round (L_rp and M' read back from the accumulation: L_rp of
+  /// every pixel is downsampled here, it is not kept between calls). A skip round refreshes only the
+  /// active pixels' M'; with `preview` the skipped pixels' M' stays as of the last round they were
+  /// active in, without it every pixel's is brought up to date.
   FrameImages images(bool preview = false);
 
   int width() const { return width_; }
@@ -166,9 +167,11 @@ class FrameState {
   const std::vector<uint64_t>& reprojected_counts() const { return mprime_; }
 
  private:
-  // M' and L_rp from the reprojector: every pixel, or (active_only) the pixels not skipped;
-  // counts_only (with active_only): M' alone, as a skip round's decision needs.
-  void refresh_reprojection(bool active_only, bool counts_only = false);
+  // M' from the reprojector: every pixel, or (active_only) the pixels not skipped.
+  void refresh_counts(bool active_only);
+  // L_rp of every pixel, downsampled from the accumulation (reprojecting frames only); with
+  // `counts_too` M' of every pixel is brought up to date on the way.
+  Image reprojected_radiance(bool counts_too);
   // progress_'s path and sample counts (paths traced, mean M, M', M + M', min M + M') from the arrays.
   void update_sample_progress();
   size_t pixel(int x, int y) const { return size_t(y) * size_t(width_) + size_t(x); }
@@ -179,10 +182,8 @@ class FrameState {
   std::unique_ptr<VertexCodec> codec_;  // the wire's quantisation (scene bounds), when reprojecting
   std::vector<double> path_sum_;        // 3 per pixel
   std::vector<uint32_t> path_count_;    // M
-  std::vector<uint64_t> mprime_;        // M' as of the last downsample
-  Image reprojected_radiance_;          // L_rp as of the last downsample
-  bool reprojection_partial_ = false;   // the last downsample left skipped pixels as they were
-  bool radiance_stale_ = false;         // ... and L_rp of the active ones too (a counts-only refresh)
+  std::vector<uint64_t> mprime_;        // M' as of the last downsample (L_rp is made when asked for)
+  bool reprojection_partial_ = false;   // the last downsample left skipped pixels' M' as they were
   std::vector<uint8_t> skip_;           // 1 = no more paths for this pixel
   int paths_done_ = 0;                  // paths every active pixel has traced
   bool done_ = false;

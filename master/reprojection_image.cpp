@@ -11,19 +11,22 @@ namespace epr {
 namespace {
 
 // The downsampling, for any storage of the cells: `cell(gy, gx)` returns the subpixel of grid row gy
-// and column gx. Only pixels p with
-// skip[p] == 0 (every pixel if `skip` is empty, or if *out is not W x H: it is then reallocated);
-// `counts_only`: only the counts (not on a reallocated *out, whose radiance would be left empty).
+// and column gx. Only pixels p with skip[p] == 0 (every pixel if `skip` is empty, or if what is
+// written is not W x H: it is then reallocated); `counts_only`: only the counts (the radiance is
+// neither written nor reallocated).
 template <class CellAt>
 void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::span<const uint8_t> skip,
                      PixelReprojection* outp, bool counts_only = false) {
   const int W = grid_w / S, H = grid_h / S;
   const size_t pixels = size_t(W) * size_t(H);
   PixelReprojection& out = *outp;
-  if (out.radiance.width != W || out.radiance.height != H || out.radiance.channels != 3 || out.count.size() != pixels) {
-    out = PixelReprojection{Image(W, H, 3), std::vector<uint64_t>(pixels, 0)};
+  if (out.count.size() != pixels) {
+    out.count.assign(pixels, 0);
     skip = {};
-    counts_only = false;
+  }
+  if (!counts_only && (out.radiance.width != W || out.radiance.height != H || out.radiance.channels != 3)) {
+    out.radiance = Image(W, H, 3);
+    skip = {};
   }
   if (!skip.empty() && skip.size() != pixels) throw std::invalid_argument("downsample: skip mask of the wrong size");
   tbb::parallel_for(0, H, [&](int y) {
@@ -98,6 +101,13 @@ void downsample_bands(std::span<const AccumulationCell* const> bands, int band_r
       skip, out, counts_only);
 }
 
+Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint64_t reprojected_count, const Vec3& lrp) {
+  const double m = path_count, mr = double(reprojected_count);
+  if (m + mr == 0) return Vec3(0.f);
+  return Vec3(float((path_sum.x + mr * lrp.x) / (m + mr)), float((path_sum.y + mr * lrp.y) / (m + mr)),
+              float((path_sum.z + mr * lrp.z) / (m + mr)));
+}
+
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp) {
   const size_t n = size_t(path_sum.width) * size_t(path_sum.height);
   if (path_sum.channels < 3 || path_count.size() != n || rp.radiance.width != path_sum.width ||
@@ -109,12 +119,7 @@ Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, co
   tbb::parallel_for(0, path_sum.height, [&](int y) {
     for (int x = 0; x < path_sum.width; ++x) {
       const size_t p = size_t(y) * size_t(path_sum.width) + size_t(x);
-      const double m = path_count[p], mr = double(rp.count[p]);
-      if (m + mr == 0) continue;
-      const Vec3 ps = path_sum.rgb(x, y), lr = rp.radiance.rgb(x, y);
-      out.set_rgb(x, y,
-                  Vec3(float((ps.x + mr * lr.x) / (m + mr)), float((ps.y + mr * lr.y) / (m + mr)),
-                       float((ps.z + mr * lr.z) / (m + mr))));
+      out.set_rgb(x, y, combine_pixel(path_sum.rgb(x, y), path_count[p], rp.count[p], rp.radiance.rgb(x, y)));
     }
   });
   return out;

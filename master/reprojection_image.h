@@ -48,9 +48,10 @@ static_assert(sizeof(AccumulationCell) == 16);
 
 /// The same downsampling straight from a back-end's cells (grid_w x grid_h subpixels, S per axis),
 /// without copying the grid first, into *out: only the pixels p with skip[p] == 0 are computed, the
-/// others keep their values (every pixel if `skip` is empty or *out is not of the image's size, in
-/// which case it is reallocated). `counts_only`: only M' (out->count), L_rp stays as it was -- a
-/// skip round's decision needs no radiance, and the sum of counts costs no divisions.
+/// others keep their values (every pixel if `skip` is empty or what is written is not of the image's
+/// size, in which case it is reallocated). `counts_only`: only M' (out->count), out->radiance is left
+/// as it was, also when empty -- a skip round's decision needs no radiance, and the sum of counts
+/// costs no divisions.
 void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int subpixels,
                       std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only = false);
 /// The same for a grid kept in bands of `band_rows` grid rows (the last may be shorter): bands[b]
@@ -58,6 +59,8 @@ void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int g
 void downsample_bands(std::span<const AccumulationCell* const> bands, int band_rows, int grid_w, int grid_h,
                       int subpixels, std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only = false);
 
+/// L(p) of one pixel: (path_sum + M' L_rp) / (M + M') in double, 0 if M + M' = 0.
+Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint64_t reprojected_count, const Vec3& lrp);
 /// L(p) = (path_sum + M' L_rp) / (M + M'). `path_sum` is the sum (not the mean) of p's M path samples.
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& reprojected);
 

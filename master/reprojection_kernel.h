@@ -160,9 +160,10 @@ inline Decision project_and_face(const KernelParams& k, const Vec3& p, const Vec
   return Decision::kAccepted;
 }
 
-/// Steps 5-6: coverage, plane distance, normal agreement and creases of a candidate at `texel`.
-inline Decision plane_test(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, const Vec3& n, uint32_t texel) {
-  const uint32_t plane = grid.texel_plane[texel];
+/// Steps 5-6 for a candidate whose texel's entry is `plane` (grid.texel_plane[texel], or a
+/// back-end's narrower copy of it, widened; PlaneGrid::kUncovered if no triangle covers the texel).
+inline Decision plane_test_entry(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, const Vec3& n,
+                                 uint32_t plane) {
   if (plane == PlaneGrid::kUncovered) return Decision::kOccluded;
   const float* t = &grid.planes[4 * size_t(plane)];
   const float dist = p.x * t[0] + p.y * t[1] + p.z * t[2] - t[3];
@@ -177,6 +178,11 @@ inline Decision plane_test(const KernelParams& k, const PlaneGrid& grid, const V
     if (e < -k.crease_tolerance) return Decision::kOccluded;
   }
   return Decision::kAccepted;
+}
+
+/// Steps 5-6: coverage, plane distance, normal agreement and creases of a candidate at `texel`.
+inline Decision plane_test(const KernelParams& k, const PlaneGrid& grid, const Vec3& p, const Vec3& n, uint32_t texel) {
+  return plane_test_entry(k, grid, p, n, grid.texel_plane[texel]);
 }
 
 /// Steps 3-6 for a finite record: the decision and, if accepted, the subpixel index.

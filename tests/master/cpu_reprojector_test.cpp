@@ -127,3 +127,41 @@ TEST(CpuReprojector, PartitionedAccumulationEqualsTheSerialLoopBitForBit) {
 
 }  // namespace
 }  // namespace epr
+
+namespace epr {
+namespace {
+
+// The CPU back-end holds the plane index in 16 bits when the plane table has fewer than 65535
+// entries, else in 32: the same plane grid padded past 65535 entries (unused ones) decides and sums
+// every record alike, packed or not.
+TEST(CpuReprojector, NarrowAndWidePlaneIndicesDecideAlike) {
+  const Scene scene = test::scene_named("cornell");
+  const Camera cam(scene.camera, 80, 60);
+  const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, cam, 4);
+  ReprojectorSettings settings;
+  settings.epsilon = default_epsilon(scene.bounds());
+  const detail::PlaneGrid narrow = detail::plane_grid_for(cam, dfb, settings);
+  ASSERT_LT(narrow.planes.size() / 4, 0xffffu);
+  detail::PlaneGrid wide = narrow;
+  wide.planes.resize(wide.planes.size() + 4 * 70000, 0.f);  // entries no texel refers to
+  std::mt19937 rng(99);
+  std::vector<VertexRecord> pts = test::real_like_points(scene, dfb, cam, 60000, 99);
+  test::add_boundary_points(dfb, cam, 5000, rng, pts);
+  const VertexCodec codec(scene.bounds());
+  std::string packed;
+  codec.encode_batch(pts, &packed);
+  CpuReprojector a(cam, narrow, settings), b(cam, std::move(wide), settings);
+  for (CpuReprojector* r : {&a, &b}) {
+    r->reproject(pts);
+    r->reproject_packed(packed, codec);
+  }
+  EXPECT_EQ(a.counts(), b.counts());
+  EXPECT_GT(a.counts().accepted, 10000u) << "too few accepted points to compare";
+  EXPECT_GT(a.counts().occluded, 100u) << "no occluded points: the plane test's rejections are not compared";
+  const SubpixelAccumulation x = a.read(), y = b.read();
+  EXPECT_EQ(x.count, y.count);
+  EXPECT_TRUE(same_bits(x.sum, y.sum));
+}
+
+}  // namespace
+}  // namespace epr

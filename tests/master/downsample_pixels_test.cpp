@@ -105,7 +105,10 @@ TEST_F(DownsamplePixels, CountsOnlyRefreshesTheActivePixelsCounts) {
     auto r = make_reprojector(backend, cam, dfb, rs, &gl);
     r->reproject(first);
     PixelReprojection out;
-    r->downsample_pixels_into(&out, skip, /*counts_only=*/true);  // empty *out: everything, counts or not
+    r->downsample_pixels_into(&out, skip, /*counts_only=*/true);  // empty *out: every pixel's M', no L_rp
+    EXPECT_EQ(out.count, downsample(r->read()).count);
+    EXPECT_TRUE(out.radiance.data.empty()) << "counts_only must not make L_rp";
+    r->downsample_pixels_into(&out);
     const PixelReprojection before = out;
     expect_same(before, downsample(r->read()));
     r->reproject(second);
