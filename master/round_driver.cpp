@@ -10,6 +10,21 @@ namespace epr {
 RoundDriver::RoundDriver(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl)
     : frame_(opts, camera, scene, gl) {}
 
+namespace {
+
+// The tiles with active pixels, most first. Every active pixel of a round traces the same number of
+// paths, so a tile costs about its active pixels. The results do not depend on the order: each
+// pixel's samples are keyed by (pixel, sample).
+std::vector<uint32_t> busiest_first(const std::vector<size_t>& active) {
+  std::vector<uint32_t> order;
+  for (uint32_t t = 0; t < active.size(); ++t)
+    if (active[t] > 0) order.push_back(t);
+  std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return active[a] > active[b]; });
+  return order;
+}
+
+}  // namespace
+
 RoundPlan RoundDriver::open(const std::vector<TileRect>& tiles) const {
   RoundPlan plan;
   plan.round = uint32_t(frame_.round());
@@ -22,11 +37,26 @@ RoundPlan RoundDriver::open(const std::vector<TileRect>& tiles) const {
     if (frame_.tile_idle(r.x0, r.y0, r.x1, r.y1)) continue;
     frame_.tile_inputs(r.x0, r.y0, r.x1, r.y1, &plan.skip[t], &plan.first_sample[t]);
     active[t] = size_t(std::count(plan.skip[t].begin(), plan.skip[t].end(), uint8_t(0)));
-    plan.order.push_back(t);
   }
-  // Every active pixel of a round traces the same number of paths, so a tile costs about its active
-  // pixels. The results do not depend on the order: each pixel's samples are keyed by (pixel, sample).
-  std::stable_sort(plan.order.begin(), plan.order.end(), [&](uint32_t a, uint32_t b) { return active[a] > active[b]; });
+  plan.order = busiest_first(active);
+  return plan;
+}
+
+RoundPlan RoundDriver::first_plan(const RenderOptions& opts, const std::vector<TileRect>& tiles) {
+  RoundPlan plan;
+  plan.round = 0;
+  plan.paths_per_pixel = round_paths(opts, 0);
+  plan.skip.resize(tiles.size());
+  plan.first_sample.resize(tiles.size());
+  std::vector<size_t> active(tiles.size(), 0);
+  for (uint32_t t = 0; t < tiles.size(); ++t) {
+    const TileRect& r = tiles[t];
+    if (r.x1 <= r.x0 || r.y1 <= r.y0) continue;
+    active[t] = size_t(r.x1 - r.x0) * size_t(r.y1 - r.y0);
+    plan.skip[t].assign(active[t], 0);
+    plan.first_sample[t].assign(active[t], 0);
+  }
+  plan.order = busiest_first(active);
   return plan;
 }
 

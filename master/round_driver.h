@@ -2,7 +2,7 @@
 // (client/local_render.cpp) and the master (master/server/job_manager.cpp), so that both plan,
 // apply and close rounds the same way:
 //   open()   the next round's inputs per tile, and the order to trace them in (most active pixels
-//            first: the round ends on small tiles);
+//            first: the round ends on small tiles); first_plan() the same for round 0, frame or not;
 //   apply()  a tile's result: path sums, then its vertices or exact samples (any order within a
 //            round; commits of one round touch disjoint pixels); or several tiles of one round in
 //            one go (one reprojector call for all their vertices, the same state as one by one);
@@ -44,6 +44,9 @@ class RoundDriver {
 
   bool done() const { return frame_.done(); }
   RoundPlan open(const std::vector<TileRect>& tiles) const;
+  /// The plan open() gives for round 0 of a new frame (every pixel traces, from sample 0), without
+  /// a frame: the master opens a fresh job's round 0 while its frame is being built.
+  static RoundPlan first_plan(const RenderOptions& opts, const std::vector<TileRect>& tiles);
   void apply(const TileResult& result);
   void apply(const AssembledTile& tile);
   /// The tiles of one round in the order given, with the same result as apply() of each in turn, bit

@@ -69,6 +69,8 @@ void Job::add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t no
                  {"worker_failures", c.worker_failures},
                  {"seconds", double(now_ms - started_ms) / 1000.0},
                  {"seconds_tracing", c.seconds_tracing},
+                 {"seconds_scene_load", seconds_scene_load},
+                 {"seconds_frame_build", seconds_frame_build},
                  {"budget_exhausted", budget_exhausted}});
 }
 

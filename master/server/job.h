@@ -75,6 +75,8 @@ struct Job {
   uint64_t triangles = 0;
   Bounds3 codec_bounds;
   std::vector<TileRect> tiles;
+  // Started: its first round opened in this master (a fresh job's round 0 before its frame is built,
+  // so a job's seconds include that build); a resumed job keeps its first start.
   int64_t submitted_ms = 0, started_ms = 0, finished_ms = 0;
   FrameProgress progress;
   ReprojectionCounts counts;
@@ -92,6 +94,9 @@ struct Job {
   double reprojecting_at_round_open = 0;  // seconds_reprojecting when the round opened
   std::chrono::steady_clock::time_point last_commit_at;
   double seconds_round_backlog = 0, seconds_round_closing = 0, seconds_writing_results = 0;
+  // This master's start of the job: loading its scene (before the job runs), and building its frame
+  // (a fresh job's round 0 is traced meanwhile; a resumed job's frame is built before it runs).
+  double seconds_scene_load = 0, seconds_frame_build = 0;
 
   // Round checkpoints (MasterOptions::checkpoint_interval_s): when the last was taken (0: none yet in
   // this master's run) and what it cost, copy + write, seconds.

@@ -12,7 +12,8 @@
 //  - gRPC handlers call the public methods; each takes the manager's mutex briefly and never waits
 //    for tracing or reprojection work.
 //  - One reprojection thread owns the OSMesa context and every job's RoundDriver: it starts jobs
-//    (deep framebuffer), applies committed tiles in commit order, closes rounds (M', skip mask),
+//    (a fresh job's round 0 opens before its deep framebuffer is built, a resumed job's round after
+//    its frame is restored), applies committed tiles in commit order, closes rounds (M', skip mask),
 //    opens the next round and writes results.
 //  - A reaper thread expires leases past their deadline and forgets silent workers.
 //  - The checkpointer's thread writes checkpoints.
@@ -88,6 +89,11 @@ struct MasterOptions {
   double speculative_factor = 2.0;
   int speculative_floor_ms = 1000;
   int max_worker_failures = 3;
+
+  // Called on the reprojection thread just before a job's frame is built (a fresh job's round 0 is
+  // open by then, a resumed job's not yet), with the job's id; what it throws fails the job as a
+  // failed build would. For tests: to hold the build while tiles are committed, or to fail it.
+  std::function<void(const std::string& job_id)> before_frame_build;
 
   LeasePolicy lease_policy() const {
     return {lease_timeout_ms, heartbeat_interval_ms, speculative_factor, speculative_floor_ms, max_worker_failures};
@@ -232,7 +238,8 @@ class JobManager {
   // The reprojection thread.
   void reprojection_loop() EPR_EXCLUDES(mu_);
   void start_job(const std::shared_ptr<Job>& job, GlContext* gl) EPR_EXCLUDES(mu_);
-  void open_round(Job& job) EPR_REQUIRES(mu_);
+  /// Opens job.round with `plan` (RoundDriver::open, or first_plan before a fresh job's frame exists).
+  void open_round(Job& job, RoundPlan plan) EPR_REQUIRES(mu_);
   /// Applies queued commits of one job and round, in commit order (RoundDriver::apply of a span).
   void apply_commits(const std::vector<std::unique_ptr<Task>>& batch) EPR_EXCLUDES(mu_);
   void close_round(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);

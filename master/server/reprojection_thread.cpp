@@ -1,6 +1,7 @@
-// JobManager's reprojection thread (job_manager.h): it starts the queued job (scene, deep
-// framebuffer, checkpoint), applies committed tiles in commit order through the job's RoundDriver,
-// closes rounds and opens the next, writes the finished job's results, and takes round checkpoints.
+// JobManager's reprojection thread (job_manager.h): it starts the queued job (scene; a fresh job's
+// round 0 opens, then its deep framebuffer is built; a resumed job's frame is restored first),
+// applies committed tiles in commit order through the job's RoundDriver, closes rounds and opens the
+// next, writes the finished job's results, and takes round checkpoints.
 // It alone touches a job's driver, scene and camera; every other Job field under the manager's mutex.
 #include <fmt/format.h>
 
@@ -86,12 +87,16 @@ void JobManager::reprojection_loop() {
       try {
         start_job(to_start, gl.get());
       } catch (const std::exception& e) {
+        // A fresh job's round 0 may be open by now: ending the job closes it (its leases are no
+        // longer wanted, its queued commits are dropped unapplied).
         log->error("job {} failed to start: {}", to_start->id, e.what());
         {
           MutexLock lock(mu_);
           active_.reset();
         }
         end_job(to_start, JobState::kFailed, e.what());
+        to_start->driver.reset();
+        to_start->scene.reset();
       }
     } else if (!batch.empty()) {
       try {
@@ -160,59 +165,93 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
   job->scene = std::make_unique<Scene>(load_bundle(*job->bundle, cache_dir()));
   const double scene_s = seconds_since(setup);
   job->camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
-  job->driver = std::make_unique<RoundDriver>(opts, *job->camera, *job->scene, gl);
-  logger("master")->info(
-      "job {} set up in {:.2f} s: scene {:.2f} s, frame state (deep framebuffer, accumulation) {:.2f} s", job->id,
-      seconds_since(setup), scene_s, seconds_since(setup) - scene_s);
-  FrameState& frame = job->driver->frame();
   std::shared_ptr<const JobProgressRecord> resume;
   {
     MutexLock lock(mu_);
     resume = std::move(job->resume);
+    job->triangles = job->scene->triangle_count();
+    job->codec_bounds = job->scene->bounds();
+    job->seconds_scene_load = scene_s;
   }
   const bool had_checkpoint = resume != nullptr;
-  if (resume) {
-    try {
-      frame.restore(*resume->frame);
-    } catch (const std::exception& e) {
-      logger("master")->error("job {}: its checkpoint does not fit ({}); starting it again from round 0", job->id,
-                              e.what());
-      resume.reset();
+  // A fresh job's round 0 traces every pixel from sample 0, which needs no frame: its leases open
+  // now, and the frame (deep framebuffer, accumulation) is built while workers trace them. Their
+  // commits wait in the commit queue (bounded as ever) and are applied once the frame exists. A
+  // resumed job's round has skip masks: its frame is restored before the round opens.
+  if (!had_checkpoint) {
+    {
+      MutexLock lock(mu_);
+      if (job->state != JobState::kQueued) return;  // cancelled meanwhile
+      job->state = JobState::kRunning;
+      job->started_ms = clock_();
+      job->round = 0;
+      job->leases =
+          std::make_unique<LeaseTable>(job->id, job->tiles.size(), options_.lease_policy(), clock_, &job->counters);
+      open_round(*job, RoundDriver::first_plan(job->request.options, job->tiles));
+      wake_parked(/*all=*/false);
     }
+    answer_due();
+    logger("master")->info("job {} running: {} triangles, {} tiles; round 0 is traced while its frame is built",
+                           job->id, job->scene->triangle_count(), job->tiles.size());
+    notify(job);
+  }
+  if (options_.before_frame_build) options_.before_frame_build(job->id);
+  const auto build = std::chrono::steady_clock::now();
+  job->driver = std::make_unique<RoundDriver>(opts, *job->camera, *job->scene, gl);
+  const double build_s = seconds_since(build);
+  FrameState& frame = job->driver->frame();
+  uint64_t committed_meanwhile = 0;
+  {
+    MutexLock lock(mu_);
+    job->seconds_frame_build = build_s;
+    // The round's reprojection time (its histogram) leaves the build out.
+    job->reprojecting_at_round_open = frame.seconds_reprojecting();
+    committed_meanwhile = job->counters.tiles_committed;
+  }
+  logger("master")->info(
+      "job {} set up in {:.2f} s: scene {:.2f} s, frame state (deep framebuffer, accumulation) {:.2f} s{}", job->id,
+      scene_s + build_s, scene_s, build_s,
+      had_checkpoint ? std::string()
+                     : fmt::format(" (round 0 open meanwhile: {} tiles committed)", committed_meanwhile));
+  if (!had_checkpoint) return;  // the commits queued meanwhile are applied next (reprojection_loop)
+  try {
+    frame.restore(*resume->frame);
+  } catch (const std::exception& e) {
+    logger("master")->error("job {}: its checkpoint does not fit ({}); starting it again from round 0", job->id,
+                            e.what());
+    resume.reset();
   }
   {
     MutexLock lock(mu_);
-    job->triangles = job->scene->triangle_count();
-    job->codec_bounds = job->scene->bounds();
     if (job->state != JobState::kQueued) return;  // cancelled meanwhile
     job->state = JobState::kRunning;
     job->started_ms = clock_();
-    if (had_checkpoint) {
-      // The counters go on from the checkpoint's; a checkpoint that did not fit starts them again.
-      job->counters = resume ? resume->counters : JobCounters{};
-      if (resume) job->started_ms = resume->started_ms;
-      job->progress = frame.progress();
-      job->counts = frame.counts();
-      job->round = uint32_t(frame.round());
-      job->counters.seconds_reprojecting = frame.seconds_reprojecting();
-    }
+    // The counters go on from the checkpoint's; a checkpoint that did not fit starts them again.
+    job->counters = resume ? resume->counters : JobCounters{};
+    if (resume) job->started_ms = resume->started_ms;
+    job->progress = frame.progress();
+    job->counts = frame.counts();
+    job->round = uint32_t(frame.round());
+    job->counters.seconds_reprojecting = frame.seconds_reprojecting();
     job->leases =
         std::make_unique<LeaseTable>(job->id, job->tiles.size(), options_.lease_policy(), clock_, &job->counters);
-    open_round(*job);
+    open_round(*job, job->driver->open(job->tiles));
     wake_parked(/*all=*/false);
   }
   answer_due();
-  logger("master")->info("job {} running: {} triangles, {} tiles", job->id, job->triangles, job->tiles.size());
+  logger("master")->info("job {} running from round {}: {} triangles, {} tiles", job->id, frame.round(),
+                         job->scene->triangle_count(), job->tiles.size());
   notify(job);
 }
 
-void JobManager::open_round(Job& job) {
-  job.plan = job.driver->open(job.tiles);
+void JobManager::open_round(Job& job, RoundPlan plan) {
+  job.plan = std::move(plan);
   job.leases->open_round(job.round, job.plan.order);
   job.remaining = uint32_t(job.plan.order.size());
   job.round_open = true;
   job.round_opened_ms = clock_();
-  job.reprojecting_at_round_open = job.driver->frame().seconds_reprojecting();  // not the deep framebuffer build
+  // Without a frame yet (round 0 of a fresh job) the build's end sets it (start_job).
+  job.reprojecting_at_round_open = job.driver ? job.driver->frame().seconds_reprojecting() : 0;
   ++job.version;
 }
 
@@ -282,7 +321,7 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     MutexLock lock(mu_);
     if (job->state != JobState::kRunning) return;
     ++job->round;
-    open_round(*job);
+    open_round(*job, job->driver->open(job->tiles));
     job->seconds_round_closing += seconds_since(closing);
     wake_parked(/*all=*/false);
   }
