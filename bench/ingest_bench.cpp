@@ -15,7 +15,8 @@
 // as the master's). Both share the machine's cores with the master either way.
 //
 // Measured per (reprojector, clients), in one process, side by side:
-//   received    vertices / (time from the first lease until JobSnapshot::counters.vertices_received = all sent)
+//   received    vertices / (time from round 1 opening until JobSnapshot::counters.vertices_received = all
+//               sent; round 0 is a warm-up outside the window, so that the job's set-up is too)
 //   reprojected vertices / (time until ReprojectionCounts.total() = all sent)
 //   CPU         process CPU seconds in that window, split into the bench workers' threads and the rest
 //               (= the master: gRPC receive, chunk decoding, job manager, reprojection thread, llvmpipe)
@@ -25,11 +26,23 @@
 //               offline on the same chunks (ns per vertex x vertices); the offline decode into
 //               VertexRecords is printed for comparison
 //   wire        serialised TileResultChunk bytes per vertex (all chunks, and vertex batches alone)
+//   threads     the master's CPU seconds in the window per thread name, read from /proc/self/task
+//               (epr-reproject: the reprojection thread; "tbb": the TBB workers its large calls use;
+//               nexting_thread, default-executo: gRPC's threads, i.e. transport, protobuf parse and
+//               assembly; unnamed: llvmpipe's threads under GL; main: this bench's status poll)
+//   backlog     JobSnapshot::seconds_round_backlog per round: from a round's last result arriving to
+//               the reprojection thread having applied it (the commit queue's backlog at the barrier)
+// --batch-records runs the whole series once per value of MasterOptions::reproject_batch_records
+// (one master each; 0 = one reprojector call per tile). --master-cpus / --client-cpus pin this
+// process (before any thread starts) and the bench workers' process to those cores.
 // Bar: >= 10 M vertices/s reprojected.
 //
 //   ingest_bench [--scene builtin:cornell] [--size 512] [-S 4] [--paths 1] [--rounds 16] [--tile 64]
-//                [--backends cpu,gl] [--clients 1,2] [--in-process]
+//                [--backends cpu,gl] [--clients 1,2] [--in-process] [--batch-records 1048576,0]
+//                [--master-cpus 0] [--client-cpus 1]
 //   ingest_bench --encode-reps 9   only the worker's encode microbenchmark (encode_microbench below)
+#include <dirent.h>
+#include <sched.h>
 #include <spawn.h>
 #include <sys/wait.h>
 #include <tbb/parallel_for.h>
@@ -44,6 +57,8 @@
 #include <fstream>
 #include <map>
 #include <mutex>
+#include <set>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -52,6 +67,7 @@
 #include "client/job_client.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
+#include "common/thread_name.h"
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
 #include "master/make_reprojector.h"
@@ -66,6 +82,56 @@ using Clock = std::chrono::steady_clock;
 namespace {
 
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+// The threads (ids) TBB started while the synthetic tiles were traced, before the master existed.
+std::set<std::string> tbb_threads;
+
+// CPU seconds of this process's threads, summed per thread name (/proc/self/task/*/stat); the main
+// thread is "main", TBB's workers "tbb", threads started later without a name "unnamed" (with GL:
+// llvmpipe's). gRPC's own are "nexting_thread" (completion queue) and "default-executo(r)".
+std::map<std::string, double> thread_cpu_by_name() {
+  std::map<std::string, double> by_name;
+  const double tick = double(::sysconf(_SC_CLK_TCK));
+  const std::string self = std::to_string(::getpid());
+  for (const auto& e : std::filesystem::directory_iterator("/proc/self/task")) {
+    std::ifstream in(e.path() / "stat");
+    std::string line;
+    if (!std::getline(in, line)) continue;  // the thread ended
+    const size_t open = line.find('('), close = line.rfind(')');
+    if (open == std::string::npos || close == std::string::npos) continue;
+    std::string name = line.substr(open + 1, close - open - 1);
+    std::istringstream rest(line.substr(close + 2));
+    std::string field;
+    unsigned long long utime = 0, stime = 0;
+    for (int i = 3; i <= 15 && rest >> field; ++i) {  // fields 14 and 15: utime, stime
+      if (i == 14) utime = std::stoull(field);
+      if (i == 15) stime = std::stoull(field);
+    }
+    if (e.path().filename() == self)
+      name = "main";
+    else if (tbb_threads.count(e.path().filename()))
+      name = "tbb";
+    else if (name == "ingest_bench")
+      name = "unnamed";
+    by_name[name] += double(utime + stime) / tick;
+  }
+  return by_name;
+}
+
+// "0,2-3" -> those CPUs.
+cpu_set_t parse_cpus(const std::string& list) {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  std::istringstream in(list);
+  std::string part;
+  while (std::getline(in, part, ',')) {
+    const size_t dash = part.find('-');
+    const int lo = std::stoi(part.substr(0, dash)),
+              hi = dash == std::string::npos ? lo : std::stoi(part.substr(dash + 1));
+    for (int c = lo; c <= hi; ++c) CPU_SET(c, &set);
+  }
+  return set;
+}
 
 struct TileData {
   TileResult result;
@@ -240,6 +306,9 @@ struct Figures {
   double reproject = 0;             // reprojection thread seconds in the window
   double waits = 0;                 // Wait answers at round barriers
   double load = 0;
+  uint64_t batch_records = 0;                // MasterOptions::reproject_batch_records
+  double backlog = 0, closing = 0;           // seconds_round_backlog / _closing, summed over the rounds
+  std::map<std::string, double> thread_cpu;  // master threads' CPU seconds in the window, by name
 };
 
 // ---- the bench workers' loop (threads of this process, or of the --serve-clients process) ---------
@@ -258,6 +327,7 @@ ClientTotals client_loop(std::vector<std::unique_ptr<BenchWorker>>& workers, con
   std::vector<std::thread> threads;
   for (auto& wp : workers)
     threads.emplace_back([&, w = wp.get()] {
+      set_thread_name("bench-client");
       const double c0 = thread_cpu_seconds();
       while (!done) {
         auto l = w->lease();
@@ -355,7 +425,8 @@ int serve_clients(const std::string& file, const std::string& target, int client
 // The bench workers as a child process (this program with --serve-clients).
 class ClientProcess {
  public:
-  ClientProcess(const std::string& self, const std::string& file, const std::string& target, int clients) {
+  ClientProcess(const std::string& self, const std::string& file, const std::string& target, int clients,
+                const std::string& cpus) {
     int in[2], out[2];
     if (::pipe(in) != 0 || ::pipe(out) != 0) throw std::runtime_error("pipe failed");
     posix_spawn_file_actions_t fa;
@@ -372,6 +443,10 @@ class ClientProcess {
     if (posix_spawn(&pid_, self.c_str(), &fa, nullptr, argv.data(), environ) != 0)
       throw std::runtime_error("cannot start " + self);
     posix_spawn_file_actions_destroy(&fa);
+    if (!cpus.empty()) {  // before it prints "ready", i.e. before its gRPC threads exist
+      const cpu_set_t set = parse_cpus(cpus);
+      if (::sched_setaffinity(pid_, sizeof set, &set) != 0) throw std::runtime_error("cannot pin the clients");
+    }
     ::close(in[0]);
     ::close(out[1]);
     to_child_ = in[1];
@@ -412,7 +487,7 @@ struct RunSetup {
   std::string spec;
   int size = 512, S = 4, k = 1, rounds = 16, tile = 64;
   bool in_process = false;
-  std::string self, tiles_file;
+  std::string self, tiles_file, client_cpus;
 };
 
 Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method, int clients, const Synthetic& syn) {
@@ -425,7 +500,7 @@ Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method
   o.subpixels = rs.S;
   o.mode = RenderMode::kReproject;
   o.reproject = method;
-  o.spp = rs.rounds * rs.k;
+  o.spp = (rs.rounds + 1) * rs.k;  // round 0: warm-up
   o.paths_per_round = rs.k;
   o.round_growth = 0;  // the same synthetic round, again and again
   o.tile_size = rs.tile;
@@ -436,42 +511,50 @@ Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method
     for (int i = 0; i < clients; ++i)
       workers.push_back(std::make_unique<BenchWorker>(master.local_target(), "bench-" + std::to_string(i), 1));
   } else {
-    child = std::make_unique<ClientProcess>(rs.self, rs.tiles_file, master.local_target(), clients);
+    child = std::make_unique<ClientProcess>(rs.self, rs.tiles_file, master.local_target(), clients, rs.client_cpus);
   }
   JobClient client(master.local_target());
   const std::string id = client.submit(o);
   JobManager& jobs = master.jobs();
-  // Wait for the job to start (deep framebuffer built): the window starts at the first lease.
-  for (;;) {
-    auto s = jobs.get(id);
-    if (s && s->state == JobState::kRunning) break;
-    if (s && s->state != JobState::kQueued) throw std::runtime_error("job did not start: " + s->error);
-    std::this_thread::sleep_for(std::chrono::milliseconds(1));
-  }
-  const uint64_t total = uint64_t(rs.rounds) * syn.vertices;
-  f.vertices = total;
   std::atomic<bool> done{false};
   ClientTotals in_process_totals;
-
-  const double cpu0 = process_cpu_seconds();
-  const auto t0 = Clock::now();
   std::thread in_process_clients;
   if (rs.in_process)
     in_process_clients = std::thread([&] { in_process_totals = client_loop(workers, syn.tiles, done); });
-
-  // Monitor: when did the master receive, and reproject, everything?
-  double reproject0 = -1, reproject1 = 0, cpu1 = 0;
+  // Round 0 is a warm-up: the job's set-up (scene, deep framebuffer; a master may build the frame
+  // while round 0 is traced) stays out of the window, which starts when round 1 opens.
+  JobSnapshot s0;
   for (;;) {
     auto s = jobs.get(id);
     if (!s) throw std::runtime_error("job vanished");
-    // The job's seconds_reprojecting includes the deep framebuffer build; it is first published with the
-    // first applied tile, which is the baseline (that tile's own reprojection, ~0.1 ms, is left out).
-    if (reproject0 < 0 && s->counts.total() > 0) reproject0 = s->counters.seconds_reprojecting;
+    if (s->state == JobState::kRunning && s->progress.round >= 1) {
+      s0 = *s;
+      break;
+    }
+    if (s->state != JobState::kQueued && s->state != JobState::kRunning)
+      throw std::runtime_error("job did not run: " + s->error);
+    std::this_thread::sleep_for(std::chrono::microseconds(200));
+  }
+  const auto threads0 = thread_cpu_by_name();
+  const double cpu0 = process_cpu_seconds();
+  const auto t0 = Clock::now();
+  const uint64_t total = uint64_t(rs.rounds + 1) * syn.vertices;  // the warm-up's included
+  f.vertices = uint64_t(rs.rounds) * syn.vertices;                // in the window
+
+  // Monitor: when did the master receive, and reproject, everything?
+  double reproject1 = 0, cpu1 = 0;
+  for (;;) {
+    auto s = jobs.get(id);
+    if (!s) throw std::runtime_error("job vanished");
     if (!f.t_recv && s->counters.vertices_received >= total) f.t_recv = since(t0);
     if (!f.t_proj && s->counts.total() >= total) {
       f.t_proj = since(t0);
       cpu1 = process_cpu_seconds();
       reproject1 = s->counters.seconds_reprojecting;
+      f.thread_cpu = thread_cpu_by_name();
+      for (const auto& [name, c] : threads0) f.thread_cpu[name] -= c;
+      f.backlog = s->seconds_round_backlog - s0.seconds_round_backlog;
+      f.closing = s->seconds_round_closing - s0.seconds_round_closing;
     }
     if (is_terminal(s->state)) {
       if (s->state != JobState::kDone)
@@ -484,9 +567,9 @@ Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method
   done = true;
   if (rs.in_process) {
     in_process_clients.join();
-    // The rest of the process is the master (the loop threads' CPU runs a little past the window).
-    f.cpu = cpu1 - cpu0 - in_process_totals.thread_cpu;
-    f.cpu_clients = in_process_totals.thread_cpu;
+    // The rest of the process is the master.
+    f.cpu_clients = f.thread_cpu["bench-client"];
+    f.cpu = cpu1 - cpu0 - f.cpu_clients;
     f.tiles = in_process_totals.tiles;
     f.waits = double(in_process_totals.waits);
   } else {
@@ -496,7 +579,7 @@ Figures run_job(MasterServer& master, const RunSetup& rs, ReprojectMethod method
     f.tiles = totals.tiles;
     f.waits = double(totals.waits);
   }
-  f.reproject = reproject1 - reproject0;
+  f.reproject = reproject1 - s0.counters.seconds_reprojecting;
   f.load = load_average();
   return f;
 }
@@ -589,6 +672,8 @@ int main(int argc, char** argv) {
   std::vector<int> client_counts = {1, 2};
   std::string serve_file, target;
   bool checkpoints = false;
+  std::vector<uint64_t> batch_values = {MasterOptions{}.reproject_batch_records};
+  std::string master_cpus;
   app.add_option("--scene", rs.spec);
   app.add_option("--size", rs.size, "image side, pixels");
   app.add_option("-S,--subpixels", rs.S);
@@ -599,6 +684,11 @@ int main(int argc, char** argv) {
   app.add_option("--clients", client_counts, "bench workers (gRPC channels, one thread each)")->delimiter(',');
   app.add_flag("--in-process", rs.in_process, "run the bench workers as threads of this process");
   app.add_flag("--checkpoints", checkpoints, "checkpoint every round as a master with --state-dir does");
+  app.add_option("--batch-records", batch_values,
+                 "the series once per value of the master's reproject_batch_records (0: one call per tile)")
+      ->delimiter(',');
+  app.add_option("--master-cpus", master_cpus, "pin this process (the master) to these CPUs, e.g. 0 or 0-1");
+  app.add_option("--client-cpus", rs.client_cpus, "pin the bench workers' process to these CPUs");
   app.add_option("--serve-clients", serve_file, "(internal) be the bench workers' process");
   app.add_option("--target", target, "(internal) the master's address");
   int encode_reps = 0;
@@ -607,6 +697,10 @@ int main(int argc, char** argv) {
   set_log_level("warn");
   if (!serve_file.empty()) return serve_clients(serve_file, target, client_counts.front());
   rs.self = std::filesystem::canonical("/proc/self/exe").string();
+  if (!master_cpus.empty()) {  // before TBB, gRPC or OSMesa start a thread: they all inherit it
+    const cpu_set_t set = parse_cpus(master_cpus);
+    if (::sched_setaffinity(0, sizeof set, &set) != 0) throw std::runtime_error("cannot pin the master");
+  }
   if (encode_reps > 0) {
     encode_microbench(rs.spec, rs.size, rs.S, rs.k, rs.tile, encode_reps);
     return 0;
@@ -614,12 +708,16 @@ int main(int argc, char** argv) {
 
   std::printf(
       "ingest_bench: %s %dx%d S=%d, k=%d paths/pixel/round, %d rounds per job, tiles %dx%d, clients %s, %u "
-      "hardware threads, load average %.2f\n",
+      "hardware threads, master on CPUs %s, clients on %s, load average %.2f\n",
       rs.spec.c_str(), rs.size, rs.size, rs.S, rs.k, rs.rounds, rs.tile, rs.tile,
-      rs.in_process ? "in this process" : "in a separate process", std::thread::hardware_concurrency(), load_average());
+      rs.in_process ? "in this process" : "in a separate process", std::thread::hardware_concurrency(),
+      master_cpus.empty() ? "(any)" : master_cpus.c_str(), rs.client_cpus.empty() ? "(any)" : rs.client_cpus.c_str(),
+      load_average());
   std::fflush(stdout);
   const auto tsyn = Clock::now();
   Synthetic syn = make_tiles_once(rs.spec, rs.size, rs.S, rs.k, rs.tile, TileResultLimits{});
+  for (const auto& e : std::filesystem::directory_iterator("/proc/self/task"))
+    if (e.path().filename() != std::to_string(::getpid())) tbb_threads.insert(e.path().filename());
   std::printf(
       "synthetic round: %zu tiles, %.3g paths, %.3g vertices recorded, %.3g sent (%.2f per pixel, %.0f per "
       "tile); made in %.1f s\n",
@@ -650,37 +748,46 @@ int main(int argc, char** argv) {
   std::filesystem::create_directories(state_dir);
   rs.tiles_file = state_dir + "/tiles.bin";
   if (!rs.in_process) save_tiles(rs.tiles_file, syn);
-  MasterServerOptions mo;
-  mo.listen = "127.0.0.1:0";
-  mo.jobs.state_dir = state_dir + "/master";
-  mo.jobs.checkpoints = checkpoints;  // ingestion alone unless asked: a checkpoint is per round, not per vertex
-  MasterServer master(mo);
-  for (int i = 0; i < 200 && !master.jobs().gl_ready(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-
   std::vector<Figures> all;
-  for (const std::string& b : backends) {
-    const ReprojectMethod m = b == "gl" ? ReprojectMethod::kGl : ReprojectMethod::kCpu;
-    if (m == ReprojectMethod::kGl && !master.jobs().gl_ready()) {
-      std::printf("(no OSMesa context: gl skipped)\n");
-      continue;
+  for (const uint64_t batch : batch_values) {
+    MasterServerOptions mo;
+    mo.listen = "127.0.0.1:0";
+    mo.jobs.state_dir = state_dir + "/master";
+    mo.jobs.checkpoints = checkpoints;  // ingestion alone unless asked: a checkpoint is per round, not per vertex
+    mo.jobs.reproject_batch_records = batch;
+    MasterServer master(mo);
+    for (int i = 0; i < 200 && !master.jobs().gl_ready(); ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    for (const std::string& b : backends) {
+      const ReprojectMethod m = b == "gl" ? ReprojectMethod::kGl : ReprojectMethod::kCpu;
+      if (m == ReprojectMethod::kGl && !master.jobs().gl_ready()) {
+        std::printf("(no OSMesa context: gl skipped)\n");
+        continue;
+      }
+      for (int c : client_counts) {
+        all.push_back(run_job(master, rs, m, c, syn));
+        Figures& f = all.back();
+        f.batch_records = batch;
+        std::printf(
+            "  %s, batch %llu, %d client(s): %.3g vertices in %.2f s (%.2f M/s reprojected), master %.2f CPU-s "
+            "(%.0f ns/vertex), clients %.2f CPU-s, round backlog %.1f ms, closing %.1f ms per round, load %.2f\n   "
+            " master threads, ns/vertex:",
+            f.backend.c_str(), (unsigned long long)batch, f.clients, double(f.vertices), f.t_proj,
+            f.vertices / f.t_proj / 1e6, f.cpu, 1e9 * f.cpu / double(f.vertices), f.cpu_clients,
+            1e3 * f.backlog / rs.rounds, 1e3 * f.closing / rs.rounds, f.load);
+        for (const auto& [name, c] : f.thread_cpu)
+          if (c > 0) std::printf(" %s %.1f", name.c_str(), 1e9 * c / double(f.vertices));
+        std::printf("\n");
+        std::fflush(stdout);
+      }
     }
-    for (int c : client_counts) {
-      all.push_back(run_job(master, rs, m, c, syn));
-      const Figures& f = all.back();
-      std::printf(
-          "  %s, %d client(s): %.3g vertices in %.2f s (%.2f M/s reprojected), master %.2f CPU-s (%.0f "
-          "ns/vertex), clients %.2f CPU-s, load %.2f\n",
-          f.backend.c_str(), f.clients, double(f.vertices), f.t_proj, f.vertices / f.t_proj / 1e6, f.cpu,
-          1e9 * f.cpu / double(f.vertices), f.cpu_clients, f.load);
-      std::fflush(stdout);
-    }
+    master.shutdown();
   }
-  master.shutdown();
   std::filesystem::remove_all(state_dir);
 
-  std::printf("\n%-4s %3s | %9s %9s | %8s %8s %8s | %9s %9s | %7s %7s %7s %7s | %7s %6s %7s\n", "rp", "cli", "recv M/s",
-              "reproj M/s", "master", "ns/vert", "clients", "M/mst-CPU", "M/CPU", "reproj", "parse", "assmbl", "other",
-              "rp busy", "waits", "load");
+  std::printf("\n%-4s %7s %3s | %9s %9s | %8s %8s %8s | %9s %9s | %7s %7s %7s %7s | %7s %6s %7s\n", "rp", "batch",
+              "cli", "recv M/s", "reproj M/s", "master", "ns/vert", "clients", "M/mst-CPU", "M/CPU", "reproj", "parse",
+              "assmbl", "other", "rp busy", "waits", "load");
   for (const Figures& f : all) {
     const double v = double(f.vertices);
     const double master_cpu = f.cpu;
@@ -688,12 +795,12 @@ int main(int argc, char** argv) {
     const double reproj = rcost[f.backend].cpu_ns * 1e-9 * v;
     const double other = master_cpu - reproj - parse - assemble;
     std::printf(
-        "%-4s %3d | %9.2f %9.2f | %8.2f %8.0f %8.2f | %9.2f %9.2f | %6.0f%% %6.0f%% %6.0f%% %6.0f%% | %6.0f%% "
+        "%-4s %7llu %3d | %9.2f %9.2f | %8.2f %8.0f %8.2f | %9.2f %9.2f | %6.0f%% %6.0f%% %6.0f%% %6.0f%% | %6.0f%% "
         "%6.0f %7.2f\n",
-        f.backend.c_str(), f.clients, v / f.t_recv / 1e6, v / f.t_proj / 1e6, master_cpu, 1e9 * master_cpu / v,
-        f.cpu_clients, v / master_cpu / 1e6, v / (master_cpu + f.cpu_clients) / 1e6, 100 * reproj / master_cpu,
-        100 * parse / master_cpu, 100 * assemble / master_cpu, 100 * other / master_cpu, 100 * f.reproject / f.t_proj,
-        f.waits, f.load);
+        f.backend.c_str(), (unsigned long long)f.batch_records, f.clients, v / f.t_recv / 1e6, v / f.t_proj / 1e6,
+        master_cpu, 1e9 * master_cpu / v, f.cpu_clients, v / master_cpu / 1e6, v / (master_cpu + f.cpu_clients) / 1e6,
+        100 * reproj / master_cpu, 100 * parse / master_cpu, 100 * assemble / master_cpu, 100 * other / master_cpu,
+        100 * f.reproject / f.t_proj, f.waits, f.load);
   }
   std::printf(
       "(recv / reproj: vertices per wall second until the master had received / reprojected all of them, "
