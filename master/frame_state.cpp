@@ -52,7 +52,7 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     : opts_(opts),
       width_(opts.width),
       height_(opts.height),
-      path_sum_(size_t(opts.width) * size_t(opts.height) * 3, 0.0),
+      path_sum_(size_t(opts.width) * size_t(opts.height) * 3, 0.f),
       path_count_(size_t(opts.width) * size_t(opts.height), 0),
       mprime_(size_t(opts.width) * size_t(opts.height), 0),
       skip_(size_t(opts.width) * size_t(opts.height), 0) {
@@ -372,14 +372,13 @@ FrameImages FrameState::images(bool preview) {
     for (int x = 0; x < width_; ++x) {
       const size_t p = pixel(x, y);
       const double m = path_count_[p];
-      const double* ps = &path_sum_[3 * p];
+      const float* ps = &path_sum_[3 * p];
       out.pathtrace.set_rgb(x, y, m > 0 ? Vec3(float(ps[0] / m), float(ps[1] / m), float(ps[2] / m)) : Vec3(0.f));
       out.path_count.at(x, y)[0] = float(m);
       out.reprojected.at(x, y)[0] = float(mprime_[p]);
       if (reprojector_)
-        out.combined.set_rgb(x, y,
-                             combine_pixel(Vec3(float(ps[0]), float(ps[1]), float(ps[2])), path_count_[p], mprime_[p],
-                                           out.reprojection.rgb(x, y)));
+        out.combined.set_rgb(
+            x, y, combine_pixel(Vec3(ps[0], ps[1], ps[2]), path_count_[p], mprime_[p], out.reprojection.rgb(x, y)));
     }
   });
   if (!reprojector_) out.combined = out.pathtrace;

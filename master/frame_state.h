@@ -5,7 +5,7 @@
 // applied (add_paths, then reproject / add_exact for their vertices), and when every tile of the
 // round is in, finish_round() downsamples, updates M' and the skip mask and opens the next round.
 //
-// Determinism: path sums are accumulated in double, one tile result per pixel per round, rounds in
+// Determinism: path sums are accumulated in float, one tile result per pixel per round, rounds in
 // order, so M and the path sums do not depend on the order tiles arrive in. M' (counts) is
 // order-independent; reprojected radiance sums agree to float rounding (GL adds atomically).
 // Threading: not thread-safe. With the GL back-end every call must come from the thread the
@@ -58,7 +58,7 @@ struct FrameImages {
 /// framebuffer is rebuilt from the scene; M' and L_rp continue from the subpixel accumulation).
 struct FrameSnapshot {
   int width = 0, height = 0;
-  std::vector<double> path_sum;      // 3 per pixel
+  std::vector<float> path_sum;       // 3 per pixel (checkpoint files hold them as doubles)
   std::vector<uint32_t> path_count;  // M
   std::vector<uint64_t> mprime;      // M' as of the last downsample
   std::vector<float>
@@ -81,7 +81,7 @@ struct FrameSnapshot {
 /// without copying it: valid until the FrameState changes. The same fields as FrameSnapshot.
 struct FrameView {
   int width = 0, height = 0;
-  std::span<const double> path_sum;
+  std::span<const float> path_sum;
   std::span<const uint32_t> path_count;
   std::span<const uint64_t> mprime;
   std::span<const float> reprojected;  // empty (FrameSnapshot::reprojected)
@@ -163,7 +163,7 @@ class FrameState {
   int width() const { return width_; }
   int height() const { return height_; }
   const std::vector<uint32_t>& path_counts() const { return path_count_; }
-  const std::vector<double>& path_sums() const { return path_sum_; }
+  const std::vector<float>& path_sums() const { return path_sum_; }
   const std::vector<uint64_t>& reprojected_counts() const { return mprime_; }
 
  private:
@@ -180,7 +180,7 @@ class FrameState {
   int width_, height_;
   std::unique_ptr<Reprojector> reprojector_;
   std::unique_ptr<VertexCodec> codec_;  // the wire's quantisation (scene bounds), when reprojecting
-  std::vector<double> path_sum_;        // 3 per pixel
+  std::vector<float> path_sum_;         // 3 per pixel
   std::vector<uint32_t> path_count_;    // M
   std::vector<uint64_t> mprime_;        // M' as of the last downsample (L_rp is made when asked for)
   bool reprojection_partial_ = false;   // the last downsample left skipped pixels' M' as they were

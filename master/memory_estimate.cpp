@@ -16,23 +16,20 @@ MemoryEstimate estimate_job_memory(const RenderOptions& opts, bool checkpoints) 
   const uint64_t pixels = w * h;
   const bool reprojects = opts.mode != RenderMode::kPathTrace;
   MemoryEstimate e;
-  // FrameState: path sums (3 doubles), M (4), M' (8), L_rp (3 floats), skip (1).
-  constexpr uint64_t kFrameStatePerPixel = 24 + 4 + 8 + 12 + 1;
-  // The finished job's images: FrameImages (3 RGB + 2 one-channel floats = 44 B), images()'s sum
-  // image (12), one encoder's temporaries (the counts image 8, the heat map 12, a PNG's rows ~4 B),
-  // and the preview copy (44) still held while the results are written.
-  constexpr uint64_t kResultsPerPixel = 44 + 12 + 8 + 12 + 4;
-  constexpr uint64_t kPreviewPerPixel = 44;
-  e.pixel_bytes = pixels * (kFrameStatePerPixel + kResultsPerPixel + kPreviewPerPixel);
+  // FrameState: path sums (3 floats), M (4), M' (8), skip (1).
+  constexpr uint64_t kFrameStatePerPixel = 12 + 4 + 8 + 1;
+  // The round: its plan (skip 1 + first sample 4) and the tile results queued (3 floats + a count).
+  constexpr uint64_t kRoundPerPixel = 5 + 16;
+  // Images at a round's end: the preview copy kept (FrameImages: 3 RGB + 2 one-channel floats), the
+  // one being made and its M' temporary.
+  constexpr uint64_t kImagesPerPixel = 44 + 44 + 8;
+  e.pixel_bytes = pixels * (kFrameStatePerPixel + kRoundPerPixel + kImagesPerPixel);
   if (reprojects) {
     const uint64_t texels = pixels * s * s;
-    e.subpixel_bytes = texels * (16 + 4);
-    const uint64_t rows = std::min(h * s, kDeepFramebufferBuildRows);
-    e.build_bytes = w * s * rows * kDeepFramebufferBuildBytesPerTexel;
+    e.subpixel_bytes = texels * (16 + 2);
+    e.build_bytes = texels * kBuildIndexBytesPerTexel + std::min(kBuildBandBytes, texels * kBuildBandBytesPerTexel);
   }
-  // A checkpoint copies the frame (FrameSnapshot: the accumulation and the per-pixel arrays) and
-  // encodes it (about as large again) while the job goes on.
-  if (checkpoints) e.checkpoint_bytes = 2 * (pixels * kFrameStatePerPixel + (reprojects ? pixels * s * s * 16 : 0));
+  if (checkpoints) e.checkpoint_bytes = kCheckpointBytes;
   return e;
 }
 

@@ -2,19 +2,23 @@
 // allocated, and the budget it is compared with: a frame that cannot fit is refused at submission
 // (JobService.SubmitJob, `epr render`) with the memory it would need, not after seconds of setup.
 //
-// The estimate is the peak of a running job's own arrays (frame_state.h, reprojector.h,
-// result_files.h), not the process's baseline, the scene or its BVH:
-//   per subpixel (S x S per pixel, rp and skip modes only):
-//     16 B the reprojection accumulation (RGB float sums + a uint32 count),
-//      4 B the compact deep framebuffer's plane index,
-//     and while the deep framebuffer is built, its transient full records (position, normal,
-//     plane offset, coverage, triangle: 33 B per texel) for the rows being built;
-//   per pixel: FrameState's arrays (49 B: path sums in double, M, M', L_rp, skip), the result images
-//     made at the end (FrameImages and the temporaries of encoding them, ~100 B) and the preview copy
-//     a running job keeps (FrameImages, 44 B);
-//   with checkpoints: a copy of the frame (accumulation and per-pixel arrays) and its encoding.
+// The estimate is the peak of a running job's own arrays (frame_state.h, reprojector.h, the round's
+// plan and queued tiles, the image copies), not the process's baseline, the scene or its BVH. The
+// job's peak is the larger of two phases:
+//   the frame's build (rp and skip modes): the plane grid's 4-byte index of every texel, its 2-byte
+//     copy (reprojectors narrow it when the frame shows fewer than 65535 planes), and the band
+//     buffers of the builder (about kPlaneGridBandBytes, master/plane_grid_builder.h);
+//   the rounds: per subpixel 16 B of accumulation (RGB float sums + a uint32 count) and the 2-byte
+//     plane index (4 B on frames with 65535 planes or more, which the estimate does not foresee);
+// plus, in both, per pixel: FrameState's arrays (25 B: path sums in float, M, M', skip), a round's
+// plan (skip bits and first samples, 5 B) and its tile results queued for the reprojection thread
+// (sums and counts, 16 B), and at a round's end the image copies: the preview copy a running job
+// keeps (FrameImages, 44 B) while the next one, or the final images, are made (44 B and an 8-byte M'
+// temporary); the result files are written after the frame is dropped (no peak of their own);
+// with checkpoints: two 4 MiB chunks (a checkpoint streams from the live frame).
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -24,17 +28,22 @@
 namespace epr {
 
 struct MemoryEstimate {
-  uint64_t subpixel_bytes = 0;    // accumulation and plane index, for the whole job
-  uint64_t build_bytes = 0;       // the deep framebuffer build's transient records
-  uint64_t pixel_bytes = 0;       // FrameState, result images, the preview copy
+  uint64_t subpixel_bytes = 0;    // accumulation and plane index during the rounds, for the whole job
+  uint64_t build_bytes = 0;       // the frame's build: the plane index in 4 and 2 bytes and the band buffers
+  uint64_t pixel_bytes = 0;       // FrameState, the round's plan and tiles, the image copies
   uint64_t checkpoint_bytes = 0;  // with checkpoints
-  uint64_t total() const { return subpixel_bytes + build_bytes + pixel_bytes + checkpoint_bytes; }
+  /// The peak: the larger phase (build or rounds) plus what both hold.
+  uint64_t total() const { return std::max(subpixel_bytes, build_bytes) + pixel_bytes + checkpoint_bytes; }
 };
 
-/// Bytes per deep framebuffer texel while it is built, and the most grid rows built at once (the
-/// build goes band by band; a grid lower than this is built whole).
-inline constexpr uint64_t kDeepFramebufferBuildBytesPerTexel = 33;
-inline constexpr uint64_t kDeepFramebufferBuildRows = 1024;
+/// Per texel while the frame is built: the plane index (4 B) and its narrowed copy (2 B).
+inline constexpr uint64_t kBuildIndexBytesPerTexel = 4 + 2;
+/// The builder's band buffers: about this many bytes (plane_grid_builder.h's kPlaneGridBandBytes), or
+/// kBuildBandBytesPerTexel per texel of a grid smaller than one band.
+inline constexpr uint64_t kBuildBandBytes = uint64_t(64) << 20;
+inline constexpr uint64_t kBuildBandBytesPerTexel = 49;
+/// A checkpoint's buffers: it writes the live frame a chunk at a time.
+inline constexpr uint64_t kCheckpointBytes = uint64_t(8) << 20;
 
 /// The master memory of a job with these options (width, height, S, mode, reprojector).
 MemoryEstimate estimate_job_memory(const RenderOptions& opts, bool checkpoints);

@@ -1,13 +1,41 @@
 // See checkpoint_payload.h.
 #include "master/server/checkpoint_payload.h"
 
+#include <algorithm>
 #include <stdexcept>
+#include <vector>
 
 namespace epr::checkpoint_io {
 
 namespace {
 // Cells of the accumulation per span handed to the writer (4 MiB).
 constexpr size_t kCellsPerSpan = size_t(1) << 18;
+// The path sums are kept in float and written as doubles (the format's array of 8-byte values), a
+// chunk at a time.
+constexpr size_t kValuesPerChunk = size_t(1) << 16;
+
+void put_as_doubles(ByteWriter& w, std::span<const float> v) {
+  w.put<uint64_t>(v.size());
+  std::vector<double> chunk(std::min(v.size(), kValuesPerChunk));
+  for (size_t off = 0; off < v.size(); off += kValuesPerChunk) {
+    const size_t m = std::min(kValuesPerChunk, v.size() - off);
+    for (size_t k = 0; k < m; ++k) chunk[k] = double(v[off + k]);
+    w.put_bytes(chunk.data(), m * sizeof(double));
+  }
+}
+
+std::vector<float> get_doubles_as_floats(ByteReader& r) {
+  const uint64_t n = r.get<uint64_t>();
+  if (n > r.remaining() / sizeof(double)) throw CheckpointError("malformed payload: an array runs past its end");
+  std::vector<float> v(n);
+  std::vector<double> chunk(std::min<uint64_t>(n, kValuesPerChunk));
+  for (uint64_t off = 0; off < n; off += kValuesPerChunk) {
+    const size_t m = size_t(std::min<uint64_t>(kValuesPerChunk, n - off));
+    r.get_bytes(chunk.data(), m * sizeof(double));
+    for (size_t k = 0; k < m; ++k) v[size_t(off) + k] = float(chunk[k]);
+  }
+  return v;
+}
 }  // namespace
 
 void put(ByteWriter& w, const FrameProgress& p) {
@@ -50,7 +78,7 @@ ReprojectionCounts get_counts(ByteReader& r) {
 void put(ByteWriter& w, const FrameView& f) {
   w.put<int32_t>(f.width);
   w.put<int32_t>(f.height);
-  w.put_vector(f.path_sum);
+  put_as_doubles(w, f.path_sum);
   w.put_vector(f.path_count);
   w.put_vector(f.mprime);
   w.put_vector(f.reprojected);
@@ -82,7 +110,7 @@ void put(ByteWriter& w, const FrameView& f) {
 uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f) {
   f->width = r.get<int32_t>();
   f->height = r.get<int32_t>();
-  f->path_sum = r.get_vector<double>();
+  f->path_sum = get_doubles_as_floats(r);
   f->path_count = r.get_vector<uint32_t>();
   f->mprime = r.get_vector<uint64_t>();
   f->reprojected = r.get_vector<float>();
