@@ -1,7 +1,7 @@
-// epr-worker: a render farm worker. Connects to epr-master, leases tiles, traces them, streams the
-// results back, until SIGTERM / SIGINT (leases are given back) or the master's Shutdown. A second
-// signal while stopping exits at once. Exits 1 with the reason when the master refuses the worker for
-// good (a name or thread count over its limits, a wrong token).
+// epr-worker: a render farm worker. Connects to one or several epr-masters, leases tiles, traces them,
+// streams the results back, until SIGTERM / SIGINT (every master's leases are given back) or the only
+// master's Shutdown. A second signal while stopping exits at once. Exits 1 with the reasons when every
+// master refuses the worker for good (a name or thread count over its limits, a wrong token).
 #include <pthread.h>
 #include <signal.h>
 
@@ -18,7 +18,14 @@ int main(int argc, char** argv) {
   epr::WorkerNodeOptions opts;
   std::string log_level = "info";
   CLI::App app{"epr-worker: traces tiles for an epr-master (eye path reprojection render farm)"};
-  app.add_option("--master", opts.master, "epr-master's gRPC address, HOST:PORT")->capture_default_str();
+  app.add_option("--master", opts.master,
+                 "epr-master's gRPC address, HOST:PORT; or several, comma-separated (HOST:PORT, dns:///NAME:PORT): "
+                 "a name that resolves to several addresses (a headless Service) is one master per address")
+      ->capture_default_str();
+  app.add_option("--resolve-interval-ms", opts.resolve_interval_ms,
+                 "how often master names are resolved again (also soon after a master fails)")
+      ->check(CLI::Range(100, 3600000))
+      ->capture_default_str();
   app.add_option("--threads", opts.threads, "tracing threads, 0 = all cores")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();

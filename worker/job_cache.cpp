@@ -11,7 +11,7 @@
 namespace epr {
 
 struct JobCache::Entry {
-  std::string job_id;
+  std::string master, job_id;
   std::shared_future<std::shared_ptr<const JobContext>> context;
 
   bool ready() const { return context.wait_for(std::chrono::seconds(0)) == std::future_status::ready; }
@@ -35,7 +35,7 @@ uint64_t JobCache::scene_loads() const {
   return scene_loads_;
 }
 
-std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease) {
+std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease, const std::string& master) {
   // Two rounds at most: a cached context of the same job id with other settings (a job id reused by
   // a restarted master without its checkpoint) is replaced once; after that, build uncached.
   for (int attempt = 0; attempt < 2; ++attempt) {
@@ -45,7 +45,7 @@ std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease) {
     {
       MutexLock lock(mu_);
       for (auto it = jobs_.begin(); it != jobs_.end(); ++it) {
-        if ((*it)->job_id != lease.job_id()) continue;
+        if ((*it)->job_id != lease.job_id() || (*it)->master != master) continue;
         if ((*it)->ready()) {
           bool usable = false;
           try {
@@ -63,6 +63,7 @@ std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease) {
       }
       if (!entry) {
         entry = std::make_shared<Entry>();
+        entry->master = master;
         entry->job_id = lease.job_id();
         entry->context = promise.get_future().share();
         jobs_.push_front(entry);
@@ -71,7 +72,7 @@ std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease) {
     }
     if (builder) {
       try {
-        promise.set_value(build(lease));
+        promise.set_value(build(lease, master));
         // Trim only now, so the new job can still share the scene of a job it pushes out.
         MutexLock lock(mu_);
         while (jobs_.size() > max_jobs_ && jobs_.back() != entry) jobs_.pop_back();
@@ -85,10 +86,10 @@ std::shared_ptr<const JobContext> JobCache::get(const v1::TileLease& lease) {
     std::shared_ptr<const JobContext> ctx = entry->context.get();  // rethrows the builder's error
     if (ctx->matches(lease)) return ctx;
   }
-  return build(lease);
+  return build(lease, master);
 }
 
-std::shared_ptr<const LoadedScene> JobCache::scene_for(const v1::SceneRef& ref) {
+std::shared_ptr<const LoadedScene> JobCache::scene_for(const v1::SceneRef& ref, const std::string& master) {
   {
     MutexLock lock(mu_);
     if (auto it = scenes_.find(ref.content_hash()); it != scenes_.end())
@@ -97,7 +98,7 @@ std::shared_ptr<const LoadedScene> JobCache::scene_for(const v1::SceneRef& ref) 
   }
   // Loading and the BVH build happen outside the lock; two jobs loading the same new scene at the
   // same moment both load it (rare, and correct).
-  auto loaded = std::make_shared<const LoadedScene>(loader_(ref));
+  auto loaded = std::make_shared<const LoadedScene>(loader_(ref, master));
   MutexLock lock(mu_);
   for (auto it = scenes_.begin(); it != scenes_.end();)  // forget scenes nobody holds any more
     it = it->second.expired() ? scenes_.erase(it) : std::next(it);
@@ -105,7 +106,7 @@ std::shared_ptr<const LoadedScene> JobCache::scene_for(const v1::SceneRef& ref) 
   return loaded;
 }
 
-std::shared_ptr<const JobContext> JobCache::build(const v1::TileLease& lease) {
+std::shared_ptr<const JobContext> JobCache::build(const v1::TileLease& lease, const std::string& master) {
   const v1::RenderSettings& s = lease.settings();
   if (auto err = check_render_settings(s)) throw std::invalid_argument(*err);
   auto ctx = std::make_shared<JobContext>();
@@ -114,7 +115,7 @@ std::shared_ptr<const JobContext> JobCache::build(const v1::TileLease& lease) {
   ctx->seed = lease.seed();
   ctx->settings = s;
   ctx->codec_bounds = from_proto(s.codec_bounds());
-  ctx->scene = scene_for(lease.scene());
+  ctx->scene = scene_for(lease.scene(), master);
   ctx->camera = Camera(from_proto(s.camera()), int(s.width()), int(s.height()));
   ctx->tracer = std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed,
                                              from_proto(s.russian_roulette()), !s.has_mis() || s.mis());

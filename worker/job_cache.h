@@ -3,7 +3,8 @@
 //
 // Bounded: at most max_jobs jobs are kept (least recently used dropped first); a job that is dropped
 // while a thread still traces one of its tiles lives until that tile is done (shared ownership).
-// Jobs with the same scene (content hash) share one Scene + BVH while any of them is alive.
+// Jobs with the same scene (content hash) share one Scene + BVH while any of them is alive, whichever
+// master they come from (the hash names the content).
 // Thread-safe: when several threads ask for a job that is not built yet, one builds it and the
 // others wait for it; a failed build is reported to every waiter and retried on the next request.
 #pragma once
@@ -52,15 +53,17 @@ struct JobContext {
 
 class JobCache {
  public:
-  /// Loads the scene a lease names (generate a built-in, or fetch and load a file scene). May throw;
-  /// the message ends up in the worker's log and the ReturnLease reason.
-  using SceneLoader = std::function<Scene(const v1::SceneRef&)>;
+  /// Loads the scene a lease names (generate a built-in, or fetch and load a file scene from
+  /// `master`, the master that granted the lease). May throw; the message ends up in the worker's log
+  /// and the ReturnLease reason.
+  using SceneLoader = std::function<Scene(const v1::SceneRef&, const std::string& master)>;
 
   JobCache(size_t max_jobs, SceneLoader loader);
 
   /// The job's context, building it if needed (which may take long: a scene fetch and a BVH build).
-  /// Throws what the loader throws, or std::invalid_argument for unusable settings.
-  std::shared_ptr<const JobContext> get(const v1::TileLease& lease) EPR_EXCLUDES(mu_);
+  /// Jobs are told apart by `master` and job id (masters number their jobs independently). Throws
+  /// what the loader throws, or std::invalid_argument for unusable settings.
+  std::shared_ptr<const JobContext> get(const v1::TileLease& lease, const std::string& master = {}) EPR_EXCLUDES(mu_);
 
   /// Jobs currently kept.
   size_t size() const EPR_EXCLUDES(mu_);
@@ -70,8 +73,8 @@ class JobCache {
  private:
   struct Entry;
   // Both run without the lock: loading a scene and building its BVH take long.
-  std::shared_ptr<const JobContext> build(const v1::TileLease& lease) EPR_EXCLUDES(mu_);
-  std::shared_ptr<const LoadedScene> scene_for(const v1::SceneRef& ref) EPR_EXCLUDES(mu_);
+  std::shared_ptr<const JobContext> build(const v1::TileLease& lease, const std::string& master) EPR_EXCLUDES(mu_);
+  std::shared_ptr<const LoadedScene> scene_for(const v1::SceneRef& ref, const std::string& master) EPR_EXCLUDES(mu_);
 
   const size_t max_jobs_;
   const SceneLoader loader_;

@@ -22,9 +22,6 @@ using Millis = std::chrono::milliseconds;
 // on top of a fixed allowance), so a large scene or tile on a slow link is not cut off.
 constexpr Millis kRegisterDeadline = 10s;
 constexpr Millis kLeaseDeadline = 10s;
-// How long the master may hold a LeaseTile call when no tile is available yet (a round closing, its
-// last tiles out, no job): the answer then comes the moment a tile is there (LeaseRequest.max_wait_ms).
-constexpr uint32_t kLeaseMaxWaitMs = 1000;
 constexpr Millis kReturnDeadline = 5s;
 constexpr Millis kLostReturnDeadline = 1s;  // best effort after the session broke
 constexpr Millis kUnregisterDeadline = 3s;
@@ -110,6 +107,8 @@ MasterSession::MasterSession(Config config, StopSignal& signal, NodeCounters& co
   args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, std::max(1, config_.min_backoff_ms));
   args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, std::max(1, config_.min_backoff_ms));
   args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, std::max(config_.min_backoff_ms, config_.max_backoff_ms));
+  if (config_.tls.enabled && !config_.tls_server_name.empty())
+    args.SetSslTargetNameOverride(config_.tls_server_name);  // connected by address: check the name's certificate
   channel_ = grpc::CreateCustomChannel(config_.master, rpc::channel_credentials(config_.tls), args);
   stub_ = v1::WorkerService::NewStub(channel_);
 }
@@ -222,10 +221,10 @@ void MasterSession::heartbeat_loop() {
   }
 }
 
-MasterSession::LeaseCall MasterSession::lease_tile() {
+MasterSession::LeaseCall MasterSession::lease_tile(uint32_t max_wait_ms) {
   v1::LeaseRequest req;
   req.mutable_worker_id()->set_id(worker_id_);
-  req.set_max_wait_ms(kLeaseMaxWaitMs);
+  req.set_max_wait_ms(max_wait_ms);
   grpc::ClientContext ctx;
   prepare(ctx, kLeaseDeadline);
   LeaseCall call;

@@ -65,7 +65,8 @@ struct NodeCounters {
 class MasterSession {
  public:
   struct Config {
-    std::string master;  // HOST:PORT
+    std::string master;           // the channel's target (HOST:PORT, ipv4:ADDRESS:PORT, ...)
+    std::string tls_server_name;  // with TLS: the name the certificate is checked against (empty: the target's)
     rpc::ClientTls tls;
     std::string token;      // bearer token; empty: none
     std::string name;       // WorkerInfo.name
@@ -121,7 +122,8 @@ class MasterSession {
   /// abandoned. A failed heartbeat loses the session.
   void heartbeat_loop() EPR_EXCLUDES(mu_);
   /// One LeaseTile call; a tile it grants is held at once. The caller ends the session on an error.
-  LeaseCall lease_tile();
+  /// max_wait_ms: how long the master may hold the call when it has no tile yet (LeaseRequest).
+  LeaseCall lease_tile(uint32_t max_wait_ms);
   /// Submits a traced tile (SubmitTile, retried on UNAVAILABLE / DEADLINE_EXCEEDED). True once the
   /// master has answered for the tile (committed, dropped or refused: the hold can go); false if the
   /// result did not get through (the lease stays held and is returned on the way out).

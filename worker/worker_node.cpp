@@ -15,6 +15,7 @@
 #include <stdexcept>
 #include <thread>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 #include "common/check.h"
@@ -26,7 +27,9 @@
 #include "worker/backoff.h"
 #include "worker/courier.h"
 #include "worker/job_cache.h"
+#include "worker/master_pool.h"
 #include "worker/master_session.h"
+#include "worker/master_targets.h"
 #include "worker/scene_fetch.h"
 #include "worker/tile_lease.h"
 #include "worker/time_accounting.h"
@@ -36,6 +39,10 @@ namespace {
 
 constexpr int kMinWaitMs = 5, kMaxWaitMs = 60000;  // bounds on the master's Wait.retry_after_ms
 constexpr size_t kMaxFailingJobs = 256;            // job failure records kept
+// How long a master may hold a LeaseTile call when no tile is available yet (a round closing, its
+// last tiles out, no job): the answer then comes the moment a tile is there (LeaseRequest.max_wait_ms).
+constexpr uint32_t kLeaseMaxWaitMs = 1000;
+constexpr uint32_t kMinParkMs = 200;  // with several masters: the shortest such hold
 
 std::string default_name() {
   char host[256] = {};
@@ -51,16 +58,10 @@ struct WorkerNode::Impl {
         log(logger("worker")),
         threads(opts.threads > 0 ? opts.threads : int(std::max(1u, std::thread::hardware_concurrency()))),
         cache(opts.cache_dir),
-        config{opts.master,
-               {opts.tls, opts.ca_file, opts.cert_file, opts.key_file},
-               rpc::configured_token(opts.token_file).value_or(""),
-               opts.name.empty() ? default_name() : opts.name,
-               threads,
-               cache.path(),
-               opts.min_backoff_ms,
-               opts.max_backoff_ms},
+        name(opts.name.empty() ? default_name() : opts.name),
         jobs(size_t(std::max(1, opts.max_cached_jobs)),
-             [this](const v1::SceneRef& ref) { return load_scene_for(ref); }),
+             [this](const v1::SceneRef& ref, const std::string& master) { return load_scene_for(ref, master); }),
+        pool(pool_options(), signal, counters, log),
         rng(std::random_device{}()) {
     if (!cache.fallback_reason().empty())
       log->warn("scene cache: {}; using {} instead (removed when the worker ends)", cache.fallback_reason(),
@@ -68,37 +69,51 @@ struct WorkerNode::Impl {
     trim_scene_cache(cache.path(), opts.cache_max_bytes);  // the bound may be lower than last time
   }
 
+  MasterPool::Options pool_options() const {
+    MasterPool::Options p;
+    p.targets = parse_master_list(opts.master);
+    p.resolver = opts.resolver;
+    p.resolve_interval_ms = std::max(10, opts.resolve_interval_ms);
+    p.session = {"",
+                 "",
+                 {opts.tls, opts.ca_file, opts.cert_file, opts.key_file},
+                 rpc::configured_token(opts.token_file).value_or(""),
+                 name,
+                 threads,
+                 cache.path(),
+                 opts.min_backoff_ms,
+                 opts.max_backoff_ms};
+    p.threads = threads;
+    return p;
+  }
+
   WorkerNodeOptions opts;
   std::shared_ptr<spdlog::logger> log;
   int threads;
   CacheRoot cache;
-  MasterSession::Config config;
+  std::string name;
   JobCache jobs;
   StopSignal signal;
   NodeCounters counters;
   TimeAccounting time;
+  MasterPool pool;
 
   Mutex mu;
   std::condition_variable_any cv;  // run() ends
   bool running EPR_GUARDED_BY(mu) = false;
-  std::shared_ptr<MasterSession> session EPR_GUARDED_BY(mu);  // from before Register until the session's threads end
-  std::string worker_id EPR_GUARDED_BY(mu);
-  std::map<std::string, int> job_failures EPR_GUARDED_BY(mu);  // job id -> consecutive failures to prepare it
+  std::map<std::string, int> job_failures EPR_GUARDED_BY(mu);  // master + job id -> consecutive failures to prepare it
   std::mt19937_64 rng EPR_GUARDED_BY(mu);
 
-  void stop(const std::string& reason) EPR_EXCLUDES(mu) {
+  void stop(const std::string& reason) {
     signal.stop(reason);
-    std::shared_ptr<MasterSession> s;
-    {
-      MutexLock lock(mu);
-      s = session;
-    }
-    if (s) s->end(reason, /*lost=*/false);
+    pool.end_sessions(reason);
   }
 
   // ---- scenes ------------------------------------------------------------------------------------
 
-  Scene load_scene_for(const v1::SceneRef& ref) EPR_EXCLUDES(mu) {
+  // A lease's scene: built-ins are generated; file scenes come from the disk cache (shared by every
+  // master: entries are named by their content hash) or are fetched from `master`, which granted it.
+  Scene load_scene_for(const v1::SceneRef& ref, const std::string& master) {
     if (!ref.builtin().empty()) {
       SceneBundleData b;
       b.builtin = ref.builtin();
@@ -115,11 +130,7 @@ struct WorkerNode::Impl {
     if (entry) {
       touch_cached_scene(root, ref.content_hash());
     } else {
-      std::shared_ptr<MasterSession> s;
-      {
-        MutexLock lock(mu);
-        s = session;
-      }
+      const std::shared_ptr<MasterSession> s = pool.session(master);
       if (!s || s->ending()) throw std::runtime_error("no master session to fetch the scene from");
       entry = s->fetch_scene(ref);
       for (const std::string& gone : trim_scene_cache(root, opts.cache_max_bytes, ref.content_hash()))
@@ -129,34 +140,37 @@ struct WorkerNode::Impl {
   }
 
   // Delay before leasing again after a job could not be prepared; grows with repeated failures.
-  int job_failed(const std::string& job_id) EPR_EXCLUDES(mu) {
+  int job_failed(const std::string& key) EPR_EXCLUDES(mu) {
     MutexLock lock(mu);
     if (job_failures.size() > kMaxFailingJobs) job_failures.clear();
-    const int n = job_failures[job_id]++;
+    const int n = job_failures[key]++;
     const double u = std::uniform_real_distribution<double>(0.0, 1.0)(rng);
     return backoff_delay_ms(n, 500, std::max(1000, opts.max_backoff_ms), u);
   }
 
-  void job_ok(const std::string& job_id) EPR_EXCLUDES(mu) {
+  void job_ok(const std::string& key) EPR_EXCLUDES(mu) {
     MutexLock lock(mu);
-    job_failures.erase(job_id);
+    job_failures.erase(key);
   }
 
   // ---- tracing -----------------------------------------------------------------------------------
 
-  // Traces a leased tile and hands the result to a background submission (`pending`: this thread's
-  // submission in flight, at most one), so that the next tile is leased and traced while the master
-  // receives this one.
-  void process_tile(MasterSession& s, const v1::TileLease& lease, Courier& submitter, std::future<void>* pending,
-                    ThreadActivity* activity) {
+  // Traces a tile leased from `use`'s master and hands the result to a background submission to the
+  // same master (`pending`: this thread's submission in flight, at most one), so that the next tile
+  // is leased and traced while the master receives this one.
+  void process_tile(const std::shared_ptr<MasterPool::Use>& use, const v1::TileLease& lease, Courier& submitter,
+                    std::future<void>* pending, ThreadActivity* activity) {
+    MasterSession& s = use->session();
     ++counters.tiles_leased;
     const uint64_t id = lease.lease_id();
     auto h = s.hold(id);
-    log->debug("lease {}: job {} round {} tile {}", id, lease.job_id(), lease.round(), lease.tile_index());
+    log->debug("lease {}: job {} round {} tile {} from {}", id, lease.job_id(), lease.round(), lease.tile_index(),
+               use->name());
+    const std::string job_key = use->target() + " " + lease.job_id();
     // A lease this worker cannot trace goes back as failed, and the thread waits (with backoff) before
     // leasing again, so a broken job cannot make the worker spin.
     auto give_up = [&](const std::string& what, const std::string& reason, v1::LeaseFailure failure) {
-      const int delay = job_failed(lease.job_id());
+      const int delay = job_failed(job_key);
       log->error("{} (lease {} returned, leasing again in {} ms)", what, id, delay);
       s.return_leases({id}, reason, failure);
       s.wait(delay);
@@ -171,14 +185,13 @@ struct WorkerNode::Impl {
     }
     std::shared_ptr<const JobContext> job;
     try {
-      job = jobs.get(lease);
+      job = jobs.get(lease, use->target());
     } catch (const std::exception& e) {
       if (s.ending()) return;  // interrupted (the lease stays held: returned on the way out)
       return give_up(fmt::format("job {}: cannot prepare its scene: {}", lease.job_id(), e.what()),
-                     fmt::format("worker {} cannot prepare the job: {}", config.name, e.what()),
-                     v1::LEASE_FAILURE_SCENE);
+                     fmt::format("worker {} cannot prepare the job: {}", name, e.what()), v1::LEASE_FAILURE_SCENE);
     }
-    job_ok(lease.job_id());
+    job_ok(job_key);
 
     std::optional<TileResult> result;
     try {
@@ -188,8 +201,7 @@ struct WorkerNode::Impl {
       result = render_leased_tile(renderer, tile, [&] { return s.ending() || h->abandoned.load(); });
     } catch (const std::exception& e) {
       return give_up(fmt::format("job {} tile {}: tracing failed: {}", lease.job_id(), lease.tile_index(), e.what()),
-                     fmt::format("worker {} failed tracing the tile: {}", config.name, e.what()),
-                     v1::LEASE_FAILURE_TILE);
+                     fmt::format("worker {} failed tracing the tile: {}", name, e.what()), v1::LEASE_FAILURE_TILE);
     }
     if (result) {
       counters.paths_traced += result->stats.paths.paths;
@@ -206,12 +218,41 @@ struct WorkerNode::Impl {
       ThreadActivity::Doing submitting(activity, Activity::kSubmitting);
       if (pending->valid()) pending->get();  // the previous submission (rethrowing what it threw)
     }
-    *pending = submitter.run([&s, lease, job, h, id, r = std::move(*result)] {
-      if (s.submit(lease, job->codec_bounds, r, *h)) s.release(id);
+    // The Use goes with the submission (the master's link says no farewell before it ends) and is
+    // dropped when the call ends: the task itself may outlive it (in the future's shared state).
+    *pending = submitter.run([slot = hand_over(use), lease, job, h, id, r = std::move(*result)] {
+      const std::shared_ptr<MasterPool::Use> u = std::exchange(*slot, nullptr);
+      if (u->session().submit(lease, job->codec_bounds, r, *h)) u->session().release(id);
     });
   }
 
-  void tracing_loop(MasterSession& s) {
+  // A Use for a task run on a Courier: the task takes it out when it runs, so it goes when the call
+  // ends however long copies of the task live.
+  static std::shared_ptr<std::shared_ptr<MasterPool::Use>> hand_over(std::shared_ptr<MasterPool::Use> use) {
+    return std::make_shared<std::shared_ptr<MasterPool::Use>>(std::move(use));
+  }
+
+  // How long a master may hold this thread's lease call when it has no tile yet. One master: long
+  // (the answer comes the moment its next round opens). Several: at once, so that a master without
+  // work does not keep the thread from the others, except for the last one asked in a pass that found
+  // no tile, which holds the call a while (no busy polling).
+  static uint32_t max_wait_ms(size_t masters, int misses) {
+    if (masters <= 1) return kLeaseMaxWaitMs;
+    if (misses + 1 >= int(masters)) return std::max<uint32_t>(kMinParkMs, kLeaseMaxWaitMs / uint32_t(masters));
+    return 0;
+  }
+
+  // The master to ask after `last`, in the order of `up`; a thread that asked none yet starts at its
+  // own index, so the threads spread over the masters.
+  static std::string next_master(const std::vector<std::string>& up, const std::string& last, int index) {
+    const auto it = std::find(up.begin(), up.end(), last);
+    if (it == up.end()) return up[size_t(index) % up.size()];
+    return std::next(it) == up.end() ? up.front() : *std::next(it);
+  }
+
+  // Leases from every connected master in turn (round robin, one lease per master in turn; a master
+  // with no tile is skipped at once), traces, and submits to the master that leased the tile.
+  void tracing_loop(int index) {
     set_thread_name("epr-trace");
     ThreadActivity activity(time);  // destroyed last: the drain below is accounted for
     // This thread's calls in the background (destroyed after the futures): submissions apart from the
@@ -226,34 +267,88 @@ struct WorkerNode::Impl {
         if (f->valid()) f->wait();
       }
     } drain{&pending, &activity};
-    // The next lease, asked for while this thread traces its tile: the master's answer arrives during
-    // the tracing instead of after it.
-    std::future<MasterSession::LeaseCall> next;
-    while (!s.ending()) {
+    // The next lease, asked for (of the next master in turn) while this thread traces its tile: the
+    // master's answer arrives during the tracing instead of after it.
+    struct Ahead {
+      std::future<MasterSession::LeaseCall> call;
+      std::string target;
+      const MasterSession* session = nullptr;
+    } ahead;
+    std::string last;           // the master asked last
+    int misses = 0;             // masters in a row that had no tile
+    int retry_ms = kMaxWaitMs;  // the shortest Wait.retry_after_ms among them
+    while (!signal.stopping()) {
+      std::shared_ptr<MasterPool::Use> use;
       MasterSession::LeaseCall call;
-      {
+      const uint64_t generation = pool.generation();
+      if (ahead.call.valid()) {
+        {
+          ThreadActivity::Doing leasing(&activity, Activity::kLeasing);
+          call = ahead.call.get();
+        }
+        use = pool.use(ahead.target);
+        // A session that ended meanwhile: its link gives back what it granted.
+        if (!use || &use->session() != ahead.session) use.reset();
+        ahead = {};
+        if (!use) continue;
+      } else {
+        const std::vector<std::string> up = pool.connected();
+        if (up.empty()) {
+          ThreadActivity::Doing waiting(&activity, Activity::kWaiting);
+          signal.wait_for(1000, [&] { return pool.generation() != generation; });
+          continue;
+        }
+        last = next_master(up, last, index);
+        use = pool.use(last);
+        if (!use) continue;
         ThreadActivity::Doing leasing(&activity, Activity::kLeasing);
-        call = next.valid() ? next.get() : s.lease_tile();
+        call = use->session().lease_tile(max_wait_ms(up.size(), misses));
       }
+      MasterSession& s = use->session();
       const v1::Lease& lease = call.lease;
       if (!call.status.ok()) {
         s.call_failed("LeaseTile", call.status);
-        break;
+        continue;
       }
       switch (lease.kind_case()) {
-        case v1::Lease::kTile:
-          next = leaser.run([&s] { return s.lease_tile(); });
-          process_tile(s, lease.tile(), submitter, &pending, &activity);
+        case v1::Lease::kTile: {
+          misses = 0;
+          retry_ms = kMaxWaitMs;
+          const std::vector<std::string> up = pool.connected();
+          if (!up.empty()) {
+            last = next_master(up, use->target(), index);
+            if (auto next = pool.use(last)) {
+              ahead.target = last;
+              ahead.session = &next->session();
+              ahead.call = leaser.run([slot = hand_over(next), wait = max_wait_ms(up.size(), 0)] {
+                const std::shared_ptr<MasterPool::Use> u = std::exchange(*slot, nullptr);
+                return u->session().lease_tile(wait);
+              });
+            }
+          }
+          process_tile(use, lease.tile(), submitter, &pending, &activity);
           break;
+        }
         case v1::Lease::kWait: {
+          retry_ms = std::min(retry_ms, std::clamp<int>(int(lease.wait().retry_after_ms()), kMinWaitMs, kMaxWaitMs));
+          if (++misses < int(pool.connected().size())) break;  // the next master in turn
+          use.reset();  // a master that ends meanwhile need not wait for this thread
           ThreadActivity::Doing waiting(&activity, Activity::kWaiting);
-          s.wait(std::clamp<int>(int(lease.wait().retry_after_ms()), kMinWaitMs, kMaxWaitMs));
+          signal.wait_for(retry_ms, [&] { return pool.generation() != generation; });
+          misses = 0;
+          retry_ms = kMaxWaitMs;
           break;
         }
         case v1::Lease::kShutdown:
-          log->info("the master asks the worker to shut down: {}", lease.shutdown().reason());
-          stop("master shutdown: " + lease.shutdown().reason());
-          return;
+          if (pool.single()) {
+            log->info("the master asks the worker to shut down: {}", lease.shutdown().reason());
+            stop("master shutdown: " + lease.shutdown().reason());
+            return;
+          }
+          log->info("master {} asks the worker to leave: {}; serving the others", use->name(),
+                    lease.shutdown().reason());
+          use->master_shutdown(lease.shutdown().reason());
+          break;
         default:
           log->warn("LeaseTile answered with neither a tile, a wait nor a shutdown");
           s.wait(1000);
@@ -262,95 +357,22 @@ struct WorkerNode::Impl {
     }
   }
 
-  // ---- sessions ----------------------------------------------------------------------------------
+  // ---- running -----------------------------------------------------------------------------------
 
-  // A registered session, or nullptr with the master's answer in *status.
-  std::shared_ptr<MasterSession> connect(grpc::Status* status) EPR_EXCLUDES(mu) {
-    auto s = std::make_shared<MasterSession>(config, signal, counters, log);
-    {
-      // Published before Register, so that a stop cancels the call.
-      MutexLock lock(mu);
-      if (signal.stopping()) return nullptr;
-      session = s;
-    }
-    *status = s->register_worker();
-    if (!status->ok()) {
-      MutexLock lock(mu);
-      session.reset();
-      return nullptr;
-    }
-    return s;
-  }
-
-  // Runs one session until it ends; returns with every thread joined.
-  void run_session(const std::shared_ptr<MasterSession>& s) EPR_EXCLUDES(mu) {
-    {
-      MutexLock lock(mu);
-      worker_id = s->worker_id();
-    }
-    ++counters.registrations;
-    log->info("registered with {} as {} ({} tracing threads, heartbeat every {} ms)", opts.master, s->worker_id(),
-              threads, s->heartbeat_ms());
-    if (signal.stopping()) s->end(signal.reason(), /*lost=*/false);
-    std::thread heartbeat([&] { s->heartbeat_loop(); });
-    std::vector<std::thread> tracers;
-    for (int i = 0; i < threads; ++i) tracers.emplace_back([&] { tracing_loop(*s); });
-    signal.wait([&] { return s->ending(); });
-    if (signal.stopping()) s->end("stopping", /*lost=*/false);
-    for (auto& t : tracers) t.join();
-    heartbeat.join();
-    {
-      MutexLock lock(mu);
-      session.reset();
-    }
-  }
-
-  std::optional<std::string> run() EPR_EXCLUDES(mu) {
+  std::optional<std::string> run() {
     {
       MutexLock lock(mu);
       if (running) throw std::logic_error("WorkerNode::run() is already running");
       running = true;
     }
-    std::optional<std::string> refused;
-    Backoff backoff(opts.min_backoff_ms, opts.max_backoff_ms, std::random_device{}());
-    while (!signal.stopping()) {
-      grpc::Status status;
-      const std::shared_ptr<MasterSession> s = connect(&status);
-      if (!s) {
-        if (signal.stopping()) break;
-        const std::string why = rpc::describe(status);
-        if (!rpc::is_transient(status.error_code())) {
-          // Registering again would be refused the same way.
-          refused = fmt::format("the master at {} refused worker '{}': {}", opts.master, config.name, why);
-          log->error("{}; not retrying", *refused);
-          break;
-        }
-        const int delay = backoff.next_ms();
-        // Warn on attempts 1, 2, 4, 8, ...: a master that stays away does not flood the log.
-        const int attempt = backoff.attempts();
-        log->log((attempt & (attempt - 1)) == 0 ? spdlog::level::warn : spdlog::level::debug,
-                 "cannot register with {}: {}; retrying in {} ms", opts.master, why, delay);
-        signal.wait_for(delay);
-        continue;
-      }
-      run_session(s);
-      if (s->healthy()) backoff.reset();
-      if (signal.stopping() && !s->lost()) {
-        const std::string reason = signal.reason();
-        s->farewell(reason.empty() ? "worker stopping" : reason);
-        break;
-      }
-      s->salvage();
-      if (signal.stopping()) break;
-      ++counters.reconnects;
-      const int delay = backoff.next_ms();
-      log->warn("lost the session with {} ({}); registering again in {} ms", opts.master, s->end_reason(), delay);
-      signal.wait_for(delay);
-    }
+    std::vector<std::thread> tracers;
+    for (int i = 0; i < threads; ++i) tracers.emplace_back([this, i] { tracing_loop(i); });
+    const std::optional<std::string> refused = pool.run();
+    if (refused) signal.stop(*refused);
+    for (auto& t : tracers) t.join();
     {
       MutexLock lock(mu);
       running = false;
-      worker_id.clear();
     }
     cv.notify_all();
     return refused;
@@ -372,10 +394,11 @@ void WorkerNode::stop() { impl_->stop("stop requested"); }
 WorkerNodeStats WorkerNode::stats() const {
   const auto& c = impl_->counters;
   WorkerNodeStats s;
-  {
-    MutexLock lock(impl_->mu);
-    s.worker_id = impl_->worker_id;
-    s.registered = impl_->session != nullptr && impl_->session->registered() && !impl_->session->ending();
+  s.masters = impl_->pool.status();
+  for (const MasterStatus& m : s.masters) {
+    if (m.state != MasterState::kConnected) continue;
+    if (!s.registered) s.worker_id = m.worker_id;
+    s.registered = true;
   }
   s.registrations = c.registrations;
   s.reconnects = c.reconnects;

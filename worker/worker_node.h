@@ -1,8 +1,17 @@
-// A worker of the farm: registers with epr-master's WorkerService, leases tiles, traces them and
-// streams the results back (proto/epr/v1/worker_service.proto; DESIGN.md section 2, "A round, end to
-// end", and section 4).
+// A worker of the farm: registers with one or several epr-masters' WorkerService, leases tiles,
+// traces them and streams the results back (proto/epr/v1/worker_service.proto; DESIGN.md section 2,
+// "A round, end to end", and section 4).
 //
-//   run():   Register ─▶ { heartbeat thread } + { T tracing threads: LeaseTile ─▶ trace ─▶ SubmitTile }*
+//   run():   per master: Register ─▶ { heartbeat thread }        (worker/master_pool.h)
+//            T tracing threads: { LeaseTile (the masters in turn) ─▶ trace ─▶ SubmitTile (to the same master) }*
+//
+// Several masters (options.master a list, or a name resolving to several addresses: worker/master_targets.h):
+// masters share nothing, so each has a session of its own (registration, worker id, heartbeat, leases,
+// backoff) and a tile's result goes back to the master that leased it. The tracing threads ask the
+// connected masters in turn, one lease each, starting after the master asked last; a master with no
+// tile answers at once and the next one is asked, so a master without work, or one that is down,
+// never keeps the threads from the others. Jobs are cached per master and job id; scenes on disk are
+// shared by content hash.
 //
 // Parallelism: T tracing threads (options.threads, default all cores), each holding at most one
 // lease and tracing its tile single-threaded with TileRenderer. Tiles are the unit of work the master
@@ -18,20 +27,22 @@
 // FetchScene once and cached on disk by content hash, up to cache_max_bytes (worker/scene_fetch.h). Per-job state
 // (scene, BVH, camera, path tracer) is kept for the last few jobs (worker/job_cache.h).
 //
-// Failure handling: every RPC has a deadline. When the master is unreachable or answers an RPC with
+// Failure handling: every RPC has a deadline. When a master is unreachable or answers an RPC with
 // an error (UNAVAILABLE, NOT_FOUND for an unknown worker id after a master restart, ...), the worker
-// abandons its session: it gives its leases back if it still can, waits with exponential backoff and
-// jitter (capped at max_backoff_ms) and registers again. It ends on its own only on the master's
-// Shutdown, or when Register fails with a permanent error (rpc::is_transient: a name or thread count
-// over the master's limits, a wrong token, another protocol), which registering again cannot mend. A lease the
+// abandons that session: it gives its leases back if it still can, waits with exponential backoff and
+// jitter (capped at max_backoff_ms) and registers again; the other masters' sessions go on. A master
+// that refuses Register with a permanent error (rpc::is_transient: a name or thread count over the
+// master's limits, a wrong token, another protocol), which registering again cannot mend, is given up
+// (logged); the worker ends when every master refused it. With one master, its Shutdown ends the
+// worker; with several, a Shutdown ends that master's session only (it registers again later). A lease the
 // heartbeat reports invalid is abandoned between two strips of rows. A job whose scene cannot be loaded (or a tile
 // whose lease is unusable or whose tracing throws) gets its lease returned as failed (ReturnLeaseRequest.failure) and
 // the thread waits (with backoff) before leasing again, so a broken job cannot make the worker spin; the master stops
 // leasing the job's tiles to a worker that keeps failing them.
 //
-// Files: worker_node.cpp runs the node (sessions one after another, the tracing threads);
-// master_session.h makes every call to the master; courier.h runs a thread's submissions and early
-// lease calls in the background; time_accounting.h splits the threads' time by activity.
+// Files: worker_node.cpp runs the node (the tracing threads); master_pool.h runs a link per master
+// (sessions one after another); master_session.h makes every call to a master; courier.h runs a thread's submissions
+// and early lease calls in the background; time_accounting.h splits the threads' time by activity.
 //
 // In-process use: no globals and no signal handling; any number of WorkerNodes may run in one
 // process (the embedded `epr render` runs a master and N nodes over loopback gRPC). epr-worker's main
@@ -39,19 +50,26 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "wire/scene_bundle.h"
+#include "worker/master_targets.h"
 #include "worker/time_accounting.h"
 
 namespace epr {
 
 struct WorkerNodeOptions {
-  std::string master = "localhost:50051";  // HOST:PORT of epr-master's gRPC endpoint
-  int threads = 0;                         // tracing threads; 0: std::thread::hardware_concurrency()
-  std::string name;                        // shown on dashboards; empty: "HOSTNAME-PID"
+  /// epr-master's gRPC endpoint, HOST:PORT; or several, comma-separated, and names that resolve to
+  /// several addresses, one master each (worker/master_targets.h). std::invalid_argument if malformed.
+  std::string master = "localhost:50051";
+  int resolve_interval_ms = 30000;  // names are resolved again this often (and soon after a failure)
+  MasterResolver resolver;          // tests: a name's addresses; empty: getaddrinfo
+  int threads = 0;                  // tracing threads; 0: std::thread::hardware_concurrency()
+  std::string name;                 // shown on dashboards; empty: "HOSTNAME-PID"
   // Scene cache root (scenes/HASH/...); when it cannot be written, a private temporary folder removed
   // with the node (worker/scene_fetch.h CacheRoot).
   std::string cache_dir = default_cache_root();
@@ -69,10 +87,11 @@ struct WorkerNodeOptions {
 };
 
 struct WorkerNodeStats {
-  std::string worker_id;       // as assigned by the master at the last registration; empty if none
-  bool registered = false;     // a session with the master is up
-  uint64_t registrations = 0;  // successful Register calls
-  uint64_t reconnects = 0;     // sessions lost (master unreachable, restarted, ...)
+  std::string worker_id;              // as assigned by the first connected master; empty if none
+  bool registered = false;            // a session with some master is up
+  std::vector<MasterStatus> masters;  // each master's state
+  uint64_t registrations = 0;         // successful Register calls
+  uint64_t reconnects = 0;            // sessions lost (master unreachable, restarted, ...), all masters
   uint64_t tiles_leased = 0;
   uint64_t tiles_committed = 0;  // SubmitAck COMMITTED
   uint64_t tiles_duplicate = 0;  // SubmitAck DUPLICATE
@@ -105,9 +124,9 @@ class WorkerNode {
   WorkerNode(const WorkerNode&) = delete;
   WorkerNode& operator=(const WorkerNode&) = delete;
 
-  /// Works until stop() or the master's Shutdown; then gives back the leases it holds (ReturnLease),
-  /// unregisters and returns nullopt. Returns the master's reason instead when it refuses the
-  /// registration for good (a permanent error, see the file comment). Call once.
+  /// Works until stop() or the (only) master's Shutdown; then gives back the leases it holds
+  /// (ReturnLease), unregisters and returns nullopt. Returns the masters' reasons instead when every
+  /// master refused the registration for good (a permanent error, see the file comment). Call once.
   std::optional<std::string> run();
   /// Thread-safe and non-blocking (safe to call from any thread, not from a signal handler): makes
   /// run() wind down — tracing is abandoned between strips, waits are interrupted — and return.

@@ -53,7 +53,7 @@ struct CountingLoader {
   bool gate_held() const { return !gate_timed_out; }
 
   JobCache::SceneLoader fn() {
-    return [this](const v1::SceneRef& ref) {
+    return [this](const v1::SceneRef& ref, const std::string&) {
       ++calls;
       {
         std::unique_lock lock(mu);

@@ -1,0 +1,382 @@
+// One pool of workers serving several independent masters: real epr-master and epr-worker processes
+// on loopback, each worker given every master's address (--master A,B). Each master's job must equal
+// `epr render --single-process` of the same job, as with one master (M, M' and the path-traced
+// estimate bit-identical, the combined image within float rounding: tests/integration/cluster); a
+// master that is down when the workers start is picked up once it starts; a master SIGKILLed mid-job
+// and restarted on its state directory resumes its job from the checkpoint while the other master's
+// job goes on.
+//
+// Workers log at debug level: their lease lines ("lease N: job J round R tile T from MASTER") say
+// which master granted which tile. Each test keeps its folder of logs and prints their tails when it
+// fails.
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "../cluster/binaries.h"
+#include "../cluster/process.h"
+#include "common/image.h"
+
+namespace epr::testing {
+namespace {
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+// A small job: 64x64 pixels in 4 tiles, `rounds` rounds of 4 paths, every pixel traced in each
+// (min-paths = spp), so that a job runs for a known number of rounds.
+Args job_flags(int seed, int rounds) {
+  const int spp = 4 * rounds;
+  return {"builtin:cornell",
+          "--width",
+          "64",
+          "--height",
+          "64",
+          "--spp",
+          std::to_string(spp),
+          "--paths-per-round",
+          "4",
+          "--tile",
+          "32",
+          "--mode",
+          "skip",
+          "--reproject",
+          "cpu",
+          "--min-paths",
+          std::to_string(spp),
+          "--seed",
+          std::to_string(seed),
+          "--round-growth",
+          "0"};
+}
+
+std::string exact_difference(const Image& a, const Image& b) {
+  if (a.width != b.width || a.height != b.height || a.channels != b.channels) return "shapes differ";
+  size_t n = 0, first = 0;
+  for (size_t i = 0; i < a.data.size(); ++i)
+    if (std::memcmp(&a.data[i], &b.data[i], sizeof(float)) != 0 && n++ == 0) first = i;
+  if (n == 0) return "";
+  std::ostringstream ss;
+  ss << n << " of " << a.data.size() << " values differ; first at value " << first << ": " << a.data[first] << " vs "
+     << b.data[first];
+  return ss.str();
+}
+
+std::string close_difference(const Image& a, const Image& b) {
+  if (a.data.size() != b.data.size()) return "shapes differ";
+  size_t n = 0;
+  for (size_t i = 0; i < a.data.size(); ++i) {
+    const float x = a.data[i], y = b.data[i];
+    n += !(std::isfinite(x) && std::isfinite(y) &&
+           std::fabs(x - y) <= 1e-5f + 1e-4f * std::max(std::fabs(x), std::fabs(y)));
+  }
+  return n ? std::to_string(n) + " values differ beyond float rounding" : "";
+}
+
+// A port nothing listens on right now (bound, read, closed).
+int free_port() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  socklen_t len = sizeof a;
+  if (fd < 0 || ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 ||
+      ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) != 0)
+    throw std::runtime_error("no free port");
+  ::close(fd);
+  return ntohs(a.sin_port);
+}
+
+struct MasterProc {
+  std::string name;  // its state directory and log prefix
+  int port = 0;
+  std::unique_ptr<Process> proc;
+  std::vector<std::string> old_logs;  // of the processes killed before this one
+  std::string address() const { return "127.0.0.1:" + std::to_string(port); }
+};
+
+class MultiMasterTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    start_ = std::chrono::steady_clock::now();
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() / ("epr-multi-master-" + std::to_string(::getpid()) + "-" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+
+  void TearDown() override {
+    for (auto& r : references_) r->stop();
+    for (auto& w : workers_) w->stop();
+    for (auto& m : masters_)
+      if (m.proc) m.proc->stop();
+    if (HasFailure()) {
+      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
+      auto tail = [](const std::string& name, const std::string& text) {
+        const size_t from = text.size() > 3000 ? text.size() - 3000 : 0;
+        std::fprintf(stderr, "---- %s ----\n%s\n", name.c_str(), text.substr(from).c_str());
+      };
+      for (auto& m : masters_) {
+        for (const auto& old : m.old_logs) tail("killed " + m.name, old);
+        if (m.proc) tail(m.name, m.proc->err());
+      }
+      for (auto& w : workers_) tail(w->name(), w->err());
+    } else {
+      fs::remove_all(dir_);
+    }
+  }
+
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  template <class... A>
+  void note(const char* format, A... args) {
+    std::printf("  [%6.2f s] ", std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count());
+    std::printf(format, args...);
+    std::printf("\n");
+    std::fflush(stdout);
+  }
+
+  // Starts (or restarts) master `m` on its port (0: a free one) and state directory.
+  void start_master(MasterProc& m) {
+    const Args argv{kMaster,
+                    "--listen",
+                    "127.0.0.1:" + std::to_string(m.port),
+                    "--state-dir",
+                    path(m.name),
+                    "--http",
+                    "127.0.0.1:0",
+                    "--reproject",
+                    "cpu",
+                    "--lease-timeout-ms",
+                    "1500",
+                    "--heartbeat-ms",
+                    "300",
+                    "--log-level",
+                    "info"};
+    const std::regex listening("epr-master listening on port ([0-9]+)");
+    // A port just freed by a killed master may take a moment to be bindable again.
+    for (int attempt = 0; attempt < 20; ++attempt) {
+      m.proc = std::make_unique<Process>(argv, dir_ / (m.name + "-" + std::to_string(++starts_)));
+      std::smatch match;
+      std::string err;
+      wait_until(
+          [&] {
+            err = m.proc->err();
+            return std::regex_search(err, match, listening) || !m.proc->running();
+          },
+          10s);
+      if (match.size() == 2 && m.proc->running()) {
+        m.port = std::stoi(match[1]);
+        return;
+      }
+      std::this_thread::sleep_for(250ms);
+    }
+    FAIL() << m.name << " did not start on port " << m.port << ":\n" << m.proc->err();
+  }
+
+  MasterProc& add_master(const std::string& name, bool start = true) {
+    masters_.push_back({name, 0, nullptr, {}});
+    MasterProc& m = masters_.back();
+    if (start) {
+      start_master(m);
+    } else {
+      m.port = free_port();
+    }
+    return m;
+  }
+
+  std::string all_addresses() const {
+    std::string list;
+    for (const auto& m : masters_) list += (list.empty() ? "" : ",") + m.address();
+    return list;
+  }
+
+  void start_worker(const std::string& name) {
+    workers_.push_back(std::make_unique<Process>(
+        Args{kWorker, "--master", all_addresses(), "--threads", "1", "--name", name, "--cache-dir",
+             path("cache-" + name), "--max-backoff-ms", "500", "--log-level", "debug"},
+        dir_ / name));
+  }
+
+  RunResult epr(Args args, Millis timeout = 60s) {
+    args.insert(args.begin(), kEpr);
+    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
+  }
+
+  std::string submit(const MasterProc& m, const Args& flags) {
+    Args args{"submit"};
+    args.insert(args.end(), flags.begin(), flags.end());
+    args.insert(args.end(), {"--master", m.address()});
+    const RunResult r = epr(args, 30s);
+    EXPECT_EQ(r.code, 0) << r.err;
+    return r.out.substr(0, r.out.find('\n'));
+  }
+
+  // `epr render --single-process --threads 1` of a job into PREFIX.*, in the background.
+  void start_reference(const Args& flags, const std::string& prefix) {
+    Args args{kEpr, "render"};
+    args.insert(args.end(), flags.begin(), flags.end());
+    args.insert(args.end(), {"--single-process", "--threads", "1", "--out", path(prefix)});
+    references_.push_back(std::make_unique<Process>(args, dir_ / prefix));
+  }
+
+  // Registrations master `m`'s current process has logged.
+  static size_t registered(const MasterProc& m) { return count_of(m.proc->err(), ") registered"); }
+
+  // Tiles of master `m` the workers leased, by their logs.
+  size_t leased_from(const MasterProc& m, int min_round = 0) const {
+    const std::regex leased("lease [0-9]+: job \\S+ round ([0-9]+) tile [0-9]+ from " +
+                            std::regex_replace(m.address(), std::regex("\\."), "\\.") + "\\b");
+    size_t n = 0;
+    for (const auto& w : workers_) {
+      const std::string log = w->err();
+      for (auto it = std::sregex_iterator(log.begin(), log.end(), leased); it != std::sregex_iterator(); ++it)
+        n += std::stoi((*it)[1]) >= min_round;
+    }
+    return n;
+  }
+
+  // `epr watch` until the job ends, `epr get` into PREFIX.*, and the comparison with REF.*.
+  void expect_job_equals_reference(const MasterProc& m, const std::string& id, const std::string& prefix,
+                                   const std::string& ref) {
+    const RunResult w = epr({"watch", id, "--master", m.address()}, 120s);
+    ASSERT_FALSE(w.timed_out) << m.name << "'s job did not end:\n" << w.err;
+    ASSERT_EQ(w.code, 0) << w.err;
+    EXPECT_NE(w.err.find("DONE"), std::string::npos) << w.err;
+    const RunResult g = epr({"get", id, "--out", path(prefix), "--master", m.address()}, 30s);
+    ASSERT_EQ(g.code, 0) << g.err;
+    for (auto& r : references_)
+      if (r->name().find(ref) != std::string::npos) {
+        ASSERT_TRUE(r->wait_for(120s).has_value()) << "the reference render did not end";
+        ASSERT_EQ(r->exit_code(), 0) << r->err();
+      }
+    const Image counts = read_image(path(prefix + ".counts.exr")), ref_counts = read_image(path(ref + ".counts.exr"));
+    ASSERT_EQ(counts.channels, 2);
+    EXPECT_EQ(exact_difference(counts, ref_counts), "") << m.name << ": M and M' per pixel";
+    EXPECT_EQ(exact_difference(read_image(path(prefix + ".pathtrace.exr")), read_image(path(ref + ".pathtrace.exr"))),
+              "")
+        << m.name << ": path-traced estimate";
+    EXPECT_EQ(close_difference(read_image(path(prefix + ".exr")), read_image(path(ref + ".exr"))), "")
+        << m.name << ": combined image";
+  }
+
+  std::chrono::steady_clock::time_point start_;
+  fs::path dir_;
+  std::vector<MasterProc> masters_;
+  std::vector<std::unique_ptr<Process>> workers_, references_;
+  int runs_ = 0, starts_ = 0;
+};
+
+// Two masters, one job each, three workers given both addresses: both jobs end, each equal to its
+// single-process render, and every worker registered with both masters.
+TEST_F(MultiMasterTest, TwoMastersShareThreeWorkers) {
+  masters_.reserve(2);
+  const Args ja = job_flags(21, 6), jb = job_flags(22, 6);
+  start_reference(ja, "ref-a");
+  start_reference(jb, "ref-b");
+  MasterProc& a = add_master("master-a");
+  MasterProc& b = add_master("master-b");
+  for (const char* n : {"w1", "w2", "w3"}) start_worker(n);
+  ASSERT_TRUE(wait_until([&] { return registered(a) >= 3 && registered(b) >= 3; }, 30s))
+      << "the workers did not register with both masters";
+  const std::string ida = submit(a, ja), idb = submit(b, jb);
+  ASSERT_FALSE(ida.empty());
+  ASSERT_FALSE(idb.empty());
+  note("jobs %s (master-a) and %s (master-b) submitted", ida.c_str(), idb.c_str());
+  ASSERT_NO_FATAL_FAILURE(expect_job_equals_reference(a, ida, "a", "ref-a"));
+  ASSERT_NO_FATAL_FAILURE(expect_job_equals_reference(b, idb, "b", "ref-b"));
+  note("both jobs done and equal to their references");
+  EXPECT_GT(leased_from(a), 0u);
+  EXPECT_GT(leased_from(b), 0u);
+  for (auto& w : workers_) {
+    EXPECT_EQ(count_of(w->err(), "registered with " + a.address() + " as "), 1u) << w->name();
+    EXPECT_EQ(count_of(w->err(), "registered with " + b.address() + " as "), 1u) << w->name();
+  }
+  // SIGTERM: each worker leaves both masters.
+  for (auto& w : workers_) {
+    EXPECT_EQ(w->stop(10s), 0) << w->err();
+    EXPECT_EQ(count_of(w->err(), "left " + a.address() + " ("), 1u) << w->name();
+    EXPECT_EQ(count_of(w->err(), "left " + b.address() + " ("), 1u) << w->name();
+  }
+}
+
+// A master that is down when the workers start: they serve the other one, and register with the late
+// one once it listens; its job then ends equal to its reference.
+TEST_F(MultiMasterTest, AMasterDownAtTheStartIsPickedUpLater) {
+  masters_.reserve(2);
+  const Args ja = job_flags(23, 6), jb = job_flags(24, 4);
+  start_reference(ja, "ref-a");
+  start_reference(jb, "ref-b");
+  MasterProc& a = add_master("master-a");
+  MasterProc& late = add_master("master-b", /*start=*/false);
+  start_worker("w1");
+  start_worker("w2");
+  ASSERT_TRUE(wait_until([&] { return registered(a) >= 2; }, 30s));
+  const std::string ida = submit(a, ja);
+  ASSERT_FALSE(ida.empty());
+  // The workers trace a's job while b is down, and say b is unreachable.
+  ASSERT_TRUE(wait_until([&] { return leased_from(a) >= 4; }, 30s)) << "master-a got no work done";
+  for (auto& w : workers_) EXPECT_NE(w->err().find("cannot register with " + late.address() + ":"), std::string::npos);
+  note("master-a served while master-b is down");
+  ASSERT_NO_FATAL_FAILURE(start_master(late));
+  ASSERT_TRUE(wait_until([&] { return registered(late) >= 2; }, 30s)) << "the workers did not find master-b";
+  note("both workers registered with master-b");
+  const std::string idb = submit(late, jb);
+  ASSERT_FALSE(idb.empty());
+  ASSERT_NO_FATAL_FAILURE(expect_job_equals_reference(a, ida, "a", "ref-a"));
+  ASSERT_NO_FATAL_FAILURE(expect_job_equals_reference(late, idb, "b", "ref-b"));
+}
+
+// Master b is SIGKILLed mid-job: master a's job goes on while b is down (tiles of a keep being
+// leased); b restarted on its state directory resumes its job from the checkpoint; both jobs end
+// equal to their references.
+TEST_F(MultiMasterTest, AMasterKilledMidJobResumesWhileTheOtherGoesOn) {
+  masters_.reserve(2);
+  const Args ja = job_flags(25, 64), jb = job_flags(26, 12);
+  start_reference(ja, "ref-a");
+  start_reference(jb, "ref-b");
+  MasterProc& a = add_master("master-a");
+  MasterProc& b = add_master("master-b");
+  start_worker("w1");
+  start_worker("w2");
+  ASSERT_TRUE(wait_until([&] { return registered(a) >= 2 && registered(b) >= 2; }, 30s));
+  const std::string ida = submit(a, ja), idb = submit(b, jb);
+  ASSERT_FALSE(ida.empty());
+  ASSERT_FALSE(idb.empty());
+  ASSERT_TRUE(wait_until([&] { return leased_from(b, 2) > 0; }, 60s)) << "master-b's job never reached round 2";
+  ASSERT_EQ(b.proc->err().find("job " + idb + " done"), std::string::npos) << "b's job ended before the kill";
+  b.proc->signal(SIGKILL);
+  ASSERT_EQ(b.proc->wait_for(5s), 128 + SIGKILL);
+  b.old_logs.push_back(b.proc->err());
+  const size_t a_before = leased_from(a);
+  note("master-b SIGKILLed; %zu tiles of master-a leased so far", a_before);
+  // With b down, a's job is not stalled: more of its tiles are leased (8 = two rounds of 4 tiles).
+  EXPECT_TRUE(wait_until([&] { return leased_from(a) >= a_before + 8; }, 30s))
+      << "master-a's job stalled while master-b was down";
+  ASSERT_EQ(a.proc->err().find("job " + ida + " done"), std::string::npos)
+      << "a's job ended before b came back: make it longer";
+  note("master-a's job went on: %zu tiles leased", leased_from(a));
+  ASSERT_NO_FATAL_FAILURE(start_master(b));
+  const std::regex loaded("run ([0-9]+), 1 jobs loaded, 1 resume from their checkpoint, 0 start from round 0");
+  EXPECT_TRUE(std::regex_search(b.proc->err(), loaded)) << b.proc->err();
+  ASSERT_TRUE(wait_until([&] { return registered(b) >= 2; }, 30s)) << "the workers did not register again with b";
+  note("master-b restarted; both workers registered again");
+  ASSERT_NO_FATAL_FAILURE(expect_job_equals_reference(a, ida, "a", "ref-a"));
+  ASSERT_NO_FATAL_FAILURE(expect_job_equals_reference(b, idb, "b", "ref-b"));
+  for (auto& w : workers_) EXPECT_EQ(count_of(w->err(), "registered with " + a.address() + " as "), 1u) << w->name();
+}
+
+}  // namespace
+}  // namespace epr::testing
