@@ -164,8 +164,9 @@ struct WorkerNode::Impl {
     ++counters.tiles_leased;
     const uint64_t id = lease.lease_id();
     auto h = s.hold(id);
-    log->debug("lease {}: job {} round {} tile {} from {}", id, lease.job_id(), lease.round(), lease.tile_index(),
-               use->name());
+    // With several masters, the line names the one that granted the lease.
+    log->debug("lease {}: job {} round {} tile {}{}", id, lease.job_id(), lease.round(), lease.tile_index(),
+               pool.single() ? "" : " from " + use->name());
     const std::string job_key = use->target() + " " + lease.job_id();
     // A lease this worker cannot trace goes back as failed, and the thread waits (with backoff) before
     // leasing again, so a broken job cannot make the worker spin.

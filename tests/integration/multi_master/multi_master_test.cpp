@@ -7,7 +7,7 @@
 // job goes on.
 //
 // Workers log at debug level: their lease lines ("lease N: job J round R tile T from MASTER") say
-// which master granted which tile. Each test keeps its folder of logs and prints their tails when it
+// which master granted which tile (the " from MASTER" part appears with several masters). Each test keeps its folder of logs and prints their tails when it
 // fails.
 #include <gtest/gtest.h>
 #include <netinet/in.h>
