@@ -236,19 +236,22 @@ struct WorkerNode::Impl {
   // How long a master may hold this thread's lease call when it has no tile yet. One master: long
   // (the answer comes the moment its next round opens). Several: at once, so that a master without
   // work does not keep the thread from the others, except for the last one asked in a pass that found
-  // no tile, which holds the call a while (no busy polling).
-  static uint32_t max_wait_ms(size_t masters, int misses) {
+  // no tile (`park`), which holds the call a while (no busy polling).
+  static uint32_t max_wait_ms(size_t masters, bool park) {
     if (masters <= 1) return kLeaseMaxWaitMs;
-    if (misses + 1 >= int(masters)) return std::max<uint32_t>(kMinParkMs, kLeaseMaxWaitMs / uint32_t(masters));
-    return 0;
+    return park ? std::max<uint32_t>(kMinParkMs, kLeaseMaxWaitMs / uint32_t(masters)) : 0;
   }
 
-  // The master to ask after `last`, in the order of `up`; a thread that asked none yet starts at its
-  // own index, so the threads spread over the masters.
-  static std::string next_master(const std::vector<std::string>& up, const std::string& last, int index) {
-    const auto it = std::find(up.begin(), up.end(), last);
-    if (it == up.end()) return up[size_t(index) % up.size()];
-    return std::next(it) == up.end() ? up.front() : *std::next(it);
+  // The master to ask after `last`, in the order of `up`, passing over `skip` (unless it is the only
+  // one); a thread that asked none yet starts at its own index, so the threads spread over the masters.
+  static std::string next_master(const std::vector<std::string>& up, const std::string& last, int index,
+                                 const std::string& skip = {}) {
+    auto it = std::find(up.begin(), up.end(), last);
+    std::string next = it == up.end()              ? up[size_t(index) % up.size()]
+                       : std::next(it) == up.end() ? up.front()
+                                                   : *std::next(it);
+    if (next == skip && up.size() > 1) return next_master(up, next, index);
+    return next;
   }
 
   // Leases from every connected master in turn (round robin, one lease per master in turn; a master
@@ -276,6 +279,7 @@ struct WorkerNode::Impl {
       const MasterSession* session = nullptr;
     } ahead;
     std::string last;           // the master asked last
+    std::string favourite;      // the master that gave this thread its last tile
     int misses = 0;             // masters in a row that had no tile
     int retry_ms = kMaxWaitMs;  // the shortest Wait.retry_after_ms among them
     while (!signal.stopping()) {
@@ -299,11 +303,15 @@ struct WorkerNode::Impl {
           signal.wait_for(1000, [&] { return pool.generation() != generation; });
           continue;
         }
-        last = next_master(up, last, index);
+        // A pass asks every other master at once, then holds its last call at the master that gave this
+        // thread its last tile (the one likely to have more as soon as its next round opens).
+        const bool park = misses + 1 >= int(up.size());
+        const bool favoured = std::find(up.begin(), up.end(), favourite) != up.end();
+        last = park && favoured ? favourite : next_master(up, last, index, favoured ? favourite : "");
         use = pool.use(last);
         if (!use) continue;
         ThreadActivity::Doing leasing(&activity, Activity::kLeasing);
-        call = use->session().lease_tile(max_wait_ms(up.size(), misses));
+        call = use->session().lease_tile(max_wait_ms(up.size(), park));
       }
       MasterSession& s = use->session();
       const v1::Lease& lease = call.lease;
@@ -315,13 +323,14 @@ struct WorkerNode::Impl {
         case v1::Lease::kTile: {
           misses = 0;
           retry_ms = kMaxWaitMs;
+          favourite = use->target();
           const std::vector<std::string> up = pool.connected();
           if (!up.empty()) {
             last = next_master(up, use->target(), index);
             if (auto next = pool.use(last)) {
               ahead.target = last;
               ahead.session = &next->session();
-              ahead.call = leaser.run([slot = hand_over(next), wait = max_wait_ms(up.size(), 0)] {
+              ahead.call = leaser.run([slot = hand_over(next), wait = max_wait_ms(up.size(), false)] {
                 const std::shared_ptr<MasterPool::Use> u = std::exchange(*slot, nullptr);
                 return u->session().lease_tile(wait);
               });
