@@ -7,8 +7,8 @@
 // job goes on.
 //
 // Workers log at debug level: their lease lines ("lease N: job J round R tile T from MASTER") say
-// which master granted which tile (the " from MASTER" part appears with several masters). Each test keeps its folder of logs and prints their tails when it
-// fails.
+// which master granted which tile (the " from MASTER" part appears with several masters). Each test keeps its folder of
+// logs and prints their tails when it fails.
 #include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <signal.h>
@@ -104,7 +104,8 @@ struct MasterProc {
   int port = 0;
   std::unique_ptr<Process> proc;
   std::vector<std::string> old_logs;  // of the processes killed before this one
-  std::string address() const { return "127.0.0.1:" + std::to_string(port); }
+  std::string host = "127.0.0.1";     // how the workers and clients name it
+  std::string address() const { return host + ":" + std::to_string(port); }
 };
 
 class MultiMasterTest : public ::testing::Test {
@@ -187,7 +188,7 @@ class MultiMasterTest : public ::testing::Test {
   }
 
   MasterProc& add_master(const std::string& name, bool start = true) {
-    masters_.push_back({name, 0, nullptr, {}});
+    masters_.push_back({name, 0, nullptr, {}, "127.0.0.1"});
     MasterProc& m = masters_.back();
     if (start) {
       start_master(m);
@@ -313,7 +314,8 @@ TEST_F(MultiMasterTest, TwoMastersShareThreeWorkers) {
 }
 
 // A master that is down when the workers start: they serve the other one, and register with the late
-// one once it listens; its job then ends equal to its reference.
+// one once it listens; its job then ends equal to its reference. The late one is named by a host name
+// (localhost), so the worker's own resolution runs as well.
 TEST_F(MultiMasterTest, AMasterDownAtTheStartIsPickedUpLater) {
   masters_.reserve(2);
   const Args ja = job_flags(23, 6), jb = job_flags(24, 4);
@@ -321,6 +323,7 @@ TEST_F(MultiMasterTest, AMasterDownAtTheStartIsPickedUpLater) {
   start_reference(jb, "ref-b");
   MasterProc& a = add_master("master-a");
   MasterProc& late = add_master("master-b", /*start=*/false);
+  late.host = "localhost";  // a name: the worker resolves it (getaddrinfo: one address, 127.0.0.1)
   start_worker("w1");
   start_worker("w2");
   ASSERT_TRUE(wait_until([&] { return registered(a) >= 2; }, 30s));
