@@ -20,14 +20,16 @@ MemoryEstimate estimate_job_memory(const RenderOptions& opts, bool checkpoints) 
   constexpr uint64_t kFrameStatePerPixel = 12 + 4 + 8 + 1;
   // The round: its plan (skip 1 + first sample 4) and the tile results queued (3 floats + a count).
   constexpr uint64_t kRoundPerPixel = 5 + 16;
-  // Images at a round's end: the preview copy kept (FrameImages: 3 RGB + 2 one-channel floats), the
-  // one being made and its M' temporary.
-  constexpr uint64_t kImagesPerPixel = 44 + 44 + 8;
+  // One set of images (FrameImages: 3 RGB + 2 one-channel floats; the preview copy is dropped before
+  // the next is made) and its M' temporary.
+  constexpr uint64_t kImagesPerPixel = 44 + 8;
   e.pixel_bytes = pixels * (kFrameStatePerPixel + kRoundPerPixel + kImagesPerPixel);
   if (reprojects) {
     const uint64_t texels = pixels * s * s;
     e.subpixel_bytes = texels * (16 + 2);
     e.build_bytes = texels * kBuildIndexBytesPerTexel + std::min(kBuildBandBytes, texels * kBuildBandBytesPerTexel);
+    // A small frame's rounds do not fill it: at most ~16 vertices of 16 bytes per pixel are queued.
+    e.queue_bytes = std::min(kCommitQueueBytes, pixels * 16 * 16);
   }
   if (checkpoints) e.checkpoint_bytes = kCheckpointBytes;
   return e;

@@ -12,10 +12,11 @@
 //     plane index (4 B on frames with 65535 planes or more, which the estimate does not foresee);
 // plus, in both, per pixel: FrameState's arrays (25 B: path sums in float, M, M', skip), a round's
 // plan (skip bits and first samples, 5 B) and its tile results queued for the reprojection thread
-// (sums and counts, 16 B), and at a round's end the image copies: the preview copy a running job
-// keeps (FrameImages, 44 B) while the next one, or the final images, are made (44 B and an 8-byte M'
-// temporary); the result files are written after the frame is dropped (no peak of their own);
-// with checkpoints: two 4 MiB chunks (a checkpoint streams from the live frame).
+// (sums and counts, 16 B), and one set of images (FrameImages, 44 B, and an 8-byte M' temporary: the
+// preview copy a running job keeps is dropped before the next one, or the final images, are made);
+// the result files are written after the frame is dropped (no peak of their own); the commit queue's
+// vertices (kCommitQueueBytes: full while round 0 is traced during the build); with checkpoints: two
+// 4 MiB chunks (a checkpoint streams from the live frame).
 #pragma once
 
 #include <algorithm>
@@ -32,8 +33,11 @@ struct MemoryEstimate {
   uint64_t build_bytes = 0;       // the frame's build: the plane index in 4 and 2 bytes and the band buffers
   uint64_t pixel_bytes = 0;       // FrameState, the round's plan and tiles, the image copies
   uint64_t checkpoint_bytes = 0;  // with checkpoints
+  uint64_t queue_bytes = 0;       // the commit queue's vertices
   /// The peak: the larger phase (build or rounds) plus what both hold.
-  uint64_t total() const { return std::max(subpixel_bytes, build_bytes) + pixel_bytes + checkpoint_bytes; }
+  uint64_t total() const {
+    return std::max(subpixel_bytes, build_bytes) + pixel_bytes + checkpoint_bytes + queue_bytes;
+  }
 };
 
 /// Per texel while the frame is built: the plane index (4 B) and its narrowed copy (2 B).
@@ -42,6 +46,9 @@ inline constexpr uint64_t kBuildIndexBytesPerTexel = 4 + 2;
 /// kBuildBandBytesPerTexel per texel of a grid smaller than one band.
 inline constexpr uint64_t kBuildBandBytes = uint64_t(64) << 20;
 inline constexpr uint64_t kBuildBandBytesPerTexel = 49;
+/// The commit queue's vertices at its bound (JobManager's default max_queued_vertices, 8 Mi vertices
+/// of 16 bytes on the wire).
+inline constexpr uint64_t kCommitQueueBytes = (uint64_t(8) << 20) * 16;
 /// A checkpoint's buffers: it writes the live frame a chunk at a time.
 inline constexpr uint64_t kCheckpointBytes = uint64_t(8) << 20;
 

@@ -44,6 +44,19 @@ void Checkpointer::queue(const std::string& job_id, const std::function<std::opt
   push(job_id, {std::make_shared<const JobProgressRecord>(std::move(*record)), {}});
 }
 
+void Checkpointer::queue_and_wait(const std::string& job_id,
+                                  const std::function<std::optional<JobProgressRecord>()>& make) {
+  MutexLock lock(mu_);
+  std::optional<JobProgressRecord> record = make();
+  if (!record) return;
+  push(job_id, {std::make_shared<const JobProgressRecord>(std::move(*record)), {}});
+  cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
+    if (stopped_) return true;
+    if (writing_ == job_id) return false;
+    return std::none_of(queue_.begin(), queue_.end(), [&](const auto& q) { return q.first == job_id; });
+  });
+}
+
 void Checkpointer::queue_written(const std::string& job_id, std::filesystem::path written,
                                  const std::function<bool()>& accept) {
   MutexLock lock(mu_);
@@ -60,9 +73,14 @@ void Checkpointer::loop() {
   MutexLock lock(mu_);
   for (;;) {
     cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return stopping_ || !queue_.empty(); });  // with mu_ held
-    if (queue_.empty()) return;  // stopping, everything written
+    if (queue_.empty()) {  // stopping, everything written
+      stopped_ = true;
+      cv_.notify_all();
+      return;
+    }
     auto [job_id, item] = std::move(queue_.front());
     queue_.pop_front();
+    writing_ = job_id;
     lock.unlock();
     const auto start = std::chrono::steady_clock::now();
     try {
@@ -88,6 +106,8 @@ void Checkpointer::loop() {
     }
     item = {};  // frees a frame copy before waiting
     lock.lock();
+    writing_.clear();
+    cv_.notify_all();  // queue_and_wait
   }
 }
 

@@ -38,6 +38,10 @@ class Checkpointer {
   /// before it is committed, the file is removed.
   void queue_written(const std::string& job_id, std::filesystem::path written, const std::function<bool()>& accept)
       EPR_EXCLUDES(mu_);
+  /// As queue(), then waits until the job's record is on disk (or the writer has stopped): for a
+  /// state that must be durable before anyone hears of it.
+  void queue_and_wait(const std::string& job_id, const std::function<std::optional<JobProgressRecord>()>& make)
+      EPR_EXCLUDES(mu_);
   /// Writes what is queued and stops the thread (idempotent).
   void stop() EPR_EXCLUDES(mu_);
 
@@ -55,6 +59,8 @@ class Checkpointer {
   std::condition_variable_any cv_;
   std::deque<std::pair<std::string, Item>> queue_ EPR_GUARDED_BY(mu_);
   bool stopping_ EPR_GUARDED_BY(mu_) = false;
+  bool stopped_ EPR_GUARDED_BY(mu_) = false;  // the thread has written everything and returned
+  std::string writing_ EPR_GUARDED_BY(mu_);   // the job whose item the thread is writing, if any
   std::thread thread_;
 };
 

@@ -114,6 +114,7 @@ struct Job {
   std::shared_ptr<const FrameImages> preview_images;
   std::shared_ptr<const nlohmann::json> preview_stats;  // the statistics file as of the copy
   int preview_round = 0;                                // the closed round the copy reflects
+  bool preview_copying = false;  // the copy is being replaced (the old one is dropped first, to bound memory)
   bool preview_reprojects = false;
   std::map<std::string, std::vector<unsigned char>> previews;  // layer -> PNG
   int64_t last_preview_ms = 0;

@@ -86,13 +86,14 @@ JobManager::ResultFile JobManager::result_file(const std::string& id, ResultKind
   int round, rounds_done;
   std::shared_ptr<const FrameImages> images;
   std::shared_ptr<const nlohmann::json> stats;
-  bool reprojects;
+  bool reprojects, copying;
   fs::path dir;
   {
     MutexLock lock(mu_);
     auto job = jobs_.find(id);
     if (!job) return fail(Error::kNoJob, fmt::format("no job '{}'", id));
     state = job->state;
+    copying = job->preview_copying;
     rounds_done = job->progress.round;
     round = state == JobState::kDone ? rounds_done : job->preview_round;
     images = job->preview_images;
@@ -119,6 +120,10 @@ JobManager::ResultFile JobManager::result_file(const std::string& id, ResultKind
       images || (state != JobState::kRunning && fs::exists(dir / result_kind(ResultKind::kExr).stored_as));
   if (state == JobState::kDone || (has_copy && k.needs_reprojection && !reprojects) || (has_copy && !images))
     return fail(Error::kNotProduced, fmt::format("job {} has no {} result (not produced in this mode)", id, k.name));
+  if (!images && copying && state == JobState::kRunning)
+    return fail(Error::kNotReady, fmt::format("job {} is taking the copy of its round {} (or its final results); ask "
+                                              "again in a moment",
+                                              id, rounds_done));
   if (!images)
     return fail(Error::kNotReady, fmt::format("job {} is {} and has no committed round{}", id, to_string(state),
                                               state == JobState::kRunning ? " yet" : ": it has no results"));

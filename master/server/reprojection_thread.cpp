@@ -336,11 +336,19 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
   // round it reflects.
   if (want_preview) {
     const int64_t copy_started = clock_();
+    {
+      // The old copy goes first, so that the job never holds two (~44 bytes per pixel each); the PNGs
+      // encoded from it keep serving previews meanwhile.
+      MutexLock lock(mu_);
+      job->preview_images.reset();
+      job->preview_copying = true;
+    }
     auto images = std::make_shared<const FrameImages>(frame.images(/*preview=*/true));
     nlohmann::json stats = frame.statistics(job->request.options, at_close.worker_culled);
     MutexLock lock(mu_);
     job->add_statistics(&stats, at_close, clock_());
     job->preview_images = std::move(images);
+    job->preview_copying = false;
     job->preview_stats = std::make_shared<const nlohmann::json>(std::move(stats));
     job->preview_round = frame.round();
     job->preview_reprojects = frame.reprojects();
@@ -359,6 +367,13 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
   bool reprojects;
   nlohmann::json stats;
   {
+    // The result files replace the preview copy: it goes before the final images are made, so that
+    // the job's peak holds one set of images. Its PNGs serve previews until the files exist.
+    MutexLock lock(mu_);
+    job->preview_images.reset();
+    job->preview_copying = true;
+  }
+  {
     FrameState& frame = job->driver->frame();
     images = frame.images();
     reprojects = frame.reprojects();
@@ -373,10 +388,6 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     job->counts = frame.counts();
     job->counters.seconds_reprojecting = frame.seconds_reprojecting();
     job->budget_exhausted = budget_exhausted;
-    // The result files replace the preview copy: it goes now, not after they are written, so that
-    // writing them does not add to the job's peak memory (previews meanwhile: none).
-    job->preview_images.reset();
-    job->previews.clear();
   }
   const double images_s = seconds_since(start);
   // Everything the images came from -- the frame state (accumulation, deep framebuffer, per-pixel
@@ -399,11 +410,28 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     // Done once every file is in place.
     MutexLock lock(mu_);
     job->seconds_writing_results = seconds_since(start);
-    job->end(JobState::kDone, "", clock_());
+    job->previews.clear();  // from now on made from the result files
+    job->preview_copying = false;
+  }
+  // The finished state is on disk before anyone hears of it (after the results: it promises them),
+  // so that a master killed after a client saw DONE comes back with the job done.
+  int64_t finished_ms = 0;
+  if (checkpointer_)
+    checkpointer_->queue_and_wait(job->id, [&]() -> std::optional<JobProgressRecord> {
+      MutexLock lock(mu_);
+      if (is_terminal(job->state)) return std::nullopt;  // cancelled meanwhile: that state is saved
+      JobProgressRecord r = progress_record(*job);
+      r.state = JobState::kDone;
+      r.error.clear();
+      r.finished_ms = finished_ms = clock_();
+      return r;
+    });
+  {
+    MutexLock lock(mu_);
+    job->end(JobState::kDone, "", finished_ms ? finished_ms : clock_());
     active_.reset();
   }
   const double results_s = seconds_since(start);
-  save_final_checkpoint(job);  // after the results: a finished job's checkpoint promises them
   logger("master")->info(
       "job {} done: images {:.2f} s, freeing the frame {:.2f} s, result files {:.2f} s; {} tiles applied in {} batches "
       "(this master so far)",

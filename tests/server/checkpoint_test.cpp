@@ -803,6 +803,34 @@ TEST(JobManagerCheckpoint, CancelledJobStaysCancelledAndTornNewestCheckpointFall
   fs::remove_all(dir);
 }
 
+// A client that saw DONE must find the job done after a crash: the finished state is on disk before
+// the job reports it (the record is read the moment the job says DONE, without sleeping).
+TEST(JobManagerCheckpoint, AJobIsDoneOnDiskBeforeItReportsDone) {
+  const fs::path dir = fresh_dir("done-durable");
+  MasterOptions o;
+  o.checkpoint_interval_s = 0;
+  o.state_dir = dir.string();
+  o.reproject_backend_override = "cpu";
+  {
+    JobManager jobs(o);
+    const std::string id = jobs.submit(resume_request(ReprojectMethod::kCpu)).id;
+    InProcessWorker w(jobs);
+    for (auto end = std::chrono::steady_clock::now() + 120s;; std::this_thread::yield()) {
+      ASSERT_LT(std::chrono::steady_clock::now(), end) << "the job did not finish";
+      const auto st = jobs.get(id);
+      ASSERT_TRUE(st);
+      ASSERT_NE(st->state, JobState::kFailed) << st->error;
+      if (st->state == JobState::kDone) break;
+      if (auto l = w.lease()) w.submit(*l);
+    }
+    const JobProgressRecord on_disk =
+        decode_job_progress(read_sealed(dir / "jobs" / id / "progress.ckpt", RecordKind::kJobProgress));
+    EXPECT_EQ(on_disk.state, JobState::kDone);
+    EXPECT_EQ(on_disk.progress.round, jobs.get(id)->progress.round);
+  }
+  fs::remove_all(dir);
+}
+
 // Round checkpoints follow MasterOptions::checkpoint_interval_s: 0 after every round but the last
 // (the job's end writes its final record), a long interval only after the first round, the automatic
 // one somewhere between; the newest checkpoint on disk is then of the last checkpointed round.

@@ -168,7 +168,9 @@ TEST(MemoryEstimate, ParsesSizesAndCountsTheSubpixels) {
   const MemoryEstimate e = estimate_job_memory(o, false);
   EXPECT_EQ(e.subpixel_bytes, 1920ull * 1080 * 16 * 18);
   EXPECT_EQ(e.build_bytes, 1920ull * 1080 * 16 * kBuildIndexBytesPerTexel + kBuildBandBytes);
-  EXPECT_EQ(e.total(), e.subpixel_bytes + e.pixel_bytes);  // the rounds, not the build, set the peak
+  EXPECT_EQ(e.queue_bytes, kCommitQueueBytes);  // a 1080p round fills the commit queue
+  // The rounds, not the build, set the peak.
+  EXPECT_EQ(e.total(), e.subpixel_bytes + e.pixel_bytes + e.queue_bytes);
   EXPECT_EQ(e.checkpoint_bytes, 0u);
   EXPECT_GT(estimate_job_memory(o, true).total(), e.total());
   o.mode = RenderMode::kPathTrace;
