@@ -33,6 +33,7 @@
 #include "binaries.h"
 #include "common/image.h"
 #include "common/render_options.h"
+#include "image_difference.h"
 #include "process.h"
 
 namespace epr::testing {
@@ -108,42 +109,6 @@ Images load_outputs(const std::string& prefix) {
   im.combined = read_image(prefix + ".exr");
   im.stats = nlohmann::json::parse(read_text(prefix + ".json"));
   return im;
-}
-
-// "" when a and b are bit-identical, otherwise how many values differ and where the first one is.
-std::string exact_difference(const Image& a, const Image& b) {
-  if (a.width != b.width || a.height != b.height || a.channels != b.channels)
-    return "shapes differ: " + std::to_string(a.width) + "x" + std::to_string(a.height) + "x" +
-           std::to_string(a.channels) + " vs " + std::to_string(b.width) + "x" + std::to_string(b.height) + "x" +
-           std::to_string(b.channels);
-  size_t n = 0, first = 0;
-  for (size_t i = 0; i < a.data.size(); ++i)
-    if (std::memcmp(&a.data[i], &b.data[i], sizeof(float)) != 0 && n++ == 0) first = i;
-  if (n == 0) return "";
-  const size_t px = first / size_t(a.channels);
-  std::ostringstream ss;
-  ss << n << " of " << a.data.size() << " values differ; first at pixel (" << px % size_t(a.width) << ", "
-     << px / size_t(a.width) << ") channel " << first % size_t(a.channels) << ": " << a.data[first] << " vs "
-     << b.data[first];
-  return ss.str();
-}
-
-// "" when every value agrees within `rel` relative or `abs` absolute difference.
-std::string close_difference(const Image& a, const Image& b, float rel, float abs) {
-  if (a.data.size() != b.data.size() || a.width != b.width) return "shapes differ";
-  size_t n = 0, first = 0;
-  for (size_t i = 0; i < a.data.size(); ++i) {
-    const float x = a.data[i], y = b.data[i];
-    const bool ok = std::isfinite(x) && std::isfinite(y) &&
-                    (std::fabs(x - y) <= abs || std::fabs(x - y) <= rel * std::max(std::fabs(x), std::fabs(y)));
-    if (!ok && n++ == 0) first = i;
-  }
-  if (n == 0) return "";
-  const size_t px = first / size_t(a.channels);
-  std::ostringstream ss;
-  ss << n << " values differ; first at pixel (" << px % size_t(a.width) << ", " << px / size_t(a.width)
-     << "): " << a.data[first] << " vs " << b.data[first];
-  return ss.str();
 }
 
 // Per-pixel M (channel 0) and M' (channel 1) of a counts image.

@@ -28,6 +28,7 @@
 
 #include "binaries.h"
 #include "common/image.h"
+#include "image_difference.h"
 #include "process.h"
 
 namespace epr::testing {
@@ -67,29 +68,6 @@ Args job_flags() {
 uint64_t test_seed() {
   if (const char* s = std::getenv("EPR_TEST_SEED")) return std::strtoull(s, nullptr, 10);
   return std::random_device{}();
-}
-
-std::string exact_difference(const Image& a, const Image& b) {
-  if (a.width != b.width || a.height != b.height || a.channels != b.channels) return "shapes differ";
-  size_t n = 0, first = 0;
-  for (size_t i = 0; i < a.data.size(); ++i)
-    if (std::memcmp(&a.data[i], &b.data[i], sizeof(float)) != 0 && n++ == 0) first = i;
-  if (n == 0) return "";
-  std::ostringstream ss;
-  ss << n << " of " << a.data.size() << " values differ; first at value " << first << ": " << a.data[first] << " vs "
-     << b.data[first];
-  return ss.str();
-}
-
-std::string close_difference(const Image& a, const Image& b) {
-  if (a.data.size() != b.data.size()) return "shapes differ";
-  size_t n = 0;
-  for (size_t i = 0; i < a.data.size(); ++i) {
-    const float x = a.data[i], y = b.data[i];
-    n += !(std::isfinite(x) && std::isfinite(y) &&
-           std::fabs(x - y) <= 1e-5f + 1e-4f * std::max(std::fabs(x), std::fabs(y)));
-  }
-  return n ? std::to_string(n) + " values differ beyond float rounding" : "";
 }
 
 class MasterRestartTest : public ::testing::Test {

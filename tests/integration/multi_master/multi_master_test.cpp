@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "../cluster/binaries.h"
+#include "../cluster/image_difference.h"
 #include "../cluster/process.h"
 #include "common/image.h"
 
@@ -60,29 +61,6 @@ Args job_flags(int seed, int rounds) {
           std::to_string(seed),
           "--round-growth",
           "0"};
-}
-
-std::string exact_difference(const Image& a, const Image& b) {
-  if (a.width != b.width || a.height != b.height || a.channels != b.channels) return "shapes differ";
-  size_t n = 0, first = 0;
-  for (size_t i = 0; i < a.data.size(); ++i)
-    if (std::memcmp(&a.data[i], &b.data[i], sizeof(float)) != 0 && n++ == 0) first = i;
-  if (n == 0) return "";
-  std::ostringstream ss;
-  ss << n << " of " << a.data.size() << " values differ; first at value " << first << ": " << a.data[first] << " vs "
-     << b.data[first];
-  return ss.str();
-}
-
-std::string close_difference(const Image& a, const Image& b) {
-  if (a.data.size() != b.data.size()) return "shapes differ";
-  size_t n = 0;
-  for (size_t i = 0; i < a.data.size(); ++i) {
-    const float x = a.data[i], y = b.data[i];
-    n += !(std::isfinite(x) && std::isfinite(y) &&
-           std::fabs(x - y) <= 1e-5f + 1e-4f * std::max(std::fabs(x), std::fabs(y)));
-  }
-  return n ? std::to_string(n) + " values differ beyond float rounding" : "";
 }
 
 // A port nothing listens on right now (bound, read, closed).
