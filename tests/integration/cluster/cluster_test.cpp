@@ -152,13 +152,8 @@ class ClusterTest : public ::testing::Test {
     if (master_) master_->stop();
     if (HasFailure()) {
       std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
-      auto tail = [](const std::string& name, const std::string& text) {
-        const size_t from = text.size() > 3000 ? text.size() - 3000 : 0;
-        std::fprintf(stderr, "---- %s (last %zu bytes) ----\n%s\n", name.c_str(), text.size() - from,
-                     text.substr(from).c_str());
-      };
-      if (master_) tail("epr-master", master_->err());
-      for (auto& w : workers_) tail(w->name() + " " + std::to_string(w->pid()), w->err());
+      if (master_) print_log_tail("epr-master", master_->err());
+      for (auto& w : workers_) print_log_tail(w->name() + " " + std::to_string(w->pid()), w->err());
     } else {
       workers_.clear();
       master_.reset();

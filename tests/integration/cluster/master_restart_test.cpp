@@ -91,14 +91,10 @@ class MasterRestartTest : public ::testing::Test {
     if (master_) master_->stop();
     if (HasFailure()) {
       std::fprintf(stderr, "seed %llu; logs kept in %s\n", static_cast<unsigned long long>(seed_), dir_.c_str());
-      auto tail = [](const std::string& name, const std::string& text) {
-        const size_t from = text.size() > 3000 ? text.size() - 3000 : 0;
-        std::fprintf(stderr, "---- %s ----\n%s\n", name.c_str(), text.substr(from).c_str());
-      };
-      for (const auto& m : old_master_logs_) tail("killed epr-master", m);
-      if (master_) tail("epr-master", master_->err());
-      for (auto& w : workers_) tail(w->name(), w->err());
-      if (watch_) tail("epr watch", watch_->err());
+      for (const auto& m : old_master_logs_) print_log_tail("killed epr-master", m);
+      if (master_) print_log_tail("epr-master", master_->err());
+      for (auto& w : workers_) print_log_tail(w->name(), w->err());
+      if (watch_) print_log_tail("epr watch", watch_->err());
     } else {
       fs::remove_all(dir_);
     }

@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -130,6 +131,12 @@ size_t count_of(const std::string& haystack, const std::string& needle) {
   size_t n = 0;
   for (size_t p = haystack.find(needle); p != std::string::npos; p = haystack.find(needle, p + needle.size())) ++n;
   return n;
+}
+
+void print_log_tail(const std::string& name, const std::string& text) {
+  const size_t from = text.size() > 3000 ? text.size() - 3000 : 0;
+  std::fprintf(stderr, "---- %s (last %zu bytes) ----\n%s\n", name.c_str(), text.size() - from,
+               text.substr(from).c_str());
 }
 
 }  // namespace epr::testing

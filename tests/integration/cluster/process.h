@@ -73,4 +73,8 @@ std::string read_text(const std::filesystem::path& path);
 /// Occurrences of `needle` in `haystack`.
 size_t count_of(const std::string& haystack, const std::string& needle);
 
+/// Prints the last 3000 bytes of a process's log to stderr under a "---- name ----" line (a failed
+/// test's evidence).
+void print_log_tail(const std::string& name, const std::string& text);
+
 }  // namespace epr::testing

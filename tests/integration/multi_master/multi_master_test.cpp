@@ -103,15 +103,11 @@ class MultiMasterTest : public ::testing::Test {
       if (m.proc) m.proc->stop();
     if (HasFailure()) {
       std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
-      auto tail = [](const std::string& name, const std::string& text) {
-        const size_t from = text.size() > 3000 ? text.size() - 3000 : 0;
-        std::fprintf(stderr, "---- %s ----\n%s\n", name.c_str(), text.substr(from).c_str());
-      };
       for (auto& m : masters_) {
-        for (const auto& old : m.old_logs) tail("killed " + m.name, old);
-        if (m.proc) tail(m.name, m.proc->err());
+        for (const auto& old : m.old_logs) print_log_tail("killed " + m.name, old);
+        if (m.proc) print_log_tail(m.name, m.proc->err());
       }
-      for (auto& w : workers_) tail(w->name(), w->err());
+      for (auto& w : workers_) print_log_tail(w->name(), w->err());
     } else {
       fs::remove_all(dir_);
     }
