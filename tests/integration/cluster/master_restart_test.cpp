@@ -105,10 +105,7 @@ class MasterRestartTest : public ::testing::Test {
   // Prints a line of the test's story with the seconds since it began.
   template <class... A>
   void note(const char* format, A... args) {
-    std::printf("  [%6.2f s] ", std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count());
-    std::printf(format, args...);
-    std::printf("\n");
-    std::fflush(stdout);
+    print_note(start_, format, args...);
   }
 
   // Starts epr-master on `port` (0: a free one) with the test's state directory.

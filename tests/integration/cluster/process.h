@@ -5,6 +5,7 @@
 #include <sys/types.h>
 
 #include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <functional>
 #include <optional>
@@ -72,6 +73,15 @@ std::string read_text(const std::filesystem::path& path);
 
 /// Occurrences of `needle` in `haystack`.
 size_t count_of(const std::string& haystack, const std::string& needle);
+
+/// Prints a line of a test's story, printf-style, with the seconds since `start`.
+template <class... A>
+void print_note(std::chrono::steady_clock::time_point start, const char* format, A... args) {
+  std::printf("  [%6.2f s] ", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  std::printf(format, args...);
+  std::printf("\n");
+  std::fflush(stdout);
+}
 
 /// Prints the last 3000 bytes of a process's log to stderr under a "---- name ----" line (a failed
 /// test's evidence).

@@ -117,10 +117,7 @@ class MultiMasterTest : public ::testing::Test {
 
   template <class... A>
   void note(const char* format, A... args) {
-    std::printf("  [%6.2f s] ", std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count());
-    std::printf(format, args...);
-    std::printf("\n");
-    std::fflush(stdout);
+    print_note(start_, format, args...);
   }
 
   // Starts (or restarts) master `m` on its port (0: a free one) and state directory.
