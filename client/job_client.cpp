@@ -118,6 +118,7 @@ JobClient::JobClient(const std::string& target, JobClientOptions options)
   args.SetMaxReceiveMessageSize(64 << 20);  // ListJobs pages of large statuses; results come chunked
   args.SetUserAgentPrefix("epr");
   const rpc::ClientTls tls{options_.tls || !options_.ca_file.empty(), options_.ca_file, "", ""};
+  if (tls.enabled && !options_.tls_server_name.empty()) args.SetSslTargetNameOverride(options_.tls_server_name);
   channel_ = grpc::CreateCustomChannel(target_, rpc::channel_credentials(tls), args);
   stub_ = v1::JobService::NewStub(channel_);
 }
@@ -363,6 +364,16 @@ v1::JobStatus JobClient::cancel(const std::string& job_id) {
   prepare(&ctx, options_.timeout);
   return job_id_call(job_id, "CancelJob",
                      [&](const v1::JobId& req, v1::JobStatus* out) { return stub_->CancelJob(&ctx, req, out); });
+}
+
+v1::MasterInfo JobClient::master_info() {
+  grpc::ClientContext ctx;
+  prepare(&ctx, options_.timeout);
+  v1::MasterInfo info;
+  const grpc::Status s = stub_->GetMasterInfo(&ctx, v1::MasterInfoRequest{}, &info);
+  if (s.error_code() == grpc::StatusCode::UNIMPLEMENTED) return {};
+  if (!s.ok()) fail(s, "GetMasterInfo");
+  return info;
 }
 
 // ---- watching -----------------------------------------------------------------------------------

@@ -73,6 +73,8 @@ void print_upload_progress(const UploadProgress& p);
 struct JobClientOptions {
   bool tls = false;
   std::string ca_file;  // PEM roots for TLS; empty: the system's roots
+  // TLS to a master reached by address (wire/rpc/master_list.h): the name its certificate holds.
+  std::string tls_server_name;
   // Sent as "authorization: Bearer <token>" metadata on every call when not empty (wire/rpc/token.h).
   std::string token;
   std::chrono::milliseconds timeout{10'000};                  // unary calls and connection checks
@@ -165,6 +167,8 @@ class JobClient {
   std::vector<v1::JobStatus> list(const std::vector<v1::JobState>& states = {}, size_t limit = 0);
   /// The status after the call (unchanged for a job already in a terminal state).
   v1::JobStatus cancel(const std::string& job_id);
+  /// The master's name and load (GetMasterInfo); an empty MasterInfo from a master without the call.
+  v1::MasterInfo master_info();
 
   /// Calls `on_status` with the job's status now and after every committed round and state change,
   /// until the job reaches a terminal state or `on_status` returns false. Returns the last status

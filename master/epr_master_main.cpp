@@ -8,6 +8,7 @@
 
 #include "common/log.h"
 #include "master/memory_estimate.h"
+#include "master/server/master_name.h"
 #include "master/server/master_server.h"
 #include "master/server/state_dir_lock.h"
 #include "wire/rpc/token.h"
@@ -43,6 +44,14 @@ int main(int argc, char** argv) {
                  "folder for results, scenes and job checkpoints; a master restarted on the same folder resumes its "
                  "jobs; one master per folder (it is locked while the master runs) (default: a temp folder, no "
                  "checkpoints, removed when the master exits)");
+  std::string name;
+  app.add_option("--name", name,
+                 "this master's name, the prefix of its job ids (NAME.j000123-abcd) by which clients given several "
+                 "masters find a job: 1 to 40 of A-Z a-z 0-9 _ - (default: the name saved in --state-dir, else "
+                 "HOSTNAME-PORT, saved there for the next start)")
+      ->check([](const std::string& v) -> std::string {
+        return epr::is_valid_master_name(v) ? "" : "1 to 40 of A-Z a-z 0-9 _ - (no dots), got '" + v + "'";
+      });
   app.add_flag("!--no-checkpoints", o.jobs.checkpoints,
                "do not checkpoint jobs (a restarted master then starts unfinished jobs again)");
   std::string checkpoint_interval = "auto";
@@ -130,8 +139,10 @@ int main(int argc, char** argv) {
     // One master per state directory: a second one would write into the first one's jobs.
     std::optional<epr::StateDirLock> lock;
     if (!o.jobs.state_dir.empty()) lock.emplace(o.jobs.state_dir);
+    o.jobs.name = epr::choose_master_name(name, o.jobs.state_dir, epr::listen_port(o.listen));
     epr::MasterServer server(o);
     std::fprintf(stderr, "epr-master listening on port %d\n", server.port());
+    std::fprintf(stderr, "master name: %s (job ids %s.j...)\n", o.jobs.name.c_str(), o.jobs.name.c_str());
     if (server.http_port()) std::fprintf(stderr, "dashboard: %s\n", server.dashboard_url().c_str());
     while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
     server.shutdown();

@@ -129,7 +129,8 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
     job = std::make_shared<Job>();
     job->seq = jobs_.next_seq();
     job->submitted_ms = clock_();
-    job->id = fmt::format("j{:06d}-{:04x}", job->seq, uint32_t(job->submitted_ms) & 0xffff);
+    job->id = fmt::format("{}{}j{:06d}-{:04x}", options_.name, options_.name.empty() ? "" : ".", job->seq,
+                          uint32_t(job->submitted_ms) & 0xffff);
     job->scene_hash = hash;
     auto& cached = scenes_[hash];
     if (!cached) cached = std::make_shared<const SceneBundleData>(std::move(req.bundle));

@@ -57,6 +57,9 @@ class Checkpointer;
 struct JobProgressRecord;
 
 struct MasterOptions {
+  // The prefix of this master's job ids (NAME.j000123-abcd, master/master_name.h); empty: ids without
+  // one (j000123-abcd).
+  std::string name;
   std::string state_dir;  // results, scenes and checkpoints (checkpoint.h); empty: a temp folder of
                           // this manager's, removed with it (results must be fetched before)
   // Checkpoint every job after its rounds (and its spec at submit) so that a restarted master on

@@ -322,6 +322,23 @@ grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* 
   return finish(ctx, grpc::Status::OK);
 }
 
+grpc::ServerUnaryReactor* JobServiceImpl::GetMasterInfo(grpc::CallbackServerContext* ctx, const v1::MasterInfoRequest*,
+                                                        v1::MasterInfo* resp) {
+  resp->set_name(jobs_.options().name);
+  uint32_t queued = 0, running = 0;
+  double samples_left = 0;
+  for (const auto& s : jobs_.list()) {
+    if (s.state != JobState::kQueued && s.state != JobState::kRunning) continue;
+    ++(s.state == JobState::kQueued ? queued : running);
+    const double pixels = double(s.options.width) * s.options.height;
+    samples_left += pixels * std::max(0.0, double(s.options.spp) - s.progress.mean_spp);
+  }
+  resp->set_jobs_queued(queued);
+  resp->set_jobs_running(running);
+  resp->set_samples_left(uint64_t(samples_left));
+  return finish(ctx, grpc::Status::OK);
+}
+
 grpc::ServerUnaryReactor* JobServiceImpl::CancelJob(grpc::CallbackServerContext* ctx, const v1::JobId* req,
                                                     v1::JobStatus* resp) {
   if (!jobs_.cancel(req->id())) return finish(ctx, no_job(req->id()));

@@ -24,6 +24,8 @@ class JobServiceImpl final : public v1::JobService::CallbackService {
                                       v1::JobStatus* resp) override;
   grpc::ServerWriteReactor<v1::ResultChunk>* FetchResult(grpc::CallbackServerContext* ctx,
                                                          const v1::ResultRequest* req) override;
+  grpc::ServerUnaryReactor* GetMasterInfo(grpc::CallbackServerContext* ctx, const v1::MasterInfoRequest* req,
+                                          v1::MasterInfo* resp) override;
 
  private:
   JobManager& jobs_;
