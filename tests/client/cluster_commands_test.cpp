@@ -183,7 +183,7 @@ TEST_F(ClusterTest, JobRunsToDoneAndEveryResultIsFetchedAndVerified) {
   start_worker();
   JobClient client(target_, client_options());
   const std::string id = client.submit(tiny_job(RenderMode::kReproject));
-  EXPECT_TRUE(std::regex_match(id, std::regex("[A-Za-z0-9_-]{1,64}"))) << id;
+  EXPECT_TRUE(std::regex_match(id, std::regex("[A-Za-z0-9_.-]{1,64}"))) << id;
 
   std::vector<v1::JobStatus> seen;
   const v1::JobStatus last = client.watch(id, [&](const v1::JobStatus& s) {
@@ -376,7 +376,7 @@ TEST_F(ClusterTest, CliSubmitWaitThenListGetAndWatch) {
           prefix);
   ASSERT_EQ(submit.exit_code, kExitOk) << submit.err;
   std::smatch m;
-  ASSERT_TRUE(std::regex_match(submit.out, m, std::regex("([A-Za-z0-9_-]{1,64})\n"))) << "stdout: " << submit.out;
+  ASSERT_TRUE(std::regex_match(submit.out, m, std::regex("([A-Za-z0-9_.-]{1,64})\n"))) << "stdout: " << submit.out;
   const std::string id = m[1];
   EXPECT_NE(submit.err.find("DONE"), std::string::npos) << submit.err;
   // The files `epr render` writes (common/result_kinds.h).
