@@ -336,10 +336,12 @@ v1::JobStatus JobClient::get(const std::string& job_id) {
                      [&](const v1::JobId& req, v1::JobStatus* out) { return stub_->GetJob(&ctx, req, out); });
 }
 
-std::vector<v1::JobStatus> JobClient::list(const std::vector<v1::JobState>& states, size_t limit) {
+std::vector<v1::JobStatus> JobClient::list(const std::vector<v1::JobState>& states, size_t limit,
+                                           const std::string& batch_id) {
   std::vector<v1::JobStatus> jobs;
   v1::ListJobsRequest req;
   for (v1::JobState st : states) req.add_states(st);
+  req.set_batch_id(batch_id);
   for (;;) {
     req.set_page_size(limit ? uint32_t(std::min<size_t>(100, limit - jobs.size())) : 100);
     grpc::ClientContext ctx;

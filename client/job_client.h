@@ -163,8 +163,10 @@ class JobClient {
   std::string upload_scene(const SceneBundleData& bundle);
 
   v1::JobStatus get(const std::string& job_id);
-  /// Jobs newest first (all pages), optionally only those in `states`; at most `limit` (0: all).
-  std::vector<v1::JobStatus> list(const std::vector<v1::JobState>& states = {}, size_t limit = 0);
+  /// Jobs newest first (all pages), optionally only those in `states` and of the batch `batch_id`
+  /// (ListJobsRequest.batch_id); at most `limit` (0: all).
+  std::vector<v1::JobStatus> list(const std::vector<v1::JobState>& states = {}, size_t limit = 0,
+                                  const std::string& batch_id = "");
   /// The status after the call (unchanged for a job already in a terminal state).
   v1::JobStatus cancel(const std::string& job_id);
   /// The master's name and load (GetMasterInfo); an empty MasterInfo from a master without the call.

@@ -11,6 +11,8 @@
 #include <functional>
 #include <map>
 
+#include "client/batch.h"
+#include "client/batch_commands.h"
 #include "client/render_flags.h"
 #include "common/scene_loader.h"
 #include "wire/rpc/token.h"
@@ -219,6 +221,7 @@ struct RemoteCommands::State {
   SubmitOptions submit_opts;
   std::optional<double> time_budget;
   bool wait = false;
+  std::string frames;  // --frames: a batch (client/batch_commands.h)
   // watch / get / cancel
   CLI::App* watch = nullptr;
   CLI::App* get = nullptr;
@@ -227,6 +230,8 @@ struct RemoteCommands::State {
   std::string watch_job, get_job, cancel_job;
   std::string get_out;
   bool get_partial = false, get_json = false;
+  bool watch_batch = false, get_batch = false, get_no_wait = false;
+  std::string list_batch;
   // list
   CLI::App* list = nullptr;
   ConnectionFlags list_conn;
@@ -251,15 +256,22 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
       ->add_option("--time-budget", s.time_budget, "wall-clock budget in seconds: the job ends DONE when it runs out")
       ->check(CLI::PositiveNumber);
   s.submit->add_flag("--wait", s.wait, "follow the job with a progress line and fetch its results to --out at the end");
+  s.submit->add_option("--frames", s.frames,
+                       "submit a batch of frames of the scene's camera animation: 1-240, 1-240x2 (step), 1,5,9; "
+                       "prints the batch id (results: --out PREFIX gives PREFIX.0001.exr, ...)");
   add_connection_flags(s.submit, s.submit_conn, /*whole_job=*/true);
 
   s.watch = app.add_subcommand("watch", "follow a job's progress until it ends (exit 0 DONE, 1 FAILED/CANCELLED)");
-  s.watch->add_option("job", s.watch_job, "job id")->required();
+  s.watch->add_option("job", s.watch_job, "job id, or batch id (epr submit --frames)")->required();
+  s.watch->add_flag("--batch", s.watch_batch, "the id is a batch's");
   add_connection_flags(s.watch, s.watch_conn);
 
   s.get = app.add_subcommand("get", "fetch a job's results: PREFIX.exr, .png, .json and the statistics images");
-  s.get->add_option("job", s.get_job, "job id")->required();
-  s.get->add_option("--out", s.get_out, "output prefix (default: the job id)");
+  s.get->add_option("job", s.get_job, "job id, or batch id (epr submit --frames)")->required();
+  s.get->add_option("--out", s.get_out,
+                    "output prefix (default: the job id); a batch's frames go to PREFIX.0001.exr, ... as they finish");
+  s.get->add_flag("--batch", s.get_batch, "the id is a batch's");
+  s.get->add_flag("--no-wait", s.get_no_wait, "batch: write the frames done now, do not wait for the others");
   s.get->add_flag("--partial", s.get_partial, "also fetch a running job's latest committed round");
   s.get->add_flag("--json", s.get_json, "print the job's status as JSON on stdout instead of fetching results");
   add_connection_flags(s.get, s.get_conn);
@@ -268,6 +280,7 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
   s.list->add_option("--state", s.list_states, "only jobs in this state (repeatable)")
       ->check(CLI::IsMember({"queued", "running", "done", "failed", "cancelled"}, CLI::ignore_case));
   s.list->add_option("--limit", s.list_limit, "at most this many jobs (0: all)")->capture_default_str();
+  s.list->add_option("--batch", s.list_batch, "only the jobs of this batch");
   add_connection_flags(s.list, s.list_conn);
 
   s.cancel = app.add_subcommand("cancel", "stop a job; the results of its last committed round stay fetchable");
@@ -292,6 +305,7 @@ int RemoteCommands::State::run_submit() {
   if (auto err = render.validate()) throw UsageError(*err);
   submit_opts.time_budget_seconds = time_budget;
   auto client = make_client(submit_conn);
+  if (!frames.empty()) return submit_frames(*client, render, submit_opts, frames, wait, render.out);
   const std::string id = client->submit(render, submit_opts);
   std::printf("%s\n", id.c_str());  // alone on its line, for scripts: ID=$(epr submit ...)
   std::fflush(stdout);
@@ -306,6 +320,7 @@ int RemoteCommands::State::run_submit() {
 
 int RemoteCommands::State::run_watch() {
   auto client = make_client(watch_conn);
+  if (watch_batch || is_batch(*client, watch_job)) return follow_batch(*client, watch_job, {});
   FollowOptions follow;
   follow.fetch = false;
   return follow_job(*client, watch_job, follow);
@@ -313,6 +328,14 @@ int RemoteCommands::State::run_watch() {
 
 int RemoteCommands::State::run_get() {
   auto client = make_client(get_conn);
+  if (get_batch || is_batch(*client, get_job)) {
+    if (get_json) return print_batch_json(*client, get_job);
+    BatchFollowOptions follow;
+    follow.fetch = true;
+    follow.out_prefix = get_out;
+    follow.wait = !get_no_wait;
+    return follow_batch(*client, get_job, follow);
+  }
   const v1::JobStatus status = client->get(get_job);
   if (get_json) {
     std::string json;
@@ -354,17 +377,21 @@ int RemoteCommands::State::run_list() {
     states.push_back(kStates.at(st));
   }
   auto client = make_client(list_conn);
-  const auto jobs = client->list(states, list_limit);
+  auto jobs = client->list(states, list_limit, list_batch);
+  if (!list_batch.empty())  // a master that does not filter by batch
+    jobs.erase(std::remove_if(jobs.begin(), jobs.end(), [&](const auto& j) { return j.batch_id() != list_batch; }),
+               jobs.end());
 
   // Column widths from the content, names shortened to keep the table readable.
-  std::vector<std::array<std::string, 6>> rows{{"ID", "NAME", "STATE", "ROUND", "SPP", "ELAPSED"}};
+  std::vector<std::array<std::string, 8>> rows{{"ID", "NAME", "STATE", "ROUND", "SPP", "ELAPSED", "BATCH", "FRAME"}};
   for (const auto& j : jobs) {
     std::string name = j.name().size() > 28 ? j.name().substr(0, 27) + "~" : j.name();
     rows.push_back({j.id(), name, state_name(j.state()), rounds_text(j),
                     fmt::format("{:.1f}/{}", j.spp_mean(), j.target_spp()),
-                    j.state() == v1::JOB_STATE_QUEUED ? "-" : duration_text(j.seconds_elapsed())});
+                    j.state() == v1::JOB_STATE_QUEUED ? "-" : duration_text(j.seconds_elapsed()),
+                    j.batch_id().empty() ? "-" : j.batch_id(), j.has_frame() ? std::to_string(j.frame()) : "-"});
   }
-  std::array<size_t, 6> width{};
+  std::array<size_t, 8> width{};
   for (const auto& r : rows)
     for (size_t c = 0; c < r.size(); ++c) width[c] = std::max(width[c], r[c].size());
   for (const auto& r : rows) {

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "common/builtin_scenes.h"
+#include "common/camera_animation.h"
 #include "common/scene_loader.h"
 #include "common/scene_loader/obj.h"
 #include "common/scene_loader/path_sandbox.h"
@@ -132,8 +133,9 @@ class JsonLines {
 
 class JsonSceneReader {
  public:
-  JsonSceneReader(const std::string& path, const LoadOptions& opts, LoadReport& report)
-      : path_(path), opts_(opts), report_(report) {}
+  JsonSceneReader(const std::string& path, const LoadOptions& opts, LoadReport& report,
+                  CameraAnimation* animation = nullptr)
+      : path_(path), opts_(opts), report_(report), animation_(animation) {}
 
   Scene read() {
     const FileRef self{canonical_or_fail(path_, path_), path_};
@@ -153,7 +155,7 @@ class JsonSceneReader {
     }
     lines_ = std::make_unique<JsonLines>(text);
     if (!doc.is_object()) error("", "a scene file must be a JSON object");
-    check_keys(doc, "", {"obj", "builtin", "tessellation", "camera", "materials"});
+    check_keys(doc, "", {"obj", "builtin", "tessellation", "camera", "materials", "animation"});
 
     Scene scene;
     std::vector<GlossyDefaults> glossy;
@@ -187,6 +189,9 @@ class JsonSceneReader {
     }
     if (doc.contains("camera")) apply_camera(doc["camera"], &scene.camera);
     if (doc.contains("materials")) apply_materials(doc["materials"], glossy, &scene);
+    CameraAnimation animation{path_, {}};
+    if (doc.contains("animation")) animation = read_animation(doc["animation"], scene.camera);
+    if (animation_) *animation_ = std::move(animation);
     scene.name = path_;
     validate_or_fail(scene, path_);
     return scene;
@@ -258,6 +263,43 @@ class JsonSceneReader {
     if (auto reason = spec->validate()) error("/camera", *reason);
   }
 
+  // "animation": {"camera": [{"frame": F, "eye": ..., "look": ..., "up": ..., "fov": ...}, ...]}; each
+  // key's missing fields come from the key before it (the first key's from `still`).
+  CameraAnimation read_animation(const nlohmann::json& anim, const CameraSpec& still) {
+    if (!anim.is_object()) error("/animation", "\"animation\" must be an object");
+    check_keys(anim, "/animation", {"camera"});
+    CameraAnimation out{path_, {}};
+    if (!anim.contains("camera")) return out;
+    const auto& keys = anim["camera"];
+    const std::string base = "/animation/camera";
+    if (!keys.is_array() || keys.empty())
+      error(base, "animation camera must be an array of keys like {\"frame\": 1, \"eye\": [0, 1, 4]}");
+    CameraSpec previous = still;
+    for (size_t i = 0; i < keys.size(); ++i) {
+      const auto& k = keys[i];
+      const std::string p = base + "/" + std::to_string(i);
+      if (!k.is_object()) error(p, "a camera key must be an object like {\"frame\": 1, \"eye\": [0, 1, 4]}");
+      check_keys(k, p, {"frame", "eye", "look", "up", "fov"});
+      if (!k.contains("frame")) error(p, "camera key has no \"frame\"");
+      const auto& f = k["frame"];
+      if (!f.is_number_integer() || f.get<int64_t>() < 0 || f.get<int64_t>() > int64_t(kMaxFrame))
+        error(p + "/frame", fmt::format("camera key frame must be an integer from 0 to {}", kMaxFrame));
+      CameraKey key{uint32_t(f.get<int64_t>()), previous, line(p)};
+      if (!out.keys.empty() && key.frame <= out.keys.back().frame)
+        error(p + "/frame", fmt::format("camera key frame {} does not come after frame {} (line {}): keys go in "
+                                        "increasing frame order",
+                                        key.frame, out.keys.back().frame, out.keys.back().line));
+      if (k.contains("eye")) key.camera.eye = vec3_at(k["eye"], p + "/eye", "camera key eye");
+      if (k.contains("look")) key.camera.look = vec3_at(k["look"], p + "/look", "camera key look");
+      if (k.contains("up")) key.camera.up = vec3_at(k["up"], p + "/up", "camera key up");
+      if (k.contains("fov")) key.camera.fov_y_degrees = number_at(k["fov"], p + "/fov", "camera key fov");
+      if (auto reason = key.camera.validate()) error(p, fmt::format("camera key at frame {}: {}", key.frame, *reason));
+      previous = key.camera;
+      out.keys.push_back(key);
+    }
+    return out;
+  }
+
   void apply_materials(const nlohmann::json& mats, const std::vector<GlossyDefaults>& glossy, Scene* scene) {
     if (!mats.is_object()) error("/materials", "\"materials\" must be an object");
     for (const auto& item : mats.items()) {
@@ -320,6 +362,7 @@ class JsonSceneReader {
   const LoadOptions& opts_;
   LoadReport& report_;
   std::unique_ptr<JsonLines> lines_;
+  CameraAnimation* animation_ = nullptr;
 };
 
 }  // namespace
@@ -327,6 +370,20 @@ class JsonSceneReader {
 Scene load_scene_json(const std::string& json_path, const LoadOptions& opts, LoadReport* report) {
   LoadReport local;
   return JsonSceneReader(json_path, opts, report ? *report : local).read();
+}
+
+CameraAnimation load_camera_animation(const std::string& spec, const LoadOptions& opts, CameraSpec* still) {
+  CameraAnimation animation{spec, {}};
+  std::string ext = fs::path(spec).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  if (spec.rfind("builtin:", 0) == 0 || ext != ".json") {  // OBJ files carry no camera (load_obj)
+    if (still) *still = spec.rfind("builtin:", 0) == 0 ? load_scene(spec, opts).camera : CameraSpec{};
+    return animation;
+  }
+  LoadReport report;
+  const Scene scene = JsonSceneReader(spec, opts, report, &animation).read();
+  if (still) *still = scene.camera;
+  return animation;
 }
 
 }  // namespace epr

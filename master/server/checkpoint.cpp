@@ -202,6 +202,10 @@ std::string encode(const JobSpecRecord& r) {
   spec.set_priority(r.priority);
   spec.set_request_id(r.request_id);
   if (r.time_budget_seconds) spec.set_time_budget_seconds(*r.time_budget_seconds);
+  spec.set_batch_id(r.batch.id);
+  spec.set_batch_name(r.batch.name);
+  if (r.batch.frame) spec.set_frame(*r.batch.frame);
+  spec.set_batch_frames(r.batch.frames);
   ByteWriter w;
   w.put_string(r.id);
   w.put(r.seq);
@@ -229,6 +233,8 @@ JobSpecRecord decode_job_spec(std::string_view payload) {
   r.priority = spec.priority();
   r.request_id = spec.request_id();
   if (spec.has_time_budget_seconds()) r.time_budget_seconds = spec.time_budget_seconds();
+  r.batch = {spec.batch_id(), spec.batch_name(),
+             spec.has_frame() ? std::optional<uint32_t>(spec.frame()) : std::nullopt, spec.batch_frames()};
   return r;
 }
 
@@ -315,8 +321,8 @@ JobProgressRecord decode_job_progress(std::string_view payload, uint32_t version
 
 JobSpecRecord spec_record(const Job& job) {
   const JobRequest& q = job.request;
-  return {job.id,   job.seq, job.submitted_ms, job.scene_hash,        q.options,
-          q.camera, q.name,  q.priority,       q.time_budget_seconds, q.request_id};
+  return {job.id, job.seq,    job.submitted_ms,      job.scene_hash, q.options, q.camera,
+          q.name, q.priority, q.time_budget_seconds, q.request_id,   q.batch};
 }
 
 JobProgressRecord progress_record(const Job& job) {

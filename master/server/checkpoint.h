@@ -72,6 +72,7 @@ struct JobSpecRecord {
   int priority = 0;
   std::optional<double> time_budget_seconds;
   std::string request_id;
+  BatchMembership batch;
 };
 
 /// A job's state after its newest closed round (or its end).

@@ -46,6 +46,7 @@ JobSnapshot Job::snapshot(int64_t now_ms) const {
   s.round_checkpoints = round_checkpoints;
   s.budget_exhausted = budget_exhausted;
   s.version = version;
+  s.batch = request.batch;
   return s;
 }
 

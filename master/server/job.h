@@ -26,6 +26,14 @@ namespace epr {
 
 struct JobProgressRecord;
 
+/// The frame sequence a job belongs to (JobSpec.batch_id, client/batch.h): the master stores and
+/// shows it, nothing else. An empty id: the job is not part of a batch.
+struct BatchMembership {
+  std::string id, name;
+  std::optional<uint32_t> frame;
+  uint32_t frames = 0;  // of the whole batch
+};
+
 struct JobRequest {
   RenderOptions options;  // scene field unused: the bundle is the scene
   CameraSpec camera;
@@ -34,6 +42,7 @@ struct JobRequest {
   int priority = 0;
   std::optional<double> time_budget_seconds;
   std::string request_id;  // idempotency key: a retried submit returns the first job
+  BatchMembership batch;
 };
 
 /// A consistent copy of a job's progress.
@@ -62,6 +71,7 @@ struct JobSnapshot {
   uint32_t round_checkpoints = 0;      // rounds whose state was checkpointed (MasterOptions::checkpoint_interval_s)
   bool budget_exhausted = false;
   uint64_t version = 0;  // increases with every change
+  BatchMembership batch;
 };
 
 struct Job {

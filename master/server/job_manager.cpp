@@ -549,6 +549,7 @@ void JobManager::load_state() {
     job->submitted_ms = spec.submitted_ms;
     job->scene_hash = spec.scene_hash;
     job->request = {spec.options, spec.camera, {}, spec.name, spec.priority, spec.time_budget_seconds, spec.request_id};
+    job->request.batch = spec.batch;
     job->tiles = make_tiles(spec.options);
     auto& cached = scenes_[spec.scene_hash];
     if (!cached) {

@@ -17,6 +17,23 @@
 namespace epr {
 namespace {
 
+// The batch fields of a spec: an id of [A-Za-z0-9_-]{1,64}, a name of at most 256 bytes, and no frame
+// or count without an id.
+std::optional<std::string> batch_error(const v1::JobSpec& spec) {
+  const std::string& id = spec.batch_id();
+  if (id.empty()) {
+    if (spec.has_frame() || spec.batch_frames() || !spec.batch_name().empty())
+      return std::string("frame, batch_frames and batch_name need a batch_id");
+    return std::nullopt;
+  }
+  const bool ok = id.size() <= 64 && std::all_of(id.begin(), id.end(), [](unsigned char c) {
+                    return std::isalnum(c) || c == '_' || c == '-';
+                  });
+  if (!ok) return fmt::format("batch_id '{}' is not 1 to 64 of [A-Za-z0-9_-]", id.substr(0, 80));
+  if (spec.batch_name().size() > 256) return std::string("batch names are limited to 256 bytes");
+  return std::nullopt;
+}
+
 grpc::Status no_job(const std::string& id) { return {grpc::StatusCode::NOT_FOUND, fmt::format("no job '{}'", id)}; }
 
 v1::JobState to_proto(JobState s) {
@@ -220,6 +237,10 @@ void to_proto(const JobSnapshot& s, v1::JobStatus* out) {
   out->set_seconds_tracing(s.counters.seconds_tracing);
   out->set_seconds_reprojecting(s.counters.seconds_reprojecting);
   out->set_budget_exhausted(s.budget_exhausted);
+  out->set_batch_id(s.batch.id);
+  out->set_batch_name(s.batch.name);
+  if (s.batch.frame) out->set_frame(*s.batch.frame);
+  out->set_batch_frames(s.batch.frames);
 }
 
 grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
@@ -251,6 +272,9 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
   jr.priority = req->priority();
   jr.request_id = req->request_id();
   if (req->has_time_budget_seconds()) jr.time_budget_seconds = req->time_budget_seconds();
+  if (auto err = batch_error(*req)) return finish(ctx, invalid(*err));
+  jr.batch = {req->batch_id(), req->batch_name(),
+              req->has_frame() ? std::optional<uint32_t>(req->frame()) : std::nullopt, req->batch_frames()};
   // The limits first (cheap, and a huge bundle is not parsed), then the scene itself, so that a
   // malformed file is an INVALID_ARGUMENT naming file and line, not a job that fails later. Without a
   // camera in the spec the job takes the scene's own.
@@ -313,8 +337,9 @@ grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* 
   }
   std::vector<JobSnapshot> selected;
   for (auto& s : jobs_.list())
-    if ((!before || s.seq < *before) && (req->states().empty() || std::find(req->states().begin(), req->states().end(),
-                                                                            to_proto(s.state)) != req->states().end()))
+    if ((!before || s.seq < *before) && (req->batch_id().empty() || s.batch.id == req->batch_id()) &&
+        (req->states().empty() ||
+         std::find(req->states().begin(), req->states().end(), to_proto(s.state)) != req->states().end()))
       selected.push_back(std::move(s));
   std::sort(selected.begin(), selected.end(), [](const JobSnapshot& a, const JobSnapshot& b) { return a.seq > b.seq; });
   for (size_t i = 0; i < selected.size() && i < page; ++i) to_proto(selected[i], resp->add_jobs());

@@ -50,6 +50,11 @@ json to_json(const JobSnapshot& s) {
       {"state", to_string(s.state)},
       {"error", s.error},
       {"priority", s.priority},
+      {"batch", s.batch.id.empty() ? json(nullptr)
+                                   : json{{"id", s.batch.id},
+                                          {"name", s.batch.name},
+                                          {"frame", s.batch.frame ? json(*s.batch.frame) : json(nullptr)},
+                                          {"frames", s.batch.frames}}},
       {"scene",
        {{"builtin", s.scene_builtin}, {"hash", s.scene_hash}, {"bytes", s.scene_bytes}, {"triangles", s.triangles}}},
       {"settings",
