@@ -13,6 +13,7 @@
 
 #include "client/batch.h"
 #include "client/batch_commands.h"
+#include "client/farm.h"
 #include "client/render_flags.h"
 #include "common/scene_loader.h"
 #include "wire/rpc/token.h"
@@ -73,9 +74,7 @@ std::string read_token(const ConnectionFlags& f) {
   }
 }
 
-std::unique_ptr<JobClient> make_client(const ConnectionFlags& f) {
-  if (f.master.empty() || f.master.find(':') == std::string::npos)
-    throw UsageError(fmt::format("--master '{}' is not HOST:PORT", f.master));
+JobClientOptions client_options(const ConnectionFlags& f) {
   JobClientOptions o;
   o.tls = f.tls || !f.ca_file.empty();
   o.ca_file = f.ca_file;
@@ -85,7 +84,25 @@ std::unique_ptr<JobClient> make_client(const ConnectionFlags& f) {
     o.timeout = timeout;
   else if (f.timeout_seconds > 0)
     o.end_by = std::chrono::system_clock::now() + timeout;
-  return std::make_unique<JobClient>(f.master, o);
+  return o;
+}
+
+// The masters of --master: one, a list, or names resolving to several (client/farm.h).
+std::unique_ptr<Farm> make_farm(const ConnectionFlags& f) {
+  try {
+    return std::make_unique<Farm>(f.master, client_options(f));
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(e.what());
+  }
+}
+
+// The master a command goes to: for a submission (no job_id) the least loaded one, noting on stderr
+// the masters that did not answer; otherwise the one that holds job_id.
+std::unique_ptr<JobClient> make_client(const ConnectionFlags& f, const std::string& job_id = "") {
+  auto farm = make_farm(f);
+  FarmMaster& m = job_id.empty() ? farm->least_loaded() : farm->locate(job_id);
+  if (job_id.empty()) print_failed(*farm, "submit", "skipped");
+  return std::move(m.client);
 }
 
 // ---- formatting ---------------------------------------------------------------------------------
@@ -319,7 +336,7 @@ int RemoteCommands::State::run_submit() {
 }
 
 int RemoteCommands::State::run_watch() {
-  auto client = make_client(watch_conn);
+  auto client = make_client(watch_conn, watch_job);
   if (watch_batch || is_batch(*client, watch_job)) return follow_batch(*client, watch_job, {});
   FollowOptions follow;
   follow.fetch = false;
@@ -327,7 +344,7 @@ int RemoteCommands::State::run_watch() {
 }
 
 int RemoteCommands::State::run_get() {
-  auto client = make_client(get_conn);
+  auto client = make_client(get_conn, get_job);
   if (get_batch || is_batch(*client, get_job)) {
     if (get_json) return print_batch_json(*client, get_job);
     BatchFollowOptions follow;
@@ -403,7 +420,7 @@ int RemoteCommands::State::run_list() {
 }
 
 int RemoteCommands::State::run_cancel() {
-  auto client = make_client(cancel_conn);
+  auto client = make_client(cancel_conn, cancel_job);
   const v1::JobStatus before_or_after = client->cancel(cancel_job);
   std::printf("%s %s\n", cancel_job.c_str(), state_name(before_or_after.state()).c_str());
   if (before_or_after.state() != v1::JOB_STATE_CANCELLED)
