@@ -1,4 +1,6 @@
-// epr-master: the reprojection master of an eprfarm cluster.
+// epr-master: the reprojection master of an eprfarm cluster. SIGTERM or SIGINT drains it (the open
+// rounds finish and are checkpointed, no new one opens; JobManager::drain_and_checkpoint, at most
+// --drain-timeout) and then stops it with exit code 0; a second signal cuts the drain short.
 #include <CLI/CLI.hpp>
 #include <csignal>
 #include <cstdio>
@@ -28,7 +30,7 @@ std::optional<double> checkpoint_interval_seconds(const std::string& v) {
   return std::nullopt;
 }
 
-void on_signal(int) { g_stop = 1; }
+void on_signal(int) { g_stop = g_stop + 1; }  // the number of signals received
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -61,6 +63,12 @@ int main(int argc, char** argv) {
       ->check([](const std::string& v) -> std::string {
         return checkpoint_interval_seconds(v) ? "" : "expected auto or seconds in [0, 86400], got '" + v + "'";
       })
+      ->capture_default_str();
+  double drain_timeout_s = 60;
+  app.add_option("--drain-timeout", drain_timeout_s,
+                 "seconds at most that SIGTERM waits for the running jobs' open rounds to finish and be "
+                 "checkpointed before the master exits (0: exit at once; jobs resume from their last checkpoint)")
+      ->check(CLI::Range(0.0, 3600.0))
       ->capture_default_str();
   app.add_option("--lease-timeout-ms", o.jobs.lease_timeout_ms, "a tile lease not extended for this long is re-queued")
       ->capture_default_str();
@@ -145,6 +153,9 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "master name: %s (job ids %s.j...)\n", o.jobs.name.c_str(), o.jobs.name.c_str());
     if (server.http_port()) std::fprintf(stderr, "dashboard: %s\n", server.dashboard_url().c_str());
     while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (drain_timeout_s > 0)
+      server.jobs().drain_and_checkpoint(std::chrono::milliseconds(int64_t(drain_timeout_s * 1000)),
+                                         [] { return g_stop > 1; });
     server.shutdown();
   } catch (const std::exception& e) {
     std::fprintf(stderr, "epr-master: %s\n", e.what());

@@ -207,6 +207,15 @@ class JobManager {
   CommitOutcome commit(const std::string& job_id, uint32_t round, uint32_t tile_index, AssembledTile tile)
       EPR_EXCLUDES(mu_);
 
+  /// Graceful stop (epr-master on SIGTERM, before shutdown(); job_drain.cpp): no queued job starts and
+  /// no running job opens another round; the rounds open now are leased, traced and applied to their
+  /// end, and each job's state after its round is checkpointed whatever checkpoint_interval_s says (a
+  /// job whose last round closes finishes as usual). Waits until every running job is checkpointed or
+  /// ended, at most `timeout`, less once no worker is registered or `give_up` (polled with the
+  /// manager's mutex held) returns true. True when every running job was checkpointed or ended; a job
+  /// whose round did not close resumes from its last checkpoint. Without checkpoints: true at once.
+  bool drain_and_checkpoint(std::chrono::milliseconds timeout, const std::function<bool()>& give_up = {})
+      EPR_EXCLUDES(mu_);
   /// Stops the threads (idempotent); pending work is dropped.
   void shutdown() EPR_EXCLUDES(mu_);
   bool gl_ready() const EPR_EXCLUDES(mu_);
@@ -255,6 +264,9 @@ class JobManager {
   void load_state() EPR_EXCLUDES(mu_);
   void save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) EPR_EXCLUDES(mu_);
   void save_final_checkpoint(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
+  /// close_round() of a job whose round closed while draining: checkpoints it (true) instead of
+  /// letting the next round open (false: not draining).
+  bool checkpoint_for_drain(const std::shared_ptr<Job>& job, JobProgressRecord* record) EPR_EXCLUDES(mu_);
 
   MasterOptions options_;
   MillisClock clock_;
@@ -271,6 +283,8 @@ class JobManager {
   std::shared_ptr<Job> active_ EPR_GUARDED_BY(mu_);  // the job whose tiles are being leased
   bool stopping_ EPR_GUARDED_BY(mu_) = false;
   bool gl_ready_ EPR_GUARDED_BY(mu_) = false;
+  bool draining_ EPR_GUARDED_BY(mu_) = false;             // drain_and_checkpoint() was called
+  std::vector<std::string> drained_ EPR_GUARDED_BY(mu_);  // jobs checkpointed by the drain
   DurationHistograms histograms_ EPR_GUARDED_BY(mu_);
   std::string state_dir_;
   std::unique_ptr<CheckpointStore> store_;

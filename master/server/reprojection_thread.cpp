@@ -55,7 +55,7 @@ void JobManager::reprojection_loop() {
       work_cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
         if (stopping_ || !tasks_.empty()) return true;
         if (active_ && is_terminal(active_->state)) return true;
-        return !active_ && jobs_.next_queued() != nullptr;
+        return !active_ && !draining_ && jobs_.next_queued() != nullptr;  // draining: nothing new starts
       });
       if (stopping_) break;
       if (active_ && (active_->state == JobState::kCancelled || active_->state == JobState::kFailed)) {
@@ -317,6 +317,7 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     finish_job(job, budget_over && more);
     return;
   }
+  if (checkpoint_for_drain(job, &checkpoint)) return;  // draining: no further round opens (job_drain.cpp)
   {
     MutexLock lock(mu_);
     if (job->state != JobState::kRunning) return;
