@@ -11,7 +11,7 @@
 #include <thread>
 
 #include "client/batch.h"
-#include "client/remote_commands.h"
+#include "client/exit_codes.h"
 
 namespace epr {
 namespace {

@@ -16,17 +16,10 @@
 #include <optional>
 #include <string>
 
+#include "client/exit_codes.h"
 #include "client/job_client.h"
 
 namespace epr {
-
-enum ExitCode : int {
-  kExitOk = 0,           // done; for watch and submit --wait: the job ended DONE
-  kExitJobFailed = 1,    // the job ended FAILED or CANCELLED; or a local error (an output not writable)
-  kExitUsage = 2,        // bad flag values, unreadable scene or token file
-  kExitUnreachable = 3,  // the master could not be reached or did not answer in time
-  kExitRefused = 4,      // the master answered with an error (unknown job, invalid spec, no token...)
-};
 
 /// Registers submit, watch, get, list and cancel on `app`; owns their flag values.
 class RemoteCommands {

@@ -548,7 +548,8 @@ void JobManager::load_state() {
     job->seq = spec.seq;
     job->submitted_ms = spec.submitted_ms;
     job->scene_hash = spec.scene_hash;
-    job->request = {spec.options, spec.camera, {}, spec.name, spec.priority, spec.time_budget_seconds, spec.request_id};
+    job->request = {spec.options,    spec.camera, {}, spec.name, spec.priority, spec.time_budget_seconds,
+                    spec.request_id, spec.batch};
     job->request.batch = spec.batch;
     job->tiles = make_tiles(spec.options);
     auto& cached = scenes_[spec.scene_hash];
