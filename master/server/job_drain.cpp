@@ -60,12 +60,13 @@ bool JobManager::drain_and_checkpoint(std::chrono::milliseconds timeout, const s
 }
 
 bool JobManager::checkpoint_for_drain(const std::shared_ptr<Job>& job, JobProgressRecord* record) {
+  uint32_t round;  // the round that closed; a restart resumes with the next one
   {
     MutexLock lock(mu_);
     if (!draining_) return false;
     job->last_checkpoint_ms = 0;  // taken whatever the interval: the state a restart resumes from
+    round = job->round;
   }
-  const int round = record->progress.round;
   save_round_checkpoint(job, std::move(*record));
   {
     MutexLock lock(mu_);

@@ -1,0 +1,305 @@
+// Graceful stops of the real programs on loopback (what Kubernetes and compose do when they remove
+// a pod or container: SIGTERM, then SIGKILL after a grace period).
+//  - A worker on SIGTERM gives its leases back: the master leases those tiles again at once, so the
+//    job finishes long before the lease timeout (60 s here) would have freed them.
+//  - A master on SIGTERM drains: the open round is finished and checkpointed (whatever
+//    --checkpoint-interval says; 3600 s here, so that only round 0 would be on disk otherwise), and
+//    it exits 0. Restarted on the same state folder, it resumes the job from the drained round, not
+//    from round 0, and the result equals the undisturbed render: M, M' and the path-traced estimate
+//    bit-identical, the combined image within float rounding.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <memory>
+#include <regex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "binaries.h"
+#include "common/image.h"
+#include "image_difference.h"
+#include "process.h"
+
+namespace epr::testing {
+namespace {
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+// The master-restart test's job: 128x128 in 16 tiles, 32 rounds of 8 paths (no growing rounds).
+Args restart_job() {
+  return {"builtin:cornell",
+          "--width",
+          "128",
+          "--height",
+          "128",
+          "--spp",
+          "256",
+          "--paths-per-round",
+          "8",
+          "--tile",
+          "32",
+          "--mode",
+          "skip",
+          "--reproject",
+          "cpu",
+          "--min-paths",
+          "96",
+          "--seed",
+          "11",
+          "--round-growth",
+          "0"};
+}
+
+// Tiles that take a while to trace on one thread (64x64 pixels, 64 paths each), so that a worker
+// stopped mid-tile holds the lease.
+Args slow_tile_job() {
+  return {"builtin:cornell",
+          "--width",
+          "128",
+          "--height",
+          "128",
+          "--spp",
+          "128",
+          "--paths-per-round",
+          "64",
+          "--tile",
+          "64",
+          "--mode",
+          "pt",
+          "--seed",
+          "5",
+          "--round-growth",
+          "0"};
+}
+
+class DrainTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    start_ = std::chrono::steady_clock::now();
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() / ("epr-drain-" + std::to_string(::getpid()) + "-" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+
+  void TearDown() override {
+    if (reference_) reference_->stop();
+    for (auto& w : workers_) w->stop();
+    if (master_) master_->stop();
+    if (HasFailure()) {
+      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
+      for (const auto& m : old_master_logs_) print_log_tail("stopped epr-master", m);
+      if (master_) print_log_tail("epr-master", master_->err());
+      for (auto& w : workers_) print_log_tail(w->name(), w->err());
+    } else {
+      fs::remove_all(dir_);
+    }
+  }
+
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
+
+  template <class... A>
+  void note(const char* format, A... args) {
+    print_note(start_, format, args...);
+  }
+
+  void start_master(int port, Args extra) {
+    Args argv{kMaster,
+              "--listen",
+              "127.0.0.1:" + std::to_string(port),
+              "--http",
+              "127.0.0.1:0",
+              "--reproject",
+              "cpu",
+              "--heartbeat-ms",
+              "300",
+              "--log-level",
+              "info"};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    const std::regex listening("epr-master listening on port ([0-9]+)");
+    for (int attempt = 0; attempt < 20; ++attempt) {  // a port just freed may take a moment
+      master_ = std::make_unique<Process>(argv, dir_ / ("master-" + std::to_string(++masters_)));
+      std::smatch m;
+      std::string err;
+      wait_until(
+          [&] {
+            err = master_->err();
+            return std::regex_search(err, m, listening) || !master_->running();
+          },
+          10s);
+      if (m.size() == 2 && master_->running()) {
+        port_ = std::stoi(m[1]);
+        return;
+      }
+      std::this_thread::sleep_for(250ms);
+    }
+    FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
+  }
+
+  Process& start_worker(const std::string& name) {
+    workers_.push_back(
+        std::make_unique<Process>(Args{kWorker, "--master", address(), "--threads", "1", "--name", name, "--cache-dir",
+                                       path("cache-" + name), "--max-backoff-ms", "500", "--log-level", "debug"},
+                                  dir_ / name));
+    return *workers_.back();
+  }
+
+  size_t registered() const { return count_of(master_->err(), ") registered"); }
+
+  RunResult epr(Args args, Millis timeout = 60s) {
+    args.insert(args.begin(), kEpr);
+    args.insert(args.end(), {"--master", address()});
+    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
+  }
+
+  std::string submit(const Args& job) {
+    Args args{"submit"};
+    args.insert(args.end(), job.begin(), job.end());
+    const RunResult r = epr(args, 30s);
+    EXPECT_EQ(r.code, 0) << r.err;
+    return r.out.substr(0, r.out.find('\n'));
+  }
+
+  // The highest round some worker has leased a tile of.
+  int highest_round_leased() const {
+    const std::regex leased("lease [0-9]+: job \\S+ round ([0-9]+) tile");
+    int highest = -1;
+    for (auto& w : workers_) {
+      const std::string log = w->err();
+      for (auto it = std::sregex_iterator(log.begin(), log.end(), leased); it != std::sregex_iterator(); ++it)
+        highest = std::max(highest, std::stoi((*it)[1]));
+    }
+    return highest;
+  }
+
+  // A lease the worker's log shows granted and not (yet) submitted: "round R tile T", or "".
+  static std::string open_lease(const std::string& log) {
+    const std::regex granted("lease ([0-9]+): job \\S+ (round [0-9]+ tile [0-9]+)");
+    std::string found;
+    for (auto it = std::sregex_iterator(log.begin(), log.end(), granted); it != std::sregex_iterator(); ++it)
+      if (log.find("lease " + (*it)[1].str() + ": submitted") == std::string::npos) found = (*it)[2];
+    return found;
+  }
+
+  std::chrono::steady_clock::time_point start_;
+  fs::path dir_;
+  std::unique_ptr<Process> master_, reference_;
+  std::vector<std::unique_ptr<Process>> workers_;
+  std::vector<std::string> old_master_logs_;
+  int port_ = 0, masters_ = 0, runs_ = 0;
+};
+
+TEST_F(DrainTest, WorkerSigtermReturnsItsLeasesAndTheirTilesAreLeasedAgainAtOnce) {
+  // No worker lease may expire in this test: 60 s, longer than the whole job may take.
+  ASSERT_NO_FATAL_FAILURE(start_master(0, {"--lease-timeout-ms", "60000", "--speculative-factor", "0"}));
+  Process& w1 = start_worker("w1");
+  ASSERT_TRUE(wait_until([&] { return registered() >= 1; }, 30s));
+  const std::string id = submit(slow_tile_job());
+  ASSERT_FALSE(id.empty());
+  note("job %s submitted", id.c_str());
+  // Freeze w1 in short slices until its log shows a lease it has not submitted: it is tracing that
+  // tile (64x64 pixels x 64 paths on one thread) and cannot finish it before the signal arrives.
+  std::string held;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        w1.signal(SIGSTOP);
+        held = open_lease(w1.err());
+        if (held.empty()) w1.signal(SIGCONT);
+        return !held.empty();
+      },
+      60s))
+      << "w1 never held a lease";
+  w1.signal(SIGTERM);
+  w1.signal(SIGCONT);
+  const auto terminated = std::chrono::steady_clock::now();
+  note("SIGTERM to w1 holding %s", held.c_str());
+  const std::optional<int> code = w1.wait_for(15s);
+  ASSERT_TRUE(code.has_value()) << "w1 did not exit within 15 s of SIGTERM";
+  EXPECT_EQ(*code, 0);
+  std::smatch m;
+  const std::string w1_log = w1.err();
+  ASSERT_TRUE(std::regex_search(w1_log, m, std::regex("\\(([0-9]+) leases returned\\)"))) << "w1 did not leave";
+  EXPECT_GE(std::stoi(m[1]), 1) << "w1 returned no lease";
+  const std::regex returned("worker w1-\\S+ returned [1-9][0-9]* lease\\(s\\)");
+  EXPECT_TRUE(wait_until([&] { return std::regex_search(master_->err(), returned); }, 5s))
+      << "the master logged no returned lease";
+  note("w1 exited 0 after returning %s lease(s)", m[1].str().c_str());
+
+  // Another worker finishes the job; the returned tile is leased again at once.
+  Process& w2 = start_worker("w2");
+  const RunResult watched = epr({"watch", id}, 45s);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - terminated).count();
+  ASSERT_EQ(watched.code, 0) << watched.err;
+  note("job done %.1f s after the SIGTERM", seconds);
+  EXPECT_LT(seconds, 45.0) << "the returned tile waited for its lease to expire";
+  EXPECT_NE(w2.err().find("job " + id + " " + held), std::string::npos) << "w2 never leased " << held;
+  EXPECT_EQ(master_->err().find("expired"), std::string::npos) << "a lease expired instead of being returned";
+}
+
+TEST_F(DrainTest, MasterSigtermCheckpointsTheOpenRoundAndResumesFromIt) {
+  Args args = {kEpr, "render"};
+  const Args job = restart_job();
+  args.insert(args.end(), job.begin(), job.end());
+  args.insert(args.end(), {"--single-process", "--threads", "1", "--out", path("ref")});
+  reference_ = std::make_unique<Process>(args, dir_ / "reference");
+  // Without the drain only round 0 would be on disk: the first round is checkpointed, the next one
+  // an hour later.
+  const Args master_flags{"--state-dir",     path("state"), "--checkpoint-interval", "3600",
+                          "--drain-timeout", "60",          "--lease-timeout-ms",    "1500"};
+  ASSERT_NO_FATAL_FAILURE(start_master(0, master_flags));
+  start_worker("w1");
+  start_worker("w2");
+  ASSERT_TRUE(wait_until([&] { return registered() >= 2; }, 30s));
+  const std::string id = submit(job);
+  ASSERT_FALSE(id.empty());
+  note("job %s submitted", id.c_str());
+  ASSERT_TRUE(wait_until([&] { return highest_round_leased() >= 4; }, 90s)) << "the job never reached round 4";
+  ASSERT_EQ(master_->err().find("job " + id + " done"), std::string::npos) << "the job ended: nothing to drain";
+  const int leased_at_signal = highest_round_leased();
+  master_->signal(SIGTERM);
+  note("SIGTERM to the master while round %d is leased", leased_at_signal);
+  const std::optional<int> code = master_->wait_for(60s);
+  ASSERT_TRUE(code.has_value()) << "the master did not exit within 60 s of SIGTERM";
+  EXPECT_EQ(*code, 0);
+  const std::string old_log = master_->err();
+  old_master_logs_.push_back(old_log);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(old_log, m, std::regex("job \\S+: draining: round ([0-9]+) closed and checkpointed")))
+      << "the master did not checkpoint the open round";
+  const int drained_round = std::stoi(m[1]);
+  EXPECT_GE(drained_round, leased_at_signal) << "the drain checkpointed a round before the one open at SIGTERM";
+  EXPECT_NE(old_log.find("drained in"), std::string::npos);
+  EXPECT_EQ(old_log.find("running from round"), std::string::npos);
+  note("drained: round %d checkpointed, exit code %d", drained_round, *code);
+
+  const int port = port_;
+  ASSERT_NO_FATAL_FAILURE(start_master(port, master_flags));
+  ASSERT_TRUE(wait_until([&] { return master_->err().find("running from round") != std::string::npos; }, 60s))
+      << "the job did not resume";
+  const std::string log = master_->err();
+  ASSERT_TRUE(std::regex_search(log, m, std::regex("job \\S+ running from round ([0-9]+)")));
+  const int resumed = std::stoi(m[1]);
+  note("restarted: the job runs from round %d", resumed);
+  EXPECT_EQ(resumed, drained_round + 1) << "the job did not resume after the drained round";
+  EXPECT_NE(log.find("1 jobs loaded, 1 resume from their checkpoint, 0 start from round 0"), std::string::npos);
+
+  const RunResult watched = epr({"watch", id}, 120s);
+  ASSERT_EQ(watched.code, 0) << watched.err;
+  const RunResult got = epr({"get", id, "--out", path("cluster")}, 30s);
+  ASSERT_EQ(got.code, 0) << got.err;
+  ASSERT_TRUE(reference_->wait_for(120s).has_value()) << "the reference render did not end";
+  ASSERT_EQ(reference_->exit_code(), 0) << reference_->err();
+  const Image counts = read_image(path("cluster.counts.exr"));
+  EXPECT_EQ(exact_difference(counts, read_image(path("ref.counts.exr"))), "") << "M and M' per pixel";
+  EXPECT_EQ(exact_difference(read_image(path("cluster.pathtrace.exr")), read_image(path("ref.pathtrace.exr"))), "")
+      << "path-traced estimate";
+  EXPECT_EQ(close_difference(read_image(path("cluster.exr")), read_image(path("ref.exr"))), "") << "combined image";
+}
+
+}  // namespace
+}  // namespace epr::testing
