@@ -13,11 +13,17 @@
 #           EPR_HTTP                  HTTP monitoring address (/healthz, /readyz, dashboard, /metrics);
 #                                     unset: epr-master's default 0.0.0.0:8080; set but empty: no HTTP
 #           EPR_STATE_DIR=/var/lib/eprfarm  results and checkpoints (a volume)
+#           EPR_MASTER_NAME           the master's name, the prefix of its job ids (default: the name
+#                                     saved in the state folder, else HOSTNAME-PORT)
 #           EPR_LEASE_TIMEOUT_MS  EPR_HEARTBEAT_MS  EPR_REPROJECT (cpu)  EPR_MAX_QUEUED_VERTICES
 #           EPR_CHECKPOINT_INTERVAL   seconds between a job's round checkpoints, 0 or auto
+#           EPR_MEMORY_BUDGET         jobs needing more master memory are refused (8G, 512M; 0: no limit)
+#           EPR_DRAIN_TIMEOUT         SIGTERM: seconds at most for the open rounds to finish and be
+#                                     checkpointed before the master exits (0: at once)
 #           EPR_TOKEN_FILE            the bearer token every client and worker must send (a secret)
 #           EPR_TLS_CERT EPR_TLS_KEY  serve gRPC over TLS;  EPR_TLS_CLIENT_CA  require client certificates
-#   worker  EPR_MASTER=master:50051   the master's gRPC address
+#   worker  EPR_MASTER=master:50051   the masters' gRPC addresses: a comma list, or a name that resolves
+#                                     to several (a headless Service, a compose network alias)
 #           EPR_THREADS (0 = all cores)  EPR_NAME (default HOSTNAME-PID)  EPR_MAX_BACKOFF_MS
 #           EPR_CACHE_DIR=/var/cache/eprfarm  scene cache
 #           EPR_TOKEN_FILE            the bearer token to send (a secret)
@@ -52,11 +58,14 @@ case "$role" in
     bin="${EPR_MASTER_BIN:-epr-master}"
     flag listen "${EPR_LISTEN:-0.0.0.0:50051}"
     flag state-dir "${EPR_STATE_DIR:-/var/lib/eprfarm}"
+    flag name "${EPR_MASTER_NAME:-}"
     flag lease-timeout-ms "${EPR_LEASE_TIMEOUT_MS:-}"
     flag heartbeat-ms "${EPR_HEARTBEAT_MS:-}"
     flag reproject "${EPR_REPROJECT:-}"
     flag max-queued-vertices "${EPR_MAX_QUEUED_VERTICES:-}"
     flag checkpoint-interval "${EPR_CHECKPOINT_INTERVAL:-}"
+    flag memory-budget "${EPR_MEMORY_BUDGET:-}"
+    flag drain-timeout "${EPR_DRAIN_TIMEOUT:-}"
     flag log-level "${EPR_LOG_LEVEL:-}"
     flag token-file "${EPR_TOKEN_FILE:-}"
     flag tls-cert "${EPR_TLS_CERT:-}"

@@ -9,6 +9,7 @@ netns_cluster_test.sh starts the real binaries exactly as the compose file's con
         SVC_HEALTH=(...)        the healthcheck command (CMD form), empty if none or disabled
         SVC_SECRETS=(SRC=DST)   secret files to copy into the host's root
         SVC_ADDR=A.B.C.D        the service's fixed address on its network, if it has one
+        SVC_ALIASES=(...)       its network aliases (names that compose's DNS answers with it too)
         SVC_SUBNET=A.B.C.D/N    the subnet of that network
     compose_hosts.py CONFIG.yml DOCKERFILE --check-scalable worker
 
@@ -137,7 +138,7 @@ def main(argv):
             target_path = "/run/secrets/" + target_path
         secrets.append(f"{config['secrets'][source]['file']}={reroot(target_path, root)}")
 
-    addr, subnet = "", ""
+    addr, subnet, aliases = "", "", []
     networks = svc.get("networks") or {}
     for net_name, net in (networks.items() if isinstance(networks, dict) else [(n, None) for n in networks]):
         ipam = ((config.get("networks") or {}).get(net_name) or {}).get("ipam") or {}
@@ -145,12 +146,14 @@ def main(argv):
             subnet = subnet or c.get("subnet", "")
         if net and net.get("ipv4_address"):
             addr = net["ipv4_address"]
+        aliases += (net or {}).get("aliases") or []
 
     print(shell_array("SVC_ENV", [f"{k}={reroot(v, root)}" for k, v in sorted(env.items())]))
     print(shell_array("SVC_CMD", entrypoint + cmd))
     print(shell_array("SVC_HEALTH", health))
     print(shell_array("SVC_SECRETS", secrets))
     print(f"SVC_ADDR={shlex.quote(addr)}")
+    print(shell_array("SVC_ALIASES", aliases))
     print(f"SVC_SUBNET={shlex.quote(subnet)}")
     return 0
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The docker-compose cluster without Docker: the real epr-master, epr-worker and epr programs on five
+# The docker-compose cluster without Docker: the real epr-master, epr-worker and epr programs on six
 # "hosts" -- Linux network namespaces on a private bridge -- started with the environment, commands,
 # secrets and health checks that `docker-compose config` prints for deploy/docker-compose.yml, through
 # the images' own entrypoint (deploy/docker-entrypoint.sh) and health check (deploy/epr-health).
@@ -8,8 +8,9 @@
 #
 # Topology (nothing outside it is touched: no interface, address or route in the caller's namespace):
 #   <id>-sw      a bridge br0, one veth port per host
-#   <id>-master  the compose file's master address (10.231.0.10), named "master" in every host's
-#                /etc/hosts (via /etc/netns/<ns>/hosts, which `ip netns exec` mounts over /etc/hosts)
+#   <id>-master1, <id>-master2  the compose file's masters at their addresses (10.231.0.11, .12); a
+#                small DNS server on the bridge answers their service names, and their shared network
+#                alias ("masters") with both addresses, as compose's DNS does
 #   <id>-w1..w3  workers, 10.231.0.21-23 (compose gives scaled workers dynamic addresses)
 #   <id>-client  the client, 10.231.0.100
 # The compose variables the test sets, as a user would: EPR_LEASE_TIMEOUT_MS=2000 (a killed worker's
@@ -17,10 +18,12 @@
 # leases), EPR_TOKEN_PATH (a token made for the run). Processes run as nobody, as the images run as
 # uid 10001; a container's paths (/var/lib/eprfarm, /run/secrets/...) live under a per-host folder.
 #
-# The test: the master's and the client's health checks pass; the client submits a job; one worker
-# host's processes are killed while that worker holds a lease; the job still ends DONE, the master
-# re-queued the dead worker's tile, and PREFIX.counts.exr (M, M' per pixel) and PREFIX.pathtrace.exr
-# equal those of `epr render --single-process` with the same flags (bit-identical by design).
+# The test: the masters' and the client's health checks pass; every worker registers with both
+# masters through the alias; the client submits a job (to the masters' alias: it lands on one); one
+# worker host's processes are killed while that worker holds a lease; the job still ends DONE, its
+# master re-queued the dead worker's tile, and PREFIX.counts.exr (M, M' per pixel) and
+# PREFIX.pathtrace.exr equal those of `epr render --single-process` with the same flags
+# (bit-identical by design). Last, both masters get SIGTERM and must drain and exit 0.
 #
 # Exit 0 passed, 1 failed, 77 skipped (not root, no `ip netns`, or docker-compose / python3-yaml
 # missing outside CI) -- a skip always says why. Cleans up namespaces and processes on any exit.
@@ -77,7 +80,7 @@ ip netns del "$probe"
 
 tmp="$(mktemp -d "/tmp/epr-netns.$$.XXXXXX")"
 chmod 0755 "$tmp"
-hosts=(sw master w1 w2 w3 client)
+hosts=(sw master1 master2 w1 w2 w3 client)
 failed=0
 
 cleanup() {
@@ -169,16 +172,23 @@ service_config() {
 "$PY" "$here/compose_hosts.py" "$tmp/compose.yml" "$src/deploy/Dockerfile" --check-scalable worker ||
   fail "the compose file's worker service cannot be scaled with --scale worker=N"
 
-service_config master master
-master_addr="$SVC_ADDR"
-subnet="$SVC_SUBNET"
-[ -n "$master_addr" ] && [ -n "$subnet" ] || fail "the compose file gives the master no fixed address on a subnet"
+declare -A addr
+masters=(master1 master2)
+alias_name=""
+for m in "${masters[@]}"; do
+  service_config "$m" "$m"
+  [ -n "$SVC_ADDR" ] && [ -n "$SVC_SUBNET" ] || fail "the compose file gives $m no fixed address on a subnet"
+  addr[$m]="$SVC_ADDR"
+  subnet="$SVC_SUBNET"
+  [ ${#SVC_ALIASES[@]} -eq 1 ] || fail "$m has network aliases (${SVC_ALIASES[*]}), expected one shared by the masters"
+  [ -z "$alias_name" ] || [ "$alias_name" = "${SVC_ALIASES[0]}" ] || fail "the masters' aliases differ"
+  alias_name="${SVC_ALIASES[0]}"
+done
 prefix_len="${subnet#*/}"
 net_base="${subnet%/*}"
 net_base="${net_base%.*}"
-declare -A addr=([master]="$master_addr" [w1]="$net_base.21" [w2]="$net_base.22" [w3]="$net_base.23"
-                 [client]="$net_base.100")
-log "subnet $subnet, master $master_addr, workers ${addr[w1]}-${addr[w3]}, client ${addr[client]}"
+addr+=([w1]="$net_base.21" [w2]="$net_base.22" [w3]="$net_base.23" [client]="$net_base.100")
+log "subnet $subnet, masters ${addr[master1]} ${addr[master2]} (alias $alias_name), workers ${addr[w1]}-${addr[w3]}, client ${addr[client]}"
 
 # ---- the hosts -------------------------------------------------------------------------------------
 sw="$id-sw"
@@ -190,9 +200,10 @@ ip -n "$sw" link set br0 up
 dns_addr="$net_base.1"
 ip -n "$sw" addr add "$dns_addr/$prefix_len" dev br0
 ip -n "$sw" link set lo up
-ip netns exec "$sw" "$PY" "$here/tiny_dns.py" "$dns_addr" "master=$master_addr" > "$tmp/dns.log" 2>&1 &
+ip netns exec "$sw" "$PY" "$here/tiny_dns.py" "$dns_addr" "master1=${addr[master1]}" "master2=${addr[master2]}" \
+  "$alias_name=${addr[master1]},${addr[master2]}" > "$tmp/dns.log" 2>&1 &
 disown $!  # servers are ended by the clean-up, without job-control noise
-for h in master w1 w2 w3 client; do
+for h in master1 master2 w1 w2 w3 client; do
   ns="$id-$h"
   ip netns add "$ns" || fail "ip netns add $ns"
   ip -n "$sw" link add "p-$h" type veth peer name eth0 netns "$ns" || fail "veth for $h"
@@ -219,17 +230,21 @@ on() {
 }
 
 start=$SECONDS
-# ---- master ----------------------------------------------------------------------------------------
-service_config master master
-master_health=("${SVC_HEALTH[@]}")
-master_env=("${SVC_ENV[@]}")
-on master "${SVC_CMD[@]}" > "$tmp/master.log" 2>&1 &
-disown $!
-[ ${#master_health[@]} -gt 0 ] || fail "the compose file's master has no health check"
-SVC_ENV=("${master_env[@]}")
-wait_for 60 on master "${master_health[@]}" 2>> "$tmp/health.log" ||
-  fail "the master's compose health check (${master_health[*]}) never passed"
-log "master healthy: ${master_health[*]}"
+# ---- masters ---------------------------------------------------------------------------------------
+for m in "${masters[@]}"; do
+  service_config "$m" "$m"
+  on "$m" "${SVC_CMD[@]}" > "$tmp/$m.log" 2>&1 &
+  disown $!
+done
+for m in "${masters[@]}"; do
+  service_config "$m" "$m"
+  master_health=("${SVC_HEALTH[@]}")
+  master_env=("${SVC_ENV[@]}")
+  [ ${#master_health[@]} -gt 0 ] || fail "the compose file's $m has no health check"
+  wait_for 60 on "$m" "${master_health[@]}" 2>> "$tmp/health.log" ||
+    fail "$m's compose health check (${master_health[*]}) never passed"
+done
+log "masters healthy: ${master_health[*]}"
 
 # ---- client host: the master by name, across the bridge ---------------------------------------------
 service_config client client
@@ -241,14 +256,16 @@ on client epr-health grpc "$master_target" 2>> "$tmp/health.log" ||
   fail "gRPC health of $master_target from the client host"
 http_port="$(printf '%s\n' "${master_env[@]}" | sed -n 's/^EPR_HTTP=.*://p')"
 [ -n "$http_port" ] || fail "the compose file's master has no EPR_HTTP port"
-on client epr-health http "http://master:$http_port/healthz" 2>> "$tmp/health.log" ||
-  fail "HTTP /healthz of the master from the client host"
+for m in "${masters[@]}"; do
+  on client epr-health http "http://$m:$http_port/healthz" 2>> "$tmp/health.log" ||
+    fail "HTTP /healthz of $m from the client host"
+done
 # The compose secret is the master's token too: a call without it is refused.
 if on client env -u EPR_TOKEN_FILE epr list --master "$master_target" > /dev/null 2> "$tmp/no-token.log"; then
   fail "the master accepted a client without the token"
 fi
 grep -qi "UNAUTHENTICATED\|token" "$tmp/no-token.log" || fail "no-token call failed otherwise: $(cat "$tmp/no-token.log")"
-log "client host: gRPC health of $master_target and http://master:$http_port/healthz pass; no token, no service"
+log "client host: gRPC health of $master_target and http://master{1,2}:$http_port/healthz pass; no token, no service"
 
 # ---- workers -----------------------------------------------------------------------------------------
 for w in w1 w2 w3; do
@@ -257,15 +274,16 @@ for w in w1 w2 w3; do
   on "$w" "${SVC_CMD[@]}" > "$tmp/$w.log" 2>&1 &
   disown $!
 done
-registered() { [ "$(grep -c "registered with" "$tmp"/w[123].log 2>/dev/null | awk -F: '{s += $2} END {print s}')" -ge 3 ]; }
-wait_for 60 registered || fail "the three workers did not register with the master"
+# Every worker with both masters: the alias resolves to both.
+registered() { [ "$(grep -c "registered with" "$tmp"/w[123].log 2>/dev/null | awk -F: '{s += $2} END {print s}')" -ge 6 ]; }
+wait_for 60 registered || fail "the three workers did not register with both masters through $alias_name"
 # The compose check (the process is alive) and the Kubernetes readiness check (the master answers,
 # by name, from this host) on every worker host.
 for w in w1 w2 w3; do
   on "$w" "${worker_health[@]}" 2>> "$tmp/health.log" || fail "worker health check (${worker_health[*]}) on $w"
   on "$w" epr-health worker --ready 2>> "$tmp/health.log" || fail "worker readiness check on $w"
 done
-log "3 workers registered; on each: ${worker_health[*]}, epr-health worker --ready"
+log "3 workers registered with both masters; on each: ${worker_health[*]}, epr-health worker --ready"
 
 # ---- the job ---------------------------------------------------------------------------------------
 job=(builtin:cornell --width 64 --height 64 --spp 16 --paths-per-round 4 --tile 16 --mode skip
@@ -293,7 +311,7 @@ on client "${entry[@]}" submit "${job[@]}" --wait --out "$out_dir/cluster" \
   > "$tmp/client.out" 2> "$tmp/client.log" &
 client_pid=$!
 open_lease() {
-  awk '/lease [0-9]+: job [^ ]+ round [0-9]+ tile [0-9]+/ { for (i = 1; i <= NF; i++) if ($i == "lease") { id = $(i + 1); sub(":", "", id); open[id] = $NF } }
+  awk '/lease [0-9]+: job [^ ]+ round [0-9]+ tile [0-9]+/ { for (i = 1; i <= NF; i++) { if ($i == "lease") { id = $(i + 1); sub(":", "", id) } if ($i == "tile") t = $(i + 1) } open[id] = t }
        /lease [0-9]+: submitted/ { for (i = 1; i <= NF; i++) if ($i == "lease") { id = $(i + 1); sub(":", "", id); delete open[id] } }
        END { for (id in open) { print open[id]; exit } }' "$tmp/w2.log"
 }
@@ -313,7 +331,10 @@ kill -KILL $victim_pids
 kill -CONT $others
 job_id="$(head -n 1 "$tmp/client.out")"
 [ -n "$job_id" ] || fail "the client printed no job id"
-log "killed worker host w2 (pids $victim_pids) holding tile $held_tile of job $job_id"
+job_master=""
+for m in "${masters[@]}"; do grep -qF "job $job_id submitted" "$tmp/$m.log" && job_master="$m"; done
+[ -n "$job_master" ] || fail "no master logged the submission of job $job_id"
+log "killed worker host w2 (pids $victim_pids) holding tile $held_tile of job $job_id (on $job_master)"
 sleep 0.2
 [ -z "$(ip netns pids "$victim")" ] || fail "w2's processes survived SIGKILL"
 
@@ -329,11 +350,12 @@ log "job done after $((SECONDS - start)) s in all: $(tail -n 2 "$tmp/client.log"
 
 # ---- what the master saw -------------------------------------------------------------------------------
 # The default reprojector: the master's OSMesa context held the deep framebuffer (no CPU fallback).
-grep -q "reprojection context: " "$tmp/master.log" || fail "the master did not bring up its OSMesa context"
-! grep -q "will use the CPU reprojector" "$tmp/master.log" || fail "the master fell back to the CPU reprojector"
+master_log="$tmp/$job_master.log"
+grep -q "reprojection context: " "$master_log" || fail "the master did not bring up its OSMesa context"
+! grep -q "will use the CPU reprojector" "$master_log" || fail "the master fell back to the CPU reprojector"
 # Mid-job: the master re-queued the dead worker's tile while the job ran, i.e. before "job ... done".
-requeued_line="$(grep -n "job $job_id tile $held_tile: lease expired, re-queued" "$tmp/master.log" | head -n 1 | cut -d: -f1)"
-done_line="$(grep -n "job $job_id done" "$tmp/master.log" | head -n 1 | cut -d: -f1)"
+requeued_line="$(grep -nF "job $job_id tile $held_tile: lease expired, re-queued" "$master_log" | head -n 1 | cut -d: -f1)"
+done_line="$(grep -nF "job $job_id done" "$master_log" | head -n 1 | cut -d: -f1)"
 [ -n "$requeued_line" ] || fail "the master never re-queued tile $held_tile of the killed worker"
 [ -n "$done_line" ] && [ "$requeued_line" -lt "$done_line" ] ||
   fail "the master did not re-queue tile $held_tile before the job ended"
@@ -364,6 +386,19 @@ if diff.any():
 print(f"{sys.argv[1]}: same {pa.shape} pixels as the reference (bytes differ)", file=sys.stderr)
 EOF
 done
+
+# ---- SIGTERM drains the masters (compose's `docker-compose stop`): exit 0 within the grace period ------
+for m in "${masters[@]}"; do
+  pids="$(ip netns pids "$id-$m")"
+  [ -n "$pids" ] || fail "$m is not running any more"
+  kill -TERM $pids
+done
+stopped() { [ -z "$(ip netns pids "$id-master1")$(ip netns pids "$id-master2")" ]; }
+wait_for 30 stopped || fail "the masters did not exit within 30 s of SIGTERM"
+for m in "${masters[@]}"; do
+  grep -q "drained in\|nothing to keep" "$tmp/$m.log" || fail "$m did not drain on SIGTERM"
+done
+log "SIGTERM: both masters drained and exited"
 
 log "passed in $((SECONDS - start)) s"
 echo "netns cluster: 1 passed, 0 failed"

@@ -2,9 +2,10 @@
 """A minimal authoritative DNS server over UDP, standing in for Docker's embedded DNS in
 netns_cluster_test.sh: service names resolve by DNS, as in a compose network.
 
-    tiny_dns.py BIND_ADDRESS NAME=IPV4 [NAME=IPV4 ...]
+    tiny_dns.py BIND_ADDRESS NAME=IPV4[,IPV4...] [NAME=...]
 
-Answers A queries for the given names, an empty NOERROR for their other types (AAAA, ...), and
+Answers A queries for the given names (every address of a name, as compose's DNS answers a network
+alias that several containers share), an empty NOERROR for their other types (AAAA, ...), and
 NXDOMAIN for any other name, so resolvers never wait for a server that is not there. (gRPC's default
 c-ares resolver asks DNS before /etc/hosts, so a hosts file alone makes each lookup take seconds.)
 Prints "ready" once bound; runs until killed.
@@ -34,12 +35,12 @@ def answer(query, records):
     name, end = read_name(query, 12)
     qtype, qclass = struct.unpack(">HH", query[end : end + 4])
     question = query[12 : end + 4]
-    ip = records.get(name.lower().rstrip("."))
-    rcode, answers = (3, b"") if ip is None else (0, b"")
-    if ip is not None and qtype == 1 and qclass == 1:
-        answers = b"\xc0\x0c" + struct.pack(">HHIH", 1, 1, 5, 4) + socket.inet_aton(ip)
+    ips = records.get(name.lower().rstrip("."))
+    rcode, answers = (3, []) if ips is None else (0, [])
+    if ips is not None and qtype == 1 and qclass == 1:
+        answers = [b"\xc0\x0c" + struct.pack(">HHIH", 1, 1, 5, 4) + socket.inet_aton(ip) for ip in ips]
     out_flags = 0x8000 | 0x0400 | (flags & 0x0100) | 0x0080 | rcode  # response, authoritative, RD echoed, RA
-    return struct.pack(">HHHHHH", ident, out_flags, 1, 1 if answers else 0, 0, 0) + question + answers
+    return struct.pack(">HHHHHH", ident, out_flags, 1, len(answers), 0, 0) + question + b"".join(answers)
 
 
 def main(argv):
@@ -47,7 +48,7 @@ def main(argv):
         print(__doc__, file=sys.stderr)
         return 2
     records = dict(a.split("=", 1) for a in argv[1:])
-    records = {k.lower(): v for k, v in records.items()}
+    records = {k.lower(): v.split(",") for k, v in records.items()}
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind((argv[0], 53))
     print("ready", flush=True)
