@@ -6,7 +6,8 @@
 //    --checkpoint-interval says; 3600 s here, so that only round 0 would be on disk otherwise), and
 //    it exits 0. Restarted on the same state folder, it resumes the job from the drained round, not
 //    from round 0, and the result equals the undisturbed render: M, M' and the path-traced estimate
-//    bit-identical, the combined image within float rounding.
+//    bit-identical, the combined image within float rounding. With no worker left to finish the
+//    round, the drain gives up at once and the job resumes from its last checkpoint.
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <unistd.h>
@@ -299,6 +300,39 @@ TEST_F(DrainTest, MasterSigtermCheckpointsTheOpenRoundAndResumesFromIt) {
   EXPECT_EQ(exact_difference(read_image(path("cluster.pathtrace.exr")), read_image(path("ref.pathtrace.exr"))), "")
       << "path-traced estimate";
   EXPECT_EQ(close_difference(read_image(path("cluster.exr")), read_image(path("ref.exr"))), "") << "combined image";
+}
+
+TEST_F(DrainTest, MasterSigtermWithNoWorkerLeftStopsAtOnceAndResumesFromItsLastCheckpoint) {
+  const Args master_flags{"--state-dir", path("state"), "--drain-timeout", "60", "--lease-timeout-ms", "1500"};
+  ASSERT_NO_FATAL_FAILURE(start_master(0, master_flags));
+  Process& w1 = start_worker("w1");
+  ASSERT_TRUE(wait_until([&] { return registered() >= 1; }, 30s));
+  const std::string id = submit(restart_job());
+  ASSERT_FALSE(id.empty());
+  ASSERT_TRUE(wait_until([&] { return highest_round_leased() >= 2; }, 90s)) << "the job never reached round 2";
+  // The only worker leaves (it returns its leases and unregisters): nothing can finish the open round.
+  w1.signal(SIGTERM);
+  ASSERT_TRUE(w1.wait_for(15s).has_value()) << "w1 did not exit";
+  ASSERT_EQ(master_->err().find("job " + id + " done"), std::string::npos) << "the job ended: nothing to drain";
+  const auto terminated = std::chrono::steady_clock::now();
+  master_->signal(SIGTERM);
+  const std::optional<int> code = master_->wait_for(20s);
+  ASSERT_TRUE(code.has_value()) << "the master waited for a round no worker can finish";
+  EXPECT_EQ(*code, 0);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - terminated).count();
+  EXPECT_LT(seconds, 10.0) << "the drain should give up at once without workers, not wait --drain-timeout";
+  const std::string old_log = master_->err();
+  old_master_logs_.push_back(old_log);
+  EXPECT_NE(old_log.find("(no worker is left to trace): " + id), std::string::npos) << "the log does not say why";
+  note("no worker: the master exited %.1f s after SIGTERM", seconds);
+
+  // Restarted, the job resumes from its last round checkpoint and a new worker finishes it.
+  const int port = port_;
+  ASSERT_NO_FATAL_FAILURE(start_master(port, master_flags));
+  EXPECT_NE(master_->err().find("1 jobs loaded, 1 resume from their checkpoint"), std::string::npos);
+  start_worker("w2");
+  const RunResult watched = epr({"watch", id}, 120s);
+  EXPECT_EQ(watched.code, 0) << watched.err;
 }
 
 }  // namespace
