@@ -37,8 +37,8 @@ bool JobManager::drain_and_checkpoint(std::chrono::milliseconds timeout, const s
             "draining: {} running job(s) finish their open round, are checkpointed, and open no other; at most "
             "{:.0f} s",
             waiting.size(), std::chrono::duration<double>(timeout).count());
-      // With no worker left nothing more can be traced, so nothing more can close.
-      if (workers_.empty())
+      // With no worker left and no committed tile still to apply, no round can close any more.
+      if (workers_.empty() && tasks_.empty())
         why = "no worker is left to trace";
       else if (std::chrono::steady_clock::now() >= deadline)
         why = "out of time";

@@ -211,9 +211,10 @@ class JobManager {
   /// no running job opens another round; the rounds open now are leased, traced and applied to their
   /// end, and each job's state after its round is checkpointed whatever checkpoint_interval_s says (a
   /// job whose last round closes finishes as usual). Waits until every running job is checkpointed or
-  /// ended, at most `timeout`, less once no worker is registered or `give_up` (polled with the
-  /// manager's mutex held) returns true. True when every running job was checkpointed or ended; a job
-  /// whose round did not close resumes from its last checkpoint. Without checkpoints: true at once.
+  /// ended, at most `timeout`; less once no worker is registered and no committed tile waits to be
+  /// applied, or once `give_up` (polled with the manager's mutex held) returns true. True when every
+  /// running job was checkpointed or ended; a job whose round did not close resumes from its last
+  /// checkpoint. Without checkpoints: true at once.
   bool drain_and_checkpoint(std::chrono::milliseconds timeout, const std::function<bool()>& give_up = {})
       EPR_EXCLUDES(mu_);
   /// Stops the threads (idempotent); pending work is dropped.
