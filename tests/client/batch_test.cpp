@@ -165,10 +165,14 @@ class BatchCluster : public ::testing::Test {
                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
+    ASSERT_NO_FATAL_FAILURE(start_master());
+  }
+  // epr-master on a free loopback port with the state folder dir_/state (kept across restarts).
+  void start_master() {
     master_ =
         std::make_unique<Process>(std::vector<std::string>{binary("master", "epr-master"), "--listen", "127.0.0.1:0",
                                                            "--http", "", "--state-dir", (dir_ / "state").string()},
-                                  dir_ / "master");
+                                  dir_ / ("master-" + std::to_string(++masters_)));
     int port = 0;
     testing::wait_until(
         [&] {
@@ -205,7 +209,7 @@ class BatchCluster : public ::testing::Test {
   fs::path dir_;
   std::string target_;
   std::unique_ptr<Process> master_, worker_;
-  int runs_ = 0;
+  int runs_ = 0, masters_ = 0;
 };
 
 TEST_F(BatchCluster, FramesRenderAsOneBatchWithOneUploadAndEqualTheFramesRenderedAlone) {
@@ -292,6 +296,28 @@ TEST_F(BatchCluster, FramesRenderAsOneBatchWithOneUploadAndEqualTheFramesRendere
   EXPECT_NE(testing::exact_difference(read_image((dir_ / "out" / "name.0001.exr").string()),
                                       read_image((dir_ / "out" / "name.0003.exr").string())),
             "");
+}
+
+TEST_F(BatchCluster, ARestartedMasterKeepsItsJobsBatchAndFrame) {
+  const std::string scene = write_animated_scene(dir_ / "scene");
+  std::vector<std::string> submit{"submit"};
+  for (const auto& f : job_flags(scene)) submit.push_back(f);
+  submit.insert(submit.end(), {"--frames", "2,3", "--name", "walk"});
+  const RunResult sub = epr(submit);  // no worker: the frames stay queued
+  ASSERT_EQ(sub.code, 0) << sub.err;
+  const std::string batch = sub.out.substr(0, sub.out.find('\n'));
+  master_->stop();
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  JobClient client(target_);
+  const std::vector<v1::JobStatus> jobs = list_batch(client, batch);
+  ASSERT_EQ(jobs.size(), 2u) << master_->err();
+  for (uint32_t i = 0; i < 2; ++i) {
+    EXPECT_EQ(jobs[i].batch_name(), "walk");
+    EXPECT_EQ(jobs[i].frame(), i + 2);
+    EXPECT_EQ(jobs[i].batch_frames(), 2u);
+    EXPECT_EQ(jobs[i].name(), "walk.000" + std::to_string(i + 2));
+  }
+  EXPECT_EQ(client.list().size(), 2u);
 }
 
 TEST_F(BatchCluster, BadFramesAndBrokenKeysAreRefusedBeforeAnythingIsSubmitted) {
