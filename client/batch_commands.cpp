@@ -4,9 +4,11 @@
 #include <google/protobuf/util/json_util.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <map>
+#include <optional>
 #include <set>
 #include <thread>
 
@@ -44,33 +46,89 @@ std::string event_line(const v1::JobStatus& s) {
   return line;
 }
 
+// For each frame of `batch`, the index in farm.masters() of the master it goes to: the one with the
+// least work, counting its samples left at the probe and the frames given to it so far.
+std::vector<size_t> spread_frames(Farm& farm, const FrameBatch& batch) {
+  std::vector<size_t> where(batch.specs.size(), 0);
+  if (!farm.several()) return where;
+  farm.probe();
+  std::vector<std::optional<double>> load;
+  for (const FarmMaster& m : farm.masters())
+    load.push_back(m.info ? std::optional<double>(double(m.info->samples_left())) : std::nullopt);
+  if (std::none_of(load.begin(), load.end(), [](const auto& l) { return l.has_value(); }))
+    throw *farm.masters()[0].error;
+  for (size_t i = 0; i < batch.specs.size(); ++i) {
+    size_t best = load.size();
+    for (size_t m = 0; m < load.size(); ++m)
+      if (load[m] && (best == load.size() || *load[m] < *load[best])) best = m;
+    where[i] = best;
+    const v1::JobSpec& spec = batch.specs[i];
+    *load[best] += double(spec.width()) * spec.height() * spec.target_spp();
+  }
+  return where;
+}
+
 }  // namespace
 
-int submit_frames(JobClient& client, const RenderOptions& opts, const SubmitOptions& submit, const std::string& frames,
+int submit_frames(Farm& farm, const RenderOptions& opts, const SubmitOptions& submit, const std::string& frames,
                   bool wait, const std::string& out_prefix) {
   const FrameBatch batch = plan_batch(opts, submit, parse_frame_list(frames));
-  const std::vector<std::string> ids = submit_batch(client, batch);
+  const std::vector<size_t> where = spread_frames(farm, batch);
+  print_failed(farm, "submit", "no frame goes to it");
+  // Each master's frames in frame order, its scene uploaded once before them.
+  std::vector<std::string> ids(batch.specs.size());
+  std::string placed;
+  for (size_t m = 0; m < farm.masters().size(); ++m) {
+    JobClient& client = *farm.masters()[m].client;
+    std::optional<v1::SceneBundle> scene;
+    size_t count = 0;
+    for (size_t i = 0; i < batch.specs.size(); ++i) {
+      if (where[i] != m) continue;
+      if (!scene) scene = scene_for(client, batch.bundle);
+      v1::JobSpec spec = batch.specs[i];
+      *spec.mutable_scene() = *scene;
+      ids[i] = client.submit(spec);
+      ++count;
+    }
+    if (count) placed += fmt::format("{}{} at {}", placed.empty() ? "" : ", ", count, farm.masters()[m].label());
+  }
   std::printf("%s\n", batch.id.c_str());  // alone on its line, for scripts: BATCH=$(epr submit ... --frames 1-9)
   std::fflush(stdout);
-  std::fprintf(stderr, "batch %s (%s): %zu frame(s), %u to %u, queued at %s as jobs %s .. %s\n", batch.id.c_str(),
-               batch.name.c_str(), ids.size(), batch.frames.front(), batch.frames.back(), client.target().c_str(),
-               ids.front().c_str(), ids.back().c_str());
+  if (farm.several())
+    std::fprintf(stderr, "batch %s (%s): %zu frame(s), %u to %u, queued: %s\n", batch.id.c_str(), batch.name.c_str(),
+                 ids.size(), batch.frames.front(), batch.frames.back(), placed.c_str());
+  else
+    std::fprintf(stderr, "batch %s (%s): %zu frame(s), %u to %u, queued at %s as jobs %s .. %s\n", batch.id.c_str(),
+                 batch.name.c_str(), ids.size(), batch.frames.front(), batch.frames.back(),
+                 farm.masters()[0].client->target().c_str(), ids.front().c_str(), ids.back().c_str());
   if (!wait) return kExitOk;
   BatchFollowOptions follow;
   follow.fetch = true;
   follow.out_prefix = out_prefix;
-  return follow_batch(client, batch.id, follow);
+  return follow_batch(farm, batch.id, follow);
 }
 
-bool is_batch(JobClient& client, const std::string& id) {
-  return valid_batch_id(id) && !list_batch(client, id).empty();
+bool is_batch(Farm& farm, const std::string& id) {
+  if (!valid_batch_id(id)) return false;
+  bool found = false;
+  farm.for_each([&](FarmMaster& m) {
+    m.error.reset();
+    if (!list_batch(*m.client, id).empty()) found = true;
+  });
+  return found;
 }
 
-int follow_batch(JobClient& client, const std::string& batch_id, const BatchFollowOptions& options) {
+int follow_batch(Farm& farm, const std::string& batch_id, const BatchFollowOptions& options) {
+  using Clock = std::chrono::steady_clock;
   const bool tty = isatty(STDERR_FILENO) == 1;
   const auto interval = std::chrono::milliseconds(options.interval_ms ? options.interval_ms : tty ? 500 : 1000);
   const std::string prefix = options.out_prefix.empty() ? batch_id : options.out_prefix;
-  std::map<std::string, v1::JobState> seen;  // by job id
+  auto& masters = farm.masters();
+  // Every frame's job as last seen, with the index of its master: a master that does not answer
+  // keeps its frames as they were.
+  std::map<std::string, std::pair<v1::JobStatus, size_t>> last;
+  std::vector<std::optional<Clock::time_point>> down_since(masters.size());
+  std::map<std::string, v1::JobState> seen;  // by job id: the state last reported
   std::set<std::string> written, unwritten;  // DONE frames whose files were (not) fetched
   std::string last_summary;
   bool line_open = false;
@@ -79,11 +137,41 @@ int follow_batch(JobClient& client, const std::string& batch_id, const BatchFoll
     line_open = false;
   };
   BatchSummary summary;
-  for (;;) {
-    const std::vector<v1::JobStatus> jobs = list_batch(client, batch_id);
-    if (jobs.empty())
+  for (bool first = true;; first = false) {
+    std::vector<std::vector<v1::JobStatus>> per(masters.size());
+    farm.for_each([&](FarmMaster& m) {
+      m.error.reset();
+      per[size_t(&m - masters.data())] = list_batch(*m.client, batch_id);
+    });
+    if (first && farm.failed().size() == masters.size()) throw *masters[0].error;
+    for (size_t m = 0; m < masters.size(); ++m) {
+      const FarmMaster& fm = masters[m];
+      if (fm.error) {
+        if (!down_since[m]) {
+          down_since[m] = Clock::now();
+          say(fmt::format("master {} did not answer ({}); its frames stay as last seen until it is back", fm.label(),
+                          fm.error->what()));
+        } else if (Clock::now() - *down_since[m] > fm.client->options().watch_reconnect_timeout) {
+          throw *fm.error;
+        }
+        continue;
+      }
+      if (down_since[m]) say(fmt::format("master {} answers again", fm.label()));
+      down_since[m].reset();
+      for (auto& s : per[m]) {
+        const std::string id = s.id();  // before the move: the right side of = is evaluated first
+        last[id] = {std::move(s), m};
+      }
+    }
+    std::vector<v1::JobStatus> jobs;
+    for (const auto& [id, seen] : last) jobs.push_back(seen.first);
+    std::stable_sort(jobs.begin(), jobs.end(),
+                     [](const v1::JobStatus& a, const v1::JobStatus& b) { return a.frame() < b.frame(); });
+    if (jobs.empty() && farm.failed().empty())
       throw RpcError(grpc::Status(grpc::StatusCode::NOT_FOUND, "no such batch"),
-                     fmt::format("master at {} has no job of batch '{}'", client.target(), batch_id));
+                     farm.several()
+                         ? fmt::format("no master has a job of batch '{}'", batch_id)
+                         : fmt::format("master at {} has no job of batch '{}'", masters[0].client->target(), batch_id));
     for (const auto& s : jobs) {
       auto [it, fresh] = seen.emplace(s.id(), s.state());
       if ((fresh && s.state() != v1::JOB_STATE_QUEUED) || (!fresh && it->second != s.state())) say(event_line(s));
@@ -92,13 +180,13 @@ int follow_batch(JobClient& client, const std::string& batch_id, const BatchFoll
         continue;
       const std::string frame_prefix = s.has_frame() ? frame_file_name(prefix, s.frame()) : prefix + "." + s.id();
       try {
-        const auto files = client.fetch_all(s.id(), frame_prefix);
+        const auto files = masters[last.at(s.id()).second].client->fetch_all(s.id(), frame_prefix);
         std::string names;
         for (const auto& f : files) names += (names.empty() ? "" : ", ") + f.path;
         say("wrote " + names);
         written.insert(s.id());
       } catch (const RpcError& e) {
-        if (e.unreachable()) throw;
+        if (e.unreachable()) continue;  // its master is away: fetched at a later look
         say(fmt::format("{}: no results: {}", frame_label(s), e.what()));
         unwritten.insert(s.id());
       }
@@ -123,12 +211,23 @@ int follow_batch(JobClient& client, const std::string& batch_id, const BatchFoll
   return all_done ? kExitOk : kExitJobFailed;
 }
 
-int print_batch_json(JobClient& client, const std::string& batch_id) {
+int print_batch_json(Farm& farm, const std::string& batch_id) {
   google::protobuf::util::JsonPrintOptions opts;
   opts.add_whitespace = true;
   opts.preserve_proto_field_names = true;
   std::string out = "[";
-  for (const auto& s : list_batch(client, batch_id)) {
+  std::vector<std::vector<v1::JobStatus>> per(farm.masters().size());
+  farm.for_each([&](FarmMaster& m) {
+    m.error.reset();
+    per[size_t(&m - farm.masters().data())] = list_batch(*m.client, batch_id);
+  });
+  if (!farm.several() && farm.masters()[0].error) throw *farm.masters()[0].error;
+  print_failed(farm, "get", "its frames are missing below");
+  std::vector<v1::JobStatus> jobs;
+  for (auto& p : per) jobs.insert(jobs.end(), p.begin(), p.end());
+  std::stable_sort(jobs.begin(), jobs.end(),
+                   [](const v1::JobStatus& a, const v1::JobStatus& b) { return a.frame() < b.frame(); });
+  for (const auto& s : jobs) {
     std::string json;
     (void)google::protobuf::util::MessageToJsonString(s, &json, opts);
     out += (out.size() > 1 ? ",\n" : "\n") + json;

@@ -108,15 +108,21 @@ FarmMaster& Farm::locate(const std::string& job_id) {
                              asked.empty() ? "any master" : asked, away, first_away->error->what()));
 }
 
-std::vector<FarmJob> Farm::list(const std::vector<v1::JobState>& states, size_t limit) {
+std::vector<FarmJob> Farm::list(const std::vector<v1::JobState>& states, size_t limit, const std::string& batch_id) {
   std::vector<std::vector<v1::JobStatus>> per(masters_.size());
-  if (several()) probe();  // the names, for the table
+  if (several()) {
+    probe();  // the names, for the messages
+  } else {
+    masters_[0].error.reset();
+  }
   for_each([&](FarmMaster& m) {
-    if (!m.error) per[size_t(&m - masters_.data())] = m.client->list(states, limit);
+    if (!m.error) per[size_t(&m - masters_.data())] = m.client->list(states, limit, batch_id);
   });
+  if (!several() && masters_[0].error) throw *masters_[0].error;
   std::vector<FarmJob> out;
   for (size_t i = 0; i < masters_.size(); ++i)
-    for (auto& s : per[i]) out.push_back({&masters_[i], std::move(s)});
+    for (auto& s : per[i])
+      if (batch_id.empty() || s.batch_id() == batch_id) out.push_back({&masters_[i], std::move(s)});
   std::stable_sort(out.begin(), out.end(), [](const FarmJob& a, const FarmJob& b) {
     return a.status.submitted_unix_ms() > b.status.submitted_unix_ms();
   });

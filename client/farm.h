@@ -64,9 +64,10 @@ class Farm {
   /// when every master answered and none has it, and the down masters' error (UNAVAILABLE...) when
   /// the job's master may be one of those.
   FarmMaster& locate(const std::string& job_id);
-  /// Every master's jobs (ListJobs, at most `limit` each, 0: all), newest first by submission time;
-  /// the masters that failed are in failed().
-  std::vector<FarmJob> list(const std::vector<v1::JobState>& states, size_t limit);
+  /// Every master's jobs (ListJobs, at most `limit` each, 0: all; only those of batch_id unless
+  /// empty), newest first by submission time, at most `limit` in all. The masters that failed are in
+  /// failed(); a single master's error is thrown.
+  std::vector<FarmJob> list(const std::vector<v1::JobState>& states, size_t limit, const std::string& batch_id = "");
 
  private:
   std::vector<FarmMaster> masters_;

@@ -44,7 +44,10 @@ std::string default_master() {
 
 void add_connection_flags(CLI::App* cmd, ConnectionFlags& f, bool whole_job = false) {
   f.master = default_master();
-  cmd->add_option("--master", f.master, "master address HOST:PORT (default: $EPR_MASTER, else localhost:50051)")
+  cmd->add_option("--master", f.master,
+                  "master address HOST:PORT, or several comma-separated (jobs are spread over them and found by the "
+                  "master name in their ids), or a name resolving to several (default: $EPR_MASTER, else "
+                  "localhost:50051)")
       ->capture_default_str();
   cmd->add_option("--token-file", f.token_file,
                   "file holding the bearer token for the master (default: $EPR_TOKEN; never pass tokens as flags)");
@@ -96,12 +99,11 @@ std::unique_ptr<Farm> make_farm(const ConnectionFlags& f) {
   }
 }
 
-// The master a command goes to: for a submission (no job_id) the least loaded one, noting on stderr
-// the masters that did not answer; otherwise the one that holds job_id.
-std::unique_ptr<JobClient> make_client(const ConnectionFlags& f, const std::string& job_id = "") {
-  auto farm = make_farm(f);
-  FarmMaster& m = job_id.empty() ? farm->least_loaded() : farm->locate(job_id);
-  if (job_id.empty()) print_failed(*farm, "submit", "skipped");
+// The client of the master a command goes to: for a submission (no job_id) the least loaded one,
+// noting on stderr the masters that did not answer; otherwise the one that holds job_id.
+std::unique_ptr<JobClient> take_client(Farm& farm, const std::string& job_id = "") {
+  FarmMaster& m = job_id.empty() ? farm.least_loaded() : farm.locate(job_id);
+  if (job_id.empty()) print_failed(farm, "submit", "skipped");
   return std::move(m.client);
 }
 
@@ -321,8 +323,9 @@ int RemoteCommands::State::run_submit() {
   finish_options(render, render_extra);
   if (auto err = render.validate()) throw UsageError(*err);
   submit_opts.time_budget_seconds = time_budget;
-  auto client = make_client(submit_conn);
-  if (!frames.empty()) return submit_frames(*client, render, submit_opts, frames, wait, render.out);
+  auto farm = make_farm(submit_conn);
+  if (!frames.empty()) return submit_frames(*farm, render, submit_opts, frames, wait, render.out);
+  auto client = take_client(*farm);
   const std::string id = client->submit(render, submit_opts);
   std::printf("%s\n", id.c_str());  // alone on its line, for scripts: ID=$(epr submit ...)
   std::fflush(stdout);
@@ -336,23 +339,25 @@ int RemoteCommands::State::run_submit() {
 }
 
 int RemoteCommands::State::run_watch() {
-  auto client = make_client(watch_conn, watch_job);
-  if (watch_batch || is_batch(*client, watch_job)) return follow_batch(*client, watch_job, {});
+  auto farm = make_farm(watch_conn);
+  if (watch_batch || is_batch(*farm, watch_job)) return follow_batch(*farm, watch_job, {});
+  auto client = take_client(*farm, watch_job);
   FollowOptions follow;
   follow.fetch = false;
   return follow_job(*client, watch_job, follow);
 }
 
 int RemoteCommands::State::run_get() {
-  auto client = make_client(get_conn, get_job);
-  if (get_batch || is_batch(*client, get_job)) {
-    if (get_json) return print_batch_json(*client, get_job);
+  auto farm = make_farm(get_conn);
+  if (get_batch || is_batch(*farm, get_job)) {
+    if (get_json) return print_batch_json(*farm, get_job);
     BatchFollowOptions follow;
     follow.fetch = true;
     follow.out_prefix = get_out;
     follow.wait = !get_no_wait;
-    return follow_batch(*client, get_job, follow);
+    return follow_batch(*farm, get_job, follow);
   }
+  auto client = take_client(*farm, get_job);
   const v1::JobStatus status = client->get(get_job);
   if (get_json) {
     std::string json;
@@ -393,22 +398,24 @@ int RemoteCommands::State::run_list() {
     std::transform(st.begin(), st.end(), st.begin(), [](unsigned char c) { return char(std::tolower(c)); });
     states.push_back(kStates.at(st));
   }
-  auto client = make_client(list_conn);
-  auto jobs = client->list(states, list_limit, list_batch);
-  if (!list_batch.empty())  // a master that does not filter by batch
-    jobs.erase(std::remove_if(jobs.begin(), jobs.end(), [&](const auto& j) { return j.batch_id() != list_batch; }),
-               jobs.end());
+  // Every master's jobs in one table (a MASTER column when there are several); a master that does
+  // not answer is named on stderr and the exit code says the list is partial.
+  auto farm = make_farm(list_conn);
+  const std::vector<FarmJob> jobs = farm->list(states, list_limit, list_batch);
+  print_failed(*farm, "list", "its jobs are not listed");
 
   // Column widths from the content, names shortened to keep the table readable.
-  std::vector<std::array<std::string, 8>> rows{{"ID", "NAME", "STATE", "ROUND", "SPP", "ELAPSED", "BATCH", "FRAME"}};
-  for (const auto& j : jobs) {
+  std::vector<std::vector<std::string>> rows{{"ID", "NAME", "STATE", "ROUND", "SPP", "ELAPSED", "BATCH", "FRAME"}};
+  if (farm->several()) rows[0].push_back("MASTER");
+  for (const auto& [master, j] : jobs) {
     std::string name = j.name().size() > 28 ? j.name().substr(0, 27) + "~" : j.name();
     rows.push_back({j.id(), name, state_name(j.state()), rounds_text(j),
                     fmt::format("{:.1f}/{}", j.spp_mean(), j.target_spp()),
                     j.state() == v1::JOB_STATE_QUEUED ? "-" : duration_text(j.seconds_elapsed()),
                     j.batch_id().empty() ? "-" : j.batch_id(), j.has_frame() ? std::to_string(j.frame()) : "-"});
+    if (farm->several()) rows.back().push_back(master->endpoint.name);
   }
-  std::array<size_t, 8> width{};
+  std::vector<size_t> width(rows[0].size(), 0);
   for (const auto& r : rows)
     for (size_t c = 0; c < r.size(); ++c) width[c] = std::max(width[c], r[c].size());
   for (const auto& r : rows) {
@@ -416,11 +423,12 @@ int RemoteCommands::State::run_list() {
     for (size_t c = 0; c < r.size(); ++c) line += fmt::format("{:<{}}", r[c], c + 1 < r.size() ? width[c] + 2 : 0);
     std::printf("%s\n", line.c_str());
   }
-  return kExitOk;
+  return farm->failed().empty() ? kExitOk : kExitUnreachable;
 }
 
 int RemoteCommands::State::run_cancel() {
-  auto client = make_client(cancel_conn, cancel_job);
+  auto farm = make_farm(cancel_conn);
+  auto client = take_client(*farm, cancel_job);
   const v1::JobStatus before_or_after = client->cancel(cancel_job);
   std::printf("%s %s\n", cancel_job.c_str(), state_name(before_or_after.state()).c_str());
   if (before_or_after.state() != v1::JOB_STATE_CANCELLED)

@@ -6,7 +6,8 @@
 //   epr list [--state S]... [--limit N]
 //   epr cancel JOB
 //
-// Every command takes --master HOST:PORT (default $EPR_MASTER, else localhost:50051), --token-file
+// Every command takes --master HOST:PORT, or several comma-separated, or a name resolving to several
+// (client/farm.h; default $EPR_MASTER, else localhost:50051), --token-file
 // (else $EPR_TOKEN; tokens never go on the command line), --tls / --ca-file and --timeout SECONDS
 // for unary calls (submit: for the whole submission, 0 = no limit). Exit codes: see ExitCode.
 #pragma once
