@@ -22,7 +22,7 @@
 #                                     checkpointed before the master exits (0: at once)
 #           EPR_TOKEN_FILE            the bearer token every client and worker must send (a secret)
 #           EPR_TLS_CERT EPR_TLS_KEY  serve gRPC over TLS;  EPR_TLS_CLIENT_CA  require client certificates
-#   worker  EPR_MASTER=master:50051   the masters' gRPC addresses: a comma list, or a name that resolves
+#   worker  EPR_MASTER=masters:50051  the masters' gRPC addresses: a comma list, or a name that resolves
 #                                     to several (a headless Service, a compose network alias)
 #           EPR_THREADS (0 = all cores)  EPR_NAME (default HOSTNAME-PID)  EPR_MAX_BACKOFF_MS
 #           EPR_CACHE_DIR=/var/cache/eprfarm  scene cache
@@ -77,7 +77,7 @@ case "$role" in
     ;;
   worker)
     bin="${EPR_WORKER_BIN:-epr-worker}"
-    flag master "${EPR_MASTER:-master:50051}"
+    flag master "${EPR_MASTER:-masters:50051}"
     flag threads "${EPR_THREADS:-}"
     flag name "${EPR_NAME:-}"
     flag cache-dir "${EPR_CACHE_DIR:-/var/cache/eprfarm}"
