@@ -78,6 +78,16 @@ class JobStatus:
         )
 
     @property
+    def batch_id(self) -> str:
+        """The batch (submit_frames, `epr submit --frames`) the job belongs to; "" for none."""
+        return self.proto.batch_id
+
+    @property
+    def frame(self) -> Optional[int]:
+        """The frame number a batch's job renders; None outside a batch."""
+        return self.proto.frame if self.proto.HasField("frame") else None
+
+    @property
     def terminal(self) -> bool:
         """DONE, FAILED or CANCELLED: the job will not change any more."""
         return self.proto.state in TERMINAL_STATES

@@ -241,6 +241,45 @@ class ClusterTest(unittest.TestCase):
                 with open(f.path, "rb") as mine:
                     self.assertEqual(mine.read(), theirs, f.kind)
 
+    def test_frames_match_epr(self):
+        folder = os.path.join(self.tmp, "frames")
+        os.makedirs(folder, exist_ok=True)
+        scene = os.path.join(folder, "walk.json")
+        with open(scene, "w") as f:
+            f.write(
+                '{"builtin": "cornell", "animation": {"camera": [\n'
+                '  {"frame": 1, "eye": [0, 1, 3.9]},\n'
+                '  {"frame": 3, "eye": [0.4, 1.2, 3.5], "look": [0.2, 1, 0], "fov": 50}]}}\n'
+            )
+        batch, ids = self.client.submit_frames(scene, "1-3", **JOB)
+        self.assertEqual(len(ids), 3)
+        jobs = sorted(self.client.list(batch=batch), key=lambda s: s.frame)
+        self.assertEqual([(s.batch_id, s.frame, s.name) for s in jobs],
+                         [(batch, f, f"walk.{f:04d}") for f in (1, 2, 3)])
+        self.assertEqual(len({s.proto.scene.content_hash for s in jobs}), 1)
+        self.assertEqual(len(self.client.list(batch="b-none")), 0)
+        # The same frames through the C++ client, which evaluates the cameras itself: the same cameras,
+        # and the same pixels.
+        r = epr("submit", scene, *JOB_FLAGS, "--frames", "1-3", "--master", self.farm.address)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        theirs = sorted(self.client.list(batch=r.stdout.strip()), key=lambda s: s.frame)
+        self.assertEqual(len(theirs), 3)
+        for ours, cpp in zip(jobs, theirs):
+            self.assertEqual(ours.proto.effective.camera, cpp.proto.effective.camera, ours.frame)
+        half = jobs[1].proto.effective.camera.eye
+        self.assertAlmostEqual(half.x, 0.2, places=6)
+        for ours, cpp in zip(jobs, theirs):
+            for job in (ours.id, cpp.id):
+                self.assertEqual(list(self.client.watch(job))[-1].state, "DONE")
+            a = self.client.get(ours.id, as_arrays=True)
+            b = self.client.get(cpp.id, as_arrays=True)
+            self.assertTrue((a["counts"] == b["counts"]).all(), ours.frame)
+            self.assertTrue((a["pathtrace"] == b["pathtrace"]).all(), ours.frame)
+        with self.assertRaises(ValueError):
+            self.client.submit_frames(scene, "3-1", **JOB)
+        with self.assertRaises(ValueError):
+            self.client.submit_frames(scene, "1-2", eye=(0, 1, 3), **JOB)
+
     def test_scene_files_bundled_as_epr_does(self):
         scene = write_textured_scene(os.path.join(self.tmp, "textured"))
         bundle = eprfarm.bundle_scene(scene)
