@@ -155,7 +155,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
 
 JobSnapshot JobManager::snapshot(const Job& job) const {
   JobSnapshot s = job.snapshot(clock_());
-  s.workers_active = active_.get() == &job ? uint32_t(workers_.busy()) : 0;
+  s.workers_active = job.state == JobState::kRunning && job.leases ? uint32_t(job.leases->holders()) : 0;
   return s;
 }
 
@@ -285,10 +285,11 @@ std::optional<std::vector<std::pair<bool, int64_t>>> JobManager::heartbeat(const
   MutexLock lock(mu_);
   WorkerRegistry::Worker* w = workers_.touch(worker, clock_());
   if (!w) return std::nullopt;
-  LeaseTable* table = active_ && active_->state == JobState::kRunning ? active_->leases.get() : nullptr;
   std::vector<std::pair<bool, int64_t>> out;
   for (uint64_t lease : leases) {
-    const std::optional<int64_t> deadline = table ? table->extend(lease) : std::nullopt;
+    std::optional<int64_t> deadline;
+    for (const auto& job : running_)
+      if (job->state == JobState::kRunning && job->leases && (deadline = job->leases->extend(lease))) break;
     out.emplace_back(deadline.has_value(), deadline.value_or(0));
     if (!deadline) w->leases.erase(lease);
   }
@@ -330,20 +331,6 @@ void JobManager::stop_parking() {
   answer_due();
 }
 
-void JobManager::wake_parked(bool all) {
-  // Workers that hold the running job's scene first: they start tracing without fetching it.
-  const std::string scene = active_ ? active_->scene_hash : std::string();
-  parking_.wake(
-      all, clock_(),
-      [this](const std::string& worker, bool* parkable) EPR_NO_THREAD_SAFETY_ANALYSIS {
-        return decide_lease(worker, parkable);  // called by wake(), with mu_ held
-      },
-      [this, &scene](const std::string& worker) EPR_NO_THREAD_SAFETY_ANALYSIS {
-        const WorkerRegistry::Worker* w = workers_.find(worker);
-        return w && w->cached_scenes.count(scene) > 0;
-      });
-}
-
 void JobManager::answer_due() {
   std::vector<std::pair<LeaseParking::Answer, LeaseDecision>> due;
   {
@@ -351,33 +338,6 @@ void JobManager::answer_due() {
     due = parking_.take_due();
   }
   for (auto& [answer, decision] : due) answer(std::move(decision));
-}
-
-// *parkable: the answer is a short Wait that a tile may end soon (see lease_tile_or_park).
-LeaseDecision JobManager::decide_lease(const std::string& worker, bool* parkable) {
-  *parkable = false;
-  WorkerRegistry::Worker* w = workers_.touch(worker, clock_());
-  if (!w) return UnknownWorker{};
-  if (stopping_) return LeaseWait{1000};
-  // Back-pressure: the reprojection thread is behind.
-  if (queued_vertices_ > options_.max_queued_vertices) return LeaseWait{20};
-  Job* job = active_.get();
-  // No job: poll slowly. A running job between rounds: the next round opens within milliseconds.
-  if (!job || job->state != JobState::kRunning) {
-    *parkable = true;
-    return LeaseWait{job ? 20u : 200u};
-  }
-  // A worker that failed too many of this job's tiles waits for the next job.
-  if (job->leases->blocked(worker)) return LeaseWait{500};
-  *parkable = true;
-  if (!job->round_open) return LeaseWait{5};
-  const uint64_t lease = next_lease_;
-  auto g = job->leases->lease(worker, lease);
-  if (!g) return LeaseWait{5};
-  *parkable = false;
-  ++next_lease_;
-  w->leases.insert(lease);
-  return grant(*job, worker, *g, lease);
 }
 
 TileLeaseInfo JobManager::grant(Job& job, const std::string& worker, const LeaseTable::Grant& g, uint64_t lease) {
@@ -415,10 +375,11 @@ void JobManager::fail_leases(const std::string& worker, const std::vector<uint64
     WorkerRegistry::Worker* w = workers_.find(worker);
     for (uint64_t lease : leases) {
       if (w) w->leases.erase(lease);
-      if (!active_ || !active_->leases) continue;
-      if (active_->leases->release(lease, worker, failure, reason)) {
-        ++active_->version;
-        if (failure != LeaseFailure::kNone) fail_if_all_blocked(active_, &failed);
+      for (const auto& job : running_) {
+        if (!job->leases || !job->leases->release(lease, worker, failure, reason)) continue;
+        ++job->version;
+        if (failure != LeaseFailure::kNone) fail_if_all_blocked(job, &failed);
+        break;
       }
     }
     wake_parked(/*all=*/false);  // the tiles given back
@@ -608,8 +569,8 @@ void JobManager::reaper_loop() {
     work_cv_.wait_for(lock, std::chrono::milliseconds(200));
     if (stopping_) break;
     std::vector<std::shared_ptr<Job>> failed;
-    if (active_ && active_->state == JobState::kRunning) {
-      const std::shared_ptr<Job> job = active_;
+    for (const auto& job : running_) {
+      if (job->state != JobState::kRunning) continue;
       const auto expired = job->leases->expire();
       for (const auto& e : expired) {
         if (WorkerRegistry::Worker* w = workers_.find(e.worker)) w->leases.erase(e.lease);
@@ -619,7 +580,7 @@ void JobManager::reaper_loop() {
     }
     workers_.forget_silent(clock_(), options_.worker_timeout_ms);
     // The workers that were not blocked may have left.
-    if (active_) fail_if_all_blocked(active_, &failed);
+    for (const auto& job : running_) fail_if_all_blocked(job, &failed);
     // Parked lease requests: tiles that came back, speculative copies, and the ones out of time.
     wake_parked(/*all=*/false);
     lock.unlock();

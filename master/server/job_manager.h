@@ -3,6 +3,7 @@
 //   worker_registry.h the workers, their heartbeats and leases
 //   lease_table.h     a running job's leases: order, expiry, speculative copies, failures, blocklist
 //   lease_parking.h   LeaseTile calls kept waiting until a tile may be there
+//   job_scheduling.cpp which jobs run at once and which running job a lease comes from (below)
 //   round_driver.h    the round loop around FrameState (shared with the single-process render)
 //   checkpointer.h    the thread that writes checkpoints (checkpoint.h: their format and folder)
 //   previews.h        preview PNGs; result_files.h the finished job's files (job_results.cpp serves both)
@@ -11,14 +12,26 @@
 // Threads:
 //  - gRPC handlers call the public methods; each takes the manager's mutex briefly and never waits
 //    for tracing or reprojection work.
-//  - One reprojection thread owns the OSMesa context and every job's RoundDriver: it starts jobs
-//    (a fresh job's round 0 opens before its deep framebuffer is built, a resumed job's round after
-//    its frame is restored), applies committed tiles in commit order, closes rounds (M', skip mask),
-//    opens the next round and writes results.
+//  - One reprojection thread owns the OSMesa context and every job's RoundDriver (each with its own
+//    reprojector and GL buffers in that one context): it starts jobs (a fresh job's round 0 opens
+//    before its deep framebuffer is built, a resumed job's round after its frame is restored),
+//    applies committed tiles per (job, round) in commit order, closes rounds (M', skip mask), opens
+//    the next round and writes results.
 //  - A reaper thread expires leases past their deadline and forgets silent workers.
 //  - The checkpointer's thread writes checkpoints.
-// Back-pressure: committed tiles wait in a queue bounded in vertices; while it is over its bound,
-// LeaseTile answers Wait, so a fast worker cannot grow the master's memory.
+// Several jobs at once: queued jobs start, in next_queued() order (resumed ones first, then priority,
+// then submission), while the memory estimates (master/memory_estimate.h) of the running jobs and
+// the next one, with one commit queue between them, fit memory_budget_bytes, and fewer than
+// max_running_jobs run; the first running job always starts (a job over the budget alone is refused
+// at submission). No budget (0): one job at a time. A queued job that does not fit waits for running
+// ones to end; smaller jobs behind it do not pass it.
+// Leasing across running jobs: a worker gets a tile of the highest-priority running job that has one
+// to hand out (waiting, or a speculative copy); among equal priorities, of the job with the fewest
+// leases out, then of the one leased from least recently (round robin), so that equal jobs share the
+// workers evenly. A job whose round is closing has none to hand out: its workers trace the other
+// jobs' tiles meanwhile.
+// Back-pressure: committed tiles of every job wait in one queue bounded in vertices; while it is over
+// its bound, LeaseTile answers Wait, so a fast worker cannot grow the master's memory.
 // Exactly once: a tile is committed by the first complete result for (job, round, tile); later or
 // duplicate results are dropped and counted. Commits of one round touch disjoint pixels, and rounds
 // are applied in order, so M and the path sums do not depend on arrival order.
@@ -82,6 +95,8 @@ struct MasterOptions {
   // submission (INVALID_ARGUMENT, naming what they need); 0: no limit. epr-master's --memory-budget
   // defaults to 80 % of the machine's physical memory.
   uint64_t memory_budget_bytes = 0;
+  // Jobs running at once, at most (the budget decides below that; no budget: one).
+  int max_running_jobs = 8;
   int max_image_side = limits::kImageSide.hi;
   int max_spp = limits::kSpp.hi;  // target samples per pixel of one job
   int max_jobs = 1000;            // jobs kept (finished ones are forgotten oldest first)
@@ -97,6 +112,9 @@ struct MasterOptions {
   // open by then, a resumed job's not yet), with the job's id; what it throws fails the job as a
   // failed build would. For tests: to hold the build while tiles are committed, or to fail it.
   std::function<void(const std::string& job_id)> before_frame_build;
+  // Called on the reprojection thread once a round's last tile is applied, before the round closes,
+  // with the job's id and round. For tests: to hold a round's close while other jobs lease.
+  std::function<void(const std::string& job_id, uint32_t round)> before_round_close;
 
   LeasePolicy lease_policy() const {
     return {lease_timeout_ms, heartbeat_interval_ms, speculative_factor, speculative_floor_ms, max_worker_failures};
@@ -222,6 +240,10 @@ class JobManager {
   bool gl_ready() const EPR_EXCLUDES(mu_);
   /// Round and reprojection durations of every round closed so far (for /metrics).
   DurationHistograms histograms() const EPR_EXCLUDES(mu_);
+  /// Tiles not yet committed in the current round of every running job, plus the first round's tiles
+  /// of every queued job (for a queued resumed job, all its tiles: an upper bound). /metrics
+  /// epr_tiles_waiting: what an autoscaler sizes the workers by.
+  uint64_t tiles_waiting() const EPR_EXCLUDES(mu_);
   const MasterOptions& options() const { return options_; }
   /// This run's number in the state directory (1 for a new one). Lease ids carry it above bit
   /// kLeaseEpochShift, so a lease of an earlier run is never mistaken for one of this run.
@@ -236,6 +258,10 @@ class JobManager {
   };
 
   LeaseDecision decide_lease(const std::string& worker, bool* parkable) EPR_REQUIRES(mu_);
+  /// Whether `next` may start beside the running jobs (memory budget, max_running_jobs).
+  bool admits(const Job& next) const EPR_REQUIRES(mu_);
+  /// Removes `job` from running_ (it finished, failed or was cancelled).
+  void stop_running(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
   TileLeaseInfo grant(Job& job, const std::string& worker, const LeaseTable::Grant& g, uint64_t lease)
       EPR_REQUIRES(mu_);
   void wake_parked(bool all) EPR_REQUIRES(mu_);
@@ -281,7 +307,8 @@ class JobManager {
   std::deque<std::unique_ptr<Task>> tasks_ EPR_GUARDED_BY(mu_);
   uint64_t queued_vertices_ EPR_GUARDED_BY(mu_) = 0;
   uint64_t next_lease_ EPR_GUARDED_BY(mu_) = 1;
-  std::shared_ptr<Job> active_ EPR_GUARDED_BY(mu_);  // the job whose tiles are being leased
+  // Jobs started and not yet finished or dropped, in start order (a job being started is still kQueued).
+  std::vector<std::shared_ptr<Job>> running_ EPR_GUARDED_BY(mu_);
   bool stopping_ EPR_GUARDED_BY(mu_) = false;
   bool gl_ready_ EPR_GUARDED_BY(mu_) = false;
   bool draining_ EPR_GUARDED_BY(mu_) = false;             // drain_and_checkpoint() was called

@@ -30,10 +30,11 @@ std::shared_ptr<Job> JobRegistry::find_request(const std::string& request_id) co
   return it == request_ids_.end() ? nullptr : find(it->second);
 }
 
-std::shared_ptr<Job> JobRegistry::next_queued() const {
+std::shared_ptr<Job> JobRegistry::next_queued(const std::vector<std::shared_ptr<Job>>& starting) const {
   std::shared_ptr<Job> best;
   for (const auto& [id, job] : jobs_) {
     if (job->state != JobState::kQueued) continue;
+    if (std::find(starting.begin(), starting.end(), job) != starting.end()) continue;
     if (job->resume) return job;
     if (!best || job->request.priority > best->request.priority ||
         (job->request.priority == best->request.priority && job->seq < best->seq))

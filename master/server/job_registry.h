@@ -26,9 +26,9 @@ class JobRegistry {
   /// The job an earlier submission with this idempotency key created, if any.
   std::shared_ptr<Job> find_request(const std::string& request_id) const;
   const std::map<std::string, std::shared_ptr<Job>>& all() const { return jobs_; }
-  /// The queued job to run next: one that was running when the master stopped, else the highest
-  /// priority, oldest first among equals.
-  std::shared_ptr<Job> next_queued() const;
+  /// The queued job to run next, leaving out those in `starting` (started, not yet running): one that
+  /// was running when the master stopped, else the highest priority, oldest first among equals.
+  std::shared_ptr<Job> next_queued(const std::vector<std::shared_ptr<Job>>& starting = {}) const;
 
   /// A handle for unwatch(), or 0 if no such job.
   uint64_t watch(const std::string& id, Listener listener);

@@ -25,6 +25,8 @@ void LeaseTable::open_round(uint32_t round, const std::vector<uint32_t>& order) 
   tile_of_.clear();
   slots_.assign(slots_.size(), Slot{});
   pending_.assign(order.begin(), order.end());
+  round_tiles_ = order.size();
+  committed_ = 0;
   for (uint32_t t : order) {
     EPR_CHECK(t < slots_.size());
     slots_[t].state = Slot::State::kPending;
@@ -43,6 +45,7 @@ std::optional<LeaseTable::Grant> LeaseTable::lease(const std::string& worker, ui
   slot.issued.insert(lease);
   slot.holds[lease] = {worker, now, now + policy_.lease_timeout_ms, now};
   tile_of_[lease] = t;
+  last_lease_ = lease;
   ++counters_->tiles_leased;
   if (speculative) {
     slot.speculated = true;
@@ -117,7 +120,14 @@ LeaseTable::CommitOutcome LeaseTable::commit(uint32_t tile, uint64_t lease, std:
   }
   slot.holds.clear();
   slot.state = Slot::State::kCommitted;
+  ++committed_;
   return CommitOutcome::kCommitted;
+}
+
+size_t LeaseTable::holders() const {
+  std::set<std::string> workers;
+  for (const auto& [lease, tile] : tile_of_) workers.insert(slots_[tile].holds.at(lease).worker);
+  return workers.size();
 }
 
 void LeaseTable::drop_hold(uint32_t t, uint64_t lease) {

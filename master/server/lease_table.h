@@ -57,6 +57,15 @@ class LeaseTable {
   uint32_t round() const { return round_; }
   size_t tile_count() const { return slots_.size(); }
   size_t waiting() const { return pending_.size(); }
+  /// Leases out (speculative copies included): the job's share of the workers right now.
+  size_t out() const { return tile_of_.size(); }
+  /// Tiles of the round not yet committed (waiting or out).
+  size_t uncommitted() const { return round_tiles_ - committed_; }
+  /// Distinct workers holding a lease of this job.
+  size_t holders() const;
+  /// The id of the last lease granted (0: none yet); lease ids grow, so the job served least recently
+  /// has the smallest.
+  uint64_t last_lease() const { return last_lease_; }
 
   struct Grant {
     uint32_t tile = 0;
@@ -119,6 +128,8 @@ class LeaseTable {
   uint32_t round_ = 0;
   std::vector<Slot> slots_;
   std::deque<uint32_t> pending_;
+  size_t round_tiles_ = 0, committed_ = 0;  // tiles tracing this round, and committed of them
+  uint64_t last_lease_ = 0;
   std::unordered_map<uint64_t, uint32_t> tile_of_;  // leases out -> tile
   // Lease-to-commit times (ms) of round tile_ms_round_: drive the speculative threshold.
   uint32_t tile_ms_round_ = 0;

@@ -220,6 +220,7 @@ void MonitoringServer::Impl::routes() {
     in.workers = jobs.workers();
     in.histograms = jobs.histograms();
     in.gl_ready = jobs.gl_ready();
+    in.tiles_waiting = jobs.tiles_waiting();
     in.totals = totals.update(in.jobs);
     res.set_header("Cache-Control", "no-store");
     res.set_content(prometheus_text(in), "text/plain; version=0.0.4; charset=utf-8");

@@ -266,6 +266,10 @@ void write_farm(Exposition& e, const MetricsInput& in) {
     const auto n = std::count_if(in.jobs.begin(), in.jobs.end(), [&](const JobSnapshot& s) { return s.state == st; });
     e.sample("epr_jobs", {{"state", to_string(st)}}, uint64_t(n));
   }
+  e.single("epr_tiles_waiting", "gauge",
+           "Tiles not yet committed in the current round of the running jobs, plus the first round's tiles of the "
+           "queued jobs (the work waiting for workers).",
+           in.tiles_waiting);
   e.single("epr_jobs_submitted_total", "counter", "Jobs accepted since the master started.", t.jobs);
   e.single("epr_rounds_total", "counter", "Rounds finished, over all jobs.", t.rounds);
   e.single("epr_eye_paths_traced_total", "counter", "Eye paths traced by workers (sum of M).", t.paths_traced);

@@ -55,6 +55,7 @@ struct MetricsInput {
   DurationHistograms histograms;
   FarmTotals totals;
   bool gl_ready = false;
+  uint64_t tiles_waiting = 0;  // JobManager::tiles_waiting()
 };
 
 inline constexpr size_t kRecentFinishedJobs = 10;

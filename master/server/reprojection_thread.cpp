@@ -1,10 +1,13 @@
-// JobManager's reprojection thread (job_manager.h): it starts the queued job (scene; a fresh job's
-// round 0 opens, then its deep framebuffer is built; a resumed job's frame is restored first),
-// applies committed tiles in commit order through the job's RoundDriver, closes rounds and opens the
-// next, writes the finished job's results, and takes round checkpoints.
+// JobManager's reprojection thread (job_manager.h), for every running job: it starts queued jobs
+// as the memory budget admits them (scene; a fresh job's round 0 opens, then its deep framebuffer is
+// built; a resumed job's frame is restored first), applies committed tiles per (job, round) in commit
+// order through the job's RoundDriver, closes rounds and opens the next, writes finished jobs'
+// results, drops cancelled and failed ones, and takes round checkpoints. Each step serves one job;
+// the commit queue interleaves jobs, and a batch never spans two (job, round) pairs.
 // It alone touches a job's driver, scene and camera; every other Job field under the manager's mutex.
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 
@@ -52,14 +55,27 @@ void JobManager::reprojection_loop() {
     std::shared_ptr<Job> to_start, to_drop;
     {
       MutexLock lock(mu_);
+      auto ended = [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
+        for (const auto& job : running_)
+          if (job->state == JobState::kCancelled || job->state == JobState::kFailed) return job;
+        return std::shared_ptr<Job>();
+      };
+      auto startable = [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
+        // drain_and_checkpoint(): nothing new starts.
+        if (draining_) return std::shared_ptr<Job>();
+        auto next = jobs_.next_queued(running_);
+        return next && admits(*next) ? next : nullptr;
+      };
       work_cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
-        if (stopping_ || !tasks_.empty()) return true;
-        if (active_ && is_terminal(active_->state)) return true;
-        return !active_ && !draining_ && jobs_.next_queued() != nullptr;  // draining: nothing new starts
+        return stopping_ || !tasks_.empty() || ended() || startable();
       });
       if (stopping_) break;
-      if (active_ && (active_->state == JobState::kCancelled || active_->state == JobState::kFailed)) {
-        to_drop = std::exchange(active_, nullptr);
+      if ((to_drop = ended())) {
+        running_.erase(std::find(running_.begin(), running_.end(), to_drop));
+      } else if ((to_start = startable())) {
+        // Before the queued commits: a fresh job's round 0 opens at once, so that workers have its
+        // tiles while its frame is built.
+        running_.push_back(to_start);
       } else if (!tasks_.empty()) {
         // The queued commits of the front one's job and round, in commit order, up to
         // reproject_batch_records records: one reprojector call for all of them (parallel where
@@ -76,9 +92,6 @@ void JobManager::reprojection_loop() {
           batch.push_back(std::move(tasks_.front()));
           tasks_.pop_front();
         }
-      } else if (!active_) {
-        active_ = jobs_.next_queued();
-        to_start = active_;
       }
     }
     if (to_drop) {
@@ -90,10 +103,7 @@ void JobManager::reprojection_loop() {
         // A fresh job's round 0 may be open by now: ending the job closes it (its leases are no
         // longer wanted, its queued commits are dropped unapplied).
         log->error("job {} failed to start: {}", to_start->id, e.what());
-        {
-          MutexLock lock(mu_);
-          active_.reset();
-        }
+        stop_running(to_start);
         end_job(to_start, JobState::kFailed, e.what());
         to_start->driver.reset();
         to_start->scene.reset();
@@ -287,7 +297,9 @@ void JobManager::apply_commits(const std::vector<std::unique_ptr<Task>>& batch) 
     job.remaining -= uint32_t(batch.size());
     round_done = job.remaining == 0;
   }
-  if (round_done) close_round(batch.front()->job);
+  if (!round_done) return;
+  if (options_.before_round_close) options_.before_round_close(job.id, batch.front()->round);
+  close_round(batch.front()->job);
 }
 
 void JobManager::close_round(const std::shared_ptr<Job>& job) {
@@ -430,7 +442,7 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
   {
     MutexLock lock(mu_);
     job->end(JobState::kDone, "", finished_ms ? finished_ms : clock_());
-    active_.reset();
+    running_.erase(std::remove(running_.begin(), running_.end(), job), running_.end());
   }
   const double results_s = seconds_since(start);
   logger("master")->info(

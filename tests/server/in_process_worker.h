@@ -1,0 +1,79 @@
+// A worker inside the test process that talks to a JobManager directly: it leases, traces (the same
+// TileRenderer, chunking and assembly as over gRPC) and commits tiles of whichever jobs the manager
+// hands out, keeping one tracer per job. For tests of the manager's scheduling without gRPC.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <variant>
+
+#include "common/scene_loader.h"
+#include "master/server/job_manager.h"
+#include "wire/scene_bundle.h"
+#include "wire/tile_result_stream.h"
+#include "worker/embree_scene.h"
+#include "worker/path_tracer.h"
+#include "worker/tile_renderer.h"
+
+namespace epr::test {
+
+class JobsWorker {
+ public:
+  explicit JobsWorker(JobManager& jobs, const std::string& name = "test")
+      : jobs_(jobs), id_(jobs.register_worker(name, 1)) {}
+  const std::string& id() const { return id_; }
+
+  std::optional<TileLeaseInfo> lease() {
+    auto d = jobs_.lease_tile(id_);
+    if (auto* l = std::get_if<TileLeaseInfo>(&d)) return *l;
+    return std::nullopt;
+  }
+
+  /// Traces the tile and commits it; the master's answer (nullopt: refused as stale).
+  std::optional<CommitOutcome> submit(const TileLeaseInfo& l) {
+    Tracer& t = tracer(l);
+    VertexFilter f;
+    f.mode = l.options.mode == RenderMode::kPathTrace ? VertexFilter::Mode::kNone : VertexFilter::Mode::kCull;
+    f.subpixels = l.options.subpixels;
+    const TileResult r = TileRenderer(*t.tracer, f).render({l.rect, l.skip, l.first_sample, int(l.paths_per_pixel)});
+    const auto chunks = split_tile_result(r, {l.lease_id, l.job_id, l.round, l.tile_index, id_}, l.codec_bounds, {});
+    bool stale = false;
+    auto e = jobs_.expect(chunks.at(0).header(), &stale);
+    if (auto* s = std::get_if<std::string>(&e)) {
+      EXPECT_TRUE(stale) << *s;
+      return std::nullopt;
+    }
+    TileResultAssembler a(std::get<TileExpectation>(std::move(e)));
+    for (const auto& c : chunks) EXPECT_FALSE(a.add(c));
+    EXPECT_TRUE(a.complete());
+    return jobs_.commit(l.job_id, l.round, l.tile_index, a.take());
+  }
+
+ private:
+  struct Tracer {
+    std::unique_ptr<Scene> scene;
+    std::unique_ptr<EmbreeScene> embree;
+    std::unique_ptr<Camera> camera;
+    std::unique_ptr<PathTracer> tracer;
+  };
+  Tracer& tracer(const TileLeaseInfo& l) {
+    Tracer& t = tracers_[l.job_id];
+    if (!t.tracer) {
+      t.scene = std::make_unique<Scene>(load_bundle(bundle_scene(l.scene_builtin), default_cache_root()));
+      t.embree = std::make_unique<EmbreeScene>(*t.scene);
+      t.camera = std::make_unique<Camera>(l.camera, l.options.width, l.options.height);
+      t.tracer = std::make_unique<PathTracer>(*t.embree, *t.camera, l.seed, l.options.rr);
+    }
+    return t;
+  }
+
+  JobManager& jobs_;
+  std::string id_;
+  std::map<std::string, Tracer> tracers_;
+};
+
+}  // namespace epr::test
