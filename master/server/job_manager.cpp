@@ -10,6 +10,7 @@
 #include <limits>
 #include <set>
 
+#include "common/camera_animation.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "common/thread_name.h"
@@ -217,7 +218,8 @@ std::string JobManager::add_scene(SceneBundleData bundle) {
   return hash;
 }
 
-std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera) const {
+std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera,
+                                                   CameraAnimation* animation) const {
   const std::string cache = cache_dir();
   const std::string hash = content_hash(bundle);
   {
@@ -229,6 +231,10 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
     const Scene s = load_bundle(bundle, cache);
     if (s.triangle_count() == 0) error = "the scene has no triangles";
     if (scene_camera) *scene_camera = s.camera;
+    if (animation && bundle.builtin.empty()) {
+      *animation = load_camera_animation((fs::path(cache) / "scenes" / hash / bundle.entry_path).string());
+      animation->file = bundle.entry_path;
+    }
   } catch (const std::exception& e) {
     // Name files as the client knows them, not by their place in the master's cache.
     std::string msg = e.what();

@@ -64,6 +64,8 @@
 
 namespace epr {
 
+struct CameraAnimation;
+
 class GlContext;
 class CheckpointStore;
 class Checkpointer;
@@ -171,9 +173,9 @@ class JobManager {
   /// Stores an uploaded scene under its content hash.
   std::string add_scene(SceneBundleData bundle) EPR_EXCLUDES(mu_);
   /// Loads the scene to check it; the reason (naming file and line inside the bundle) if it is bad.
-  /// `scene_camera`, if given, receives the scene's own camera.
-  std::optional<std::string> check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera = nullptr) const
-      EPR_EXCLUDES(mu_);
+  /// `scene_camera`, if given, receives the scene's own camera, `animation` its camera keyframes.
+  std::optional<std::string> check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera = nullptr,
+                                         CameraAnimation* animation = nullptr) const EPR_EXCLUDES(mu_);
   /// Removes what check_scene() left in the scene cache (scenes/HASH) for a submission that was
   /// refused, unless a job or another check still uses it. Built-in scenes are never cached.
   void discard_checked_scene(const std::string& content_hash) EPR_EXCLUDES(mu_);

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <optional>
 
+#include "common/camera_animation.h"
 #include "common/check.h"
 #include "common/log.h"
 #include "master/memory_estimate.h"
@@ -286,12 +287,19 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
   if (auto err = memory_budget_error(jr.options, mo.checkpoints && !mo.state_dir.empty(), mo.memory_budget_bytes))
     return finish(ctx, invalid(*err));
   CameraSpec scene_camera;
+  CameraAnimation animation;  // a frame without a camera: the scene's camera at that frame
+  const bool frame_camera = !req->has_camera() && req->has_frame();
   // From here on the scene is in the master's cache: a refusal removes it again.
   auto refuse = [&](const std::string& why, const std::string& hash) {
     jobs_.discard_checked_scene(hash);
     return finish(ctx, invalid(why));
   };
-  if (auto err = jobs_.check_scene(jr.bundle, &scene_camera)) return refuse(*err, content_hash(jr.bundle));
+  if (auto err = jobs_.check_scene(jr.bundle, &scene_camera, frame_camera ? &animation : nullptr))
+    return refuse(*err, content_hash(jr.bundle));
+  if (frame_camera) {
+    if (auto err = animation.frame_problem(req->frame(), scene_camera)) return refuse(*err, content_hash(jr.bundle));
+    scene_camera = animation.at(req->frame(), scene_camera);
+  }
   if (!req->has_camera()) {
     if (auto err = scene_camera.validate()) return refuse("the scene's own camera: " + *err, content_hash(jr.bundle));
     jr.camera = scene_camera;
