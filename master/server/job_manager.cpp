@@ -517,7 +517,6 @@ void JobManager::load_state() {
     job->scene_hash = spec.scene_hash;
     job->request = {spec.options,    spec.camera, {}, spec.name, spec.priority, spec.time_budget_seconds,
                     spec.request_id, spec.batch};
-    job->request.batch = spec.batch;
     job->tiles = make_tiles(spec.options);
     auto& cached = scenes_[spec.scene_hash];
     if (!cached) {
