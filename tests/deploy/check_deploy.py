@@ -520,6 +520,11 @@ class Kubernetes(unittest.TestCase):
             self.assertIn((k, v), {(re.sub(r"[^a-zA-Z0-9_]", "_", a), b) for a, b in master_labels.items()})
         self.assertGreaterEqual(hpa["behavior"]["scaleDown"]["stabilizationWindowSeconds"], 60)
 
+    def test_masters_export_the_metric(self):
+        sources = "".join(read(os.path.join(SRC, "master", "server", f)) for f in os.listdir(
+            os.path.join(SRC, "master", "server")) if f.endswith(".cpp"))
+        self.assertIn('"epr_tiles_waiting"', sources, "the masters export no epr_tiles_waiting gauge")
+
     def test_prometheus_adapter_and_scrape_configs(self):
         auto = os.path.join(K8S, "autoscaling")
         values = yaml.safe_load(read(os.path.join(auto, "prometheus-adapter-values.yaml")))
