@@ -12,6 +12,7 @@
 #include <signal.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <memory>
@@ -333,6 +334,51 @@ TEST_F(DrainTest, MasterSigtermWithNoWorkerLeftStopsAtOnceAndResumesFromItsLastC
   start_worker("w2");
   const RunResult watched = epr({"watch", id}, 120s);
   EXPECT_EQ(watched.code, 0) << watched.err;
+}
+
+TEST_F(DrainTest, MasterSigtermCheckpointsEveryRunningJob) {
+  // Two jobs run at once (the master's memory budget admits both): the drain finishes and
+  // checkpoints the open round of each, and a restarted master resumes both from there.
+  const Args master_flags{"--state-dir",     path("state"), "--checkpoint-interval", "3600",
+                          "--drain-timeout", "60",          "--lease-timeout-ms",    "1500"};
+  ASSERT_NO_FATAL_FAILURE(start_master(0, master_flags));
+  start_worker("w1");
+  start_worker("w2");
+  ASSERT_TRUE(wait_until([&] { return registered() >= 2; }, 30s));
+  Args second = restart_job();
+  *(std::find(second.begin(), second.end(), "--seed") + 1) = "12";  // another image
+  const std::string a = submit(restart_job()), b = submit(second);
+  ASSERT_FALSE(a.empty());
+  ASSERT_FALSE(b.empty());
+  ASSERT_TRUE(wait_until(
+      [&] {
+        const std::string log = master_->err();
+        return log.find("job " + a + " running") != std::string::npos &&
+               log.find("job " + b + " running") != std::string::npos;
+      },
+      60s))
+      << "the two jobs did not run at once";
+  ASSERT_TRUE(wait_until([&] { return highest_round_leased() >= 3; }, 90s));
+  const std::string before = master_->err();
+  ASSERT_EQ(before.find(" done:"), std::string::npos) << "a job ended: nothing to drain";
+  master_->signal(SIGTERM);
+  const std::optional<int> code = master_->wait_for(60s);
+  ASSERT_TRUE(code.has_value()) << "the master did not exit within 60 s of SIGTERM";
+  EXPECT_EQ(*code, 0);
+  const std::string old_log = master_->err();
+  old_master_logs_.push_back(old_log);
+  for (const std::string& id : {a, b})
+    EXPECT_NE(old_log.find("job " + id + ": draining: round "), std::string::npos) << id << " was not checkpointed";
+  EXPECT_NE(old_log.find("drained in"), std::string::npos);
+
+  const int port = port_;
+  ASSERT_NO_FATAL_FAILURE(start_master(port, master_flags));
+  EXPECT_NE(master_->err().find("2 jobs loaded, 2 resume from their checkpoint, 0 start from round 0"),
+            std::string::npos);
+  for (const std::string& id : {a, b}) {
+    const RunResult watched = epr({"watch", id}, 120s);
+    EXPECT_EQ(watched.code, 0) << id << ": " << watched.err;
+  }
 }
 
 }  // namespace
