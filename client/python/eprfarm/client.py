@@ -17,7 +17,6 @@ result files.
 from __future__ import annotations
 
 import hashlib
-import re
 import logging
 import os
 import secrets
@@ -27,6 +26,7 @@ from typing import TYPE_CHECKING, Callable, Dict, Iterable, Iterator, List, Opti
 
 import grpc
 
+from . import frames as _frames
 from . import scene as _scene
 from .endpoint import Endpoint
 from .errors import TRANSIENT_CODES, JobError, RpcError
@@ -68,39 +68,6 @@ _ROULETTE = {
     "albedo": (rs_pb.RUSSIAN_ROULETTE_MODE_ALBEDO, 3, 0.0, 1024),
     "off": (rs_pb.RUSSIAN_ROULETTE_MODE_OFF, 0, 0.0, 8),
 }
-
-
-MAX_FRAME = 9_999_999  # common/camera_animation.h kMaxFrame
-MAX_BATCH_FRAMES = 100_000  # client/batch.h kMaxBatchFrames
-
-
-def parse_frames(frames: Union[str, Iterable[int]]) -> List[int]:
-    """Frames as `epr submit --frames` takes them: "1-240", "1-240x2" (every second frame), "1,5,9" or a
-    comma-separated mix; or an iterable of frame numbers. Sorted and unique, from 0 to MAX_FRAME."""
-    if not isinstance(frames, str):
-        out = sorted(set(int(f) for f in frames))
-    else:
-        out_set = set()
-        for part in frames.split(","):
-            m = re.fullmatch(r"([0-9]{1,8})(?:-([0-9]{1,8})(?:x([0-9]{1,8}))?)?", part)
-            if not m:
-                raise ValueError(f"frames: '{part}' is not a frame, a range A-B or A-BxSTEP")
-            a = int(m.group(1))
-            b = int(m.group(2)) if m.group(2) else a
-            step = int(m.group(3)) if m.group(3) else 1
-            if b < a or step == 0:
-                raise ValueError(f"frames: range '{part}' is empty")
-            if (b - a) // step + 1 + len(out_set) > MAX_BATCH_FRAMES:
-                raise ValueError(f"frames: more than {MAX_BATCH_FRAMES} frames")
-            out_set.update(range(a, b + 1, step))
-        out = sorted(out_set)
-    if not out:
-        raise ValueError("frames: a batch needs at least one frame")
-    if out[0] < 0 or out[-1] > MAX_FRAME:
-        raise ValueError(f"frames must lie in 0..{MAX_FRAME}")
-    if len(out) > MAX_BATCH_FRAMES:
-        raise ValueError(f"frames: more than {MAX_BATCH_FRAMES} frames")
-    return out
 
 
 def _default_job_name(scene: str) -> str:
@@ -376,40 +343,23 @@ class Client:
     def submit_frames(
         self, scene: str, frames: Union[str, Iterable[int]], batch_id: Optional[str] = None, **options
     ) -> Tuple[str, List[str]]:
-        """Queues a batch of frames of the scene's camera animation (scenes/README.md, "Camera
-        animation"), as `epr submit --frames` does: one job per frame, carrying the batch id, the
-        batch's name and its frame number; the master evaluates each frame's camera from the scene's
-        keyframes. The scene is uploaded once for the whole batch. `frames` as parse_frames takes them;
-        `batch_id` (default: "b-" and 12 random hex digits) and `name` (default: the scene's name) name
-        the batch; the other options as submit's, without a camera. Returns the batch id and the job ids
-        in frame order (list(batch=...) finds the jobs again; `epr get BATCH` fetches them)."""
+        """Queues a batch of frames of the scene's camera animation as `epr submit --frames` does: one
+        job per frame (without a camera: the master takes the scene's camera at the frame), the scene
+        uploaded once. `frames` as frames.parse_frames takes them; `name` (default: the scene's) names
+        the batch; the other options as submit's, without a camera. The batch id and the job ids."""
         if any(options.get(k) is not None for k in ("eye", "look", "up", "fov")):
             raise ValueError("the frames' cameras come from the scene's animation: give no eye, look, up or fov")
-        frame_list = parse_frames(frames)
-        batch_id = batch_id or "b-" + secrets.token_hex(6)
-        if not re.fullmatch(r"[A-Za-z0-9_-]{1,64}", batch_id):
-            raise ValueError(f"batch id '{batch_id}' is not 1 to 64 of [A-Za-z0-9_-]")
+        frame_list = _frames.parse_frames(frames)
+        batch_id = _frames.checked_batch_id(batch_id)
         name = options.pop("name", None) or os.path.splitext(_default_job_name(scene))[0]
-        if len(name.encode()) + 9 > MAX_NAME_BYTES:
-            raise ValueError(f"batch name is {len(name.encode())} bytes long, at most {MAX_NAME_BYTES - 9}")
         options.pop("request_id", None)
         spec = self.job_spec(scene, name=name, **options)
         if spec.scene.WhichOneof("source") == "files":  # one upload for every frame
             content_hash = self.upload_scene(_scene.bundle_scene(scene))
             spec.scene.Clear()
             spec.scene.uploaded_hash = content_hash
-        ids = []
-        for frame in frame_list:
-            one = pb.JobSpec()
-            one.CopyFrom(spec)
-            one.name = f"{name}.{frame:04d}"
-            one.request_id = f"{batch_id}-{frame}"
-            one.batch_id = batch_id
-            one.batch_name = name
-            one.frame = frame
-            one.batch_frames = len(frame_list)
-            ids.append(self.submit_spec(one))
-        return batch_id, ids
+        specs = _frames.frame_specs(spec, batch_id, name, frame_list)
+        return batch_id, [self.submit_spec(one) for one in specs]
 
     def submit_spec(self, spec: pb.JobSpec) -> str:
         """Queues a ready JobSpec (retrying once after a deadline when it has a request_id)."""
