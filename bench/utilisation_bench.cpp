@@ -1,0 +1,269 @@
+// Worker utilisation with one job against several jobs queued at once (the master runs as many as
+// its memory budget admits and leases across them, job_manager.h).
+//
+// Utilisation = the workers' tracing seconds of the committed tiles (JobStatus.seconds_tracing summed
+// over the jobs) / (tracing threads x the window), the window running from the first SubmitJob to the
+// last job done, so every round barrier, frame build and result write of the jobs counts against it.
+// Two set-ups:
+//   embedded: a MasterServer and one WorkerNode in this process over loopback gRPC, as `epr render`
+//             runs them (the node also reports its own split: tracing over its threads' wall time);
+//   cluster:  real epr-master and epr-worker processes on loopback.
+// Each (set-up, jobs) pair runs --reps times; the medians are printed side by side with the ratio of
+// the several-jobs figure to the one-job figure. Wall figures are distorted when other processes
+// share the machine; the load average is printed with each run.
+//
+//   utilisation_bench [--setups embedded,cluster] [--jobs 1,3] [--reps 3] [--size 192] [--spp 64]
+//                     [--ppr 1] [--mode skip] [--reproject cpu] [--threads 0]
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "client/job_client.h"
+#include "common/log.h"
+#include "epr/v1/job_service.grpc.pb.h"
+#include "master/memory_estimate.h"
+#include "master/server/master_server.h"
+#include "tests/integration/cluster/process.h"
+#include "tests/wait_until.h"
+#include "wire/convert.h"
+#include "wire/scene_bundle.h"
+#include "worker/worker_node.h"
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+namespace {
+
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream in(s);
+  for (std::string item; std::getline(in, item, ',');)
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+double load_average() {
+  double l = -1;
+  if (FILE* f = std::fopen("/proc/loadavg", "r")) {
+    if (std::fscanf(f, "%lf", &l) != 1) l = -1;
+    std::fclose(f);
+  }
+  return l;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return -1;
+  std::sort(v.begin(), v.end());
+  return v.size() % 2 ? v[v.size() / 2] : (v[v.size() / 2 - 1] + v[v.size() / 2]) / 2;
+}
+
+struct Settings {
+  int size = 192, spp = 64, ppr = 1, threads = 0;
+  std::string mode = "skip", reproject = "cpu";
+};
+
+epr::RenderOptions job_options(const Settings& s, int j) {
+  epr::RenderOptions o;
+  o.width = o.height = s.size;
+  o.spp = s.spp;
+  o.paths_per_round = s.ppr;
+  o.mode = s.mode == "pt"   ? epr::RenderMode::kPathTrace
+           : s.mode == "rp" ? epr::RenderMode::kReproject
+                            : epr::RenderMode::kSkip;
+  o.reproject = s.reproject == "gl" ? epr::ReprojectMethod::kGl : epr::ReprojectMethod::kCpu;
+  o.seed = uint64_t(j + 1);
+  return o;
+}
+
+struct Run {
+  double utilisation = -1;       // master's view: tracing seconds / (threads x window)
+  double node_utilisation = -1;  // the WorkerNode's own split (embedded only)
+  double seconds = 0;
+};
+
+/// Submits `n` jobs to `target`, waits for all; the window and the jobs' tracing seconds.
+bool submit_and_wait(const std::string& target, const Settings& s, int n, double* window, double* tracing) {
+  auto stub = epr::v1::JobService::NewStub(grpc::CreateChannel(target, grpc::InsecureChannelCredentials()));
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<std::string> ids;
+  for (int j = 0; j < n; ++j) {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + 60s);
+    epr::v1::JobId id;
+    const grpc::Status st = stub->SubmitJob(
+        &ctx, epr::to_job_spec(job_options(s, j), epr::bundle_scene("builtin:cornell"), epr::CameraSpec{}), &id);
+    if (!st.ok()) {
+      std::fprintf(stderr, "SubmitJob: %s\n", st.error_message().c_str());
+      return false;
+    }
+    ids.push_back(id.id());
+  }
+  *tracing = 0;
+  for (const std::string& id : ids) {
+    for (;;) {
+      grpc::ClientContext ctx;
+      ctx.set_deadline(std::chrono::system_clock::now() + 30s);
+      epr::v1::JobId req;
+      req.set_id(id);
+      epr::v1::JobStatus st;
+      if (const grpc::Status g = stub->GetJob(&ctx, req, &st); !g.ok()) {
+        std::fprintf(stderr, "GetJob %s: %s\n", id.c_str(), g.error_message().c_str());
+        return false;
+      }
+      if (st.state() == epr::v1::JOB_STATE_DONE) {
+        *tracing += st.seconds_tracing();
+        break;
+      }
+      if (st.state() == epr::v1::JOB_STATE_FAILED || st.state() == epr::v1::JOB_STATE_CANCELLED) {
+        std::fprintf(stderr, "job %s ended: %s\n", id.c_str(), st.error_message().c_str());
+        return false;
+      }
+      std::this_thread::sleep_for(5ms);
+    }
+  }
+  *window = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return true;
+}
+
+int threads_of(const Settings& s) {
+  return s.threads > 0 ? s.threads : int(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
+  epr::MasterServerOptions mo;
+  mo.listen = "127.0.0.1:0";
+  mo.jobs.state_dir = (dir / "state").string();
+  mo.jobs.checkpoints = false;
+  mo.jobs.memory_budget_bytes = epr::default_memory_budget();
+  if (s.reproject == "cpu") mo.jobs.reproject_backend_override = "cpu";
+  epr::MasterServer server(mo);
+  epr::WorkerNodeOptions wo;
+  wo.master = server.local_target();
+  wo.threads = threads_of(s);
+  wo.name = "bench";
+  wo.cache_dir = (dir / "cache").string();
+  epr::WorkerNode node(wo);
+  std::thread node_thread([&] { node.run(); });
+  epr::test::wait_until([&] { return !server.jobs().workers().empty(); }, 30s, 5ms);
+  const epr::WorkerNodeStats before = node.stats();
+  double window = 0, tracing = 0;
+  const bool ok = submit_and_wait(server.local_target(), s, n, &window, &tracing);
+  const epr::WorkerNodeStats after = node.stats();
+  node.stop();
+  node_thread.join();
+  server.shutdown();
+  if (!ok) return false;
+  out->seconds = window;
+  out->utilisation = tracing / (double(wo.threads) * window);
+  epr::WorkerTimeSplit others = after.time_others_tracing, none = after.time_none_tracing;
+  others -= before.time_others_tracing;
+  none -= before.time_none_tracing;
+  const double total = others.total() + none.total();
+  out->node_utilisation = total > 0 ? (others.tracing + none.tracing) / total : -1;
+  return true;
+}
+
+bool run_cluster(const Settings& s, int n, const fs::path& dir, Run* out) {
+  std::vector<std::string> args = {EPR_MASTER_BIN,           "--listen",    "127.0.0.1:0", "--http", "", "--state-dir",
+                                   (dir / "state").string(), "--log-level", "info"};
+  if (s.reproject == "cpu") args.insert(args.end(), {"--reproject", "cpu"});
+  epr::testing::Process master(args, dir / "master");
+  const std::regex listening("epr-master listening on port ([0-9]+)");
+  std::smatch m;
+  std::string err;
+  if (!epr::test::wait_until([&] { return std::regex_search(err = master.err(), m, listening) || !master.running(); },
+                             120s) ||
+      !master.running()) {
+    std::fprintf(stderr, "epr-master did not start:\n%s\n", err.c_str());
+    return false;
+  }
+  const std::string target = "127.0.0.1:" + m[1].str();
+  const int threads = threads_of(s);
+  epr::testing::Process worker({EPR_WORKER_BIN, "--master", target, "--threads", std::to_string(threads), "--cache-dir",
+                                (dir / "cache").string(), "--name", "bench"},
+                               dir / "worker");
+  // Registered: the master logs it.
+  if (!epr::test::wait_until([&] { return master.err().find("registered") != std::string::npos; }, 60s, 5ms))
+    std::fprintf(stderr, "(the worker's registration was not seen in the master's log; going on)\n");
+  double window = 0, tracing = 0;
+  const bool ok = submit_and_wait(target, s, n, &window, &tracing);
+  worker.stop();
+  master.stop();
+  if (!ok) return false;
+  out->seconds = window;
+  out->utilisation = tracing / (double(threads) * window);
+  return true;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Worker utilisation: one job against several queued (embedded and loopback cluster)"};
+  Settings s;
+  std::string setups = "embedded,cluster", jobs = "1,3";
+  int reps = 3;
+  app.add_option("--setups", setups, "embedded, cluster (comma-separated)")->capture_default_str();
+  app.add_option("--jobs", jobs, "jobs submitted at once, per series (the first is the baseline)")
+      ->capture_default_str();
+  app.add_option("--reps", reps, "runs per series (medians printed)")->capture_default_str();
+  app.add_option("--size", s.size, "image side, pixels")->capture_default_str();
+  app.add_option("--spp", s.spp, "samples per pixel")->capture_default_str();
+  app.add_option("--ppr", s.ppr, "paths per pixel per round")->capture_default_str();
+  app.add_option("--mode", s.mode, "pt, rp or skip")->capture_default_str();
+  app.add_option("--reproject", s.reproject, "cpu or gl")->capture_default_str();
+  app.add_option("--threads", s.threads, "tracing threads of the worker (0: all cores)")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+  epr::set_log_level("warn");
+  const std::vector<std::string> series = split(jobs);
+  std::printf("# utilisation = workers' tracing s / (threads x window), window = first submit .. last job done\n");
+  std::printf("# %dx%d, spp %d, k %d, %s, %s reprojector, %d tracing threads, %d reps\n", s.size, s.size, s.spp, s.ppr,
+              s.mode.c_str(), s.reproject.c_str(), threads_of(s), reps);
+  std::printf("%-9s %5s %4s %9s %10s %11s %6s\n", "setup", "jobs", "rep", "seconds", "util", "node util", "load");
+  std::map<std::string, std::map<std::string, std::vector<double>>> util, node_util;
+  const fs::path dir = fs::temp_directory_path() / ("epr-utilisation-bench-" + std::to_string(::getpid()));
+  for (const std::string& setup : split(setups)) {
+    for (int rep = 0; rep < reps; ++rep) {
+      for (const std::string& n : series) {  // alternated, so that drifting load hits every series alike
+        fs::remove_all(dir);
+        fs::create_directories(dir);
+        Run r;
+        const bool ok =
+            setup == "cluster" ? run_cluster(s, std::stoi(n), dir, &r) : run_embedded(s, std::stoi(n), dir, &r);
+        if (!ok) {
+          fs::remove_all(dir);
+          return 1;
+        }
+        util[setup][n].push_back(r.utilisation);
+        if (r.node_utilisation >= 0) node_util[setup][n].push_back(r.node_utilisation);
+        std::printf("%-9s %5s %4d %9.2f %9.1f%% %10.1f%% %6.2f\n", setup.c_str(), n.c_str(), rep, r.seconds,
+                    100 * r.utilisation, r.node_utilisation >= 0 ? 100 * r.node_utilisation : -1.0, load_average());
+        std::fflush(stdout);
+      }
+    }
+  }
+  fs::remove_all(dir);
+  std::printf("\n# medians\n%-9s", "setup");
+  for (const auto& n : series) std::printf(" %9s", (n + " job" + (n == "1" ? "" : "s")).c_str());
+  for (size_t i = 1; i < series.size(); ++i) std::printf(" %9s", (series[i] + "/" + series[0]).c_str());
+  std::printf("   (node's own split)\n");
+  for (const auto& [setup, by_n] : util) {
+    std::printf("%-9s", setup.c_str());
+    for (const auto& n : series) std::printf(" %8.1f%%", 100 * median(by_n.at(n)));
+    for (size_t i = 1; i < series.size(); ++i)
+      std::printf(" %9.3f", median(by_n.at(series[i])) / median(by_n.at(series[0])));
+    if (node_util.count(setup)) {
+      std::printf("  ");
+      for (const auto& n : series) std::printf(" %5.1f%%", 100 * median(node_util[setup][n]));
+    }
+    std::printf("\n");
+  }
+  return 0;
+}
