@@ -35,6 +35,8 @@ void Farm::for_each(const std::function<void(FarmMaster&)>& fn) {
       fn(m);
     } catch (const RpcError& e) {
       m.error = e;
+    } catch (const std::exception& e) {  // nothing may leave a thread
+      m.error = RpcError(grpc::Status(grpc::StatusCode::UNKNOWN, e.what()), e.what());
     }
   };
   if (masters_.size() == 1) return run(masters_[0]);

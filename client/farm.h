@@ -49,8 +49,8 @@ class Farm {
   std::vector<FarmMaster>& masters() { return masters_; }
   const std::vector<FarmMaster>& masters() const { return masters_; }
 
-  /// Runs fn for every master at once (a thread each) and waits for them all. An RpcError fn throws
-  /// is kept in the master's `error` (cleared before).
+  /// Runs fn for every master at once (a thread each) and waits for them all. What fn throws is kept
+  /// in the master's `error` (an RpcError; UNKNOWN for other exceptions). Callers clear `error` first.
   void for_each(const std::function<void(FarmMaster&)>& fn);
   /// GetMasterInfo of every master (for_each); `info` is set for those that answered.
   void probe();
