@@ -9,7 +9,8 @@ enum ExitCode : int {
   kExitUsage = 2,        // bad flag values, unreadable scene or token file
   kExitUnreachable = 3,  // the master could not be reached or did not answer in time; list: some master
                          // did not answer (the others' jobs are listed)
-  kExitRefused = 4,      // the master answered with an error (unknown job, invalid spec, no token...)
+  kExitRefused = 4,      // the master answered with an error (unknown job, invalid spec, no token...); list:
+                         // some master refused and every other one answered
 };
 
 }  // namespace epr

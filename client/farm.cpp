@@ -134,8 +134,8 @@ std::vector<FarmJob> Farm::list(const std::vector<v1::JobState>& states, size_t 
 
 void print_failed(const Farm& farm, const std::string& cmd, const std::string& what) {
   for (const FarmMaster* m : farm.failed())
-    std::fprintf(stderr, "epr %s: master %s did not answer (%s); %s\n", cmd.c_str(), m->label().c_str(),
-                 m->error->what(), what.c_str());
+    std::fprintf(stderr, "epr %s: master %s %s (%s); %s\n", cmd.c_str(), m->label().c_str(),
+                 m->error->unreachable() ? "did not answer" : "refused", m->error->what(), what.c_str());
 }
 
 }  // namespace epr

@@ -74,7 +74,7 @@ class Farm {
 };
 
 /// For each master the last call could not use: "epr CMD: master LABEL did not answer (ERROR); WHAT"
-/// on stderr.
+/// on stderr ("refused" instead of "did not answer" when it answered with an error).
 void print_failed(const Farm& farm, const std::string& cmd, const std::string& what);
 
 }  // namespace epr

@@ -423,7 +423,11 @@ int RemoteCommands::State::run_list() {
     for (size_t c = 0; c < r.size(); ++c) line += fmt::format("{:<{}}", r[c], c + 1 < r.size() ? width[c] + 2 : 0);
     std::printf("%s\n", line.c_str());
   }
-  return farm->failed().empty() ? kExitOk : kExitUnreachable;
+  const auto failed = farm->failed();
+  if (failed.empty()) return kExitOk;
+  const bool away =
+      std::any_of(failed.begin(), failed.end(), [](const FarmMaster* m) { return m->error->unreachable(); });
+  return away ? kExitUnreachable : kExitRefused;
 }
 
 int RemoteCommands::State::run_cancel() {
