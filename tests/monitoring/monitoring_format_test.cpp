@@ -86,10 +86,14 @@ TEST(PrometheusText, PerJobSeriesAreBoundedAndLabelsEscaped) {
   w.id = "w1";
   w.name = "host\"x";
   in.workers.push_back(w);
+  in.tiles_waiting = 42;
   FarmTotalsTracker tracker;
   in.totals = tracker.update(in.jobs);
   const json m = parse_prometheus(prometheus_text(in), scratch_dir("format"));
   ASSERT_FALSE(m.empty());
+  // One value per master, no labels (an autoscaler's input).
+  EXPECT_EQ(sample(m, "epr_tiles_waiting"), 42.0);
+  EXPECT_EQ(m["epr_tiles_waiting"]["samples"].size(), 1u);
   std::set<std::string> labelled;
   for (const auto& s : m["epr_job_round"]["samples"]) labelled.insert(s[1]["job"]);
   EXPECT_EQ(labelled.size(), 2 + kRecentFinishedJobs);
