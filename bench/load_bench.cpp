@@ -78,6 +78,8 @@ int main(int argc, char** argv) {
                "run the master with a state directory (checkpoints after rounds), as by default");
   app.add_option("--master-bin", master_bin, "the epr-master to measure (e.g. an older build, side by side)")
       ->capture_default_str();
+  std::vector<std::string> master_args;
+  app.add_option("--master-arg", master_args, "an extra epr-master argument (repeat for several)");
   app.add_option("--jobs", jobs, "numbers of jobs submitted at once")->capture_default_str();
   app.add_option("--spp", spp, "samples per pixel of each job")->capture_default_str();
   app.add_option("--paths-per-round", k, "paths per pixel and round")->capture_default_str();
@@ -107,6 +109,7 @@ int main(int argc, char** argv) {
           "--log-level", "info"};
       if (reproject == "cpu") args.insert(args.end(), {"--reproject", "cpu"});
       if (!checkpoints) args.erase(args.begin() + 5, args.begin() + 7);  // no --state-dir: no checkpoints
+      args.insert(args.end(), master_args.begin(), master_args.end());
       epr::testing::Process master(args, dir / "master");
       const std::regex listening("epr-master listening on port ([0-9]+)");
       std::smatch m;

@@ -372,7 +372,7 @@ MasterRoundCosts master_round_costs(const std::string& spec, int size, RenderMod
     imc.push_back(process_cpu_seconds() - c1);
     c1 = process_cpu_seconds();
     t1 = Clock::now();
-    size_t bytes = encode_png_srgb(img.combined).size() + encode_png_srgb(img.pathtrace).size();
+    size_t bytes = encode_png_srgb(combined_image(img)).size() + encode_png_srgb(pathtrace_image(img)).size();
     if (frame.reprojects()) {
       bytes += encode_png_srgb(img.reprojection).size();
       bytes += encode_png_srgb(heat_map(img.reprojected, 16.f)).size();

@@ -143,11 +143,12 @@ Run run_mode(const RenderOptions& base, const std::string& mode, const Reference
     s.reprojected = fp.mean_reprojected * pixels;
     s.mean_spp = fp.mean_spp;
     s.spp = double(fp.paths_traced + fp.paths_skipped) / pixels;
-    s.raw = errors(img.combined, ref.image);
+    Image combined = combined_image(img);
+    s.raw = errors(combined, ref.image);
     s.err = s.raw - ref.floor;
     run.samples.push_back(s);
     if (keep_snapshot && keep_snapshot(int(std::lround(s.spp)), s.cpu))
-      run.snapshots.push_back({s.cpu, s.round, std::move(img.combined), std::move(img.reprojected)});
+      run.snapshots.push_back({s.cpu, s.round, std::move(combined), std::move(img.reprojected)});
     excluded_wall += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_in).count();
     excluded_cpu += cpu_seconds() - c_in;
   };

@@ -118,8 +118,8 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
 
   const FrameImages images = frame.images();
   RenderOutputs out;
-  out.combined = images.combined;
-  out.pathtrace = images.pathtrace;
+  out.combined = combined_image(images);
+  out.pathtrace = pathtrace_image(images);
   out.path_count = images.path_count;
   out.counts = counts_image(images);
   if (frame.reprojects()) {

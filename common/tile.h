@@ -34,8 +34,9 @@ inline std::vector<TileRect> make_tiles(const RenderOptions& o) {
 /// What a tile asks of the tracer.
 struct TileRequest {
   TileRect rect;
-  std::span<const uint8_t> skip;           // per tile pixel, row-major; non-zero: trace nothing. Empty: none.
-  std::span<const uint32_t> first_sample;  // per tile pixel: sample index of its next path. Empty: all 0.
+  std::span<const uint8_t> skip;  // per tile pixel, row-major; non-zero: trace nothing. Empty: none.
+  // Per tile pixel: the sample index of its next path. One entry: every pixel's. Empty: all 0.
+  std::span<const uint32_t> first_sample;
   int paths_per_pixel = 1;
 };
 

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstring>
 #include <stdexcept>
 
 #include "master/reprojection_image.h"
@@ -182,16 +183,34 @@ void CpuReprojector::add_block_counts(const std::vector<std::array<uint32_t, 6>>
 // for the projection, radiance only for accepted vertices. Decoded records are always finite, so
 // none counts as invalid. The field decoders are VertexCodec's own (inline), so the values -- and
 // therefore decisions and sums -- are those of reproject(codec.decode(...)).
-void CpuReprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
+// The parts are taken as one sequence cut into the same chunks as their concatenation would be (so
+// the result is the same bit for bit); a chunk inside one part is read in place, one that spans
+// parts is copied together first.
+void CpuReprojector::reproject_packed(std::span<const std::string_view> parts, const VertexCodec& codec) {
   constexpr size_t kBytes = VertexCodec::kPackedBytes;
-  const size_t total = packed.size() / kBytes;
-  const auto* base = reinterpret_cast<const unsigned char*>(packed.data());
+  size_t total = 0;
+  for (const std::string_view p : parts) total += p.size() / kBytes;
   const Owners owners = owners_for(total);
   const size_t chunk = chunk_for(owners);
   if (position_.size() < chunk) position_.resize(chunk), normal_.resize(chunk);
+  size_t part = 0, in_part = 0;  // the next record: parts[part], record in_part
   for (size_t off = 0; off < total; off += chunk) {
     const size_t n = std::min(chunk, total - off);
-    const unsigned char* src = base + off * kBytes;
+    while (in_part == parts[part].size() / kBytes) ++part, in_part = 0;
+    const unsigned char* src = reinterpret_cast<const unsigned char*>(parts[part].data()) + in_part * kBytes;
+    if (parts[part].size() / kBytes - in_part >= n) {
+      in_part += n;
+    } else {
+      gathered_.resize(chunk * kBytes);
+      for (size_t have = 0; have < n;) {
+        while (in_part == parts[part].size() / kBytes) ++part, in_part = 0;
+        const size_t m = std::min(n - have, parts[part].size() / kBytes - in_part);
+        std::memcpy(gathered_.data() + have * kBytes, parts[part].data() + in_part * kBytes, m * kBytes);
+        have += m;
+        in_part += m;
+      }
+      src = gathered_.data();
+    }
     auto radiance_of = [src](size_t i) {
       return VertexCodec::decode_radiance(VertexCodec::load(src + i * kBytes).radiance_bits);
     };
@@ -352,11 +371,12 @@ SubpixelAccumulation CpuReprojector::read() {
   return a;
 }
 
-void CpuReprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip, bool counts_only) {
+void CpuReprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip,
+                                            DownsampleParts parts) {
   static_assert(sizeof(Cell) == sizeof(AccumulationCell));
   const std::span<const AccumulationCell> cells(reinterpret_cast<const AccumulationCell*>(cells_.data()),
                                                 cells_.size());
-  downsample_cells(cells, grid_.width, grid_.height, subpixels_, skip, out, counts_only);
+  downsample_cells(cells, grid_.width, grid_.height, subpixels_, skip, out, parts);
 }
 
 void CpuReprojector::reset() {

@@ -39,12 +39,13 @@ class CpuReprojector final : public Reprojector {
   CpuReprojector(const Camera& camera, detail::PlaneGrid grid, const ReprojectorSettings& settings);
 
   void reproject(std::span<const VertexRecord> records) override;
-  void reproject_packed(std::string_view packed, const VertexCodec& codec) override;
+  using Reprojector::reproject_packed;
+  void reproject_packed(std::span<const std::string_view> parts, const VertexCodec& codec) override;
   void add_exact(std::span<const ExactSample> samples) override;
   ReprojectionCounts counts() const override { return counts_; }
   SubpixelAccumulation read() override;
   void downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip = {},
-                              bool counts_only = false) override;
+                              DownsampleParts parts = DownsampleParts::kBoth) override;
   void reset() override;
   void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) override;
   void visit_cells(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) override;
@@ -96,11 +97,12 @@ class CpuReprojector final : public Reprojector {
   std::vector<uint16_t> narrow_plane_;  // per texel: the plane entry in 16 bits (0xffff: uncovered), or empty
   int subpixels_;
   std::vector<Cell> cells_;
-  std::vector<uint32_t> target_;     // per batch point: subpixel index or kNone
-  std::vector<Vec3> position_;       // reproject_packed: per batch point, the decoded position of a candidate
-  std::vector<Vec3> normal_;         // reproject_packed: ... and its decoded normal
-  std::vector<Entry> binned_;        // per chunk record: its block's accepted records, grouped by owner
-  std::vector<uint32_t> bin_start_;  // per block: tasks + 1 offsets of its owners' bins (from the block's start)
+  std::vector<uint32_t> target_;         // per batch point: subpixel index or kNone
+  std::vector<Vec3> position_;           // reproject_packed: per batch point, the decoded position of a candidate
+  std::vector<Vec3> normal_;             // reproject_packed: ... and its decoded normal
+  std::vector<unsigned char> gathered_;  // reproject_packed: a chunk that spans several parts, copied together
+  std::vector<Entry> binned_;            // per chunk record: its block's accepted records, grouped by owner
+  std::vector<uint32_t> bin_start_;      // per block: tasks + 1 offsets of its owners' bins (from the block's start)
   ReprojectionCounts counts_;
 };
 

@@ -38,6 +38,36 @@ double eta_seconds(const FrameProgress& p, int spp, double seconds) {
   return seconds / double(p.paths_traced) * paths_left;
 }
 
+Image pathtrace_image(const FrameImages& images) {
+  if (images.path_sum.data.empty()) return images.pathtrace;
+  const Image& s = images.path_sum;
+  Image out(s.width, s.height, 3);
+  tbb::parallel_for(0, s.height, [&](int y) {
+    for (int x = 0; x < s.width; ++x) {
+      const double m = images.path_count.at(x, y)[0];
+      const float* ps = s.at(x, y);
+      out.set_rgb(x, y, m > 0 ? Vec3(float(ps[0] / m), float(ps[1] / m), float(ps[2] / m)) : Vec3(0.f));
+    }
+  });
+  return out;
+}
+
+Image combined_image(const FrameImages& images) {
+  if (images.path_sum.data.empty()) return images.combined;
+  if (images.reprojection.data.empty()) return pathtrace_image(images);
+  const Image& s = images.path_sum;
+  Image out(s.width, s.height, 3);
+  tbb::parallel_for(0, s.height, [&](int y) {
+    for (int x = 0; x < s.width; ++x) {
+      const float* ps = s.at(x, y);
+      out.set_rgb(x, y,
+                  combine_pixel(Vec3(ps[0], ps[1], ps[2]), uint32_t(images.path_count.at(x, y)[0]),
+                                uint32_t(images.reprojected.at(x, y)[0]), images.reprojection.rgb(x, y)));
+    }
+  });
+  return out;
+}
+
 Image counts_image(const FrameImages& images) {
   Image out(images.path_count.width, images.path_count.height, 2);
   for (int y = 0; y < out.height; ++y)
@@ -104,9 +134,13 @@ void FrameState::reproject(std::span<const VertexRecord> vertices) {
 }
 
 void FrameState::reproject_packed(std::string_view packed) {
-  if (!reprojector_ || packed.empty()) return;
+  reproject_packed(std::span<const std::string_view>(&packed, 1));
+}
+
+void FrameState::reproject_packed(std::span<const std::string_view> parts) {
+  if (!reprojector_ || parts.empty()) return;
   ScopedTimer t(&seconds_reprojecting_);
-  reprojector_->reproject_packed(packed, *codec_);
+  reprojector_->reproject_packed(parts, *codec_);
 }
 
 void FrameState::add_exact(std::span<const ExactSample> samples) {
@@ -121,7 +155,7 @@ void FrameState::refresh_counts(bool active_only) {
   ScopedTimer d(&seconds_downsampling_);
   PixelReprojection pr{Image(), std::move(mprime_)};
   reprojector_->downsample_pixels_into(&pr, active_only ? std::span<const uint8_t>(skip_) : std::span<const uint8_t>(),
-                                       /*counts_only=*/true);
+                                       DownsampleParts::kCounts);
   mprime_ = std::move(pr.count);
   reprojection_partial_ = active_only;
 }
@@ -131,7 +165,7 @@ Image FrameState::reprojected_radiance(bool counts_too) {
   ScopedTimer d(&seconds_downsampling_);
   PixelReprojection pr;
   if (counts_too) pr.count = std::move(mprime_);
-  reprojector_->downsample_pixels_into(&pr);
+  reprojector_->downsample_pixels_into(&pr, {}, counts_too ? DownsampleParts::kBoth : DownsampleParts::kRadiance);
   if (counts_too) {
     mprime_ = std::move(pr.count);
     reprojection_partial_ = false;
@@ -199,6 +233,9 @@ void FrameState::tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t
                              std::vector<uint32_t>* first_sample) const {
   skip->clear();
   first_sample->clear();
+  const size_t n = size_t(x1 - x0) * size_t(y1 - y0);
+  skip->reserve(n);
+  first_sample->reserve(n);
   for (int y = y0; y < y1; ++y)
     for (int x = x0; x < x1; ++x) {
       const size_t p = pixel(x, y);
@@ -364,24 +401,19 @@ FrameImages FrameState::images(bool preview) {
     out.reprojection = reprojected_radiance(!keep_counts);
     if (was_partial && !reprojection_partial_) update_sample_progress();  // M' of the skipped pixels changed
   }
-  out.pathtrace = Image(width_, height_, 3);
+  // The path sums as they are; combined_image() and pathtrace_image() make the rest when asked.
+  out.path_sum.width = width_;
+  out.path_sum.height = height_;
+  out.path_sum.data = path_sum_;
   out.path_count = Image(width_, height_, 1);
   out.reprojected = Image(width_, height_, 1);
-  if (reprojector_) out.combined = Image(width_, height_, 3);
   tbb::parallel_for(0, height_, [&](int y) {
     for (int x = 0; x < width_; ++x) {
       const size_t p = pixel(x, y);
-      const double m = path_count_[p];
-      const float* ps = &path_sum_[3 * p];
-      out.pathtrace.set_rgb(x, y, m > 0 ? Vec3(float(ps[0] / m), float(ps[1] / m), float(ps[2] / m)) : Vec3(0.f));
-      out.path_count.at(x, y)[0] = float(m);
+      out.path_count.at(x, y)[0] = float(path_count_[p]);
       out.reprojected.at(x, y)[0] = float(mprime_[p]);
-      if (reprojector_)
-        out.combined.set_rgb(
-            x, y, combine_pixel(Vec3(ps[0], ps[1], ps[2]), path_count_[p], mprime_[p], out.reprojection.rgb(x, y)));
     }
   });
-  if (!reprojector_) out.combined = out.pathtrace;
   return out;
 }
 

@@ -45,13 +45,24 @@ struct FrameProgress {
   uint64_t paths_skipped = 0;   // paths not traced because the pixel was skipped
 };
 
+/// A frame's images. FrameState::images() stores the path sums and leaves `combined` and `pathtrace`
+/// empty (32 bytes per pixel instead of 44): combined_image() and pathtrace_image() make them, bit for
+/// bit as from the frame's arrays while M' < 2^24 (the count images are floats). A set filled the
+/// other way (combined and pathtrace given, path_sum empty) serves them as they are.
 struct FrameImages {
-  Image combined;      // (path_sum + M' L_rp) / (M + M')
-  Image pathtrace;     // path_sum / M
-  Image reprojection;  // L_rp
+  Image combined;      // (path_sum + M' L_rp) / (M + M'), or empty
+  Image pathtrace;     // path_sum / M, or empty
+  Image path_sum;      // the RGB sum of each pixel's M path samples, or empty
+  Image reprojection;  // L_rp (empty without reprojection)
   Image path_count;    // M, one channel
   Image reprojected;   // M', one channel
 };
+
+/// path_sum / M per pixel (0 where M = 0), or the stored image.
+Image pathtrace_image(const FrameImages& images);
+/// (path_sum + M' L_rp) / (M + M') per pixel (combine_pixel), the path-traced image without
+/// reprojection, or the stored image.
+Image combined_image(const FrameImages& images);
 
 /// Everything a FrameState holds after a finished round, for checkpoints: restoring it into a
 /// FrameState made for the same options, camera and scene continues the render exactly (the deep
@@ -60,7 +71,7 @@ struct FrameSnapshot {
   int width = 0, height = 0;
   std::vector<float> path_sum;       // 3 per pixel (checkpoint files hold them as doubles)
   std::vector<uint32_t> path_count;  // M
-  std::vector<uint64_t> mprime;      // M' as of the last downsample
+  std::vector<uint32_t> mprime;      // M' as of the last downsample (checkpoint files hold 64 bits)
   std::vector<float>
       reprojected;  // empty (L_rp is downsampled when needed); older checkpoints' 3 per pixel are ignored
   std::vector<uint8_t> skip;
@@ -83,7 +94,7 @@ struct FrameView {
   int width = 0, height = 0;
   std::span<const float> path_sum;
   std::span<const uint32_t> path_count;
-  std::span<const uint64_t> mprime;
+  std::span<const uint32_t> mprime;
   std::span<const float> reprojected;  // empty (FrameSnapshot::reprojected)
   std::span<const uint8_t> skip;
   int paths_done = 0;
@@ -122,6 +133,8 @@ class FrameState {
   /// Vertices in their 16-byte wire form, quantised with the scene's bounds (VertexCodec): the same
   /// as reproject() of their decoded records.
   void reproject_packed(std::string_view packed);
+  /// The same for the concatenation of `parts`, without copying them together.
+  void reproject_packed(std::span<const std::string_view> parts);
   void add_exact(std::span<const ExactSample> samples);
   /// Ends the round: M', skip mask and progress. Returns true if another round is needed.
   bool finish_round();
@@ -164,7 +177,7 @@ class FrameState {
   int height() const { return height_; }
   const std::vector<uint32_t>& path_counts() const { return path_count_; }
   const std::vector<float>& path_sums() const { return path_sum_; }
-  const std::vector<uint64_t>& reprojected_counts() const { return mprime_; }
+  const std::vector<uint32_t>& reprojected_counts() const { return mprime_; }
 
  private:
   // M' from the reprojector: every pixel, or (active_only) the pixels not skipped.
@@ -182,7 +195,7 @@ class FrameState {
   std::unique_ptr<VertexCodec> codec_;  // the wire's quantisation (scene bounds), when reprojecting
   std::vector<float> path_sum_;         // 3 per pixel
   std::vector<uint32_t> path_count_;    // M
-  std::vector<uint64_t> mprime_;        // M' as of the last downsample (L_rp is made when asked for)
+  std::vector<uint32_t> mprime_;        // M' as of the last downsample (L_rp is made when asked for)
   bool reprojection_partial_ = false;   // the last downsample left skipped pixels' M' as they were
   std::vector<uint8_t> skip_;           // 1 = no more paths for this pixel
   int paths_done_ = 0;                  // paths every active pixel has traced

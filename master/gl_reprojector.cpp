@@ -46,15 +46,15 @@ GlReprojector::GlReprojector(const Camera& camera, const DeepFramebuffer& dfb, c
   init(camera, detail::plane_grid_for(camera, dfb, settings));
 }
 
-GlReprojector::GlReprojector(GlContext& ctx, const Camera& camera, const detail::PlaneGrid& grid,
+GlReprojector::GlReprojector(GlContext& ctx, const Camera& camera, detail::PlaneGrid grid,
                              const ReprojectorSettings& settings)
     : ctx_(&ctx), settings_(settings) {
-  init(camera, grid);
+  init(camera, std::move(grid));
 }
 
-GlReprojector::GlReprojector(const Camera& camera, const detail::PlaneGrid& grid, const ReprojectorSettings& settings)
+GlReprojector::GlReprojector(const Camera& camera, detail::PlaneGrid grid, const ReprojectorSettings& settings)
     : owned_ctx_(std::make_unique<GlContext>()), ctx_(owned_ctx_.get()), settings_(settings) {
-  init(camera, grid);
+  init(camera, std::move(grid));
 }
 
 GlReprojector::~GlReprojector() {
@@ -81,7 +81,7 @@ GlReprojector::~GlReprojector() {
     if (f) ctx_->gl().DeleteSync(f);
 }
 
-void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
+void GlReprojector::init(const Camera& camera, detail::PlaneGrid grid) {
   ctx_->check_thread();
   detail::validate_reprojector_inputs(camera, grid, settings_);
   if (!ctx_->has_extension("GL_NV_shader_atomic_float"))
@@ -161,8 +161,9 @@ void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
   gl.TextureBuffer(samples_tex_->id(), GL_RGBA32UI, ring_->id());
 
   // Per band: the plane index of its texels (narrow: converted and uploaded a chunk at a time, so the
-  // CPU side never holds more than a chunk of it) and the accumulation, mappable for reading (the
-  // round's downsample reads the cells in place, see downsample_pixels_into).
+  // CPU side never holds more than a chunk of it) and, once every band's index is uploaded and the
+  // grid's 4-byte index freed (so that it is never held beside the accumulation), the accumulation,
+  // mappable for reading (the round's downsample reads the cells in place, see downsample_pixels_into).
   constexpr size_t kChunk = size_t(1) << 20;
   std::vector<uint16_t> staging;
   for (Band& b : bands_) {
@@ -182,13 +183,17 @@ void GlReprojector::init(const Camera& camera, const detail::PlaneGrid& grid) {
       gl.NamedBufferStorage(b.texel_plane->id(), GLsizeiptr(b.cells * 4), src, 0);
       gl.TextureBuffer(b.texel_plane_tex->id(), GL_R32UI, b.texel_plane->id());
     }
+    ctx_->check_error("GlReprojector setup (plane index)");
+  }
+  staging = {};
+  std::vector<uint32_t>().swap(grid.texel_plane);
+  for (Band& b : bands_) {
     b.acc = std::make_unique<GlBuffer>(*ctx_);
     gl.NamedBufferStorage(b.acc->id(), GLsizeiptr(b.cells * 16), nullptr, GL_DYNAMIC_STORAGE_BIT | GL_MAP_READ_BIT);
     b.acc_view = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
     gl.TextureBuffer(b.acc_view->id(), GL_RGBA32UI, b.acc->id());
     ctx_->check_error("GlReprojector setup (band buffers)");
   }
-  staging = {};
   std::vector<float> planes = grid.planes;
   if (planes.empty()) planes.assign(4, 0.f);  // GL wants a non-empty buffer
   planes_buf_ = std::make_unique<GlBuffer>(*ctx_);
@@ -459,7 +464,11 @@ void GlReprojector::copy_packed(const unsigned char* src, size_t n, unsigned cha
 // only when the vertex gets that far) and counts the glossy ones. With several bands the CPU decodes
 // position and normal first to find the band (and counts glossy, culled and back-facing records);
 // the candidates wait in pending_.
-void GlReprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
+void GlReprojector::reproject_packed(std::span<const std::string_view> parts, const VertexCodec& codec) {
+  for (const std::string_view packed : parts) reproject_packed_part(packed, codec);
+}
+
+void GlReprojector::reproject_packed_part(std::string_view packed, const VertexCodec& codec) {
   ctx_->check_thread();
   const size_t total = packed.size() / kPackedBytes;
   if (total == 0) return;

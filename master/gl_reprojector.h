@@ -78,18 +78,18 @@ class GlReprojector final : public Reprojector {
   /// Creates and owns a context, current on the calling thread.
   GlReprojector(const Camera& camera, const DeepFramebuffer& dfb, const ReprojectorSettings& settings);
   /// From the compact deep framebuffer (built for `settings`, see detail::validate_reprojector_inputs).
-  GlReprojector(GlContext& ctx, const Camera& camera, const detail::PlaneGrid& grid,
-                const ReprojectorSettings& settings);
-  GlReprojector(const Camera& camera, const detail::PlaneGrid& grid, const ReprojectorSettings& settings);
+  GlReprojector(GlContext& ctx, const Camera& camera, detail::PlaneGrid grid, const ReprojectorSettings& settings);
+  GlReprojector(const Camera& camera, detail::PlaneGrid grid, const ReprojectorSettings& settings);
   ~GlReprojector() override;
 
   void reproject(std::span<const VertexRecord> records) override;
-  void reproject_packed(std::string_view packed, const VertexCodec& codec) override;
+  using Reprojector::reproject_packed;
+  void reproject_packed(std::span<const std::string_view> parts, const VertexCodec& codec) override;
   void add_exact(std::span<const ExactSample> samples) override;
   ReprojectionCounts counts() const override;
   SubpixelAccumulation read() override;
   void downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip = {},
-                              bool counts_only = false) override;
+                              DownsampleParts parts = DownsampleParts::kBoth) override;
   void reset() override;
   void restore(const SubpixelAccumulation& acc, const ReprojectionCounts& counts) override;
   void visit_cells(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) override;
@@ -108,7 +108,7 @@ class GlReprojector final : public Reprojector {
   std::vector<VertexRecord> decode_packed(std::string_view packed, const VertexCodec& codec);
 
  private:
-  void init(const Camera& camera, const detail::PlaneGrid& grid);
+  void init(const Camera& camera, detail::PlaneGrid grid);
   /// The #version line and the #defines of `s` before a shader body.
   static std::string shader_source(const char* body, const ReprojectorSettings& s, bool narrow_planes,
                                    bool packed = false);
@@ -118,6 +118,8 @@ class GlReprojector final : public Reprojector {
   /// One dispatch of `kernel` over `count` records from record `first_record` of the slot, with the
   /// band bound by bind_band(). No fence.
   void dispatch(int slot, size_t first_record, size_t count, Kernel kernel);
+  /// reproject_packed() of one part (GL accumulates atomically: several calls give the same state as one).
+  void reproject_packed_part(std::string_view packed, const VertexCodec& codec);
   /// Uploads the codec's quantisation (lo_q, cell) for the packed kernels if it changed.
   void set_codec(const VertexCodec& codec);
   /// The wire records as RGBA32UI texels (a memcpy on little-endian hosts).

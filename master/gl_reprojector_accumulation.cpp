@@ -96,7 +96,8 @@ SubpixelAccumulation GlReprojector::read() {
   return a;
 }
 
-void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<const uint8_t> skip, bool counts_only) {
+void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<const uint8_t> skip,
+                                           DownsampleParts parts) {
   ctx_->check_thread();
   flush_pending();
   const auto& gl = ctx_->gl();
@@ -111,9 +112,9 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
     else {
       try {
         if (bands_.size() == 1) {
-          downsample_cells({mapped[0], bands_[0].cells}, grid_w_, grid_h_, subpixels_, skip, result, counts_only);
+          downsample_cells({mapped[0], bands_[0].cells}, grid_w_, grid_h_, subpixels_, skip, result, parts);
         } else {
-          downsample_bands(mapped, bands_[0].rows, grid_w_, grid_h_, subpixels_, skip, result, counts_only);
+          downsample_bands(mapped, bands_[0].rows, grid_w_, grid_h_, subpixels_, skip, result, parts);
         }
       } catch (...) {
         unmap_bands(bands_.size());
@@ -133,7 +134,7 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
     pixels_buf_ = std::make_unique<GlBuffer>(*ctx_);
     gl.NamedBufferStorage(pixels_buf_->id(), GLsizeiptr(band_pixels * 16), nullptr, GL_DYNAMIC_STORAGE_BIT);
   }
-  PixelReprojection out{Image(W, H, 3), std::vector<uint64_t>(size_t(W) * size_t(H), 0)};
+  PixelReprojection out{Image(W, H, 3), std::vector<uint32_t>(size_t(W) * size_t(H), 0)};
   std::vector<float> raw(4 * band_pixels);
   const GLuint p = downsample_prog_->id();
   for (const Band& b : bands_) {
@@ -163,7 +164,9 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
       out.count[q] = n;
     }
   }
-  *result = std::move(out);  // every pixel: the compute pass has no mask
+  // Every pixel (the compute pass has no mask), of the parts asked for.
+  if (parts != DownsampleParts::kRadiance) result->count = std::move(out.count);
+  if (parts != DownsampleParts::kCounts) result->radiance = std::move(out.radiance);
 }
 
 void GlReprojector::reset() {

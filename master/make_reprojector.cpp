@@ -21,8 +21,8 @@ std::unique_ptr<Reprojector> make_reprojector(std::string_view backend, const Ca
                                               const ReprojectorSettings& settings, GlContext* gl) {
   if (backend == "cpu") return std::make_unique<CpuReprojector>(camera, std::move(grid), settings);
   if (backend == "gl") {
-    if (gl) return std::make_unique<GlReprojector>(*gl, camera, grid, settings);
-    return std::make_unique<GlReprojector>(camera, grid, settings);
+    if (gl) return std::make_unique<GlReprojector>(*gl, camera, std::move(grid), settings);
+    return std::make_unique<GlReprojector>(camera, std::move(grid), settings);
   }
   throw std::invalid_argument(fmt::format("unknown reprojector back-end '{}' (expected 'gl' or 'cpu')", backend));
 }

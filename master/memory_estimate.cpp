@@ -16,13 +16,13 @@ MemoryEstimate estimate_job_memory(const RenderOptions& opts, bool checkpoints) 
   const uint64_t pixels = w * h;
   const bool reprojects = opts.mode != RenderMode::kPathTrace;
   MemoryEstimate e;
-  // FrameState: path sums (3 floats), M (4), M' (8), skip (1).
-  constexpr uint64_t kFrameStatePerPixel = 12 + 4 + 8 + 1;
-  // The round: its plan (skip 1 + first sample 4) and the tile results queued (3 floats + a count).
-  constexpr uint64_t kRoundPerPixel = 5 + 16;
-  // One set of images (FrameImages: 3 RGB + 2 one-channel floats; the preview copy is dropped before
-  // the next is made) and its M' temporary.
-  constexpr uint64_t kImagesPerPixel = 44 + 8;
+  // FrameState: path sums (3 floats), M (4), M' (4), skip (1).
+  constexpr uint64_t kFrameStatePerPixel = 12 + 4 + 4 + 1;
+  // The round: its plan (skip 1) and the tile results queued (3 floats + a count).
+  constexpr uint64_t kRoundPerPixel = 1 + 16;
+  // One set of images (FrameImages: path sums and L_rp in RGB, M and M' in one channel; the preview
+  // copy is dropped before the next is made).
+  constexpr uint64_t kImagesPerPixel = 12 + 12 + 4 + 4;
   e.pixel_bytes = pixels * (kFrameStatePerPixel + kRoundPerPixel + kImagesPerPixel);
   if (reprojects) {
     const uint64_t texels = pixels * s * s;

@@ -10,10 +10,12 @@
 //     buffers of the builder (about kPlaneGridBandBytes, master/plane_grid_builder.h);
 //   the rounds: per subpixel 16 B of accumulation (RGB float sums + a uint32 count) and the 2-byte
 //     plane index (4 B on frames with 65535 planes or more, which the estimate does not foresee);
-// plus, in both, per pixel: FrameState's arrays (25 B: path sums in float, M, M', skip), a round's
-// plan (skip bits and first samples, 5 B) and its tile results queued for the reprojection thread
-// (sums and counts, 16 B), and one set of images (FrameImages, 44 B, and an 8-byte M' temporary: the
-// preview copy a running job keeps is dropped before the next one, or the final images, are made);
+// plus, in both, per pixel: FrameState's arrays (21 B: path sums in float, M, M' in 32 bits, skip), a
+// round's plan (1 B of skip flags; a tile's first sample index is one number when its pixels share
+// it, as they do) and its tile results queued for the reprojection thread (sums and counts, 16 B),
+// and one set of images (FrameImages, 32 B: path sums, L_rp, M and M'; combined and path-traced
+// images are made from them when a file or preview is encoded. The preview copy a running job keeps
+// is dropped before the next one, or the final images, are made);
 // the result files are written after the frame is dropped (no peak of their own); the commit queue's
 // vertices (kCommitQueueBytes: full while round 0 is traced during the build); with checkpoints: two
 // 4 MiB chunks (a checkpoint streams from the live frame).

@@ -4,23 +4,27 @@
 #include <fmt/format.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <stdexcept>
 
 namespace epr {
 
 namespace {
 
+uint32_t saturate_count(uint64_t n) { return uint32_t(std::min<uint64_t>(n, UINT32_MAX)); }
+
 // The downsampling, for any storage of the cells: `cell(gy, gx)` returns the subpixel of grid row gy
 // and column gx. Only pixels p with skip[p] == 0 (every pixel if `skip` is empty, or if what is
-// written is not W x H: it is then reallocated); `counts_only`: only the counts (the radiance is
-// neither written nor reallocated).
+// written is not W x H: it is then reallocated); only the `parts` asked for are written or
+// reallocated.
 template <class CellAt>
 void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::span<const uint8_t> skip,
-                     PixelReprojection* outp, bool counts_only = false) {
+                     PixelReprojection* outp, DownsampleParts parts = DownsampleParts::kBoth) {
   const int W = grid_w / S, H = grid_h / S;
   const size_t pixels = size_t(W) * size_t(H);
   PixelReprojection& out = *outp;
-  if (out.count.size() != pixels) {
+  const bool counts_only = parts == DownsampleParts::kCounts, with_counts = parts != DownsampleParts::kRadiance;
+  if (with_counts && out.count.size() != pixels) {
     out.count.assign(pixels, 0);
     skip = {};
   }
@@ -36,7 +40,7 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
         uint64_t total = 0;
         for (int j = 0; j < S; ++j)
           for (int i = 0; i < S; ++i) total += cell(y * S + j, x * S + i).n;
-        out.count[size_t(y) * size_t(W) + size_t(x)] = total;
+        out.count[size_t(y) * size_t(W) + size_t(x)] = saturate_count(total);
         continue;
       }
       double mean[3] = {0, 0, 0};
@@ -56,7 +60,7 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
           x, y,
           non_empty ? Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty), float(mean[2] / non_empty))
                     : Vec3(0.f));
-      out.count[size_t(y) * size_t(W) + size_t(x)] = total;
+      if (with_counts) out.count[size_t(y) * size_t(W) + size_t(x)] = saturate_count(total);
     }
   });
 }
@@ -80,16 +84,16 @@ PixelReprojection downsample(const SubpixelAccumulation& acc) {
 }
 
 void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int S,
-                      std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only) {
+                      std::span<const uint8_t> skip, PixelReprojection* out, DownsampleParts parts) {
   if (S < 1 || grid_w % S != 0 || grid_h % S != 0 || cells.size() != size_t(grid_w) * size_t(grid_h))
     throw std::invalid_argument("downsample_cells: malformed subpixel grid");
   downsample_impl(
       grid_w, grid_h, S, [&](int gy, int gx) { return cells[size_t(gy) * size_t(grid_w) + size_t(gx)]; }, skip, out,
-      counts_only);
+      parts);
 }
 
 void downsample_bands(std::span<const AccumulationCell* const> bands, int band_rows, int grid_w, int grid_h, int S,
-                      std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only) {
+                      std::span<const uint8_t> skip, PixelReprojection* out, DownsampleParts parts) {
   if (S < 1 || grid_w % S != 0 || grid_h % S != 0 || band_rows < 1 ||
       bands.size() != size_t((grid_h + band_rows - 1) / band_rows))
     throw std::invalid_argument("downsample_bands: malformed subpixel grid");
@@ -98,10 +102,10 @@ void downsample_bands(std::span<const AccumulationCell* const> bands, int band_r
       [&](int gy, int gx) {
         return bands[size_t(gy / band_rows)][size_t(gy % band_rows) * size_t(grid_w) + size_t(gx)];
       },
-      skip, out, counts_only);
+      skip, out, parts);
 }
 
-Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint64_t reprojected_count, const Vec3& lrp) {
+Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint32_t reprojected_count, const Vec3& lrp) {
   const double m = path_count, mr = double(reprojected_count);
   if (m + mr == 0) return Vec3(0.f);
   return Vec3(float((path_sum.x + mr * lrp.x) / (m + mr)), float((path_sum.y + mr * lrp.y) / (m + mr)),
@@ -125,7 +129,7 @@ Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, co
   return out;
 }
 
-std::vector<uint8_t> skip_mask(const std::vector<uint32_t>& path_count, const std::vector<uint64_t>& reprojected_count,
+std::vector<uint8_t> skip_mask(const std::vector<uint32_t>& path_count, const std::vector<uint32_t>& reprojected_count,
                                uint64_t target_samples, uint32_t min_paths) {
   if (path_count.size() != reprojected_count.size())
     throw std::invalid_argument(fmt::format("skip_mask: {} path counts but {} reprojected counts", path_count.size(),

@@ -33,11 +33,16 @@ struct SubpixelAccumulation {
 
 struct PixelReprojection {
   Image radiance;               // L_rp, 3 channels, width x height pixels
-  std::vector<uint64_t> count;  // M', per pixel
+  std::vector<uint32_t> count;  // M', per pixel (saturating at 2^32 - 1)
 };
 
 /// Downsamples an S*W x S*H subpixel accumulation to W x H pixels.
 PixelReprojection downsample(const SubpixelAccumulation& acc);
+
+/// What a downsampling computes: both M' and L_rp, M' alone (a skip round's decision needs no
+/// radiance, and the sum of counts costs no divisions), or L_rp alone (a preview that keeps M' as it
+/// was: no per-pixel count array is made).
+enum class DownsampleParts { kBoth, kCounts, kRadiance };
 
 /// One subpixel of an accumulation as the back-ends store it: RGB radiance sum and sample count.
 struct AccumulationCell {
@@ -49,23 +54,24 @@ static_assert(sizeof(AccumulationCell) == 16);
 /// The same downsampling straight from a back-end's cells (grid_w x grid_h subpixels, S per axis),
 /// without copying the grid first, into *out: only the pixels p with skip[p] == 0 are computed, the
 /// others keep their values (every pixel if `skip` is empty or what is written is not of the image's
-/// size, in which case it is reallocated). `counts_only`: only M' (out->count), out->radiance is left
-/// as it was, also when empty -- a skip round's decision needs no radiance, and the sum of counts
-/// costs no divisions.
+/// size, in which case it is reallocated). Only the `parts` asked for are written (and allocated);
+/// the other member of *out is left as it was, also when empty.
 void downsample_cells(std::span<const AccumulationCell> cells, int grid_w, int grid_h, int subpixels,
-                      std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only = false);
+                      std::span<const uint8_t> skip, PixelReprojection* out,
+                      DownsampleParts parts = DownsampleParts::kBoth);
 /// The same for a grid kept in bands of `band_rows` grid rows (the last may be shorter): bands[b]
 /// holds grid rows [b * band_rows, (b + 1) * band_rows), row-major.
 void downsample_bands(std::span<const AccumulationCell* const> bands, int band_rows, int grid_w, int grid_h,
-                      int subpixels, std::span<const uint8_t> skip, PixelReprojection* out, bool counts_only = false);
+                      int subpixels, std::span<const uint8_t> skip, PixelReprojection* out,
+                      DownsampleParts parts = DownsampleParts::kBoth);
 
 /// L(p) of one pixel: (path_sum + M' L_rp) / (M + M') in double, 0 if M + M' = 0.
-Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint64_t reprojected_count, const Vec3& lrp);
+Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint32_t reprojected_count, const Vec3& lrp);
 /// L(p) = (path_sum + M' L_rp) / (M + M'). `path_sum` is the sum (not the mean) of p's M path samples.
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& reprojected);
 
 /// 1 = skip pixel next round (M + M' >= target_samples and M >= min_paths), else 0.
-std::vector<uint8_t> skip_mask(const std::vector<uint32_t>& path_count, const std::vector<uint64_t>& reprojected_count,
+std::vector<uint8_t> skip_mask(const std::vector<uint32_t>& path_count, const std::vector<uint32_t>& reprojected_count,
                                uint64_t target_samples, uint32_t min_paths = 1);
 
 }  // namespace epr

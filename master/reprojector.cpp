@@ -19,8 +19,10 @@ PixelReprojection Reprojector::downsample_pixels() {
   return out;
 }
 
-void Reprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t>, bool) {
-  *out = downsample(read());
+void Reprojector::downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t>, DownsampleParts parts) {
+  PixelReprojection all = downsample(read());
+  if (parts != DownsampleParts::kRadiance) out->count = std::move(all.count);
+  if (parts != DownsampleParts::kCounts) out->radiance = std::move(all.radiance);
 }
 
 void Reprojector::visit_cells(size_t max_cells, const std::function<void(std::span<const AccumulationCell>)>& visit) {
@@ -60,15 +62,17 @@ void Reprojector::restore_cells(const std::function<void(std::span<AccumulationC
   restore(a, counts);
 }
 
-void Reprojector::reproject_packed(std::string_view packed, const VertexCodec& codec) {
+void Reprojector::reproject_packed(std::span<const std::string_view> parts, const VertexCodec& codec) {
   constexpr size_t kBatch = 32768;  // records decoded at a time: bounded scratch memory
   std::vector<VertexRecord> records;
-  const size_t n = packed.size() / VertexCodec::kPackedBytes;
-  for (size_t off = 0; off < n; off += kBatch) {
-    const size_t m = std::min(kBatch, n - off);
-    records.clear();
-    codec.decode_batch(packed.substr(off * VertexCodec::kPackedBytes, m * VertexCodec::kPackedBytes), &records);
-    reproject(records);
+  for (const std::string_view packed : parts) {
+    const size_t n = packed.size() / VertexCodec::kPackedBytes;
+    for (size_t off = 0; off < n; off += kBatch) {
+      const size_t m = std::min(kBatch, n - off);
+      records.clear();
+      codec.decode_batch(packed.substr(off * VertexCodec::kPackedBytes, m * VertexCodec::kPackedBytes), &records);
+      reproject(records);
+    }
   }
 }
 

@@ -132,7 +132,12 @@ class Reprojector {
   /// bytes; a trailing partial record is ignored): exactly reproject() of codec.decode() of each, in
   /// order -- same decisions, counts and sums. The default decodes in batches; the CPU back-end
   /// decodes in place, each field only when the vertex gets that far.
-  virtual void reproject_packed(std::string_view packed, const VertexCodec& codec);
+  void reproject_packed(std::string_view packed, const VertexCodec& codec) {
+    reproject_packed(std::span<const std::string_view>(&packed, 1), codec);
+  }
+  /// The same for the concatenation of `parts` (several tiles' vertices in one call, without
+  /// copying them together first), each a multiple of 16 bytes.
+  virtual void reproject_packed(std::span<const std::string_view> parts, const VertexCodec& codec);
   /// Adds exact-mode samples directly to their subpixels.
   virtual void add_exact(std::span<const ExactSample> samples) = 0;
   virtual ReprojectionCounts counts() const = 0;
@@ -145,10 +150,10 @@ class Reprojector {
   PixelReprojection downsample_pixels();
   /// The same into *out, for the pixels p with skip[p] == 0 only (all if `skip` is empty or *out is
   /// not W x H): the others keep their values. A skip-mode round needs M' only where pixels are still
-  /// active, which late in a job is a small part of the image. `counts_only`: M' only, L_rp as it
-  /// was (the skip decision needs no radiance). The default computes both for every pixel.
+  /// active, which late in a job is a small part of the image. `parts`: M' only (the skip decision
+  /// needs no radiance) or L_rp only, the other as it was. The default computes both for every pixel.
   virtual void downsample_pixels_into(PixelReprojection* out, std::span<const uint8_t> skip = {},
-                                      bool counts_only = false);
+                                      DownsampleParts parts = DownsampleParts::kBoth);
   /// Zeroes the accumulation and the counts.
   virtual void reset() = 0;
   /// Replaces the accumulation and the counts with `acc` (as read() returned it) and `counts` (as

@@ -28,13 +28,13 @@ constexpr const char* kNoisyImageCompression = "none";
 void write_kind(const ResultKindInfo& k, const FrameImages& img, const nlohmann::json& stats, const std::string& path) {
   switch (k.kind) {
     case ResultKind::kExr:
-      write_exr(path, img.combined, kNoisyImageCompression);
+      write_exr(path, combined_image(img), kNoisyImageCompression);
       return;
     case ResultKind::kPng:
-      write_png_srgb(path, img.combined);
+      write_png_srgb(path, combined_image(img));
       return;
     case ResultKind::kPathtrace:
-      write_exr(path, img.pathtrace, kNoisyImageCompression);
+      write_exr(path, pathtrace_image(img), kNoisyImageCompression);
       return;
     case ResultKind::kCounts:
       write_exr(path, counts_image(img));
@@ -74,7 +74,7 @@ std::string encode_result(const ResultKindInfo& k, const FrameImages& images, co
     case ResultKind::kJson:
       return stats.dump(2) + "\n";
     case ResultKind::kPng:
-      return bytes(encode_png_srgb(images.combined));
+      return bytes(encode_png_srgb(combined_image(images)));
     case ResultKind::kSamplesPng:
       return bytes(encode_png_srgb(samples_heat_map(images.reprojected)));
     default:

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <optional>
 
 #include "wire/tile_result_stream.h"
 
@@ -35,8 +36,20 @@ RoundPlan RoundDriver::open(const std::vector<TileRect>& tiles) const {
   for (uint32_t t = 0; t < tiles.size(); ++t) {
     const TileRect& r = tiles[t];
     if (frame_.tile_idle(r.x0, r.y0, r.x1, r.y1)) continue;
-    frame_.tile_inputs(r.x0, r.y0, r.x1, r.y1, &plan.skip[t], &plan.first_sample[t]);
-    active[t] = size_t(std::count(plan.skip[t].begin(), plan.skip[t].end(), uint8_t(0)));
+    std::vector<uint32_t>& first = plan.first_sample[t];
+    const std::vector<uint8_t>& skip = plan.skip[t];
+    frame_.tile_inputs(r.x0, r.y0, r.x1, r.y1, &plan.skip[t], &first);
+    active[t] = size_t(std::count(skip.begin(), skip.end(), uint8_t(0)));
+    // One entry (none for 0) when every tracing pixel starts at the same sample (the usual case: active
+    // pixels have all traced the same paths); skipped pixels' entries are never read.
+    std::optional<uint32_t> common;
+    bool uniform = true;
+    for (size_t i = 0; i < first.size() && uniform; ++i) {
+      if (skip[i]) continue;
+      if (!common) common = first[i];
+      uniform = first[i] == *common;
+    }
+    if (uniform) first = common.value_or(0) == 0 ? std::vector<uint32_t>() : std::vector<uint32_t>{*common};
   }
   plan.order = busiest_first(active);
   return plan;
@@ -53,8 +66,7 @@ RoundPlan RoundDriver::first_plan(const RenderOptions& opts, const std::vector<T
     const TileRect& r = tiles[t];
     if (r.x1 <= r.x0 || r.y1 <= r.y0) continue;
     active[t] = size_t(r.x1 - r.x0) * size_t(r.y1 - r.y0);
-    plan.skip[t].assign(active[t], 0);
-    plan.first_sample[t].assign(active[t], 0);
+    plan.skip[t].assign(active[t], 0);  // first_sample[t] stays empty: every pixel starts at 0
   }
   plan.order = busiest_first(active);
   return plan;
@@ -124,10 +136,9 @@ void RoundDriver::apply(std::span<const AssembledTile* const> tiles) {
         vertex_batch_.insert(vertex_batch_.end(), tiles[j]->vertices.begin(), tiles[j]->vertices.end());
       frame_.reproject(vertex_batch_);
     } else if (kinds == 2) {
-      packed_batch_.clear();
-      packed_batch_.reserve(records);  // bytes here
-      for (size_t j = i; j < end; ++j) packed_batch_ += tiles[j]->packed_vertices;
-      frame_.reproject_packed(packed_batch_);
+      packed_parts_.clear();
+      for (size_t j = i; j < end; ++j) packed_parts_.push_back(tiles[j]->packed_vertices);
+      frame_.reproject_packed(packed_parts_);
     } else if (kinds == 4) {
       exact_batch_.clear();
       exact_batch_.reserve(records);
@@ -138,7 +149,6 @@ void RoundDriver::apply(std::span<const AssembledTile* const> tiles) {
     i = end;
   }
   // Large batches are not kept between calls.
-  if (packed_batch_.capacity() > 4 * kBatchRecords * VertexCodec::kPackedBytes) std::string().swap(packed_batch_);
   if (vertex_batch_.capacity() > 4 * kBatchRecords) std::vector<VertexRecord>().swap(vertex_batch_);
   if (exact_batch_.capacity() > 4 * kBatchRecords) std::vector<ExactSample>().swap(exact_batch_);
 }

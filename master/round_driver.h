@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "common/camera.h"
@@ -32,9 +33,10 @@ struct AssembledTile;
 struct RoundPlan {
   uint32_t round = 0;  // rounds finished before this one
   int paths_per_pixel = 1;
-  std::vector<std::vector<uint8_t>> skip;           // per tile, per tile pixel (empty: idle tile)
-  std::vector<std::vector<uint32_t>> first_sample;  // per tile, per tile pixel
-  std::vector<uint32_t> order;                      // the tiles that trace, most active pixels first
+  std::vector<std::vector<uint8_t>> skip;  // per tile, per tile pixel (empty: idle tile)
+  // Per tile: per tile pixel, one entry for every pixel of the tile, or empty for 0 (TileRequest).
+  std::vector<std::vector<uint32_t>> first_sample;
+  std::vector<uint32_t> order;  // the tiles that trace, most active pixels first
 };
 
 class RoundDriver {
@@ -66,9 +68,9 @@ class RoundDriver {
 
  private:
   FrameState frame_;
-  std::string packed_batch_;                // apply(span)'s concatenated packed vertices (kept: reused)
-  std::vector<VertexRecord> vertex_batch_;  // ... decoded vertices
-  std::vector<ExactSample> exact_batch_;    // ... exact samples
+  std::vector<std::string_view> packed_parts_;  // apply(span)'s packed vertices, tile by tile
+  std::vector<VertexRecord> vertex_batch_;      // ... decoded vertices
+  std::vector<ExactSample> exact_batch_;        // ... exact samples
 };
 
 }  // namespace epr

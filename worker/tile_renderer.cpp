@@ -74,7 +74,9 @@ TileResult TileRenderer::render(const TileRequest& req) const {
   for (int y = req.rect.y0; y < req.rect.y1; ++y) {
     for (int x = req.rect.x0; x < req.rect.x1; ++x, ++i) {
       if (!req.skip.empty() && req.skip[i]) continue;
-      const uint32_t first = req.first_sample.empty() ? 0 : req.first_sample[i];
+      const uint32_t first = req.first_sample.empty()       ? 0
+                             : req.first_sample.size() == 1 ? req.first_sample[0]
+                                                            : req.first_sample[i];
       Vec3 sum(0.f);
       for (int k = 0; k < req.paths_per_pixel; ++k) {
         const size_t before = recs.size();

@@ -2,7 +2,9 @@
 #include "master/server/checkpoint_payload.h"
 
 #include <algorithm>
+#include <limits>
 #include <stdexcept>
+#include <type_traits>
 #include <vector>
 
 namespace epr::checkpoint_io {
@@ -14,25 +16,34 @@ constexpr size_t kCellsPerSpan = size_t(1) << 18;
 // chunk at a time.
 constexpr size_t kValuesPerChunk = size_t(1) << 16;
 
-void put_as_doubles(ByteWriter& w, std::span<const float> v) {
+// Arrays held narrower in memory than in the file (path sums: float / double; M': uint32 / uint64),
+// widened a chunk at a time on the way out and narrowed on the way in (counts saturate).
+template <class Wide, class Narrow>
+void put_widened(ByteWriter& w, std::span<const Narrow> v) {
   w.put<uint64_t>(v.size());
-  std::vector<double> chunk(std::min(v.size(), kValuesPerChunk));
+  std::vector<Wide> chunk(std::min(v.size(), kValuesPerChunk));
   for (size_t off = 0; off < v.size(); off += kValuesPerChunk) {
     const size_t m = std::min(kValuesPerChunk, v.size() - off);
-    for (size_t k = 0; k < m; ++k) chunk[k] = double(v[off + k]);
-    w.put_bytes(chunk.data(), m * sizeof(double));
+    for (size_t k = 0; k < m; ++k) chunk[k] = Wide(v[off + k]);
+    w.put_bytes(chunk.data(), m * sizeof(Wide));
   }
 }
 
-std::vector<float> get_doubles_as_floats(ByteReader& r) {
+template <class Wide, class Narrow>
+std::vector<Narrow> get_narrowed(ByteReader& r) {
   const uint64_t n = r.get<uint64_t>();
-  if (n > r.remaining() / sizeof(double)) throw CheckpointError("malformed payload: an array runs past its end");
-  std::vector<float> v(n);
-  std::vector<double> chunk(std::min<uint64_t>(n, kValuesPerChunk));
+  if (n > r.remaining() / sizeof(Wide)) throw CheckpointError("malformed payload: an array runs past its end");
+  std::vector<Narrow> v(n);
+  std::vector<Wide> chunk(std::min<uint64_t>(n, kValuesPerChunk));
   for (uint64_t off = 0; off < n; off += kValuesPerChunk) {
     const size_t m = size_t(std::min<uint64_t>(kValuesPerChunk, n - off));
-    r.get_bytes(chunk.data(), m * sizeof(double));
-    for (size_t k = 0; k < m; ++k) v[size_t(off) + k] = float(chunk[k]);
+    r.get_bytes(chunk.data(), m * sizeof(Wide));
+    for (size_t k = 0; k < m; ++k) {
+      if constexpr (std::is_integral_v<Narrow>)
+        v[size_t(off) + k] = Narrow(std::min<Wide>(chunk[k], Wide(std::numeric_limits<Narrow>::max())));
+      else
+        v[size_t(off) + k] = Narrow(chunk[k]);
+    }
   }
   return v;
 }
@@ -78,9 +89,9 @@ ReprojectionCounts get_counts(ByteReader& r) {
 void put(ByteWriter& w, const FrameView& f) {
   w.put<int32_t>(f.width);
   w.put<int32_t>(f.height);
-  put_as_doubles(w, f.path_sum);
+  put_widened<double>(w, f.path_sum);
   w.put_vector(f.path_count);
-  w.put_vector(f.mprime);
+  put_widened<uint64_t>(w, f.mprime);
   w.put_vector(f.reprojected);
   w.put_vector(f.skip);
   w.put<int32_t>(f.paths_done);
@@ -110,9 +121,9 @@ void put(ByteWriter& w, const FrameView& f) {
 uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f) {
   f->width = r.get<int32_t>();
   f->height = r.get<int32_t>();
-  f->path_sum = get_doubles_as_floats(r);
+  f->path_sum = get_narrowed<double, float>(r);
   f->path_count = r.get_vector<uint32_t>();
-  f->mprime = r.get_vector<uint64_t>();
+  f->mprime = get_narrowed<uint64_t, uint32_t>(r);
   f->reprojected = r.get_vector<float>();
   f->skip = r.get_vector<uint8_t>();
   f->paths_done = r.get<int32_t>();

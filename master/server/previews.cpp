@@ -115,8 +115,8 @@ std::optional<std::vector<unsigned char>> encode_preview(const FrameImages& img,
                                                          std::string_view key) {
   const auto k = parse_key(key);
   if (!k) return std::nullopt;
-  if (k->layer == "combined") return encode_scaled(img.combined, k->max_side);
-  if (k->layer == "pathtrace") return encode_scaled(img.pathtrace, k->max_side);
+  if (k->layer == "combined") return encode_scaled(combined_image(img), k->max_side);
+  if (k->layer == "pathtrace") return encode_scaled(pathtrace_image(img), k->max_side);
   if (!reprojects) return std::nullopt;
   if (k->layer == "reprojection") return encode_scaled(img.reprojection, k->max_side);
   if (k->layer == "samples")

@@ -94,7 +94,7 @@ TEST_F(DownsamplePixels, SkippedPixelsKeepTheirValues) {
   }
 }
 
-// counts_only (a skip round's refresh): the active pixels' M' is brought up to date, every L_rp and
+// DownsampleParts::kCounts (a skip round's refresh): the active pixels' M' is brought up to date, every L_rp and
 // the skipped pixels' M' stay as they were; a full refresh afterwards gives the reference.
 TEST_F(DownsamplePixels, CountsOnlyRefreshesTheActivePixelsCounts) {
   const auto first = test::real_like_points(scene, dfb, cam, 100000, 10);
@@ -105,16 +105,16 @@ TEST_F(DownsamplePixels, CountsOnlyRefreshesTheActivePixelsCounts) {
     auto r = make_reprojector(backend, cam, dfb, rs, &gl);
     r->reproject(first);
     PixelReprojection out;
-    r->downsample_pixels_into(&out, skip, /*counts_only=*/true);  // empty *out: every pixel's M', no L_rp
+    r->downsample_pixels_into(&out, skip, DownsampleParts::kCounts);  // empty *out: every pixel's M', no L_rp
     EXPECT_EQ(out.count, downsample(r->read()).count);
-    EXPECT_TRUE(out.radiance.data.empty()) << "counts_only must not make L_rp";
+    EXPECT_TRUE(out.radiance.data.empty()) << "kCounts must not make L_rp";
     r->downsample_pixels_into(&out);
     const PixelReprojection before = out;
     expect_same(before, downsample(r->read()));
     r->reproject(second);
-    r->downsample_pixels_into(&out, skip, /*counts_only=*/true);
+    r->downsample_pixels_into(&out, skip, DownsampleParts::kCounts);
     const PixelReprojection now = downsample(r->read());
-    EXPECT_EQ(out.radiance.data, before.radiance.data) << "counts_only must leave L_rp alone";
+    EXPECT_EQ(out.radiance.data, before.radiance.data) << "kCounts must leave L_rp alone";
     size_t updated = 0;
     for (size_t p = 0; p < skip.size(); ++p) {
       ASSERT_EQ(out.count[p], skip[p] ? before.count[p] : now.count[p]) << p;
@@ -123,6 +123,26 @@ TEST_F(DownsamplePixels, CountsOnlyRefreshesTheActivePixelsCounts) {
     EXPECT_GT(updated, 100u) << "active pixels must have received samples, or the test shows nothing";
     r->downsample_pixels_into(&out);
     expect_same(out, now);
+  }
+}
+
+// DownsampleParts::kRadiance (a preview that keeps M' as it was): L_rp of the active pixels is made,
+// no count array is allocated, and counts already there are left alone.
+TEST_F(DownsamplePixels, RadianceOnlyLeavesTheCountsAlone) {
+  const auto points = test::real_like_points(scene, dfb, cam, 100000, 12);
+  for (const char* backend : {"cpu", "gl"}) {
+    SCOPED_TRACE(backend);
+    auto r = make_reprojector(backend, cam, dfb, rs, &gl);
+    r->reproject(points);
+    const PixelReprojection reference = downsample(r->read());
+    PixelReprojection out;
+    r->downsample_pixels_into(&out, {}, DownsampleParts::kRadiance);
+    EXPECT_TRUE(out.count.empty()) << "kRadiance must not make M'";
+    EXPECT_EQ(out.radiance.data, reference.radiance.data);
+    out.count.assign(reference.count.size(), 7);
+    r->downsample_pixels_into(&out, {}, DownsampleParts::kRadiance);
+    EXPECT_EQ(out.count, std::vector<uint32_t>(reference.count.size(), 7)) << "kRadiance must leave M' alone";
+    EXPECT_EQ(out.radiance.data, reference.radiance.data);
   }
 }
 

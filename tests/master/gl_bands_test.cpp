@@ -200,7 +200,7 @@ TEST_F(GlBands, DecisionsCountsAndSumsMatchTheCpuBackendOnEveryBanding) {
       for (float& v : counts.radiance.data) v = -2.f;
       PixelReprojection got_partial = partial, got_counts = counts;
       gl.downsample_pixels_into(&got_partial, skip);
-      gl.downsample_pixels_into(&got_counts, skip, /*counts_only=*/true);
+      gl.downsample_pixels_into(&got_counts, skip, DownsampleParts::kCounts);
       for (size_t p = 0; p < skip.size(); ++p) {
         ASSERT_EQ(got_partial.count[p], skip[p] ? 12345u : want.count[p]) << p;
         ASSERT_EQ(got_counts.count[p], skip[p] ? 12345u : want.count[p]) << p;

@@ -75,7 +75,7 @@ TEST(Combine, WeightsPathSamplesAndReprojectedSamplesByTheirCounts) {
 TEST(SkipMask, SkipsWhenTargetReachedAndEnoughPathsTraced) {
   // P = 8, min_paths = 1 (default).
   const std::vector<uint32_t> m = {0, 1, 4, 8, 7, 2};
-  const std::vector<uint64_t> mr = {100, 7, 3, 0, 0, 6};
+  const std::vector<uint32_t> mr = {100, 7, 3, 0, 0, 6};
   EXPECT_EQ(skip_mask(m, mr, 8), (std::vector<uint8_t>{0, 1, 0, 1, 0, 1}));
   // min_paths = 3: pixels with fewer traced paths keep tracing.
   EXPECT_EQ(skip_mask(m, mr, 8, 3), (std::vector<uint8_t>{0, 0, 0, 1, 0, 0}));

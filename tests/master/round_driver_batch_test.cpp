@@ -115,7 +115,7 @@ void compare(Kind kind, size_t per_tile, size_t batch) {
     expect_same(a, b);
   }
   const FrameImages ia = a.frame().images(), ib = b.frame().images();
-  EXPECT_TRUE(same_bits(ia.combined.data, ib.combined.data));
+  EXPECT_TRUE(same_bits(combined_image(ia).data, combined_image(ib).data));
   EXPECT_TRUE(same_bits(ia.reprojection.data, ib.reprojection.data));
 }
 

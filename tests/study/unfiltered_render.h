@@ -45,7 +45,10 @@ inline UnfilteredRender render_unfiltered(RenderOptions o, bool defeat_facing, b
     frame.reproject(res.vertices);
     frame.finish_round();
   }
-  return {frame.images(), frame.counts(), frame.statistics(o, 0)};  // kAll: no vertex is culled before reprojection
+  UnfilteredRender r{frame.images(), frame.counts(), frame.statistics(o, 0)};  // kAll: nothing culled before
+  r.images.combined = combined_image(r.images);
+  r.images.pathtrace = pathtrace_image(r.images);
+  return r;
 }
 
 }  // namespace epr
