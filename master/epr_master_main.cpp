@@ -85,8 +85,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   std::string memory_budget;
   app.add_option("--memory-budget", memory_budget,
-                 "jobs whose estimated master memory exceeds this are refused at submission: bytes, or with a "
-                 "suffix K, M, G, T (8G); 0: no limit (default: 80% of this machine's physical memory)")
+                 "jobs run side by side while their estimated master memory fits this; a job that exceeds it "
+                 "alone is refused at submission: bytes, or with a suffix K, M, G, T (8G); 0: no limit, one job "
+                 "at a time (default: 80% of this machine's physical memory)")
       ->check([](const std::string& v) -> std::string {
         return v == "0" || epr::parse_byte_size(v) ? "" : "expected bytes like 8G, 512M or 0, got '" + v + "'";
       });
@@ -98,6 +99,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-scene-bytes", o.jobs.max_scene_bytes,
                  "scene bundles (inline or uploaded) over this size are refused")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--max-running-jobs", o.jobs.max_running_jobs,
+                 "jobs running at once at most (the memory budget decides below that)")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
   app.add_option("--max-jobs", o.jobs.max_jobs, "jobs kept; finished ones beyond this are forgotten oldest first")
