@@ -26,7 +26,7 @@ struct TileLeaseInfo {
   uint32_t round = 0, tile_index = 0;
   TileRect rect;
   std::vector<uint8_t> skip;           // per tile pixel
-  std::vector<uint32_t> first_sample;  // per tile pixel
+  std::vector<uint32_t> first_sample;  // per tile pixel, one for every pixel, or empty for 0 (RoundPlan)
   uint32_t paths_per_pixel = 1;
   uint64_t seed = 0;
   RenderOptions options;
