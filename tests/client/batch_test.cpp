@@ -22,13 +22,10 @@ namespace epr {
 namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
+using testing::binary;
 using testing::Process;
 using testing::run_process;
 using testing::RunResult;
-
-std::string binary(const char* subdir, const char* name) {
-  return (fs::read_symlink("/proc/self/exe").parent_path().parent_path() / subdir / name).string();
-}
 
 // ---- frame lists and plans ------------------------------------------------------------------------
 
@@ -173,15 +170,7 @@ class BatchCluster : public ::testing::Test {
         std::make_unique<Process>(std::vector<std::string>{binary("master", "epr-master"), "--listen", "127.0.0.1:0",
                                                            "--http", "", "--state-dir", (dir_ / "state").string()},
                                   dir_ / ("master-" + std::to_string(++masters_)));
-    int port = 0;
-    testing::wait_until(
-        [&] {
-          std::smatch m;
-          const std::string err = master_->err();
-          if (std::regex_search(err, m, std::regex("listening on port (\\d+)"))) port = std::stoi(m[1]);
-          return port != 0 || !master_->running();
-        },
-        60s);
+    const int port = testing::listening_port(*master_, 60s);
     ASSERT_NE(port, 0) << "epr-master did not start:\n" << master_->err();
     target_ = "127.0.0.1:" + std::to_string(port);
   }

@@ -8,7 +8,6 @@
 #include <signal.h>
 
 #include <filesystem>
-#include <regex>
 
 #include "tests/client/large_obj.h"
 #include "tests/integration/cluster/process.h"
@@ -17,16 +16,12 @@ namespace epr {
 namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
+using testing::binary;
 using testing::Process;
 using testing::run_process;
 using testing::RunResult;
 
 const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.obj";
-
-// An executable of the build tree: BUILD/<subdir>/<name>, BUILD holding this test's folder.
-std::string binary(const char* subdir, const char* name) {
-  return (fs::read_symlink("/proc/self/exe").parent_path().parent_path() / subdir / name).string();
-}
 
 class ProcessHardening : public ::testing::Test {
  protected:
@@ -64,16 +59,7 @@ class ProcessHardening : public ::testing::Test {
     std::vector<std::string> argv{binary("master", "epr-master"), "--listen", "127.0.0.1:0", "--http", ""};
     argv.insert(argv.end(), args.begin(), args.end());
     p = std::make_unique<Process>(with_env(argv), dir_ / log);
-    int port = 0;
-    testing::wait_until(
-        [&] {
-          std::smatch m;
-          const std::string err = p->err();
-          if (std::regex_search(err, m, std::regex("listening on port (\\d+)"))) port = std::stoi(m[1]);
-          return port != 0 || !p->running();
-        },
-        60s);
-    return port;
+    return testing::listening_port(*p, 60s);
   }
   // The private state folders of `epr render` processes in the children's TMPDIR.
   std::vector<fs::path> render_dirs() const {

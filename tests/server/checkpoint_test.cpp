@@ -22,6 +22,7 @@
 #include "master/make_reprojector.h"
 #include "master/reprojector.h"
 #include "master/server/job_manager.h"
+#include "tests/server/job_images.h"
 #include "wire/tile_result_stream.h"
 #include "worker/embree_scene.h"
 #include "worker/path_tracer.h"
@@ -603,22 +604,6 @@ class InProcessWorker {
   std::unique_ptr<PathTracer> tracer_;
 };
 
-struct Result {
-  Image counts, pathtrace, combined;
-};
-
-Result results_of(JobManager& jobs, const std::string& id) {
-  Result r;
-  for (auto [kind, image] : {std::pair{ResultKind::kCounts, &r.counts},
-                             {ResultKind::kPathtrace, &r.pathtrace},
-                             {ResultKind::kExr, &r.combined}}) {
-    const auto path = jobs.result_path(id, kind);
-    EXPECT_TRUE(path) << result_kind(kind).name;
-    if (path) *image = read_image(*path);
-  }
-  return r;
-}
-
 JobRequest resume_request(ReprojectMethod method) {
   JobRequest req;
   req.options.width = 48;
@@ -636,17 +621,11 @@ JobRequest resume_request(ReprojectMethod method) {
   return req;
 }
 
-void expect_same_render(const Result& a, const Result& b) {
+// M, M' and the path sums bit for bit, the combined image within float rounding; and some M' to
+// compare.
+void expect_same_render(const test::JobImages& a, const test::JobImages& b) {
   ASSERT_EQ(a.counts.data.size(), b.counts.data.size());
-  EXPECT_EQ(a.counts.data, b.counts.data) << "M and M' per pixel";
-  EXPECT_EQ(a.pathtrace.data, b.pathtrace.data) << "path-traced estimate";
-  ASSERT_EQ(a.combined.data.size(), b.combined.data.size());
-  size_t differ = 0;
-  for (size_t i = 0; i < a.combined.data.size(); ++i) {
-    const float x = a.combined.data[i], y = b.combined.data[i];
-    differ += !(std::fabs(x - y) <= 1e-5f + 1e-4f * std::max(std::fabs(x), std::fabs(y)));
-  }
-  EXPECT_EQ(differ, 0u) << "combined image values beyond float rounding";
+  ASSERT_NO_FATAL_FAILURE(test::expect_same_images(a, b));
   uint64_t mprime = 0;
   for (size_t i = 1; i < a.counts.data.size(); i += 2) mprime += uint64_t(a.counts.data[i]);
   EXPECT_GT(mprime, 0u) << "nothing was reprojected: the comparison would not cover M'";
@@ -658,7 +637,7 @@ TEST_P(JobManagerResume, DestroyedMidJobAndRecreatedOnTheSameStateDirFinishesIde
   const fs::path undisturbed_dir = fresh_dir("undisturbed"), resumed_dir = fresh_dir("resumed");
   MasterOptions o;
   o.checkpoint_interval_s = 0;  // after every round: the resumed round is known
-  Result undisturbed;
+  test::JobImages undisturbed;
   std::string undisturbed_id;
   uint32_t undisturbed_rounds = 0;
   {
@@ -669,7 +648,7 @@ TEST_P(JobManagerResume, DestroyedMidJobAndRecreatedOnTheSameStateDirFinishesIde
     undisturbed_id = r.id;
     InProcessWorker w(jobs);
     ASSERT_NO_FATAL_FAILURE(w.work(r.id));
-    undisturbed = results_of(jobs, r.id);
+    undisturbed = test::results_of(jobs, r.id);
     undisturbed_rounds = uint32_t(jobs.get(r.id)->progress.round);
   }
   ASSERT_GE(undisturbed_rounds, 4u);
@@ -729,7 +708,7 @@ TEST_P(JobManagerResume, DestroyedMidJobAndRecreatedOnTheSameStateDirFinishesIde
     ASSERT_NO_FATAL_FAILURE(w.work(id));
     EXPECT_EQ(jobs.get(id)->state, JobState::kDone);
     EXPECT_EQ(uint32_t(jobs.get(id)->progress.round), undisturbed_rounds);
-    expect_same_render(results_of(jobs, id), undisturbed);
+    expect_same_render(test::results_of(jobs, id), undisturbed);
   }
 
   {

@@ -20,12 +20,16 @@
 #include "master/memory_estimate.h"
 #include "master/server/job_manager.h"
 #include "tests/server/in_process_worker.h"
+#include "tests/server/job_images.h"
 
 namespace epr {
 namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
+using test::expect_same_images;
+using test::JobImages;
 using test::JobsWorker;
+using test::results_of;
 
 fs::path fresh_dir(const std::string& name) {
   static int n = 0;
@@ -85,45 +89,20 @@ void work(JobManager& jobs, JobsWorker& w, const std::vector<std::string>& ids, 
   FAIL() << "the jobs did not get there within 180 s";
 }
 
-struct Result {
-  Image counts, pathtrace, combined;
-};
-
-Result results_of(JobManager& jobs, const std::string& id) {
-  Result r;
-  for (auto [kind, image] : {std::pair{ResultKind::kCounts, &r.counts},
-                             {ResultKind::kPathtrace, &r.pathtrace},
-                             {ResultKind::kExr, &r.combined}}) {
-    const auto path = jobs.result_path(id, kind);
-    EXPECT_TRUE(path) << result_kind(kind).name;
-    if (path) *image = read_image(*path);
-  }
-  return r;
-}
-
-/// M, M' and the path-traced sums bit for bit; the combined image within float rounding (the
-/// reprojected sums of a round are added in commit order).
-void expect_same_render(const Result& a, const Result& b, const std::string& what) {
+/// M, M' and the path-traced sums bit for bit; the combined image within float rounding.
+void expect_same_render(const JobImages& a, const JobImages& b, const std::string& what) {
   SCOPED_TRACE(what);
   ASSERT_FALSE(a.counts.data.empty());
-  EXPECT_EQ(a.counts.data, b.counts.data) << "M and M' per pixel";
-  EXPECT_EQ(a.pathtrace.data, b.pathtrace.data) << "path-traced estimate";
-  ASSERT_EQ(a.combined.data.size(), b.combined.data.size());
-  size_t differ = 0;
-  for (size_t i = 0; i < a.combined.data.size(); ++i) {
-    const float x = a.combined.data[i], y = b.combined.data[i];
-    differ += !(std::fabs(x - y) <= 1e-5f + 1e-4f * std::max(std::fabs(x), std::fabs(y)));
-  }
-  EXPECT_EQ(differ, 0u) << "combined image values beyond float rounding";
+  expect_same_images(a, b);
 }
 
 /// The job rendered alone on a master of its own.
-Result render_alone(const JobRequest& req) {
+JobImages render_alone(const JobRequest& req) {
   const fs::path dir = fresh_dir("alone");
   MasterOptions o;
   o.state_dir = dir.string();
   o.checkpoints = false;
-  Result r;
+  JobImages r;
   {
     JobManager jobs(o);
     const auto s = jobs.submit(req);
@@ -317,7 +296,7 @@ TEST(MultiJob, JobsRenderedTogetherEqualEachRenderedAlone) {
   o.state_dir = dir.string();
   o.checkpoints = false;
   o.memory_budget_bytes = kLargeBudget;
-  std::vector<Result> together;
+  std::vector<JobImages> together;
   {
     JobManager jobs(o);
     std::vector<std::string> ids;
@@ -377,7 +356,7 @@ TEST(MultiJob, TwoRunningJobsResumeFromTheirCheckpointsAfterARestart) {
     EXPECT_GE(jobs.get(ib)->progress.round, 1) << "from its checkpoint, not round 0";
     JobsWorker w(jobs);
     ASSERT_NO_FATAL_FAILURE(work(jobs, w, {ia, ib}));
-    const Result ra = results_of(jobs, ia), rb = results_of(jobs, ib);
+    const JobImages ra = results_of(jobs, ia), rb = results_of(jobs, ib);
     expect_same_render(ra, render_alone(a), "a");
     expect_same_render(rb, render_alone(b), "b");
   }

@@ -18,43 +18,16 @@
 #include <memory>
 #include <regex>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "binaries.h"
-#include "common/image.h"
-#include "image_difference.h"
+#include "farm_steps.h"
 #include "process.h"
 
 namespace epr::testing {
 namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
-
-// The master-restart test's job: 128x128 in 16 tiles, 32 rounds of 8 paths (no growing rounds).
-Args restart_job() {
-  return {"builtin:cornell",
-          "--width",
-          "128",
-          "--height",
-          "128",
-          "--spp",
-          "256",
-          "--paths-per-round",
-          "8",
-          "--tile",
-          "32",
-          "--mode",
-          "skip",
-          "--reproject",
-          "cpu",
-          "--min-paths",
-          "96",
-          "--seed",
-          "11",
-          "--round-growth",
-          "0"};
-}
 
 // Tiles that take a while to trace on one thread (64x64 pixels, 64 paths each), so that a worker
 // stopped mid-tile holds the lease.
@@ -78,15 +51,9 @@ Args slow_tile_job() {
           "0"};
 }
 
-class DrainTest : public ::testing::Test {
+class DrainTest : public StoryTest {
  protected:
-  void SetUp() override {
-    start_ = std::chrono::steady_clock::now();
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("epr-drain-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
+  void SetUp() override { start_story("epr-drain"); }
 
   void TearDown() override {
     if (reference_) reference_->stop();
@@ -102,52 +69,25 @@ class DrainTest : public ::testing::Test {
     }
   }
 
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
   std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
 
-  template <class... A>
-  void note(const char* format, A... args) {
-    print_note(start_, format, args...);
+  // epr-master's flags for the drains of open rounds: the test's state folder and a checkpoint an
+  // hour after the first round's, so that without the drain only round 0 would be on disk.
+  Args draining_master_flags() const {
+    return {"--state-dir",     path("state"), "--checkpoint-interval", "3600",
+            "--drain-timeout", "60",          "--lease-timeout-ms",    "1500"};
   }
 
-  void start_master(int port, Args extra) {
-    Args argv{kMaster,
-              "--listen",
-              "127.0.0.1:" + std::to_string(port),
-              "--http",
-              "127.0.0.1:0",
-              "--reproject",
-              "cpu",
-              "--heartbeat-ms",
-              "300",
-              "--log-level",
-              "info"};
-    argv.insert(argv.end(), extra.begin(), extra.end());
-    const std::regex listening("epr-master listening on port ([0-9]+)");
-    for (int attempt = 0; attempt < 20; ++attempt) {  // a port just freed may take a moment
-      master_ = std::make_unique<Process>(argv, dir_ / ("master-" + std::to_string(++masters_)));
-      std::smatch m;
-      std::string err;
-      wait_until(
-          [&] {
-            err = master_->err();
-            return std::regex_search(err, m, listening) || !master_->running();
-          },
-          10s);
-      if (m.size() == 2 && master_->running()) {
-        port_ = std::stoi(m[1]);
-        return;
-      }
-      std::this_thread::sleep_for(250ms);
-    }
-    FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
+  // Starts epr-master on `port` (0: a free one) with `extra` flags.
+  void start_master(int port, const Args& extra) {
+    const int bound = start_listening(master_, master_argv(port, extra),
+                                      [&] { return dir_ / ("master-" + std::to_string(++masters_)); });
+    if (bound == 0) FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
+    port_ = bound;
   }
 
   Process& start_worker(const std::string& name) {
-    workers_.push_back(
-        std::make_unique<Process>(Args{kWorker, "--master", address(), "--threads", "1", "--name", name, "--cache-dir",
-                                       path("cache-" + name), "--max-backoff-ms", "500", "--log-level", "debug"},
-                                  dir_ / name));
+    workers_.push_back(std::make_unique<Process>(worker_argv(address(), name, path("cache-" + name)), dir_ / name));
     return *workers_.back();
   }
 
@@ -168,16 +108,7 @@ class DrainTest : public ::testing::Test {
   }
 
   // The highest round some worker has leased a tile of.
-  int highest_round_leased() const {
-    const std::regex leased("lease [0-9]+: job \\S+ round ([0-9]+) tile");
-    int highest = -1;
-    for (auto& w : workers_) {
-      const std::string log = w->err();
-      for (auto it = std::sregex_iterator(log.begin(), log.end(), leased); it != std::sregex_iterator(); ++it)
-        highest = std::max(highest, std::stoi((*it)[1]));
-    }
-    return highest;
-  }
+  int highest_round_leased() const { return testing::highest_round_leased(workers_); }
 
   // A lease the worker's log shows granted and not (yet) submitted: "round R tile T", or "".
   static std::string open_lease(const std::string& log) {
@@ -188,8 +119,6 @@ class DrainTest : public ::testing::Test {
     return found;
   }
 
-  std::chrono::steady_clock::time_point start_;
-  fs::path dir_;
   std::unique_ptr<Process> master_, reference_;
   std::vector<std::unique_ptr<Process>> workers_;
   std::vector<std::string> old_master_logs_;
@@ -244,15 +173,9 @@ TEST_F(DrainTest, WorkerSigtermReturnsItsLeasesAndTheirTilesAreLeasedAgainAtOnce
 }
 
 TEST_F(DrainTest, MasterSigtermCheckpointsTheOpenRoundAndResumesFromIt) {
-  Args args = {kEpr, "render"};
   const Args job = restart_job();
-  args.insert(args.end(), job.begin(), job.end());
-  args.insert(args.end(), {"--single-process", "--threads", "1", "--out", path("ref")});
-  reference_ = std::make_unique<Process>(args, dir_ / "reference");
-  // Without the drain only round 0 would be on disk: the first round is checkpointed, the next one
-  // an hour later.
-  const Args master_flags{"--state-dir",     path("state"), "--checkpoint-interval", "3600",
-                          "--drain-timeout", "60",          "--lease-timeout-ms",    "1500"};
+  reference_ = std::make_unique<Process>(reference_argv(job, path("ref")), dir_ / "reference");
+  const Args master_flags = draining_master_flags();
   ASSERT_NO_FATAL_FAILURE(start_master(0, master_flags));
   start_worker("w1");
   start_worker("w2");
@@ -294,13 +217,8 @@ TEST_F(DrainTest, MasterSigtermCheckpointsTheOpenRoundAndResumesFromIt) {
   ASSERT_EQ(watched.code, 0) << watched.err;
   const RunResult got = epr({"get", id, "--out", path("cluster")}, 30s);
   ASSERT_EQ(got.code, 0) << got.err;
-  ASSERT_TRUE(reference_->wait_for(120s).has_value()) << "the reference render did not end";
-  ASSERT_EQ(reference_->exit_code(), 0) << reference_->err();
-  const Image counts = read_image(path("cluster.counts.exr"));
-  EXPECT_EQ(exact_difference(counts, read_image(path("ref.counts.exr"))), "") << "M and M' per pixel";
-  EXPECT_EQ(exact_difference(read_image(path("cluster.pathtrace.exr")), read_image(path("ref.pathtrace.exr"))), "")
-      << "path-traced estimate";
-  EXPECT_EQ(close_difference(read_image(path("cluster.exr")), read_image(path("ref.exr"))), "") << "combined image";
+  ASSERT_NO_FATAL_FAILURE(expect_reference_done(*reference_));
+  expect_images_equal(path("cluster"), path("ref"));
 }
 
 TEST_F(DrainTest, MasterSigtermWithNoWorkerLeftStopsAtOnceAndResumesFromItsLastCheckpoint) {
@@ -339,8 +257,7 @@ TEST_F(DrainTest, MasterSigtermWithNoWorkerLeftStopsAtOnceAndResumesFromItsLastC
 TEST_F(DrainTest, MasterSigtermCheckpointsEveryRunningJob) {
   // Two jobs run at once (the master's memory budget admits both): the drain finishes and
   // checkpoints the open round of each, and a restarted master resumes both from there.
-  const Args master_flags{"--state-dir",     path("state"), "--checkpoint-interval", "3600",
-                          "--drain-timeout", "60",          "--lease-timeout-ms",    "1500"};
+  const Args master_flags = draining_master_flags();
   ASSERT_NO_FATAL_FAILURE(start_master(0, master_flags));
   start_worker("w1");
   start_worker("w2");

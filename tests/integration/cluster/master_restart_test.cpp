@@ -28,7 +28,7 @@
 
 #include "binaries.h"
 #include "common/image.h"
-#include "image_difference.h"
+#include "farm_steps.h"
 #include "process.h"
 
 namespace epr::testing {
@@ -36,52 +36,23 @@ namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
-// A second or two of tracing for two single-threaded workers: 96x96 pixels in 9 tiles, up to 16 rounds
-// of 8 paths; every pixel traces for the first 12 rounds (min-paths), skipping thins out the rest.
-// The kills are placed by round (an early random round, then a random pause of at most 100 ms), not
-// by wall time, so that they land mid-job however loaded the machine is: the job is 32 rounds of 8
-// paths (no growing rounds), and a kill at round 1-4 leaves most of them to run.
-Args job_flags() {
-  return {"builtin:cornell",
-          "--width",
-          "128",
-          "--height",
-          "128",
-          "--spp",
-          "256",
-          "--paths-per-round",
-          "8",
-          "--tile",
-          "32",
-          "--mode",
-          "skip",
-          "--reproject",
-          "cpu",
-          "--min-paths",
-          "96",
-          "--seed",
-          "11",
-          "--round-growth",
-          "0"};
-}
-
 uint64_t test_seed() {
   if (const char* s = std::getenv("EPR_TEST_SEED")) return std::strtoull(s, nullptr, 10);
   return std::random_device{}();
 }
 
-class MasterRestartTest : public ::testing::Test {
+// A second or two of tracing for two single-threaded workers (restart_job(): 32 rounds of 8 paths,
+// no growing rounds). The kills are placed by round (an early random round, then a random pause of
+// at most 100 ms), not by wall time, so that they land mid-job however loaded the machine is: a kill
+// at round 1-4 leaves most of the rounds to run.
+class MasterRestartTest : public StoryTest {
  protected:
   void SetUp() override {
-    start_ = std::chrono::steady_clock::now();
+    start_story("epr-restart");
     seed_ = test_seed();
     rng_.seed(seed_);
     std::printf("EPR_TEST_SEED=%llu\n", static_cast<unsigned long long>(seed_));
     RecordProperty("seed", std::to_string(seed_));
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("epr-restart-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
   }
 
   void TearDown() override {
@@ -100,57 +71,17 @@ class MasterRestartTest : public ::testing::Test {
     }
   }
 
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
-
-  // Prints a line of the test's story with the seconds since it began.
-  template <class... A>
-  void note(const char* format, A... args) {
-    print_note(start_, format, args...);
-  }
-
   // Starts epr-master on `port` (0: a free one) with the test's state directory.
   void start_master(int port) {
-    const Args argv{kMaster,
-                    "--listen",
-                    "127.0.0.1:" + std::to_string(port),
-                    "--state-dir",
-                    path("state"),
-                    "--http",
-                    "127.0.0.1:0",
-                    "--reproject",
-                    "cpu",
-                    "--lease-timeout-ms",
-                    "1500",
-                    "--heartbeat-ms",
-                    "300",
-                    "--log-level",
-                    "info"};
-    const std::regex listening("epr-master listening on port ([0-9]+)");
-    // A port just freed by the killed master may take a moment to be bindable again.
-    for (int attempt = 0; attempt < 20; ++attempt) {
-      master_ = std::make_unique<Process>(argv, dir_ / ("master-" + std::to_string(++masters_)));
-      std::smatch m;
-      std::string err;
-      wait_until(
-          [&] {
-            err = master_->err();
-            return std::regex_search(err, m, listening) || !master_->running();
-          },
-          10s);
-      if (m.size() == 2 && master_->running()) {
-        port_ = std::stoi(m[1]);
-        return;
-      }
-      std::this_thread::sleep_for(250ms);
-    }
-    FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
+    const int bound =
+        start_listening(master_, master_argv(port, {"--state-dir", path("state"), "--lease-timeout-ms", "1500"}),
+                        [&] { return dir_ / ("master-" + std::to_string(++masters_)); });
+    if (bound == 0) FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
+    port_ = bound;
   }
 
   void start_worker(const std::string& name) {
-    workers_.push_back(
-        std::make_unique<Process>(Args{kWorker, "--master", address(), "--threads", "1", "--name", name, "--cache-dir",
-                                       path("cache-" + name), "--max-backoff-ms", "500", "--log-level", "debug"},
-                                  dir_ / name));
+    workers_.push_back(std::make_unique<Process>(worker_argv(address(), name, path("cache-" + name)), dir_ / name));
   }
 
   std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
@@ -162,7 +93,7 @@ class MasterRestartTest : public ::testing::Test {
 
   std::string submit() {
     Args args{"submit"};
-    const Args f = job_flags();
+    const Args f = restart_job();
     args.insert(args.end(), f.begin(), f.end());
     args.insert(args.end(), {"--master", address()});
     const RunResult r = epr(args, 30s);
@@ -173,11 +104,7 @@ class MasterRestartTest : public ::testing::Test {
   // The undisturbed render of the job, `epr render --single-process`, in the background while the
   // cluster starts (most of that is waiting for processes to come up).
   void start_reference() {
-    Args args{kEpr, "render"};
-    const Args f = job_flags();
-    args.insert(args.end(), f.begin(), f.end());
-    args.insert(args.end(), {"--single-process", "--threads", "1", "--out", path("ref")});
-    reference_ = std::make_unique<Process>(args, dir_ / "reference");
+    reference_ = std::make_unique<Process>(reference_argv(restart_job(), path("ref")), dir_ / "reference");
   }
 
   // `epr watch` in the background, following the job before the master is killed: it has to
@@ -194,17 +121,7 @@ class MasterRestartTest : public ::testing::Test {
 
   // Waits until some worker has leased a tile of round `round` or later.
   bool wait_for_round(int round, Millis timeout) {
-    const std::regex leased("lease [0-9]+: job \\S+ round ([0-9]+) tile");
-    return wait_until(
-        [&] {
-          for (auto& w : workers_) {
-            const std::string log = w->err();
-            for (auto it = std::sregex_iterator(log.begin(), log.end(), leased); it != std::sregex_iterator(); ++it)
-              if (std::stoi((*it)[1]) >= round) return true;
-          }
-          return false;
-        },
-        timeout);
+    return wait_until([&] { return highest_round_leased(workers_) >= round; }, timeout);
   }
 
   // Waits until the job reaches a random round in [lo, hi].
@@ -250,14 +167,10 @@ class MasterRestartTest : public ::testing::Test {
     const RunResult g = epr({"get", id, "--out", path("cluster"), "--master", address()}, 30s);
     ASSERT_EQ(g.code, 0) << g.err;
     note("fetched the result");
-    ASSERT_TRUE(reference_->wait_for(120s).has_value()) << "the reference render did not end";
-    ASSERT_EQ(reference_->exit_code(), 0) << reference_->err();
-    const Image counts = read_image(path("cluster.counts.exr")), ref_counts = read_image(path("ref.counts.exr"));
+    ASSERT_NO_FATAL_FAILURE(expect_reference_done(*reference_));
+    const Image counts = read_image(path("cluster.counts.exr"));
     ASSERT_EQ(counts.channels, 2);
-    EXPECT_EQ(exact_difference(counts, ref_counts), "") << "M and M' per pixel";
-    EXPECT_EQ(exact_difference(read_image(path("cluster.pathtrace.exr")), read_image(path("ref.pathtrace.exr"))), "")
-        << "path-traced estimate";
-    EXPECT_EQ(close_difference(read_image(path("cluster.exr")), read_image(path("ref.exr"))), "") << "combined image";
+    expect_images_equal(path("cluster"), path("ref"));
     double mprime = 0;
     for (int y = 0; y < counts.height; ++y)
       for (int x = 0; x < counts.width; ++x) mprime += counts.at(x, y)[1];
@@ -265,9 +178,7 @@ class MasterRestartTest : public ::testing::Test {
   }
 
   uint64_t seed_ = 0;
-  std::chrono::steady_clock::time_point start_;
   std::mt19937_64 rng_;
-  fs::path dir_;
   std::unique_ptr<Process> master_, watch_, reference_;
   std::vector<std::unique_ptr<Process>> workers_;
   std::vector<std::string> old_master_logs_;

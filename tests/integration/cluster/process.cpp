@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <regex>
 #include <sstream>
 #include <stdexcept>
 #include <thread>
@@ -118,6 +119,35 @@ bool wait_until(const std::function<bool()>& done, Millis timeout) {
     if (Clock::now() >= end) return done();
     std::this_thread::sleep_for(Millis(20));
   }
+}
+
+int listening_port(Process& master, Millis timeout) {
+  const std::regex listening("listening on port ([0-9]+)");
+  int port = 0;
+  wait_until(
+      [&] {
+        std::smatch m;
+        const std::string err = master.err();
+        if (std::regex_search(err, m, listening)) port = std::stoi(m[1]);
+        return port != 0 || !master.running();
+      },
+      timeout);
+  return port;
+}
+
+int start_listening(std::unique_ptr<Process>& master, const std::vector<std::string>& argv,
+                    const std::function<fs::path()>& log_prefix) {
+  for (int attempt = 0; attempt < 20; ++attempt) {
+    master = std::make_unique<Process>(argv, log_prefix());
+    const int port = listening_port(*master, Millis(10000));
+    if (port != 0 && master->running()) return port;
+    std::this_thread::sleep_for(Millis(250));
+  }
+  return 0;
+}
+
+std::string binary(const char* subdir, const char* name) {
+  return (fs::read_symlink("/proc/self/exe").parent_path().parent_path() / subdir / name).string();
 }
 
 std::string read_text(const fs::path& path) {

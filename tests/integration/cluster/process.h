@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -67,6 +68,20 @@ RunResult run_process(std::vector<std::string> argv, const std::filesystem::path
 
 /// Polls `done` every 20 ms until it returns true or `timeout` passes; returns its last answer.
 bool wait_until(const std::function<bool()>& done, Millis timeout);
+
+/// Waits up to `timeout` for epr-master `master` to log "listening on port N" (or to exit); N, or 0
+/// if it did not.
+int listening_port(Process& master, Millis timeout);
+
+/// Starts epr-master with `argv` into `master` and waits up to 10 s for its port. A port just freed
+/// by a killed master may take a moment to be bindable again, so it tries up to 20 times, 250 ms
+/// apart; `log_prefix()` names each try's logs. The port, or 0 if no try came up (`master` then
+/// holds the last try).
+int start_listening(std::unique_ptr<Process>& master, const std::vector<std::string>& argv,
+                    const std::function<std::filesystem::path()>& log_prefix);
+
+/// An executable of the build tree: BUILD/<subdir>/<name>, BUILD holding this test's folder.
+std::string binary(const char* subdir, const char* name);
 
 /// Whole file as text ("" if it does not exist).
 std::string read_text(const std::filesystem::path& path);

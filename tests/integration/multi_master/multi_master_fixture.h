@@ -21,7 +21,7 @@
 #include <vector>
 
 #include "../cluster/binaries.h"
-#include "../cluster/image_difference.h"
+#include "../cluster/farm_steps.h"
 #include "../cluster/process.h"
 #include "common/image.h"
 
@@ -31,30 +31,7 @@ using namespace std::chrono_literals;
 
 // A small job: 64x64 pixels in 4 tiles, `rounds` rounds of 4 paths, every pixel traced in each
 // (min-paths = spp), so that a job runs for a known number of rounds.
-inline Args job_flags(int seed, int rounds) {
-  const int spp = 4 * rounds;
-  return {"builtin:cornell",
-          "--width",
-          "64",
-          "--height",
-          "64",
-          "--spp",
-          std::to_string(spp),
-          "--paths-per-round",
-          "4",
-          "--tile",
-          "32",
-          "--mode",
-          "skip",
-          "--reproject",
-          "cpu",
-          "--min-paths",
-          std::to_string(spp),
-          "--seed",
-          std::to_string(seed),
-          "--round-growth",
-          "0"};
-}
+inline Args job_flags(int seed, int rounds) { return skip_job(64, 4 * rounds, 4, 4 * rounds, seed); }
 
 // A port nothing listens on right now (bound, read, closed).
 inline int free_port() {
@@ -80,15 +57,9 @@ struct MasterProc {
   std::string address() const { return host + ":" + std::to_string(port); }
 };
 
-class MultiMasterTest : public ::testing::Test {
+class MultiMasterTest : public StoryTest {
  protected:
-  void SetUp() override {
-    start_ = std::chrono::steady_clock::now();
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("epr-multi-master-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
+  void SetUp() override { start_story("epr-multi-master"); }
 
   void TearDown() override {
     for (auto& r : references_) r->stop();
@@ -107,50 +78,14 @@ class MultiMasterTest : public ::testing::Test {
     }
   }
 
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
-
-  template <class... A>
-  void note(const char* format, A... args) {
-    print_note(start_, format, args...);
-  }
-
   // Starts (or restarts) master `m` on its port (0: a free one) and state directory.
   void start_master(MasterProc& m) {
-    Args argv{kMaster,
-              "--listen",
-              "127.0.0.1:" + std::to_string(m.port),
-              "--state-dir",
-              path(m.name),
-              "--http",
-              "127.0.0.1:0",
-              "--reproject",
-              "cpu",
-              "--lease-timeout-ms",
-              "1500",
-              "--heartbeat-ms",
-              "300",
-              "--log-level",
-              "info"};
-    argv.insert(argv.end(), m.extra.begin(), m.extra.end());
-    const std::regex listening("epr-master listening on port ([0-9]+)");
-    // A port just freed by a killed master may take a moment to be bindable again.
-    for (int attempt = 0; attempt < 20; ++attempt) {
-      m.proc = std::make_unique<Process>(argv, dir_ / (m.name + "-" + std::to_string(++starts_)));
-      std::smatch match;
-      std::string err;
-      wait_until(
-          [&] {
-            err = m.proc->err();
-            return std::regex_search(err, match, listening) || !m.proc->running();
-          },
-          10s);
-      if (match.size() == 2 && m.proc->running()) {
-        m.port = std::stoi(match[1]);
-        return;
-      }
-      std::this_thread::sleep_for(250ms);
-    }
-    FAIL() << m.name << " did not start on port " << m.port << ":\n" << m.proc->err();
+    Args extra{"--state-dir", path(m.name), "--lease-timeout-ms", "1500"};
+    extra.insert(extra.end(), m.extra.begin(), m.extra.end());
+    const int port = start_listening(m.proc, master_argv(m.port, extra),
+                                     [&] { return dir_ / (m.name + "-" + std::to_string(++starts_)); });
+    if (port == 0) FAIL() << m.name << " did not start on port " << m.port << ":\n" << m.proc->err();
+    m.port = port;
   }
 
   MasterProc& add_master(const std::string& name, bool start = true, Args extra = {}) {
@@ -174,10 +109,8 @@ class MultiMasterTest : public ::testing::Test {
   }
 
   void start_worker(const std::string& name) {
-    workers_.push_back(std::make_unique<Process>(
-        Args{kWorker, "--master", all_addresses(), "--threads", "1", "--name", name, "--cache-dir",
-             path("cache-" + name), "--max-backoff-ms", "500", "--log-level", "debug"},
-        dir_ / name));
+    workers_.push_back(
+        std::make_unique<Process>(worker_argv(all_addresses(), name, path("cache-" + name)), dir_ / name));
   }
 
   RunResult epr(Args args, Millis timeout = 60s) {
@@ -196,10 +129,7 @@ class MultiMasterTest : public ::testing::Test {
 
   // `epr render --single-process --threads 1` of a job into PREFIX.*, in the background.
   void start_reference(const Args& flags, const std::string& prefix) {
-    Args args{kEpr, "render"};
-    args.insert(args.end(), flags.begin(), flags.end());
-    args.insert(args.end(), {"--single-process", "--threads", "1", "--out", path(prefix)});
-    references_.push_back(std::make_unique<Process>(args, dir_ / prefix));
+    references_.push_back(std::make_unique<Process>(reference_argv(flags, path(prefix)), dir_ / prefix));
   }
 
   // Registrations master `m`'s current process has logged.
@@ -229,21 +159,12 @@ class MultiMasterTest : public ::testing::Test {
     ASSERT_EQ(g.code, 0) << g.err;
     for (auto& r : references_)
       if (r->name().find(ref) != std::string::npos) {
-        ASSERT_TRUE(r->wait_for(120s).has_value()) << "the reference render did not end";
-        ASSERT_EQ(r->exit_code(), 0) << r->err();
+        ASSERT_NO_FATAL_FAILURE(expect_reference_done(*r));
       }
-    const Image counts = read_image(path(prefix + ".counts.exr")), ref_counts = read_image(path(ref + ".counts.exr"));
-    ASSERT_EQ(counts.channels, 2);
-    EXPECT_EQ(exact_difference(counts, ref_counts), "") << m.name << ": M and M' per pixel";
-    EXPECT_EQ(exact_difference(read_image(path(prefix + ".pathtrace.exr")), read_image(path(ref + ".pathtrace.exr"))),
-              "")
-        << m.name << ": path-traced estimate";
-    EXPECT_EQ(close_difference(read_image(path(prefix + ".exr")), read_image(path(ref + ".exr"))), "")
-        << m.name << ": combined image";
+    ASSERT_EQ(read_image(path(prefix + ".counts.exr")).channels, 2);
+    expect_images_equal(path(prefix), path(ref), m.name + ": ");
   }
 
-  std::chrono::steady_clock::time_point start_;
-  fs::path dir_;
   std::vector<MasterProc> masters_;
   std::vector<std::unique_ptr<Process>> workers_, references_;
   int runs_ = 0, starts_ = 0;
