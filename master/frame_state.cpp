@@ -134,6 +134,7 @@ void FrameState::reproject(std::span<const VertexRecord> vertices) {
 }
 
 void FrameState::reproject_packed(std::string_view packed) {
+  if (packed.empty()) return;  // most tiles of exact mode and of decoded vertices: no call, no timer
   reproject_packed(std::span<const std::string_view>(&packed, 1));
 }
 
