@@ -26,9 +26,9 @@ from typing import TYPE_CHECKING, Callable, Dict, Iterable, Iterator, List, Opti
 
 import grpc
 
-from . import frames as _frames
 from . import scene as _scene
 from .endpoint import Endpoint
+from .masters import master_endpoints
 from .errors import TRANSIENT_CODES, JobError, RpcError
 from .proto import job_service_pb2 as pb
 from .proto import render_settings_pb2 as rs_pb
@@ -86,11 +86,13 @@ def _describe(code: grpc.StatusCode, details: str) -> str:
     return f"{code.name}: {details}" if details else code.name
 
 
-class Client:
-    """A connection to an eprfarm master's JobService.
+class MasterClient:
+    """A connection to an eprfarm master's JobService: every call goes to _endpoint(), the first
+    master of the list. eprfarm.Client (farm.py) routes each call to one of several masters.
 
     Args:
-        master: "HOST:PORT"; default $EPR_MASTER, else localhost:50051 (as `epr`).
+        master: "HOST:PORT", a comma-separated list of masters or a list of them (masters.py); default
+            $EPR_MASTER, else localhost:50051 (as `epr`).
         token: the bearer token itself; or
         token_file: a file holding it; with neither, $EPR_TOKEN if set (wire/rpc/token.h's rule).
         tls: connect over TLS (the system's CA roots unless ca_file).
@@ -112,7 +114,7 @@ class Client:
 
     def __init__(
         self,
-        master: Optional[str] = None,
+        master: Union[str, Sequence[str], None] = None,
         *,
         token: Optional[str] = None,
         token_file: Optional[str] = None,
@@ -126,8 +128,7 @@ class Client:
     ):
         if master is None:
             master = os.environ.get("EPR_MASTER") or DEFAULT_MASTER
-        if not master or ":" not in master:
-            raise ValueError(f"master '{master}' is not HOST:PORT")
+        endpoints = master_endpoints(master)  # ValueError when malformed
         if token is not None and token_file is not None:
             raise ValueError("give token or token_file, not both")
         if token is not None:
@@ -151,8 +152,8 @@ class Client:
         self.watch_call_timeout = watch_call_timeout
         self.watch_reconnect_timeout = watch_reconnect_timeout
         self.upload_progress = upload_progress
-        # The masters this client talks to: one. Every call goes through _endpoint().
-        self._endpoints = [Endpoint(master, credentials)]
+        # The masters this client talks to. Every call goes through _endpoint().
+        self._endpoints = [Endpoint(e.target, credentials, e.tls_server_name, e.name) for e in endpoints]
         self._uploaded_bytes: Dict[str, int] = {}  # scenes this client uploaded, by hash
         self._lock = threading.Lock()
 
@@ -199,7 +200,7 @@ class Client:
         for e in self._endpoints:
             e.close()
 
-    def __enter__(self) -> "Client":
+    def __enter__(self) -> "MasterClient":
         return self
 
     def __exit__(self, *exc) -> None:
@@ -339,27 +340,6 @@ class Client:
         a file that cannot be read here is SceneError.
         """
         return self.submit_spec(self.job_spec(scene, **options))
-
-    def submit_frames(
-        self, scene: str, frames: Union[str, Iterable[int]], batch_id: Optional[str] = None, **options
-    ) -> Tuple[str, List[str]]:
-        """Queues a batch of frames of the scene's camera animation as `epr submit --frames` does: one
-        job per frame (without a camera: the master takes the scene's camera at the frame), the scene
-        uploaded once. `frames` as frames.parse_frames takes them; `name` (default: the scene's) names
-        the batch; the other options as submit's, without a camera. The batch id and the job ids."""
-        if any(options.get(k) is not None for k in ("eye", "look", "up", "fov")):
-            raise ValueError("the frames' cameras come from the scene's animation: give no eye, look, up or fov")
-        frame_list = _frames.parse_frames(frames)
-        batch_id = _frames.checked_batch_id(batch_id)
-        name = options.pop("name", None) or os.path.splitext(_default_job_name(scene))[0]
-        options.pop("request_id", None)
-        spec = self.job_spec(scene, name=name, **options)
-        if spec.scene.WhichOneof("source") == "files":  # one upload for every frame
-            content_hash = self.upload_scene(_scene.bundle_scene(scene))
-            spec.scene.Clear()
-            spec.scene.uploaded_hash = content_hash
-        specs = _frames.frame_specs(spec, batch_id, name, frame_list)
-        return batch_id, [self.submit_spec(one) for one in specs]
 
     def submit_spec(self, spec: pb.JobSpec) -> str:
         """Queues a ready JobSpec (retrying once after a deadline when it has a request_id)."""

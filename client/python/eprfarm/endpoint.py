@@ -15,12 +15,17 @@ from .proto import job_service_pb2_grpc as pb_grpc
 class Endpoint:
     """One master: its address, channel and JobService stub."""
 
-    def __init__(self, target: str, credentials: Optional[grpc.ChannelCredentials]):
+    def __init__(
+        self, target: str, credentials: Optional[grpc.ChannelCredentials], tls_server_name: str = "", name: str = ""
+    ):
         self.target = target
+        self.name = name or target  # for messages: the list's entry, or "HOST:PORT (ADDRESS)"
         options = [
             ("grpc.max_receive_message_length", 64 << 20),  # ListJobs pages of large statuses
             ("grpc.primary_user_agent", "eprfarm-python"),
         ]
+        if tls_server_name:  # connected by address: the certificate names the host the address came from
+            options.append(("grpc.ssl_target_name_override", tls_server_name))
         if credentials is None:
             self.channel = grpc.insecure_channel(target, options=options)
         else:

@@ -50,6 +50,7 @@ class JobStatus:
     eta_seconds: Optional[float]  # None while unknown
     budget_exhausted: bool
     proto: pb.JobStatus
+    master: str = ""  # in a listing of several masters (Client.list): the address it was listed at
 
     @classmethod
     def from_proto(cls, s: pb.JobStatus) -> "JobStatus":
