@@ -1,0 +1,188 @@
+// The random numbers of one eye path, a pure function of (seed, pixel, sample index, dimension).
+//
+// Two samplers (RenderOptions::sampler, `--sampler`):
+//   * kSobolBurley (default): Owen-scrambled Sobol points with hash-based scrambling (Burley 2020,
+//     "Practical Hash-based Owen Scrambling", JCGT 9(4); what Cycles calls Sobol-Burley). A path's
+//     dimensions are grouped into dimension sets of 2 or 3; set j of pixel p takes point number
+//     shuffle(s) of the first 2 or 3 Sobol dimensions, where s is the pixel's global sample number,
+//     shuffle a nested uniform (Owen) scramble of the index seeded by hash(seed, p, j), and every
+//     coordinate is then Owen-scrambled by its own hash(seed, p, j, coordinate). The sets are
+//     "padded": each has its own index shuffle and scrambles, so sets are independent of each other
+//     while each one is a well-distributed sequence on its own, at any depth of the path. The first
+//     2^k samples of a pixel's 2-D set are a (0,k,2)-net (one point in every elementary interval of
+//     area 2^-k); samples 2^k .. 2^(k+1)-1 complete them to a (0,k+1,2)-net, so progressive rounds
+//     that continue a pixel's sample numbers continue its sequence, and a skipped pixel just stops.
+//   * kIndependent: common/rng.h's SampleStream, every dimension an independent hash; bit-identical
+//     to the tracer before the Sobol-Burley sampler existed.
+//
+// Dimension layout of a path (both samplers consume it in this order):
+//   film:            set 0, 2-D             jitter within the pixel
+//   bounce b >= 0 (vertex x_{b+1}):
+//     light:         set 1 + 3b, 3-D        (point on the triangle: 2-D, emitter selection: 1-D)
+//     roulette/lobe: set 2 + 3b, 2-D        (Russian roulette, BSDF lobe selection)
+//     direction:     set 3 + 3b, 2-D        BSDF direction
+// The independent sampler draws film next2(), then per bounce next() (selection), next2() (point),
+// next2() (roulette, lobe), next2() (direction) from one SampleStream.
+#pragma once
+
+#include <array>
+#include <bit>
+#include <cstdint>
+#include <optional>
+#include <string_view>
+
+#include "common/math.h"
+#include "common/rng.h"
+
+namespace epr {
+
+enum class SamplerKind : uint8_t { kSobolBurley, kIndependent };
+
+const char* to_string(SamplerKind k);  // "sobol-burley", "independent"
+std::optional<SamplerKind> parse_sampler(std::string_view name);
+
+namespace sobol {
+
+inline constexpr int kDimensions = 3;
+
+// Generator matrices of the first three Sobol dimensions as 32 direction numbers each (column k:
+// the bits contributed by bit k of the index, most significant output bit first). Dimension 0 is
+// the van der Corput sequence; dimensions 1 and 2 use the primitive polynomials x + 1 and
+// x^2 + x + 1 with initial numbers m = {1} and m = {1, 3}: the first two entries of S. Joe and
+// F. Y. Kuo's new-joe-kuo-6.21201 table (web.maths.unsw.edu.au/~fkuo/sobol/), recurrence of
+// Bratley and Fox (ACM TOMS 14(1), 1988).
+constexpr std::array<std::array<uint32_t, 32>, kDimensions> make_matrices() {
+  struct Poly {
+    int s;
+    uint32_t a;
+    uint32_t m[2];
+  };
+  constexpr Poly polys[2] = {{1, 0, {1, 0}}, {2, 1, {1, 3}}};
+  std::array<std::array<uint32_t, 32>, kDimensions> v{};
+  for (int k = 0; k < 32; ++k) v[0][size_t(k)] = 1u << (31 - k);
+  for (int d = 1; d < kDimensions; ++d) {
+    const Poly& p = polys[d - 1];
+    auto& vd = v[size_t(d)];
+    for (int k = 0; k < 32; ++k) {
+      if (k < p.s) {
+        vd[size_t(k)] = p.m[k] << (31 - k);
+        continue;
+      }
+      uint32_t x = vd[size_t(k - p.s)] ^ (vd[size_t(k - p.s)] >> p.s);
+      for (int j = 1; j < p.s; ++j)
+        if ((p.a >> (p.s - 1 - j)) & 1u) x ^= vd[size_t(k - j)];
+      vd[size_t(k)] = x;
+    }
+  }
+  return v;
+}
+inline constexpr auto kMatrices = make_matrices();
+
+/// Unscrambled Sobol point `index`, dimension `dim` < kDimensions, as a 32-bit fraction.
+constexpr uint32_t sample(uint32_t index, int dim) {
+  uint32_t x = 0;
+  for (; index != 0; index &= index - 1) x ^= kMatrices[size_t(dim)][size_t(std::countr_zero(index))];
+  return x;
+}
+
+constexpr uint32_t reverse_bits(uint32_t x) {
+  x = ((x & 0xaaaaaaaau) >> 1) | ((x & 0x55555555u) << 1);
+  x = ((x & 0xccccccccu) >> 2) | ((x & 0x33333333u) << 2);
+  x = ((x & 0xf0f0f0f0u) >> 4) | ((x & 0x0f0f0f0fu) << 4);
+  x = ((x & 0xff00ff00u) >> 8) | ((x & 0x00ff00ffu) << 8);
+  return (x >> 16) | (x << 16);
+}
+
+/// Nested uniform (Owen) scramble of a 32-bit fraction: bit k (from the top) is flipped by a hash of
+/// the seed and the bits above it. Burley's Laine-Karras-style hash on the reversed bits, with
+/// N. Vegdahl's better-mixing constants ("Building a better LK hash", psychopath.io, 2021), which
+/// keep the property that each reversed bit depends only on the reversed bits below it.
+constexpr uint32_t owen_scramble(uint32_t x, uint32_t seed) {
+  x = reverse_bits(x);
+  x ^= x * 0x3d20adeau;
+  x += seed;
+  x *= (seed >> 16) | 1u;
+  x ^= x * 0x05526c56u;
+  x ^= x * 0x53a22864u;
+  return reverse_bits(x);
+}
+
+/// A 32-bit fraction to a float in [0, 1) (its top 24 bits).
+constexpr float to_unit_float(uint32_t x) { return float(x >> 8) * 0x1p-24f; }
+
+}  // namespace sobol
+
+/// Sobol-Burley points of one pixel: set `set`'s sample number `index` (see the file comment).
+class SobolBurleyPixel {
+ public:
+  SobolBurleyPixel(uint64_t seed, uint32_t pixel)
+      : key_(mix64(mix64(seed ^ 0x2545f4914f6cdd1dULL) + (uint64_t(pixel) + 1) * 0x9e3779b97f4a7c15ULL)) {}
+
+  Vec2 sample2(uint32_t set, uint32_t index) const {
+    uint32_t x[2];
+    sample(set, index, 2, x);
+    return {sobol::to_unit_float(x[0]), sobol::to_unit_float(x[1])};
+  }
+  Vec3 sample3(uint32_t set, uint32_t index) const {
+    uint32_t x[3];
+    sample(set, index, 3, x);
+    return {sobol::to_unit_float(x[0]), sobol::to_unit_float(x[1]), sobol::to_unit_float(x[2])};
+  }
+  /// The 32-bit fractions of the first n <= sobol::kDimensions coordinates.
+  void sample(uint32_t set, uint32_t index, int n, uint32_t* out) const {
+    const uint64_t h = hash_dimension(key_, set);
+    const uint32_t shuffled = sobol::owen_scramble(index, uint32_t(h));
+    for (int d = 0; d < n; ++d)
+      out[d] = sobol::owen_scramble(sobol::sample(shuffled, d), uint32_t(mix64(h + uint64_t(d + 1)) >> 32));
+  }
+
+ private:
+  uint64_t key_;
+};
+
+/// The random numbers of path number `sample` of one pixel, in the layout of the file comment.
+class PathSampler {
+ public:
+  struct Bounce {
+    float light_select;  // emitter selection
+    Vec2 light_point;    // point on the emitter triangle
+    float rr, lobe;      // Russian roulette, BSDF lobe
+    Vec2 dir;            // BSDF direction
+  };
+
+  PathSampler(SamplerKind kind, uint64_t seed, uint32_t pixel, uint32_t sample)
+      : kind_(kind), stream_(seed, pixel, sample), sobol_(seed, pixel), sample_(sample) {}
+
+  Vec2 film() { return kind_ == SamplerKind::kIndependent ? stream_.next2() : sobol_.sample2(0, sample_); }
+  /// The next bounce's numbers (the first call: vertex x_1).
+  Bounce bounce() {
+    Bounce b;
+    if (kind_ == SamplerKind::kIndependent) {
+      b.light_select = stream_.next();
+      b.light_point = stream_.next2();
+      const Vec2 rr_lobe = stream_.next2();
+      b.rr = rr_lobe.x;
+      b.lobe = rr_lobe.y;
+      b.dir = stream_.next2();
+    } else {
+      const uint32_t set = 1 + 3 * bounce_++;
+      const Vec3 light = sobol_.sample3(set, sample_);
+      b.light_point = {light.x, light.y};
+      b.light_select = light.z;
+      const Vec2 rr_lobe = sobol_.sample2(set + 1, sample_);
+      b.rr = rr_lobe.x;
+      b.lobe = rr_lobe.y;
+      b.dir = sobol_.sample2(set + 2, sample_);
+    }
+    return b;
+  }
+
+ private:
+  SamplerKind kind_;
+  SampleStream stream_;
+  SobolBurleyPixel sobol_;
+  uint32_t sample_;
+  uint32_t bounce_ = 0;
+};
+
+}  // namespace epr
