@@ -23,7 +23,14 @@
 # worker host's processes are killed while that worker holds a lease; the job still ends DONE, its
 # master re-queued the dead worker's tile, and PREFIX.counts.exr (M, M' per pixel) and
 # PREFIX.pathtrace.exr equal those of `epr render --single-process` with the same flags
-# (bit-identical by design). Last, both masters get SIGTERM and must drain and exit 0.
+# (bit-identical by design). Then a batch (issue #18): w2's host is restarted, the client submits
+# frames 1-8 of a camera fly-through with --master master1:50051,master2:50051 (four frames land on
+# each), runs `epr watch BATCH` and `epr get BATCH --out DIR/fly`, and master1's epr-master is
+# SIGKILLed while its frames are mid-way (each past a round checkpoint, none done), then restarted
+# in its namespace on the same state directory; it resumes its frames from their checkpoints, watch
+# and get ride through, all 8 frames end DONE, and each frame's counts.exr and pathtrace.exr equal
+# `epr render --single-process` of that frame's camera. Last, both masters get SIGTERM and must
+# drain and exit 0.
 #
 # Exit 0 passed, 1 failed, 77 skipped (not root, no `ip netns`, or docker-compose / python3-yaml
 # missing outside CI) -- a skip always says why. Cleans up namespaces and processes on any exit.
@@ -329,6 +336,8 @@ if [ -z "$held_tile" ]; then
 fi
 kill -KILL $victim_pids
 kill -CONT $others
+# The master can lease the job's tiles before the client has printed the id the master returned.
+wait_for 10 test -s "$tmp/client.out"
 job_id="$(head -n 1 "$tmp/client.out")"
 [ -n "$job_id" ] || fail "the client printed no job id"
 job_master=""
@@ -363,17 +372,11 @@ re_leased="$("$PY" -c 'import json,sys; print(json.load(open(sys.argv[1])).get("
 [ "$re_leased" -ge 1 ] || fail "cluster.json says tiles_re_leased=$re_leased"
 
 # ---- against the undisturbed reference -------------------------------------------------------------------
-"$EPR_BIN" render "${job[@]}" --single-process --out "$tmp/ref" > "$tmp/reference.log" 2>&1 ||
-  fail "epr render --single-process failed"
-for kind in counts pathtrace; do
-  a="$out_dir/cluster.$kind.exr" b="$tmp/ref.$kind.exr"
-  [ -s "$a" ] || fail "the cluster run wrote no $(basename "$a")"
-  if cmp -s "$a" "$b"; then
-    log "$kind.exr: byte-identical to the single-process reference"
-    continue
-  fi
-  # Not the same bytes (e.g. metadata): the same pixels, then, exactly.
-  "$PY" - "$a" "$b" <<'EOF' || fail "$kind.exr differs from the single-process reference"
+# same_image A B: A and B hold the same bytes, else (e.g. other metadata) exactly the same pixels.
+same_image() {
+  [ -s "$1" ] || { echo "missing or empty: $1" >&2; return 1; }
+  cmp -s "$1" "$2" && return 0
+  "$PY" - "$1" "$2" <<'EOF'
 import sys
 import OpenImageIO as oiio
 a, b = (oiio.ImageBuf(p) for p in sys.argv[1:3])
@@ -385,7 +388,159 @@ if diff.any():
     sys.exit(f"{int(diff.sum())} of {diff.size} values differ")
 print(f"{sys.argv[1]}: same {pa.shape} pixels as the reference (bytes differ)", file=sys.stderr)
 EOF
+}
+"$EPR_BIN" render "${job[@]}" --single-process --out "$tmp/ref" > "$tmp/reference.log" 2>&1 ||
+  fail "epr render --single-process failed"
+for kind in counts pathtrace; do
+  same_image "$out_dir/cluster.$kind.exr" "$tmp/ref.$kind.exr" || fail "$kind.exr differs from the single-process reference"
+  log "$kind.exr: identical to the single-process reference"
 done
+
+# ---- a batch of eight frames over both masters, one master killed mid-batch and restarted ------------
+# w2's host comes back first, as compose restarts a killed container (restart: unless-stopped).
+service_config worker w2
+on w2 "${SVC_CMD[@]}" > "$tmp/w2.restarted.log" 2>&1 &
+disown $!
+w2_registered() { [ "$(grep -c "registered with" "$tmp/w2.restarted.log")" -ge 2 ]; }
+wait_for 60 w2_registered || fail "the restarted worker w2 did not register with both masters"
+# The camera flies through the Cornell box over frames 1-8. Every key is a whole camera, so the
+# frames' cameras need nothing from the built-in's own camera (see the references below).
+scene="$tmp/hosts/client/scenes/flythrough.json"
+mkdir -p "$(dirname "$scene")"
+cat > "$scene" <<'EOF'
+{
+  "builtin": "cornell",
+  "animation": {
+    "camera": [
+      {"frame": 1, "eye": [0, 1, 3.9],      "look": [0, 1, 0],        "up": [0, 1, 0],    "fov": 39.3},
+      {"frame": 5, "eye": [0.4, 1.15, 3.2], "look": [0.05, 1, 0],     "up": [0, 1, 0],    "fov": 44},
+      {"frame": 8, "eye": [-0.3, 1.2, 2.8], "look": [-0.1, 0.95, 0],  "up": [0.05, 1, 0], "fov": 50}
+    ]
+  }
+}
+EOF
+[ ${#as_user[@]} -eq 0 ] || chown -R 65534:65534 "$tmp/hosts/client/scenes"
+# 64x64 pixels in 4 tiles, 8 rounds of 4 paths, every pixel traced in each round.
+frame_flags=(--width 64 --height 64 --spp 32 --paths-per-round 4 --tile 32 --mode skip --min-paths 32
+             --round-growth 0 --seed 31)
+both="master1:50051,master2:50051"  # the masters by their service names, as a compose user names them
+declare -A mark
+for m in "${masters[@]}"; do mark[$m]="$(wc -l < "$tmp/$m.log")"; done
+# Every worker frozen from the submission on: they run in slices of 50 ms below, so that the kill
+# comes while the victim's frames are mid-way however fast the frames are.
+worker_pids="$(ip netns pids "$id-w1") $(ip netns pids "$id-w2") $(ip netns pids "$id-w3")"
+kill -STOP $worker_pids
+on client "${entry[@]}" submit "$scene" --frames 1-8 "${frame_flags[@]}" --master "$both" \
+  > "$tmp/batch.out" 2> "$tmp/batch-submit.log" || { kill -CONT $worker_pids; fail "epr submit --frames 1-8 failed: $(cat "$tmp/batch-submit.log")"; }
+batch="$(head -n 1 "$tmp/batch.out")"
+[[ "$batch" =~ ^b-[0-9a-f]{12}$ ]] || { kill -CONT $worker_pids; fail "epr submit --frames printed no batch id: '$batch'"; }
+# The frames each master took: the jobs its log shows submitted since the mark.
+declare -A frames_on
+for m in "${masters[@]}"; do
+  frames_on[$m]="$(tail -n +"$((mark[$m] + 1))" "$tmp/$m.log" | sed -n 's/.*job \([^ ]*\) submitted:.*/\1/p' | tr '\n' ' ')"
+done
+n1="$(wc -w <<< "${frames_on[master1]}")" n2="$(wc -w <<< "${frames_on[master2]}")"
+[ "$((n1 + n2))" -eq 8 ] && [ "$n1" -ge 1 ] && [ "$n2" -ge 1 ] ||
+  { kill -CONT $worker_pids; fail "the 8 frames were not spread over both masters: $n1 on master1, $n2 on master2"; }
+log "batch $batch: $(grep -o 'queued: .*' "$tmp/batch-submit.log")"
+# watch and get run through the kill, as a user's would.
+on client "${entry[@]}" watch "$batch" --master "$both" > "$tmp/watch.out" 2> "$tmp/watch.log" &
+watch_pid=$!
+frames_dir="$tmp/hosts/client/out/frames"
+mkdir -p "$frames_dir"
+[ ${#as_user[@]} -eq 0 ] || chown 65534:65534 "$frames_dir"
+on client "${entry[@]}" get "$batch" --out "$frames_dir/fly" --master "$both" > "$tmp/get.out" 2> "$tmp/get.log" &
+get_pid=$!
+
+# master1 is the victim: it holds the first job (done) and its frames. Slices until one of its
+# frames has a round checkpoint; then, workers frozen, it still holds running frames.
+victim_log="$tmp/master1.log"
+checkpointed() {
+  local j
+  for j in ${frames_on[master1]}; do grep -qF "job $j: round checkpoint synced" "$victim_log" && return 0; done
+  return 1
+}
+frames_done() { # MASTER: how many of its batch frames its log shows done
+  local j n=0
+  for j in ${frames_on[$1]}; do grep -qF "job $j done:" "$tmp/$1.log" && n=$((n + 1)); done
+  echo "$n"
+}
+deadline=$((SECONDS + 120))
+until checkpointed; do
+  [ "$SECONDS" -lt "$deadline" ] || { kill -CONT $worker_pids; fail "no frame of master1 reached a round checkpoint"; }
+  kill -CONT $worker_pids
+  sleep 0.05
+  kill -STOP $worker_pids
+done
+sleep 0.3  # the master ends what it has in hand (tile results already received)
+done1="$(frames_done master1)"
+[ "$done1" -lt "$n1" ] || { kill -CONT $worker_pids; fail "master1 finished its $n1 frames before the kill"; }
+master1_pids="$(ip netns pids "$id-master1")"
+kill -KILL $master1_pids
+gone() { [ -z "$(ip netns pids "$id-master1")" ]; }
+wait_for 5 gone || { kill -CONT $worker_pids; fail "master1 survived SIGKILL"; }
+kill -CONT $worker_pids
+log "killed master1 (SIGKILL, pids $master1_pids) with $done1 of its $n1 frames done, $(frames_done master2) of master2's $n2"
+sleep 2  # the workers and the clients find it down
+# Restarted in its namespace on the same state directory, as compose restarts the container.
+service_config master1 master1
+echo "---- restarted" >> "$victim_log"
+on master1 "${SVC_CMD[@]}" >> "$victim_log" 2>&1 &
+disown $!
+wait_for 60 on master1 "${master_health[@]}" 2>> "$tmp/health.log" || fail "the restarted master1 never became healthy"
+run2="$(grep -o "run 2, [0-9]* jobs loaded, [0-9]* resume from their checkpoint" "$victim_log")"
+[ -n "$run2" ] || fail "the restarted master1 did not load its state directory (no 'run 2' line)"
+loaded="$(awk '{print $3}' <<< "$run2")" resumed="$(awk '{print $6}' <<< "$run2")"
+expected=$((n1 + 0))
+[ "$job_master" != master1 ] || expected=$((n1 + 1))
+[ "$loaded" -eq "$expected" ] || fail "the restarted master1 loaded $loaded jobs, expected $expected: $run2"
+[ "$resumed" -ge 1 ] || fail "the restarted master1 resumed no frame from its round checkpoint: $run2"
+log "master1 restarted: $run2"
+
+deadline=$((SECONDS + 180))
+while kill -0 "$watch_pid" 2>/dev/null || kill -0 "$get_pid" 2>/dev/null; do
+  [ "$SECONDS" -lt "$deadline" ] || fail "epr watch / epr get of the batch did not end within 180 s of the restart"
+  sleep 0.5
+done
+wait "$watch_pid" || fail "epr watch $batch exited $?: $(tail -n 5 "$tmp/watch.log")"
+wait "$get_pid" || fail "epr get $batch exited $?: $(tail -n 5 "$tmp/get.log")"
+grep -q "master master1.* did not answer" "$tmp/watch.log" || fail "epr watch never saw master1 down"
+grep -q "master master1.* answers again" "$tmp/watch.log" || fail "epr watch never saw master1 back"
+list="$(on client "${entry[@]}" list --batch "$batch" --master "$both" 2>&1)" || fail "epr list --batch: $list"
+[ "$(grep -c " DONE " <<< "$list")" -eq 8 ] || fail "epr list --batch does not show 8 DONE frames: $list"
+log "batch done after $((SECONDS - start)) s in all; epr watch and epr get rode through the restart"
+
+# The references: each frame's camera as CameraAnimation::at computes it (common/camera_animation.cpp:
+# float keys, doubles in between, float results), given to `epr render --single-process` as overrides
+# (9 significant digits give a float back exactly).
+"$PY" - "$scene" > "$tmp/cameras.txt" <<'EOF' || fail "cannot compute the frames' cameras"
+import json, struct, sys
+f32 = lambda x: struct.unpack("f", struct.pack("f", x))[0]
+keys = json.load(open(sys.argv[1]))["animation"]["camera"]
+for frame in range(1, 9):
+    i = max(k for k in range(len(keys)) if keys[k]["frame"] <= frame)
+    a = keys[i]
+    b = keys[i + 1] if frame > a["frame"] and i + 1 < len(keys) else None
+    t = (frame - a["frame"]) / (b["frame"] - a["frame"]) if b else 0.0
+    lerp = lambda x, y: f32(f32(x) + (f32(y) - f32(x)) * t) if b else f32(x)
+    vec = lambda n: ",".join("%.9g" % lerp(x, b[n][k] if b else x) for k, x in enumerate(a[n]))
+    print(frame, vec("eye"), vec("look"), vec("up"), "%.9g" % lerp(a["fov"], b["fov"] if b else a["fov"]))
+EOF
+while read -r f eye look up fov; do
+  ref="$tmp/ref-frame$f"
+  "$EPR_BIN" render "$scene" --eye "$eye" --look "$look" --up "$up" --fov "$fov" "${frame_flags[@]}" \
+    --single-process --out "$ref" > "$ref.log" 2>&1 || fail "epr render --single-process of frame $f failed: $(tail -n 3 "$ref.log")"
+  got="$(printf '%s/fly.%04d' "$frames_dir" "$f")"
+  for ext in exr png json; do [ -s "$got.$ext" ] || fail "epr get wrote no $(basename "$got.$ext")"; done
+  for kind in counts pathtrace; do
+    same_image "$got.$kind.exr" "$ref.$kind.exr" || fail "frame $f: $kind.exr differs from its single-process render"
+  done
+done < "$tmp/cameras.txt"
+[ "$(wc -l < "$tmp/cameras.txt")" -eq 8 ] || fail "not 8 cameras: $(cat "$tmp/cameras.txt")"
+# The frames differ from each other: the camera moved.
+! same_image "$frames_dir/fly.0001.pathtrace.exr" "$frames_dir/fly.0008.pathtrace.exr" 2>/dev/null ||
+  fail "frames 1 and 8 are the same image: the camera did not move"
+log "frames 1-8: counts.exr and pathtrace.exr identical to each frame's single-process render"
 
 # ---- SIGTERM drains the masters (compose's `docker-compose stop`): exit 0 within the grace period ------
 for m in "${masters[@]}"; do
