@@ -30,6 +30,7 @@ from .client import MasterClient, _default_job_name
 from .endpoint import Endpoint
 from .errors import RpcError
 from .proto import job_service_pb2 as pb
+from .proto import scene_pb2 as scene_pb
 from .status import JobStatus
 
 log = logging.getLogger("eprfarm")
@@ -223,7 +224,7 @@ class Client(MasterClient):
         planner.inline_scene_limit = float("inf")  # nothing uploaded while planning
         template = planner.job_spec(scene, name=name, **options)
         bundle = _scene.bundle_scene(scene) if template.scene.WhichOneof("source") == "files" else None
-        scene_ref = pb.SceneBundle()
+        scene_ref = scene_pb.SceneBundle()
         scene_ref.CopyFrom(template.scene)
         template.ClearField("scene")
         specs = _frames.frame_specs(template, batch_id, name, frame_list)
@@ -235,7 +236,7 @@ class Client(MasterClient):
             if not mine:
                 continue
             if bundle is not None:  # one upload for every frame
-                scene_ref = pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
+                scene_ref = scene_pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
             for i in mine:
                 specs[i].scene.CopyFrom(scene_ref)
                 ids[i] = master.submit_spec(specs[i])

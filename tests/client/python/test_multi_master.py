@@ -1,0 +1,297 @@
+#!/usr/bin/python3
+"""The Python client across several masters (eprfarm.Client("A,B")), against two real epr-master
+processes (--name m1, m2) and an epr-worker given both addresses, on loopback.
+
+    test_multi_master.py --package-dir BUILD/client/python --epr EPR --master EPR_MASTER --worker EPR_WORKER
+
+Checks: a submission goes to the least loaded master; a job is found by its id through either order
+of the list and fetched, equal to `epr render --single-process` of the same job (M, M' and the
+path-traced estimate bit-identical); cancel reaches the master holding the job; list merges both
+masters' jobs; a batch of frames spreads over both masters, each frame equal to its single-process
+render with that frame's camera, and `epr list --batch` through both masters sees every frame; with
+one master down, list reports it and still lists the other's jobs, whose jobs still work, and
+submissions go to the master that is up. Run with Debian's /usr/bin/python3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import unittest
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import test_client as base  # noqa: E402  (the process helpers: Farm, Process, epr, wait_for)
+
+# A small job whose cluster render equals the single-process one bit for bit: explicit tiles, CPU
+# reprojection, constant rounds (as tests/integration/cluster's jobs).
+JOB = {"width": 48, "height": 40, "spp": 8, "seed": 7, "mode": "skip", "tile": 32, "reproject": "cpu",
+       "round_growth": 0}
+JOB_FLAGS = ["--width", "48", "--height", "40", "--spp", "8", "--seed", "7", "--mode", "skip", "--tile", "32",
+             "--reproject", "cpu", "--round-growth", "0"]
+LONG = {"width": 64, "height": 64, "spp": 100000, "mode": "pt"}
+ANIMATION = (
+    '{"builtin": "cornell", "animation": {"camera": [\n'
+    '  {"frame": 1, "eye": [0, 1, 3.9], "look": [0, 1, 0]},\n'
+    '  {"frame": 4, "eye": [0.4, 1.15, 3.2], "look": [0.05, 1, 0], "fov": 44}]}}\n'
+)
+
+
+class TwoMasters:
+    """Masters m1 and m2, each with its state folder, and one worker leasing from both."""
+
+    def __init__(self, folder: str):
+        self.farms = []
+        for name in ("m1", "m2"):
+            os.makedirs(os.path.join(folder, name))
+            self.farms.append(base.Farm(os.path.join(folder, name), ["--name", name], worker=False))
+        self.addresses = [f.address for f in self.farms]
+        self.list = ",".join(self.addresses)
+        self.worker = base.Process(
+            [base.ARGS.worker, "--master", self.list, "--threads", "2", "--cache-dir", os.path.join(folder, "cache")],
+            os.path.join(folder, "worker.log"),
+        )
+
+    def logs(self) -> str:
+        return "\n".join(f.logs() for f in self.farms) + f"\n--- worker.log\n{self.worker.output()[-4000:]}"
+
+    def stop(self) -> None:
+        self.worker.stop()
+        for f in self.farms:
+            f.stop()
+
+
+class FarmCase(unittest.TestCase):
+    def run(self, result=None):
+        failures = len(result.failures) + len(result.errors) if result else 0
+        outcome = super().run(result)
+        if result and len(result.failures) + len(result.errors) > failures:
+            print(self.masters.logs(), file=sys.stderr)
+        return outcome
+
+    def single_process(self, name: str, *camera: str):
+        """`epr render --single-process` of JOB (with a camera override): its counts and pathtrace."""
+        prefix = os.path.join(self.tmp, "ref", name)
+        r = base.epr("render", "builtin:cornell", "--single-process", *JOB_FLAGS, *camera, "--out", prefix, timeout=120)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        out = {}
+        for kind in ("counts", "pathtrace"):
+            with open(f"{prefix}.{kind}.exr", "rb") as f:
+                out[kind] = eprfarm.decode_exr(f.read())
+        return out
+
+    def assert_same_render(self, ours, reference, what: str):
+        import numpy as np
+
+        for kind in ("counts", "pathtrace"):
+            self.assertEqual(ours[kind].shape, reference[kind].shape, what)
+            self.assertTrue(np.array_equal(ours[kind], reference[kind]), f"{what}: {kind} differs")
+
+    def wait_idle(self):
+        """Until neither master has samples left to trace (the load submissions compare)."""
+        idle = lambda: all(m.master_info().samples_left == 0 for m in self.client.masters())  # noqa: E731
+        self.assertTrue(base.wait_for(idle, 60, 0.2), "a master stayed busy")
+
+
+class MultiMasterTest(FarmCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="epr-python-multi-")
+        cls.masters = TwoMasters(cls.tmp)
+        cls.client = eprfarm.Client(cls.masters.list)
+        cls.one = [eprfarm.Client(a) for a in cls.masters.addresses]  # each master alone
+
+    @classmethod
+    def tearDownClass(cls):
+        for c in [cls.client, *cls.one]:
+            c.close()
+        cls.masters.stop()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def test_list_forms(self):
+        self.assertEqual(self.client.targets, self.masters.addresses)
+        self.assertTrue(self.client.several)
+        as_list = eprfarm.Client(list(reversed(self.masters.addresses)))
+        self.assertEqual(as_list.targets, list(reversed(self.masters.addresses)))
+        as_list.close()
+        saved = os.environ.get("EPR_MASTER")
+        os.environ["EPR_MASTER"] = self.masters.list
+        try:
+            from_env = eprfarm.Client()
+            self.assertEqual(from_env.targets, self.masters.addresses)
+            self.assertEqual({m.master_info().name for m in from_env.masters()}, {"m1", "m2"})
+            from_env.close()
+        finally:
+            if saved is None:
+                del os.environ["EPR_MASTER"]
+            else:
+                os.environ["EPR_MASTER"] = saved
+        for bad in ("a:1,,b:2", "nocolon", "a:port"):
+            with self.assertRaises(ValueError):
+                eprfarm.Client(bad)
+        self.assertEqual(eprfarm.job_id_master("m1.j000001-beef"), "m1")
+        self.assertEqual(eprfarm.job_id_master("j000001-beef"), "")
+
+    def test_submit_find_fetch_cancel(self):
+        self.wait_idle()
+        busy = self.one[0].submit("builtin:cornell", name="busy", **LONG)  # m1 gets work to do
+        self.assertTrue(base.wait_for(lambda: self.one[0].status(busy).state == "RUNNING", 30))
+        job = self.client.submit("builtin:cornell", **JOB)
+        self.assertTrue(job.startswith("m2."), job)  # the least loaded master
+        self.assertEqual(self.client.cancel(busy).state, "CANCELLED")  # found on m1 by its name
+        self.assertEqual(self.one[0].status(busy).state, "CANCELLED")
+        with self.assertRaises(eprfarm.RpcError) as ctx:
+            self.one[0].status(job)
+        self.assertEqual(ctx.exception.code, grpc.StatusCode.NOT_FOUND)  # the job is on m2 alone
+
+        reversed_client = eprfarm.Client(list(reversed(self.masters.addresses)))
+        for c in (self.client, reversed_client):
+            self.assertEqual(c.status(job).id, job)
+            self.assertEqual(c.wait(job).state, "DONE")
+        files = reversed_client.get(job, out=os.path.join(self.tmp, "py", "job"))
+        self.assertEqual([f.kind for f in files][:3], ["exr", "png", "json"])
+        self.assertTrue(all(os.path.getsize(f.path) == f.bytes for f in files))
+        arrays = self.client.get(job, as_arrays=True)
+        self.assertEqual(arrays["combined"].shape, (40, 48, 3))
+        with open(files[0].path, "rb") as f:
+            self.assertTrue((eprfarm.decode_exr(f.read()) == arrays["combined"]).all())
+        counts = self.client.fetch_bytes(job, "counts.exr").data
+        self.assertEqual(counts, self.one[1].fetch_bytes(job, "counts.exr").data)
+        self.assert_same_render(arrays, self.single_process("job"), "job via both masters")
+        reversed_client.close()
+
+        # An id whose master no one answers to, and one without a master name: asked of every master.
+        for unknown in ("m3.j999999-none", "j999999-none"):
+            with self.assertRaises(eprfarm.RpcError) as ctx:
+                self.client.status(unknown)
+            self.assertEqual(ctx.exception.code, grpc.StatusCode.NOT_FOUND)
+            self.assertIn(f"no master knows job {unknown}", str(ctx.exception))
+            self.assertIn("m1 (", str(ctx.exception))
+            self.assertIn("m2 (", str(ctx.exception))
+
+    def test_list_merges_both_masters(self):
+        on = [self.one[i].submit("builtin:cornell", name=f"list-{i}", **LONG) for i in (0, 1)]
+        for i, job in enumerate(on):
+            self.assertTrue(job.startswith(f"m{i + 1}."), job)
+            self.assertEqual(self.client.cancel(job).state, "CANCELLED")
+        jobs = self.client.list()
+        self.assertEqual(jobs.failed, {})
+        by_id = {j.id: j for j in jobs}
+        for i, job in enumerate(on):
+            self.assertEqual(by_id[job].master, self.masters.addresses[i])
+        self.assertEqual({j.master for j in jobs}, set(self.masters.addresses))
+        for i in (0, 1):  # every job of each master, and only those
+            listed_there = {j.id for j in jobs if j.master == self.masters.addresses[i]}
+            self.assertEqual(listed_there, {j.id for j in self.one[i].list()})
+        times = [j.proto.submitted_unix_ms for j in jobs]
+        self.assertEqual(times, sorted(times, reverse=True))
+        newest = self.client.list(limit=1)
+        self.assertEqual([j.id for j in newest], [jobs[0].id])
+        cancelled = {j.id for j in self.client.list(states=["cancelled"])}
+        self.assertTrue(set(on) <= cancelled)
+        self.assertNotIn(on[0], {j.id for j in self.client.list(states=["done", "queued"])})
+
+    def test_frames_spread_over_both_masters(self):
+        scene = os.path.join(self.tmp, "walk.json")
+        with open(scene, "w") as f:
+            f.write(ANIMATION)
+        self.wait_idle()
+        batch, ids = self.client.submit_frames(scene, "1-4", **JOB)
+        # Equal loads: frame 1 to the first master, then each frame to the one with less work.
+        self.assertEqual([j.split(".")[0] for j in ids], ["m1", "m2", "m1", "m2"])
+        jobs = sorted(self.client.list(batch=batch), key=lambda s: s.frame)
+        self.assertEqual([(s.id, s.frame, s.name, s.proto.batch_frames) for s in jobs],
+                         [(ids[f - 1], f, f"walk.{f:04d}", 4) for f in (1, 2, 3, 4)])
+        self.assertEqual([s.master for s in jobs], [self.masters.addresses[i] for i in (0, 1, 0, 1)])
+        self.assertEqual(len({s.proto.scene.content_hash for s in jobs}), 1)  # uploaded once to each
+        for i in (0, 1):
+            self.assertEqual({s.frame for s in self.one[i].list(batch=batch)}, {1 + i, 3 + i})
+        r = base.epr("list", "--batch", batch, "--master", self.masters.list)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertTrue(all(j in r.stdout for j in ids), r.stdout)
+        for s in jobs:
+            self.assertEqual(self.client.wait(s.id).state, "DONE")
+            cam = s.proto.effective.camera
+            vec = lambda v: f"{v.x:.9g},{v.y:.9g},{v.z:.9g}"  # noqa: E731
+            reference = self.single_process(
+                f"frame-{s.frame}", "--eye", vec(cam.eye), "--look", vec(cam.look), "--up", vec(cam.up),
+                "--fov", f"{cam.fov_y_degrees:.9g}",
+            )
+            self.assert_same_render(self.client.get(s.id, as_arrays=True), reference, f"frame {s.frame}")
+        self.assertAlmostEqual(jobs[3].proto.effective.camera.fov_y_degrees, 44, places=4)
+
+
+class MasterDownTest(FarmCase):
+    """One master stopped: list reports it and lists the other's jobs, which still work."""
+
+    def setUp(self):
+        self.tmp = tempfile.mkdtemp(prefix="epr-python-multi-down-")
+        self.masters = TwoMasters(self.tmp)
+        self.client = eprfarm.Client(self.masters.list, timeout=5)
+
+    def tearDown(self):
+        self.client.close()
+        self.masters.stop()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def test_one_master_down(self):
+        small = {"width": 16, "height": 16, "spp": 2, "mode": "pt"}
+        jobs = []
+        for address in self.masters.addresses:
+            with eprfarm.Client(address) as one:
+                jobs.append(one.submit("builtin:cornell", **small))
+        for job in jobs:
+            self.assertEqual(self.client.wait(job).state, "DONE")
+        self.masters.farms[0].kill_master()
+
+        with self.assertLogs("eprfarm", "WARNING") as logs:
+            listed = self.client.list()
+        self.assertEqual([j.id for j in listed], [jobs[1]])
+        self.assertEqual(list(listed.failed), [self.masters.addresses[0]])
+        self.assertTrue(listed.failed[self.masters.addresses[0]].unreachable)
+        self.assertTrue(any(f"master {self.masters.addresses[0]} did not answer" in line for line in logs.output))
+        # The other master's job is found by its name and fetched.
+        self.assertEqual(self.client.status(jobs[1]).state, "DONE")
+        self.assertEqual(self.client.get(jobs[1], as_arrays=True)["combined"].shape, (16, 16, 3))
+        # The stopped master's job: not found elsewhere, and the error says where it may be.
+        with self.assertRaises(eprfarm.RpcError) as ctx:
+            self.client.status(jobs[0])
+        self.assertTrue(ctx.exception.unreachable)
+        self.assertIn(f"may be on {self.masters.addresses[0]}", str(ctx.exception))
+        # New work goes to the master that is up, batches too.
+        with self.assertLogs("eprfarm", "WARNING"):
+            job = self.client.submit("builtin:cornell", **small)
+        self.assertTrue(job.startswith("m2."), job)
+        with self.assertLogs("eprfarm", "WARNING"):
+            _, ids = self.client.submit_frames("builtin:cornell", "1-2", **small)
+        self.assertEqual([j.split(".")[0] for j in ids], ["m2", "m2"])
+        self.assertEqual(self.client.wait(job).state, "DONE")
+
+        self.masters.farms[1].kill_master()
+        with self.assertRaises(eprfarm.RpcError) as ctx, self.assertLogs("eprfarm", "WARNING"):
+            self.client.list()
+        self.assertTrue(ctx.exception.unreachable)
+
+
+def main() -> int:
+    global eprfarm, grpc
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--package-dir", required=True, help="folder holding the eprfarm package with its stubs")
+    parser.add_argument("--epr", required=True)
+    parser.add_argument("--master", required=True)
+    parser.add_argument("--worker", required=True)
+    args, rest = parser.parse_known_args()
+    base.ARGS.__dict__.update(vars(args))
+    sys.path.insert(0, os.path.abspath(args.package_dir))
+    import grpc
+    import eprfarm
+
+    base.eprfarm, base.grpc = eprfarm, grpc
+    program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
+    return 0 if program.result.wasSuccessful() else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
