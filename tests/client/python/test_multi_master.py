@@ -275,6 +275,56 @@ class MasterDownTest(FarmCase):
         self.assertTrue(ctx.exception.unreachable)
 
 
+class SecureMastersTest(unittest.TestCase):
+    """Two masters over TLS with one token: the client's token and CA apply to both."""
+
+    TOKEN = "multi-master-token"
+
+    def setUp(self):
+        self.tmp = tempfile.mkdtemp(prefix="epr-python-multi-tls-")
+        cert, key, token = (os.path.join(self.tmp, n) for n in ("cert.pem", "key.pem", "token"))
+        base.subprocess.run(
+            ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", key, "-out", cert, "-days", "1",
+             "-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1"],
+            check=True,
+            capture_output=True,
+        )
+        with open(token, "w") as f:
+            f.write(self.TOKEN + "\n")
+        os.chmod(token, 0o600)
+        self.cert = cert
+        self.farms = []
+        for name in ("s1", "s2"):
+            os.makedirs(os.path.join(self.tmp, name))
+            args = ["--name", name, "--tls-cert", cert, "--tls-key", key, "--token-file", token]
+            self.farms.append(base.Farm(os.path.join(self.tmp, name), args, worker=False))
+        self.list = ",".join(f.address for f in self.farms)
+
+    def tearDown(self):
+        for f in self.farms:
+            f.stop()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def test_token_and_tls_on_every_master(self):
+        with eprfarm.Client(self.list, token=self.TOKEN, ca_file=self.cert) as c:
+            self.assertEqual(sorted(m.master_info().name for m in c.masters()), ["s1", "s2"])
+            first = c.submit("builtin:cornell", width=8, height=8, spp=1000, mode="pt")
+            second = c.submit("builtin:cornell", width=8, height=8, spp=1000, mode="pt")
+            # No worker: the first job's samples stay queued, so the second goes to the other master.
+            self.assertEqual(sorted(j.split(".")[0] for j in (first, second)), ["s1", "s2"])
+            self.assertEqual({j.id for j in c.list()}, {first, second})
+            for job in (first, second):
+                self.assertEqual(c.cancel(job).state, "CANCELLED")
+        with eprfarm.Client(self.list, token="wrong", ca_file=self.cert) as c:
+            with self.assertRaises(eprfarm.RpcError) as ctx, self.assertLogs("eprfarm", "WARNING"):
+                c.list()
+            self.assertEqual(ctx.exception.code, grpc.StatusCode.UNAUTHENTICATED)
+        with eprfarm.Client(self.list, token=self.TOKEN, timeout=5) as c:  # plain text to TLS masters
+            with self.assertRaises(eprfarm.RpcError) as ctx, self.assertLogs("eprfarm", "WARNING"):
+                c.submit("builtin:cornell", width=8, height=8, spp=1)
+            self.assertTrue(ctx.exception.unreachable)
+
+
 def main() -> int:
     global eprfarm, grpc
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
