@@ -131,6 +131,14 @@ class MultiMasterTest(FarmCase):
         for bad in ("a:1,,b:2", "nocolon", "a:port"):
             with self.assertRaises(ValueError):
                 eprfarm.Client(bad)
+        # A name with several addresses: one master each, by address, the certificate checked against the name.
+        resolved = eprfarm.master_endpoints("farm:7,10.0.0.9:7", lambda host: ["10.0.0.2", "fd00::1", "10.0.0.1"])
+        self.assertEqual([(e.target, e.name, e.tls_server_name) for e in resolved],
+                         [("ipv4:10.0.0.1:7", "farm:7 (10.0.0.1)", "farm"),
+                          ("ipv4:10.0.0.2:7", "farm:7 (10.0.0.2)", "farm"),
+                          ("ipv6:[fd00::1]:7", "farm:7 (fd00::1)", "farm"),
+                          ("10.0.0.9:7", "10.0.0.9:7", "")])
+        self.assertEqual(len(eprfarm.master_endpoints("localhost:7,localhost:7")), 1)
         self.assertEqual(eprfarm.job_id_master("m1.j000001-beef"), "m1")
         self.assertEqual(eprfarm.job_id_master("j000001-beef"), "")
 
