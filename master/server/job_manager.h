@@ -109,6 +109,9 @@ struct MasterOptions {
   double speculative_factor = 2.0;
   int speculative_floor_ms = 1000;
   int max_worker_failures = 3;
+  // A running job holds a copy of its images (32 bytes per pixel) only while someone asks for its
+  // previews or partial results: for this long after the last ask (Job::preview_images).
+  int preview_interest_ms = 10000;
 
   // Called on the reprojection thread just before a job's frame is built (a fresh job's round 0 is
   // open by then, a resumed job's not yet), with the job's id; what it throws fails the job as a
@@ -160,11 +163,14 @@ class JobManager {
     bool partial = false;  // the job is not done
   };
   /// A done job's file; a cancelled or failed job's last preview copy (partial); with
-  /// `allow_partial`, a running job's latest preview copy (partial: a closed round, taken at most
-  /// about a second after the one before), encoded on the calling thread.
+  /// `allow_partial`, a running job's latest preview copy (partial: taken when a round closed, at most
+  /// about a second after the one before, or on this ask, waiting up to kPartialWaitMs for it),
+  /// encoded on the calling thread.
   ResultFile result_file(const std::string& id, ResultKind kind, bool allow_partial) const EPR_EXCLUDES(mu_);
-  /// PNG of a preview layer (previews.h) as of a round that closed at most a second after the
-  /// previous preview (encoded on demand, on the calling thread), or of the finished job's results.
+  /// Bytes of the running jobs' preview copies (Job::preview_images).
+  size_t preview_copy_bytes() const EPR_EXCLUDES(mu_);
+  /// PNG of a preview layer (previews.h) of the job's preview copy (encoded on demand, on the calling
+  /// thread; a first ask waits up to kPreviewWaitMs for the copy), or of the finished job's results.
   std::optional<std::vector<unsigned char>> preview_png(const std::string& id, const std::string& layer) const
       EPR_EXCLUDES(mu_);
   /// The size and shape checks of a job request (dimensions, sample counts, camera, scene bundle)
@@ -208,6 +214,8 @@ class JobManager {
   /// LeaseTile requests being held (for tests and monitoring).
   size_t parked_requests() const EPR_EXCLUDES(mu_);
   static constexpr int kMaxParkMs = 2000;
+  /// How long preview_png() and result_file() wait for a copy they asked for.
+  static constexpr int kPreviewWaitMs = 5000, kPartialWaitMs = 30000;
   void return_leases(const std::string& worker, const std::vector<uint64_t>& leases) EPR_EXCLUDES(mu_);
   void unregister_worker(const std::string& worker) EPR_EXCLUDES(mu_);
   /// Gives leases back; with a failure other than kNone, also counts one failure of `worker` for the
@@ -287,6 +295,12 @@ class JobManager {
   void finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) EPR_EXCLUDES(mu_);
   void end_job(const std::shared_ptr<Job>& job, JobState state, const std::string& error) EPR_EXCLUDES(mu_);
   void drop_job(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
+  /// Replaces the job's preview copy with one of its frame as it stands, with `counters`' statistics.
+  void take_preview_copy(const std::shared_ptr<Job>& job, const JobCounters& counters) EPR_EXCLUDES(mu_);
+  /// Notes an ask for a preview or partial results of a running job; true if a copy is coming (being
+  /// taken, or requested now: the job has a closed round and no copy) and the caller may wait for it
+  /// on copy_cv_.
+  bool ask_for_copy(Job& job) const EPR_REQUIRES(mu_);
   void reaper_loop() EPR_EXCLUDES(mu_);
 
   // Checkpoints: the state directory at start, and the records written after rounds and at the end.
@@ -300,7 +314,8 @@ class JobManager {
   MasterOptions options_;
   MillisClock clock_;
   mutable Mutex mu_;
-  std::condition_variable_any work_cv_;
+  mutable std::condition_variable_any work_cv_;
+  mutable std::condition_variable_any copy_cv_;  // a preview copy was taken, or a job ended
   JobRegistry jobs_ EPR_GUARDED_BY(mu_);
   WorkerRegistry workers_ EPR_GUARDED_BY(mu_);
   LeaseParking parking_ EPR_GUARDED_BY(mu_);

@@ -1,8 +1,10 @@
 // JobManager's results (job_manager.h): a finished job's files, the partial results of a running,
-// cancelled or failed job (its last preview copy), and the preview PNGs of the monitoring endpoint.
+// cancelled or failed job (its preview copy, taken when asked for), and the preview PNGs of the
+// monitoring endpoint.
 #include <fmt/format.h>
 
 #include <atomic>
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -34,7 +36,33 @@ int stored_round(const fs::path& dir) {
   }
 }
 
+// The copy asked for is there, or will not come.
+bool copy_settled(const Job& job) {
+  return job.preview_images || (!job.preview_requested && !job.preview_copying) || job.state != JobState::kRunning;
+}
+
 }  // namespace
+
+bool JobManager::ask_for_copy(Job& job) const {
+  if (job.state != JobState::kRunning) return false;
+  job.preview_asked_ms = clock_();
+  if (job.preview_copying) return true;
+  if (job.preview_images || job.progress.round == 0) return false;
+  job.preview_requested = true;
+  work_cv_.notify_all();
+  return true;
+}
+
+size_t JobManager::preview_copy_bytes() const {
+  MutexLock lock(mu_);
+  size_t bytes = 0;
+  for (const auto& job : running_)
+    if (const auto& c = job->preview_images)
+      for (const Image* i :
+           {&c->combined, &c->pathtrace, &c->path_sum, &c->reprojection, &c->path_count, &c->reprojected})
+        bytes += i->data.size() * sizeof(float);
+  return bytes;
+}
 
 std::optional<std::string> JobManager::result_path(const std::string& id, ResultKind kind) const {
   std::string dir;
@@ -58,6 +86,9 @@ std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::str
     MutexLock lock(mu_);
     auto job = jobs_.find(id);
     if (!job) return std::nullopt;
+    if (ask_for_copy(*job))
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPreviewWaitMs),
+                        [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return copy_settled(*job); });
     if (auto p = job->previews.find(layer); p != job->previews.end()) return p->second;
     images = job->preview_images;
     reprojects = job->preview_reprojects;
@@ -92,6 +123,13 @@ JobManager::ResultFile JobManager::result_file(const std::string& id, ResultKind
     MutexLock lock(mu_);
     auto job = jobs_.find(id);
     if (!job) return fail(Error::kNoJob, fmt::format("no job '{}'", id));
+    // A running job's copy is taken on this ask; a cancelled or failed one's is being stored.
+    if (allow_partial && ask_for_copy(*job))
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs),
+                        [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return copy_settled(*job); });
+    if (job->partial_pending)
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs),
+                        [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return !job->partial_pending; });
     state = job->state;
     copying = job->preview_copying;
     rounds_done = job->progress.round;

@@ -278,8 +278,11 @@ void MonitoringServer::Impl::image(const httplib::Request& req, httplib::Respons
     const bool reprojects = s->options.mode != RenderMode::kPathTrace;
     const bool pending = reprojects || layer == "combined" || layer == "pathtrace";
     if (pending)
-      return send_error(res, 404, fmt::format("job {} has no preview yet (its first round has not closed)", id),
-                        "pending");
+      return send_error(
+          res, 404,
+          fmt::format(
+              "job {} has no preview yet (its first round has not closed, or its image copy is still being taken)", id),
+          "pending");
     return send_error(res, 404, fmt::format("job {} does not reproject: it has no '{}' layer", id, layer),
                       "layer_unavailable");
   }

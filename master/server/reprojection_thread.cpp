@@ -52,7 +52,8 @@ void JobManager::reprojection_loop() {
   std::vector<std::unique_ptr<Task>> batch;
   for (;;) {
     batch.clear();
-    std::shared_ptr<Job> to_start, to_drop;
+    std::shared_ptr<Job> to_start, to_drop, to_copy;
+    JobCounters copy_counters;
     {
       MutexLock lock(mu_);
       auto ended = [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
@@ -66,8 +67,13 @@ void JobManager::reprojection_loop() {
         auto next = jobs_.next_queued(running_);
         return next && admits(*next) ? next : nullptr;
       };
+      auto copy_asked = [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
+        for (const auto& job : running_)
+          if (job->preview_requested && job->state == JobState::kRunning) return job;
+        return std::shared_ptr<Job>();
+      };
       work_cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
-        return stopping_ || !tasks_.empty() || ended() || startable();
+        return stopping_ || !tasks_.empty() || ended() || startable() || copy_asked();
       });
       if (stopping_) break;
       if ((to_drop = ended())) {
@@ -76,6 +82,12 @@ void JobManager::reprojection_loop() {
         // Before the queued commits: a fresh job's round 0 opens at once, so that workers have its
         // tiles while its frame is built.
         running_.push_back(to_start);
+      } else if ((to_copy = copy_asked())) {
+        // Between batches: the frame as it stands (its closed rounds and the tiles of the open one
+        // applied so far).
+        to_copy->preview_requested = false;
+        to_copy->preview_copying = true;  // for those waiting on copy_cv_
+        copy_counters = to_copy->counters;
       } else if (!tasks_.empty()) {
         // The queued commits of the front one's job and round, in commit order, up to
         // reproject_batch_records records: one reprojector call for all of them (parallel where
@@ -96,6 +108,17 @@ void JobManager::reprojection_loop() {
     }
     if (to_drop) {
       drop_job(to_drop);
+    } else if (to_copy) {
+      try {
+        if (to_copy->driver) take_preview_copy(to_copy, copy_counters);
+      } catch (const std::exception& e) {
+        log->error("job {}: cannot take a preview copy: {}", to_copy->id, e.what());
+      }
+      {
+        MutexLock lock(mu_);
+        to_copy->preview_copying = false;
+      }
+      copy_cv_.notify_all();
     } else if (to_start) {
       try {
         start_job(to_start, gl.get());
@@ -133,17 +156,33 @@ void JobManager::end_job(const std::shared_ptr<Job>& job, JobState state, const 
 }
 
 void JobManager::drop_job(const std::shared_ptr<Job>& job) {
-  // Cancelled or failed: the last preview copy becomes the job's (partial) result files and PNG
-  // previews; the image copy goes once they are written (until then it serves both).
+  // Cancelled or failed: the last preview copy, or else the frame as it stands, becomes the job's
+  // (partial) result files and PNG previews; the image copy goes once they are written (until then it
+  // serves both).
   std::shared_ptr<const FrameImages> images;
   nlohmann::json stats;
   std::string dir;
+  bool from_frame;
+  JobCounters counters;
+  {
+    MutexLock lock(mu_);
+    images = job->preview_images;
+    from_frame = job->partial_pending && !images && job->driver;
+    counters = job->counters;
+    dir = job_dir(*job);
+  }
+  if (from_frame) {
+    try {
+      take_preview_copy(job, counters);
+    } catch (const std::exception& e) {
+      logger("master")->error("job {}: cannot copy its frame for its partial results: {}", job->id, e.what());
+    }
+  }
   {
     MutexLock lock(mu_);
     images = job->preview_images;
     if (job->preview_stats) stats = *job->preview_stats;
     stats.update({{"partial", true}, {"state", to_string(job->state)}});
-    dir = job_dir(*job);
   }
   if (images) {
     try {
@@ -161,6 +200,11 @@ void JobManager::drop_job(const std::shared_ptr<Job>& job) {
     job->previews = std::move(pngs);
     job->preview_images.reset();
   }
+  {
+    MutexLock lock(mu_);
+    job->partial_pending = false;
+  }
+  copy_cv_.notify_all();
   job->driver.reset();
   job->scene.reset();
   notify(job);
@@ -321,7 +365,10 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     histograms_.reprojection.observe(job->counters.seconds_reprojecting - job->reprojecting_at_round_open);
     if (job->request.time_budget_seconds)
       budget_over = double(now - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
-    want_preview = now - job->last_preview_ms >= 1000;
+    // Renewed while someone asks (at most once a second); dropped once nobody has for a while.
+    const bool watched = job->preview_asked_ms >= 0 && now - job->preview_asked_ms <= options_.preview_interest_ms;
+    want_preview = watched && now - job->last_preview_ms >= 1000;
+    if (!watched) job->preview_images.reset();
     checkpoint = progress_record(*job);  // the counters as of the round's end
     at_close = job->counters;
   }
@@ -342,34 +389,38 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
   notify(job);  // watchers (`epr watch`) hear of the round now, not after the copy below
   // The preview copy after the next round opened (workers trace meanwhile): the frame still holds the
   // closed round's state, since only this thread applies the next round's results.
-  // The copy costs the reprojection thread ~44 bytes per pixel of work (1.4-5.5 s at 3840 x 2160 on the
-  // loaded 2-core test machine, during which no tile is applied): the next one waits at least ten times
+  // The copy costs the reprojection thread 32 bytes per pixel of work (seconds at 3840 x 2160 on a
+  // loaded 2-core machine, during which no tile is applied): the next one waits at least ten times
   // as long as this one took (at least the second), so copies take at most ~10 % of the thread. The
   // previews (downscaled, previews.h) and `epr get --partial` serve the latest copy; they say which
   // round it reflects.
-  if (want_preview) {
-    const int64_t copy_started = clock_();
-    {
-      // The old copy goes first, so that the job never holds two (~44 bytes per pixel each); the PNGs
-      // encoded from it keep serving previews meanwhile.
-      MutexLock lock(mu_);
-      job->preview_images.reset();
-      job->preview_copying = true;
-    }
-    auto images = std::make_shared<const FrameImages>(frame.images(/*preview=*/true));
-    nlohmann::json stats = frame.statistics(job->request.options, at_close.worker_culled);
-    MutexLock lock(mu_);
-    job->add_statistics(&stats, at_close, clock_());
-    job->preview_images = std::move(images);
-    job->preview_copying = false;
-    job->preview_stats = std::make_shared<const nlohmann::json>(std::move(stats));
-    job->preview_round = frame.round();
-    job->preview_reprojects = frame.reprojects();
-    job->previews.clear();
-    const int64_t now = clock_();
-    job->last_preview_ms = now + std::max<int64_t>(0, 10 * (now - copy_started) - 1000);
-  }
+  if (want_preview) take_preview_copy(job, at_close);
   save_round_checkpoint(job, std::move(checkpoint));  // the next round's tiles are being traced meanwhile
+}
+
+void JobManager::take_preview_copy(const std::shared_ptr<Job>& job, const JobCounters& counters) {
+  FrameState& frame = job->driver->frame();
+  const int64_t copy_started = clock_();
+  {
+    // The old copy goes first, so that the job never holds two (32 bytes per pixel each); the PNGs
+    // encoded from it keep serving previews meanwhile.
+    MutexLock lock(mu_);
+    job->preview_images.reset();
+    job->preview_copying = true;
+  }
+  auto images = std::make_shared<const FrameImages>(frame.images(/*preview=*/true));
+  nlohmann::json stats = frame.statistics(job->request.options, counters.worker_culled);
+  MutexLock lock(mu_);
+  job->add_statistics(&stats, counters, clock_());
+  job->preview_images = std::move(images);
+  job->preview_copying = false;
+  job->preview_stats = std::make_shared<const nlohmann::json>(std::move(stats));
+  job->preview_round = frame.round();
+  job->preview_reprojects = frame.reprojects();
+  job->previews.clear();
+  const int64_t now = clock_();
+  job->last_preview_ms = now + std::max<int64_t>(0, 10 * (now - copy_started) - 1000);
+  copy_cv_.notify_all();
 }
 
 void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) {

@@ -182,6 +182,52 @@ TEST_F(ResultsTest, RunningJobServesItsLatestRoundOnlyWhenAskedAndACancelledJobK
   EXPECT_EQ(image(restarted).data, running.data);
 }
 
+TEST_F(ResultsTest, RunningJobHoldsAnImageCopyOnlyWhileAskedAndACancelledOneStoresItsFrame) {
+  MasterOptions m;
+  m.preview_interest_ms = 0;  // a copy lasts until the next round closes
+  start(m);
+  RenderOptions o = cornell(RenderMode::kReproject, 32, /*spp=*/4, /*k=*/1);  // 4 rounds of 4 tiles
+  const std::string id = submit(o, bundle_scene("builtin:cornell"));
+  ASSERT_TRUE(eventually([&] { return status(id).state() == v1::JOB_STATE_RUNNING; }));
+  WireWorker w(channel_, "by-hand");
+  trace_round(w, 4);
+  ASSERT_TRUE(eventually([&] { return status(id).round() == 1; }));
+  // Nobody asked: the closed round left no copy of the images behind.
+  EXPECT_EQ(server_->jobs().preview_copy_bytes(), 0u);
+  // The first ask takes one (path sums, L_rp, M, M': 8 floats per pixel) and is served from it.
+  const Fetched first = fetch(id, v1::RESULT_KIND_EXR, true);
+  ASSERT_TRUE(first.status.ok()) << first.status.error_message();
+  EXPECT_EQ(first.header.round(), 1u);
+  EXPECT_EQ(server_->jobs().preview_copy_bytes(), size_t(32 * 32 * 8 * sizeof(float)));
+
+  // The next round closes with no ask since: the copy goes.
+  trace_round(w, 4);
+  ASSERT_TRUE(eventually([&] { return status(id).round() == 2; }));
+  EXPECT_EQ(server_->jobs().preview_copy_bytes(), 0u);
+
+  // Cancelled without a copy: its frame as it stands becomes its partial results, which are those
+  // of the same job rendered to the rounds it closed.
+  EXPECT_EQ(cancel(id).state(), v1::JOB_STATE_CANCELLED);
+  o.spp = 2;
+  const std::string whole = submit(o, bundle_scene("builtin:cornell"));
+  trace_round(w, 4);
+  trace_round(w, 4);
+  ASSERT_EQ(wait_done(whole).state(), v1::JOB_STATE_DONE);
+  for (v1::ResultKind kind : {v1::RESULT_KIND_PATH_TRACED_EXR, v1::RESULT_KIND_COUNTS_EXR, v1::RESULT_KIND_EXR}) {
+    SCOPED_TRACE(v1::ResultKind_Name(kind));
+    const Fetched partial = fetch(id, kind, false);
+    ASSERT_TRUE(partial.status.ok()) << partial.status.error_message();
+    EXPECT_TRUE(partial.header.partial());
+    EXPECT_EQ(partial.header.round(), 2u);
+    const Fetched done = fetch(whole, kind, false);
+    ASSERT_TRUE(done.status.ok()) << done.status.error_message();
+    EXPECT_EQ(image(partial).data, image(done).data);
+  }
+  const json stats = json::parse(fetch(id, v1::RESULT_KIND_JSON, false).bytes);
+  EXPECT_EQ(stats["rounds"], 2);
+  EXPECT_EQ(stats["state"], "cancelled");
+}
+
 TEST_F(ResultsTest, JobCancelledBeforeItsFirstRoundHasNoResults) {
   start();
   const std::string id = submit(cornell(RenderMode::kPathTrace, 32), bundle_scene("builtin:cornell"));
