@@ -332,6 +332,13 @@ int main(int argc, char** argv) {
   app.add_option("--strip-p", strip_p, "equal-time strip at half of pt's CPU time for this P");
   app.add_flag("--no-strip", no_strip, "no equal-time images");
   app.add_flag("--list-references", list_references, "print the reference cache file names and exit");
+  SamplerKind sampler = SamplerKind::kSobolBurley;
+  app.add_option("--sampler", sampler, "eye paths' random numbers of every run: sobol-burley or independent")
+      ->transform(
+          CLI::CheckedTransformer(std::map<std::string, SamplerKind>{{"sobol-burley", SamplerKind::kSobolBurley},
+                                                                     {"independent", SamplerKind::kIndependent}},
+                                  CLI::ignore_case))
+      ->default_str("sobol-burley");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
 
@@ -363,6 +370,7 @@ int main(int argc, char** argv) {
                   {"threads", threads},     {"hardware_threads", std::thread::hardware_concurrency()},
                   {"trim", bench::g_trim},  {"load_start", load1()},
                   {"scenes", json::array()}};
+  summary["sampler"] = to_string(sampler);
   std::printf("speed_accuracy: %dx%d, P=%d, reference %d spp, %u hardware threads, tracer threads %s, load %.2f\n",
               size, size, spp, ref_spp, std::thread::hardware_concurrency(),
               threads > 0 ? std::to_string(threads).c_str() : "all", load1());
@@ -377,6 +385,7 @@ int main(int argc, char** argv) {
     base.subpixels = subpixels;
     base.threads = threads;
     base.seed = 1;
+    base.sampler = sampler;
     const std::string tag = fmt::format("{}_{}x{}", scene_name(spec), size, size);
     std::printf("\n== %s, load %.2f\n", tag.c_str(), load1());
     std::fflush(stdout);

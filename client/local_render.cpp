@@ -67,7 +67,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   // give the same M' (docs/DESIGN.md: determinism).
   const VertexCodec codec(scene.bounds());
 
-  PathTracer tracer(embree, camera, opts.seed, opts.rr, opts.mis);
+  PathTracer tracer(embree, camera, opts.seed, opts.rr, opts.mis, opts.sampler);
   TileRenderer tile_renderer(tracer, filter_for(opts));
   const auto tiles = make_tiles(opts);
   TileStats totals;
@@ -139,6 +139,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
       {"spp", opts.spp},
       {"paths_per_round", opts.paths_per_round},
       {"seed", opts.seed},
+      {"sampler", to_string(opts.sampler)},
       {"paths", totals.paths.paths},
       {"vertices", totals.paths.vertices},
       {"vertices_recorded", totals.vertices_recorded},

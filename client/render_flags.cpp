@@ -65,6 +65,13 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
   cmd->add_flag("--mis,!--no-mis", o.mis,
                 "direct light by MIS of light and BSDF samples (default); --no-mis: next event estimation only")
       ->capture_default_str();
+  const std::map<std::string, SamplerKind> samplers{{"sobol-burley", SamplerKind::kSobolBurley},
+                                                    {"independent", SamplerKind::kIndependent}};
+  cmd->add_option("--sampler", o.sampler,
+                  "eye paths' random numbers: sobol-burley (Owen-scrambled Sobol per pixel) or independent "
+                  "(a hash per dimension, the sampler before sobol-burley)")
+      ->transform(CLI::CheckedTransformer(samplers, CLI::ignore_case))
+      ->default_str("sobol-burley");
   if (set == RenderFlagSet::kLocal) {
     o.tile_size = 0;  // auto: run_render picks auto_tile_size() for the threads it starts, tapered
     cmd->add_option("--tile", o.tile_size,

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "common/camera.h"
+#include "common/sampler.h"
 
 namespace epr {
 
@@ -47,6 +48,8 @@ struct RenderOptions {
   bool reproject_glossy = false;  // failure-mode study only
   bool joint_test = true;         // the plane test's normal and crease tests (off: failure-mode study)
   RussianRoulette rr = RussianRoulette::paper();
+  // Eye paths' random numbers (common/sampler.h).
+  SamplerKind sampler = SamplerKind::kSobolBurley;
   bool mis = true;                    // direct light by MIS of light and BSDF samples; false: NEE only
   int tile_size = 64;                 // pixels (`epr render` picks auto_tile_size() unless told)
   bool taper_tiles = false;           // the last quarter of the tile rows in half-size tiles (make_tiles)

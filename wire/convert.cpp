@@ -56,6 +56,21 @@ void to_proto(const RussianRoulette& r, v1::RussianRouletteSettings* out) {
   out->set_max_depth(uint32_t(std::max(0, r.max_depth)));
 }
 
+std::optional<SamplerKind> from_proto(v1::Sampler s) {
+  switch (s) {
+    case v1::SAMPLER_UNSPECIFIED:
+    case v1::SAMPLER_INDEPENDENT:
+      return SamplerKind::kIndependent;
+    case v1::SAMPLER_SOBOL_BURLEY:
+      return SamplerKind::kSobolBurley;
+    default:
+      return std::nullopt;
+  }
+}
+v1::Sampler to_proto(SamplerKind s) {
+  return s == SamplerKind::kIndependent ? v1::SAMPLER_INDEPENDENT : v1::SAMPLER_SOBOL_BURLEY;
+}
+
 namespace {
 v1::RenderMode to_proto_mode(RenderMode m) {
   return m == RenderMode::kReproject ? v1::RENDER_MODE_RP
@@ -92,6 +107,7 @@ v1::JobSpec to_job_spec(const RenderOptions& o, const SceneBundleData& bundle, c
   spec.set_tile_size(uint32_t(o.tile_size));
   spec.set_round_growth(o.round_growth);
   spec.set_mis(o.mis);
+  spec.set_sampler(to_proto(o.sampler));
   spec.set_taper_tiles(o.taper_tiles);
   return spec;
 }
@@ -157,6 +173,10 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
   if (spec.has_tile_size()) o.tile_size = int(spec.tile_size());
   if (spec.has_round_growth()) o.round_growth = spec.round_growth();
   if (spec.has_mis()) o.mis = spec.mis();
+  if (auto sampler = from_proto(spec.sampler()))
+    o.sampler = *sampler;
+  else
+    return fmt::format("unknown sampler {}", int(spec.sampler()));
   if (spec.has_taper_tiles()) o.taper_tiles = spec.taper_tiles();
   if (spec.has_time_budget_seconds() && !(spec.time_budget_seconds() > 0 && std::isfinite(spec.time_budget_seconds())))
     return "time budget must be a positive number of seconds";
@@ -180,6 +200,7 @@ void to_render_settings(const RenderOptions& o, const CameraSpec& camera, const 
   to_proto(o.rr, out->mutable_russian_roulette());
   to_proto(codec_bounds, out->mutable_codec_bounds());
   out->set_mis(o.mis);
+  out->set_sampler(to_proto(o.sampler));
 }
 
 SceneBundleData from_proto(const v1::SceneFiles& files) {

@@ -24,6 +24,10 @@ RussianRoulette from_proto(const v1::RussianRouletteSettings& rr);
 std::optional<ResultKind> from_proto(v1::ResultKind kind);
 v1::ResultKind to_proto(ResultKind kind);
 void to_proto(const RussianRoulette& rr, v1::RussianRouletteSettings* out);
+/// The sampler a field names: UNSPECIFIED is INDEPENDENT (jobs, checkpoints and masters from before the
+/// field existed); nullopt for a value this build does not know.
+std::optional<SamplerKind> from_proto(v1::Sampler s);
+v1::Sampler to_proto(SamplerKind s);
 
 /// A JobSpec for `opts` with the scene carried as `bundle`. Camera overrides are applied to
 /// `scene_camera` (the camera of the loaded scene) so the job names its camera explicitly.

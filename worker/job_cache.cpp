@@ -117,8 +117,10 @@ std::shared_ptr<const JobContext> JobCache::build(const v1::TileLease& lease, co
   ctx->codec_bounds = from_proto(s.codec_bounds());
   ctx->scene = scene_for(lease.scene(), master);
   ctx->camera = Camera(from_proto(s.camera()), int(s.width()), int(s.height()));
-  ctx->tracer = std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed,
-                                             from_proto(s.russian_roulette()), !s.has_mis() || s.mis());
+  // check_render_settings accepted the sampler: from_proto knows it.
+  ctx->tracer =
+      std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed, from_proto(s.russian_roulette()),
+                                   !s.has_mis() || s.mis(), from_proto(s.sampler()).value());
   return ctx;
 }
 

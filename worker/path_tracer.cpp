@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-#include "common/rng.h"
+#include "common/sampler.h"
 #include "worker/bsdf.h"
 
 namespace epr {
@@ -28,8 +28,9 @@ inline float power_heuristic(float p_this, float p_other) {
 
 }  // namespace
 
-PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis)
-    : scene_(scene), camera_(camera), seed_(seed), rr_(rr), mis_(mis) {}
+PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis,
+                       SamplerKind sampler)
+    : scene_(scene), camera_(camera), seed_(seed), rr_(rr), mis_(mis), sampler_(sampler) {}
 
 Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) const {
   const Scene& s = scene_.scene();
@@ -44,9 +45,9 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
   path.clear();
   const Scene& s = scene_.scene();
   const float eps = scene_.ray_epsilon();
-  SampleStream rng(seed_, uint32_t(y) * uint32_t(camera_.width()) + uint32_t(x), sample);
+  PathSampler rng(sampler_, seed_, uint32_t(y) * uint32_t(camera_.width()) + uint32_t(x), sample);
 
-  const Vec2 film = rng.next2();
+  const Vec2 film = rng.film();
   Ray ray = camera_.generate_ray(float(x) + film.x, float(y) + film.y);
   uint64_t rays = 0;
 
@@ -81,12 +82,10 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, -ray.dir);
     const Vec3 origin = v.position + v.normal * eps;
 
-    // This vertex's random numbers, in a fixed order of dimensions.
-    const float u_light = rng.next();
-    const Vec2 u_point = rng.next2();
-    const Vec2 u_rr_lobe = rng.next2();
-    const float u_rr = u_rr_lobe.x, u_lobe = u_rr_lobe.y;
-    const Vec2 u_dir = rng.next2();
+    // This vertex's random numbers, in the fixed dimension layout of common/sampler.h.
+    const PathSampler::Bounce u = rng.bounce();
+    const float u_light = u.light_select, u_rr = u.rr, u_lobe = u.lobe;
+    const Vec2 u_point = u.light_point, u_dir = u.dir;
 
     // Russian roulette (q is the probability of continuing from this vertex) and the continuation,
     // chosen before the shadow ray is cast: the two dependency chains then overlap, and the next

@@ -15,7 +15,8 @@
 //     tracer before MIS.
 // Either way every x_n with n >= 2 is recorded with radiance Le(x_n) + R_n (see trace()).
 //
-// Parameters: RussianRoulette (common/render_options.h); `mis`; the seed of the counter-based generator.
+// Parameters: RussianRoulette (common/render_options.h); `mis`; the seed and the sampler of the path's
+// random numbers (common/sampler.h: Sobol-Burley by default, or independent per dimension).
 // Determinism: a path depends only on (seed, pixel, sample index): same inputs, same bits.
 // Caveat: a hard depth cap (`max_depth`, default 1024) stops pathological paths; its bias is below
 // float precision for albedos < 0.95 with the paper's roulette.
@@ -26,6 +27,7 @@
 
 #include "common/camera.h"
 #include "common/render_options.h"
+#include "common/sampler.h"
 #include "common/sampling.h"
 #include "common/tile.h"
 #include "common/vertex_record.h"
@@ -35,7 +37,8 @@ namespace epr {
 
 class PathTracer {
  public:
-  PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis = true);
+  PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis = true,
+             SamplerKind sampler = SamplerKind::kSobolBurley);
 
   /// Traces path number `sample` of pixel (x, y); returns the pixel sample Le(x_1) + R_1. When
   /// `vertices` is not null, appends one record per vertex x_n, n >= 2.
@@ -44,6 +47,7 @@ class PathTracer {
   const Camera& camera() const { return camera_; }
   const EmbreeScene& scene() const { return scene_; }
   bool mis() const { return mis_; }
+  SamplerKind sampler() const { return sampler_; }
 
  private:
   Vec3 albedo_at(const Material& m, uint32_t prim, float u, float v) const;
@@ -53,6 +57,7 @@ class PathTracer {
   uint64_t seed_;
   RussianRoulette rr_;
   bool mis_ = true;
+  SamplerKind sampler_ = SamplerKind::kSobolBurley;
 };
 
 }  // namespace epr

@@ -78,6 +78,7 @@ std::optional<std::string> check_render_settings(const v1::RenderSettings& s) {
     return "Russian roulette termination probability must be in [0, 1)";
   if (rrs.max_depth < 1 || rrs.max_depth > kMaxDepth)
     return fmt::format("max_depth {} outside [1, {}]", rrs.max_depth, kMaxDepth);
+  if (!from_proto(s.sampler())) return fmt::format("unknown sampler {}", int(s.sampler()));
   return std::nullopt;
 }
 

@@ -30,7 +30,7 @@ inline UnfilteredRender render_unfiltered(RenderOptions o, bool defeat_facing, b
   const Camera camera(o.camera_for(scene.camera), o.width, o.height);
   EmbreeScene embree(scene);
   FrameState frame(o, camera, scene, nullptr);
-  PathTracer tracer(embree, camera, o.seed, o.rr, o.mis);
+  PathTracer tracer(embree, camera, o.seed, o.rr, o.mis, o.sampler);
   TileRenderer renderer(tracer, VertexFilter{VertexFilter::Mode::kAll, o.subpixels, reproject_glossy});
   const TileRect all{0, 0, o.width, o.height};
   while (!frame.done()) {
