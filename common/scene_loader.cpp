@@ -1,6 +1,7 @@
 // The loader's entry points (scene_loader.h): a spec names a built-in scene, a scene JSON or an OBJ.
 // The formats are read in common/scene_loader/: obj.cpp (with polygon.cpp), mtl.cpp, textures.cpp,
-// scene_json.cpp, on top of text.cpp (lines, tokens, numbers, errors) and path_sandbox.cpp.
+// gltf.cpp (with gltf_files.cpp), scene_json.cpp, on top of text.cpp (lines, tokens, numbers, errors) and
+// path_sandbox.cpp.
 #include "common/scene_loader.h"
 
 #include <fmt/format.h>
@@ -11,6 +12,7 @@
 #include <vector>
 
 #include "common/builtin_scenes.h"
+#include "common/scene_loader/gltf.h"
 #include "common/scene_loader/obj.h"
 #include "common/scene_loader/path_sandbox.h"
 #include "common/scene_loader/text.h"
@@ -35,11 +37,20 @@ Scene load_obj(const std::string& obj_path, const LoadOptions& opts, LoadReport*
   return scene;
 }
 
+Scene load_gltf(const std::string& gltf_path, const LoadOptions& opts, LoadReport* report) {
+  LoadReport local;
+  const std::filesystem::path real = loader::canonical_or_fail(gltf_path, gltf_path);
+  Scene scene = loader::load_gltf_inside({real, gltf_path}, real.parent_path(), opts, report ? *report : local);
+  loader::validate_or_fail(scene, gltf_path);
+  return scene;
+}
+
 Scene load_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report) {
   if (spec.find('\0') != std::string::npos)
     throw SceneError(fmt::format("scene path {} contains a NUL byte", loader::quote_token(spec)));
   if (spec.rfind("builtin:", 0) == 0) return make_builtin_scene(parse_builtin_spec(spec.substr(8)), opts.max_triangles);
   if (ends_with_json(spec)) return load_scene_json(spec, opts, report);
+  if (loader::is_gltf_path(spec)) return load_gltf(spec, opts, report);
   return load_obj(spec, opts, report);
 }
 

@@ -1,4 +1,4 @@
-// Loading scenes from files: Wavefront OBJ + MTL (+ Kd textures), the scene JSON format described in
+// Loading scenes from files: Wavefront OBJ + MTL (+ Kd textures), glTF 2.0, the scene JSON format described in
 // scenes/README.md, and the named built-in scenes (common/builtin_scenes.h).
 //
 // Every loader treats its input as untrusted (jobs arrive over the network and the loader is fuzzed):
@@ -26,8 +26,8 @@
 
 namespace epr {
 
-/// spec is: an OBJ path; a scene JSON path (*.json); or "builtin:NAME" / "builtin:NAME?tess=N" (see
-/// builtin_scenes.h for the parameters).
+/// spec is: an OBJ path; a glTF path (*.gltf, *.glb); a scene JSON path (*.json); or "builtin:NAME" /
+/// "builtin:NAME?tess=N" (see builtin_scenes.h for the parameters).
 Scene load_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* = nullptr);
 
 /// An OBJ file with its MTL files and Kd textures. Materials are Lambertian (Kd or map_Kd, Ke for
@@ -35,6 +35,12 @@ Scene load_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* =
 /// default (the Cornell box's conventional camera): OBJ files carry none. Zero-area triangles are
 /// dropped with a warning that names the line of the first; an OBJ with nothing else is an error.
 Scene load_obj(const std::string& obj_path, const LoadOptions& = {}, LoadReport* = nullptr);
+
+/// A glTF 2.0 file (.gltf with its buffers and images, or .glb): the default scene's node tree as
+/// world-space triangles, metallic-roughness materials mapped onto the scene's materials (scenes/
+/// README.md, "glTF 2.0"; each approximation a warning naming the file and the material) and the
+/// first camera node's perspective camera (else CameraSpec's default).
+Scene load_gltf(const std::string& gltf_path, const LoadOptions& = {}, LoadReport* = nullptr);
 
 /// A scene JSON file: an OBJ or a built-in scene plus camera and material overrides.
 Scene load_scene_json(const std::string& json_path, const LoadOptions& = {}, LoadReport* = nullptr);

@@ -8,7 +8,7 @@ PACKAGES=(
   build-essential cmake ninja-build pkg-config git clang libclang-rt-14-dev clang-format
   # rendering
   libembree-dev libtbb-dev libosmesa6-dev libopenimageio-dev openimageio-tools
-  libtinyobjloader-dev
+  libtinyobjloader-dev libtinygltf-dev
   # services
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc libssl-dev
   libcpp-httplib-dev

@@ -21,6 +21,7 @@ void warn(LoadReport& report, std::string message) {
 }
 
 void fail(const std::string& file, size_t line, const std::string& reason) {
+  if (line == 0) fail_file(file, reason);
   throw SceneError(fmt::format("{}:{}: {}", file, line, reason));
 }
 

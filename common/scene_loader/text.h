@@ -21,7 +21,7 @@ std::shared_ptr<spdlog::logger> scene_log();
 /// user by whoever loads the scene for them, once).
 void warn(LoadReport& report, std::string message);
 
-/// Raises SceneError "file:line: reason".
+/// Raises SceneError "file:line: reason" (line 0: "file: reason", for files without lines, like glTF).
 [[noreturn]] void fail(const std::string& file, size_t line, const std::string& reason);
 /// Raises SceneError "file: reason" (a problem with the whole file).
 [[noreturn]] void fail_file(const std::string& file, const std::string& reason);

@@ -1,0 +1,547 @@
+// glTF 2.0 scenes (scenes/README.md, "glTF 2.0"): the node tree flattened into world-space triangles,
+// metallic-roughness materials mapped onto the scene's Lambertian / glossy / emissive materials, and
+// the first camera node. Each approximation is a warning naming the file and the material, once.
+#include "common/scene_loader/gltf.h"
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include <algorithm>
+#include <array>
+#include <cctype>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <set>
+#include <tuple>
+#include <vector>
+
+#include "common/scene_loader/gltf_files.h"
+#include "common/scene_loader/obj_context.h"
+#include "common/scene_loader/text.h"
+
+namespace epr::loader {
+namespace {
+
+namespace fs = std::filesystem;
+using Mat4 = std::array<double, 16>;  // column-major, as glTF writes matrices
+
+constexpr double kPi = 3.14159265358979323846;
+
+Mat4 identity() { return {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1}; }
+
+Mat4 mul(const Mat4& a, const Mat4& b) {
+  Mat4 r{};
+  for (int c = 0; c < 4; ++c)
+    for (int row = 0; row < 4; ++row) {
+      double s = 0;
+      for (int k = 0; k < 4; ++k) s += a[size_t(k * 4 + row)] * b[size_t(c * 4 + k)];
+      r[size_t(c * 4 + row)] = s;
+    }
+  return r;
+}
+
+Vec3 transform(const Mat4& m, double x, double y, double z, double w) {
+  return {float(m[0] * x + m[4] * y + m[8] * z + m[12] * w), float(m[1] * x + m[5] * y + m[9] * z + m[13] * w),
+          float(m[2] * x + m[6] * y + m[10] * z + m[14] * w)};
+}
+
+double det3(const Mat4& m) {
+  return m[0] * (m[5] * m[10] - m[9] * m[6]) - m[4] * (m[1] * m[10] - m[9] * m[2]) + m[8] * (m[1] * m[6] - m[5] * m[2]);
+}
+
+const char* mode_name(int mode) {
+  switch (mode) {
+    case TINYGLTF_MODE_POINTS:
+      return "points";
+    case TINYGLTF_MODE_LINE:
+      return "lines";
+    case TINYGLTF_MODE_LINE_LOOP:
+      return "line loop";
+    case TINYGLTF_MODE_LINE_STRIP:
+      return "line strip";
+    case TINYGLTF_MODE_TRIANGLE_STRIP:
+      return "triangle strip";
+    case TINYGLTF_MODE_TRIANGLE_FAN:
+      return "triangle fan";
+    default:
+      return "unknown";
+  }
+}
+
+/// An accessor's elements in their buffer, bounds checked.
+struct View {
+  const unsigned char* base = nullptr;
+  size_t count = 0, stride = 0;
+  int component = 0;  // TINYGLTF_COMPONENT_TYPE_*
+  bool normalized = false;
+
+  double get(size_t i, size_t k) const {
+    const unsigned char* p = base + i * stride;
+    switch (component) {
+      case TINYGLTF_COMPONENT_TYPE_FLOAT: {
+        float f;
+        std::memcpy(&f, p + 4 * k, 4);
+        return f;
+      }
+      case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE:
+        return p[k] / (normalized ? 255.0 : 1.0);
+      case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
+        uint16_t v;
+        std::memcpy(&v, p + 2 * k, 2);
+        return v / (normalized ? 65535.0 : 1.0);
+      }
+      case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT: {
+        uint32_t v;
+        std::memcpy(&v, p + 4 * k, 4);
+        return v;
+      }
+      default:
+        return 0;
+    }
+  }
+};
+
+class GltfReader {
+ public:
+  GltfReader(const FileRef& f, const fs::path& root, const LoadOptions& opts, LoadReport& report)
+      : f_(f), root_(root), opts_(opts), report_(report), textures_(opts, root, report) {}
+
+  Scene read() {
+    read_gltf(f_, root_, opts_, report_, &in_);
+    const tinygltf::Model& m = in_.model;
+    for (const std::string& ext : m.extensionsRequired)
+      if (ext != "KHR_materials_emissive_strength")
+        error(fmt::format("requires the extension {}, which is not supported", quote_token(ext)));
+    if (m.scenes.empty()) error("no scenes: nothing to render");
+    const int s = m.defaultScene >= 0 ? m.defaultScene : 0;
+    if (size_t(s) >= m.scenes.size()) error(fmt::format("scene {} does not exist ({} scenes)", s, m.scenes.size()));
+    if (!m.animations.empty()) note_once("animations ignored: the scene is loaded as it stands");
+    if (!m.skins.empty()) note_once("skins ignored: meshes are placed by their nodes only");
+    visit(m.scenes[size_t(s)].nodes, fmt::format("scenes[{}]", s));
+    if (scene_.triangles.empty()) error("no triangles: the scene's nodes hold no triangle mesh");
+    if (degenerate_ > 0)
+      warn(report_, fmt::format("{}: dropped {} degenerate (zero-area) triangles, the first in {}", f_.display,
+                                degenerate_, first_degenerate_));
+    if (textured_) scene_.uvs = std::move(uvs_);
+    scene_.textures = std::move(textures_.textures);
+    scene_.name = f_.display;
+    return std::move(scene_);
+  }
+
+ private:
+  [[noreturn]] void error(const std::string& reason) const { fail_file(f_.display, reason); }
+
+  void note_once(const std::string& what) {
+    if (file_notes_.insert(what).second) warn(report_, fmt::format("{}: {}", f_.display, what));
+  }
+
+  /// Walks the node tree from `roots` depth-first, in order.
+  void visit(const std::vector<int>& roots, const std::string& where) {
+    const auto& nodes = in_.model.nodes;
+    std::vector<bool> seen(nodes.size(), false);
+    std::vector<std::pair<int, Mat4>> stack;
+    auto push_children = [&](const std::vector<int>& children, const Mat4& parent, const std::string& from) {
+      for (size_t i = children.size(); i-- > 0;) {
+        const int n = children[i];
+        if (n < 0 || size_t(n) >= nodes.size())
+          error(fmt::format("{}: node {} does not exist ({} nodes)", from, n, nodes.size()));
+        if (seen[size_t(n)]) error(fmt::format("nodes[{}] appears twice in the node tree (a node has one parent)", n));
+        seen[size_t(n)] = true;
+        stack.emplace_back(n, parent);
+      }
+    };
+    push_children(roots, identity(), where);
+    while (!stack.empty()) {
+      auto [n, parent] = stack.back();
+      stack.pop_back();
+      const tinygltf::Node& node = nodes[size_t(n)];
+      const Mat4 world = mul(parent, local_transform(node, n));
+      if (node.mesh >= 0) add_mesh(node.mesh, world, n);
+      if (node.camera >= 0 && !camera_found_) set_camera(node.camera, world, n);
+      push_children(node.children, world, fmt::format("nodes[{}].children", n));
+    }
+  }
+
+  Mat4 local_transform(const tinygltf::Node& node, int n) const {
+    const auto finite = [](const std::vector<double>& v) {
+      return std::all_of(v.begin(), v.end(), [](double x) { return std::isfinite(x); });
+    };
+    if (!finite(node.matrix) || !finite(node.translation) || !finite(node.rotation) || !finite(node.scale))
+      error(fmt::format("nodes[{}]: non-finite transform", n));
+    if (!node.matrix.empty()) {
+      if (node.matrix.size() != 16) error(fmt::format("nodes[{}]: matrix must have 16 numbers", n));
+      Mat4 m;
+      std::copy(node.matrix.begin(), node.matrix.end(), m.begin());
+      return m;
+    }
+    Mat4 t = identity(), r = identity(), s = identity();
+    if (!node.translation.empty()) {
+      if (node.translation.size() != 3) error(fmt::format("nodes[{}]: translation must have 3 numbers", n));
+      t[12] = node.translation[0], t[13] = node.translation[1], t[14] = node.translation[2];
+    }
+    if (!node.rotation.empty()) {
+      if (node.rotation.size() != 4) error(fmt::format("nodes[{}]: rotation must have 4 numbers", n));
+      double x = node.rotation[0], y = node.rotation[1], z = node.rotation[2], w = node.rotation[3];
+      const double len = std::sqrt(x * x + y * y + z * z + w * w);
+      if (!(len > 0)) error(fmt::format("nodes[{}]: rotation is not a unit quaternion", n));
+      x /= len, y /= len, z /= len, w /= len;
+      r = {1 - 2 * (y * y + z * z),
+           2 * (x * y + z * w),
+           2 * (x * z - y * w),
+           0,
+           2 * (x * y - z * w),
+           1 - 2 * (x * x + z * z),
+           2 * (y * z + x * w),
+           0,
+           2 * (x * z + y * w),
+           2 * (y * z - x * w),
+           1 - 2 * (x * x + y * y),
+           0,
+           0,
+           0,
+           0,
+           1};
+    }
+    if (!node.scale.empty()) {
+      if (node.scale.size() != 3) error(fmt::format("nodes[{}]: scale must have 3 numbers", n));
+      s[0] = node.scale[0], s[5] = node.scale[1], s[10] = node.scale[2];
+    }
+    return mul(t, mul(r, s));
+  }
+
+  void set_camera(int c, const Mat4& world, int n) {
+    const auto& cameras = in_.model.cameras;
+    if (size_t(c) >= cameras.size())
+      error(fmt::format("nodes[{}]: camera {} does not exist ({} cameras)", n, c, cameras.size()));
+    camera_found_ = true;
+    const tinygltf::Camera& cam = cameras[size_t(c)];
+    if (cam.type != "perspective") {
+      note_once(fmt::format("cameras[{}] is {}: only perspective cameras are read, the default camera is used", c,
+                            quote_token(cam.type)));
+      return;
+    }
+    CameraSpec spec;
+    spec.eye = transform(world, 0, 0, 0, 1);
+    const Vec3 forward = transform(world, 0, 0, -1, 0);
+    spec.look = spec.eye + normalize(forward);
+    spec.up = transform(world, 0, 1, 0, 0);
+    spec.fov_y_degrees = float(cam.perspective.yfov * 180.0 / kPi);
+    if (!(cam.perspective.yfov > 0 && cam.perspective.yfov < kPi))
+      error(fmt::format("cameras[{}]: yfov {} is not between 0 and pi", c, cam.perspective.yfov));
+    if (auto problem = spec.validate()) {
+      note_once(fmt::format("nodes[{}]: camera placement unusable ({}), the default camera is used", n, *problem));
+      return;
+    }
+    scene_.camera = spec;
+  }
+
+  View view(int a, const std::string& where, const char* role) const {
+    const tinygltf::Model& m = in_.model;
+    if (a < 0 || size_t(a) >= m.accessors.size())
+      error(fmt::format("{}: {} accessor {} does not exist ({} accessors)", where, role, a, m.accessors.size()));
+    const tinygltf::Accessor& acc = m.accessors[size_t(a)];
+    const std::string aw = fmt::format("{}: {} accessors[{}]", where, role, a);
+    if (acc.sparse.isSparse) error(aw + " is sparse, which is not supported");
+    if (acc.bufferView < 0 || size_t(acc.bufferView) >= m.bufferViews.size())
+      error(fmt::format("{} has no bufferView (bufferView {})", aw, acc.bufferView));
+    const tinygltf::BufferView& bv = m.bufferViews[size_t(acc.bufferView)];
+    if (bv.buffer < 0 || size_t(bv.buffer) >= m.buffers.size())
+      error(fmt::format("{}: bufferViews[{}] names buffer {}, which does not exist", aw, acc.bufferView, bv.buffer));
+    const std::vector<unsigned char>& data = m.buffers[size_t(bv.buffer)].data;
+    if (bv.byteOffset > data.size() || bv.byteLength > data.size() - bv.byteOffset)
+      error(fmt::format("{}: bufferViews[{}] (bytes {}..{}) lies outside buffers[{}] ({} bytes)", aw, acc.bufferView,
+                        bv.byteOffset, bv.byteOffset + bv.byteLength, bv.buffer, data.size()));
+    const int csize = tinygltf::GetComponentSizeInBytes(uint32_t(acc.componentType));
+    const int ncomp = tinygltf::GetNumComponentsInType(uint32_t(acc.type));
+    if (csize <= 0 || ncomp <= 0) error(aw + " has an unknown component type or type");
+    const size_t elem = size_t(csize) * size_t(ncomp);
+    const size_t stride = bv.byteStride > 0 ? bv.byteStride : elem;
+    if (stride < elem) error(fmt::format("{}: byteStride {} is less than an element ({} bytes)", aw, stride, elem));
+    View v{data.data() + bv.byteOffset + std::min(acc.byteOffset, bv.byteLength), acc.count, stride, acc.componentType,
+           acc.normalized};
+    if (acc.count > 0 && (acc.byteOffset > bv.byteLength || acc.count - 1 > (bv.byteLength - acc.byteOffset) / stride ||
+                          (acc.count - 1) * stride + elem > bv.byteLength - acc.byteOffset))
+      error(
+          fmt::format("{} is out of range: {} elements of {} bytes from byte {} do not fit in bufferViews[{}] ({} "
+                      "bytes)",
+                      aw, acc.count, elem, acc.byteOffset, acc.bufferView, bv.byteLength));
+    return v;
+  }
+
+  void add_mesh(int mi, const Mat4& world, int n) {
+    const auto& meshes = in_.model.meshes;
+    if (size_t(mi) >= meshes.size())
+      error(fmt::format("nodes[{}]: mesh {} does not exist ({} meshes)", n, mi, meshes.size()));
+    for (size_t p = 0; p < meshes[size_t(mi)].primitives.size(); ++p)
+      add_primitive(meshes[size_t(mi)].primitives[p], world, fmt::format("meshes[{}].primitives[{}]", mi, p));
+  }
+
+  void add_primitive(const tinygltf::Primitive& prim, const Mat4& world, const std::string& where) {
+    if (prim.mode != TINYGLTF_MODE_TRIANGLES)
+      error(fmt::format("{}: mode {} ({}) is not supported: only triangle lists (mode 4) are read", where, prim.mode,
+                        mode_name(prim.mode)));
+    const auto pos_it = prim.attributes.find("POSITION");
+    if (pos_it == prim.attributes.end()) error(where + ": no POSITION attribute");
+    const View pos = view(pos_it->second, where, "POSITION");
+    const tinygltf::Accessor& pacc = in_.model.accessors[size_t(pos_it->second)];
+    if (pacc.type != TINYGLTF_TYPE_VEC3 || pacc.componentType != TINYGLTF_COMPONENT_TYPE_FLOAT)
+      error(where + ": POSITION must be float VEC3");
+    if (prim.attributes.count("COLOR_0")) note_once("vertex colours (COLOR_0) ignored");
+    if (!prim.targets.empty()) note_once("morph targets ignored");
+    if (prim.material >= 0 && size_t(prim.material) >= in_.model.materials.size())
+      error(fmt::format("{}: material {} does not exist ({} materials)", where, prim.material,
+                        in_.model.materials.size()));
+    const auto [mat, texcoord] = material_for(prim.material);
+
+    View uv;
+    bool has_uv = false;
+    if (texcoord >= 0) {
+      const auto uv_it = prim.attributes.find(fmt::format("TEXCOORD_{}", texcoord));
+      if (uv_it == prim.attributes.end()) {
+        note_once(fmt::format("{}: its material's texture needs TEXCOORD_{}, which it lacks: one texel is used", where,
+                              texcoord));
+      } else {
+        uv = view(uv_it->second, where, "TEXCOORD");
+        const tinygltf::Accessor& uacc = in_.model.accessors[size_t(uv_it->second)];
+        if (uacc.type != TINYGLTF_TYPE_VEC2 || uv.count != pos.count ||
+            !(uv.component == TINYGLTF_COMPONENT_TYPE_FLOAT || uv.normalized))
+          error(where + ": TEXCOORD must be VEC2 (float or normalized) with one entry per POSITION");
+        has_uv = true;
+      }
+      textured_ = true;
+    }
+
+    std::vector<uint32_t> index;
+    if (prim.indices >= 0) {
+      const View iv = view(prim.indices, where, "indices");
+      const tinygltf::Accessor& iacc = in_.model.accessors[size_t(prim.indices)];
+      if (iacc.type != TINYGLTF_TYPE_SCALAR || iacc.componentType == TINYGLTF_COMPONENT_TYPE_FLOAT ||
+          iacc.componentType == TINYGLTF_COMPONENT_TYPE_BYTE || iacc.componentType == TINYGLTF_COMPONENT_TYPE_SHORT)
+        error(where + ": indices must be unsigned integer scalars");
+      if (iv.count % 3 != 0) error(fmt::format("{}: {} indices are not a whole number of triangles", where, iv.count));
+      index.resize(iv.count);
+      for (size_t i = 0; i < iv.count; ++i) {
+        const double v = View{iv.base, iv.count, iv.stride, iv.component, false}.get(i, 0);
+        if (v >= double(pos.count))
+          error(
+              fmt::format("{}: index {} (entry {}) is out of range: POSITION has {} vertices", where, v, i, pos.count));
+        index[i] = uint32_t(v);
+      }
+    } else {
+      if (pos.count % 3 != 0)
+        error(fmt::format("{}: {} vertices without indices are not a whole number of triangles", where, pos.count));
+    }
+    const size_t corners = prim.indices >= 0 ? index.size() : pos.count;
+    if (scene_.triangles.size() + corners / 3 > opts_.max_triangles)
+      error(fmt::format("{}: more than {} triangles", where, opts_.max_triangles));
+    const bool mirrored = det3(world) < 0;  // keeps the winding, and so the normals, as modelled
+    for (size_t t = 0; t < corners; t += 3) {
+      std::array<size_t, 3> c{t, t + 1, t + 2};
+      if (!index.empty()) c = {index[t], index[t + 1], index[t + 2]};
+      if (mirrored) std::swap(c[1], c[2]);
+      std::array<Vec3, 3> p;
+      std::array<Vec2, 3> tc{};
+      for (int k = 0; k < 3; ++k) {
+        p[size_t(k)] =
+            transform(world, pos.get(c[size_t(k)], 0), pos.get(c[size_t(k)], 1), pos.get(c[size_t(k)], 2), 1);
+        if (has_uv) tc[size_t(k)] = {float(uv.get(c[size_t(k)], 0)), float(1.0 - uv.get(c[size_t(k)], 1))};
+      }
+      if (!(length(cross(p[1] - p[0], p[2] - p[0])) > 0.f)) {
+        if (degenerate_++ == 0) first_degenerate_ = where;
+        continue;
+      }
+      const uint32_t base = uint32_t(scene_.positions.size());
+      scene_.positions.insert(scene_.positions.end(), p.begin(), p.end());
+      scene_.triangles.push_back({base, base + 1, base + 2});
+      scene_.material_of.push_back(mat);
+      uvs_.push_back(tc);
+    }
+  }
+
+  /// The scene material for glTF material `gi` (-1: the default) and the texture coordinate set its
+  /// texture uses (-1 if untextured), converted on first use.
+  std::pair<uint32_t, int> material_for(int gi) {
+    if (auto it = materials_.find(gi); it != materials_.end()) return it->second;
+    std::pair<uint32_t, int> made;
+    if (gi < 0) {
+      Material def;
+      def.name = "default";
+      made = {add_material(scene_, def), -1};
+    } else {
+      made = convert_material(gi);
+    }
+    materials_.emplace(gi, made);
+    return made;
+  }
+
+  std::pair<uint32_t, int> convert_material(int gi);
+  int texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where);
+  int image_texture(int image, const std::string& where);
+
+  const FileRef& f_;
+  fs::path root_;
+  const LoadOptions& opts_;
+  LoadReport& report_;
+  GltfInput in_;
+  ObjContext textures_;  // the textures read so far (shared with the OBJ reader's texture loading)
+  std::map<int, int> texture_of_image_;
+  std::map<std::tuple<int, float, float, float>, int> baked_;  // (image, factor) -> texture
+  std::map<int, std::pair<uint32_t, int>> materials_;
+  std::set<std::string> file_notes_;
+  Scene scene_;
+  std::vector<std::array<Vec2, 3>> uvs_;
+  bool textured_ = false, camera_found_ = false;
+  size_t degenerate_ = 0;
+  std::string first_degenerate_;
+};
+
+std::pair<uint32_t, int> GltfReader::convert_material(int gi) {
+  const tinygltf::Material& gm = in_.model.materials[size_t(gi)];
+  const std::string where = fmt::format("materials[{}]", gi);
+  const tinygltf::PbrMetallicRoughness& pbr = gm.pbrMetallicRoughness;
+  const auto finite = [](const std::vector<double>& v) {
+    return std::all_of(v.begin(), v.end(), [](double x) { return std::isfinite(x); });
+  };
+  if (pbr.baseColorFactor.size() != 4 || !finite(pbr.baseColorFactor))
+    error(where + ": baseColorFactor must be 4 finite numbers");
+  if (gm.emissiveFactor.size() != 3 || !finite(gm.emissiveFactor))
+    error(where + ": emissiveFactor must be 3 finite numbers");
+  if (!std::isfinite(pbr.metallicFactor) || !std::isfinite(pbr.roughnessFactor) || !std::isfinite(gm.alphaCutoff))
+    error(where + ": metallicFactor, roughnessFactor and alphaCutoff must be finite");
+  std::vector<std::string> notes;
+  const auto clamp01 = [](double v) { return float(std::clamp(v, 0.0, 1.0)); };
+  const Vec3 base{clamp01(pbr.baseColorFactor[0]), clamp01(pbr.baseColorFactor[1]), clamp01(pbr.baseColorFactor[2])};
+  const float metal = clamp01(pbr.metallicFactor), rough = clamp01(pbr.roughnessFactor);
+
+  Material out;
+  out.name = gm.name.empty() ? where : gm.name;
+  Vec3 kd = base;
+  if (rough < 0.5f) {
+    // Smooth: the glossy lobe, its exponent from the roughness (alpha = r^2, n = 2 / alpha^2 - 2).
+    out.type = MaterialType::kGlossy;
+    kd = base * (1.f - metal);
+    out.ks = Vec3(0.04f) * (1.f - metal) + base * metal;
+    for (int k = 0; k < 3; ++k) out.ks[k] = std::min(out.ks[k], 1.f - kd[k]);
+    const double alpha = double(rough) * double(rough);
+    out.exponent = float(alpha > 0 ? std::clamp(2.0 / (alpha * alpha) - 2.0, 1.0, 1e4) : 1e4);
+    notes.push_back(
+        fmt::format("metallic {:g}, roughness {:g} approximated by the Phong glossy lobe (ks {:.3g} "
+                    "{:.3g} {:.3g}, exponent {:.4g}), which reprojection does not reuse",
+                    metal, rough, out.ks.x, out.ks.y, out.ks.z, out.exponent));
+  } else if (metal > 0.f) {
+    notes.push_back(
+        fmt::format("metallic {:g}, roughness {:g} rendered as a diffuse surface of its base colour", metal, rough));
+  }
+  int texcoord = -1;
+  if (pbr.baseColorTexture.index >= 0) {
+    out.kd_texture = texture_for(pbr.baseColorTexture, kd, where + ".pbrMetallicRoughness.baseColorTexture");
+    texcoord = pbr.baseColorTexture.texCoord;
+    if (!pbr.baseColorTexture.extensions.empty()) notes.push_back("texture extensions (texture transforms) ignored");
+    if (out.type == MaterialType::kGlossy && metal > 0.f)
+      notes.push_back("the glossy colour comes from baseColorFactor only, not from the texture");
+  } else {
+    out.kd = kd;
+  }
+
+  Vec3 ke{float(gm.emissiveFactor[0]), float(gm.emissiveFactor[1]), float(gm.emissiveFactor[2])};
+  if (auto it = gm.extensions.find("KHR_materials_emissive_strength"); it != gm.extensions.end()) {
+    const tinygltf::Value& strength = it->second.Get("emissiveStrength");
+    if (strength.IsNumber()) {
+      const double v = strength.GetNumberAsDouble();
+      if (!(v >= 0 && v <= 1e9)) error(where + ": emissiveStrength must be a number in [0, 1e9]");
+      ke = ke * float(v);
+    }
+  }
+  for (int k = 0; k < 3; ++k)
+    if (!(ke[k] >= 0.f)) error(where + ": emissiveFactor must not be negative");
+  if (gm.emissiveTexture.index >= 0 && !is_black(ke)) {
+    const int t = texture_for(gm.emissiveTexture, Vec3(1.f), where + ".emissiveTexture");
+    const Texture& tex = textures_.textures[size_t(t)];
+    double sum[3] = {0, 0, 0};
+    for (size_t i = 0; i < tex.rgb.size(); ++i) sum[i % 3] += tex.rgb[i];
+    const double n = std::max<double>(1, double(tex.rgb.size() / 3));
+    ke = Vec3(float(sum[0] / n), float(sum[1] / n), float(sum[2] / n)) * ke;
+    notes.push_back(fmt::format("emissiveTexture approximated by its mean colour (emission {:.3g} {:.3g} {:.3g})", ke.x,
+                                ke.y, ke.z));
+  }
+  out.ke = ke;
+
+  if (gm.alphaMode == "MASK")
+    notes.push_back(
+        fmt::format("alphaMode MASK (alphaCutoff {:g}): cut-outs are not supported yet, the surface is "
+                    "opaque",
+                    gm.alphaCutoff));
+  else if (gm.alphaMode == "BLEND")
+    notes.push_back("alphaMode BLEND rendered opaque");
+  if (pbr.metallicRoughnessTexture.index >= 0) notes.push_back("metallicRoughnessTexture ignored (factors used)");
+  if (gm.normalTexture.index >= 0) notes.push_back("normalTexture ignored (faces are flat)");
+  if (gm.occlusionTexture.index >= 0) notes.push_back("occlusionTexture ignored");
+  for (const auto& [name, value] : gm.extensions)
+    if (name != "KHR_materials_emissive_strength")
+      notes.push_back(fmt::format("extension {} ignored", quote_token(name)));
+  if (!notes.empty())
+    warn(report_,
+         fmt::format("{}: material '{}' ({}): {}", f_.display, quote_token(out.name), where, fmt::join(notes, "; ")));
+  return {add_material(scene_, out), texcoord};
+}
+
+int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where) {
+  const auto& textures = in_.model.textures;
+  if (size_t(info.index) >= textures.size())
+    error(fmt::format("{}: texture {} does not exist ({} textures)", where, info.index, textures.size()));
+  if (info.texCoord < 0 || info.texCoord > 7) error(fmt::format("{}: texCoord {} is not 0..7", where, info.texCoord));
+  const int image = textures[size_t(info.index)].source;
+  if (image < 0 || size_t(image) >= in_.model.images.size())
+    error(fmt::format("{}: textures[{}] has no image (source {})", where, info.index, image));
+  const int plain = image_texture(image, where);
+  if (factor == Vec3(1.f)) return plain;
+  // A colour factor other than white is baked into a copy of the texture.
+  const auto key = std::make_tuple(image, factor.x, factor.y, factor.z);
+  if (auto it = baked_.find(key); it != baked_.end()) return it->second;
+  Texture t = textures_.textures[size_t(plain)];
+  const size_t pixels = size_t(t.width) * size_t(t.height);
+  if (pixels + textures_.texture_pixels > opts_.max_texture_pixels)
+    error(
+        fmt::format("{}: the base colour factor's copy of image {} takes the scene's textures over the limit of {} "
+                    "pixels",
+                    where, image, opts_.max_texture_pixels));
+  textures_.texture_pixels += pixels;
+  for (size_t i = 0; i < t.rgb.size(); ++i) t.rgb[i] = std::clamp(t.rgb[i] * factor[int(i % 3)], 0.f, 1.f);
+  textures_.textures.push_back(std::move(t));
+  const int index = int(textures_.textures.size() - 1);
+  baked_.emplace(key, index);
+  return index;
+}
+
+int GltfReader::image_texture(int image, const std::string&) {
+  if (auto it = texture_of_image_.find(image); it != texture_of_image_.end()) return it->second;
+  const tinygltf::Image& img = in_.model.images[size_t(image)];
+  const std::string where = fmt::format("{}: images[{}]", f_.display, image);
+  int index;
+  if (auto it = in_.embedded_images.find(image); it != in_.embedded_images.end()) {
+    const std::string name = img.name.empty() ? fmt::format("images[{}]", image) : img.name;
+    textures_.textures.push_back(decode_image_bytes(it->second, name, where, opts_, &textures_.texture_pixels));
+    index = int(textures_.textures.size() - 1);
+  } else if (!img.uri.empty()) {
+    index = load_texture(textures_, decode_uri(img.uri), in_.dir, in_.display_dir, where, 0);
+  } else {
+    fail_file(where, "the image has neither data nor a uri");
+  }
+  texture_of_image_.emplace(image, index);
+  return index;
+}
+
+}  // namespace
+
+bool is_gltf_path(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return ext == ".gltf" || ext == ".glb";
+}
+
+Scene load_gltf_inside(const FileRef& f, const fs::path& root, const LoadOptions& opts, LoadReport& report) {
+  return GltfReader(f, root, opts, report).read();
+}
+
+}  // namespace epr::loader
