@@ -1,4 +1,4 @@
-// Scene JSON files (scenes/README.md): an OBJ inside the file's folder or a built-in scene, plus
+// Scene JSON files (scenes/README.md): an OBJ or glTF inside the file's folder or a built-in scene, plus
 // camera and material overrides. Problems raise SceneError naming the file and the line of the
 // offending value.
 #include <fmt/format.h>
@@ -16,6 +16,7 @@
 #include "common/builtin_scenes.h"
 #include "common/camera_animation.h"
 #include "common/scene_loader.h"
+#include "common/scene_loader/gltf.h"
 #include "common/scene_loader/obj.h"
 #include "common/scene_loader/path_sandbox.h"
 #include "common/scene_loader/text.h"
@@ -169,7 +170,12 @@ class JsonSceneReader {
       const FileRef ref = resolve_inside(root, root, display_dir, obj, path_, line("/obj"), "obj");
       if (auto problem = file_problem(ref.real, opts_.max_file_bytes))
         error("/obj", fmt::format("obj file '{}' {}", obj, *problem));
-      scene = load_obj_inside(ref, root, opts_, report_, &glossy);
+      if (is_gltf_path(obj)) {
+        scene = load_gltf_inside(ref, root, opts_, report_);
+        for (const Material& m : scene.materials) glossy.push_back({m.ks, m.exponent});
+      } else {
+        scene = load_obj_inside(ref, root, opts_, report_, &glossy);
+      }
     } else {
       BuiltinSpec spec;
       try {
@@ -377,7 +383,8 @@ CameraAnimation load_camera_animation(const std::string& spec, const LoadOptions
   std::string ext = fs::path(spec).extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
   if (spec.rfind("builtin:", 0) == 0 || ext != ".json") {  // OBJ files carry no camera (load_obj)
-    if (still) *still = spec.rfind("builtin:", 0) == 0 ? load_scene(spec, opts).camera : CameraSpec{};
+    if (still)
+      *still = spec.rfind("builtin:", 0) == 0 || is_gltf_path(spec) ? load_scene(spec, opts).camera : CameraSpec{};
     return animation;
   }
   LoadReport report;

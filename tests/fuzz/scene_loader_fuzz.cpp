@@ -1,17 +1,21 @@
 // libFuzzer target: the scene loader (common/scene_loader.h) on hostile OBJ, MTL and scene JSON text.
 //
 // Input: the OBJ text, then optionally a line "#@mtl" followed by the MTL text, then optionally a line
-// "#@json" followed by a scene JSON ("#" starts an OBJ comment, so a seed stays a readable OBJ):
+// "#@json" followed by a scene JSON, then optionally a line "#@gltf" followed by a glTF JSON ("#"
+// starts an OBJ comment, so a seed stays a readable OBJ):
 //
 //     v 0 0 0 ...          -> scene/a.obj
 //     #@mtl
 //     newmtl red ...       -> scene/a.mtl
 //     #@json
 //     {"obj": "a.obj"}     -> scene/scene.json; loaded instead of a.obj when present
+//     #@gltf
+//     {"asset": ...}       -> scene/a.gltf; loaded instead of a.obj when there is no scene JSON
 //
-// The folder also holds fixed files the mutated text can name: tex.png (a valid 2x2 texture), bad.png
+// The folder also holds fixed files the mutated text can name: buf.bin (a glTF buffer: one triangle's
+// three float positions, then indices 0 1 2 as uint16), tex.png (a valid 2x2 texture), bad.png
 // (a corrupt one), empty.png, a FIFO, a symlink loop, a folder, symlinks that leave the folder and,
-// outside it, marker files (outside.mtl, outside.png, outside.obj).
+// outside it, marker files (outside.mtl, outside.png, outside.obj, outside.bin).
 //
 // What must hold: load_scene returns a valid scene or throws SceneError whose message starts with the
 // path of a file of the scene (the file it names); nothing else is thrown, nothing outside the scene
@@ -87,6 +91,12 @@ const Folder& folder() {
     fs::create_directories(d.scene / "sub");
     write(d.root / "outside.mtl", std::string("newmtl ") + kOutsideMaterial + "\nKd 0.1 0.2 0.3\n");
     write(d.root / "outside.obj", "v 12345 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n");
+    const float tri[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0}, out_tri[9] = {kOutsideCoordinate, 0, 0, 1, 0, 0, 0, 1, 0};
+    const uint16_t idx[3] = {0, 1, 2};
+    write(d.scene / "buf.bin",
+          std::string(reinterpret_cast<const char*>(tri), 36) + std::string(reinterpret_cast<const char*>(idx), 6));
+    write(d.root / "outside.bin",
+          std::string(reinterpret_cast<const char*>(out_tri), 36) + std::string(reinterpret_cast<const char*>(idx), 6));
     write_png_srgb((d.root / "outside.png").string(), solid(kOutsideTextureWidth, kOutsideTextureHeight, {1, 0, 0}));
     write_png_srgb((d.scene / "tex.png").string(), solid(2, 2, {0.5f, 0.25f, 1}));
     write(d.scene / "bad.png", std::string("\x89PNG\r\n\x1a\n\0\0\0\rIHDR\0\0\x10\0\0\0\x10\0garbage", 32));
@@ -150,7 +160,14 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const Folder& f = folder();
-  const std::string_view in(reinterpret_cast<const char*>(data), size);
+  std::string_view in(reinterpret_cast<const char*>(data), size);
+  const size_t gltf_at = in.find("#@gltf\n");
+  std::error_code ec;
+  fs::remove(f.scene / "a.gltf", ec);
+  if (gltf_at != std::string_view::npos) {
+    write(f.scene / "a.gltf", in.substr(gltf_at + 7));
+    in = in.substr(0, gltf_at);
+  }
   const size_t mtl_at = in.find("#@mtl\n");
   const size_t json_at = in.find("#@json\n", mtl_at == std::string_view::npos ? 0 : mtl_at);
   const std::string_view obj = in.substr(0, std::min(mtl_at, json_at));
@@ -161,7 +178,6 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
 
   write(f.scene / "a.obj", obj);
   write(f.scene / "a.mtl", mtl);
-  std::error_code ec;
   fs::remove(f.scene / "scene.json", ec);
   if (has_json) write(f.scene / "scene.json", in.substr(json_at + 7));
 
@@ -169,7 +185,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   opts.max_triangles = 100'000;  // also bounds the built-in scenes a JSON may ask for
   opts.max_file_bytes = 1 << 20;
   opts.max_texture_pixels = 1 << 16;
-  const std::string spec = (f.scene / (has_json ? "scene.json" : "a.obj")).string();
+  const char* entry = has_json ? "scene.json" : gltf_at != std::string_view::npos ? "a.gltf" : "a.obj";
+  const std::string spec = (f.scene / entry).string();
   try {
     check_scene(load_scene(spec, opts));
   } catch (const SceneError& e) {
