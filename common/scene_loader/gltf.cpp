@@ -482,7 +482,7 @@ std::pair<uint32_t, int> GltfReader::convert_material(int gi) {
       notes.push_back(fmt::format("extension {} ignored", quote_token(name)));
   if (!notes.empty())
     warn(report_,
-         fmt::format("{}: material '{}' ({}): {}", f_.display, quote_token(out.name), where, fmt::join(notes, "; ")));
+         fmt::format("{}: material {} ({}): {}", f_.display, quote_token(out.name), where, fmt::join(notes, "; ")));
   return {add_material(scene_, out), texcoord};
 }
 

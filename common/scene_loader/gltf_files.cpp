@@ -115,7 +115,7 @@ void check_uri(const nlohmann::json& item, const char* kind, size_t i, const Glt
   const FileRef ref = resolve_inside(root, in.dir, in.display_dir, decode_uri(uri), f.display + ": " + where, 0, "uri");
   if (std::strcmp(kind, "buffers") != 0) return;  // images are read with the textures
   if (auto problem = file_problem(ref.real, opts.max_file_bytes))
-    fail_file(f.display, fmt::format("{}: uri '{}' {}", where, quote_token(uri), *problem));
+    fail_file(f.display, fmt::format("{}: uri {} {}", where, quote_token(uri), *problem));
   ctx->allowed.emplace(ref.real, ref);
 }
 

@@ -70,7 +70,8 @@ class GltfBuilder {
   /// Writes DIR/NAME.gltf and DIR/NAME.bin; returns the .gltf's path.
   std::string write_gltf(const TempDir& dir, const std::string& name) {
     nlohmann::json d = doc;
-    d["buffers"] = nlohmann::json::array({{{"uri", name + ".bin"}, {"byteLength", bin.size()}}});
+    const std::string file = std::filesystem::path(name).filename().string() + ".bin";
+    d["buffers"] = nlohmann::json::array({{{"uri", file}, {"byteLength", bin.size()}}});
     dir.write(name + ".bin", bin);
     return dir.write(name + ".gltf", d.dump(1));
   }

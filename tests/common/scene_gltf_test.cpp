@@ -65,7 +65,7 @@ TEST(SceneGltf, IndexedAndNonIndexedMeshes) {
   EXPECT_FLOAT_EQ(s.area(0) + s.area(1), 1.f);
   EXPECT_FLOAT_EQ(s.area(2) + s.area(3), 1.f);
   expect_near(s.positions[s.triangles[1][2]], {0, 1, 0});
-  expect_near(s.positions[s.triangles[3][0]], {1, 1, 1});
+  expect_near(s.positions[s.triangles[3][1]], {1, 1, 1});
 }
 
 TEST(SceneGltf, OtherPrimitiveModesAreRefusedNamingTheElement) {
@@ -86,6 +86,7 @@ TEST(SceneGltf, BaseColourFactorAndTexture) {
   Image img(2, 1, 3);
   img.set_rgb(0, 0, {1, 0, 0});
   img.set_rgb(1, 0, {0, 1, 0});
+  dir.write("tex/rg.png", "");
   write_png_srgb(dir.path("tex/rg.png"), img);
   GltfBuilder g;
   const int plain = g.material(
@@ -182,6 +183,7 @@ TEST(SceneGltf, GlbWithEmbeddedImage) {
 
 TEST(SceneGltf, TheLoadReadsTheGltfItsBufferAndItsImage) {
   TempDir dir;
+  dir.write("maps/wood.png", "");
   write_png_srgb(dir.path("maps/wood.png"), Image(2, 2, 3));
   dir.write("unused.png", "not read");
   GltfBuilder g;
@@ -282,7 +284,10 @@ TEST(SceneGltf, ApproximationsAreReportedOncePerMaterial) {
   GltfBuilder g;
   const int chrome =
       g.material({{"name", "chrome"}, {"pbrMetallicRoughness", {{"metallicFactor", 1}, {"roughnessFactor", 0.2}}}});
-  const int leaf = g.material({{"name", "leaf"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.3}});
+  const int leaf = g.material({{"name", "leaf"},
+                               {"alphaMode", "MASK"},
+                               {"alphaCutoff", 0.3},
+                               {"pbrMetallicRoughness", {{"metallicFactor", 0}}}});
   g.node({{"mesh", g.mesh(kTriangle, {}, chrome)}});
   g.node({{"mesh", g.mesh(kTriangle, {}, chrome)}});
   g.node({{"mesh", g.mesh(kTriangle, {}, leaf)}});
