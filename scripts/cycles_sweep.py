@@ -52,6 +52,7 @@ def parse_args():
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--threads", type=int, default=0, help="Cycles threads, 0 = all cores")
     ap.add_argument("--max-bounces", type=int, default=1024)
+    ap.add_argument("--emitter-subdiv", type=int, default=4, help="as in cycles_reference.py")
     ap.add_argument("--outdir", required=True)
     a = ap.parse_args(argv)
     with open(a.camera, "r", encoding="utf-8") as f:
@@ -79,6 +80,7 @@ def main():
     verts, tris, tri_mat, materials = cr.parse_obj(a.obj)
     if not tris:
         raise SystemExit("%s: no faces" % a.obj)
+    verts, tris, tri_mat = cr.subdivide_emitters(verts, tris, tri_mat, materials, a.emitter_subdiv)
     cr.clear_scene()
     scene = bpy.context.scene
     cr.build_mesh(scene, verts, tris, tri_mat, materials)
