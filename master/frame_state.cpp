@@ -104,6 +104,7 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
         : use_gl     ? detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test)
                      : detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
+    reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
   }
   progress_.pixels_active = uint64_t(width_) * uint64_t(height_);
@@ -252,7 +253,7 @@ bool FrameState::tile_idle(int x0, int y0, int x1, int y1) const {
   return true;
 }
 
-ReprojectionCounts FrameState::counts() const { return reprojector_ ? reprojector_->counts() : ReprojectionCounts{}; }
+ReprojectionCounts FrameState::counts() const { return reprojector_ ? reprojector_->counts() : released_counts_; }
 
 FrameSnapshot FrameState::save() {
   FrameSnapshot s;
@@ -391,6 +392,33 @@ void FrameState::restore(const FrameSnapshot& s) {
   reprojection_partial_ = reprojector_ != nullptr;  // the snapshot may hold a partial refresh
 }
 
+void FrameState::count_images(FrameImages* out) const {
+  out->path_count = Image(width_, height_, 1);
+  out->reprojected = Image(width_, height_, 1);
+  tbb::parallel_for(0, height_, [&](int y) {
+    for (int x = 0; x < width_; ++x) {
+      const size_t p = pixel(x, y);
+      out->path_count.at(x, y)[0] = float(path_count_[p]);
+      out->reprojected.at(x, y)[0] = float(mprime_[p]);
+    }
+  });
+}
+
+FrameImages FrameState::release_images() {
+  FrameImages out;
+  if (reprojector_) {
+    out.reprojection = reprojected_radiance(true);
+    released_counts_ = reprojector_->counts();
+    reprojector_.reset();
+  }
+  count_images(&out);
+  out.path_sum.width = width_;
+  out.path_sum.height = height_;
+  out.path_sum.data = std::move(path_sum_);
+  path_sum_.clear();
+  return out;
+}
+
 FrameImages FrameState::images(bool preview) {
   FrameImages out;
   // L_rp is not kept between rounds: it is downsampled from the accumulation here, every pixel. M'
@@ -406,15 +434,7 @@ FrameImages FrameState::images(bool preview) {
   out.path_sum.width = width_;
   out.path_sum.height = height_;
   out.path_sum.data = path_sum_;
-  out.path_count = Image(width_, height_, 1);
-  out.reprojected = Image(width_, height_, 1);
-  tbb::parallel_for(0, height_, [&](int y) {
-    for (int x = 0; x < width_; ++x) {
-      const size_t p = pixel(x, y);
-      out.path_count.at(x, y)[0] = float(path_count_[p]);
-      out.reprojected.at(x, y)[0] = float(mprime_[p]);
-    }
-  });
+  count_images(&out);
   return out;
 }
 

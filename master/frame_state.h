@@ -155,7 +155,7 @@ class FrameState {
   double seconds_reprojecting() const { return seconds_reprojecting_; }
   /// Part of seconds_reprojecting(): reading the accumulation back and downsampling it.
   double seconds_downsampling() const { return seconds_downsampling_; }
-  bool reprojects() const { return reprojector_ != nullptr; }
+  bool reprojects() const { return reprojects_; }
   /// Counts, percentages and timings as JSON (the statistics file of a render). `worker_culled`: the
   /// vertices the workers culled before sending; the percentages count them (ReprojectionOutcomes).
   nlohmann::json statistics(const RenderOptions& opts, uint64_t worker_culled) const;
@@ -172,6 +172,10 @@ class FrameState {
   /// active pixels' M'; with `preview` the skipped pixels' M' stays as of the last round they were
   /// active in, without it every pixel's is brought up to date.
   FrameImages images(bool preview = false);
+  /// images() for the end of a render, holding less at once: L_rp is downsampled, then the reprojector
+  /// (accumulation and plane index) is released before the per-pixel images are made, and the path
+  /// sums are moved out. Afterwards only progress(), counts(), reprojects() and statistics() answer.
+  FrameImages release_images();
 
   int width() const { return width_; }
   int height() const { return height_; }
@@ -185,6 +189,8 @@ class FrameState {
   // L_rp of every pixel, downsampled from the accumulation (reprojecting frames only); with
   // `counts_too` M' of every pixel is brought up to date on the way.
   Image reprojected_radiance(bool counts_too);
+  // M and M' of every pixel as float images.
+  void count_images(FrameImages* out) const;
   // progress_'s path and sample counts (paths traced, mean M, M', M + M', min M + M') from the arrays.
   void update_sample_progress();
   size_t pixel(int x, int y) const { return size_t(y) * size_t(width_) + size_t(x); }
@@ -192,6 +198,8 @@ class FrameState {
   RenderOptions opts_;
   int width_, height_;
   std::unique_ptr<Reprojector> reprojector_;
+  bool reprojects_ = false;
+  ReprojectionCounts released_counts_;  // the reprojector's counts when release_images() let it go
   std::unique_ptr<VertexCodec> codec_;  // the wire's quantisation (scene bounds), when reprojecting
   std::vector<float> path_sum_;         // 3 per pixel
   std::vector<uint32_t> path_count_;    // M

@@ -439,7 +439,7 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
   }
   {
     FrameState& frame = job->driver->frame();
-    images = frame.images();
+    images = frame.release_images();
     reprojects = frame.reprojects();
     uint64_t worker_culled;
     {

@@ -132,6 +132,35 @@ TEST(RoundDriverBatch, DecodedVerticesAndExactSamplesMatchTileByTile) {
 
 TEST(RoundDriverBatch, MixedKindsKeepTheTileOrder) { compare(Kind::kMixed, 4000, 1000); }
 
+TEST(FrameImages, ReleasedImagesEqualTheImagesAndTheCountsStay) {
+  Fixture f;
+  RoundDriver a(f.opts, *f.camera, f.scene, nullptr);
+  for (int round = 0; round < 2; ++round) {
+    for (const AssembledTile& t : f.tiles(Kind::kMixed, 2000, 40 + uint32_t(round))) a.apply(t);
+    a.close();
+  }
+  FrameState& frame = a.frame();
+  const FrameImages kept = frame.images();
+  nlohmann::json before = frame.statistics(f.opts, 0);
+  const FrameImages released = frame.release_images();
+  for (auto [x, y] : {std::pair{&kept.path_sum, &released.path_sum},
+                      {&kept.reprojection, &released.reprojection},
+                      {&kept.path_count, &released.path_count},
+                      {&kept.reprojected, &released.reprojected}}) {
+    EXPECT_EQ(x->width, y->width);
+    EXPECT_EQ(x->channels, y->channels);
+    EXPECT_TRUE(same_bits(x->data, y->data));
+  }
+  EXPECT_FALSE(released.reprojection.data.empty());
+  EXPECT_TRUE(frame.reprojects());
+  // The reprojector is gone, its counts are not.
+  nlohmann::json after = frame.statistics(f.opts, 0);
+  for (auto* j : {&before, &after}) j->erase("seconds_reprojecting"), j->erase("seconds_downsampling");
+  EXPECT_EQ(before, after);
+  EXPECT_GT(after["accepted"].get<uint64_t>(), 0u);
+  EXPECT_TRUE(frame.path_sums().empty());
+}
+
 TEST(RoundDriverBatch, TheComparisonSeesTheOrder) {
   // The fixture is sensitive to order: the same tiles in reverse give other float sums. (Decoded
   // vertices: packed radiance has a short shared-exponent mantissa, so a few packed samples per
