@@ -62,6 +62,10 @@ _METHODS = {
     "cpu": rs_pb.REPROJECTION_METHOD_CPU,
     "exact": rs_pb.REPROJECTION_METHOD_EXACT,
 }
+_SAMPLERS = {
+    "sobol-burley": rs_pb.SAMPLER_SOBOL_BURLEY,
+    "independent": rs_pb.SAMPLER_INDEPENDENT,
+}
 # Russian roulette: (mode, start depth, termination probability, max depth), as common/render_options.h.
 _ROULETTE = {
     "paper": (rs_pb.RUSSIAN_ROULETTE_MODE_PAPER, 8, 0.1, 1024),
@@ -238,6 +242,7 @@ class MasterClient:
         priority: int = 0,
         time_budget: Optional[float] = None,
         request_id: Optional[str] = None,
+        sampler: str = "sobol-burley",
     ) -> pb.JobSpec:
         """The JobSpec submit() sends (see submit for the arguments). Uploads a file scene over the
         inline limit, which is then referred to by hash."""
@@ -251,6 +256,9 @@ class MasterClient:
         if roulette is None:
             raise ValueError(f"rr '{rr}' is not one of paper, albedo, off")
         rr_mode, start_depth, termination, default_depth = roulette
+        sampler_value = _SAMPLERS.get(sampler.lower())
+        if sampler_value is None:
+            raise ValueError(f"sampler '{sampler}' is not one of sobol-burley, independent")
         camera_parts = {"eye": eye, "look": look, "up": up, "fov": fov}
         given = [k for k, v in camera_parts.items() if v is not None]
         if given and len(given) != 4:
@@ -271,6 +279,7 @@ class MasterClient:
             taper_tiles=taper_tiles,
             priority=priority,
             request_id=request_id or secrets.token_hex(16),
+            sampler=sampler_value,
         )
         spec.reprojection.CopyFrom(
             rs_pb.ReprojectionSettings(
@@ -325,6 +334,7 @@ class MasterClient:
             spp: target samples per pixel P (16).
             paths_per_round: k (1); round_growth: g (0.25).
             seed: random seed (1).
+            sampler: the eye paths' random numbers: "sobol-burley" (default) or "independent".
             mode: "skip" (reprojection plus pixel skipping, the default), "rp" or "pt".
             reproject: "gl" (default), "cpu" or "exact".
             subpixels (4), epsilon (3e-4), min_paths (1), reproject_glossy (False), joint_test (True).
