@@ -1,24 +1,37 @@
 // Worker utilisation with one job against several jobs queued at once (the master runs as many as
 // its memory budget admits and leases across them, job_manager.h).
 //
-// Utilisation = the workers' tracing seconds of the committed tiles (JobStatus.seconds_tracing summed
-// over the jobs) / (tracing threads x the window), the window running from the first SubmitJob to the
-// last job done, so every round barrier, frame build and result write of the jobs counts against it.
+// Two measures over one window, from the first SubmitJob to the last job done (so every round barrier,
+// frame build and result write of the jobs counts against them):
+//   util:        the master's view, the workers' tracing seconds of the committed tiles
+//                (JobStatus.seconds_tracing summed over the jobs) / (tracing threads x the window);
+//   thread util: the worker's own view (WorkerNodeStats::time_*), the share of its tracing threads'
+//                wall time spent inside a tile's tracing rather than waiting for a lease, for the
+//                master (a round barrier, back-pressure), for a submission, or on the worker's own
+//                overhead between tiles. The split by activity is printed under each run.
+// On a machine with few cores the master's threads take CPU from the tracing threads: util counts
+// that against the worker, thread util counts it where the thread was preempted. --pin runs the
+// cluster's epr-master on CPU 0 and a one-thread epr-worker on CPU 1, so that they do not share one.
 // Two set-ups:
 //   embedded: a MasterServer and one WorkerNode in this process over loopback gRPC, as `epr render`
-//             runs them (the node also reports its own split: tracing over its threads' wall time);
-//   cluster:  real epr-master and epr-worker processes on loopback.
+//             runs them (the split read from the node);
+//   cluster:  real epr-master and epr-worker processes on loopback (the split read from the worker's
+//             SIGUSR1 line, epr_worker_main.cpp, at the window's start and end).
 // Each (set-up, jobs) pair runs --reps times; the medians are printed side by side with the ratio of
 // the several-jobs figure to the one-job figure. Wall figures are distorted when other processes
 // share the machine; the load average is printed with each run.
 //
 //   utilisation_bench [--setups embedded,cluster] [--jobs 1,3] [--reps 3] [--size 192] [--spp 64]
-//                     [--ppr 1] [--mode skip] [--reproject cpu] [--threads 0]
+//                     [--ppr 1] [--mode skip] [--reproject cpu] [--threads 0] [--pin]
+#include <sched.h>
+#include <signal.h>
+
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <regex>
 #include <sstream>
@@ -67,6 +80,7 @@ double median(std::vector<double> v) {
 
 struct Settings {
   int size = 192, spp = 64, ppr = 1, threads = 0;
+  bool pin = false;  // cluster: epr-master on CPU 0, epr-worker on CPU 1 (--threads 1 unless told)
   std::string mode = "skip", reproject = "cpu";
 };
 
@@ -85,13 +99,18 @@ epr::RenderOptions job_options(const Settings& s, int j) {
 
 struct Run {
   double utilisation = -1;       // master's view: tracing seconds / (threads x window)
-  double node_utilisation = -1;  // the WorkerNode's own split (embedded only)
+  double node_utilisation = -1;  // the worker's own split: tracing / its threads' wall time
   double seconds = 0;
+  epr::WorkerTimeSplit split;  // the tracing threads' time over the window, by activity
+  epr::WorkerTimeSplit cpu;    // their CPU seconds over the window, by activity
 };
 
 /// Submits `n` jobs to `target`, waits for all; the window and the jobs' tracing seconds.
-bool submit_and_wait(const std::string& target, const Settings& s, int n, double* window, double* tracing) {
+/// `at_start`, if given, runs once just before the first SubmitJob, `at_end` once the last job is done.
+bool submit_and_wait(const std::string& target, const Settings& s, int n, double* window, double* tracing,
+                     const std::function<void()>& at_start = {}, const std::function<void()>& at_end = {}) {
   auto stub = epr::v1::JobService::NewStub(grpc::CreateChannel(target, grpc::InsecureChannelCredentials()));
+  if (at_start) at_start();
   const auto start = std::chrono::steady_clock::now();
   std::vector<std::string> ids;
   for (int j = 0; j < n; ++j) {
@@ -130,11 +149,52 @@ bool submit_and_wait(const std::string& target, const Settings& s, int n, double
     }
   }
   *window = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (at_end) at_end();
   return true;
 }
 
 int threads_of(const Settings& s) {
-  return s.threads > 0 ? s.threads : int(std::max(1u, std::thread::hardware_concurrency()));
+  if (s.threads > 0) return s.threads;
+  return s.pin ? 1 : int(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+/// Restricts this process (and the children it starts from now on) to `cpu`, or to every CPU (-1).
+void pin_to(int cpu) {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  const int n = int(std::max(1u, std::thread::hardware_concurrency()));
+  for (int c = 0; c < n; ++c)
+    if (cpu < 0 || c == cpu % n) CPU_SET(c, &set);
+  if (sched_setaffinity(0, sizeof set, &set) != 0) std::perror("sched_setaffinity");
+}
+
+/// The epr-worker's tracing threads' time so far (thread-seconds by activity): SIGUSR1 makes it print
+/// a line to stderr (epr_worker_main.cpp); waits for the line after the `seen` ones already read.
+bool worker_split(epr::testing::Process& worker, int* seen, epr::WorkerTimeSplit* out) {
+  worker.signal(SIGUSR1);
+  const std::regex line(
+      "epr-worker time: threads [0-9]+ tracing ([0-9.]+) leasing ([0-9.]+) waiting ([0-9.]+) submitting ([0-9.]+) "
+      "other ([0-9.]+)");
+  std::vector<std::smatch> found;
+  std::string err;
+  const bool ok = epr::test::wait_until(
+      [&] {
+        err = worker.err();
+        found.clear();
+        for (auto it = std::sregex_iterator(err.begin(), err.end(), line); it != std::sregex_iterator(); ++it)
+          found.push_back(*it);
+        return int(found.size()) > *seen;
+      },
+      10s, 2ms);
+  if (!ok) return false;
+  const std::smatch& m = found[size_t(*seen)];
+  *seen += 1;
+  out->tracing = std::stod(m[1]);
+  out->leasing = std::stod(m[2]);
+  out->waiting = std::stod(m[3]);
+  out->submitting = std::stod(m[4]);
+  out->other = std::stod(m[5]);
+  return true;
 }
 
 bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
@@ -168,6 +228,14 @@ bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
   none -= before.time_none_tracing;
   const double total = others.total() + none.total();
   out->node_utilisation = total > 0 ? (others.tracing + none.tracing) / total : -1;
+  out->split = others;
+  out->split.tracing += none.tracing;
+  out->split.leasing += none.leasing;
+  out->split.waiting += none.waiting;
+  out->split.submitting += none.submitting;
+  out->split.other += none.other;
+  out->cpu = after.cpu;
+  out->cpu -= before.cpu;
   return true;
 }
 
@@ -175,7 +243,9 @@ bool run_cluster(const Settings& s, int n, const fs::path& dir, Run* out) {
   std::vector<std::string> args = {EPR_MASTER_BIN,           "--listen",    "127.0.0.1:0", "--http", "", "--state-dir",
                                    (dir / "state").string(), "--log-level", "info"};
   if (s.reproject == "cpu") args.insert(args.end(), {"--reproject", "cpu"});
+  if (s.pin) pin_to(0);  // inherited by the child
   epr::testing::Process master(args, dir / "master");
+  if (s.pin) pin_to(1);
   const std::regex listening("epr-master listening on port ([0-9]+)");
   std::smatch m;
   std::string err;
@@ -190,16 +260,29 @@ bool run_cluster(const Settings& s, int n, const fs::path& dir, Run* out) {
   epr::testing::Process worker({EPR_WORKER_BIN, "--master", target, "--threads", std::to_string(threads), "--cache-dir",
                                 (dir / "cache").string(), "--name", "bench"},
                                dir / "worker");
+  if (s.pin) pin_to(-1);
   // Registered: the master logs it.
   if (!epr::test::wait_until([&] { return master.err().find("registered") != std::string::npos; }, 60s, 5ms))
     std::fprintf(stderr, "(the worker's registration was not seen in the master's log; going on)\n");
   double window = 0, tracing = 0;
-  const bool ok = submit_and_wait(target, s, n, &window, &tracing);
+  int seen = 0;
+  epr::WorkerTimeSplit before, after;
+  bool split_ok = true;
+  const bool ok = submit_and_wait(
+      target, s, n, &window, &tracing, [&] { split_ok &= worker_split(worker, &seen, &before); },
+      [&] { split_ok &= worker_split(worker, &seen, &after); });
   worker.stop();
   master.stop();
   if (!ok) return false;
   out->seconds = window;
   out->utilisation = tracing / (double(threads) * window);
+  if (split_ok) {
+    after -= before;
+    out->split = after;
+    out->node_utilisation = after.total() > 0 ? after.tracing / after.total() : -1;
+  } else {
+    std::fprintf(stderr, "(the worker's time split was not seen in its log)\n");
+  }
   return true;
 }
 
@@ -219,14 +302,20 @@ int main(int argc, char** argv) {
   app.add_option("--ppr", s.ppr, "paths per pixel per round")->capture_default_str();
   app.add_option("--mode", s.mode, "pt, rp or skip")->capture_default_str();
   app.add_option("--reproject", s.reproject, "cpu or gl")->capture_default_str();
-  app.add_option("--threads", s.threads, "tracing threads of the worker (0: all cores)")->capture_default_str();
+  app.add_option("--threads", s.threads, "tracing threads of the worker (0: all cores; 1 with --pin)")
+      ->capture_default_str();
+  app.add_flag("--pin", s.pin,
+               "cluster: epr-master on CPU 0 and epr-worker on CPU 1 (sched_setaffinity), so that the master's "
+               "threads do not take the tracing threads' core");
   CLI11_PARSE(app, argc, argv);
   epr::set_log_level("warn");
   const std::vector<std::string> series = split(jobs);
-  std::printf("# utilisation = workers' tracing s / (threads x window), window = first submit .. last job done\n");
-  std::printf("# %dx%d, spp %d, k %d, %s, %s reprojector, %d tracing threads, %d reps\n", s.size, s.size, s.spp, s.ppr,
-              s.mode.c_str(), s.reproject.c_str(), threads_of(s), reps);
-  std::printf("%-9s %5s %4s %9s %10s %11s %6s\n", "setup", "jobs", "rep", "seconds", "util", "node util", "load");
+  std::printf("# util = workers' tracing s / (threads x window), window = first submit .. last job done\n");
+  std::printf("# thread util = the worker's tracing threads' time tracing / their wall time over the window\n");
+  std::printf("# %dx%d, spp %d, k %d, %s, %s reprojector, %d tracing threads, %d reps%s\n", s.size, s.size, s.spp,
+              s.ppr, s.mode.c_str(), s.reproject.c_str(), threads_of(s), reps,
+              s.pin ? ", cluster pinned: master CPU 0, worker CPU 1" : "");
+  std::printf("%-9s %5s %4s %9s %10s %12s %6s\n", "setup", "jobs", "rep", "seconds", "util", "thread util", "load");
   std::map<std::string, std::map<std::string, std::vector<double>>> util, node_util;
   const fs::path dir = fs::temp_directory_path() / ("epr-utilisation-bench-" + std::to_string(::getpid()));
   for (const std::string& setup : split(setups)) {
@@ -243,8 +332,17 @@ int main(int argc, char** argv) {
         }
         util[setup][n].push_back(r.utilisation);
         if (r.node_utilisation >= 0) node_util[setup][n].push_back(r.node_utilisation);
-        std::printf("%-9s %5s %4d %9.2f %9.1f%% %10.1f%% %6.2f\n", setup.c_str(), n.c_str(), rep, r.seconds,
+        std::printf("%-9s %5s %4d %9.2f %9.1f%% %11.1f%% %6.2f\n", setup.c_str(), n.c_str(), rep, r.seconds,
                     100 * r.utilisation, r.node_utilisation >= 0 ? 100 * r.node_utilisation : -1.0, load_average());
+        if (r.split.total() > 0) {
+          const double t = r.split.total() / 100;
+          std::printf("          split: tracing %.1f%% leasing %.1f%% waiting %.1f%% submitting %.1f%% other %.1f%%\n",
+                      r.split.tracing / t, r.split.leasing / t, r.split.waiting / t, r.split.submitting / t,
+                      r.split.other / t);
+          if (r.cpu.total() > 0)  // embedded: the threads' own CPU seconds, against their wall seconds
+            std::printf("          cpu s: tracing %.2f (wall %.2f) other %.2f (wall %.2f)\n", r.cpu.tracing,
+                        r.split.tracing, r.cpu.other, r.split.other);
+        }
         std::fflush(stdout);
       }
     }
@@ -253,7 +351,7 @@ int main(int argc, char** argv) {
   std::printf("\n# medians\n%-9s", "setup");
   for (const auto& n : series) std::printf(" %9s", (n + " job" + (n == "1" ? "" : "s")).c_str());
   for (size_t i = 1; i < series.size(); ++i) std::printf(" %9s", (series[i] + "/" + series[0]).c_str());
-  std::printf("   (node's own split)\n");
+  std::printf("   (thread util)\n");
   for (const auto& [setup, by_n] : util) {
     std::printf("%-9s", setup.c_str());
     for (const auto& n : series) std::printf(" %8.1f%%", 100 * median(by_n.at(n)));

@@ -2,6 +2,9 @@
 // streams the results back, until SIGTERM / SIGINT (every master's leases are given back) or the only
 // master's Shutdown. A second signal while stopping exits at once. Exits 1 with the reasons when every
 // master refuses the worker for good (a name or thread count over its limits, a wrong token).
+// SIGUSR1 prints one line to stderr: the tracing threads' wall time so far by activity
+// (WorkerNodeStats::time_*, thread-seconds), "epr-worker time: threads T tracing S leasing S waiting S
+// submitting S other S".
 #include <pthread.h>
 #include <signal.h>
 
@@ -60,6 +63,7 @@ int main(int argc, char** argv) {
   sigemptyset(&signals);
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGUSR1);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);  // inherited by every thread started below
 
   try {
@@ -71,6 +75,16 @@ int main(int argc, char** argv) {
         const timespec timeout{0, 200'000'000};
         const int sig = sigtimedwait(&signals, nullptr, &timeout);
         if (sig <= 0) continue;
+        if (sig == SIGUSR1) {
+          const epr::WorkerNodeStats st = node.stats();
+          epr::WorkerTimeSplit t = st.time_others_tracing;
+          t += st.time_none_tracing;
+          std::fprintf(
+              stderr, "epr-worker time: threads %d tracing %.6f leasing %.6f waiting %.6f submitting %.6f other %.6f\n",
+              node.threads(), t.tracing, t.leasing, t.waiting, t.submitting, t.other);
+          std::fflush(stderr);
+          continue;
+        }
         if (stopping) {
           log->warn("second signal: exiting without returning leases");
           std::_Exit(128 + sig);

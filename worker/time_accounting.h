@@ -20,6 +20,14 @@ struct WorkerTimeSplit {
   double submitting = 0;  // waiting for the thread's previous tile submission to end
   double other = 0;       // the rest: preparing a job (scene, BVH), returning leases, starting calls
   double total() const { return tracing + leasing + waiting + submitting + other; }
+  WorkerTimeSplit& operator+=(const WorkerTimeSplit& o) {
+    tracing += o.tracing;
+    leasing += o.leasing;
+    waiting += o.waiting;
+    submitting += o.submitting;
+    other += o.other;
+    return *this;
+  }
   WorkerTimeSplit& operator-=(const WorkerTimeSplit& o) {
     tracing -= o.tracing;
     leasing -= o.leasing;

@@ -401,6 +401,8 @@ std::optional<std::string> WorkerNode::run() { return impl_->run(); }
 
 void WorkerNode::stop() { impl_->stop("stop requested"); }
 
+int WorkerNode::threads() const { return impl_->threads; }
+
 WorkerNodeStats WorkerNode::stats() const {
   const auto& c = impl_->counters;
   WorkerNodeStats s;

@@ -132,6 +132,8 @@ class WorkerNode {
   /// run() wind down — tracing is abandoned between strips, waits are interrupted — and return.
   void stop();
   WorkerNodeStats stats() const;
+  /// Tracing threads (options.threads, or the cores when 0).
+  int threads() const;
 
   struct Impl;
 
