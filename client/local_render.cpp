@@ -139,7 +139,6 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
       {"spp", opts.spp},
       {"paths_per_round", opts.paths_per_round},
       {"seed", opts.seed},
-      {"sampler", to_string(opts.sampler)},
       {"paths", totals.paths.paths},
       {"vertices", totals.paths.vertices},
       {"vertices_recorded", totals.vertices_recorded},

@@ -445,6 +445,7 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts, uint64_t worker
   return {
       {"mode", to_string(opts.mode)},
       {"reproject", to_string(opts.reproject)},
+      {"sampler", to_string(opts.sampler)},
       {"subpixels", opts.subpixels},
       {"epsilon_fraction", opts.epsilon},
       {"tile_size", opts.tile_size},
