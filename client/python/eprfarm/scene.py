@@ -1,9 +1,14 @@
 """Scenes as bytes, bundled the way `epr submit` bundles them (wire/scene_bundle.cpp).
 
-A bundle is the entry file (an OBJ or a scene JSON) plus every file it references, with relative
-'/'-separated paths below the entry file's folder:
+A bundle is the entry file (an OBJ, a glTF or a scene JSON) plus every file it references, with
+relative '/'-separated paths below the entry file's folder:
 
-* a scene JSON's ``"obj"`` (relative to the JSON's folder), then that OBJ's files;
+* a scene JSON's ``"obj"`` (relative to the JSON's folder), then that OBJ's or glTF's files;
+* a glTF's (``.gltf`` or ``.glb``) ``buffers[i].uri`` and ``images[i].uri`` files (relative to the
+  glTF, percent-decoded as tinygltf decodes them); ``data:`` URIs stay inline in the glTF, and a
+  ``.glb`` file's binary chunk is part of it. An image file that does not exist is left out (the
+  master names it if a material uses it); every other image file is sent, also one no material
+  uses (which `epr submit` leaves out, giving another content hash);
 * an OBJ's ``mtllib`` files (relative to the OBJ; several names per statement, blanks separate
   them, a backslash escapes the next character);
 * an MTL's ``map_Kd`` textures (relative to the MTL, texture options such as ``-s 1 1 1`` skipped
@@ -345,7 +350,104 @@ class _Bundler:
         obj = _resolve_inside(self.root, self.root, display_dir, name, ref.display, 0, "obj")
         if problem := _file_problem(obj.real, MAX_FILE_BYTES):
             raise SceneError(f"{ref.display}: obj file '{name}' {problem}")
-        self.obj(obj)
+        if is_gltf_path(name):
+            _gltf_files(self, obj)
+        else:
+            self.obj(obj)
+
+
+def is_gltf_path(path: str) -> bool:
+    """True for a .gltf or .glb name (any case), which the loader reads as glTF 2.0."""
+    return os.path.splitext(path)[1].lower() in (".gltf", ".glb")
+
+
+def _decode_uri(uri: str) -> str:
+    """A glTF uri as a file name: '+' is a blank, %XX a byte (tinygltf's dlib::urldecode)."""
+
+    def hex_value(c: int) -> int:
+        for lo, hi, base in ((0x30, 0x39, 0), (0x61, 0x66, 10), (0x41, 0x46, 10)):
+            if lo <= c <= hi:
+                return c - lo + base
+        return 0
+
+    raw = os.fsencode(uri)
+    out = bytearray()
+    i = 0
+    while i < len(raw):
+        c = raw[i]
+        if c == ord("+"):
+            out.append(ord(" "))
+        elif c == ord("%") and len(raw) > i + 2:
+            out.append((hex_value(raw[i + 1]) << 4) | hex_value(raw[i + 2]))
+            i += 2
+        else:
+            out.append(c)
+        i += 1
+    return os.fsdecode(bytes(out))
+
+
+def _quote_token(token: str) -> str:
+    """As the loader quotes names in messages: at most 40 characters, control characters as '?'."""
+    s = "".join("?" if ord(c) < 0x20 or ord(c) == 0x7F else c for c in token[:40])
+    return f"'{s}...'" if len(token) > 40 else f"'{s}'"
+
+
+def _glb_json(data: bytes, display: str) -> bytes:
+    """The JSON chunk of a .glb file (its binary chunk travels inside the file)."""
+    le32 = lambda at: int.from_bytes(data[at : at + 4], "little")  # noqa: E731
+    if len(data) < 20:
+        raise SceneError(f"{display}: not a valid .glb file: shorter than its header")
+    if le32(4) != 2:
+        raise SceneError(f"{display}: glTF binary version {le32(4)} (only 2 is read)")
+    if le32(16) != 0x4E4F534A:
+        raise SceneError(f"{display}: not a valid .glb file: the first chunk is not JSON")
+    length = le32(12)
+    if length + 20 > len(data):
+        raise SceneError(
+            f"{display}: not a valid .glb file: its JSON chunk of {length} bytes runs past the end of the file"
+        )
+    return data[20 : 20 + length]
+
+
+def _gltf_files(bundler: "_Bundler", ref: _FileRef) -> None:
+    """The glTF `ref` and its buffer and image files, checked as common/scene_loader/gltf_files.cpp checks them."""
+    data = bundler.read(ref)
+    text = _glb_json(data, ref.display) if data[:4] == b"glTF" else data  # binary by content, as the loader
+    if b"\0" in text:
+        raise SceneError(f"{ref.display}: NUL byte in the JSON text")
+    try:
+        doc = json.loads(text.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{ref.display}: invalid JSON: not UTF-8 ({e.reason})") from None
+    except json.JSONDecodeError as e:
+        raise SceneError(f"{ref.display}:{e.lineno}: invalid JSON: {e.msg}") from None
+    if not isinstance(doc, dict):
+        raise SceneError(f"{ref.display}: a glTF file must hold a JSON object")
+    folder = os.path.dirname(ref.real)
+    display_dir = os.path.dirname(ref.display)
+    for kind in ("buffers", "images"):
+        items = doc.get(kind)
+        if not isinstance(items, list):
+            continue
+        for i, item in enumerate(items):
+            if not isinstance(item, dict) or not isinstance(item.get("uri"), str):
+                continue  # an image in a bufferView, or the .glb's binary chunk
+            uri = item["uri"]
+            if uri.startswith("data:"):
+                continue  # inline in the glTF
+            where = f"{kind}[{i}]"
+            name = _decode_uri(uri)
+            file = _resolve_inside(bundler.root, folder, display_dir, name, f"{ref.display}: {where}", 0, "uri")
+            if kind == "images":  # read as the loader reads textures: backslashes as '/'
+                file = _resolve_inside(
+                    bundler.root, folder, display_dir, name.replace("\\", "/"), f"{ref.display}: {where}", 0, "texture"
+                )
+            problem = _file_problem(file.real, MAX_FILE_BYTES)
+            if problem == "does not exist" and kind == "images":
+                continue  # the master names it if a material uses it
+            if problem:
+                raise SceneError(f"{ref.display}: {where}: uri {_quote_token(uri)} {problem}")
+            bundler.read(file)
 
 
 def _strip_json_comments(text: str) -> str:
@@ -382,7 +484,8 @@ def _strip_json_comments(text: str) -> str:
 
 
 def bundle_scene(spec: str) -> SceneBundle:
-    """The bundle of `spec`: ``builtin:NAME[?k=v...]``, an OBJ path or a scene JSON path (*.json).
+    """The bundle of `spec`: ``builtin:NAME[?k=v...]``, an OBJ path, a glTF path (*.gltf, *.glb) or a
+    scene JSON path (*.json).
 
     Raises SceneError naming the file (and line) when a file cannot be read or leaves the folder.
     """
@@ -396,6 +499,8 @@ def bundle_scene(spec: str) -> SceneBundle:
     entry = _FileRef(real, spec)
     if spec.lower().endswith(".json"):
         bundler.scene_json(entry)
+    elif is_gltf_path(spec):
+        _gltf_files(bundler, entry)
     else:
         bundler.obj(entry)
     files = []

@@ -10,12 +10,18 @@ path-traced estimate bit-identical); cancel reaches the master holding the job; 
 masters' jobs; a batch of frames spreads over both masters, each frame equal to its single-process
 render with that frame's camera, and `epr list --batch` through both masters sees every frame; with
 one master down, list reports it and still lists the other's jobs, whose jobs still work, and
-submissions go to the master that is up. Run with Debian's /usr/bin/python3.
+submissions go to the master that is up. glTF scenes and the sampler through both masters:
+scenes/cornell-box.gltf (and a .glb, and a scene JSON naming it) bundled as `epr submit` bundles
+it and rendered equal to `epr render --single-process`; sampler="independent" equal to
+`--sampler independent`, the default equal to `--sampler sobol-burley` and unlike independent; a
+glTF's uris that are absolute or leave the folder refused naming the file and the element, as `epr`
+refuses them. Run with Debian's /usr/bin/python3.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import sys
@@ -71,10 +77,10 @@ class FarmCase(unittest.TestCase):
             print(self.masters.logs(), file=sys.stderr)
         return outcome
 
-    def single_process(self, name: str, *camera: str):
-        """`epr render --single-process` of JOB (with a camera override): its counts and pathtrace."""
+    def single_process(self, name: str, *flags: str, scene: str = "builtin:cornell"):
+        """`epr render --single-process` of JOB (with more flags, e.g. a camera): its counts and pathtrace."""
         prefix = os.path.join(self.tmp, "ref", name)
-        r = base.epr("render", "builtin:cornell", "--single-process", *JOB_FLAGS, *camera, "--out", prefix, timeout=120)
+        r = base.epr("render", scene, "--single-process", *JOB_FLAGS, *flags, "--out", prefix, timeout=120)
         self.assertEqual(r.returncode, 0, r.stderr)
         out = {}
         for kind in ("counts", "pathtrace"):
@@ -331,6 +337,146 @@ class SecureMastersTest(unittest.TestCase):
             with self.assertRaises(eprfarm.RpcError) as ctx, self.assertLogs("eprfarm", "WARNING"):
                 c.submit("builtin:cornell", width=8, height=8, spp=1)
             self.assertTrue(ctx.exception.unreachable)
+
+
+def write_glb(gltf: str, out: str) -> None:
+    """`gltf` (one buffer in a .bin file) as a self-contained .glb: the buffer becomes its BIN chunk."""
+    with open(gltf) as f:
+        doc = json.load(f)
+    with open(os.path.join(os.path.dirname(gltf), doc["buffers"][0].pop("uri")), "rb") as f:
+        binary = f.read()
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    le32 = lambda v: v.to_bytes(4, "little")  # noqa: E731
+    total = 12 + 8 + len(text) + 8 + len(binary)
+    with open(out, "wb") as f:
+        f.write(b"glTF" + le32(2) + le32(total) + le32(len(text)) + b"JSON" + text + le32(len(binary)) + b"BIN\0" + binary)
+
+
+class GltfAndSamplerTest(FarmCase):
+    """glTF scenes and the sampler, submitted through the client over both masters (farm.py)."""
+
+    GLTF = os.path.join(base.SOURCE_DIR, "scenes", "cornell-box.gltf")
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="epr-python-gltf-")
+        cls.masters = TwoMasters(cls.tmp)
+        cls.client = eprfarm.Client(cls.masters.list)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.client.close()
+        cls.masters.stop()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def render(self, scene: str, **options):
+        job = self.client.submit(scene, **JOB, **options)
+        status = self.client.wait(job)
+        self.assertEqual(status.state, "DONE", status.error_message)
+        return self.client.get(job, as_arrays=True)
+
+    def epr_hash(self, scene: str) -> str:
+        """The content hash of `scene` as `epr submit` bundles it (the job cancelled at once)."""
+        r = base.epr("submit", scene, "--width", "16", "--height", "16", "--spp", "1", "--master",
+                     self.masters.addresses[0])
+        self.assertEqual(r.returncode, 0, r.stderr)
+        return self.client.cancel(r.stdout.strip()).proto.scene.content_hash
+
+    def test_gltf_renders_as_epr_renders_it(self):
+        bundle = eprfarm.bundle_scene(self.GLTF)
+        self.assertEqual(bundle.entry_path, "cornell-box.gltf")
+        self.assertEqual([p for p, _ in bundle.files], ["cornell-box.bin", "cornell-box.gltf"])
+        self.assertEqual(bundle.content_hash(), self.epr_hash(self.GLTF))
+        self.assert_same_render(self.render(self.GLTF), self.single_process("gltf", scene=self.GLTF), "glTF")
+
+        # A .glb is one file; a scene JSON naming the glTF brings the glTF's files along.
+        folder = os.path.join(self.tmp, "glb")
+        os.makedirs(folder)
+        glb = os.path.join(folder, "box.glb")
+        write_glb(self.GLTF, glb)
+        with open(os.path.join(folder, "unused.bin"), "wb") as f:
+            f.write(b"not part of the scene")
+        self.assertEqual([p for p, _ in eprfarm.bundle_scene(glb).files], ["box.glb"])
+        self.assertEqual(eprfarm.bundle_scene(glb).content_hash(), self.epr_hash(glb))
+        for name in ("cornell-box.gltf", "cornell-box.bin"):
+            shutil.copy(os.path.join(base.SOURCE_DIR, "scenes", name), os.path.join(self.tmp, "glb", name))
+        scene_json = os.path.join(folder, "scene.json")
+        with open(scene_json, "w") as f:
+            f.write('// the glTF box\n{ "obj": "cornell-box.gltf", "camera": {"fov": 40} }\n')
+        bundle = eprfarm.bundle_scene(scene_json)
+        self.assertEqual([p for p, _ in bundle.files], ["cornell-box.bin", "cornell-box.gltf", "scene.json"])
+        self.assertEqual(bundle.content_hash(), self.epr_hash(scene_json))
+
+    def test_sampler(self):
+        import numpy as np
+
+        independent = self.render("builtin:cornell", sampler="independent")
+        self.assert_same_render(independent, self.single_process("independent", "--sampler", "independent"),
+                                "sampler independent")
+        default = self.render("builtin:cornell")
+        self.assert_same_render(default, self.single_process("sobol", "--sampler", "sobol-burley"), "default sampler")
+        self.assertFalse(np.array_equal(default["pathtrace"], independent["pathtrace"]),
+                         "the default sampler renders as independent does")
+        with self.assertRaises(ValueError) as ctx:
+            self.client.submit("builtin:cornell", sampler="halton", **JOB)
+        self.assertIn("sampler 'halton' is not one of sobol-burley, independent", str(ctx.exception))
+
+    def test_gltf_refusals(self):
+        folder = os.path.join(self.tmp, "refusals", "scene")
+        os.makedirs(os.path.join(folder, "sub"))
+        with open(os.path.join(folder, "..", "outside.bin"), "wb") as f:
+            f.write(b"\0" * 64)
+        os.symlink(os.path.join(folder, "..", "outside.bin"), os.path.join(folder, "link.bin"))
+
+        def gltf(name: str, buffers=(), images=()) -> str:
+            path = os.path.join(folder, name)
+            doc = {"asset": {"version": "2.0"}, "buffers": [{"uri": u, "byteLength": 64} for u in buffers],
+                   "images": [{"uri": u} for u in images]}
+            with open(path, "w") as f:
+                json.dump(doc, f)
+            return path
+
+        def refused(scene: str, *parts: str, epr_too: bool = True) -> None:
+            with self.assertRaises(ValueError) as ctx:
+                eprfarm.bundle_scene(scene)
+            self.assertIsInstance(ctx.exception, eprfarm.SceneError)
+            for part in parts:
+                self.assertIn(part, str(ctx.exception))
+            if epr_too:  # `epr submit` refuses it with the same words, before it connects
+                r = base.epr("submit", scene, "--master", self.masters.addresses[0])
+                self.assertNotEqual(r.returncode, 0)
+                self.assertIn(parts[-1], r.stderr)
+
+        absolute = os.path.join(folder, "..", "outside.bin")
+        refused(gltf("abs.gltf", [absolute]), "abs.gltf: buffers[0]: ",
+                f"buffers[0]: uri '{absolute}' is an absolute path; scene files must name files inside the scene folder")
+        refused(gltf("up.gltf", ["data:application/octet-stream;base64,AAAA", "../outside.bin"]), "up.gltf: ",
+                "buffers[1]: uri '../outside.bin' leaves the scene folder")
+        refused(gltf("sub/image.gltf", images=["../../outside.bin"]), "image.gltf: ",
+                "images[0]: uri '../../outside.bin' leaves the scene folder")
+        refused(gltf("pct.gltf", ["%2E%2E/outside.bin"]), "pct.gltf: ", "buffers[0]: uri '../outside.bin' leaves")
+        refused(gltf("link.gltf", ["link.bin"]), "link.gltf: ", "buffers[0]: uri 'link.bin' leaves the scene folder")
+        refused(gltf("missing.gltf", ["missing.bin"]), "missing.gltf: ", "buffers[0]: uri 'missing.bin' does not exist")
+        refused(gltf("abs-image.gltf", images=["/etc/hostname"]), "abs-image.gltf: ",
+                "images[0]: uri '/etc/hostname' is an absolute path", epr_too=False)
+        # In a scene JSON the glTF is named; in a .glb the uris of its JSON chunk are checked as well.
+        with open(os.path.join(folder, "scene.json"), "w") as f:
+            f.write('{"obj": "up.gltf"}')
+        refused(os.path.join(folder, "scene.json"), "up.gltf: ", "buffers[1]: uri '../outside.bin' leaves")
+        with open(os.path.join(folder, "out.json"), "w") as f:
+            f.write('{"obj": "../x.gltf"}')
+        refused(os.path.join(folder, "out.json"), "out.json", "obj '../x.gltf' leaves the scene folder", epr_too=False)
+        with open(os.path.join(folder, "up.glb"), "wb") as f:
+            text = json.dumps({"asset": {"version": "2.0"}, "buffers": [{"uri": "../outside.bin", "byteLength": 64}]})
+            text = text.encode() + b" " * (-len(text) % 4)
+            f.write(b"glTF" + (2).to_bytes(4, "little") + (20 + len(text)).to_bytes(4, "little")
+                    + len(text).to_bytes(4, "little") + b"JSON" + text)
+        refused(os.path.join(folder, "up.glb"), "up.glb: ", "buffers[0]: uri '../outside.bin' leaves the scene folder")
+        # data: URIs stay in the glTF; an image file that is not there is the master's to name.
+        inline = gltf("inline.gltf", ["data:application/octet-stream;base64,AAAA"], ["gone.png"])
+        self.assertEqual([p for p, _ in eprfarm.bundle_scene(inline).files], ["inline.gltf"])
 
 
 def main() -> int:
