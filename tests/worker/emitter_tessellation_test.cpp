@@ -1,5 +1,6 @@
-// The conference room's image does not depend on how its quads (the six ceiling light panels among
-// them) are cut into triangles: builtin:conference against builtin:conference?tess=4, block by block.
+// The conference room's and the hall's images do not depend on how their quads (the light panels and
+// the skylight among them) are cut into triangles: builtin:NAME against builtin:NAME?tess=4, block by
+// block.
 //
 // Why: Blender Cycles renders large emitting triangles darker than the same surfaces cut small (0.33 %
 // in the image mean, 1.2 % on the walls lit at grazing angles, issue #19), so the Cycles reference
@@ -18,14 +19,17 @@
 //   - each of the 16 blocks: |z| < 4.5,
 //   - each of the 4 rows of blocks (Cycles' bias showed in a band of rows): |z| < 4,
 //   - the whole image: |z| < 4.
-// The test checks its own power too: tess=4 scaled by 1.01 must fail every block and the image, and
-// scaled by 0.99 the image.
+// The test checks its own power too: tess=4 scaled by 1.01 or 0.99 must fail the image check, by 1.02
+// every row of blocks and by 1.03 every block (the hall's paired difference is noisier than the
+// conference room's: at 128 spp its blocks' standard errors are 0.24-0.49 %, the conference's
+// 0.03-0.20 %).
 #include <gtest/gtest.h>
 #include <tbb/parallel_for.h>
 
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <string>
 #include <vector>
 
 #include "common/builtin_scenes.h"
@@ -81,8 +85,8 @@ using Blocks = std::array<Moments, size_t(kBlocksX* kBlocksY)>;
 
 double lum(const Vec3& v) { return 0.2126 * v.x + 0.7152 * v.y + 0.0722 * v.z; }
 
-Blocks render_blocks(uint64_t seed) {
-  const Scene scene1 = load_scene("builtin:conference"), scene4 = load_scene("builtin:conference?tess=4");
+Blocks render_blocks(const std::string& name, uint64_t seed) {
+  const Scene scene1 = load_scene("builtin:" + name), scene4 = load_scene("builtin:" + name + "?tess=4");
   EmbreeScene es1(scene1), es4(scene4);
   const Camera cam(scene1.camera, kWidth, kHeight);
   const PathTracer t1(es1, cam, seed, RussianRoulette::paper(), true, SamplerKind::kIndependent);
@@ -100,8 +104,10 @@ Blocks render_blocks(uint64_t seed) {
   return b;
 }
 
-TEST(EmitterTessellation, ConferenceImageDoesNotDependOnTheTessellationOfItsEmitters) {
-  const Blocks blocks = render_blocks(1);
+class EmitterTessellation : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(EmitterTessellation, ImageDoesNotDependOnTheTessellationOfItsEmitters) {
+  const Blocks blocks = render_blocks(GetParam(), 1);
   Moments all;
   std::array<Moments, kBlocksY> rows{};
   double worst_block = 0, weakest_power = 1e30;
@@ -112,9 +118,9 @@ TEST(EmitterTessellation, ConferenceImageDoesNotDependOnTheTessellationOfItsEmit
       std::printf("  %+.2f %% (z %+.2f, se %.2f %%)", m.diff_percent(), m.z(), m.se_percent());
       EXPECT_LT(std::abs(m.z()), 4.5) << "block (" << bx << ", " << by << "): tess 1 " << m.mean1() << ", tess 4 "
                                       << m.mean4();
-      EXPECT_GT(m.z(1.01), 4.5) << "block (" << bx << ", " << by << ") could not see a 1 % brightening";
+      EXPECT_GT(m.z(1.03), 4.5) << "block (" << bx << ", " << by << ") could not see a 3 % brightening";
       worst_block = std::max(worst_block, std::abs(m.z()));
-      weakest_power = std::min(weakest_power, m.z(1.01));
+      weakest_power = std::min(weakest_power, m.z(1.03));
       rows[size_t(by)].add(m);
       all.add(m);
     }
@@ -125,10 +131,11 @@ TEST(EmitterTessellation, ConferenceImageDoesNotDependOnTheTessellationOfItsEmit
     std::printf("  rows %d-%d: tess 4 %+.3f %% against tess 1 (z %+.2f, se %.3f %%)\n", by * kBlockH,
                 (by + 1) * kBlockH, r.diff_percent(), r.z(), r.se_percent());
     EXPECT_LT(std::abs(r.z()), 4.0) << "block row " << by;
+    EXPECT_GT(r.z(1.02), 4.0) << "block row " << by << " could not see a 2 % brightening";
   }
   std::printf(
       "  image: tess 1 %.5f, tess 4 %.5f (%+.3f %%, z %+.2f, se of the difference %.3f %% paired, %.3f %% "
-      "unpaired); worst block |z| %.2f (tess 4 x 1.01: smallest block z %+.2f); image with tess 4 x 1.01: z %+.2f, "
+      "unpaired); worst block |z| %.2f (tess 4 x 1.03: smallest block z %+.2f); image with tess 4 x 1.01: z %+.2f, "
       "x 0.99: z %+.2f, x 1.002: z %+.2f\n",
       all.mean1(), all.mean4(), all.diff_percent(), all.z(), all.se_percent(), all.unpaired_se_percent(), worst_block,
       weakest_power, all.z(1.01), all.z(0.99), all.z(1.002));
@@ -138,6 +145,10 @@ TEST(EmitterTessellation, ConferenceImageDoesNotDependOnTheTessellationOfItsEmit
   EXPECT_GT(all.z(1.01), 4.0) << "the check could not see a 1 % brightening";
   EXPECT_LT(all.z(0.99), -4.0) << "the check could not see a 1 % darkening";
 }
+
+// The hall's skylight (a 30 x 3 m strip) is the other large emitter whose Cycles reference needed
+// checking.
+INSTANTIATE_TEST_SUITE_P(Builtins, EmitterTessellation, ::testing::Values("conference", "hall"));
 
 }  // namespace
 }  // namespace epr
