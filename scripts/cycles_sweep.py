@@ -52,7 +52,7 @@ def parse_args():
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--threads", type=int, default=0, help="Cycles threads, 0 = all cores")
     ap.add_argument("--max-bounces", type=int, default=1024)
-    ap.add_argument("--emitter-subdiv", type=int, default=4, help="as in cycles_reference.py")
+    ap.add_argument("--emitter-subdiv", type=int, default=16, help="as in cycles_reference.py")
     ap.add_argument("--outdir", required=True)
     a = ap.parse_args(argv)
     with open(a.camera, "r", encoding="utf-8") as f:
