@@ -259,6 +259,8 @@ TEST_F(ResultsTest, ListIsNewestFirstAndPagesGoBackInTime) {
   EXPECT_EQ(list(2, next, &last), (std::vector<std::string>{ids[0]}));
   EXPECT_TRUE(last.empty());
   EXPECT_EQ(list(1, "", nullptr, {v1::JOB_STATE_QUEUED}), (std::vector<std::string>{newest}));
+  // The first job runs once the reprojection thread has its GL context (slow on a loaded machine).
+  ASSERT_TRUE(eventually([&] { return status(ids[0]).state() == v1::JOB_STATE_RUNNING; }));
   EXPECT_EQ(list(0, "", nullptr, {v1::JOB_STATE_RUNNING}), (std::vector<std::string>{ids[0]}));
 }
 

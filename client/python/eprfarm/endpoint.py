@@ -2,14 +2,27 @@
 
 from __future__ import annotations
 
+import atexit
 import threading
 import time
+import weakref
 from typing import List, Optional
 
 import grpc
 
 from .errors import RpcError
 from .proto import job_service_pb2_grpc as pb_grpc
+
+
+# Channels still open when the interpreter exits are closed first: a channel whose connectivity was
+# watched (check_reachable) and left to the finalizers at shutdown can hang the exit.
+_open: "weakref.WeakSet[Endpoint]" = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_endpoints() -> None:
+    for endpoint in list(_open):
+        endpoint.close()
 
 
 class Endpoint:
@@ -32,6 +45,7 @@ class Endpoint:
             self.channel = grpc.secure_channel(target, credentials, options=options)
         self.stub = pb_grpc.JobServiceStub(self.channel)
         self._unsubscribed_at = 0.0  # monotonic time the last connection check ended
+        _open.add(self)
 
     def check_reachable(self, timeout: float) -> None:
         """Raises RpcError unless a connection is established within `timeout` seconds; fails at once
@@ -76,3 +90,4 @@ class Endpoint:
         # before that makes it print a "Channel closed!" traceback (gRPC issue 18995). Let it stop.
         time.sleep(max(0.0, self._unsubscribed_at + 0.25 - time.monotonic()))
         self.channel.close()
+        _open.discard(self)

@@ -353,6 +353,19 @@ class ClusterTest(unittest.TestCase):
         self.assertTrue(all(f.partial for f in files))
         self.assertEqual(self.client.cancel(job).state, "CANCELLED")  # cancelling again changes nothing
 
+    def test_script_without_close_exits(self):
+        # A script that watches a job and leaves its client to the interpreter's exit must end (a
+        # channel whose connectivity was watched could hang the exit in its finalizer).
+        script = (
+            "import sys, eprfarm\n"
+            f"c = eprfarm.Client({self.farm.address!r})\n"
+            "job = c.submit('builtin:cornell', width=16, height=16, spp=2)\n"
+            "sys.exit(0 if c.wait(job).state == 'DONE' else 3)\n"
+        )
+        env = dict(os.environ, PYTHONPATH=os.path.abspath(ARGS.package_dir))
+        r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+        self.assertEqual(r.returncode, 0, r.stderr)
+
     def test_master_errors(self):
         with self.assertRaises(eprfarm.RpcError) as ctx:
             self.client.submit("builtin:cornell", spp=0)
