@@ -120,6 +120,9 @@ TEST(LoadTest, ManyClientsQueuedJobsAndChurningWorkers) {
       {
         grpc::ClientContext ctx;
         deadline(ctx, kCallDeadline);
+        // The first call opens the client's connection; a connection attempt that fails while the
+        // machine is loaded is retried within the deadline instead of failing the call at once.
+        ctx.set_wait_for_ready(true);
         v1::JobId id;
         ++calls;
         const grpc::Status st = stub->SubmitJob(&ctx, spec, &id);
