@@ -131,6 +131,7 @@ int main(int argc, char** argv) {
   size_t points = 4'000'000;
   std::vector<int> lp_threads, cpu_threads = {1, 2};
   bool sweep = false, gl_only = false, cpu_only = false;
+  std::vector<size_t> gl_batches;
   size_t band_cells = 0;
   std::string vertices, scene_filter;
   app.add_option("--runs", runs, "runs per figure (median)");
@@ -141,6 +142,10 @@ int main(int argc, char** argv) {
   app.add_option("--lp-threads", lp_threads, "re-run the GL figures with these LP_NUM_THREADS values")->delimiter(',');
   app.add_option("--cpu-threads", cpu_threads, "TBB thread counts for the CPU back-end")->delimiter(',');
   app.add_flag("--sweep", sweep, "also sweep GL workgroup shapes and prefetch");
+  app.add_option("--gl-batches", gl_batches,
+                 "GL: packed throughput (2^20-vertex calls, the master's) with these upload batch sizes, alternating, "
+                 "each --runs times")
+      ->delimiter(',');
   app.add_flag("--gl-only", gl_only, "only the GL back-end (used by --lp-threads)");
   app.add_flag("--cpu-only", cpu_only,
                "only the CPU back-end (the deep framebuffer is still built with GL if available)");
@@ -215,6 +220,25 @@ int main(int argc, char** argv) {
         std::printf(
             "  gl  packed, %7zu-vertex calls:  %7.2f M points/s wall, %7.2f M points/CPU-s (%.1f ns/vertex CPU)\n",
             call, f.wall / 1e6, f.cpu / 1e6, 1e9 / f.cpu);
+      }
+      if (!gl_batches.empty()) {
+        // One reprojector per batch size; the runs alternate between them so that load drifts hit all alike.
+        std::vector<std::unique_ptr<Reprojector>> rs;
+        for (size_t batch : gl_batches) {
+          ReprojectorSettings s = settings;
+          s.batch_points = batch;
+          rs.push_back(make_reprojector("gl", cam, dfb, s, ctx.get()));
+        }
+        std::vector<std::vector<double>> wall(gl_batches.size());
+        for (int run = 0; run < runs; ++run)
+          for (size_t k = 0; k < rs.size(); ++k)
+            wall[k].push_back(measure_packed(*rs[k], packed, codec, size_t(1) << 20, 1).wall);
+        for (size_t k = 0; k < rs.size(); ++k) {
+          std::sort(wall[k].begin(), wall[k].end());
+          std::printf("  gl  packed, batch %8zu: %7.2f M points/s wall (median of %d, %.2fx the first)\n",
+                      gl_batches[k], wall[k][wall[k].size() / 2] / 1e6, runs,
+                      wall[k][wall[k].size() / 2] / wall[0][wall[0].size() / 2]);
+        }
       }
       if (sweep) {
         for (int wg : {8, 16, 32, 64, 128})

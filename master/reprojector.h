@@ -82,8 +82,10 @@ struct ReprojectorSettings {
   bool joint_test = true;         // step 5's normal and crease tests (off: the plane test alone, as
                                   // in the paper; thin walls then leak at their joints)
   // GL upload batch: points per dispatch. Bounded memory: 2 batches of 36 bytes per point in
-  // flight (18 MiB at the default). The CPU back-end uses chunks of 32768 points per thread instead.
-  size_t batch_points = size_t(1) << 18;
+  // flight, and with several bands a staging batch (4.5 + 2.3 MiB at the default; larger batches
+  // are no faster on llvmpipe, docs/BENCHMARKS.md section 8). The CPU back-end uses chunks of
+  // 32768 points per thread instead.
+  size_t batch_points = size_t(1) << 16;
   // GL compute tuning (ignored by "cpu"): invocations per workgroup and workgroups per dispatch
   // (a grid-stride loop covers the batch), and whether to prefetch the accumulation cache line with a
   // vector gather before the per-lane atomics (llvmpipe executes SSBO atomics lane by lane).

@@ -283,7 +283,7 @@ std::optional<std::string> TileResultAssembler::add_header(const v1::TileResultH
   tile_.x1 = e.x1;
   tile_.y1 = e.y1;
   tile_.path_sum.assign(pixel_count_, Vec3(0.f));
-  tile_.path_count.assign(pixel_count_, 0);
+  if (e.paths_per_pixel == 0) tile_.path_count.assign(pixel_count_, 0);
   covered_.assign(pixel_count_, 0);
   // Reserve at most kInitialReserve up front (a header alone must not allocate what it announces);
   // grow with the data that arrives.
@@ -325,7 +325,7 @@ std::optional<std::string> TileResultAssembler::add_pixels(const v1::PixelPaths&
       tile_.path_sum[i] = Vec3(0.f);  // dropped; the paths still count (their sample indices are used)
       ++tile_.dropped_pixel_sums;
     }
-    tile_.path_count[i] = p.path_count(int(k));
+    if (e.paths_per_pixel == 0) tile_.path_count[i] = p.path_count(int(k));
   }
   pixels_covered_ += uint32_t(count);
   return std::nullopt;
@@ -403,6 +403,19 @@ AssembledTile TileResultAssembler::take() {
   if (!complete_) throw std::logic_error("TileResultAssembler::take() before the trailer");
   AssembledTile out = std::move(tile_);
   tile_ = AssembledTile{};
+  if (expected_.paths_per_pixel > 0) {
+    out.paths_per_pixel = expected_.paths_per_pixel;
+    out.skip = std::move(expected_.skip);  // checked against every pixel's count; not needed here any more
+    expected_.skip.clear();
+  }
+  return out;
+}
+
+std::vector<uint32_t> AssembledTile::path_counts() const {
+  if (paths_per_pixel == 0) return path_count;
+  std::vector<uint32_t> out(path_sum.size(), paths_per_pixel);
+  for (size_t i = 0; i < skip.size() && i < out.size(); ++i)
+    if (skip[i]) out[i] = 0;
   return out;
 }
 

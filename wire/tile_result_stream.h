@@ -159,9 +159,14 @@ struct TileExpectation {
 struct AssembledTile {
   uint64_t lease_id = 0;
   std::string worker_id;
-  uint32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;               // raster space, pixels, upper bounds exclusive
-  std::vector<Vec3> path_sum;                            // per tile pixel, row-major; linear RGB, finite, >= 0
-  std::vector<uint32_t> path_count;                      // per tile pixel, row-major
+  uint32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // raster space, pixels, upper bounds exclusive
+  std::vector<Vec3> path_sum;               // per tile pixel, row-major; linear RGB, finite, >= 0
+  // Paths per pixel. With the lease's count (paths_per_pixel > 0, what the master always checks) every
+  // pixel traced that many, or none where `skip` (per tile pixel; empty: none skipped) is set, and
+  // path_count stays empty; without it, path_count holds each pixel's count.
+  uint32_t paths_per_pixel = 0;
+  std::vector<uint8_t> skip;
+  std::vector<uint32_t> path_count;
   std::vector<VertexRecord> vertices;                    // decoded with the job's VertexCodec
   std::string packed_vertices;                           // instead, with keep_packed: 16 bytes each
   std::vector<std::pair<uint32_t, Vec3>> exact_samples;  // (subpixel, radiance), finite, >= 0
@@ -170,6 +175,8 @@ struct AssembledTile {
   uint64_t dropped_exact_samples = 0;                    // non-finite or negative exact samples left out
 
   size_t vertex_count() const { return vertices.size() + packed_vertices.size() / VertexCodec::kPackedBytes; }
+  /// Every tile pixel's path count, row-major.
+  std::vector<uint32_t> path_counts() const;
 };
 
 /// Checks a SubmitTile stream chunk by chunk and rebuilds the tile. Usage in the service: read the

@@ -129,12 +129,13 @@ Lease make_lease(FuzzedDataProvider& in) {
 void check_tile(const Lease& l, const v1::TileResultHeader& header, const AssembledTile& t) {
   const TileExpectation& e = l.e;
   require(t.x0 == e.x0 && t.y0 == e.y0 && t.x1 == e.x1 && t.y1 == e.y1, "tile rectangle differs from the lease");
-  require(t.path_sum.size() == l.pixels && t.path_count.size() == l.pixels, "per-pixel arrays of the wrong size");
+  const std::vector<uint32_t> counts = t.path_counts();
+  require(t.path_sum.size() == l.pixels && counts.size() == l.pixels, "per-pixel arrays of the wrong size");
   for (uint32_t i = 0; i < l.pixels; ++i) {
     require(finite_non_negative(t.path_sum[i]), "pixel sum not finite and non-negative");
     if (e.paths_per_pixel > 0) {
       const uint32_t want = (!e.skip.empty() && e.skip[i]) ? 0 : e.paths_per_pixel;
-      require(t.path_count[i] == want, "path count differs from the lease");
+      require(counts[i] == want, "path count differs from the lease");
     }
   }
   require(t.vertices.size() == header.vertex_count(), "vertex count differs from the header");
@@ -255,10 +256,11 @@ void round_trip(FuzzedDataProvider& in, const Lease& l) {
 
   // Exactly what the writer sent: sums (non-finite or negative ones as 0), counts, vertices as the
   // codec decodes them, the exact samples it kept.
+  const std::vector<uint32_t> counts = t.path_counts();
   for (uint32_t i = 0; i < l.pixels; ++i) {
     const Vec3 want = finite_non_negative(r.path_sum[i]) ? r.path_sum[i] : Vec3(0.f);
     require(std::memcmp(&t.path_sum[i], &want, sizeof(Vec3)) == 0, "pixel sum changed on the way");
-    require(t.path_count[i] == r.path_count[i], "path count changed on the way");
+    require(counts[i] == r.path_count[i], "path count changed on the way");
   }
   size_t next = 0;
   for (const VertexRecord& v : r.vertices) {
