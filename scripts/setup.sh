@@ -22,7 +22,7 @@ PACKAGES+=(python3 python3-numpy python3-openimageio python3-prometheus-client p
 # the Python client (client/python): its runtime, pip installing it (into a venv or the system), and
 # openssl for the TLS tests' certificates
 PACKAGES+=(python3-protobuf python3-pip python3-setuptools python3-wheel python3-venv openssl)
-# reference renderer, charts, browser tests, deployment checks, network namespaces
+# reference renderer and the Blender add-on (client/blender), charts, browser tests, deployment checks, network namespaces
 PACKAGES+=(blender gnuplot-nox chromium chromium-driver docker-compose iproute2 procps curl)
 
 missing=()

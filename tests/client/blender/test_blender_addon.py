@@ -1,0 +1,238 @@
+#!/usr/bin/python3
+"""The Blender add-on (client/blender/eprfarm_blender) in headless Blender against a real epr-master
+and epr-worker on loopback.
+
+    test_blender_addon.py --blender BLENDER --package-dir BUILD/client/python --epr EPR
+        --master EPR_MASTER --worker EPR_WORKER
+
+The scenes/cornell-box.gltf is imported into Blender (make_blend.py, which also checks the add-on's
+camera against Blender's glTF exporter), saved as a .blend set to the eprfarm engine, and rendered as
+a user renders: `blender -b scene.blend -f 1` and `-a` for two frames, the add-on enabled and its
+package folder set the way Preferences would have them. The frames Blender writes must have the
+render size and the pixels of `epr render` of the same glTF (same seed; the difference of every 8 x 8
+block's mean within the noise of two seeds); the second frame (camera moved) must differ from it.
+An unreachable master and a job the master refuses must end the render with the reason in Blender's
+output, no traceback and no image. Run with Debian's /usr/bin/python3 (numpy, OpenImageIO).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import unittest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SOURCE_DIR = os.path.abspath(os.path.join(HERE, "..", "..", ".."))
+sys.path.insert(0, os.path.join(HERE, "..", "python"))
+sys.dont_write_bytecode = True  # no __pycache__ in the source tree
+import test_client as harness  # noqa: E402  (Farm: a master and a worker on loopback)
+
+ARGS = argparse.Namespace()
+GLTF = os.path.join(SOURCE_DIR, "scenes", "cornell-box.gltf")
+WIDTH, HEIGHT, SPP, SEED = 64, 48, 16, 3
+BLOCK = 8  # pixels per side of the blocks whose means are compared
+
+
+def read_exr(path: str):
+    import numpy as np
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        raise AssertionError(f"cannot read {path}: {oiio.geterror()}")
+    spec = inp.spec()
+    pixels = inp.read_image(format="float")
+    inp.close()
+    return np.asarray(pixels).reshape(spec.height, spec.width, spec.nchannels)[:, :, :3]
+
+
+def block_means(image):
+    h, w, c = image.shape
+    return image.reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, c).mean(axis=(1, 3))
+
+
+class BlenderAddonTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="epr-blender-addon-")
+        cls.farm = harness.Farm(cls.tmp)
+        # Blender finds the add-on in its user scripts folder, as after "Install add-on".
+        addons = os.path.join(cls.tmp, "scripts", "addons")
+        os.makedirs(addons)
+        os.symlink(os.path.join(SOURCE_DIR, "client", "blender", "eprfarm_blender"), os.path.join(addons, "eprfarm_blender"))
+        cls.env = dict(
+            os.environ,
+            BLENDER_USER_SCRIPTS=os.path.join(cls.tmp, "scripts"),
+            BLENDER_USER_CONFIG=os.path.join(cls.tmp, "config"),
+        )
+        cls.blend = os.path.join(cls.tmp, "box.blend")
+        made = cls.blender(
+            "--factory-startup",
+            "--python",
+            os.path.join(HERE, "make_blend.py"),
+            "--",
+            "--addon-dir",
+            os.path.join(SOURCE_DIR, "client", "blender"),
+            "--package-dir",
+            ARGS.package_dir,
+            "--gltf",
+            GLTF,
+            "--master",
+            cls.farm.address,
+            "--width",
+            str(WIDTH),
+            "--height",
+            str(HEIGHT),
+            "--spp",
+            str(SPP),
+            "--seed",
+            str(SEED),
+            "--mode",
+            "pt",
+            "--move-camera-at",
+            "2",
+            "--blend",
+            cls.blend,
+        )
+        if made.returncode != 0 or not os.path.exists(cls.blend):
+            cls.farm.stop()
+            raise RuntimeError(f"make_blend.py failed ({made.returncode}):\n{made.stdout[-6000:]}")
+        # The same glTF through `epr render`, with the job's seed and with another (the noise).
+        cls.reference = cls.epr_render(SEED)
+        cls.other_seed = cls.epr_render(SEED + 1)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.farm.stop()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    @classmethod
+    def blender(cls, *args: str) -> subprocess.CompletedProcess:
+        try:
+            return subprocess.run(
+                [ARGS.blender, "-b", *args],
+                capture_output=True,
+                text=True,
+                timeout=120,
+                env=cls.env,
+                stdin=subprocess.DEVNULL,
+            )
+        except FileNotFoundError:
+            raise RuntimeError(f"cannot run Blender ({ARGS.blender}): scripts/setup.sh installs Debian's blender") from None
+
+    @classmethod
+    def epr_render(cls, seed: int):
+        out = os.path.join(cls.tmp, f"epr-seed{seed}")
+        r = harness.epr(
+            "render", GLTF, "--width", str(WIDTH), "--height", str(HEIGHT), "--spp", str(SPP),
+            "--mode", "pt", "--seed", str(seed), "--out", out,
+        )  # fmt: skip
+        if r.returncode != 0:
+            raise RuntimeError(f"epr render failed:\n{r.stdout}\n{r.stderr}")
+        return read_exr(out + ".exr")
+
+    def render_blend(self, out: str, *frame_args: str, master=None, python=None) -> subprocess.CompletedProcess:
+        """`blender -b` of the test's .blend with the add-on enabled (as Preferences keep it) and its
+        package folder set; `python` runs after the file is loaded; `frame_args`: -f 1, -a, ..."""
+        enable = (
+            "import addon_utils, bpy; addon_utils.enable('eprfarm_blender', default_set=True); "
+            f"bpy.context.preferences.addons['eprfarm_blender'].preferences.package_path = {ARGS.package_dir!r}"
+        )
+        after = f"import bpy; bpy.context.scene.eprfarm.master = {(master or self.farm.address)!r}\n" + (python or "")
+        r = self.blender("--python-expr", enable, self.blend, "--python-expr", after, "-o", out, *frame_args)
+        return r
+
+    def assert_within_noise(self, image, what: str):
+        import numpy as np
+
+        ours, ref = block_means(image), block_means(self.reference)
+        # The standard error of a block mean's difference between two renders: the per-pixel
+        # difference of two seeds, averaged over the block.
+        h, w, c = self.reference.shape
+        d = (self.reference - self.other_seed).reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, c)
+        se = d.std(axis=(1, 3)) / BLOCK
+        excess = np.abs(ours - ref) - (5 * se + 1e-4)
+        worst = np.unravel_index(np.argmax(excess), excess.shape)
+        self.assertLessEqual(
+            excess.max(),
+            0.0,
+            f"{what}: block {worst[:2]} channel {worst[2]}: {ours[worst]:.5f} against epr render's {ref[worst]:.5f} "
+            f"(5 standard errors: {5 * se[worst]:.5f})",
+        )
+        self.assertAlmostEqual(float(image.mean()), float(self.reference.mean()), delta=5 * float(d.std()) / np.sqrt(d.size))
+
+    def test_frame_matches_epr_render(self):
+        out = os.path.join(self.tmp, "still", "box_####")
+        r = self.render_blend(out, "-f", "1")
+        path = out.replace("####", "0001") + ".exr"
+        self.assertTrue(os.path.exists(path), f"no frame written:\n{r.stdout[-6000:]}\n{r.stderr[-2000:]}")
+        self.assertNotIn("Traceback", r.stdout + r.stderr)
+        self.assertRegex(r.stdout, r"eprfarm: frame 1: job \S+ done, 16\.0 spp")
+        image = read_exr(path)
+        self.assertEqual(image.shape, (HEIGHT, WIDTH, 3))
+        self.assert_within_noise(image, "frame 1 of -f 1")
+
+    def test_two_frames(self):
+        out = os.path.join(self.tmp, "anim", "box_####")
+        r = self.render_blend(out, "-s", "1", "-e", "2", "-a")
+        paths = [out.replace("####", f"{f:04d}") + ".exr" for f in (1, 2)]
+        written = sorted(os.listdir(os.path.dirname(out))) if os.path.isdir(os.path.dirname(out)) else []
+        self.assertEqual(written, ["box_0001.exr", "box_0002.exr"], f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}")
+        self.assertEqual(len(set(re.findall(r"eprfarm: frame ([12]): job (\S+) done", r.stdout))), 2, r.stdout[-6000:])
+        first, second = (read_exr(p) for p in paths)
+        self.assertEqual(first.shape, (HEIGHT, WIDTH, 3))
+        self.assertEqual(second.shape, (HEIGHT, WIDTH, 3))
+        self.assert_within_noise(first, "frame 1 of -a")
+        # Frame 2 sees the box from elsewhere: the same comparison must fail.
+        with self.assertRaises(AssertionError):
+            self.assert_within_noise(second, "frame 2 of -a")
+
+    def test_unreachable_master(self):
+        port = harness.free_port()
+        out = os.path.join(self.tmp, "unreachable", "box_####")
+        r = self.render_blend(out, "-f", "1", master=f"127.0.0.1:{port}")
+        self.assertIn(f"Error: eprfarm: cannot reach master at 127.0.0.1:{port}", r.stdout)
+        self.assertNotIn("Traceback", r.stdout + r.stderr)
+        self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a failed render")
+
+    def test_refused_job(self):
+        # No emitter left, and a point lamp, which the add-on does not export: the master refuses the
+        # scene and says why; the add-on warned about the lamp.
+        out = os.path.join(self.tmp, "refused", "box_####")
+        r = self.render_blend(
+            out,
+            "-f",
+            "1",
+            python=(
+                "bpy.data.materials['light'].node_tree.nodes['Principled BSDF'].inputs['Emission Strength']"
+                ".default_value = 0\nbpy.ops.object.light_add(type='POINT')\n"
+            ),
+        )
+        self.assertIn("Warning: eprfarm: light objects are not exported: 'Point' (point)", r.stdout)
+        self.assertRegex(r.stdout, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.gltf has no light")
+        self.assertNotIn("Traceback", r.stdout + r.stderr)
+        self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a refused job")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--blender", required=True, help="the blender program (Debian's)")
+    parser.add_argument("--package-dir", required=True, help="folder holding the eprfarm package with its stubs")
+    parser.add_argument("--epr", required=True)
+    parser.add_argument("--master", required=True)
+    parser.add_argument("--worker", required=True)
+    args, rest = parser.parse_known_args()
+    args.package_dir = os.path.abspath(args.package_dir)
+    ARGS.__dict__.update(vars(args))
+    harness.ARGS.__dict__.update(vars(args))
+    program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
+    return 0 if program.result.wasSuccessful() else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
