@@ -9,26 +9,13 @@ import time
 
 import bpy
 
-from . import export, settings
+from . import batch, export, settings
 
 PREVIEW_INTERVAL = 2.0  # seconds between loads of a running job's latest round
 
 
 class FarmFailure(Exception):
     """A render that cannot go on; the message is shown in Blender as it is."""
-
-
-def _client_options(s):
-    options = {}
-    if s.token:
-        options["token"] = s.token
-    elif s.token_file:
-        options["token_file"] = bpy.path.abspath(s.token_file)
-    if s.ca_file:
-        options["ca_file"] = bpy.path.abspath(s.ca_file)
-    elif s.tls:
-        options["tls"] = True
-    return options
 
 
 class EprfarmRenderEngine(bpy.types.RenderEngine):
@@ -83,7 +70,7 @@ class EprfarmRenderEngine(bpy.types.RenderEngine):
             self._warn(w)
         blend = os.path.splitext(os.path.basename(bpy.data.filepath))[0] or "untitled"
         try:
-            client = eprfarm.Client(s.master, **_client_options(s))
+            client = eprfarm.Client(s.master, **settings.client_options(s))
         except ValueError as e:  # a malformed address or token
             raise FarmFailure(str(e)) from None
         try:
@@ -209,6 +196,13 @@ class RENDER_PT_eprfarm(bpy.types.Panel):
         layout.prop(s, "mode")
         layout.prop(s, "seed")
         layout.prop(s, "show_rounds")
+        layout.separator()
+        row = layout.row(align=True)
+        row.operator("eprfarm.render_frames", icon="RENDER_ANIMATION")
+        row.operator("eprfarm.cancel_frames", text="", icon="CANCEL")
+        line = batch.status_line(context.scene)
+        if line:
+            layout.label(text=line)
         col = layout.column(align=True)
         col.label(text="Exported: meshes and their materials (base colour, emission)", icon="INFO")
         col.label(text="Not exported: lamps, the world; light comes from emissive materials")

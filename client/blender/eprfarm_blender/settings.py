@@ -51,6 +51,20 @@ def import_client():
     return eprfarm
 
 
+def client_options(s):
+    """The eprfarm.Client options of the scene's farm settings."""
+    options = {}
+    if s.token:
+        options["token"] = s.token
+    elif s.token_file:
+        options["token_file"] = bpy.path.abspath(s.token_file)
+    if s.ca_file:
+        options["ca_file"] = bpy.path.abspath(s.ca_file)
+    elif s.tls:
+        options["tls"] = True
+    return options
+
+
 class EprfarmSettings(bpy.types.PropertyGroup):
     master: bpy.props.StringProperty(
         name="Master",

@@ -7,7 +7,8 @@ and epr-worker on loopback.
 
 The scenes/cornell-box.gltf is imported into Blender (make_blend.py, which also checks the add-on's
 camera against Blender's glTF exporter), saved as a .blend set to the eprfarm engine, and rendered as
-a user renders: `blender -b scene.blend -f 1` and `-a` for two frames, the add-on enabled and its
+a user renders: `blender -b scene.blend -f 1`, `-a` for two frames and the operator Render Frames on
+Farm (both frames as one batch), the add-on enabled and its
 package folder set the way Preferences would have them. The frames Blender writes must have the
 render size and the pixels of `epr render` of the same glTF (same seed; the difference of every 8 x 8
 block's mean within the noise of two seeds); the second frame (camera moved) must differ from it.
@@ -144,8 +145,7 @@ class BlenderAddonTest(unittest.TestCase):
             f"bpy.context.preferences.addons['eprfarm_blender'].preferences.package_path = {ARGS.package_dir!r}"
         )
         after = f"import bpy; bpy.context.scene.eprfarm.master = {(master or self.farm.address)!r}\n" + (python or "")
-        r = self.blender("--python-expr", enable, self.blend, "--python-expr", after, "-o", out, *frame_args)
-        return r
+        return self.blender("--python-expr", enable, self.blend, "-o", out, "--python-expr", after, *frame_args)
 
     def assert_within_noise(self, image, what: str):
         import numpy as np
@@ -192,32 +192,70 @@ class BlenderAddonTest(unittest.TestCase):
         with self.assertRaises(AssertionError):
             self.assert_within_noise(second, "frame 2 of -a")
 
-    def test_unreachable_master(self):
-        port = harness.free_port()
-        out = os.path.join(self.tmp, "unreachable", "box_####")
-        r = self.render_blend(out, "-f", "1", master=f"127.0.0.1:{port}")
-        self.assertIn(f"Error: eprfarm: cannot reach master at 127.0.0.1:{port}", r.stdout)
-        self.assertNotIn("Traceback", r.stdout + r.stderr)
-        self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a failed render")
-
-    def test_refused_job(self):
-        # No emitter left, and a point lamp, which the add-on does not export: the master refuses the
-        # scene and says why; the add-on warned about the lamp.
-        out = os.path.join(self.tmp, "refused", "box_####")
+    def test_batch_operator(self):
+        # Render Frames on Farm: both frames queued as one batch, saved at the output path as they
+        # finish and loaded as one image sequence.
+        out = os.path.join(self.tmp, "batch", "box_####")
         r = self.render_blend(
             out,
-            "-f",
-            "1",
             python=(
-                "bpy.data.materials['light'].node_tree.nodes['Principled BSDF'].inputs['Emission Strength']"
-                ".default_value = 0\nbpy.ops.object.light_add(type='POINT')\n"
+                "result = bpy.ops.eprfarm.render_frames()\n"
+                "image = bpy.data.images['eprfarm box']\n"
+                "print('operator:', sorted(result), image.source, bpy.path.abspath(image.filepath))\n"
             ),
         )
-        self.assertIn("Warning: eprfarm: light objects are not exported: 'Point' (point)", r.stdout)
-        self.assertRegex(r.stdout, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.gltf has no light")
+        paths = [out.replace("####", f"{f:04d}") + ".exr" for f in (1, 2)]
+        self.assertIn(f"operator: ['FINISHED'] SEQUENCE {paths[0]}", r.stdout, f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}")
+        self.assertRegex(r.stdout, r"eprfarm: batch (\S+): 2 frames queued")
+        self.assertRegex(r.stdout, r"eprfarm: batch \S+: 2/2 frames done, 100%")
         self.assertNotIn("Traceback", r.stdout + r.stderr)
-        self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a refused job")
+        first, second = (read_exr(p) for p in paths)
+        self.assertEqual(first.shape, (HEIGHT, WIDTH, 3))
+        self.assertEqual(second.shape, (HEIGHT, WIDTH, 3))
+        self.assert_within_noise(first, "frame 1 of the batch")
+        with self.assertRaises(AssertionError):
+            self.assert_within_noise(second, "frame 2 of the batch")
+        # The batch's jobs on the master: one per frame, in the batch.
+        import eprfarm
 
+        with eprfarm.Client(self.farm.address) as client:
+            batch = re.search(r"eprfarm: batch (\S+): 2 frames queued", r.stdout).group(1)
+            jobs = client.list(batch=batch)
+        self.assertEqual(sorted((j.frame, j.state, j.name) for j in jobs), [(1, "DONE", "box.0001"), (2, "DONE", "box.0002")])
+
+    def test_errors(self):
+        # Two renders in one Blender: an unreachable master; then the right master, but no emitter
+        # left and a point lamp, which the add-on does not export: the master refuses the scene and
+        # says why, and the add-on warned about the lamp. (A script's render call raises the error
+        # the engine reported as a RuntimeError.)
+        port = harness.free_port()
+        out = os.path.join(self.tmp, "errors", "box_####")
+        r = self.render_blend(
+            out,
+            master=f"127.0.0.1:{port}",
+            python=(
+                "def render():\n"
+                "    try:\n"
+                "        bpy.ops.render.render(write_still=True)\n"
+                "    except RuntimeError as e:\n"
+                "        print('render raised:', e, flush=True)\n"
+                "render()\n"
+                "print('--- refused', flush=True)\n"
+                f"bpy.context.scene.eprfarm.master = {self.farm.address!r}\n"
+                "bpy.data.materials['light'].node_tree.nodes['Principled BSDF'].inputs['Emission Strength']"
+                ".default_value = 0\n"
+                "bpy.ops.object.light_add(type='POINT')\n"
+                "render()\n"
+            ),
+        )
+        self.assertIn("--- refused", r.stdout, f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}")
+        unreachable, refused = r.stdout.split("--- refused")
+        self.assertIn(f"Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
+        self.assertIn(f"render raised: Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
+        self.assertIn("Warning: eprfarm: light objects are not exported: 'Point' (point)", refused)
+        self.assertRegex(refused, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.gltf has no light")
+        self.assertNotIn("Traceback", r.stdout + r.stderr)
+        self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a failed render")
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -230,6 +268,7 @@ def main() -> int:
     args.package_dir = os.path.abspath(args.package_dir)
     ARGS.__dict__.update(vars(args))
     harness.ARGS.__dict__.update(vars(args))
+    sys.path.insert(0, args.package_dir)
     program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
     return 0 if program.result.wasSuccessful() else 1
 
