@@ -22,8 +22,9 @@ PACKAGES+=(python3 python3-numpy python3-openimageio python3-prometheus-client p
 # the Python client (client/python): its runtime, pip installing it (into a venv or the system), and
 # openssl for the TLS tests' certificates
 PACKAGES+=(python3-protobuf python3-pip python3-setuptools python3-wheel python3-venv openssl)
-# reference renderer and the Blender add-on (client/blender), charts, browser tests, deployment checks, network namespaces
-PACKAGES+=(blender gnuplot-nox chromium chromium-driver docker-compose iproute2 procps curl)
+# reference renderer and the Blender add-on (client/blender; xvfb runs Blender's UI in its test), charts,
+# browser tests, deployment checks, network namespaces
+PACKAGES+=(blender xvfb xauth gnuplot-nox chromium chromium-driver docker-compose iproute2 procps curl)
 
 missing=()
 for p in "${PACKAGES[@]}"; do

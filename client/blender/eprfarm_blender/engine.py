@@ -63,9 +63,11 @@ class EprfarmRenderEngine(bpy.types.RenderEngine):
         try:
             camera, warnings = export.farm_camera(scene, depsgraph)
             warnings += export.scene_warnings(scene, depsgraph)
-            gltf = export.export_gltf(scene, depsgraph.view_layer, folder)
+            gltf = self._export(scene, depsgraph.view_layer, frame, folder)
         except export.ExportError as e:
             raise FarmFailure(str(e)) from None
+        if gltf is None:
+            return  # cancelled in Blender
         for w in warnings:
             self._warn(w)
         blend = os.path.splitext(os.path.basename(bpy.data.filepath))[0] or "untitled"
@@ -99,6 +101,33 @@ class EprfarmRenderEngine(bpy.types.RenderEngine):
             self.update_stats("", f"eprfarm: frame {frame}: job {job} done, {last.spp_mean:.1f} spp")
         finally:
             client.close()
+
+    def _export(self, scene, view_layer, frame, folder):
+        """The frame's glTF. Blender's exporter needs the main thread's context: `blender -b` renders
+        there, but the UI renders in a job thread, which hands the export to the main thread (a
+        timer) and waits. None when Blender asked to stop meanwhile."""
+        if threading.current_thread() is threading.main_thread():
+            return export.export_gltf(scene, view_layer, folder)
+        done = threading.Event()
+        out = {}
+
+        def run():
+            try:
+                # The view layer's depsgraph follows an animation render's frame only when set.
+                scene.frame_set(frame)
+                out["path"] = export.export_gltf(scene, view_layer, folder)
+            except Exception as e:  # raised in the render thread below
+                out["error"] = e
+            done.set()
+            return None
+
+        bpy.app.timers.register(run)
+        while not done.wait(0.1):
+            if self.test_break():
+                return None
+        if "error" in out:
+            raise out["error"]
+        return out["path"]
 
     def _watch(self, client, job, frame, result, folder, show_rounds):
         """Follows the job to its end: progress and stats in Blender, the latest round in the render

@@ -1,19 +1,21 @@
 #!/usr/bin/python3
-"""The Blender add-on (client/blender/eprfarm_blender) in headless Blender against a real epr-master
-and epr-worker on loopback.
+"""The Blender add-on (client/blender/eprfarm_blender) in Blender against a real epr-master and
+epr-worker on loopback.
 
-    test_blender_addon.py --blender BLENDER --package-dir BUILD/client/python --epr EPR
-        --master EPR_MASTER --worker EPR_WORKER
+    test_blender_addon.py --blender BLENDER [--xvfb-run XVFB_RUN] --package-dir BUILD/client/python
+        --epr EPR --master EPR_MASTER --worker EPR_WORKER [BlenderAddonTest | BlenderUiTest]
 
-The scenes/cornell-box.gltf is imported into Blender (make_blend.py, which also checks the add-on's
-camera against Blender's glTF exporter), saved as a .blend set to the eprfarm engine, and rendered as
-a user renders: `blender -b scene.blend -f 1`, `-a` for two frames and the operator Render Frames on
-Farm (both frames as one batch), the add-on enabled and its
-package folder set the way Preferences would have them. The frames Blender writes must have the
+scenes/cornell-box.gltf is imported into Blender (make_blend.py, which also checks the add-on's
+camera against Blender's glTF exporter), saved as a .blend set to the eprfarm engine with the camera
+keyed to move at frame 2, and rendered as a user renders it, the add-on enabled and its package
+folder set the way Preferences keep them. BlenderAddonTest (ctest blender_addon), in `blender -b`:
+`-f 1`, `-a` for two frames and the operator Render Frames on Farm (both frames as one batch); an
+unreachable master and a job the master refuses must end the render with the reason in Blender's
+output, no traceback and no image. BlenderUiTest (ctest blender_addon_ui): Blender with its UI under
+xvfb-run, F12 and Render Animation (the engine then runs in a job thread). Every frame must have the
 render size and the pixels of `epr render` of the same glTF (same seed; the difference of every 8 x 8
-block's mean within the noise of two seeds); the second frame (camera moved) must differ from it.
-An unreachable master and a job the master refuses must end the render with the reason in Blender's
-output, no traceback and no image. Run with Debian's /usr/bin/python3 (numpy, OpenImageIO).
+block's mean within five standard errors, estimated from two seeds), and frame 2 (camera moved) must
+fail that comparison. Run with Debian's /usr/bin/python3 (numpy, OpenImageIO).
 """
 
 from __future__ import annotations
@@ -57,7 +59,9 @@ def block_means(image):
     return image.reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, c).mean(axis=(1, 3))
 
 
-class BlenderAddonTest(unittest.TestCase):
+class BlenderCase(unittest.TestCase):
+    """A farm, the test's .blend and `epr render`'s images of the same glTF."""
+
     @classmethod
     def setUpClass(cls):
         cls.tmp = tempfile.mkdtemp(prefix="epr-blender-addon-")
@@ -166,6 +170,11 @@ class BlenderAddonTest(unittest.TestCase):
         )
         self.assertAlmostEqual(float(image.mean()), float(self.reference.mean()), delta=5 * float(d.std()) / np.sqrt(d.size))
 
+
+
+class BlenderAddonTest(BlenderCase):
+    """`blender -b`: the render engine on the command line, the batch operator, errors."""
+
     def test_frame_matches_epr_render(self):
         out = os.path.join(self.tmp, "still", "box_####")
         r = self.render_blend(out, "-f", "1")
@@ -257,9 +266,44 @@ class BlenderAddonTest(unittest.TestCase):
         self.assertNotIn("Traceback", r.stdout + r.stderr)
         self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a failed render")
 
+class BlenderUiTest(BlenderCase):
+    """Blender with its UI under xvfb-run: F12 and Render Animation run the engine in a job thread."""
+
+    def test_f12_and_render_animation(self):
+        still = os.path.join(self.tmp, "ui", "still.exr")
+        frames = os.path.join(self.tmp, "ui", "anim_####")
+        os.makedirs(os.path.dirname(still))
+        enable = (
+            "import addon_utils, bpy; addon_utils.enable('eprfarm_blender', default_set=True); "
+            f"bpy.context.preferences.addons['eprfarm_blender'].preferences.package_path = {ARGS.package_dir!r}"
+        )
+        try:
+            r = subprocess.run(
+                [ARGS.xvfb_run, "-a", "-s", "-screen 0 1280x1024x24", ARGS.blender, "--factory-startup",
+                 "--python-expr", enable, self.blend, "--python", os.path.join(HERE, "ui_render.py"),
+                 "--", "--still", still, "--frames", frames],
+                capture_output=True, text=True, timeout=300, env=self.env, stdin=subprocess.DEVNULL,
+            )  # fmt: skip
+        except FileNotFoundError:
+            self.fail(f"cannot run {ARGS.xvfb_run}: scripts/setup.sh installs Debian's xvfb")
+        log = f"{r.stdout[-6000:]}\n{r.stderr[-3000:]}"
+        self.assertIn("ui_render: animation finished", r.stdout, log)
+        self.assertNotIn("Traceback", r.stdout + r.stderr, log)
+        self.assertEqual(len(re.findall(r"eprfarm: frame 1: job \S+ at", r.stdout)), 2, log)  # F12, then the animation
+        self.assertEqual(len(re.findall(r"eprfarm: frame 2: job \S+ at", r.stdout)), 1, log)
+        image = read_exr(still)
+        self.assertEqual(image.shape, (HEIGHT, WIDTH, 3))
+        self.assert_within_noise(image, "F12")
+        first, second = (read_exr(frames.replace("####", f"{f:04d}") + ".exr") for f in (1, 2))
+        self.assert_within_noise(first, "frame 1 of Render Animation")
+        with self.assertRaises(AssertionError):
+            self.assert_within_noise(second, "frame 2 of Render Animation")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--blender", required=True, help="the blender program (Debian's)")
+    parser.add_argument("--xvfb-run", default="xvfb-run", help="Debian's xvfb-run, for BlenderUiTest")
     parser.add_argument("--package-dir", required=True, help="folder holding the eprfarm package with its stubs")
     parser.add_argument("--epr", required=True)
     parser.add_argument("--master", required=True)

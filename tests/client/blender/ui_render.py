@@ -1,0 +1,59 @@
+"""Run inside Blender with its UI (under xvfb-run): renders as a user does with F12 and Render
+Animation, where Blender runs the render engine in a job thread, and saves what it got.
+
+    blender --python-expr ENABLE_ADDON scene.blend --python ui_render.py -- --still OUT.exr --frames OUT_####
+
+The still is the Render Result saved as EXR (linear); the animation writes the scene's frame range
+to --frames. Prints "ui_render: ..." lines, then quits (also after 240 s: "ui_render: timeout").
+"""
+
+import sys
+import time
+
+import bpy
+
+argv = sys.argv[sys.argv.index("--") + 1 :]
+still = argv[argv.index("--still") + 1]
+frames = argv[argv.index("--frames") + 1]
+steps = ["still", "wait_still", "animation", "wait_animation"]
+started = time.monotonic()
+
+
+def say(message):
+    print(f"ui_render: {message}", flush=True)
+
+
+def quit_blender():
+    bpy.context.preferences.use_preferences_save = False
+    bpy.ops.wm.quit_blender()
+
+
+def tick():
+    if time.monotonic() - started > 240:
+        say("timeout")
+        quit_blender()
+        return None
+    step = steps[0]
+    if step.startswith("wait"):
+        if bpy.app.is_job_running("RENDER"):
+            return 0.25
+        steps.pop(0)
+        if step == "wait_still":
+            bpy.data.images["Render Result"].save_render(still)
+            say(f"still saved {still}")
+            return 0.1
+        say("animation finished")
+        quit_blender()
+        return None
+    if step == "still":
+        say("F12")
+        say(f"invoke: {bpy.ops.render.render('INVOKE_DEFAULT')}")
+    else:
+        bpy.context.scene.render.filepath = frames
+        say("render animation")
+        say(f"invoke: {bpy.ops.render.render('INVOKE_DEFAULT', animation=True)}")
+    steps.pop(0)
+    return 0.25
+
+
+bpy.app.timers.register(tick, first_interval=1.0)
