@@ -12,7 +12,8 @@ folder set the way Preferences keep them. BlenderAddonTest (ctest blender_addon)
 `-f 1`, `-a` for two frames and the operator Render Frames on Farm (both frames as one batch); an
 unreachable master and a job the master refuses must end the render with the reason in Blender's
 output, no traceback and no image. BlenderUiTest (ctest blender_addon_ui): Blender with its UI under
-xvfb-run, F12 and Render Animation (the engine then runs in a job thread). Every frame must have the
+xvfb-run, F12 and Render Animation (the engine then runs in a job thread) and Render Frames on Farm
+as its button starts it (a timer follows the batch). Every frame must have the
 render size and the pixels of `epr render` of the same glTF (same seed; the difference of every 8 x 8
 block's mean within five standard errors, estimated from two seeds), and frame 2 (camera moved) must
 fail that comparison. Run with Debian's /usr/bin/python3 (numpy, OpenImageIO).
@@ -272,6 +273,7 @@ class BlenderUiTest(BlenderCase):
     def test_f12_and_render_animation(self):
         still = os.path.join(self.tmp, "ui", "still.exr")
         frames = os.path.join(self.tmp, "ui", "anim_####")
+        batch_frames = os.path.join(self.tmp, "ui", "batch_####")
         os.makedirs(os.path.dirname(still))
         enable = (
             "import addon_utils, bpy; addon_utils.enable('eprfarm_blender', default_set=True); "
@@ -281,13 +283,16 @@ class BlenderUiTest(BlenderCase):
             r = subprocess.run(
                 [ARGS.xvfb_run, "-a", "-s", "-screen 0 1280x1024x24", ARGS.blender, "--factory-startup",
                  "--python-expr", enable, self.blend, "--python", os.path.join(HERE, "ui_render.py"),
-                 "--", "--still", still, "--frames", frames],
+                 "--", "--still", still, "--frames", frames, "--batch", batch_frames],
                 capture_output=True, text=True, timeout=300, env=self.env, stdin=subprocess.DEVNULL,
             )  # fmt: skip
         except FileNotFoundError:
             self.fail(f"cannot run {ARGS.xvfb_run}: scripts/setup.sh installs Debian's xvfb")
         log = f"{r.stdout[-6000:]}\n{r.stderr[-3000:]}"
         self.assertIn("ui_render: animation finished", r.stdout, log)
+        self.assertIn("ui_render: invoke: {'FINISHED'}", r.stdout, log)  # the batch operator
+        self.assertIn("ui_render: batch finished", r.stdout, log)
+        self.assertRegex(r.stdout, r"eprfarm: batch \S+: 2/2 frames done, 100%", log)
         self.assertNotIn("Traceback", r.stdout + r.stderr, log)
         self.assertEqual(len(re.findall(r"eprfarm: frame 1: job \S+ at", r.stdout)), 2, log)  # F12, then the animation
         self.assertEqual(len(re.findall(r"eprfarm: frame 2: job \S+ at", r.stdout)), 1, log)
@@ -298,6 +303,10 @@ class BlenderUiTest(BlenderCase):
         self.assert_within_noise(first, "frame 1 of Render Animation")
         with self.assertRaises(AssertionError):
             self.assert_within_noise(second, "frame 2 of Render Animation")
+        first, second = (read_exr(batch_frames.replace("####", f"{f:04d}") + ".exr") for f in (1, 2))
+        self.assert_within_noise(first, "frame 1 of Render Frames on Farm")
+        with self.assertRaises(AssertionError):
+            self.assert_within_noise(second, "frame 2 of Render Frames on Farm")
 
 
 def main() -> int:

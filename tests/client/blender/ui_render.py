@@ -2,9 +2,12 @@
 Animation, where Blender runs the render engine in a job thread, and saves what it got.
 
     blender --python-expr ENABLE_ADDON scene.blend --python ui_render.py -- --still OUT.exr --frames OUT_####
+        --batch OUT_####
 
 The still is the Render Result saved as EXR (linear); the animation writes the scene's frame range
-to --frames. Prints "ui_render: ..." lines, then quits (also after 240 s: "ui_render: timeout").
+to --frames; then Render Frames on Farm (invoked as the panel's button does: a timer follows the
+batch) writes it to --batch. Prints "ui_render: ..." lines, then quits (also after 240 s:
+"ui_render: timeout").
 """
 
 import sys
@@ -15,7 +18,8 @@ import bpy
 argv = sys.argv[sys.argv.index("--") + 1 :]
 still = argv[argv.index("--still") + 1]
 frames = argv[argv.index("--frames") + 1]
-steps = ["still", "wait_still", "animation", "wait_animation"]
+batch_frames = argv[argv.index("--batch") + 1]
+steps = ["still", "wait_still", "animation", "wait_animation", "batch", "wait_batch"]
 started = time.monotonic()
 
 
@@ -34,6 +38,14 @@ def tick():
         quit_blender()
         return None
     step = steps[0]
+    if step == "wait_batch":
+        from eprfarm_blender import batch
+
+        if batch.ACTIVE:
+            return 0.25
+        say("batch finished")
+        quit_blender()
+        return None
     if step.startswith("wait"):
         if bpy.app.is_job_running("RENDER"):
             return 0.25
@@ -41,17 +53,20 @@ def tick():
         if step == "wait_still":
             bpy.data.images["Render Result"].save_render(still)
             say(f"still saved {still}")
-            return 0.1
-        say("animation finished")
-        quit_blender()
-        return None
+        else:
+            say("animation finished")
+        return 0.1
     if step == "still":
         say("F12")
         say(f"invoke: {bpy.ops.render.render('INVOKE_DEFAULT')}")
-    else:
+    elif step == "animation":
         bpy.context.scene.render.filepath = frames
         say("render animation")
         say(f"invoke: {bpy.ops.render.render('INVOKE_DEFAULT', animation=True)}")
+    else:
+        bpy.context.scene.render.filepath = batch_frames
+        say("render frames on farm")
+        say(f"invoke: {bpy.ops.eprfarm.render_frames('INVOKE_DEFAULT')}")
     steps.pop(0)
     return 0.25
 
