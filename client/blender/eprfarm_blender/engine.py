@@ -27,7 +27,7 @@ class EprfarmRenderEngine(bpy.types.RenderEngine):
     def render(self, depsgraph):
         scene = depsgraph.scene
         width, height = export.resolution(scene)
-        result = self.begin_result(0, 0, width, height)
+        result = self.begin_result(0, 0, width, height, layer=depsgraph.view_layer.name)
         folder = tempfile.mkdtemp(prefix="eprfarm-blender-")
         try:
             self._render(scene, depsgraph, width, height, result, folder)
