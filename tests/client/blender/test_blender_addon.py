@@ -10,8 +10,8 @@ camera against Blender's glTF exporter), saved as a .blend set to the eprfarm en
 keyed to move at frame 2, and rendered as a user renders it, the add-on enabled and its package
 folder set the way Preferences keep them. BlenderAddonTest (ctest blender_addon), in `blender -b`:
 `-f 1`, `-a` for two frames and the operator Render Frames on Farm (both frames as one batch); an
-unreachable master and a job the master refuses must end the render with the reason in Blender's
-output, no traceback and no image. BlenderUiTest (ctest blender_addon_ui): Blender with its UI under
+unreachable master, a job the master refuses and a package folder without the package must end the
+render with the reason in Blender's output, no traceback and no image. BlenderUiTest (ctest blender_addon_ui): Blender with its UI under
 xvfb-run, F12 and Render Animation (the engine then runs in a job thread) and Render Frames on Farm
 as its button starts it (a timer follows the batch). Every frame must have the
 render size and the pixels of `epr render` of the same glTF (same seed; the difference of every 8 x 8
@@ -234,10 +234,12 @@ class BlenderAddonTest(BlenderCase):
         self.assertEqual(sorted((j.frame, j.state, j.name) for j in jobs), [(1, "DONE", "box.0001"), (2, "DONE", "box.0002")])
 
     def test_errors(self):
-        # Two renders in one Blender: an unreachable master; then the right master, but no emitter
+        # Three renders in one Blender: an unreachable master; then the right master, but no emitter
         # left and a point lamp, which the add-on does not export: the master refuses the scene and
-        # says why, and the add-on warned about the lamp. (A script's render call raises the error
-        # the engine reported as a RuntimeError.)
+        # says why, and the add-on warned about the lamp; then a package folder without the eprfarm
+        # package. (A script's render call raises the error the engine reported as a RuntimeError.)
+        nowhere = os.path.join(self.tmp, "no-package")
+        os.makedirs(nowhere, exist_ok=True)
         port = harness.free_port()
         out = os.path.join(self.tmp, "errors", "box_####")
         r = self.render_blend(
@@ -256,14 +258,22 @@ class BlenderAddonTest(BlenderCase):
                 ".default_value = 0\n"
                 "bpy.ops.object.light_add(type='POINT')\n"
                 "render()\n"
+                "print('--- package', flush=True)\n"
+                f"bpy.context.preferences.addons['eprfarm_blender'].preferences.package_path = {nowhere!r}\n"
+                "render()\n"
             ),
         )
         self.assertIn("--- refused", r.stdout, f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}")
-        unreachable, refused = r.stdout.split("--- refused")
+        self.assertIn("--- package", r.stdout, f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}")
+        unreachable, rest = r.stdout.split("--- refused")
+        refused, package = rest.split("--- package")
         self.assertIn(f"Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
         self.assertIn(f"render raised: Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
         self.assertIn("Warning: eprfarm: light objects are not exported: 'Point' (point)", refused)
         self.assertRegex(refused, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.gltf has no light")
+        self.assertIn(
+            f"Error: eprfarm: the eprfarm package folder '{nowhere}' (add-on preferences) has no eprfarm package", package
+        )
         self.assertNotIn("Traceback", r.stdout + r.stderr)
         self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a failed render")
 
