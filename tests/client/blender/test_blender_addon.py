@@ -9,7 +9,8 @@ scenes/cornell-box.gltf is imported into Blender (make_blend.py, which also chec
 camera against Blender's glTF exporter), saved as a .blend set to the eprfarm engine with the camera
 keyed to move at frame 2, and rendered as a user renders it, the add-on enabled and its package
 folder set the way Preferences keep them. BlenderAddonTest (ctest blender_addon), in `blender -b`:
-`-f 1`, `-a` for two frames and the operator Render Frames on Farm (both frames as one batch); an
+`-f 1`, `-a` for two frames, the operator Render Frames on Farm (both frames as one batch) and a
+master that wants a token (none given: its refusal; the panel's token file: the frame); an
 unreachable master, a job the master refuses and a package folder without the package must end the
 render with the reason in Blender's output, no traceback and no image. BlenderUiTest (ctest blender_addon_ui): Blender with its UI under
 xvfb-run, F12 and Render Animation (the engine then runs in a job thread) and Render Frames on Farm
@@ -276,6 +277,46 @@ class BlenderAddonTest(BlenderCase):
         )
         self.assertNotIn("Traceback", r.stdout + r.stderr)
         self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a failed render")
+    def test_token(self):
+        # A farm whose master wants a token (its worker has it): without one the master's refusal
+        # is shown; with the token file of the panel the frame renders.
+        token = "blender-token_for.tests"
+        folder = os.path.join(self.tmp, "token")
+        os.makedirs(folder)
+        token_file = os.path.join(folder, "token")
+        with open(token_file, "w") as f:
+            f.write(token + "\n")
+        os.environ["EPR_TOKEN"] = token  # the master's and the worker's, not Blender's (self.env)
+        try:
+            farm = harness.Farm(folder)
+        finally:
+            del os.environ["EPR_TOKEN"]
+        self.addCleanup(farm.stop)
+        out = os.path.join(folder, "frames", "box_####")
+        still = os.path.join(folder, "still.exr")
+        r = self.render_blend(
+            out,
+            master=farm.address,
+            python=(
+                "try:\n"
+                "    bpy.ops.render.render(write_still=True)\n"
+                "except RuntimeError as e:\n"
+                "    print('render raised:', e, flush=True)\n"
+                "print('--- with token', flush=True)\n"
+                f"bpy.context.scene.eprfarm.token_file = {token_file!r}\n"
+                "bpy.ops.render.render()\n"
+                f"bpy.data.images['Render Result'].save_render({still!r})\n"
+            ),
+        )
+        log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
+        self.assertIn("--- with token", r.stdout, log)
+        without, with_token = r.stdout.split("--- with token")
+        self.assertIn(f"Error: eprfarm: master at {farm.address} refused SubmitJob: UNAUTHENTICATED", without, log)
+        self.assertRegex(with_token, r"eprfarm: frame 1: job \S+ done, 16\.0 spp", log)
+        self.assertNotIn("Traceback", r.stdout + r.stderr)
+        self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a refused job")
+        self.assert_within_noise(read_exr(still), "frame 1 with a token")
+
 
 class BlenderUiTest(BlenderCase):
     """Blender with its UI under xvfb-run: F12 and Render Animation run the engine in a job thread."""
