@@ -29,7 +29,8 @@ def _y_up(v) -> Tuple[float, float, float]:
 def resolution(scene) -> Tuple[int, int]:
     """The render size in pixels (resolution times its percentage)."""
     r = scene.render
-    return (max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100))
+    percent = r.resolution_percentage
+    return (max(1, r.resolution_x * percent // 100), max(1, r.resolution_y * percent // 100))
 
 
 def farm_camera(scene, depsgraph) -> Tuple[FarmCamera, List[str]]:

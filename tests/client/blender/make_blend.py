@@ -84,7 +84,8 @@ if args.move_camera_at:
 from eprfarm_blender import export
 
 imported_fit = camera.data.sensor_fit
-for fit, w, h in ((imported_fit, args.width, args.height), ("AUTO", args.width * 2, args.height), ("AUTO", args.width, args.height * 2), ("HORIZONTAL", args.width, args.height * 2)):
+W, H = args.width, args.height
+for fit, w, h in ((imported_fit, W, H), ("AUTO", W * 2, H), ("AUTO", W, H * 2), ("HORIZONTAL", W, H * 2)):
     scene.render.resolution_x, scene.render.resolution_y = w, h
     camera.data.sensor_fit = fit
     depsgraph = bpy.context.evaluated_depsgraph_get()
@@ -98,15 +99,21 @@ for fit, w, h in ((imported_fit, args.width, args.height), ("AUTO", args.width *
     yfov = math.degrees(doc["cameras"][node["camera"]]["perspective"]["yfov"])
     eye = node.get("translation", [0, 0, 0])
     if abs(yfov - mine.fov) > 1e-3 or max(abs(a - b) for a, b in zip(eye, mine.eye)) > 1e-4:
-        sys.exit(f"make_blend.py: at {w}x{h} the add-on's camera {mine} differs from the exporter's: eye {eye}, yfov {yfov}")
+        sys.exit(f"make_blend.py: at {w}x{h} the add-on's camera {mine} differs from the exporter's: eye {eye}, "
+                 f"yfov {yfov}")
     qx, qy, qz, qw = node.get("rotation", [0, 0, 0, 1])
     # The exporter's -z axis (view direction) and +y axis (up) from its quaternion.
     forward = (-(2 * (qx * qz + qw * qy)), -(2 * (qy * qz - qw * qx)), -(1 - 2 * (qx * qx + qy * qy)))
     up = (2 * (qx * qy - qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz + qw * qx))
     my_forward = [l - e for l, e in zip(mine.look, mine.eye)]
-    if max(abs(a - b) for a, b in zip(forward, my_forward)) > 1e-4 or max(abs(a - b) for a, b in zip(up, mine.up)) > 1e-4:
-        sys.exit(f"make_blend.py: the add-on's view {my_forward} / up {mine.up} differ from the exporter's {forward} / {up}")
-    print(f"make_blend.py: camera at {w}x{h}, sensor fit {fit}, agrees with the exporter's: yfov {yfov:.4f} degrees", flush=True)
+    def far(a, b):
+        return max(abs(x - y) for x, y in zip(a, b)) > 1e-4
+
+    if far(forward, my_forward) or far(up, mine.up):
+        sys.exit(f"make_blend.py: the add-on's view {my_forward} / up {mine.up} differ from the exporter's "
+                 f"{forward} / {up}")
+    print(f"make_blend.py: camera at {w}x{h}, sensor fit {fit}, agrees with the exporter's: yfov {yfov:.4f} degrees",
+          flush=True)
 camera.data.sensor_fit = imported_fit
 scene.render.resolution_x, scene.render.resolution_y = args.width, args.height
 

@@ -8,16 +8,20 @@ epr-worker on loopback.
 scenes/cornell-box.gltf is imported into Blender (make_blend.py, which also checks the add-on's
 camera against Blender's glTF exporter), saved as a .blend set to the eprfarm engine with the camera
 keyed to move at frame 2, and rendered as a user renders it, the add-on enabled and its package
-folder set the way Preferences keep them. BlenderAddonTest (ctest blender_addon), in `blender -b`:
-`-f 1`, `-a` for two frames, the operator Render Frames on Farm (both frames as one batch) and a
-master that wants a token (none given: its refusal; the panel's token file: the frame); an
-unreachable master, a job the master refuses and a package folder without the package must end the
-render with the reason in Blender's output, no traceback and no image. BlenderUiTest (ctest blender_addon_ui): Blender with its UI under
-xvfb-run, F12 and Render Animation (the engine then runs in a job thread) and Render Frames on Farm
-as its button starts it (a timer follows the batch). Every frame must have the
-render size and the pixels of `epr render` of the same glTF (same seed; the difference of every 8 x 8
-block's mean within five standard errors, estimated from two seeds), and frame 2 (camera moved) must
-fail that comparison. Run with Debian's /usr/bin/python3 (numpy, OpenImageIO).
+folder set the way Preferences keep them.
+
+BlenderAddonTest (ctest blender_addon), in `blender -b`: `-f 1`, `-a` for two frames, the operator
+Render Frames on Farm (both frames as one batch) and a master that wants a token (none given: its
+refusal; the panel's token file: the frame); an unreachable master, a job the master refuses and a
+package folder without the package must end the render with the reason in Blender's output, no
+traceback and no image. BlenderUiTest (ctest blender_addon_ui): Blender with its UI under xvfb-run,
+F12 and Render Animation (the engine then runs in a job thread) and Render Frames on Farm as its
+button starts it (a timer follows the batch).
+
+Every frame must have the render size and the pixels of `epr render` of the same glTF (same seed; the
+difference of every 8 x 8 block's mean within five standard errors, estimated from two seeds), and
+frame 2 (camera moved) must fail that comparison. Run with Debian's /usr/bin/python3 (numpy,
+OpenImageIO).
 """
 
 from __future__ import annotations
@@ -71,7 +75,8 @@ class BlenderCase(unittest.TestCase):
         # Blender finds the add-on in its user scripts folder, as after "Install add-on".
         addons = os.path.join(cls.tmp, "scripts", "addons")
         os.makedirs(addons)
-        os.symlink(os.path.join(SOURCE_DIR, "client", "blender", "eprfarm_blender"), os.path.join(addons, "eprfarm_blender"))
+        addon = os.path.join(SOURCE_DIR, "client", "blender", "eprfarm_blender")
+        os.symlink(addon, os.path.join(addons, "eprfarm_blender"))
         cls.env = dict(
             os.environ,
             BLENDER_USER_SCRIPTS=os.path.join(cls.tmp, "scripts"),
@@ -130,7 +135,9 @@ class BlenderCase(unittest.TestCase):
                 stdin=subprocess.DEVNULL,
             )
         except FileNotFoundError:
-            raise RuntimeError(f"cannot run Blender ({ARGS.blender}): scripts/setup.sh installs Debian's blender") from None
+            raise RuntimeError(
+                f"cannot run Blender ({ARGS.blender}): scripts/setup.sh installs Debian's blender"
+            ) from None
 
     @classmethod
     def epr_render(cls, seed: int):
@@ -170,7 +177,8 @@ class BlenderCase(unittest.TestCase):
             f"{what}: block {worst[:2]} channel {worst[2]}: {ours[worst]:.5f} against epr render's {ref[worst]:.5f} "
             f"(5 standard errors: {5 * se[worst]:.5f})",
         )
-        self.assertAlmostEqual(float(image.mean()), float(self.reference.mean()), delta=5 * float(d.std()) / np.sqrt(d.size))
+        se_mean = float(d.std()) / np.sqrt(d.size)
+        self.assertAlmostEqual(float(image.mean()), float(self.reference.mean()), delta=5 * se_mean)
 
 
 
@@ -216,7 +224,8 @@ class BlenderAddonTest(BlenderCase):
             ),
         )
         paths = [out.replace("####", f"{f:04d}") + ".exr" for f in (1, 2)]
-        self.assertIn(f"operator: ['FINISHED'] SEQUENCE {paths[0]}", r.stdout, f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}")
+        log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
+        self.assertIn(f"operator: ['FINISHED'] SEQUENCE {paths[0]}", r.stdout, log)
         self.assertRegex(r.stdout, r"eprfarm: batch (\S+): 2 frames queued")
         self.assertRegex(r.stdout, r"eprfarm: batch \S+: 2/2 frames done, 100%")
         self.assertNotIn("Traceback", r.stdout + r.stderr)
@@ -232,7 +241,9 @@ class BlenderAddonTest(BlenderCase):
         with eprfarm.Client(self.farm.address) as client:
             batch = re.search(r"eprfarm: batch (\S+): 2 frames queued", r.stdout).group(1)
             jobs = client.list(batch=batch)
-        self.assertEqual(sorted((j.frame, j.state, j.name) for j in jobs), [(1, "DONE", "box.0001"), (2, "DONE", "box.0002")])
+        self.assertEqual(
+            sorted((j.frame, j.state, j.name) for j in jobs), [(1, "DONE", "box.0001"), (2, "DONE", "box.0002")]
+        )
 
     def test_errors(self):
         # Three renders in one Blender: an unreachable master; then the right master, but no emitter
@@ -271,9 +282,12 @@ class BlenderAddonTest(BlenderCase):
         self.assertIn(f"Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
         self.assertIn(f"render raised: Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
         self.assertIn("Warning: eprfarm: light objects are not exported: 'Point' (point)", refused)
-        self.assertRegex(refused, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.gltf has no light")
+        self.assertRegex(
+            refused, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.gltf has no light"
+        )
         self.assertIn(
-            f"Error: eprfarm: the eprfarm package folder '{nowhere}' (add-on preferences) has no eprfarm package", package
+            f"Error: eprfarm: the eprfarm package folder '{nowhere}' (add-on preferences) has no eprfarm package",
+            package,
         )
         self.assertNotIn("Traceback", r.stdout + r.stderr)
         self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a failed render")
