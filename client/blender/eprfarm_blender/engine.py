@@ -189,14 +189,22 @@ def _imported_client():
     return sys.modules.get("eprfarm")
 
 
+# Material panels Eevee's engine owns that edit what the export reads: the material slots, the
+# surface's node (Principled BSDF, Emission) and the blend mode (Alpha Clip is written as a cut-out).
+MATERIAL_PANELS = ("EEVEE_MATERIAL_PT_context_material", "EEVEE_MATERIAL_PT_surface", "EEVEE_MATERIAL_PT_settings")
+
+
 def _compatible_panels():
-    """The standard panels that apply to any engine (output, format, frame range, ...)."""
+    """The standard panels that apply to any engine (output, format, frame range, ...) and the
+    material panels above."""
     exclude = {"VIEWLAYER_PT_filter", "VIEWLAYER_PT_layer_passes"}
-    return [
+    panels = [
         p
         for p in bpy.types.Panel.__subclasses__()
         if "BLENDER_RENDER" in getattr(p, "COMPAT_ENGINES", ()) and p.__name__ not in exclude
     ]
+    panels += [getattr(bpy.types, name) for name in MATERIAL_PANELS if hasattr(bpy.types, name)]
+    return panels
 
 
 class RENDER_PT_eprfarm(bpy.types.Panel):
@@ -233,8 +241,9 @@ class RENDER_PT_eprfarm(bpy.types.Panel):
         if line:
             layout.label(text=line)
         col = layout.column(align=True)
-        col.label(text="Exported: meshes and their materials (base colour, emission)", icon="INFO")
-        col.label(text="Not exported: lamps, the world; light comes from emissive materials")
+        col.label(text="Exports meshes and materials", icon="INFO")
+        col.label(text="Lamps, World: not exported")
+        col.label(text="Light: emissive materials")
 
 
 def register_panels():
