@@ -113,7 +113,8 @@ class BlenderCase(unittest.TestCase):
         )
         if made.returncode != 0 or not os.path.exists(cls.blend):
             cls.farm.stop()
-            raise RuntimeError(f"make_blend.py failed ({made.returncode}):\n{made.stdout[-6000:]}")
+            output = f"{made.stdout[-6000:]}\n{made.stderr[-3000:]}"
+            raise RuntimeError(f"make_blend.py failed ({made.returncode}):\n{output}")
         # The same glTF through `epr render`, with the job's seed and with another (the noise).
         cls.reference = cls.epr_render(SEED)
         cls.other_seed = cls.epr_render(SEED + 1)
