@@ -10,13 +10,14 @@ camera against Blender's glTF exporter), saved as a .blend set to the eprfarm en
 keyed to move at frame 2, and rendered as a user renders it, the add-on enabled and its package
 folder set the way Preferences keep them.
 
-BlenderAddonTest (ctest blender_addon), in `blender -b`: `-f 1`, `-a` for two frames, the operator
-Render Frames on Farm (both frames as one batch) and a master that wants a token (none given: its
-refusal; the panel's token file: the frame); an unreachable master, a job the master refuses and a
-package folder without the package must end the render with the reason in Blender's output, no
-traceback and no image. BlenderUiTest (ctest blender_addon_ui): Blender with its UI under xvfb-run,
-F12 and Render Animation (the engine then runs in a job thread) and Render Frames on Farm as its
-button starts it (a timer follows the batch).
+BlenderAddonTest (ctest blender_addon), in `blender -b`: `-f 1`, a textured material (against `epr
+render` of Blender's own glTF export), `-a` for two frames, the operator Render Frames on Farm (both
+frames as one batch) and a master that wants a token (none given: its refusal; the panel's token
+file: the frame); an unreachable master, a job the master refuses and a package folder without the
+package must end the render with the reason in Blender's output, no traceback and no image.
+BlenderUiTest (ctest blender_addon_ui): Blender with its UI under xvfb-run, F12 and Render Animation
+(the engine then runs in a job thread) and Render Frames on Farm as its button starts it (a timer
+follows the batch).
 
 Every frame must have the render size and the pixels of `epr render` of the same glTF (same seed; the
 difference of every 8 x 8 block's mean within five standard errors, estimated from two seeds), and
@@ -141,10 +142,10 @@ class BlenderCase(unittest.TestCase):
             ) from None
 
     @classmethod
-    def epr_render(cls, seed: int):
-        out = os.path.join(cls.tmp, f"epr-seed{seed}")
+    def epr_render(cls, seed: int, scene: str = GLTF):
+        out = os.path.join(os.path.dirname(scene) if scene != GLTF else cls.tmp, f"epr-seed{seed}")
         r = harness.epr(
-            "render", GLTF, "--width", str(WIDTH), "--height", str(HEIGHT), "--spp", str(SPP),
+            "render", scene, "--width", str(WIDTH), "--height", str(HEIGHT), "--spp", str(SPP),
             "--mode", "pt", "--seed", str(seed), "--out", out,
         )  # fmt: skip
         if r.returncode != 0:
@@ -161,14 +162,18 @@ class BlenderCase(unittest.TestCase):
         after = f"import bpy; bpy.context.scene.eprfarm.master = {(master or self.farm.address)!r}\n" + (python or "")
         return self.blender("--python-expr", enable, self.blend, "-o", out, "--python-expr", after, *frame_args)
 
-    def assert_within_noise(self, image, what: str):
+    def assert_within_noise(self, image, what: str, reference=None, other_seed=None):
+        """`image` against `epr render`'s `reference` (default: scenes/cornell-box.gltf's), block by
+        block, within five standard errors estimated from `other_seed` (the same with another seed)."""
         import numpy as np
 
-        ours, ref = block_means(image), block_means(self.reference)
+        if reference is None:
+            reference, other_seed = self.reference, self.other_seed
+        ours, ref = block_means(image), block_means(reference)
         # The standard error of a block mean's difference between two renders: the per-pixel
         # difference of two seeds, averaged over the block.
-        h, w, c = self.reference.shape
-        d = (self.reference - self.other_seed).reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, c)
+        h, w, c = reference.shape
+        d = (reference - other_seed).reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, c)
         se = d.std(axis=(1, 3)) / BLOCK
         excess = np.abs(ours - ref) - (5 * se + 1e-4)
         worst = np.unravel_index(np.argmax(excess), excess.shape)
@@ -179,7 +184,7 @@ class BlenderCase(unittest.TestCase):
             f"(5 standard errors: {5 * se[worst]:.5f})",
         )
         se_mean = float(d.std()) / np.sqrt(d.size)
-        self.assertAlmostEqual(float(image.mean()), float(self.reference.mean()), delta=5 * se_mean)
+        self.assertAlmostEqual(float(image.mean()), float(reference.mean()), delta=5 * se_mean)
 
 
 
@@ -196,6 +201,45 @@ class BlenderAddonTest(BlenderCase):
         image = read_exr(path)
         self.assertEqual(image.shape, (HEIGHT, WIDTH, 3))
         self.assert_within_noise(image, "frame 1 of -f 1")
+
+    def test_textured_material(self):
+        # A plane on the back wall with a generated colour-grid texture (the exporter writes it as a
+        # PNG beside the glTF, which travels in the job's bundle): the add-on's frame against
+        # `epr render` of Blender's own glTF export of the same scene, camera included.
+        folder = os.path.join(self.tmp, "textured")
+        os.makedirs(folder)
+        still, exported = os.path.join(folder, "still.exr"), os.path.join(folder, "scene.gltf")
+        r = self.render_blend(
+            os.path.join(folder, "frames", "box_####"),
+            python=(
+                "image = bpy.data.images.new('grid', 64, 64)\n"
+                "image.generated_type = 'COLOR_GRID'\n"
+                "bpy.ops.mesh.primitive_plane_add(size=0.8, location=(0, 1.0, 1.2), rotation=(1.5708, 0, 0))\n"
+                "material = bpy.data.materials.new('grid')\n"
+                "material.use_nodes = True\n"
+                "nodes = material.node_tree.nodes\n"
+                "texture = nodes.new('ShaderNodeTexImage')\n"
+                "texture.image = image\n"
+                "bsdf = nodes['Principled BSDF']\n"
+                "material.node_tree.links.new(texture.outputs['Color'], bsdf.inputs['Base Color'])\n"
+                "bsdf.inputs['Roughness'].default_value = 1.0\n"
+                "bpy.context.active_object.data.materials.append(material)\n"
+                "bpy.ops.render.render()\n"
+                f"bpy.data.images['Render Result'].save_render({still!r})\n"
+                f"bpy.ops.export_scene.gltf(filepath={exported!r}, export_format='GLTF_SEPARATE',\n"
+                "                          export_cameras=True)\n"
+            ),
+        )
+        log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
+        self.assertRegex(r.stdout, r"eprfarm: frame 1: job \S+ done, 16\.0 spp", log)
+        self.assertNotIn("Traceback", r.stdout + r.stderr, log)
+        self.assertIn("grid.png", os.listdir(folder), log)
+        image = read_exr(still)
+        self.assertEqual(image.shape, (HEIGHT, WIDTH, 3))
+        reference, other_seed = self.epr_render(SEED, exported), self.epr_render(SEED + 1, exported)
+        self.assert_within_noise(image, "textured plane", reference, other_seed)
+        with self.assertRaises(AssertionError):  # the plane is there: not the bare box
+            self.assert_within_noise(image, "textured plane against the bare box")
 
     def test_two_frames(self):
         out = os.path.join(self.tmp, "anim", "box_####")
