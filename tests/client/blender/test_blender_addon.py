@@ -258,12 +258,24 @@ class BlenderAddonTest(BlenderCase):
 
     def test_batch_operator(self):
         # Render Frames on Farm: both frames queued as one batch, saved at the output path as they
-        # finish and loaded as one image sequence.
+        # finish and loaded as one image sequence. The inline limit is lowered so that the scene
+        # goes by UploadScene: the two frames' exports are the same file (only the camera moves), so
+        # it is uploaded once. (The UI test's batch sends it inline.)
         out = os.path.join(self.tmp, "batch", "box_####")
         r = self.render_blend(
             out,
             python=(
+                "from eprfarm_blender import settings\n"
+                "eprfarm = settings.import_client()\n"
+                "eprfarm.MasterClient.inline_scene_limit = 1000\n"
+                "uploads = []\n"
+                "upload = eprfarm.Client.upload_scene\n"
+                "def counted(client, bundle):\n"
+                "    uploads.append(bundle.total_bytes)\n"
+                "    return upload(client, bundle)\n"
+                "eprfarm.Client.upload_scene = counted\n"
                 "result = bpy.ops.eprfarm.render_frames()\n"
+                "print('uploads:', len(uploads), 'bytes over the limit:', all(b > 1000 for b in uploads))\n"
                 "image = bpy.data.images['eprfarm box']\n"
                 "print('operator:', sorted(result), image.source, bpy.path.abspath(image.filepath))\n"
             ),
@@ -271,6 +283,7 @@ class BlenderAddonTest(BlenderCase):
         paths = [out.replace("####", f"{f:04d}") + ".exr" for f in (1, 2)]
         log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
         self.assertIn(f"operator: ['FINISHED'] SEQUENCE {paths[0]}", r.stdout, log)
+        self.assertIn("uploads: 1 bytes over the limit: True", r.stdout, log)
         self.assertRegex(r.stdout, r"eprfarm: batch (\S+): 2 frames queued")
         self.assertRegex(r.stdout, r"eprfarm: batch \S+: 2/2 frames done, 100%")
         self.assertNotIn("Traceback", r.stdout + r.stderr)
