@@ -16,8 +16,8 @@ frames as one batch) and a master that wants a token (none given: its refusal; t
 file: the frame); an unreachable master, a job the master refuses and a package folder without the
 package must end the render with the reason in Blender's output, no traceback and no image.
 BlenderUiTest (ctest blender_addon_ui): Blender with its UI under xvfb-run, F12 and Render Animation
-(the engine then runs in a job thread) and Render Frames on Farm as its button starts it (a timer
-follows the batch).
+(the engine then runs in a job thread), Render Frames on Farm as its button starts it (a timer
+follows the batch), and Blender quitting during a render, which must cancel the farm job.
 
 Every frame must have the render size and the pixels of `epr render` of the same glTF (same seed; the
 difference of every 8 x 8 block's mean within five standard errors, estimated from two seeds), and
@@ -413,11 +413,21 @@ class BlenderUiTest(BlenderCase):
             self.fail(f"cannot run {ARGS.xvfb_run}: scripts/setup.sh installs Debian's xvfb")
         log = f"{r.stdout[-6000:]}\n{r.stderr[-3000:]}"
         self.assertIn("ui_render: animation finished", r.stdout, log)
+        quit_while = re.search(r"ui_render: quitting while (\S+) runs", r.stdout)
+        self.assertIsNotNone(quit_while, log)
         self.assertIn("ui_render: invoke: {'FINISHED'}", r.stdout, log)  # the batch operator
         self.assertIn("ui_render: batch finished", r.stdout, log)
         self.assertRegex(r.stdout, r"eprfarm: batch \S+: 2/2 frames done, 100%", log)
+        # Blender quit during the long render: the render stopped and cancelled its farm job.
+        import eprfarm
+
+        long_job = quit_while.group(1)
+        self.assertIn(f"eprfarm: frame 1: job {long_job} cancelled", r.stdout, log)
+        with eprfarm.Client(self.farm.address) as client:
+            self.assertEqual(client.status(long_job).state, "CANCELLED")
         self.assertNotIn("Traceback", r.stdout + r.stderr, log)
-        self.assertEqual(len(re.findall(r"eprfarm: frame 1: job \S+ at", r.stdout)), 2, log)  # F12, then the animation
+        # F12, the animation's frame 1, the long F12
+        self.assertEqual(len(re.findall(r"eprfarm: frame 1: job \S+ at", r.stdout)), 3, log)
         self.assertEqual(len(re.findall(r"eprfarm: frame 2: job \S+ at", r.stdout)), 1, log)
         image = read_exr(still)
         self.assertEqual(image.shape, (HEIGHT, WIDTH, 3))

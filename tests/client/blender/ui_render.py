@@ -6,8 +6,9 @@ Animation, where Blender runs the render engine in a job thread, and saves what 
 
 The still is the Render Result saved as EXR (linear); the animation writes the scene's frame range
 to --frames; then Render Frames on Farm (invoked as the panel's button does: a timer follows the
-batch) writes it to --batch. Prints "ui_render: ..." lines, then quits (also after 240 s:
-"ui_render: timeout").
+batch) writes it to --batch. Last, F12 of a job too long to wait for (1000000 spp): once the farm
+runs it, Blender quits, which stops the render and must cancel the farm job. Prints "ui_render: ..."
+lines, then quits (also after 240 s: "ui_render: timeout").
 """
 
 import sys
@@ -19,7 +20,8 @@ argv = sys.argv[sys.argv.index("--") + 1 :]
 still = argv[argv.index("--still") + 1]
 frames = argv[argv.index("--frames") + 1]
 batch_frames = argv[argv.index("--batch") + 1]
-steps = ["still", "wait_still", "animation", "wait_animation", "batch", "wait_batch"]
+steps = ["still", "wait_still", "animation", "wait_animation", "batch", "wait_batch", "long", "wait_long"]
+LONG_SPP = 1000000
 started = time.monotonic()
 
 
@@ -44,6 +46,16 @@ def tick():
         if batch.ACTIVE:
             return 0.25
         say("batch finished")
+        steps.pop(0)
+        return 0.1
+    if step == "wait_long":
+        from eprfarm_blender import settings
+
+        with settings.import_client().Client(bpy.context.scene.eprfarm.master) as client:
+            running = [j for j in client.list(states=["running"]) if j.target_spp == LONG_SPP]
+        if not running:
+            return 0.25
+        say(f"quitting while {running[0].id} runs")
         quit_blender()
         return None
     if step.startswith("wait"):
@@ -63,10 +75,14 @@ def tick():
         bpy.context.scene.render.filepath = frames
         say("render animation")
         say(f"invoke: {bpy.ops.render.render('INVOKE_DEFAULT', animation=True)}")
-    else:
+    elif step == "batch":
         bpy.context.scene.render.filepath = batch_frames
         say("render frames on farm")
         say(f"invoke: {bpy.ops.eprfarm.render_frames('INVOKE_DEFAULT')}")
+    else:
+        bpy.context.scene.eprfarm.samples = LONG_SPP
+        say("F12 of a long job")
+        say(f"invoke: {bpy.ops.render.render('INVOKE_DEFAULT')}")
     steps.pop(0)
     return 0.25
 
