@@ -353,7 +353,7 @@ int RemoteCommands::State::run_get() {
     if (get_json) return print_batch_json(*farm, get_job);
     BatchFollowOptions follow;
     follow.fetch = true;
-    follow.out_prefix = get_out;
+    follow.out_prefix = output_prefix(get_out);
     follow.wait = !get_no_wait;
     return follow_batch(*farm, get_job, follow);
   }
@@ -379,7 +379,7 @@ int RemoteCommands::State::run_get() {
                  get_job.c_str(), state_name(status.state()).c_str(), rounds_text(status).c_str());
     return kExitJobFailed;
   }
-  const std::string prefix = get_out.empty() ? get_job : get_out;
+  const std::string prefix = get_out.empty() ? get_job : output_prefix(get_out);
   const auto files = client->fetch_all(get_job, prefix, get_partial);
   const bool partial = std::any_of(files.begin(), files.end(), [](const FetchedFile& f) { return f.partial; });
   std::fprintf(stderr, "wrote %s (round %d%s)\n", join_paths(files).c_str(), files.empty() ? 0 : int(files[0].round),

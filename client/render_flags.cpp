@@ -2,8 +2,11 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <filesystem>
+#include <string_view>
 
 namespace epr {
 namespace {
@@ -33,7 +36,9 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
                   "later rounds trace floor(g x paths so far) paths (at least k); 0: k paths in every round")
       ->capture_default_str();
   cmd->add_option("--seed", o.seed, "random seed")->capture_default_str();
-  cmd->add_option("--out", o.out, "output prefix: writes PREFIX.exr, PREFIX.png, PREFIX.json")
+  cmd->add_option("--out", o.out,
+                  "output prefix: writes PREFIX.exr, PREFIX.png, PREFIX.json (a name ending in .exr or .png is taken "
+                  "without it)")
       ->check([](const std::string& v) { return output_prefix_error(v).value_or(""); })
       ->capture_default_str();
   const std::map<std::string, RenderMode> modes{
@@ -103,7 +108,19 @@ std::optional<std::string> output_prefix_error(const std::string& prefix) {
   return std::nullopt;
 }
 
+std::string output_prefix(const std::string& out) {
+  for (const std::string_view ext : {".exr", ".png"}) {
+    if (out.size() <= ext.size()) continue;
+    const std::string tail = out.substr(out.size() - ext.size());
+    if (std::equal(tail.begin(), tail.end(), ext.begin(), ext.end(),
+                   [](char a, char b) { return std::tolower(static_cast<unsigned char>(a)) == b; }))
+      return out.substr(0, out.size() - ext.size());
+  }
+  return out;
+}
+
 void finish_options(RenderOptions& o, const std::map<std::string, std::string>& extra) {
+  o.out = output_prefix(o.out);
   for (const char* flag : {"--eye", "--look", "--up"}) {
     const auto it = extra.find(flag);
     if (it == extra.end() || it->second.empty()) continue;

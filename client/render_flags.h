@@ -24,6 +24,10 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
 /// elsewhere. nullopt when it is usable.
 std::optional<std::string> output_prefix_error(const std::string& prefix);
 
+/// The output prefix for what a user typed: "frame.exr" or "frame.png" (any case) means the prefix
+/// "frame", so that the image is frame.exr and not frame.exr.exr; anything else is the prefix itself.
+std::string output_prefix(const std::string& out);
+
 /// Applies the `extra` flags (camera overrides, Russian roulette) to `o`.
 /// Throws CLI::ValidationError naming the flag for malformed values.
 void finish_options(RenderOptions& o, const std::map<std::string, std::string>& extra);

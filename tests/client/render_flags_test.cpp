@@ -39,5 +39,13 @@ TEST(RenderFlags, HelpNamesTheDefaultMode) {
   EXPECT_NE(line.find("=skip"), std::string::npos) << line;
 }
 
+TEST(RenderFlags, AnOutputNameWithTheImageExtensionIsTakenAsItsPrefix) {
+  EXPECT_EQ(parse({"builtin:cornell", "--out", "shots/frame.exr"}, RenderFlagSet::kLocal).out, "shots/frame");
+  EXPECT_EQ(parse({"builtin:cornell", "--out", "frame.PNG"}, RenderFlagSet::kLocal).out, "frame");
+  EXPECT_EQ(parse({"builtin:cornell", "--out", "frame.json"}, RenderFlagSet::kLocal).out, "frame.json");
+  EXPECT_EQ(parse({"builtin:cornell", "--out", "v1.2"}, RenderFlagSet::kLocal).out, "v1.2");
+  EXPECT_EQ(output_prefix(".exr"), ".exr");  // nothing would be left of the name
+}
+
 }  // namespace
 }  // namespace epr
