@@ -64,7 +64,10 @@ std::vector<unsigned char> encode_png_srgb(const Image& img) {
 }
 
 Image read_image(const std::string& path) {
-  auto in = OIIO::ImageInput::open(path);
+  // Colour as stored, not multiplied by alpha (OpenImageIO associates alpha by default).
+  OIIO::ImageSpec config;
+  config.attribute("oiio:UnassociatedAlpha", 1);
+  auto in = OIIO::ImageInput::open(path, &config);
   if (!in) throw std::runtime_error(fmt::format("cannot read image '{}': {}", path, OIIO::geterror()));
   const OIIO::ImageSpec& spec = in->spec();
   if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.width > 65536 || spec.height > 65536)

@@ -7,13 +7,39 @@
 
 namespace epr {
 
-Vec3 Texture::lookup(Vec2 uv) const {
-  if (width <= 0 || height <= 0) return Vec3(0.f);
+size_t Texture::texel(Vec2 uv) const {
   float u = uv.x - std::floor(uv.x), v = uv.y - std::floor(uv.y);
-  int x = std::min(width - 1, int(u * float(width)));
-  int y = std::min(height - 1, int((1 - v) * float(height)));
-  const float* p = &rgb[(size_t(y) * size_t(width) + size_t(x)) * 3];
+  if (!(u >= 0.f && u < 1.f)) u = 0.f;  // non-finite coordinates
+  if (!(v >= 0.f && v < 1.f)) v = 0.f;
+  const int x = std::min(width - 1, int(u * float(width)));
+  const int y = std::min(height - 1, int((1 - v) * float(height)));
+  return size_t(y) * size_t(width) + size_t(x);
+}
+
+Vec3 Texture::lookup(Vec2 uv) const {
+  if (width <= 0 || height <= 0 || rgb.empty()) return Vec3(0.f);
+  const float* p = &rgb[texel(uv) * 3];
   return {p[0], p[1], p[2]};
+}
+
+bool Scene::has_cut_outs() const {
+  std::vector<bool> cut(materials.size());
+  for (size_t m = 0; m < materials.size(); ++m) cut[m] = materials[m].cut_out();
+  for (uint32_t m : material_of)
+    if (m < cut.size() && cut[m]) return true;
+  return false;
+}
+
+bool Scene::cut_out_at(size_t tri, float u, float v) const {
+  const Material& m = materials[material_of[tri]];
+  if (m.alpha_texture < 0) return false;
+  Vec2 uv{0.f, 0.f};
+  if (!uvs.empty()) {
+    const auto& c = uvs[tri];
+    const float w = 1.f - u - v;
+    uv = {w * c[0].x + u * c[1].x + v * c[2].x, w * c[0].y + u * c[1].y + v * c[2].y};
+  }
+  return textures[size_t(m.alpha_texture)].alpha_at(uv) < m.alpha_cutoff;
 }
 
 Bounds3 Scene::bounds() const {
@@ -53,8 +79,18 @@ void Scene::validate() const {
   for (const Material& m : materials) {
     if (!is_finite(m.kd) || !is_finite(m.ke) || !is_finite(m.ks) || !std::isfinite(m.exponent))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' has non-finite values", name, m.name));
-    if (m.kd_texture >= int(textures.size()))
+    if (m.kd_texture >= int(textures.size()) ||
+        (m.kd_texture >= 0 &&
+         textures[size_t(m.kd_texture)].rgb.size() !=
+             3 * size_t(textures[size_t(m.kd_texture)].width) * size_t(textures[size_t(m.kd_texture)].height)))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' names a missing texture", name, m.name));
+    if (m.alpha_texture >= int(textures.size()) ||
+        (m.alpha_texture >= 0 &&
+         textures[size_t(m.alpha_texture)].alpha.size() !=
+             size_t(textures[size_t(m.alpha_texture)].width) * size_t(textures[size_t(m.alpha_texture)].height)))
+      throw std::runtime_error(fmt::format("scene '{}': material '{}' names a missing alpha mask", name, m.name));
+    if (m.cut_out() && !std::isfinite(m.alpha_cutoff))
+      throw std::runtime_error(fmt::format("scene '{}': material '{}' has a non-finite alpha cut-off", name, m.name));
   }
 }
 

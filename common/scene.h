@@ -3,7 +3,9 @@
 // Triangles with flat geometric normals, one material per triangle. Materials are Lambertian
 // (constant Kd or a Kd texture), optionally emissive (a diffuse area light of radiance Ke, emitting
 // from both sides as Cycles' mesh lights do), or the one glossy material that exists only to test
-// the method's failure mode. No scene graph, no instancing, no shading normals.
+// the method's failure mode. A material may be cut out by an alpha mask: where the mask's texel is
+// below the cut-off the surface is not there (rays pass through). No scene graph, no instancing, no
+// shading normals.
 #pragma once
 
 #include <array>
@@ -24,13 +26,16 @@ enum class MaterialType : uint8_t {
 struct Material {
   std::string name;
   MaterialType type = MaterialType::kDiffuse;
-  Vec3 kd{0.8f};           // diffuse albedo, linear RGB in [0, 1]
-  int kd_texture = -1;     // index into Scene::textures, replaces kd when >= 0
-  Vec3 ke{0.f};            // emitted radiance, W / (m^2 sr) per channel; non-zero makes an emitter
-  Vec3 ks{0.f};            // glossy albedo (kGlossy only)
-  float exponent = 100.f;  // Phong exponent (kGlossy only)
+  Vec3 kd{0.8f};              // diffuse albedo, linear RGB in [0, 1]
+  int kd_texture = -1;        // index into Scene::textures, replaces kd when >= 0
+  Vec3 ke{0.f};               // emitted radiance, W / (m^2 sr) per channel; non-zero makes an emitter
+  Vec3 ks{0.f};               // glossy albedo (kGlossy only)
+  float exponent = 100.f;     // Phong exponent (kGlossy only)
+  int alpha_texture = -1;     // index into Scene::textures (its alpha): a cut-out when >= 0
+  float alpha_cutoff = 0.5f;  // where the mask's alpha is below this the surface is a hole
 
   bool emissive() const { return !is_black(ke); }
+  bool cut_out() const { return alpha_texture >= 0; }
   bool diffuse() const { return type == MaterialType::kDiffuse; }
 };
 
@@ -38,9 +43,13 @@ struct Material {
 struct Texture {
   std::string path;  // as named in the MTL file, for messages
   int width = 0, height = 0;
-  std::vector<float> rgb;  // width * height * 3, row 0 is the top (v = 1)
+  std::vector<float> rgb;    // width * height * 3, row 0 is the top (v = 1); empty if only a mask
+  std::vector<float> alpha;  // width * height, the same layout; empty unless a material's mask
 
+  /// The texel (nearest, wrapping) uv falls in, as an index into the width x height texels.
+  size_t texel(Vec2 uv) const;
   Vec3 lookup(Vec2 uv) const;
+  float alpha_at(Vec2 uv) const { return alpha[texel(uv)]; }
 };
 
 struct Scene {
@@ -57,7 +66,13 @@ struct Scene {
   Bounds3 bounds() const;
   /// Checks indices, finite coordinates and materials; throws std::runtime_error with the reason.
   void validate() const;
-  Vec3 geometric_normal(size_t tri) const;  // unit length, right-hand rule on the corner order
+  Vec3 geometric_normal(size_t tri) const;
+  /// True if some material is a cut-out and some triangle uses it.
+  bool has_cut_outs() const;
+  /// True if the point of triangle `tri` at barycentrics (u, v) of corners 1 and 2 lies in a hole of
+  /// its material's cut-out (false for other materials). The tracer's filters and the master's deep
+  /// framebuffer both ask this.
+  bool cut_out_at(size_t tri, float u, float v) const;  // unit length, right-hand rule on the corner order
   float area(size_t tri) const;
 };
 

@@ -11,6 +11,7 @@
 
 #include "common/limits.h"
 #include "common/log.h"
+#include "master/deep_framebuffer_cutouts.h"
 #include "master/gl_context.h"
 
 namespace epr {
@@ -56,15 +57,6 @@ void detail::check_deep_framebuffer_grid(const Camera& camera, int subpixels) {
 
 namespace {
 
-struct CpuTriangle {
-  Vec3 v0, e1, e2;
-  int x0, x1, y0, y1;  // inclusive texel bounding box, empty if x0 > x1
-};
-
-}  // namespace
-
-namespace {
-
 class CpuBands final : public detail::DeepFramebufferBands {
  public:
   CpuBands(const Scene& scene, const Camera& camera, int subpixels)
@@ -72,38 +64,8 @@ class CpuBands final : public detail::DeepFramebufferBands {
     detail::check_deep_framebuffer_grid(camera, subpixels);
     near_ = kNearPlane * scene.bounds().diagonal_length();
     planes_ = detail::triangle_planes(scene);
-    // Per triangle: Moller-Trumbore data and a conservative texel bounding box of the full grid (whole
-    // grid when a corner is at or behind the near plane: no clipping needed, the ray test is exact anyway).
-    tris_.resize(scene.triangle_count());
-    const int S = S_, W = W_, H = H_;
-    const float near = near_;
-    tbb::parallel_for(size_t(0), tris_.size(), [&](size_t t) {
-      const auto& idx = scene.triangles[t];
-      const Vec3 a = scene.positions[idx[0]], b = scene.positions[idx[1]], c = scene.positions[idx[2]];
-      CpuTriangle& ct = tris_[t];
-      ct.v0 = a;
-      ct.e1 = b - a;
-      ct.e2 = c - a;
-      float lo_x = INFINITY, lo_y = INFINITY, hi_x = -INFINITY, hi_y = -INFINITY;
-      bool all_in_front = true;
-      for (const Vec3& p : {a, b, c}) {
-        float rx, ry;
-        if (dot(p - camera.eye(), camera.forward()) <= near || !camera.project(p, &rx, &ry)) {
-          all_in_front = false;
-          break;
-        }
-        lo_x = std::min(lo_x, rx * float(S)), hi_x = std::max(hi_x, rx * float(S));
-        lo_y = std::min(lo_y, ry * float(S)), hi_y = std::max(hi_y, ry * float(S));
-      }
-      if (!all_in_front) {
-        ct.x0 = 0, ct.y0 = 0, ct.x1 = W - 1, ct.y1 = H - 1;
-        return;
-      }
-      // Texel centres i + 0.5 in [lo, hi], widened by one texel against rounding.
-      auto clampi = [](double v, int lo, int hi) { return int(std::clamp(v, double(lo), double(hi))); };
-      ct.x0 = clampi(std::floor(lo_x - 0.5) - 1, 0, W), ct.x1 = clampi(std::ceil(hi_x - 0.5) + 1, -1, W - 1);
-      ct.y0 = clampi(std::floor(lo_y - 0.5) - 1, 0, H), ct.y1 = clampi(std::ceil(hi_y - 0.5) + 1, -1, H - 1);
-    });
+    tris_ = detail::screen_triangles(scene, camera, S_, near_);
+    cut_ = detail::cut_out_triangles(scene);
   }
 
   int max_rows() const override { return H_; }
@@ -123,21 +85,15 @@ class CpuBands final : public detail::DeepFramebufferBands {
     tbb::parallel_for(first_chunk, last_chunk + 1, [&](int band) {
       const int ya = std::max(row0, band * kBand), yb = std::min(row1, band * kBand + kBand) - 1;
       for (size_t t = 0; t < tris_.size(); ++t) {
-        const CpuTriangle& ct = tris_[t];
+        const detail::ScreenTriangle& ct = tris_[t];
         if (ct.x0 > ct.x1 || ct.y1 < ya || ct.y0 > yb) continue;
         for (int y = std::max(ya, ct.y0); y <= std::min(yb, ct.y1); ++y)
           for (int x = ct.x0; x <= ct.x1; ++x) {
             const Ray r = camera.generate_ray((float(x) + 0.5f) / float(S), (float(y) + 0.5f) / float(S));
-            // Moller-Trumbore, edges inclusive.
-            float u, v, tt;
-            if (!detail::ray_triangle(r, ct.v0, ct.e1, ct.e2, &u, &v, &tt)) continue;
-            if (!(u >= 0.f && u <= 1.f) || !(v >= 0.f && u + v <= 1.f)) continue;
-            if (!(tt * dot(r.dir, camera.forward()) > near)) continue;
             const size_t k = dfb.index(x, y - row0);
-            if (!(tt < depth_[k])) continue;  // ties keep the lower triangle index
-            depth_[k] = tt;
+            if (!detail::texel_hit(scene_, cut_, camera.forward(), near, ct, uint32_t(t), r, &depth_[k])) continue;
             dfb.triangle[k] = uint32_t(t);
-            const Vec3 hit = r.origin + r.dir * tt;
+            const Vec3 hit = r.origin + r.dir * depth_[k];
             dfb.position[3 * k] = hit.x, dfb.position[3 * k + 1] = hit.y, dfb.position[3 * k + 2] = hit.z;
           }
       }
@@ -158,7 +114,8 @@ class CpuBands final : public detail::DeepFramebufferBands {
   const Camera& camera_;
   int S_, W_, H_;
   float near_ = 0;
-  std::vector<CpuTriangle> tris_;
+  std::vector<detail::ScreenTriangle> tris_;
+  std::vector<uint8_t> cut_;           // per triangle: a cut-out (empty if the scene has none)
   std::vector<TrianglePlane> planes_;  // per triangle
   std::vector<float> depth_;           // per texel of the current band
 };

@@ -9,6 +9,8 @@
 // ample precision at every distance; geometry closer than `near` to the eye plane is clipped.
 // Output: the triangle index (R32UI, gl_VertexID/3). Planes are filled in on the CPU from plane_of() (per triangle)
 // and positions from detail::ray_triangle on the texel-centre ray, exactly as the CPU builder does.
+// Where the rasterised triangle is a hole of a cut-out at the texel centre, the CPU search behind it
+// (deep_framebuffer_cutouts.h) gives the texel's triangle and position.
 // Bands: a framebuffer of the band's height; the viewport is the full grid's moved down by the band's
 // first row, so the rasteriser sees every triangle where the full frame has it (whole-row shift).
 #include <fmt/format.h>
@@ -17,10 +19,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <memory>
 #include <stdexcept>
 #include <vector>
 
 #include "master/deep_framebuffer.h"
+#include "master/deep_framebuffer_cutouts.h"
 #include "master/gl_context.h"
 #include "master/gl_program.h"
 
@@ -127,6 +131,8 @@ class GlBands final : public detail::DeepFramebufferBands {
     gl.ProgramUniform1f(p, prog_.uniform("tan_half_y"), camera.tan_half_y());
     gl.ProgramUniform1f(p, prog_.uniform("near_plane"), near > 0 ? near : 1e-6f);
     gl.CreateVertexArrays(1, &vao_);
+    cut_ = detail::cut_out_triangles(scene);
+    if (!cut_.empty()) resolver_ = std::make_unique<detail::CutoutResolver>(scene, camera, S_, near);
   }
 
   ~GlBands() override {
@@ -190,7 +196,23 @@ class GlBands final : public detail::DeepFramebufferBands {
       const Ray r = camera.generate_ray((float(x) + 0.5f) / float(S), (float(y) + 0.5f) / float(S));
       float u, v, tt;
       Vec3 hit = a;
-      if (detail::ray_triangle(r, a, b - a, c - a, &u, &v, &tt) && std::isfinite(tt)) hit = r.origin + r.dir * tt;
+      if (detail::ray_triangle(r, a, b - a, c - a, &u, &v, &tt) && std::isfinite(tt)) {
+        hit = r.origin + r.dir * tt;
+        if (resolver_ && cut_[t] && scene.cut_out_at(t, u, v)) {  // a hole: the surface behind it
+          const uint32_t behind = resolver_->nearest(x, y, &hit);
+          if (behind == DeepFramebuffer::kNoTriangle) {
+            dfb.triangle[k] = DeepFramebuffer::kNoTriangle;
+            dfb.covered[k] = 0;
+            return;
+          }
+          dfb.triangle[k] = behind;
+          const TrianglePlane& pb = planes_[behind];
+          dfb.position[3 * k] = hit.x, dfb.position[3 * k + 1] = hit.y, dfb.position[3 * k + 2] = hit.z;
+          dfb.normal[3 * k] = pb.normal.x, dfb.normal[3 * k + 1] = pb.normal.y, dfb.normal[3 * k + 2] = pb.normal.z;
+          dfb.plane_offset[k] = pb.offset;
+          return;
+        }
+      }
       dfb.position[3 * k] = hit.x, dfb.position[3 * k + 1] = hit.y, dfb.position[3 * k + 2] = hit.z;
       dfb.normal[3 * k] = pl.normal.x, dfb.normal[3 * k + 1] = pl.normal.y, dfb.normal[3 * k + 2] = pl.normal.z;
       dfb.plane_offset[k] = pl.offset;
@@ -207,8 +229,10 @@ class GlBands final : public detail::DeepFramebufferBands {
   GlBuffer corner_buf_;
   GlTexture corner_tex_, tri_tex_, depth_tex_;
   GLuint fbo_ = 0, vao_ = 0;
-  std::vector<uint32_t> tri_;          // read-back triangle indices of the current band
-  std::vector<TrianglePlane> planes_;  // per triangle
+  std::vector<uint32_t> tri_;                         // read-back triangle indices of the current band
+  std::vector<TrianglePlane> planes_;                 // per triangle
+  std::vector<uint8_t> cut_;                          // per triangle: a cut-out (empty if the scene has none)
+  std::unique_ptr<detail::CutoutResolver> resolver_;  // behind holes (null without cut-outs)
 };
 
 }  // namespace

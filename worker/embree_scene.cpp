@@ -1,5 +1,6 @@
 #include "worker/embree_scene.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -22,21 +23,15 @@ EmbreeScene::EmbreeScene(const Scene& scene) : scene_(scene) {
 
   rtc_scene_ = rtcNewScene(device_);
   rtcSetSceneFlags(rtc_scene_, RTC_SCENE_FLAG_ROBUST);
-  RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
-  auto* verts = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                            3 * sizeof(float), scene.positions.size()));
-  for (size_t i = 0; i < scene.positions.size(); ++i) {
-    verts[3 * i + 0] = scene.positions[i].x;
-    verts[3 * i + 1] = scene.positions[i].y;
-    verts[3 * i + 2] = scene.positions[i].z;
+  if (!scene.has_cut_outs()) {
+    add_geometry({}, false);
+  } else {
+    std::vector<uint32_t> opaque, cut;
+    for (uint32_t t = 0; t < uint32_t(scene.triangles.size()); ++t)
+      (scene.materials[scene.material_of[t]].cut_out() ? cut : opaque).push_back(t);
+    if (!opaque.empty()) add_geometry(opaque, false);
+    add_geometry(cut, true);
   }
-  auto* idx = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                             3 * sizeof(uint32_t), scene.triangles.size()));
-  for (size_t i = 0; i < scene.triangles.size(); ++i)
-    for (int k = 0; k < 3; ++k) idx[3 * i + k] = scene.triangles[i][k];
-  rtcCommitGeometry(geom);
-  rtcAttachGeometry(rtc_scene_, geom);
-  rtcReleaseGeometry(geom);
   rtcCommitScene(rtc_scene_);
 
   // Step-off distance: relative to the scene's extent, so that metre- and kilometre-scale scenes
@@ -51,6 +46,48 @@ EmbreeScene::EmbreeScene(const Scene& scene) : scene_(scene) {
   else if (scene.materials.size() <= 65536)
     material16_.assign(scene.material_of.begin(), scene.material_of.end());
   build_emitter_table();
+}
+
+/// One triangle geometry: all of the scene's triangles (`tris` empty, primitive = triangle) or those
+/// listed, with the cut-out filters if `cut_out`.
+void EmbreeScene::add_geometry(const std::vector<uint32_t>& tris, bool cut_out) {
+  const Scene& scene = scene_;
+  const size_t n = tris.empty() ? scene.triangles.size() : tris.size();
+  RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
+  auto* verts = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                            3 * sizeof(float), scene.positions.size()));
+  for (size_t i = 0; i < scene.positions.size(); ++i) {
+    verts[3 * i + 0] = scene.positions[i].x;
+    verts[3 * i + 1] = scene.positions[i].y;
+    verts[3 * i + 2] = scene.positions[i].z;
+  }
+  auto* idx = static_cast<uint32_t*>(
+      rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t), n));
+  for (size_t i = 0; i < n; ++i)
+    for (int k = 0; k < 3; ++k) idx[3 * i + k] = scene.triangles[tris.empty() ? i : tris[i]][k];
+  if (cut_out) {
+    rtcSetGeometryUserData(geom, this);
+    rtcSetGeometryIntersectFilterFunction(geom, cut_out_filter);
+    rtcSetGeometryOccludedFilterFunction(geom, cut_out_filter);
+  }
+  rtcCommitGeometry(geom);
+  const unsigned id = rtcAttachGeometry(rtc_scene_, geom);
+  rtcReleaseGeometry(geom);
+  if (!tris.empty()) {
+    tri_of_.resize(std::max<size_t>(tri_of_.size(), id + 1));
+    tri_of_[id] = tris;
+  }
+}
+
+void EmbreeScene::cut_out_filter(const RTCFilterFunctionNArguments* args) {
+  const auto* self = static_cast<const EmbreeScene*>(args->geometryUserPtr);
+  for (unsigned i = 0; i < args->N; ++i) {
+    if (args->valid[i] != -1) continue;
+    const unsigned geom = RTCHitN_geomID(args->hit, args->N, i), prim = RTCHitN_primID(args->hit, args->N, i);
+    const uint32_t tri = self->tri_of_[geom][prim];
+    if (self->scene_.cut_out_at(tri, RTCHitN_u(args->hit, args->N, i), RTCHitN_v(args->hit, args->N, i)))
+      args->valid[i] = 0;
+  }
 }
 
 void EmbreeScene::build_emitter_table() {
@@ -100,7 +137,7 @@ bool EmbreeScene::intersect(const Ray& ray, float tnear, float tfar, Hit* hit) c
   rtcIntersect1(rtc_scene_, &ctx, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
   hit->t = rh.ray.tfar;
-  hit->prim = rh.hit.primID;
+  hit->prim = tri_of_.empty() ? rh.hit.primID : tri_of_[rh.hit.geomID][rh.hit.primID];
   hit->u = rh.hit.u;
   hit->v = rh.hit.v;
   hit->ng = {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};

@@ -74,8 +74,12 @@ class EmbreeScene {
   void build_emitter_table();
 
   const Scene& scene_;
+  void add_geometry(const std::vector<uint32_t>& tris, bool cut_out);
+  static void cut_out_filter(const RTCFilterFunctionNArguments* args);
+
   RTCDevice device_ = nullptr;
   RTCScene rtc_scene_ = nullptr;
+  std::vector<std::vector<uint32_t>> tri_of_;  // with cut-outs: per geometry, its primitives' triangles
   float ray_epsilon_ = 1e-4f;
   std::vector<uint8_t> material8_;
   std::vector<uint16_t> material16_;

@@ -336,7 +336,7 @@ class GltfReader {
     if (scene_.triangles.size() + corners / 3 > opts_.max_triangles)
       error(fmt::format("{}: more than {} triangles", where, opts_.max_triangles));
     const bool mirrored = det3(world) < 0;  // keeps the winding, and so the normals, as modelled
-    for (size_t t = 0; t < corners; t += 3) {
+    for (size_t t = 0; t < corners && !hidden_.count(mat); t += 3) {
       std::array<size_t, 3> c{t, t + 1, t + 2};
       if (!index.empty()) c = {index[t], index[t + 1], index[t + 2]};
       if (mirrored) std::swap(c[1], c[2]);
@@ -376,8 +376,12 @@ class GltfReader {
   }
 
   std::pair<uint32_t, int> convert_material(int gi);
-  int texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where);
-  int image_texture(int image, const std::string& where);
+  /// alphaMode MASK (BLEND as MASK): sets out's mask and cut-off; true if the whole surface is cut out.
+  bool set_cut_out(const tinygltf::Material& gm, const std::string& where, Material* out,
+                   std::vector<std::string>* notes);
+  /// The texture of `info` times `factor`, or (alpha) its plain image with the alpha mask read.
+  int texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where, bool alpha = false);
+  int image_texture(int image, bool alpha);
 
   const FileRef& f_;
   fs::path root_;
@@ -388,6 +392,7 @@ class GltfReader {
   std::map<int, int> texture_of_image_;
   std::map<std::tuple<int, float, float, float>, int> baked_;  // (image, factor) -> texture
   std::map<int, std::pair<uint32_t, int>> materials_;
+  std::set<uint32_t> hidden_;  // materials whose surface is cut out entirely: their triangles are dropped
   std::set<std::string> file_notes_;
   Scene scene_;
   std::vector<std::array<Vec2, 3>> uvs_;
@@ -467,13 +472,7 @@ std::pair<uint32_t, int> GltfReader::convert_material(int gi) {
   }
   out.ke = ke;
 
-  if (gm.alphaMode == "MASK")
-    notes.push_back(
-        fmt::format("alphaMode MASK (alphaCutoff {:g}): cut-outs are not supported yet, the surface is "
-                    "opaque",
-                    gm.alphaCutoff));
-  else if (gm.alphaMode == "BLEND")
-    notes.push_back("alphaMode BLEND rendered opaque");
+  const bool hidden = set_cut_out(gm, where, &out, &notes);
   if (pbr.metallicRoughnessTexture.index >= 0) notes.push_back("metallicRoughnessTexture ignored (factors used)");
   if (gm.normalTexture.index >= 0) notes.push_back("normalTexture ignored (faces are flat)");
   if (gm.occlusionTexture.index >= 0) notes.push_back("occlusionTexture ignored");
@@ -483,10 +482,44 @@ std::pair<uint32_t, int> GltfReader::convert_material(int gi) {
   if (!notes.empty())
     warn(report_,
          fmt::format("{}: material {} ({}): {}", f_.display, quote_token(out.name), where, fmt::join(notes, "; ")));
-  return {add_material(scene_, out), texcoord};
+  const uint32_t index = add_material(scene_, out);
+  if (hidden) hidden_.insert(index);
+  return {index, texcoord};
 }
 
-int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where) {
+bool GltfReader::set_cut_out(const tinygltf::Material& gm, const std::string& where, Material* out,
+                             std::vector<std::string>* notes) {
+  if (gm.alphaMode != "MASK" && gm.alphaMode != "BLEND") {
+    if (gm.alphaMode != "OPAQUE" && !gm.alphaMode.empty())
+      error(fmt::format("{}: alphaMode {} is not OPAQUE, MASK or BLEND", where, quote_token(gm.alphaMode)));
+    return false;
+  }
+  const tinygltf::PbrMetallicRoughness& pbr = gm.pbrMetallicRoughness;
+  float cutoff = float(gm.alphaCutoff);
+  if (gm.alphaMode == "BLEND") {
+    cutoff = 0.5f;
+    notes->push_back("alphaMode BLEND rendered as MASK with alphaCutoff 0.5 (no partial transparency)");
+  }
+  if (out->emissive()) {
+    notes->push_back(fmt::format("alphaMode {} ignored: an emitter is not cut out", gm.alphaMode));
+    return false;
+  }
+  // alpha = baseColorFactor.a x texture alpha >= cutoff  <=>  texture alpha >= cutoff / a.
+  const float a = float(std::clamp(pbr.baseColorFactor[3], 0.0, 1.0));
+  if (!(cutoff > 0.f)) return false;  // nothing is below the cut-off
+  if (a < cutoff && (pbr.baseColorTexture.index < 0 || a <= 0.f)) {
+    notes->push_back(
+        fmt::format("baseColorFactor alpha {:g} is below alphaCutoff {:g}: the surface is not rendered", a, cutoff));
+    return true;
+  }
+  if (pbr.baseColorTexture.index < 0) return false;  // a constant alpha at or above the cut-off
+  out->alpha_texture =
+      texture_for(pbr.baseColorTexture, Vec3(1.f), where + ".pbrMetallicRoughness.baseColorTexture", true);
+  out->alpha_cutoff = cutoff / a;
+  return false;
+}
+
+int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where, bool alpha) {
   const auto& textures = in_.model.textures;
   if (size_t(info.index) >= textures.size())
     error(fmt::format("{}: texture {} does not exist ({} textures)", where, info.index, textures.size()));
@@ -494,8 +527,8 @@ int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, cons
   const int image = textures[size_t(info.index)].source;
   if (image < 0 || size_t(image) >= in_.model.images.size())
     error(fmt::format("{}: textures[{}] has no image (source {})", where, info.index, image));
-  const int plain = image_texture(image, where);
-  if (factor == Vec3(1.f)) return plain;
+  const int plain = image_texture(image, alpha);
+  if (factor == Vec3(1.f) || alpha) return plain;
   // A colour factor other than white is baked into a copy of the texture.
   const auto key = std::make_tuple(image, factor.x, factor.y, factor.z);
   if (auto it = baked_.find(key); it != baked_.end()) return it->second;
@@ -514,21 +547,30 @@ int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, cons
   return index;
 }
 
-int GltfReader::image_texture(int image, const std::string&) {
-  if (auto it = texture_of_image_.find(image); it != texture_of_image_.end()) return it->second;
+int GltfReader::image_texture(int image, bool alpha) {
+  const auto cached = texture_of_image_.find(image);
+  if (cached != texture_of_image_.end() && (!alpha || !textures_.textures[size_t(cached->second)].alpha.empty()))
+    return cached->second;
   const tinygltf::Image& img = in_.model.images[size_t(image)];
   const std::string where = fmt::format("{}: images[{}]", f_.display, image);
   int index;
   if (auto it = in_.embedded_images.find(image); it != in_.embedded_images.end()) {
     const std::string name = img.name.empty() ? fmt::format("images[{}]", image) : img.name;
-    textures_.textures.push_back(decode_image_bytes(it->second, name, where, opts_, &textures_.texture_pixels));
+    if (cached != texture_of_image_.end()) {  // decoded before for its colour: the alpha as well now
+      size_t again = 0;
+      Texture& t = textures_.textures[size_t(cached->second)];
+      t.alpha = decode_image_bytes(it->second, name, where, opts_, &again, true).alpha;
+      return cached->second;
+    }
+    textures_.textures.push_back(decode_image_bytes(it->second, name, where, opts_, &textures_.texture_pixels, alpha));
     index = int(textures_.textures.size() - 1);
   } else if (!img.uri.empty()) {
-    index = load_texture(textures_, decode_uri(img.uri), in_.dir, in_.display_dir, where, 0);
+    index = load_texture(textures_, decode_uri(img.uri), in_.dir, in_.display_dir, where, 0,
+                         alpha ? TextureUse::kAlpha : TextureUse::kColour);
   } else {
     fail_file(where, "the image has neither data nor a uri");
   }
-  texture_of_image_.emplace(image, index);
+  texture_of_image_[image] = index;
   return index;
 }
 

@@ -189,14 +189,16 @@ void read_gltf(const FileRef& f, const fs::path& root, const LoadOptions& opts, 
 }
 
 Texture decode_image_bytes(const std::string& bytes, const std::string& name, const std::string& where,
-                           const LoadOptions& opts, size_t* pixels) {
+                           const LoadOptions& opts, size_t* pixels, bool alpha) {
   const char* ext = nullptr;
   if (bytes.size() >= 8 && bytes.compare(0, 4, "\x89PNG") == 0) ext = "embedded.png";
   if (bytes.size() >= 3 && static_cast<unsigned char>(bytes[0]) == 0xFF && static_cast<unsigned char>(bytes[1]) == 0xD8)
     ext = "embedded.jpg";
   if (!ext) fail_file(where, fmt::format("image '{}' is neither PNG nor JPEG", name));
   OIIO::Filesystem::IOMemReader mem(bytes.data(), bytes.size());
-  auto input = OIIO::ImageInput::open(ext, nullptr, &mem);
+  OIIO::ImageSpec config;  // colour as stored, not multiplied by alpha
+  config.attribute("oiio:UnassociatedAlpha", 1);
+  auto input = OIIO::ImageInput::open(ext, &config, &mem);
   if (!input) fail_file(where, fmt::format("cannot read image '{}': {}", name, OIIO::geterror()));
   const OIIO::ImageSpec spec = input->spec();
   const double count = double(std::max(spec.width, 0)) * double(std::max(spec.height, 0));
@@ -224,6 +226,15 @@ Texture decode_image_bytes(const std::string& bytes, const std::string& name, co
       if (srgb) v = v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
       t.rgb[p * 3 + k] = std::clamp(v, 0.f, 1.f);
     }
+  if (alpha) {  // alpha is stored linear
+    t.alpha.assign(size_t(spec.width) * size_t(spec.height), 1.f);
+    if (n == 2 || n == 4)
+      for (size_t p = 0; p < t.alpha.size(); ++p) {
+        const float a = data[p * n + n - 1];
+        if (!std::isfinite(a)) fail_file(where, fmt::format("image '{}' has non-finite texels", name));
+        t.alpha[p] = std::clamp(a, 0.f, 1.f);
+      }
+  }
   *pixels += size_t(spec.width) * size_t(spec.height);
   return t;
 }

@@ -37,9 +37,10 @@ void read_gltf(const FileRef& f, const std::filesystem::path& root, const LoadOp
                GltfInput* out);
 
 /// Decodes an image held in memory (PNG, JPEG...), `name` and `where` naming it in messages; the
-/// scene's texture pixels so far are in *pixels, checked against the limit before decoding.
+/// scene's texture pixels so far are in *pixels, checked against the limit before decoding. With
+/// `alpha` the Texture's alpha mask is filled too (1 where the image has no alpha channel).
 Texture decode_image_bytes(const std::string& bytes, const std::string& name, const std::string& where,
-                           const LoadOptions& opts, size_t* pixels);
+                           const LoadOptions& opts, size_t* pixels, bool alpha = false);
 
 /// tinygltf's percent-decoding of uris, so that the file checked is the one tinygltf asks for.
 std::string decode_uri(const std::string& uri);

@@ -1,9 +1,10 @@
 // MTL material libraries: each file validated line by line (messages name file and line), its
 // textures loaded, and its materials added to the OBJ's material table.
 //
-// The material model uses newmtl, Kd, Ke, Ks, Ns and map_Kd; other statements (Ka, Ni, d, illum,
-// other maps...) are ignored. The files named by one mtllib statement are read as one library, in
-// the way of tinyobjloader's MTL reader, so that material tables match that library's:
+// The material model uses newmtl, Kd, Ke, Ks, Ns, map_Kd and map_d (an alpha mask: the material is
+// cut out where the texture's alpha, or the first channel of an image without alpha, is below 0.5);
+// other statements (Ka, Ni, d, illum, other maps...) are ignored. The files named by one mtllib statement are read as
+// one library, in the way of tinyobjloader's MTL reader, so that material tables match that library's:
 //   - a material is added when the next newmtl starts, and once more at the end of the library
 //     (an unnamed black one if the library defines none);
 //   - a map_Kd sets kd to 0.6 unless a Kd came earlier in the library (in any material).
@@ -64,17 +65,19 @@ MtlFile read_mtl(ObjContext& ctx, const FileRef& mtl) {
       if (tok.size() != 2) fail(file, ln, fmt::format("Ns needs 1 number, got {}", tok.size() - 1));
       st.kind = MtlStatement::Kind::kNs;
       st.value.x = parse_real(tok[1], 1e6, file, ln, "Ns exponent");
-    } else if (key == "map_Kd") {
-      if (current.empty()) fail(file, ln, "map_Kd before any newmtl");
+    } else if (key == "map_Kd" || key == "map_d") {
+      if (current.empty()) fail(file, ln, fmt::format("{} before any newmtl", key));
       // The texture options (-s, -o, -clamp...) are parsed to find the file name, and not used.
       const std::string args(rest_after_keyword(line, key));
       std::string texname;
       tinyobj::texture_option_t opt{};
       if (!tinyobj::ParseTextureNameAndOption(&texname, &opt, args.c_str()) || strip_comment(texname).empty())
-        fail(file, ln, "map_Kd without a texture file name");
+        fail(file, ln, fmt::format("{} of material '{}' without a texture file name", key, current));
       texname = std::string(strip_comment(texname));
-      st.kind = MtlStatement::Kind::kMapKd;
-      st.texture = load_texture(ctx, texname, dir, display_dir, file, ln);
+      const bool mask = key == "map_d";
+      st.kind = mask ? MtlStatement::Kind::kMapD : MtlStatement::Kind::kMapKd;
+      st.texture =
+          load_texture(ctx, texname, dir, display_dir, file, ln, mask ? TextureUse::kMask : TextureUse::kColour);
     } else {
       continue;  // not part of the material model
     }
@@ -115,6 +118,9 @@ void add_library(const std::vector<const MtlFile*>& files, MaterialTable* table)
         case MtlStatement::Kind::kMapKd:
           current.texture = st.texture;
           if (!has_kd) current.kd = Vec3(0.6f);
+          break;
+        case MtlStatement::Kind::kMapD:
+          current.mask = st.texture;
           break;
       }
   add(current);

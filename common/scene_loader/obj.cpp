@@ -209,6 +209,10 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
     mat.kd = clamped_colour(ctx.report, m.kd, 1.f, file, m.name, "Kd");
     mat.ke = clamped_colour(ctx.report, m.ke, 1e6f, file, m.name, "Ke");
     mat.kd_texture = m.texture;
+    if (m.mask >= 0 && !is_black(mat.ke))
+      warn(ctx.report, fmt::format("{}: material '{}': map_d ignored: an emitter is not cut out", file, m.name));
+    else
+      mat.alpha_texture = m.mask;
     add_material(scene, std::move(mat));
     if (glossy)
       glossy->push_back({clamped_colour(ctx.report, m.ks, 1.f, file, m.name, "Ks"),
@@ -247,7 +251,7 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
       else
         has_uv = false;
     }
-    if (scene.materials[size_t(mat)].kd_texture >= 0) {
+    if (scene.materials[size_t(mat)].kd_texture >= 0 || scene.materials[size_t(mat)].cut_out()) {
       uses_texture = true;
       textured_without_uv |= !has_uv;
     }

@@ -26,14 +26,15 @@ struct MtlMaterial {
   Vec3 kd{0.f}, ke{0.f}, ks{0.f};
   float ns = 1.f;
   int texture = -1;  // map_Kd: index into ObjContext::textures
+  int mask = -1;     // map_d: index into ObjContext::textures (its alpha)
 };
 
 /// One statement of an MTL file that the material model uses.
 struct MtlStatement {
-  enum class Kind : uint8_t { kNewmtl, kKd, kKe, kKs, kNs, kMapKd };
+  enum class Kind : uint8_t { kNewmtl, kKd, kKe, kKs, kNs, kMapKd, kMapD };
   Kind kind = Kind::kNewmtl;
   Vec3 value{0.f};   // Kd, Ke, Ks: the colour; Ns: value.x
-  int texture = -1;  // map_Kd
+  int texture = -1;  // map_Kd, map_d
   std::string name;  // newmtl
 };
 
@@ -67,10 +68,16 @@ struct ObjContext {
   MaterialTable table;
 };
 
-/// Loads the texture `name` (from map_Kd in `file` at `line`, relative to `dir`), once per file;
-/// returns its index in ctx.textures.
+/// What a texture file is read for: its colour (Texture::rgb), or its alpha as a cut-out mask
+/// (Texture::alpha): the alpha channel, or where the image has none its first channel (kMask: MTL
+/// map_d, which may name a grey image) or full opacity (kAlpha: glTF base colour).
+enum class TextureUse : uint8_t { kColour, kMask, kAlpha };
+
+/// Loads the texture `name` (from map_Kd or map_d in `file` at `line`, relative to `dir`), one
+/// Texture per file, holding what the uses asked for so far; returns its index in ctx.textures.
 int load_texture(ObjContext& ctx, const std::string& name, const std::filesystem::path& dir,
-                 const std::string& display_dir, const std::string& file, size_t line);
+                 const std::string& display_dir, const std::string& file, size_t line,
+                 TextureUse use = TextureUse::kColour);
 
 /// The mtllib statement at `file`:`line` naming `mtls`: reads and validates the files (each once per
 /// OBJ, with their textures) and, the first time the OBJ names this list of files, appends their

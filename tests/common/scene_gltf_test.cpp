@@ -285,8 +285,7 @@ TEST(SceneGltf, ApproximationsAreReportedOncePerMaterial) {
   const int chrome =
       g.material({{"name", "chrome"}, {"pbrMetallicRoughness", {{"metallicFactor", 1}, {"roughnessFactor", 0.2}}}});
   const int leaf = g.material({{"name", "leaf"},
-                               {"alphaMode", "MASK"},
-                               {"alphaCutoff", 0.3},
+                               {"alphaMode", "BLEND"},
                                {"pbrMetallicRoughness", {{"metallicFactor", 0}}}});
   g.node({{"mesh", g.mesh(kTriangle, {}, chrome)}});
   g.node({{"mesh", g.mesh(kTriangle, {}, chrome)}});
@@ -302,8 +301,8 @@ TEST(SceneGltf, ApproximationsAreReportedOncePerMaterial) {
   ASSERT_EQ(report.warnings.size(), 2u);
   EXPECT_EQ(report.warnings[0].rfind(path + ": material 'chrome' (materials[0]): metallic 1, roughness 0.2", 0), 0u)
       << report.warnings[0];
-  EXPECT_NE(report.warnings[1].find("material 'leaf' (materials[1]): alphaMode MASK (alphaCutoff 0.3): cut-outs are "
-                                    "not supported yet"),
+  EXPECT_NE(report.warnings[1].find("material 'leaf' (materials[1]): alphaMode BLEND rendered as MASK with "
+                                    "alphaCutoff 0.5"),
             std::string::npos)
       << report.warnings[1];
 }
