@@ -10,7 +10,7 @@
 // Output: the triangle index (R32UI, gl_VertexID/3). Planes are filled in on the CPU from plane_of() (per triangle)
 // and positions from detail::ray_triangle on the texel-centre ray, exactly as the CPU builder does.
 // Where the rasterised triangle is a hole of a cut-out at the texel centre, the CPU search behind it
-// (deep_framebuffer_cutouts.h) gives the texel's triangle and position.
+// (deep_framebuffer.h, cut-outs) gives the texel's triangle and position.
 // Bands: a framebuffer of the band's height; the viewport is the full grid's moved down by the band's
 // first row, so the rasteriser sees every triangle where the full frame has it (whole-row shift).
 #include <fmt/format.h>
@@ -24,7 +24,6 @@
 #include <vector>
 
 #include "master/deep_framebuffer.h"
-#include "master/deep_framebuffer_cutouts.h"
 #include "master/gl_context.h"
 #include "master/gl_program.h"
 

@@ -196,8 +196,10 @@ Texture decode_image_bytes(const std::string& bytes, const std::string& name, co
     ext = "embedded.jpg";
   if (!ext) fail_file(where, fmt::format("image '{}' is neither PNG nor JPEG", name));
   OIIO::Filesystem::IOMemReader mem(bytes.data(), bytes.size());
-  OIIO::ImageSpec config;  // colour as stored, not multiplied by alpha
+  OIIO::ImageSpec config;  // colour as stored, not multiplied by alpha; read through `mem`
   config.attribute("oiio:UnassociatedAlpha", 1);
+  OIIO::Filesystem::IOProxy* proxy = &mem;
+  config.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &proxy);
   auto input = OIIO::ImageInput::open(ext, &config, &mem);
   if (!input) fail_file(where, fmt::format("cannot read image '{}': {}", name, OIIO::geterror()));
   const OIIO::ImageSpec spec = input->spec();

@@ -105,8 +105,8 @@ TEST_F(SceneCutout, AnEmitterIsNotCutOutAndTheWarningNamesIt) {
   write_rgba_png(dir.path("leaf.png"), 2, 1, kLeaf);
   dir.write("e.mtl", "newmtl lamp\nKe 5 5 5\nmap_d leaf.png\n");
   LoadReport report;
-  const std::string obj = dir.write("e.obj", "mtllib e.mtl\n" + std::string(kTwoTriangles).replace(
-                                                                   kTwoTriangles.find("leaf"), 4, "lamp"));
+  const std::string obj =
+      dir.write("e.obj", "mtllib e.mtl\n" + std::string(kTwoTriangles).replace(kTwoTriangles.find("leaf"), 4, "lamp"));
   const Scene s = load_obj(obj, {}, &report);
   EXPECT_FALSE(s.has_cut_outs());
   ASSERT_EQ(report.warnings.size(), 1u);
@@ -128,11 +128,11 @@ TEST_F(SceneCutout, GltfMaskTimesTheBaseColourAlphaAgainstTheCutoff) {
   // alpha = 0.5 x texture alpha against 0.15: 0.5 stays, 0.1 goes.
   nlohmann::json faded = pbr;
   faded["baseColorFactor"] = {1, 1, 1, 0.5};
-  const int low = g.material(
-      {{"name", "faded"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.15}, {"pbrMetallicRoughness", faded}});
+  const int low =
+      g.material({{"name", "faded"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.15}, {"pbrMetallicRoughness", faded}});
   // Cut-off 0.1: 0.2 stays as well.
-  const int keep = g.material(
-      {{"name", "keep"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.1}, {"pbrMetallicRoughness", pbr}});
+  const int keep =
+      g.material({{"name", "keep"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.1}, {"pbrMetallicRoughness", pbr}});
   for (int m : {plain, low, keep}) {
     g.node({{"mesh", g.mesh(kTriangle, {}, m, kLeftUv)}});
     g.node({{"mesh", g.mesh(kTriangle, {}, m, kRightUv)}});
@@ -160,12 +160,14 @@ TEST_F(SceneCutout, GltfEmbeddedImageAndBlendAndConstantAlpha) {
   const int v = g.view(png);
   g.doc["images"] = {{{"bufferView", v}, {"mimeType", "image/png"}}};
   g.doc["textures"] = {{{"source", 0}}};
-  const int glass = g.material({{"name", "glass"},
-                                {"alphaMode", "BLEND"},
-                                {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}, {"metallicFactor", 0}}}});
-  const int ghost = g.material({{"name", "ghost"},
-                                {"alphaMode", "MASK"},
-                                {"pbrMetallicRoughness", {{"baseColorFactor", {1, 1, 1, 0.2}}, {"metallicFactor", 0}}}});
+  const int glass =
+      g.material({{"name", "glass"},
+                  {"alphaMode", "BLEND"},
+                  {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}, {"metallicFactor", 0}}}});
+  const int ghost =
+      g.material({{"name", "ghost"},
+                  {"alphaMode", "MASK"},
+                  {"pbrMetallicRoughness", {{"baseColorFactor", {1, 1, 1, 0.2}}, {"metallicFactor", 0}}}});
   g.node({{"mesh", g.mesh(kTriangle, {}, glass, kLeftUv)}});
   g.node({{"mesh", g.mesh(kTriangle, {}, glass, kRightUv)}});
   g.node({{"mesh", g.mesh(kTriangle, {}, ghost)}});
