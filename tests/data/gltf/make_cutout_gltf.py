@@ -135,10 +135,10 @@ def main():
     w.quad([(-1.1, 0, -0.8), (0.9, 0, -0.8), (0.9, 1.7, -0.8), (-1.1, 1.7, -0.8)], lattice)  # the screen
     w.quad([(0.5, 0.1, 0.4), (1.2, 0.1, 0.1), (1.2, 0.9, 0.1), (0.5, 0.9, 0.4)], leaf)  # two leaf cards
     w.quad([(0.9, 0.3, 0.9), (1.5, 0.3, 0.5), (1.5, 1.0, 0.6), (0.9, 1.0, 1.0)], leaf)
-    w.quad([(-0.6, 2.5, -0.6), (0.6, 2.5, -0.6), (0.6, 2.5, 0.6), (-0.6, 2.5, 0.6)], lamp)  # ceiling lamp
+    w.quad([(-0.5, 2.5, -1.8), (0.5, 2.5, -1.8), (0.5, 2.5, -1.0), (-0.5, 2.5, -1.0)], lamp)  # lamp behind the screen
 
-    # The camera: eye (0.6, 1.3, 3.6) looking at (-0.1, 0.7, -0.8); yfov 45 degrees.
-    eye, look = (0.6, 1.3, 3.6), (-0.1, 0.7, -0.8)
+    # The camera: eye (0.6, 1.3, 3.6) looking at (-0.1, 0.4, -0.8); yfov 40 degrees (the lamp is out of view).
+    eye, look = (0.6, 1.3, 3.6), (-0.1, 0.4, -0.8)
     f = [l - e for l, e in zip(look, eye)]
     n = math.sqrt(sum(c * c for c in f))
     f = [c / n for c in f]
@@ -146,7 +146,7 @@ def main():
     qy = (0, math.sin(yaw / 2), 0, math.cos(yaw / 2))
     qx = (math.sin(pitch / 2), 0, 0, math.cos(pitch / 2))
     q = (qy[3] * qx[0], qy[1] * qx[3], -qy[1] * qx[0], qy[3] * qx[3])  # qy * qx
-    w.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": math.radians(45), "znear": 0.01}}]
+    w.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": math.radians(40), "znear": 0.01}}]
     w.doc["nodes"].append({"camera": 0, "translation": list(eye), "rotation": list(q)})
     w.doc["scenes"][0]["nodes"].append(len(w.doc["nodes"]) - 1)
 
