@@ -284,9 +284,8 @@ TEST(SceneGltf, ApproximationsAreReportedOncePerMaterial) {
   GltfBuilder g;
   const int chrome =
       g.material({{"name", "chrome"}, {"pbrMetallicRoughness", {{"metallicFactor", 1}, {"roughnessFactor", 0.2}}}});
-  const int leaf = g.material({{"name", "leaf"},
-                               {"alphaMode", "BLEND"},
-                               {"pbrMetallicRoughness", {{"metallicFactor", 0}}}});
+  const int leaf =
+      g.material({{"name", "leaf"}, {"alphaMode", "BLEND"}, {"pbrMetallicRoughness", {{"metallicFactor", 0}}}});
   g.node({{"mesh", g.mesh(kTriangle, {}, chrome)}});
   g.node({{"mesh", g.mesh(kTriangle, {}, chrome)}});
   g.node({{"mesh", g.mesh(kTriangle, {}, leaf)}});
