@@ -533,6 +533,7 @@ int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, cons
   const auto key = std::make_tuple(image, factor.x, factor.y, factor.z);
   if (auto it = baked_.find(key); it != baked_.end()) return it->second;
   Texture t = textures_.textures[size_t(plain)];
+  t.alpha.clear();  // a colour copy: the mask, if any, stays with the plain texture
   const size_t pixels = size_t(t.width) * size_t(t.height);
   if (pixels + textures_.texture_pixels > opts_.max_texture_pixels)
     error(
