@@ -49,7 +49,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   if (opts.threads > 0)
     threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(opts.threads));
 
-  const Scene scene = load_job_scene(opts.scene);  // warnings shown once; an unlit scene refused
+  const Scene scene = load_job_scene(opts.scene, {}, nullptr, opts.lighting);  // warnings once; unlit refused
   const Camera camera(opts.camera_for(scene.camera), opts.width, opts.height);
   const double t_load = since(t_start);
   const auto t_bvh = std::chrono::steady_clock::now();
@@ -67,7 +67,8 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   // give the same M' (docs/DESIGN.md: determinism).
   const VertexCodec codec(scene.bounds());
 
-  PathTracer tracer(embree, camera, opts.seed, opts.rr, opts.mis, opts.sampler);
+  const SkyLight sky(scene.lighting, !embree.emitters().empty());
+  PathTracer tracer(embree, camera, opts.seed, opts.rr, opts.mis, opts.sampler, &sky);
   TileRenderer tile_renderer(tracer, filter_for(opts));
   const auto tiles = make_tiles(opts);
   TileStats totals;

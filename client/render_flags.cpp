@@ -20,6 +20,28 @@ Vec3 parse_vec3(const std::string& flag, const std::string& s) {
   return v;
 }
 
+// `file` (as the user wrote it) relative to the folder of the scene file `scene`, which it must lie
+// in: it travels in the scene's bundle, whose paths are relative to that folder.
+std::string scene_relative_path(const char* flag, const std::string& scene, const std::string& file) {
+  namespace fs = std::filesystem;
+  if (scene.rfind("builtin:", 0) == 0)
+    throw CLI::ValidationError(
+        flag, fmt::format("'{}': a built-in scene carries no files; name the image in a scene JSON beside it, e.g. "
+                          "{{\"builtin\": \"{}\", \"environment\": {{\"image\": \"{}\"}}}}",
+                          file, scene.substr(8), fs::path(file).filename().string()));
+  std::error_code ec;
+  const fs::path real = fs::weakly_canonical(file, ec);
+  if (ec || !fs::is_regular_file(real, ec))
+    throw CLI::ValidationError(flag, fmt::format("'{}' is not a readable file", file));
+  const fs::path folder = fs::weakly_canonical(fs::absolute(scene).parent_path(), ec);
+  const fs::path rel = real.lexically_relative(folder);
+  if (ec || rel.empty() || *rel.begin() == "..")
+    throw CLI::ValidationError(flag, fmt::format("'{}' lies outside the scene's folder {}: the image travels with the "
+                                                 "scene's files, so copy it there",
+                                                 file, folder.string()));
+  return rel.generic_string();
+}
+
 }  // namespace
 
 void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std::string>& extra, RenderFlagSet set) {
@@ -94,6 +116,12 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
   for (const char* v : {"--eye", "--look", "--up"})
     cmd->add_option(v, extra[v], fmt::format("camera override x,y,z ({})", v + 2));
   cmd->add_option("--fov", o.fov, "camera override: vertical field of view in degrees");
+  cmd->add_option("--env", extra["--env"],
+                  "environment light, replacing the scene's: an equirectangular .hdr/.exr inside the scene's folder, "
+                  "or a constant colour R,G,B (one number: a grey)");
+  cmd->add_option("--sun", extra["--sun"],
+                  "sun, replacing the scene's: DX,DY,DZ[,ANGLE_DEG[,E or ,R,G,B]]: direction towards the sun, "
+                  "angular diameter (default 0.53) and irradiance in W/m^2 (default 1)");
 }
 
 std::optional<std::string> output_prefix_error(const std::string& prefix) {
@@ -126,6 +154,22 @@ void finish_options(RenderOptions& o, const std::map<std::string, std::string>& 
     if (it == extra.end() || it->second.empty()) continue;
     const Vec3 v = parse_vec3(flag, it->second);
     (flag[2] == 'e' ? o.eye : flag[2] == 'l' ? o.look : o.up) = v;
+  }
+  if (const auto env = extra.find("--env"); env != extra.end() && !env->second.empty()) {
+    std::string file;
+    try {
+      o.lighting.environment = parse_env_flag(env->second, &file);
+    } catch (const std::invalid_argument& e) {
+      throw CLI::ValidationError(std::string(e.what()));
+    }
+    if (!file.empty()) o.lighting.environment->image = scene_relative_path("--env", o.scene, file);
+  }
+  if (const auto sun = extra.find("--sun"); sun != extra.end() && !sun->second.empty()) {
+    try {
+      o.lighting.sun = parse_sun_flag(sun->second);
+    } catch (const std::invalid_argument& e) {
+      throw CLI::ValidationError(std::string(e.what()));
+    }
   }
   const auto rr = extra.find("rr");
   const auto depth = extra.find("max-depth");

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "common/camera.h"
+#include "common/lighting.h"
 #include "common/sampler.h"
 
 namespace epr {
@@ -56,6 +57,9 @@ struct RenderOptions {
   int threads = 0;                    // 0: all cores
   std::optional<Vec3> eye, look, up;  // camera overrides
   std::optional<float> fov;           // vertical, degrees
+  // --env / --sun: each replaces the scene's own; an environment image is named relative to the
+  // scene's folder (it travels in the scene bundle).
+  Lighting lighting;
 
   /// Empty if the options are usable; otherwise the reason.
   std::optional<std::string> validate() const;

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "common/camera.h"
+#include "common/lighting.h"
 #include "common/math.h"
 
 namespace epr {
@@ -61,6 +62,8 @@ struct Scene {
   std::vector<Material> materials;
   std::vector<Texture> textures;
   CameraSpec camera;
+  Lighting lighting;   // environment and sun (a scene JSON's, or a job's, common/lighting.h)
+  std::string folder;  // canonical folder the scene's files are read from; empty for built-ins
 
   size_t triangle_count() const { return triangles.size(); }
   Bounds3 bounds() const;

@@ -34,6 +34,7 @@ Scene load_obj(const std::string& obj_path, const LoadOptions& opts, LoadReport*
   const std::filesystem::path real = loader::canonical_or_fail(obj_path, obj_path);
   Scene scene = loader::load_obj_inside({real, obj_path}, real.parent_path(), opts, report ? *report : local, nullptr);
   loader::validate_or_fail(scene, obj_path);
+  scene.folder = real.parent_path().string();
   return scene;
 }
 
@@ -42,6 +43,7 @@ Scene load_gltf(const std::string& gltf_path, const LoadOptions& opts, LoadRepor
   const std::filesystem::path real = loader::canonical_or_fail(gltf_path, gltf_path);
   Scene scene = loader::load_gltf_inside({real, gltf_path}, real.parent_path(), opts, report ? *report : local);
   loader::validate_or_fail(scene, gltf_path);
+  scene.folder = real.parent_path().string();
   return scene;
 }
 
@@ -54,17 +56,30 @@ Scene load_scene(const std::string& spec, const LoadOptions& opts, LoadReport* r
   return load_obj(spec, opts, report);
 }
 
-Scene load_job_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report) {
+Scene load_job_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report, const Lighting& job) {
   LoadReport local;
   LoadReport& r = report ? *report : local;
   const size_t first = r.warnings.size();
   Scene scene = load_scene(spec, opts, &r);
+  scene.lighting = job_lighting(scene, job, &r);
   for (size_t i = first; i < r.warnings.size(); ++i) loader::scene_log()->warn("{}", r.warnings[i]);
   if (auto reason = unlit_reason(scene)) throw SceneError(*reason);
   return scene;
 }
 
+Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* report) {
+  Lighting out = scene.lighting;
+  if (job.environment) {
+    out.environment = job.environment;
+    if (!out.environment->image.empty() && !out.environment->pixels)
+      load_environment_image(*out.environment, scene.folder, "--env", report);
+  }
+  if (job.sun) out.sun = job.sun;
+  return out;
+}
+
 std::optional<std::string> unlit_reason(const Scene& scene) {
+  if (scene.lighting.lights()) return std::nullopt;
   std::vector<bool> used(scene.materials.size(), false);
   for (uint32_t m : scene.material_of)
     if (m < used.size()) used[m] = true;
@@ -75,8 +90,10 @@ std::optional<std::string> unlit_reason(const Scene& scene) {
     unused_emitters.push_back("'" + scene.materials[m].name + "'");
   }
   const std::string how =
-      "light it by giving the material of the faces that should glow an emission: a line `Ke r g b` (e.g. `Ke 10 10 "
-      "10`) after its `newmtl` in the MTL file, or \"ke\": [10, 10, 10] for it under \"materials\" in a scene JSON";
+      "light it with a sky or a sun: `--env 1,1,1` (a white sky; or --env sky.hdr, an image beside the scene) or "
+      "`--sun 1,2,1` on epr render and epr submit, or \"environment\" / \"sun\" in a scene JSON; or give the "
+      "material of the faces that should glow an emission: a line `Ke r g b` (e.g. `Ke 10 10 10`) after its "
+      "`newmtl` in the MTL file, or \"ke\": [10, 10, 10] for it under \"materials\" in a scene JSON";
   if (!unused_emitters.empty())
     return fmt::format("{} has no light: no face uses the emitting material{} {}, so the image would be black; {}",
                        scene.name, unused_emitters.size() > 1 ? "s" : "", fmt::join(unused_emitters, ", "), how);

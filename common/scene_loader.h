@@ -45,12 +45,17 @@ Scene load_gltf(const std::string& gltf_path, const LoadOptions& = {}, LoadRepor
 /// A scene JSON file: an OBJ or a built-in scene plus camera and material overrides.
 Scene load_scene_json(const std::string& json_path, const LoadOptions& = {}, LoadReport* = nullptr);
 
-/// load_scene for a render the user asked for: logs the warnings (at warn level, once) and refuses a
-/// scene without light (unlit_reason) with SceneError.
-Scene load_job_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* = nullptr);
+/// load_scene for a render the user asked for: applies the job's lighting (job_lighting), logs the
+/// warnings (at warn level, once) and refuses a scene without light (unlit_reason) with SceneError.
+Scene load_job_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* = nullptr, const Lighting& job = {});
 
-/// Nullopt if some triangle emits light (its material has a Ke other than 0 0 0); else why the image
-/// would be black and how to light the scene, naming scene.name.
+/// The lighting a job renders `scene` with: the job's environment and sun where it sets them, else the
+/// scene's. An environment image the job names is read inside scene.folder (recorded in `report`);
+/// failures raise SceneError naming `--env`.
+Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* report = nullptr);
+
+/// Nullopt if some triangle emits light (its material has a Ke other than 0 0 0) or the environment or
+/// the sun gives light; else why the image would be black and how to light the scene, naming scene.name.
 std::optional<std::string> unlit_reason(const Scene& scene);
 
 /// The bytes of a scene file, read as the loader reads them: a regular file of at most max_bytes,

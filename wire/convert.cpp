@@ -71,6 +71,53 @@ v1::Sampler to_proto(SamplerKind s) {
   return s == SamplerKind::kIndependent ? v1::SAMPLER_INDEPENDENT : v1::SAMPLER_SOBOL_BURLEY;
 }
 
+std::optional<std::string> from_proto(const v1::EnvironmentLight* env, const v1::SunLight* sun, Lighting* out) {
+  Lighting l;
+  if (env) {
+    EnvironmentLight e;
+    if (env->has_color()) {
+      e.color = from_proto(env->color());
+    } else if (env->has_image()) {
+      if (!is_safe_relative_path(env->image()))
+        return fmt::format("environment image '{}' is not a safe relative path of the scene bundle", env->image());
+      e.image = env->image();
+    } else {
+      return "environment: give a color or an image";
+    }
+    if (env->has_strength()) e.strength = env->strength();
+    e.rotation_deg = env->rotation_degrees();
+    if (auto err = check_environment(e)) return err;
+    l.environment = e;
+  }
+  if (sun) {
+    SunLight s;
+    s.direction = from_proto(sun->direction());
+    if (sun->has_angle_degrees()) s.angle_deg = sun->angle_degrees();
+    if (sun->has_irradiance()) s.irradiance = from_proto(sun->irradiance());
+    if (auto err = check_sun(s)) return err;
+    s.direction = normalize(s.direction);
+    l.sun = s;
+  }
+  *out = std::move(l);
+  return std::nullopt;
+}
+
+void to_proto(const Lighting& l, v1::EnvironmentLight* env, v1::SunLight* sun) {
+  if (l.environment && env) {
+    if (l.environment->image.empty())
+      to_proto(l.environment->color, env->mutable_color());
+    else
+      env->set_image(l.environment->image);
+    env->set_strength(l.environment->strength);
+    env->set_rotation_degrees(l.environment->rotation_deg);
+  }
+  if (l.sun && sun) {
+    to_proto(l.sun->direction, sun->mutable_direction());
+    sun->set_angle_degrees(l.sun->angle_deg);
+    to_proto(l.sun->irradiance, sun->mutable_irradiance());
+  }
+}
+
 namespace {
 v1::RenderMode to_proto_mode(RenderMode m) {
   return m == RenderMode::kReproject ? v1::RENDER_MODE_RP
@@ -109,6 +156,8 @@ v1::JobSpec to_job_spec(const RenderOptions& o, const SceneBundleData& bundle, c
   spec.set_mis(o.mis);
   spec.set_sampler(to_proto(o.sampler));
   spec.set_taper_tiles(o.taper_tiles);
+  to_proto(o.lighting, o.lighting.environment ? spec.mutable_environment() : nullptr,
+           o.lighting.sun ? spec.mutable_sun() : nullptr);
   return spec;
 }
 
@@ -178,6 +227,9 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
   else
     return fmt::format("unknown sampler {}", int(spec.sampler()));
   if (spec.has_taper_tiles()) o.taper_tiles = spec.taper_tiles();
+  if (auto err = from_proto(spec.has_environment() ? &spec.environment() : nullptr,
+                            spec.has_sun() ? &spec.sun() : nullptr, &o.lighting))
+    return err;
   if (spec.has_time_budget_seconds() && !(spec.time_budget_seconds() > 0 && std::isfinite(spec.time_budget_seconds())))
     return "time budget must be a positive number of seconds";
   if (auto err = o.validate()) return err;
@@ -201,6 +253,8 @@ void to_render_settings(const RenderOptions& o, const CameraSpec& camera, const 
   to_proto(codec_bounds, out->mutable_codec_bounds());
   out->set_mis(o.mis);
   out->set_sampler(to_proto(o.sampler));
+  to_proto(o.lighting, o.lighting.environment ? out->mutable_environment() : nullptr,
+           o.lighting.sun ? out->mutable_sun() : nullptr);
 }
 
 SceneBundleData from_proto(const v1::SceneFiles& files) {

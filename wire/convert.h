@@ -41,6 +41,11 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
 void to_render_settings(const RenderOptions& opts, const CameraSpec& camera, const Bounds3& codec_bounds,
                         v1::RenderSettings* out);
 
+/// The job's lighting on the wire (JobSpec / RenderSettings environment and sun; unset: none) and back.
+/// from_proto checks the values (the reason if unusable); an image is a safe relative path.
+std::optional<std::string> from_proto(const v1::EnvironmentLight* env, const v1::SunLight* sun, Lighting* out);
+void to_proto(const Lighting& l, v1::EnvironmentLight* env, v1::SunLight* sun);
+
 SceneBundleData from_proto(const v1::SceneFiles& files);
 void to_proto(const SceneBundleData& b, v1::SceneBundle* out);
 

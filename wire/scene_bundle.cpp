@@ -41,17 +41,19 @@ bool is_safe_relative_path(const std::string& path) {
   return parts > 0 && path.back() != '/';
 }
 
-SceneBundleData bundle_scene(const std::string& spec) {
+SceneBundleData bundle_scene(const std::string& spec, const Lighting& job) {
   SceneBundleData b;
   if (spec.rfind("builtin:", 0) == 0 && spec.find('\0') == std::string::npos) {
     b.builtin = spec;
+    // A job's environment image is refused with the reason: a built-in has no folder to carry it.
+    if (job.environment && !job.environment->image.empty()) job_lighting(Scene{}, job);
     return b;
   }
   // The scene is loaded here, so that its files are the ones the loader reads (one parser for both),
   // its warnings are shown once, on the user's side, and a broken or unlit scene fails before upload.
   const LoadOptions opts;
   LoadReport report;
-  load_job_scene(spec, opts, &report);
+  load_job_scene(spec, opts, &report, job);
   if (report.files.empty()) throw SceneError(fmt::format("{}: the scene reads no file", spec));
   const fs::path root = report.files.front().real.parent_path();
   for (const FileRef& f : report.files) {
@@ -90,8 +92,12 @@ std::string default_cache_root() {
   return (fs::temp_directory_path() / "eprfarm-cache").string();
 }
 
-Scene load_bundle(const SceneBundleData& b, const std::string& cache_root) {
-  if (!b.builtin.empty()) return load_scene(b.builtin);
+Scene load_bundle(const SceneBundleData& b, const std::string& cache_root, const Lighting& job) {
+  if (!b.builtin.empty()) {
+    Scene s = load_scene(b.builtin);
+    s.lighting = job_lighting(s, job);
+    return s;
+  }
   if (!is_safe_relative_path(b.entry_path))
     throw SceneError(fmt::format("scene entry path '{}' is not a safe relative path", b.entry_path));
   const std::string hash = content_hash(b);
@@ -117,6 +123,7 @@ Scene load_bundle(const SceneBundleData& b, const std::string& cache_root) {
   // The client showed the warnings; here they stay at debug level. A scene without light is refused
   // (the check of raw submissions, which no client loaded first).
   Scene s = load_scene((dir / b.entry_path).string());
+  s.lighting = job_lighting(s, job);
   if (auto reason = unlit_reason(s)) throw SceneError(*reason);
   return s;
 }

@@ -24,7 +24,8 @@ struct SceneBundleData {
 /// Loads `spec` (OBJ path, scene JSON path or builtin:NAME) as load_job_scene() does (its warnings
 /// logged once, a scene without light refused) and bundles the files that load read. Throws
 /// SceneError naming the file when the scene is broken, unlit, or a file cannot be read.
-SceneBundleData bundle_scene(const std::string& spec);
+/// With `job`'s lighting (RenderOptions::lighting), an environment image it names is bundled too.
+SceneBundleData bundle_scene(const std::string& spec, const Lighting& job = {});
 
 /// Lowercase hex SHA-256 over the canonical serialisation (files) or "epr-builtin-v1\n" + builtin.
 std::string content_hash(const SceneBundleData& bundle);
@@ -34,9 +35,9 @@ std::string content_hash(const SceneBundleData& bundle);
 bool is_safe_relative_path(const std::string& path);
 
 /// Writes the bundle's files below `cache_root`/HASH/ (once; an existing complete copy is reused)
-/// and loads the scene, its warnings at debug level only; a scene without light (unlit_reason) is
-/// refused with SceneError. Built-ins are generated directly.
-Scene load_bundle(const SceneBundleData& bundle, const std::string& cache_root);
+/// and loads the scene, its warnings at debug level only, with `job`'s lighting applied (job_lighting);
+/// a scene without light (unlit_reason) is refused with SceneError. Built-ins are generated directly.
+Scene load_bundle(const SceneBundleData& bundle, const std::string& cache_root, const Lighting& job = {});
 
 /// The folder scenes are cached in: $EPR_CACHE_DIR, else $XDG_CACHE_HOME/eprfarm, else ~/.cache/eprfarm.
 std::string default_cache_root();

@@ -5,6 +5,7 @@
 #include <future>
 #include <stdexcept>
 
+#include "common/scene_loader.h"
 #include "wire/convert.h"
 #include "worker/tile_lease.h"
 
@@ -117,10 +118,14 @@ std::shared_ptr<const JobContext> JobCache::build(const v1::TileLease& lease, co
   ctx->codec_bounds = from_proto(s.codec_bounds());
   ctx->scene = scene_for(lease.scene(), master);
   ctx->camera = Camera(from_proto(s.camera()), int(s.width()), int(s.height()));
+  Lighting job;
+  if (auto err = from_proto(s.has_environment() ? &s.environment() : nullptr, s.has_sun() ? &s.sun() : nullptr, &job))
+    throw std::invalid_argument(*err);
+  ctx->sky = std::make_unique<SkyLight>(job_lighting(ctx->scene->scene, job), !ctx->scene->embree.emitters().empty());
   // check_render_settings accepted the sampler: from_proto knows it.
   ctx->tracer =
       std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed, from_proto(s.russian_roulette()),
-                                   !s.has_mis() || s.mis(), from_proto(s.sampler()).value());
+                                   !s.has_mis() || s.mis(), from_proto(s.sampler()).value(), ctx->sky.get());
   return ctx;
 }
 

@@ -45,6 +45,7 @@ struct JobContext {
   Bounds3 codec_bounds;
   std::shared_ptr<const LoadedScene> scene;
   Camera camera;
+  std::unique_ptr<SkyLight> sky;  // the scene's environment and sun, or the job's (settings)
   std::unique_ptr<PathTracer> tracer;
 
   /// True if `lease` belongs to this job with the same scene, seed and settings.

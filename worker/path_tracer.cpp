@@ -29,8 +29,13 @@ inline float power_heuristic(float p_this, float p_other) {
 }  // namespace
 
 PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis,
-                       SamplerKind sampler)
-    : scene_(scene), camera_(camera), seed_(seed), rr_(rr), mis_(mis), sampler_(sampler) {}
+                       SamplerKind sampler, const SkyLight* sky)
+    : scene_(scene), camera_(camera), seed_(seed), rr_(rr), mis_(mis), sampler_(sampler) {
+  if (sky && !sky->empty()) {
+    sky_ = sky;
+    triangle_share_ = sky->triangle_share();
+  }
+}
 
 Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) const {
   const Scene& s = scene_.scene();
@@ -50,12 +55,22 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
   const Vec2 film = rng.film();
   Ray ray = camera_.generate_ray(float(x) + film.x, float(y) + film.y);
   uint64_t rays = 0;
+  Vec3 background(0.f);  // the sky seen by a camera ray that escapes
 
   // ---- trace forwards: NEE and continuation at every vertex ----------------------------------------
   for (int depth = 1;; ++depth) {
     Hit hit;
     ++rays;
-    if (!scene_.intersect(ray, 0.f, std::numeric_limits<float>::infinity(), &hit)) break;
+    if (!scene_.intersect(ray, 0.f, std::numeric_limits<float>::infinity(), &hit)) {
+      // The ray escapes: a camera ray shows the sky; a continuation ray's sky radiance is light
+      // reflected at x_{n-1}, MIS-weighted into D_{n-1} as an emitter hit is below.
+      if (sky_ && path.empty()) background = sky_->radiance(ray.dir);
+      if (sky_ && mis_ && !path.empty()) {
+        PathVertex& prev = path.back();
+        prev.direct += prev.weight * sky_->escaped(ray.dir, prev.normal, prev.continuation_pdf);
+      }
+      break;
+    }
     const Material& mat = s.materials[scene_.material(hit.prim)];
     // MIS, BSDF-sampling half: the continuation ray of x_{n-1} found emission at x_n. It is light
     // reflected at x_{n-1}, so it belongs to D_{n-1}, weighted by w_bsdf and carried by x_{n-1}'s
@@ -64,7 +79,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     if (mis_ && !path.empty() && mat.emissive()) {
       PathVertex& prev = path.back();
       float w_bsdf = 1;  // an emitter next event estimation cannot pick: BSDF sampling is the only technique
-      const float pdf_area = scene_.emitter_pdf_area(mat);
+      const float pdf_area = scene_.emitter_pdf_area(mat) * triangle_share_;
       if (pdf_area > 0) {
         const float cos_y = std::abs(dot(hit.ng, ray.dir)) / length(hit.ng);  // ray.dir is unit length
         // Edge-on (cos 0) p_light is infinite; prev.continuation_pdf > 0 (a sampled direction).
@@ -109,8 +124,17 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
 
     // Next event estimation: one shadow ray to a point on the emitters, cast only when the estimate
     // can be non-zero (the surface reflects, the point is in front of it and it faces the point).
-    const Emitter* light = bsdf.black() ? nullptr : scene_.sample_emitter(u_light);
+    // The sky (when there is one) takes its share of the selection number first.
+    const Emitter* light = nullptr;
+    if (!bsdf.black()) {
+      float u_pick = u_light;
+      if (sky_ && sky_->picks_sky(u_light, &u_pick))
+        v.direct = sky_next_event(*sky_, scene_, bsdf, v.normal, origin, u_pick, u_point, mis_ && q > 0, &rays);
+      else
+        light = scene_.sample_emitter(u_pick);
+    }
     if (light) {
+      const float light_pdf_area = light->pdf_area * triangle_share_;
       const Vec2 b = sample_uniform_triangle(u_point);
       const Vec3 light_pos = light->p0 * b.x + light->p1 * b.y + light->p2 * (1 - b.x - b.y);
       // Geometry from the true surface point (an offset origin would give coplanar emitters a
@@ -132,8 +156,8 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
             // both in solid angle at x_n. With q = 0 (depth cap) no continuation can be traced, so
             // BSDF sampling is no technique here and next event estimation keeps weight 1.
             float w_light = 1;
-            if (mis_ && q > 0) w_light = power_heuristic(light->pdf_area * dist2 / cos_y, bsdf.pdf(to_light));
-            v.direct = bsdf.eval(to_light) * light->le * (w_light * cos_x * cos_y / (dist2 * light->pdf_area));
+            if (mis_ && q > 0) w_light = power_heuristic(light_pdf_area * dist2 / cos_y, bsdf.pdf(to_light));
+            v.direct = bsdf.eval(to_light) * light->le * (w_light * cos_x * cos_y / (dist2 * light_pdf_area));
           }
         }
       }
@@ -164,7 +188,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       rec.flags = v.diffuse ? VertexRecord::kDiffuse : 0;
     }
   }
-  Vec3 pixel = path.empty() ? Vec3(0.f) : path[0].le + r;
+  Vec3 pixel = path.empty() ? background : path[0].le + r;
 
   if (stats) {
     stats->paths += 1;

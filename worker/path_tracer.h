@@ -14,6 +14,9 @@
 //     BSDF-sampled ray after the first vertex is not added (NEE counts it). Bit-identical to the
 //     tracer before MIS.
 // Either way every x_n with n >= 2 is recorded with radiance Le(x_n) + R_n (see trace()).
+// Light from outside (worker/sky_light.h) is one more pair of techniques: next event estimation
+// picks the sky or the triangles, and a continuation ray that escapes adds the sky's MIS-weighted
+// radiance to D_n like an emitter it hits; a camera ray that escapes sees the sky (no record).
 //
 // Parameters: RussianRoulette (common/render_options.h); `mis`; the seed and the sampler of the path's
 // random numbers (common/sampler.h: Sobol-Burley by default, or independent per dimension).
@@ -32,13 +35,15 @@
 #include "common/tile.h"
 #include "common/vertex_record.h"
 #include "worker/embree_scene.h"
+#include "worker/sky_light.h"
 
 namespace epr {
 
 class PathTracer {
  public:
+  /// `sky` (may be null: no light from outside) must outlive the tracer.
   PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis = true,
-             SamplerKind sampler = SamplerKind::kSobolBurley);
+             SamplerKind sampler = SamplerKind::kSobolBurley, const SkyLight* sky = nullptr);
 
   /// Traces path number `sample` of pixel (x, y); returns the pixel sample Le(x_1) + R_1. When
   /// `vertices` is not null, appends one record per vertex x_n, n >= 2.
@@ -58,6 +63,8 @@ class PathTracer {
   RussianRoulette rr_;
   bool mis_ = true;
   SamplerKind sampler_ = SamplerKind::kSobolBurley;
+  const SkyLight* sky_ = nullptr;  // null or empty: no light from outside
+  float triangle_share_ = 1;       // probability that light selection picks the emitting triangles
 };
 
 }  // namespace epr

@@ -156,7 +156,7 @@ class JsonSceneReader {
     }
     lines_ = std::make_unique<JsonLines>(text);
     if (!doc.is_object()) error("", "a scene file must be a JSON object");
-    check_keys(doc, "", {"obj", "builtin", "tessellation", "camera", "materials", "animation"});
+    check_keys(doc, "", {"obj", "builtin", "tessellation", "camera", "materials", "animation", "environment", "sun"});
 
     Scene scene;
     std::vector<GlossyDefaults> glossy;
@@ -199,6 +199,9 @@ class JsonSceneReader {
     if (doc.contains("animation")) animation = read_animation(doc["animation"], scene.camera);
     if (animation_) *animation_ = std::move(animation);
     scene.name = path_;
+    scene.folder = self.real.parent_path().string();
+    if (doc.contains("environment")) scene.lighting.environment = read_environment(doc["environment"], scene.folder);
+    if (doc.contains("sun")) scene.lighting.sun = read_sun(doc["sun"]);
     validate_or_fail(scene, path_);
     return scene;
   }
@@ -304,6 +307,62 @@ class JsonSceneReader {
       out.keys.push_back(key);
     }
     return out;
+  }
+
+  // "environment": {"color": [r, g, b]} or {"image": "sky.hdr"}, with "strength" and "rotation_deg".
+  EnvironmentLight read_environment(const nlohmann::json& env, const std::string& folder) {
+    const std::string p = "/environment";
+    if (!env.is_object())
+      error(p, "\"environment\" must be an object like {\"color\": [1, 1, 1]} or {\"image\": \"sky.hdr\"}");
+    check_keys(env, p, {"color", "image", "strength", "rotation_deg"});
+    if (env.contains("color") == env.contains("image"))
+      error(p, "give exactly one of \"color\" and \"image\" for the environment");
+    EnvironmentLight e;
+    if (env.contains("color")) e.color = colour_at(env["color"], p + "/color", "environment color", 1e6f);
+    if (env.contains("strength")) {
+      e.strength = number_at(env["strength"], p + "/strength", "environment strength");
+      if (!(e.strength >= 0 && e.strength <= 1e6f)) error(p + "/strength", "environment strength must lie in [0, 1e6]");
+    }
+    if (env.contains("rotation_deg"))
+      e.rotation_deg = number_at(env["rotation_deg"], p + "/rotation_deg", "environment rotation_deg");
+    if (env.contains("image")) {
+      if (!env["image"].is_string()) error(p + "/image", "environment image must be a string (a file name)");
+      e.image = env["image"].get<std::string>();
+      load_environment_image(e, folder, fmt::format("{}:{}", path_, line(p + "/image")), &report_);
+    }
+    return e;
+  }
+
+  // "sun": {"direction": [x, y, z], "angle_deg": 0.53, "irradiance": E or [r, g, b]} ("radiance" instead
+  // of "irradiance" gives the disc's radiance).
+  SunLight read_sun(const nlohmann::json& sun) {
+    const std::string p = "/sun";
+    if (!sun.is_object()) error(p, "\"sun\" must be an object like {\"direction\": [1, 2, 1], \"irradiance\": 3}");
+    check_keys(sun, p, {"direction", "angle_deg", "irradiance", "radiance"});
+    if (!sun.contains("direction")) error(p, "the sun needs a \"direction\" (towards the sun)");
+    if (sun.contains("irradiance") && sun.contains("radiance"))
+      error(p, "give at most one of \"irradiance\" and \"radiance\" for the sun");
+    SunLight s;
+    s.direction = vec3_at(sun["direction"], p + "/direction", "sun direction");
+    if (sun.contains("angle_deg")) s.angle_deg = number_at(sun["angle_deg"], p + "/angle_deg", "sun angle_deg");
+    const auto colour_or_grey = [&](const char* key) {
+      const auto& v = sun[key];
+      const std::string at = p + "/" + key;
+      if (v.is_number()) {
+        const float g = number_at(v, at, key);
+        if (!(g >= 0)) error(at, fmt::format("sun {} must be >= 0", key));
+        return Vec3(g);
+      }
+      return colour_at(v, at, key, 1e9f);
+    };
+    if (sun.contains("irradiance")) s.irradiance = colour_or_grey("irradiance");
+    if (auto reason = check_sun(s)) error(p, *reason);
+    s.direction = normalize(s.direction);
+    if (sun.contains("radiance")) {
+      const float h = std::sin(0.5f * s.angle_deg * kPi / 180);
+      s.irradiance = colour_or_grey("radiance") * (kPi * h * h);
+    }
+    return s;
   }
 
   void apply_materials(const nlohmann::json& mats, const std::vector<GlossyDefaults>& glossy, Scene* scene) {

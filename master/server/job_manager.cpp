@@ -219,7 +219,7 @@ std::string JobManager::add_scene(SceneBundleData bundle) {
 }
 
 std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera,
-                                                   CameraAnimation* animation) const {
+                                                   CameraAnimation* animation, const Lighting& lighting) const {
   const std::string cache = cache_dir();
   const std::string hash = content_hash(bundle);
   {
@@ -228,7 +228,7 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
   }
   std::optional<std::string> error;
   try {
-    const Scene s = load_bundle(bundle, cache);
+    const Scene s = load_bundle(bundle, cache, lighting);
     if (s.triangle_count() == 0) error = "the scene has no triangles";
     if (scene_camera) *scene_camera = s.camera;
     if (animation && bundle.builtin.empty()) {

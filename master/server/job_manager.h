@@ -181,7 +181,8 @@ class JobManager {
   /// Loads the scene to check it; the reason (naming file and line inside the bundle) if it is bad.
   /// `scene_camera`, if given, receives the scene's own camera, `animation` its camera keyframes.
   std::optional<std::string> check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera = nullptr,
-                                         CameraAnimation* animation = nullptr) const EPR_EXCLUDES(mu_);
+                                         CameraAnimation* animation = nullptr, const Lighting& lighting = {}) const
+      EPR_EXCLUDES(mu_);
   /// Removes what check_scene() left in the scene cache (scenes/HASH) for a submission that was
   /// refused, unless a job or another check still uses it. Built-in scenes are never cached.
   void discard_checked_scene(const std::string& content_hash) EPR_EXCLUDES(mu_);

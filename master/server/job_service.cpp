@@ -294,7 +294,7 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
     jobs_.discard_checked_scene(hash);
     return finish(ctx, invalid(why));
   };
-  if (auto err = jobs_.check_scene(jr.bundle, &scene_camera, frame_camera ? &animation : nullptr))
+  if (auto err = jobs_.check_scene(jr.bundle, &scene_camera, frame_camera ? &animation : nullptr, jr.options.lighting))
     return refuse(*err, content_hash(jr.bundle));
   if (frame_camera) {
     if (auto err = animation.frame_problem(req->frame(), scene_camera)) return refuse(*err, content_hash(jr.bundle));

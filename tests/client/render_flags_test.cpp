@@ -2,7 +2,10 @@
 #include "client/render_flags.h"
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <filesystem>
+#include <fstream>
 #include <vector>
 
 namespace epr {
@@ -45,6 +48,49 @@ TEST(RenderFlags, AnOutputNameWithTheImageExtensionIsTakenAsItsPrefix) {
   EXPECT_EQ(parse({"builtin:cornell", "--out", "frame.json"}, RenderFlagSet::kLocal).out, "frame.json");
   EXPECT_EQ(parse({"builtin:cornell", "--out", "v1.2"}, RenderFlagSet::kLocal).out, "v1.2");
   EXPECT_EQ(output_prefix(".exr"), ".exr");  // nothing would be left of the name
+}
+
+std::string flag_error(const std::vector<std::string>& args) {
+  try {
+    parse(args, RenderFlagSet::kRemote);
+  } catch (const CLI::Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(RenderFlags, EnvAndSunReplaceTheScenesLighting) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("epr_flags_env_" + std::to_string(::getpid()));
+  fs::create_directories(dir / "scene" / "skies");
+  std::ofstream(dir / "scene" / "m.obj") << "v 0 0 0\n";
+  std::ofstream(dir / "scene" / "skies" / "sky.hdr") << "x";
+  std::ofstream(dir / "elsewhere.hdr") << "x";
+  const std::string scene = (dir / "scene" / "m.obj").string();
+
+  RenderOptions o = parse({scene, "--env", "1,0.5,0.25", "--sun", "0,1,0,1,3"}, RenderFlagSet::kLocal);
+  ASSERT_TRUE(o.lighting.environment && o.lighting.sun);
+  EXPECT_EQ(o.lighting.environment->color, Vec3(1, 0.5f, 0.25f));
+  EXPECT_TRUE(o.lighting.environment->image.empty());
+  EXPECT_EQ(o.lighting.sun->irradiance, Vec3(3.f));
+  EXPECT_EQ(o.lighting.sun->angle_deg, 1.f);
+  // An image: named relative to the scene's folder, as it travels in the scene's bundle.
+  o = parse({scene, "--env", (dir / "scene" / "skies" / "sky.hdr").string()}, RenderFlagSet::kRemote);
+  EXPECT_EQ(o.lighting.environment->image, "skies/sky.hdr");
+  EXPECT_FALSE(o.lighting.sun);
+
+  std::string e = flag_error({scene, "--env", (dir / "elsewhere.hdr").string()});
+  EXPECT_NE(e.find("--env: '"), std::string::npos) << e;
+  EXPECT_NE(e.find("lies outside the scene's folder"), std::string::npos) << e;
+  e = flag_error({scene, "--env", (dir / "missing.hdr").string()});
+  EXPECT_NE(e.find("is not a readable file"), std::string::npos) << e;
+  e = flag_error({"builtin:cornell", "--env", (dir / "elsewhere.hdr").string()});
+  EXPECT_NE(e.find("a built-in scene carries no files"), std::string::npos) << e;
+  e = flag_error({scene, "--sun", "1,2"});
+  EXPECT_NE(e.find("--sun '1,2': expects DX,DY,DZ"), std::string::npos) << e;
+  e = flag_error({scene, "--env", "1,2"});
+  EXPECT_NE(e.find("--env '1,2': a colour is one number"), std::string::npos) << e;
+  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -44,9 +44,29 @@ TEST(UnlitSubmit, RawSubmissionOfAnUnlitSceneIsInvalidArgumentWithTheReason) {
       const std::string msg = e.status().error_message();
       EXPECT_EQ(msg.rfind("dark.obj has no light: no material has an emission (Ke)", 0), 0u) << msg;
       EXPECT_NE(msg.find("Ke 10 10 10"), std::string::npos) << msg;
+      EXPECT_NE(msg.find("--env 1,1,1"), std::string::npos) << msg;
+      EXPECT_NE(msg.find("--sun"), std::string::npos) << msg;
     }
   }
   EXPECT_FALSE(client.submit(raw_spec("newmtl m\nKd 0.5 0.5 0.5\nKe 3 3 3\n")).empty()) << "a lit scene is accepted";
+  // The job's sky or sun lights an unlit scene.
+  v1::JobSpec sky = raw_spec("newmtl m\nKd 0.5 0.5 0.5\n");
+  sky.mutable_environment()->mutable_color()->set_x(1);
+  EXPECT_FALSE(client.submit(sky).empty()) << "a scene lit by the job's sky is accepted";
+  v1::JobSpec sun = raw_spec("newmtl m\nKd 0.5 0.5 0.5\n");
+  sun.mutable_sun()->mutable_direction()->set_y(1);
+  EXPECT_FALSE(client.submit(sun).empty()) << "a scene lit by the job's sun is accepted";
+  // A job's environment image must be one of the bundle's files, read inside the scene's folder.
+  v1::JobSpec image = raw_spec("newmtl m\nKd 0.5 0.5 0.5\n");
+  image.mutable_environment()->set_image("../sky.hdr");
+  try {
+    client.submit(image);
+    ADD_FAILURE() << "the master accepted an image path outside the bundle";
+  } catch (const RpcError& e) {
+    EXPECT_EQ(e.code(), grpc::StatusCode::INVALID_ARGUMENT) << e.what();
+    EXPECT_NE(e.status().error_message().find("environment image '../sky.hdr'"), std::string::npos)
+        << e.status().error_message();
+  }
   master.shutdown();
 }
 

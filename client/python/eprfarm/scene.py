@@ -3,7 +3,8 @@
 A bundle is the entry file (an OBJ, a glTF or a scene JSON) plus every file it references, with
 relative '/'-separated paths below the entry file's folder:
 
-* a scene JSON's ``"obj"`` (relative to the JSON's folder), then that OBJ's or glTF's files;
+* a scene JSON's ``"obj"`` and ``"environment": {"image": ...}`` (relative to the JSON's folder), then that
+  OBJ's or glTF's files;
 * a glTF's (``.gltf`` or ``.glb``) ``buffers[i].uri`` and ``images[i].uri`` files (relative to the
   glTF, percent-decoded as tinygltf decodes them); ``data:`` URIs stay inline in the glTF, and a
   ``.glb`` file's binary chunk is part of it. An image file that does not exist is left out (the
@@ -341,8 +342,17 @@ class _Bundler:
             raise SceneError(f"{ref.display}: invalid JSON: not UTF-8 ({e.reason})") from None
         except json.JSONDecodeError as e:
             raise SceneError(f"{ref.display}:{e.lineno}: invalid JSON: {e.msg}") from None
-        if not isinstance(doc, dict) or "obj" not in doc:
-            return  # a built-in scene (or a malformed file, which the master names)
+        if not isinstance(doc, dict):
+            return  # a malformed file, which the master names
+        env = doc.get("environment")
+        if isinstance(env, dict) and isinstance(env.get("image"), str):  # an equirectangular sky
+            sky = _resolve_inside(self.root, self.root, os.path.dirname(ref.display), env["image"], ref.display, 0,
+                                  "environment image")
+            if problem := _file_problem(sky.real, MAX_FILE_BYTES):
+                raise SceneError(f"{ref.display}: environment image '{env['image']}' {problem}")
+            self.read(sky)
+        if "obj" not in doc:
+            return  # a built-in scene
         name = doc["obj"]
         if not isinstance(name, str):
             raise SceneError(f"{ref.display}: \"obj\" must be a string")
