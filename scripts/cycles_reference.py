@@ -11,7 +11,9 @@ It renders the same light transport model as eprfarm's path tracer:
   * a material with non-zero Ke is additionally a diffuse area emitter of radiance Ke
     (Emission shader, strength 1, added to the Diffuse BSDF). Cycles mesh lights emit from
     both sides of the surface, as ours do;
-  * black background (world strength 0), no clamping, no denoising, no adaptive sampling,
+  * black background (world strength 0) unless --env gives a sky (a colour or an equirectangular
+    image, mapped as eprfarm maps it: build_sky()), and --sun a sun lamp (angle, strength =
+    irradiance), as `epr render --env/--sun` take them; no clamping, no denoising, no adaptive sampling,
     bounce caps of 1024 (Cycles' maximum; its Russian roulette is unbiased);
   * pinhole camera given by eye / look-at / up and a VERTICAL field of view;
   * box pixel filter one pixel wide (uniform sample positions inside the pixel);
@@ -63,6 +65,12 @@ def parse_args():
     ap.add_argument("--up", type=parse_vec3, default=parse_vec3("0,1,0"))
     ap.add_argument("--fov", type=float, default=39.3077, help="VERTICAL field of view, degrees")
     ap.add_argument("--threads", type=int, default=0, help="render threads, 0 = all cores")
+    ap.add_argument("--env", default="",
+                    help="a sky as `epr render --env`: R,G,B (or one grey) or an equirectangular image file")
+    ap.add_argument("--env-strength", type=float, default=1.0)
+    ap.add_argument("--env-rotation", type=float, default=0.0, help="degrees about +Y, as rotation_deg")
+    ap.add_argument("--sun", default="",
+                    help="a sun as `epr render --sun`: DX,DY,DZ[,ANGLE_DEG[,E]] (towards the sun; irradiance W/m^2)")
     ap.add_argument("--emitter-subdiv", type=int, default=16,
                     help="split each emissive triangle into N x N (1: as exported)")
     ap.add_argument("--max-bounces", type=int, default=1024,
@@ -388,7 +396,7 @@ def configure_render(scene, a):
     scene.view_settings.use_curve_mapping = False
     scene.sequencer_colorspace_settings.name = "Linear"
 
-    # black world, no light from the background at all
+    # black world, no light from the background at all, unless --env gives a sky
     world = scene.world or bpy.data.worlds.new("world")
     scene.world = world
     world.use_nodes = True
@@ -400,6 +408,7 @@ def configure_render(scene, a):
     bg.inputs["Strength"].default_value = 0.0
     wout = nt.nodes.new("ShaderNodeOutputWorld")
     nt.links.new(bg.outputs["Background"], wout.inputs["Surface"])
+    build_sky(scene, nt, bg, a)
 
     # single-layer float EXR with the combined pass only
     vl = scene.view_layers[0]
@@ -418,6 +427,44 @@ def configure_render(scene, a):
         im.color_management = "FOLLOW_SCENE"
     scene.render.use_file_extension = False
     scene.render.filepath = os.path.abspath(a.out)
+
+
+def build_sky(scene, nt, bg, a):
+    """eprfarm's sky and sun (common/lighting.h) in this script's y-up frame. Blender's Environment
+    Texture reads a Z-up direction; ours (x, y, z) is (x, -z, y) there, a rotation of +90 degrees
+    about X, followed by the sky's rotation about the up axis: a Mapping node (Point) with rotation
+    (90, 0, rotation_deg). Nearest-texel lookup ("Closest"), as eprfarm does."""
+    if a.env:
+        parts = a.env.split(",")
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            values = None
+        if values is not None:
+            rgb = values * 3 if len(values) == 1 else values
+            bg.inputs["Color"].default_value = (rgb[0], rgb[1], rgb[2], 1.0)
+        else:
+            tex = nt.nodes.new("ShaderNodeTexEnvironment")
+            tex.image = bpy.data.images.load(os.path.abspath(a.env))
+            tex.image.colorspace_settings.name = "Linear"
+            tex.interpolation = "Closest"
+            coord = nt.nodes.new("ShaderNodeTexCoord")
+            mapping = nt.nodes.new("ShaderNodeMapping")
+            mapping.vector_type = "POINT"
+            mapping.inputs["Rotation"].default_value = (math.pi / 2, 0.0, math.radians(a.env_rotation))
+            nt.links.new(coord.outputs["Generated"], mapping.inputs["Vector"])
+            nt.links.new(mapping.outputs["Vector"], tex.inputs["Vector"])
+            nt.links.new(tex.outputs["Color"], bg.inputs["Color"])
+        bg.inputs["Strength"].default_value = a.env_strength
+    if a.sun:
+        v = [float(p) for p in a.sun.split(",")]
+        d = Vector(v[:3]).normalized()
+        light = bpy.data.lights.new("sun", type="SUN")
+        light.angle = math.radians(v[3] if len(v) > 3 else 0.53)
+        light.energy = v[4] if len(v) > 4 else 1.0
+        obj = bpy.data.objects.new("sun", light)
+        scene.collection.objects.link(obj)
+        obj.rotation_euler = d.to_track_quat("Z", "Y").to_euler()  # the lamp shines along its -Z
 
 
 def main():

@@ -40,7 +40,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out")
     ap.add_argument("--width", type=int, default=256)
-    ap.add_argument("--sun", default="1,1.2,0.6", help="direction of the glow, x,y,z (y is up)")
+    ap.add_argument("--sun", default="-1,1,-0.4", help="direction of the glow, x,y,z (y is up)")
     a = ap.parse_args()
     img = sky(a.width, np.array([float(v) for v in a.sun.split(",")]))
     spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, "half")

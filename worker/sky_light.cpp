@@ -25,7 +25,7 @@ SkyLight::SkyLight(const Lighting& lighting, bool triangle_emitters) {
       w_ = img.width;
       h_ = img.height;
       weight_.resize(size_t(w_) * size_t(h_));
-      std::vector<float> row_weight(size_t(h_));
+      std::vector<float> row_weight(static_cast<size_t>(h_));
       double sum_l = 0;  // luminance x solid angle over the sphere
       for (int y = 0; y < h_; ++y) {
         const float sin_theta = std::sin(kPi * (float(y) + 0.5f) / float(h_));
