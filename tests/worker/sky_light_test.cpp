@@ -277,3 +277,23 @@ TEST(SkyLight, SunOnAFloorGivesItsIrradianceTimesTheCosine) {
 
 }  // namespace
 }  // namespace epr
+namespace epr {
+TEST(SkyLightDebug, Cap) {
+  Lighting l;
+  l.environment = EnvironmentLight{};
+  auto img = std::make_shared<Image>(16, 8, 3);
+  for (float& v : img->data) v = 0.35f;
+  l.environment->pixels = img;
+  const SkyLight sky(l, false);
+  for (float cap : {0.2f, 0.45f, 1.0f, 1.5f}) {
+    SampleStream rng(3, 0, 0);
+    double est = 0;
+    const int n = 1000000;
+    for (int k = 0; k < n; ++k) {
+      const SkyLight::Sample s = sky.sample(rng.next(), rng.next2(), {0, 1, 0});
+      if (s.pdf > 0 && std::acos(s.wi.y) < cap) est += s.wi.y / s.pdf;
+    }
+    printf("cap %f est %f exact %f\n", cap, est / n, kPi * std::sin(cap) * std::sin(cap));
+  }
+}
+}
