@@ -126,7 +126,7 @@ Vec3 SkyLight::escaped(const Vec3& d, const Vec3& n, float pdf_bsdf) const {
 float SkyLight::pdf_environment(const Vec3& d, const Vec3& n) const {
   if (!env_) return 0;
   if (!env_->pixels) return p_env_ * cosine_hemisphere_pdf(dot(d, n));
-  const float sin_theta = std::sqrt(std::max(0.f, 1 - d.y * d.y));
+  const float sin_theta = std::sqrt(d.x * d.x + d.z * d.z);  // precise near the poles, unlike 1 - y^2
   if (!(sin_theta > 0)) return 0;
   const Vec2 ut = direction_to_equirect(d, rotation_);
   const int x = std::clamp(int(ut.x * float(w_)), 0, w_ - 1);

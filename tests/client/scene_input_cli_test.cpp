@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "common/image.h"
@@ -188,6 +189,9 @@ TEST_F(SceneInputCli, SkyLitSceneRendersThroughTheClusterAndInSkipMode) {
   ASSERT_EQ(skip.exit_code, 0) << skip.output;
   const double m_pt = mean(read_image(dir.path("out/pt.exr"))), m_skip = mean(read_image(dir.path("out/skip.exr")));
   EXPECT_NEAR(m_skip, m_pt, 0.02 * m_pt) << "skip " << m_skip << " pt " << m_pt;
+  std::ifstream stats(dir.path("out/skip.json"));
+  const auto json = nlohmann::json::parse(stats);
+  EXPECT_GT(json.at("mean_reprojected_per_pixel").get<double>(), 1.0) << "skip mode reprojected the sky-lit vertices";
   // Without the sky the room is refused as unlit, naming the flags that light it.
   const EprRun dark = run_epr(dir.path(""), "render scene/room.obj" + kFast + " --out out/dark");
   EXPECT_NE(dark.exit_code, 0);

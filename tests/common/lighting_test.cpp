@@ -84,6 +84,7 @@ TEST(Lighting, SunFlagTakesDirectionAngleAndIrradiance) {
 TEST(Lighting, SceneJsonEnvironmentAndSun) {
   TempDir dir;
   dir.write("dark.obj", kDarkObj);
+  std::filesystem::create_directories(dir.path("skies"));
   write_sky(dir.path("skies/sky.exr"), 8, 4, 0.5f);
   const std::string json = dir.write("s.json", R"({
   "obj": "dark.obj",
@@ -138,7 +139,7 @@ TEST(Lighting, SceneJsonErrorsNameFileAndLine) {
   e = err("h.json", "\"sun\": {\"direction\": [0, 1, 0], \"radiance\": 1, \"irradiance\": 1}");
   EXPECT_TRUE(contains(e, "h.json:2: give at most one of \"irradiance\" and \"radiance\"")) << e;
   e = err("i.json", "\"environment\": {\"colour\": [1, 1, 1]}");
-  EXPECT_TRUE(contains(e, "i.json:2: unknown key \"colour\" (known: color, image, strength, rotation_deg)")) << e;
+  EXPECT_TRUE(contains(e, "i.json:2: unknown key 'colour' (known: color, image, strength, rotation_deg)")) << e;
 }
 
 TEST(Lighting, UnlitSceneIsRefusedWithHowToLightIt) {

@@ -222,10 +222,14 @@ TEST_P(WhiteFurnace, EverySurfaceOfAlbedoOneShowsTheSky) {
   const Scene scene = open_box(1.f);
   EmbreeScene es(scene);
   const SkyLight sky(l, !es.emitters().empty());
-  const RenderMeans m = render(scene, sky, mis, 48, 64);
+  // The vertex mean is a ratio over paths of their records' sum and count, whose records' values
+  // are heavy-tailed (long paths in the box carry 1/q factors): an image sampled for next event
+  // estimation alone needs about 200k records to come within 1 % (measured: +4.4 % at 64 paths per
+  // pixel, +0.8 % at 256).
+  const RenderMeans m = render(scene, sky, mis, 48, 256);
   EXPECT_NEAR(m.pixel, L, 0.01 * L) << "image " << image << " mis " << mis;
-  EXPECT_GT(m.vertices, 10000u);
-  EXPECT_NEAR(m.vertex, L, 0.01 * L) << "image " << image << " mis " << mis;
+  EXPECT_GT(m.vertices, 100000u);
+  EXPECT_NEAR(m.vertex, L, 0.015 * L) << "image " << image << " mis " << mis;
 }
 
 INSTANTIATE_TEST_SUITE_P(ConstantOrImageAndMis, WhiteFurnace, ::testing::Combine(::testing::Bool(), ::testing::Bool()));
@@ -277,23 +281,3 @@ TEST(SkyLight, SunOnAFloorGivesItsIrradianceTimesTheCosine) {
 
 }  // namespace
 }  // namespace epr
-namespace epr {
-TEST(SkyLightDebug, Cap) {
-  Lighting l;
-  l.environment = EnvironmentLight{};
-  auto img = std::make_shared<Image>(16, 8, 3);
-  for (float& v : img->data) v = 0.35f;
-  l.environment->pixels = img;
-  const SkyLight sky(l, false);
-  for (float cap : {0.2f, 0.45f, 1.0f, 1.5f}) {
-    SampleStream rng(3, 0, 0);
-    double est = 0;
-    const int n = 1000000;
-    for (int k = 0; k < n; ++k) {
-      const SkyLight::Sample s = sky.sample(rng.next(), rng.next2(), {0, 1, 0});
-      if (s.pdf > 0 && std::acos(s.wi.y) < cap) est += s.wi.y / s.pdf;
-    }
-    printf("cap %f est %f exact %f\n", cap, est / n, kPi * std::sin(cap) * std::sin(cap));
-  }
-}
-}
