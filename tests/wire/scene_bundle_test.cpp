@@ -117,8 +117,11 @@ TEST(SceneBundle, FileScenesLoadFromTheirBundlesAsTheyLoadLocally) {
     if (e.path().extension() == ".obj" || e.path().extension() == ".json") specs.push_back(e.path().string());
   for (const std::string& spec : specs) {
     SCOPED_TRACE(spec);
-    const SceneBundleData b = bundle_scene(spec);
-    const Scene local = load_scene(spec), bundled = load_bundle(b, dir.path("cache"));
+    // A shipped OBJ lit only by the sky of a scene JSON beside it is bundled with a job's sky.
+    Lighting job;
+    if (unlit_reason(load_scene(spec))) job.environment = EnvironmentLight{};
+    const SceneBundleData b = bundle_scene(spec, job);
+    const Scene local = load_scene(spec), bundled = load_bundle(b, dir.path("cache"), job);
     EXPECT_EQ(bundled.positions, local.positions);
     EXPECT_EQ(bundled.material_of, local.material_of);
     EXPECT_EQ(bundled.camera.fov_y_degrees, local.camera.fov_y_degrees);
@@ -126,6 +129,48 @@ TEST(SceneBundle, FileScenesLoadFromTheirBundlesAsTheyLoadLocally) {
   std::vector<std::string> paths;
   for (const auto& f : bundle_scene(json).files) paths.push_back(f.first);
   EXPECT_EQ(paths, (std::vector<std::string>{"models/lit.mtl", "models/room.obj", "room.json"}));
+}
+
+// An environment image, named by a scene JSON or by the job (`--env`, relative to the scene's folder),
+// travels in the bundle and is read from it inside the scene's folder.
+TEST(SceneBundle, EnvironmentImagesTravelInTheBundle) {
+  TempDir dir;
+  dir.write("scene/models/room.obj", kTriangles + "f 1 2 3\n");
+  std::filesystem::create_directories(dir.path("scene/skies"));
+  Image sky(4, 2, 3);
+  for (float& v : sky.data) v = 0.25f;
+  write_exr(dir.path("scene/skies/a.exr"), sky);
+  for (float& v : sky.data) v = 0.5f;
+  write_exr(dir.path("scene/skies/b.exr"), sky);
+  const std::string json =
+      dir.write("scene/room.json", R"({"obj": "models/room.obj", "environment": {"image": "skies/a.exr"}})");
+  SceneBundleData b = bundle_scene(json);
+  std::vector<std::string> paths;
+  for (const auto& f : b.files) paths.push_back(f.first);
+  EXPECT_EQ(paths, (std::vector<std::string>{"models/room.obj", "room.json", "skies/a.exr"}));
+  Scene s = load_bundle(b, dir.path("cache"));
+  ASSERT_TRUE(s.lighting.environment && s.lighting.environment->pixels);
+  EXPECT_EQ(s.lighting.environment->pixels->rgb(0, 0), Vec3(0.25f));
+  // The job's image replaces the scene's, and is bundled with it.
+  Lighting job;
+  job.environment = EnvironmentLight{};
+  job.environment->image = "skies/b.exr";
+  b = bundle_scene(json, job);
+  paths.clear();
+  for (const auto& f : b.files) paths.push_back(f.first);
+  EXPECT_EQ(paths, (std::vector<std::string>{"models/room.obj", "room.json", "skies/a.exr", "skies/b.exr"}));
+  s = load_bundle(b, dir.path("cache"), job);
+  ASSERT_TRUE(s.lighting.environment && s.lighting.environment->pixels);
+  EXPECT_EQ(s.lighting.environment->pixels->rgb(0, 0), Vec3(0.5f));
+  // A bundle that lacks the job's image is refused naming the flag.
+  job.environment->image = "skies/c.exr";
+  try {
+    load_bundle(b, dir.path("cache"), job);
+    ADD_FAILURE() << "a missing environment image was accepted";
+  } catch (const SceneError& e) {
+    EXPECT_NE(std::string(e.what()).find("--env: environment image 'skies/c.exr' does not exist"), std::string::npos)
+        << e.what();
+  }
 }
 
 // A FIFO, a device or a directory named as a scene file is refused naming it; nothing blocks or
