@@ -71,12 +71,4 @@ SunLight parse_sun_flag(const std::string& value);
 std::optional<std::string> check_environment(const EnvironmentLight& e);
 std::optional<std::string> check_sun(const SunLight& s);
 
-/// Decodes e.image, resolved inside `folder` (the scene's folder, as the loader's path sandbox does),
-/// into e.pixels: checked against the texture size limit, every texel finite and non-negative. Throws
-/// SceneError naming `where` (e.g. "scene.json:4" or "--env") and the file. With `report`, records the
-/// file (so that it is bundled with the scene).
-struct LoadReport;
-void load_environment_image(EnvironmentLight& e, const std::string& folder, const std::string& where,
-                            LoadReport* report = nullptr);
-
 }  // namespace epr

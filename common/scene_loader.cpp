@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "common/builtin_scenes.h"
+#include "common/scene_loader/environment.h"
 #include "common/scene_loader/gltf.h"
 #include "common/scene_loader/obj.h"
 #include "common/scene_loader/path_sandbox.h"
@@ -72,7 +73,7 @@ Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* repor
   if (job.environment) {
     out.environment = job.environment;
     if (!out.environment->image.empty() && !out.environment->pixels)
-      load_environment_image(*out.environment, scene.folder, "--env", report);
+      loader::load_environment_image(*out.environment, scene.folder, "--env", report);
   }
   if (job.sun) out.sun = job.sun;
   return out;

@@ -16,6 +16,7 @@
 #include "common/builtin_scenes.h"
 #include "common/camera_animation.h"
 #include "common/scene_loader.h"
+#include "common/scene_loader/environment.h"
 #include "common/scene_loader/gltf.h"
 #include "common/scene_loader/obj.h"
 #include "common/scene_loader/path_sandbox.h"

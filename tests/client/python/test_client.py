@@ -280,6 +280,17 @@ class ClusterTest(unittest.TestCase):
         with self.assertRaises(ValueError):
             self.client.submit_frames(scene, "1-2", eye=(0, 1, 3), **JOB)
 
+    def test_sky_image_bundled_as_epr_does(self):
+        # A scene JSON's "environment" image travels in the bundle, as `epr submit` sends it.
+        scene = os.path.join(SOURCE_DIR, "scenes", "sky", "courtyard.json")
+        bundle = eprfarm.bundle_scene(scene)
+        self.assertEqual([p for p, _ in bundle.files],
+                         ["courtyard.json", "courtyard.mtl", "courtyard.obj", "sky.exr"])
+        r = epr("submit", scene, "--width", "16", "--height", "16", "--spp", "1", "--master", self.farm.address)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        status = self.client.cancel(r.stdout.strip())
+        self.assertEqual(status.proto.scene.content_hash, bundle.content_hash())
+
     def test_scene_files_bundled_as_epr_does(self):
         scene = write_textured_scene(os.path.join(self.tmp, "textured"))
         bundle = eprfarm.bundle_scene(scene)
