@@ -130,7 +130,11 @@ void check_scene(const Scene& s) {
   for (const Texture& t : s.textures) {
     if (t.width == kOutsideTextureWidth && t.height == kOutsideTextureHeight)
       bug("a texture from outside the scene folder was loaded");
-    if (t.rgb.size() != size_t(t.width) * size_t(t.height) * 3) bug("texture size does not match its texels");
+    const size_t texels = size_t(t.width) * size_t(t.height);
+    // A texture keeps colour, a mask, or both (a mask-only texture keeps no colour).
+    if (t.rgb.empty() && t.alpha.empty()) bug("a texture with neither colour nor mask");
+    if (!t.rgb.empty() && t.rgb.size() != texels * 3) bug("texture size does not match its texels");
+    if (!t.alpha.empty() && t.alpha.size() != texels) bug("mask size does not match its texels");
     for (float v : t.rgb)
       if (!(v >= 0.f && v <= 1.f)) bug("texel outside [0, 1]");
   }
