@@ -5,7 +5,7 @@
 // that of plain path tracing with the same P (skip traces fewer paths; measured 1.24 at seed 1).
 //
 // 64 x 64 pixels, P = 16, single-process renders (render_local). Errors are the trimmed relative MSE
-// of failure_modes_test.cpp (the largest 1 % of pixel terms dropped) against a 128-path reference
+// of tests/study/image_error.h (the largest 1 % of pixel terms dropped) against a 128-path reference
 // with its own seed. The decisions themselves are tested point by point in
 // tests/master/cutout_visibility_test.cpp.
 #include <gtest/gtest.h>
@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "client/local_render.h"
+#include "tests/study/image_error.h"
 
 namespace epr {
 namespace {
@@ -34,30 +35,6 @@ RenderOptions options(RenderMode mode, int spp, uint64_t seed, ReprojectMethod m
   o.seed = seed;
   if (spp > 16) o.paths_per_round = 32;
   return o;
-}
-
-double rmse(const Image& x, const Image& ref) {
-  std::vector<double> e;
-  for (int y = 0; y < ref.height; ++y)
-    for (int xp = 0; xp < ref.width; ++xp) {
-      double s = 0;
-      for (int c = 0; c < 3; ++c) {
-        const double r = ref.at(xp, y)[c], d = double(x.at(xp, y)[c]) - r;
-        s += d * d / (r * r + 0.01) / 3;
-      }
-      e.push_back(s);
-    }
-  const size_t keep = e.size() - e.size() / 100;
-  std::nth_element(e.begin(), e.begin() + ptrdiff_t(keep), e.end());
-  double sum = 0;
-  for (size_t i = 0; i < keep; ++i) sum += e[i];
-  return sum / double(keep);
-}
-
-double mean(const Image& img) {
-  double s = 0;
-  for (size_t i = 0; i < img.data.size(); ++i) s += img.data[i];
-  return s / double(img.data.size());
 }
 
 TEST(CutoutRender, SkipModeIsWithinNoiseOfPathTracingAndGlAgreesWithCpu) {

@@ -33,6 +33,7 @@
 #include "common/builtin_scenes.h"
 #include "common/scene_loader.h"
 #include "master/frame_state.h"
+#include "tests/study/image_error.h"
 #include "tests/study/unfiltered_render.h"
 #include "worker/embree_scene.h"
 #include "worker/tile_renderer.h"
@@ -103,41 +104,6 @@ const Image& reference(const RenderOptions& opts, int spp = kRefSpp) {
   o.paths_per_round = 32;
   o.seed = 9001;
   return cache.emplace(key, render(o).combined).first->second;
-}
-
-using Mask = std::vector<uint8_t>;  // per pixel, row-major; non-zero: in the region
-
-/// Trimmed rMSE of `x` against `ref` over `mask` (all pixels if empty).
-double rmse(const Image& x, const Image& ref, const Mask& mask = {}) {
-  std::vector<double> e;
-  for (int y = 0; y < ref.height; ++y)
-    for (int xp = 0; xp < ref.width; ++xp) {
-      if (!mask.empty() && !mask[size_t(y) * size_t(ref.width) + size_t(xp)]) continue;
-      double s = 0;
-      for (int c = 0; c < 3; ++c) {
-        const double r = ref.at(xp, y)[c], d = double(x.at(xp, y)[c]) - r;
-        s += d * d / (r * r + 0.01) / 3;
-      }
-      e.push_back(s);
-    }
-  const size_t keep = e.size() - e.size() / 100;
-  std::nth_element(e.begin(), e.begin() + ptrdiff_t(keep), e.end());
-  double sum = 0;
-  for (size_t i = 0; i < keep; ++i) sum += e[i];
-  return sum / double(std::max<size_t>(1, keep));
-}
-
-double mean(const Image& img, const Mask& mask = {}) {
-  double s = 0;
-  size_t n = 0;
-  for (int y = 0; y < img.height; ++y)
-    for (int x = 0; x < img.width; ++x) {
-      if (!mask.empty() && !mask[size_t(y) * size_t(img.width) + size_t(x)]) continue;
-      const float* p = img.at(x, y);
-      s += (double(p[0]) + p[1] + p[2]) / 3;
-      ++n;
-    }
-  return s / double(std::max<size_t>(1, n));
 }
 
 size_t count(const Mask& m) {

@@ -14,6 +14,7 @@
 
 #include "common/rng.h"
 #include "common/scene_loader.h"
+#include "tests/worker/image_means.h"
 #include "worker/tile_renderer.h"
 
 namespace epr {
@@ -40,48 +41,16 @@ Scene furnace_box(float albedo, float emission) {
   return s;
 }
 
-struct FurnaceResult {
-  double pixel_mean = 0;
-  double vertex_mean = 0;
-  size_t vertices = 0;
-};
-
 // Renders the furnace at 64x64 in parallel tiles. NEE near the box's edges is heavy-tailed
 // (measured per-path standard deviation ~3 at albedo 0.5), so 1 % needs ~10^6 paths to be a
 // 5-sigma bound rather than a coin toss.
-FurnaceResult render_furnace(float albedo, RussianRoulette rr, int spp, bool mis = true) {
+ImageMeans render_furnace(float albedo, RussianRoulette rr, int spp, bool mis = true) {
   const Scene scene = furnace_box(albedo, 1.f);
   EmbreeScene es(scene);
   const int size = 64;
   const Camera cam(scene.camera, size, size);
-  PathTracer tracer(es, cam, 42, rr, mis);
-  TileRenderer tiles(tracer, {VertexFilter::Mode::kAll});
-  const auto rects = make_tiles(size, size, 16);
-  std::vector<double> pixel_sum(rects.size()), pixel_count(rects.size()), vertex_sum(rects.size());
-  std::vector<size_t> vertex_count(rects.size());
-  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) {
-    TileRequest req;
-    req.rect = rects[t];
-    req.paths_per_pixel = spp;
-    const TileResult r = tiles.render(req);
-    for (size_t i = 0; i < r.path_sum.size(); ++i) {
-      pixel_sum[t] += (r.path_sum[i].x + r.path_sum[i].y + r.path_sum[i].z) / 3.0;
-      pixel_count[t] += r.path_count[i];
-    }
-    for (const VertexRecord& v : r.vertices) vertex_sum[t] += v.radiance.x;
-    vertex_count[t] = r.vertices.size();
-  });
-  FurnaceResult out;
-  double ps = 0, pc = 0, vs = 0;
-  for (size_t t = 0; t < rects.size(); ++t) {
-    ps += pixel_sum[t];
-    pc += pixel_count[t];
-    vs += vertex_sum[t];
-    out.vertices += vertex_count[t];
-  }
-  out.pixel_mean = ps / pc;
-  out.vertex_mean = vs / double(out.vertices);
-  return out;
+  const PathTracer tracer(es, cam, 42, rr, mis);
+  return render_image_means(tracer, size, spp);
 }
 
 class FurnaceTest : public ::testing::TestWithParam<std::tuple<float, int, bool>> {};
@@ -90,10 +59,10 @@ TEST_P(FurnaceTest, PixelsAndVerticesMatchAnalyticRadiance) {
   const auto [albedo, rr_mode, mis] = GetParam();
   const RussianRoulette rr = rr_mode == 0 ? RussianRoulette::paper() : RussianRoulette::albedo();
   const double expected = 1.0 / (1.0 - albedo);
-  const FurnaceResult r = render_furnace(albedo, rr, 256, mis);  // 1M paths
-  EXPECT_NEAR(r.pixel_mean, expected, 0.01 * expected) << "albedo " << albedo << " rr " << rr_mode << " mis " << mis;
+  const ImageMeans r = render_furnace(albedo, rr, 256, mis);  // 1M paths
+  EXPECT_NEAR(r.pixel, expected, 0.01 * expected) << "albedo " << albedo << " rr " << rr_mode << " mis " << mis;
   EXPECT_GT(r.vertices, 10000u);
-  EXPECT_NEAR(r.vertex_mean, expected, 0.01 * expected) << "albedo " << albedo << " rr " << rr_mode << " mis " << mis;
+  EXPECT_NEAR(r.vertex, expected, 0.01 * expected) << "albedo " << albedo << " rr " << rr_mode << " mis " << mis;
 }
 
 INSTANTIATE_TEST_SUITE_P(AlbedoRouletteAndMis, FurnaceTest,
@@ -105,10 +74,10 @@ TEST(PathTracer, WithoutRouletteAFixedDepthIsDarker) {
   // last vertex keeps next event estimation at full weight (no continuation can be traced there).
   const float a = 0.8f;
   for (bool mis : {true, false}) {
-    const FurnaceResult r = render_furnace(a, RussianRoulette::off(3), 64, mis);
+    const ImageMeans r = render_furnace(a, RussianRoulette::off(3), 64, mis);
     const double truncated = 1 + a + a * a + a * a * a;
-    EXPECT_NEAR(r.pixel_mean, truncated, 0.01 * truncated) << "mis " << mis;
-    EXPECT_LT(r.pixel_mean, 0.8 / (1 - a));
+    EXPECT_NEAR(r.pixel, truncated, 0.01 * truncated) << "mis " << mis;
+    EXPECT_LT(r.pixel, 0.8 / (1 - a));
   }
 }
 

@@ -10,13 +10,12 @@
 #include "worker/sky_light.h"
 
 #include <gtest/gtest.h>
-#include <tbb/parallel_for.h>
 
 #include <cmath>
 
 #include "common/rng.h"
+#include "tests/worker/image_means.h"
 #include "worker/path_tracer.h"
-#include "worker/tile_renderer.h"
 
 namespace epr {
 namespace {
@@ -65,43 +64,11 @@ std::shared_ptr<Image> test_sky(int w, int h) {
   return img;
 }
 
-struct RenderMeans {
-  double pixel = 0;   // mean over every path of (r + g + b) / 3
-  double vertex = 0;  // mean over every recorded vertex of the same
-  size_t vertices = 0;
-};
-
-RenderMeans render(const Scene& scene, const SkyLight& sky, bool mis, int size, int spp) {
+ImageMeans render(const Scene& scene, const SkyLight& sky, bool mis, int size, int spp) {
   EmbreeScene es(scene);
   const Camera cam(scene.camera, size, size);
-  PathTracer tracer(es, cam, 7, RussianRoulette::paper(), mis, SamplerKind::kSobolBurley, &sky);
-  TileRenderer tiles(tracer, {VertexFilter::Mode::kAll});
-  const auto rects = make_tiles(size, size, 16);
-  std::vector<double> ps(rects.size()), pc(rects.size()), vs(rects.size());
-  std::vector<size_t> vc(rects.size());
-  tbb::parallel_for(size_t(0), rects.size(), [&](size_t t) {
-    TileRequest req;
-    req.rect = rects[t];
-    req.paths_per_pixel = spp;
-    const TileResult r = tiles.render(req);
-    for (size_t i = 0; i < r.path_sum.size(); ++i) {
-      ps[t] += (r.path_sum[i].x + r.path_sum[i].y + r.path_sum[i].z) / 3.0;
-      pc[t] += r.path_count[i];
-    }
-    for (const VertexRecord& v : r.vertices) vs[t] += (v.radiance.x + v.radiance.y + v.radiance.z) / 3.0;
-    vc[t] = r.vertices.size();
-  });
-  RenderMeans m;
-  double p = 0, c = 0, v = 0;
-  for (size_t t = 0; t < rects.size(); ++t) {
-    p += ps[t];
-    c += pc[t];
-    v += vs[t];
-    m.vertices += vc[t];
-  }
-  m.pixel = p / c;
-  m.vertex = m.vertices ? v / double(m.vertices) : 0;
-  return m;
+  const PathTracer tracer(es, cam, 7, RussianRoulette::paper(), mis, SamplerKind::kSobolBurley, &sky);
+  return render_image_means(tracer, size, spp);
 }
 
 TEST(SkyLight, EquirectMappingMatchesBlender) {
@@ -226,7 +193,7 @@ TEST_P(WhiteFurnace, EverySurfaceOfAlbedoOneShowsTheSky) {
   // are heavy-tailed (long paths in the box carry 1/q factors): an image sampled for next event
   // estimation alone needs about 200k records to come within 1 % (measured: +4.4 % at 64 paths per
   // pixel, +0.8 % at 256).
-  const RenderMeans m = render(scene, sky, mis, 48, 256);
+  const ImageMeans m = render(scene, sky, mis, 48, 256);
   EXPECT_NEAR(m.pixel, L, 0.01 * L) << "image " << image << " mis " << mis;
   EXPECT_GT(m.vertices, 100000u);
   EXPECT_NEAR(m.vertex, L, 0.015 * L) << "image " << image << " mis " << mis;
@@ -257,7 +224,7 @@ TEST(SkyLight, FloorUnderAnImageReflectsTheHemisphereIntegral) {
   EmbreeScene es(scene);
   const SkyLight sky(l, false);
   for (bool mis : {true, false}) {
-    const RenderMeans m = render(scene, sky, mis, 16, 1024);
+    const ImageMeans m = render(scene, sky, mis, 16, 1024);
     EXPECT_NEAR(m.pixel, expected, 0.01 * expected) << "mis " << mis;
   }
 }
@@ -274,7 +241,7 @@ TEST(SkyLight, SunOnAFloorGivesItsIrradianceTimesTheCosine) {
   EmbreeScene es(scene);
   const SkyLight sky(l, false);
   for (bool mis : {true, false}) {
-    const RenderMeans m = render(scene, sky, mis, 16, 64);
+    const ImageMeans m = render(scene, sky, mis, 16, 64);
     EXPECT_NEAR(m.pixel, expected, 0.005 * expected) << "mis " << mis;
   }
 }
