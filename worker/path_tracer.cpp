@@ -4,6 +4,7 @@
 
 #include "common/sampler.h"
 #include "worker/bsdf.h"
+#include "worker/emitter_sampling.h"
 
 namespace epr {
 namespace {
@@ -81,9 +82,18 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       float w_bsdf = 1;  // an emitter next event estimation cannot pick: BSDF sampling is the only technique
       const float pdf_area = scene_.emitter_pdf_area(mat) * triangle_share_;
       if (pdf_area > 0) {
-        const float cos_y = std::abs(dot(hit.ng, ray.dir)) / length(hit.ng);  // ray.dir is unit length
-        // Edge-on (cos 0) p_light is infinite; prev.continuation_pdf > 0 (a sampled direction).
-        w_bsdf = cos_y > 0 ? power_heuristic(prev.continuation_pdf, pdf_area * hit.t * hit.t / cos_y) : 0.f;
+        const float ng_len = length(hit.ng);
+        const float cos_y = std::abs(dot(hit.ng, ray.dir)) / ng_len;  // ray.dir is unit length
+        const auto& tri = s.triangles[hit.prim];
+        // p_light as next event estimation from x_{n-1} would have chosen this point (area or solid
+        // angle: worker/emitter_sampling.h). Edge-on (cos 0) the area density is infinite;
+        // prev.continuation_pdf > 0 (a sampled direction).
+        w_bsdf = cos_y > 0
+                     ? power_heuristic(prev.continuation_pdf,
+                                       emitter_direction_pdf(prev.position, s.positions[tri[0]], s.positions[tri[1]],
+                                                             s.positions[tri[2]], hit.ng * (1 / ng_len), pdf_area,
+                                                             hit.t * hit.t, cos_y))
+                     : 0.f;
       }
       prev.direct += prev.weight * mat.ke * w_bsdf;
     }
@@ -133,10 +143,9 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       else
         light = scene_.sample_emitter(u_pick);
     }
-    if (light) {
-      const float light_pdf_area = light->pdf_area * triangle_share_;
-      const Vec2 b = sample_uniform_triangle(u_point);
-      const Vec3 light_pos = light->p0 * b.x + light->p1 * b.y + light->p2 * (1 - b.x - b.y);
+    const EmitterPoint lp = light ? sample_emitter_point(*light, v.position, u_point) : EmitterPoint{};
+    if (lp.valid) {
+      const Vec3& light_pos = lp.pos;
       // Geometry from the true surface point (an offset origin would give coplanar emitters a
       // spurious cosine with a 1/d^4 singularity); the offset is only for the shadow ray.
       Vec3 to_light = light_pos - v.position;
@@ -155,9 +164,13 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
             // MIS, light-sampling half: w_light against the BSDF's density for the same direction,
             // both in solid angle at x_n. With q = 0 (depth cap) no continuation can be traced, so
             // BSDF sampling is no technique here and next event estimation keeps weight 1.
+            const float light_pdf_area = light->pdf_area * triangle_share_;
+            const float pdf_light =
+                lp.solid_angle > 0 ? light_pdf_area * triangle_area(light->p0, light->p1, light->p2) / lp.solid_angle
+                                   : light_pdf_area * dist2 / cos_y;
             float w_light = 1;
-            if (mis_ && q > 0) w_light = power_heuristic(light_pdf_area * dist2 / cos_y, bsdf.pdf(to_light));
-            v.direct = bsdf.eval(to_light) * light->le * (w_light * cos_x * cos_y / (dist2 * light_pdf_area));
+            if (mis_ && q > 0) w_light = power_heuristic(pdf_light, bsdf.pdf(to_light));
+            v.direct = bsdf.eval(to_light) * light->le * (w_light * cos_x / pdf_light);
           }
         }
       }
