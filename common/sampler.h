@@ -12,8 +12,8 @@
 //     2^k samples of a pixel's 2-D set are a (0,k,2)-net (one point in every elementary interval of
 //     area 2^-k); samples 2^k .. 2^(k+1)-1 complete them to a (0,k+1,2)-net, so progressive rounds
 //     that continue a pixel's sample numbers continue its sequence, and a skipped pixel just stops.
-//   * kIndependent: common/rng.h's SampleStream, every dimension an independent hash; bit-identical
-//     to the tracer before the Sobol-Burley sampler existed.
+//   * kIndependent: common/rng.h's SampleStream, every dimension an independent hash: the random
+//     numbers of the tracer before the Sobol-Burley sampler existed, in the same order.
 //
 // Dimension layout of a path (both samplers consume it in this order):
 //   film:            set 0, 2-D             jitter within the pixel

@@ -7,13 +7,6 @@ namespace epr {
 namespace {
 
 float safe_sqrt(float x) { return std::sqrt(std::max(0.f, x)); }
-float safe_asin(float x) { return std::asin(std::clamp(x, -1.f, 1.f)); }
-
-// Angle between unit vectors, accurate near 0 and pi (unlike acos of the dot product).
-float angle_between(const Vec3& a, const Vec3& b) {
-  if (dot(a, b) < 0) return kPi - 2 * safe_asin(length(a + b) / 2);
-  return 2 * safe_asin(length(b - a) / 2);
-}
 
 // The part of v orthogonal to the unit vector w, normalised (zero if v is parallel to w).
 Vec3 orthogonal_part(const Vec3& v, const Vec3& w) {
@@ -39,16 +32,18 @@ SphericalTriangleSample sample_spherical_triangle(const Vec3& p, const Vec3& v0,
   SphericalTriangleSample s;
   const Vec3 a = normalize(v0 - p), b = normalize(v1 - p), c = normalize(v2 - p);
   const float area = spherical_triangle_area(a, b, c);
+  s.solid_angle = area;
   Vec3 n_ab = cross(a, b), n_ca = cross(c, a);
   const float l_ab = dot(n_ab, n_ab), l_ca = dot(n_ca, n_ca);
   if (!(area > 0) || !(l_ab > 0) || !(l_ca > 0) || !std::isfinite(area)) return s;
   n_ab = n_ab / std::sqrt(l_ab);
   n_ca = n_ca / std::sqrt(l_ca);
-  // The spherical angle at a; the sampled sub-triangle (a, b, c') has area u.x * area.
-  const float alpha = angle_between(n_ab, -n_ca);
-  const float ap_pi = kPi + u.x * area;  // sampled area + pi
-  const float cos_alpha = std::cos(alpha), sin_alpha = std::sin(alpha);
-  const float sin_ap = std::sin(ap_pi), cos_ap = std::cos(ap_pi);
+  // The spherical angle alpha at a, between the planes (a, b) and (a, c): its cosine and sine from
+  // the planes' unit normals. The sampled sub-triangle (a, b, c') has area A' = u.x * area; with
+  // ap_pi = A' + pi, sin(ap_pi) = -sin(A') and cos(ap_pi) = -cos(A').
+  const float cos_alpha = -dot(n_ab, n_ca), sin_alpha = length(cross(n_ab, n_ca));
+  const float sampled = u.x * area;
+  const float sin_ap = -std::sin(sampled), cos_ap = -std::cos(sampled);
   const float sin_phi = sin_ap * cos_alpha - cos_ap * sin_alpha;
   const float cos_phi = cos_ap * cos_alpha + sin_ap * sin_alpha;
   const float k1 = cos_phi + cos_alpha;
@@ -63,7 +58,6 @@ SphericalTriangleSample sample_spherical_triangle(const Vec3& p, const Vec3& v0,
   const Vec3 w = b * cos_t + orthogonal_part(cp, b) * safe_sqrt(1 - cos_t * cos_t);
   if (!is_finite(w)) return s;
   s.dir = normalize(w);
-  s.solid_angle = area;
   s.valid = true;
   return s;
 }

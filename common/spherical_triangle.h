@@ -18,7 +18,8 @@ float triangle_solid_angle(const Vec3& p, const Vec3& v0, const Vec3& v1, const 
 
 struct SphericalTriangleSample {
   Vec3 dir;               // unit direction from p into the triangle
-  float solid_angle = 0;  // triangle_solid_angle(p, v0, v1, v2); the density of dir is 1 / solid_angle
+  float solid_angle = 0;  // triangle_solid_angle(p, v0, v1, v2) bit for bit (set even when !valid);
+                          // the density of dir is 1 / solid_angle
   bool valid = false;     // false for a degenerate spherical triangle (p in the triangle's plane)
 };
 

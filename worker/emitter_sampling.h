@@ -23,15 +23,24 @@ namespace epr {
 
 inline constexpr float kMinSphericalSampleArea = 3e-4f, kMaxSphericalSampleArea = 6.22f;
 
-/// The solid angle of the triangle seen from p if next event estimation samples it by solid angle
-/// from p, else 0 (area sampling). `n` is the triangle's unit normal.
-inline float emitter_solid_angle(const Vec3& p, const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n) {
+/// Cycles' first test: the triangle's longest edge is longer than p's distance to its plane.
+inline bool emitter_looks_large(const Vec3& p, const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n) {
   const Vec3 e0 = v1 - v0, e1 = v2 - v0, e2 = v2 - v1;
   const float longest2 = std::max({dot(e0, e0), dot(e1, e1), dot(e2, e2)});
   const float plane = dot(n, v0 - p);
-  if (!(longest2 > plane * plane)) return 0;
+  return longest2 > plane * plane;
+}
+
+inline bool solid_angle_in_range(float omega) {
+  return omega >= kMinSphericalSampleArea && omega <= kMaxSphericalSampleArea;
+}
+
+/// The solid angle of the triangle seen from p if next event estimation samples it by solid angle
+/// from p, else 0 (area sampling). `n` is the triangle's unit normal.
+inline float emitter_solid_angle(const Vec3& p, const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n) {
+  if (!emitter_looks_large(p, v0, v1, v2, n)) return 0;
   const float omega = triangle_solid_angle(p, v0, v1, v2);
-  return omega >= kMinSphericalSampleArea && omega <= kMaxSphericalSampleArea ? omega : 0.f;
+  return solid_angle_in_range(omega) ? omega : 0.f;
 }
 
 inline float triangle_area(const Vec3& v0, const Vec3& v1, const Vec3& v2) {
@@ -56,16 +65,19 @@ struct EmitterPoint {
 /// A point on emitter `e` for the shading point p; u in [0,1)^2.
 inline EmitterPoint sample_emitter_point(const Emitter& e, const Vec3& p, Vec2 u) {
   EmitterPoint s;
-  const float omega = emitter_solid_angle(p, e.p0, e.p1, e.p2, e.normal);
-  if (omega > 0) {
+  if (emitter_looks_large(p, e.p0, e.p1, e.p2, e.normal)) {
+    // The sample's solid angle is triangle_solid_angle(p, ...) bit for bit (the same operations), so
+    // the range test below decides as emitter_solid_angle does.
     const SphericalTriangleSample d = sample_spherical_triangle(p, e.p0, e.p1, e.p2, u);
-    const float cos_d = dot(e.normal, d.dir);
-    if (!d.valid || cos_d == 0) return s;
-    // Where the direction meets the triangle's plane.
-    s.pos = p + d.dir * (dot(e.normal, e.p0 - p) / cos_d);
-    s.solid_angle = omega;
-    s.valid = is_finite(s.pos);
-    return s;
+    if (solid_angle_in_range(d.solid_angle)) {
+      const float cos_d = dot(e.normal, d.dir);
+      if (!d.valid || cos_d == 0) return s;
+      // Where the direction meets the triangle's plane.
+      s.pos = p + d.dir * (dot(e.normal, e.p0 - p) / cos_d);
+      s.solid_angle = d.solid_angle;
+      s.valid = is_finite(s.pos);
+      return s;
+    }
   }
   const Vec2 b = sample_uniform_triangle(u);
   s.pos = e.p0 * b.x + e.p1 * b.y + e.p2 * (1 - b.x - b.y);

@@ -52,6 +52,8 @@ TEST(SphericalTriangle, SampledDirectionsHitTheTriangle) {
     for (int i = 0; i < 20000; ++i) {
       const SphericalTriangleSample s = sample_spherical_triangle(c.p, c.v0, c.v1, c.v2, rng.next2());
       ASSERT_TRUE(s.valid) << c.name;
+      // Bit for bit the density's solid angle: whoever evaluates the density decides as the sampler.
+      EXPECT_EQ(s.solid_angle, triangle_solid_angle(c.p, c.v0, c.v1, c.v2)) << c.name;
       EXPECT_NEAR(length(s.dir), 1.f, 1e-5f);
       EXPECT_GT(hit_distance(c, s.dir, 2e-3f), 0.f) << c.name << " sample " << i;
     }
