@@ -1,4 +1,4 @@
-"""Independent reference render of an OBJ+MTL scene with Blender Cycles (CPU).
+"""Independent reference render of an OBJ+MTL or glTF 2.0 scene with Blender Cycles (CPU).
 
 Run with Blender (tested with Debian's Blender 3.4.1):
 
@@ -22,6 +22,15 @@ It renders the same light transport model as eprfarm's path tracer:
 The OBJ is parsed here (not with Blender's importer, which rotates axes) and the mesh is built in
 the OBJ's own coordinate frame (y up); the camera is placed in that same frame, so nothing is
 rotated. Polygons are fan-triangulated like eprfarm's loader does.
+
+--gltf FILE instead imports a glTF 2.0 file with Blender's importer (which turns glTF's y-up frame
+into Blender's z-up one: (x, y, z) becomes (x, -z, y)); --eye/--look/--up and --sun stay in glTF's
+frame and are turned here, and the sky needs no extra rotation (scenes/README.md, "Orientation of
+the image"). The imported cameras and lamps are removed, and each material's Principled BSDF is
+replaced by eprfarm's model of it (lambertian_material()): a Lambertian Diffuse BSDF of the base
+colour (texture x factor as imported, sRGB, the importer's texel filter), plus an Emission of the
+emissive colour x strength, cut out (a Transparent BSDF) where the alpha is below the material's
+alpha clip threshold (MASK; BLEND at 0.5, as eprfarm renders it). Faces are shaded flat.
 
 Output: a linear (scene-referred) 32-bit float RGB OpenEXR holding raw radiance, row 0 = top
 of the image. The render time (seconds, measured around bpy.ops.render.render, so it includes
@@ -54,7 +63,8 @@ def parse_args():
     ap = argparse.ArgumentParser(
         prog="blender -b --factory-startup -noaudio -P scripts/cycles_reference.py --",
         description="Render an OBJ+MTL scene (Lambertian Kd, emissive Ke) with Cycles to a linear EXR.")
-    ap.add_argument("--obj", required=True, help="OBJ file (its mtllib files are read too)")
+    ap.add_argument("--obj", help="OBJ file (its mtllib files are read too)")
+    ap.add_argument("--gltf", help="instead of --obj: a glTF 2.0 file (.gltf or .glb), imported by Blender")
     ap.add_argument("--width", type=int, default=128)
     ap.add_argument("--height", type=int, default=128)
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel")
@@ -76,6 +86,8 @@ def parse_args():
     ap.add_argument("--max-bounces", type=int, default=1024,
                     help="Cycles bounce caps (max/diffuse/...); 1024 is Cycles' maximum")
     a = ap.parse_args(argv)
+    if bool(a.obj) == bool(a.gltf):
+        ap.error("give exactly one of --obj and --gltf")
     if a.width <= 0 or a.height <= 0 or a.spp <= 0:
         ap.error("width, height and spp must be positive")
     if not (0.0 < a.fov < 180.0):
@@ -429,6 +441,11 @@ def configure_render(scene, a):
     scene.render.filepath = os.path.abspath(a.out)
 
 
+def blender_frame(v):
+    """A direction or point of glTF's y-up frame in the frame Blender's glTF importer builds."""
+    return Vector((v[0], -v[2], v[1]))
+
+
 def build_sky(scene, nt, bg, a):
     """eprfarm's sky and sun (common/lighting.h) in this script's y-up frame. Blender's Environment
     Texture reads a Z-up direction; ours (x, y, z) is (x, -z, y) there, a rotation of +90 degrees
@@ -451,7 +468,8 @@ def build_sky(scene, nt, bg, a):
             coord = nt.nodes.new("ShaderNodeTexCoord")
             mapping = nt.nodes.new("ShaderNodeMapping")
             mapping.vector_type = "POINT"
-            mapping.inputs["Rotation"].default_value = (math.pi / 2, 0.0, math.radians(a.env_rotation))
+            turn = 0.0 if getattr(a, "gltf", None) else math.pi / 2  # an imported glTF is z-up already
+            mapping.inputs["Rotation"].default_value = (turn, 0.0, math.radians(a.env_rotation))
             nt.links.new(coord.outputs["Generated"], mapping.inputs["Vector"])
             nt.links.new(mapping.outputs["Vector"], tex.inputs["Vector"])
             nt.links.new(tex.outputs["Color"], bg.inputs["Color"])
@@ -459,6 +477,8 @@ def build_sky(scene, nt, bg, a):
     if a.sun:
         v = [float(p) for p in a.sun.split(",")]
         d = Vector(v[:3]).normalized()
+        if getattr(a, "gltf", None):
+            d = blender_frame(d)
         light = bpy.data.lights.new("sun", type="SUN")
         light.angle = math.radians(v[3] if len(v) > 3 else 0.53)
         light.energy = v[4] if len(v) > 4 else 1.0
@@ -467,9 +487,95 @@ def build_sky(scene, nt, bg, a):
         obj.rotation_euler = d.to_track_quat("Z", "Y").to_euler()  # the lamp shines along its -Z
 
 
+def lambertian_material(mat):
+    """Replaces an imported material's Principled BSDF by eprfarm's model of it (see the top)."""
+    nt = mat.node_tree if mat.use_nodes else None
+    principled = next((n for n in nt.nodes if n.type == "BSDF_PRINCIPLED"), None) if nt else None
+    output = next((n for n in nt.nodes if n.type == "OUTPUT_MATERIAL"), None) if nt else None
+    if principled is None or output is None:
+        raise SystemExit("material %r has no Principled BSDF and output" % mat.name)
+
+    def source(socket):  # what feeds a socket: its link, or its value
+        return socket.links[0].from_socket if socket.is_linked else None
+
+    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Roughness"].default_value = 0.0
+    base = principled.inputs["Base Color"]
+    if source(base):
+        nt.links.new(source(base), diffuse.inputs["Color"])
+    else:
+        diffuse.inputs["Color"].default_value = base.default_value
+    shader = diffuse.outputs["BSDF"]
+    emission, strength = principled.inputs["Emission"], principled.inputs["Emission Strength"].default_value
+    if strength > 0 and (source(emission) or any(emission.default_value[:3])):
+        emit = nt.nodes.new("ShaderNodeEmission")
+        emit.inputs["Strength"].default_value = strength
+        if source(emission):
+            nt.links.new(source(emission), emit.inputs["Color"])
+        else:
+            emit.inputs["Color"].default_value = emission.default_value
+        add = nt.nodes.new("ShaderNodeAddShader")
+        nt.links.new(emit.outputs["Emission"], add.inputs[0])
+        nt.links.new(shader, add.inputs[1])
+        shader = add.outputs["Shader"]
+    alpha = principled.inputs["Alpha"]
+    if mat.blend_method in ("CLIP", "BLEND", "HASHED") and (source(alpha) or alpha.default_value < 1.0):
+        hole = nt.nodes.new("ShaderNodeMath")  # 1 where alpha < cut-off
+        hole.operation = "LESS_THAN"
+        if source(alpha):
+            nt.links.new(source(alpha), hole.inputs[0])
+        else:
+            hole.inputs[0].default_value = alpha.default_value
+        hole.inputs[1].default_value = mat.alpha_threshold if mat.blend_method == "CLIP" else 0.5
+        mix = nt.nodes.new("ShaderNodeMixShader")
+        nt.links.new(hole.outputs[0], mix.inputs["Fac"])
+        nt.links.new(shader, mix.inputs[1])
+        nt.links.new(nt.nodes.new("ShaderNodeBsdfTransparent").outputs["BSDF"], mix.inputs[2])
+        shader = mix.outputs["Shader"]
+    nt.links.new(shader, output.inputs["Surface"])
+    nt.nodes.remove(principled)
+
+
+def import_gltf(scene, a):
+    """The glTF's meshes and materials (eprfarm's model of them, flat faces); the camera in Blender's
+    frame. Returns the triangle count."""
+    import numpy
+
+    if "bool" not in vars(numpy):  # Debian's numpy lacks numpy.bool, which the importer uses
+        numpy.bool = bool
+    result = bpy.ops.import_scene.gltf(filepath=os.path.abspath(a.gltf))
+    if "FINISHED" not in result:
+        raise SystemExit("%s: the glTF import did not finish" % a.gltf)
+    for obj in list(scene.objects):
+        if obj.type in ("CAMERA", "LIGHT"):
+            bpy.data.objects.remove(obj, do_unlink=True)
+    for mat in bpy.data.materials:
+        lambertian_material(mat)
+    triangles = 0
+    for mesh in bpy.data.meshes:
+        mesh.polygons.foreach_set("use_smooth", [False] * len(mesh.polygons))
+        if mesh.has_custom_normals:
+            mesh.free_normals_split()
+        mesh.calc_loop_triangles()
+        triangles += len(mesh.loop_triangles)
+    a.eye, a.look, a.up = blender_frame(a.eye), blender_frame(a.look), blender_frame(a.up)
+    return triangles
+
+
 def main():
     a = parse_args()
     t0 = time.perf_counter()
+    if a.gltf:
+        clear_scene()
+        scene = bpy.context.scene
+        triangles = import_gltf(scene, a)
+        build_camera(scene, a)
+        configure_render(scene, a)
+        print("cycles_reference: %s: %d triangles, %d materials; %dx%d, %d spp, seed %d, threads %s, setup %.3f s"
+              % (a.gltf, triangles, len(bpy.data.materials), a.width, a.height, a.spp, a.seed,
+                 a.threads or "auto", time.perf_counter() - t0), flush=True)
+        os.makedirs(os.path.dirname(os.path.abspath(a.out)) or ".", exist_ok=True)
+        return render(scene)
     verts, tris, tri_mat, materials = parse_obj(a.obj)
     if not tris:
         raise SystemExit("%s: no faces" % a.obj)
@@ -485,7 +591,10 @@ def main():
           "%dx%d, %d spp, seed %d, threads %s, setup %.3f s"
           % (a.obj, len(verts), len(tris), n_emit, len(materials), a.width, a.height, a.spp,
              a.seed, a.threads or "auto", time.perf_counter() - t0), flush=True)
+    render(scene)
 
+
+def render(scene):
     t = time.perf_counter()
     bpy.ops.render.render(write_still=True)
     seconds = time.perf_counter() - t

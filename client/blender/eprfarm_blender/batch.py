@@ -59,16 +59,17 @@ class FarmBatch:
                 scene.frame_set(frame)
                 depsgraph = context.evaluated_depsgraph_get()
                 camera, warnings = export.farm_camera(scene, depsgraph)
-                if index == 0:
-                    for w in warnings + export.scene_warnings(scene, depsgraph):
-                        self.warn(w)
                 frame_folder = os.path.join(folder, str(frame))
                 os.mkdir(frame_folder)
-                gltf = export.export_gltf(scene, context.view_layer, frame_folder)
+                lighting, more = export.farm_lighting(scene, depsgraph, frame_folder)
+                if index == 0:
+                    for w in warnings + export.scene_warnings(scene, depsgraph) + more:
+                        self.warn(w)
+                job_scene = export.scene_file(export.export_gltf(scene, context.view_layer, frame_folder), lighting)
                 self.client.inline_scene_limit = float("inf")  # bundled here; a large one uploaded once below
                 try:
                     spec = self.client.job_spec(
-                        gltf, width=width, height=height, spp=s.samples, mode=s.mode, seed=s.seed,
+                        job_scene, width=width, height=height, spp=s.samples, mode=s.mode, seed=s.seed,
                         eye=camera.eye, look=camera.look, up=camera.up, fov=camera.fov,
                         name=f"{self.name}.{frame:04d}",
                     )  # fmt: skip
@@ -78,7 +79,7 @@ class FarmBatch:
                 if scene_bytes > limit:
                     content_hash = spec.scene.content_hash
                     if content_hash not in uploaded:
-                        uploaded[content_hash] = self.client.upload_scene(self.eprfarm.bundle_scene(gltf))
+                        uploaded[content_hash] = self.client.upload_scene(self.eprfarm.bundle_scene(job_scene))
                     spec.scene.CopyFrom(type(spec.scene)(uploaded_hash=uploaded[content_hash]))
                 spec.batch_id = self.batch_id
                 spec.batch_name = self.name

@@ -63,11 +63,14 @@ class EprfarmRenderEngine(bpy.types.RenderEngine):
         try:
             camera, warnings = export.farm_camera(scene, depsgraph)
             warnings += export.scene_warnings(scene, depsgraph)
+            lighting, more = export.farm_lighting(scene, depsgraph, folder)
+            warnings += more
             gltf = self._export(scene, depsgraph.view_layer, frame, folder)
         except export.ExportError as e:
             raise FarmFailure(str(e)) from None
         if gltf is None:
             return  # cancelled in Blender
+        job_scene = export.scene_file(gltf, lighting)
         for w in warnings:
             self._warn(w)
         blend = os.path.splitext(os.path.basename(bpy.data.filepath))[0] or "untitled"
@@ -78,7 +81,7 @@ class EprfarmRenderEngine(bpy.types.RenderEngine):
         try:
             self.update_stats("", f"eprfarm: submitting frame {frame} to {s.master}")
             job = client.submit(
-                gltf,
+                job_scene,
                 width=width,
                 height=height,
                 spp=s.samples,
@@ -241,9 +244,9 @@ class RENDER_PT_eprfarm(bpy.types.Panel):
         if line:
             layout.label(text=line)
         col = layout.column(align=True)
-        col.label(text="Exports meshes and materials", icon="INFO")
-        col.label(text="Lamps, World: not exported")
-        col.label(text="Light: emissive materials")
+        col.label(text="Exports meshes, materials, the World", icon="INFO")
+        col.label(text="(colour or HDR image) and a Sun lamp")
+        col.label(text="Other lamps: not exported")
 
 
 def register_panels():

@@ -1,9 +1,12 @@
 """The scene as the farm gets it: a glTF 2.0 export of the current frame (meshes and materials,
-without cameras and lights) and the active camera as the job's camera."""
+without cameras and lights), the World and a Sun lamp as the sky and sun of a scene JSON beside it,
+and the active camera as the job's camera."""
 
+import json
 import math
 import os
-from typing import List, NamedTuple, Tuple
+import shutil
+from typing import Dict, List, NamedTuple, Optional, Tuple
 
 import bpy
 
@@ -65,26 +68,8 @@ def farm_camera(scene, depsgraph) -> Tuple[FarmCamera, List[str]]:
 
 
 def scene_warnings(scene, depsgraph) -> List[str]:
-    """What the export leaves out that the scene may rely on."""
+    """What the export leaves out that the scene may rely on (lamps and worlds: farm_lighting)."""
     warnings = []
-    lamps = [
-        f"'{inst.object.name}' ({inst.object.data.type.lower()})"
-        for inst in depsgraph.object_instances
-        if inst.object.type == "LIGHT"
-    ]
-    if lamps:
-        warnings.append(
-            f"light objects are not exported: {', '.join(sorted(set(lamps)))}; the farm is lit by emissive "
-            "materials (Principled BSDF Emission colour and strength) on meshes"
-        )
-    world = scene.world
-    if world is not None and world.use_nodes and world.node_tree:
-        background = world.node_tree.nodes.get("Background")
-        if background is not None:
-            colour = background.inputs["Color"].default_value
-            strength = background.inputs["Strength"].default_value
-            if strength > 0 and max(colour[:3]) > 0:
-                warnings.append(f"the world '{world.name}' (background light) is not exported")
     for material in bpy.data.materials:
         if material.users == 0 or not material.use_nodes or material.node_tree is None:
             continue
@@ -94,6 +79,132 @@ def scene_warnings(scene, depsgraph) -> List[str]:
                 f"material '{material.name}' has no Principled BSDF: the glTF exporter writes a default material"
             )
     return warnings
+
+
+def farm_lighting(scene, depsgraph, folder: str) -> Tuple[Dict, List[str]]:
+    """The scene JSON's "environment" and "sun" (scenes/README.md, "Sky and sun") for the World and
+    the first visible Sun lamp, an Environment Texture's image copied into FOLDER; and warnings
+    about the lamps and world setups the farm cannot model."""
+    lighting, warnings = {}, []
+    suns, others = [], []
+    for inst in depsgraph.object_instances:  # (an instance lives only during its iteration step)
+        if inst.object.type == "LIGHT":
+            lamp = (inst.object.name, inst.object.data, inst.matrix_world.copy())
+            (suns if lamp[1].type == "SUN" else others).append(lamp)
+    if others:
+        names = sorted({f"'{name}' ({data.type.lower()})" for name, data, _ in others})
+        warnings.append(
+            f"light objects other than Sun lamps are not exported: {', '.join(names)}; the farm is lit by a "
+            "Sun lamp, the World and emissive materials (Principled BSDF Emission colour and strength)"
+        )
+    if suns:
+        name, data, matrix = suns[0]
+        lighting["sun"] = _sun(data, matrix)
+        if len(suns) > 1:
+            rest = ", ".join(sorted({f"'{other}'" for other, _, _ in suns[1:]}))
+            warnings.append(f"the farm has one sun: Sun lamp '{name}' is exported, not {rest}")
+        if data.use_nodes:
+            warnings.append(f"Sun lamp '{name}': its shader nodes are ignored (colour x strength)")
+    world = scene.world
+    if world is not None:
+        environment, problem = _environment(world, folder)
+        if problem:
+            warnings.append(f"the world '{world.name}' is not exported: {problem}")
+        elif environment:
+            lighting["environment"] = environment
+    return lighting, warnings
+
+
+def _sun(lamp, matrix) -> Dict:
+    """A Sun lamp as the farm's sun: towards the lamp (its local +Z; it shines along -Z), its angle,
+    its strength (W/m², as the farm's irradiance) times its colour."""
+    towards = _y_up(matrix.to_3x3().normalized().col[2])
+    # The farm's disc needs an angle above 0; Blender's 0 (a point-like sun) becomes 0.001 degrees.
+    angle = min(90.0, max(1e-3, math.degrees(lamp.angle)))
+    irradiance = [lamp.energy * c for c in lamp.color]
+    return {"direction": [round(v, 7) for v in towards], "angle_deg": round(angle, 6), "irradiance": irradiance}
+
+
+def _environment(world, folder: str) -> Tuple[Optional[Dict], str]:
+    """The World as the farm's environment (None: it gives no light), or why it cannot be."""
+    if not world.use_nodes or world.node_tree is None:
+        colour = list(world.color)
+        return ({"color": colour} if max(colour) > 0 else None), ""
+    tree = world.node_tree
+    output = next((n for n in tree.nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None)
+    output = output or next((n for n in tree.nodes if n.type == "OUTPUT_WORLD"), None)
+    surface = output.inputs["Surface"] if output else None
+    if surface is None or not surface.is_linked:
+        return None, ""
+    background = surface.links[0].from_node
+    if background.type != "BACKGROUND":
+        return None, f"its surface is a {background.bl_label} node; the farm reads a Background node"
+    if background.inputs["Strength"].is_linked:
+        return None, "the Background node's Strength is linked; the farm reads a number"
+    strength = background.inputs["Strength"].default_value
+    colour = background.inputs["Color"]
+    if not colour.is_linked:
+        rgb = list(colour.default_value)[:3]
+        if strength <= 0 or max(rgb) <= 0:
+            return None, ""
+        return {"color": rgb, "strength": strength}, ""
+    texture = colour.links[0].from_node
+    if texture.type != "TEX_ENVIRONMENT" or texture.image is None:
+        return None, (
+            f"the Background colour comes from a {texture.bl_label} node; the farm reads a colour or an "
+            "Environment Texture (equirectangular) image"
+        )
+    if texture.projection != "EQUIRECTANGULAR":
+        return None, f"Environment Texture '{texture.name}' is {texture.projection.lower()}, not equirectangular"
+    rotation, problem = _mapping_rotation(texture)
+    if problem:
+        return None, problem
+    image, problem = _copy_image(texture.image, folder)
+    if problem:
+        return None, problem
+    return {"image": image, "strength": strength, "rotation_deg": rotation}, ""
+
+
+def _mapping_rotation(texture) -> Tuple[float, str]:
+    """The rotation about the up axis (degrees) of a Mapping node in front of the texture: the
+    farm's rotation_deg (scenes/README.md, "Orientation of the image"); no Mapping node: 0."""
+    vector = texture.inputs["Vector"]
+    if not vector.is_linked:
+        return 0.0, ""
+    mapping = vector.links[0].from_node
+    if mapping.type != "MAPPING" or mapping.vector_type != "POINT":
+        return 0.0, f"Environment Texture '{texture.name}' is mapped by a {mapping.bl_label} node; the farm reads a Mapping node (type Point) that turns it about Z"
+    source = mapping.inputs["Vector"]
+    if source.is_linked and not (
+        source.links[0].from_node.type == "TEX_COORD" and source.links[0].from_socket.name == "Generated"
+    ):
+        return 0.0, f"Mapping '{mapping.name}' reads other coordinates than Texture Coordinate Generated"
+    values = {k: mapping.inputs[k] for k in ("Location", "Rotation", "Scale")}
+    if any(s.is_linked for s in values.values()):
+        return 0.0, f"Mapping '{mapping.name}' has linked inputs; the farm reads its numbers"
+    rx, ry, rz = values["Rotation"].default_value
+    if max(abs(v) for v in values["Location"].default_value) > 1e-6 or abs(rx) > 1e-6 or abs(ry) > 1e-6 or max(
+        abs(v - 1) for v in values["Scale"].default_value
+    ) > 1e-6:
+        return 0.0, f"Mapping '{mapping.name}' does more than turn about Z (location 0, rotation X and Y 0, scale 1)"
+    return math.degrees(rz), ""
+
+
+def _copy_image(image, folder: str) -> Tuple[str, str]:
+    """The sky image as a file in FOLDER (copied, or written when packed); its name or a problem."""
+    path = bpy.path.abspath(image.filepath, library=image.library) if image.filepath else ""
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in (".hdr", ".exr"):
+        return "", f"its sky image '{image.name}' is not an .hdr or .exr file (the farm reads linear HDR images)"
+    name = "world" + ext
+    if image.packed_file is not None:
+        with open(os.path.join(folder, name), "wb") as f:
+            f.write(image.packed_file.data)
+    elif os.path.isfile(path):
+        shutil.copyfile(path, os.path.join(folder, name))
+    else:
+        return "", f"its sky image '{image.name}' ({path}) does not exist"
+    return name, ""
 
 
 def export_gltf(scene, view_layer, folder: str, name: str = "scene") -> str:
@@ -114,6 +225,17 @@ def export_gltf(scene, view_layer, folder: str, name: str = "scene") -> str:
         result = _export(path)
     if "FINISHED" not in result or not os.path.exists(path):
         raise ExportError(f"the glTF export to {path} did not finish ({', '.join(result)})")
+    return path
+
+
+def scene_file(gltf: str, lighting: Dict) -> str:
+    """What the job renders: the glTF itself, or with a sky or a sun a scene JSON beside it naming
+    the glTF, the environment and the sun (the client bundles the JSON, the glTF and the sky image)."""
+    if not lighting:
+        return gltf
+    path = os.path.splitext(gltf)[0] + ".json"
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump({"obj": os.path.basename(gltf), **lighting}, f, indent=1)
     return path
 
 

@@ -44,6 +44,8 @@ import test_client as harness  # noqa: E402  (Farm: a master and a worker on loo
 
 ARGS = argparse.Namespace()
 GLTF = os.path.join(SOURCE_DIR, "scenes", "cornell-box.gltf")
+GARDEN = os.path.join(SOURCE_DIR, "scenes", "garden")  # a glTF with a sky and a sun (garden.json)
+SUN = (-0.6, 0.9, -1.0)  # garden.json's sun, towards it, y up
 WIDTH, HEIGHT, SPP, SEED = 64, 48, 16, 3
 BLOCK = 8  # pixels per side of the blocks whose means are compared
 
@@ -241,6 +243,80 @@ class BlenderAddonTest(BlenderCase):
         with self.assertRaises(AssertionError):  # the plane is there: not the bare box
             self.assert_within_noise(image, "textured plane against the bare box")
 
+    def test_world_and_sun(self):
+        # scenes/garden's glTF imported, lit as garden.json lights it but set up in Blender: a World
+        # with its sky image (an Environment Texture turned 30 degrees by a Mapping node) and a Sun
+        # lamp; a point lamp is warned about. Against `epr render` of the JSON with the sky turned as
+        # much; the unturned sky, and a sun from the mirrored side, must fail the comparison.
+        import json
+
+        garden = os.path.join(self.tmp, "garden")
+        variants = {"turned": (30, SUN), "unturned": (0, SUN), "mirrored": (30, (-SUN[0], SUN[1], -SUN[2]))}
+        for name, (rotation, sun) in variants.items():
+            shutil.copytree(GARDEN, os.path.join(garden, name))
+            with open(os.path.join(GARDEN, "garden.json")) as f:
+                doc = json.loads("\n".join(line for line in f if not line.lstrip().startswith("//")))
+            doc["environment"]["rotation_deg"], doc["sun"]["direction"] = rotation, list(sun)
+            with open(os.path.join(garden, name, "garden.json"), "w") as f:
+                json.dump(doc, f)
+        still = os.path.join(garden, "still.exr")
+        r = self.render_blend(
+            os.path.join(garden, "frames", "garden_####"),
+            python=(
+                "import math, numpy\n"
+                "from mathutils import Vector\n"
+                "numpy.bool = bool\n"
+                "for o in list(bpy.data.objects):\n"
+                "    bpy.data.objects.remove(o, do_unlink=True)\n"
+                f"bpy.ops.import_scene.gltf(filepath={os.path.join(GARDEN, 'garden.gltf')!r})\n"
+                "scene = bpy.context.scene\n"
+                "scene.render.engine = 'EPRFARM'  # (the importer sets Eevee)\n"
+                "scene.camera = next(o for o in scene.objects if o.type == 'CAMERA')\n"
+                "world = scene.world = bpy.data.worlds.new('yard sky')\n"
+                "world.use_nodes = True\n"
+                "nodes, links = world.node_tree.nodes, world.node_tree.links\n"
+                "sky = nodes.new('ShaderNodeTexEnvironment')\n"
+                f"sky.image = bpy.data.images.load({os.path.join(GARDEN, 'sky.exr')!r})\n"
+                "mapping = nodes.new('ShaderNodeMapping')\n"
+                "mapping.inputs['Rotation'].default_value = (0, 0, math.radians(30))\n"
+                "links.new(nodes.new('ShaderNodeTexCoord').outputs['Generated'], mapping.inputs['Vector'])\n"
+                "links.new(mapping.outputs['Vector'], sky.inputs['Vector'])\n"
+                "links.new(sky.outputs['Color'], nodes['Background'].inputs['Color'])\n"
+                "lamp = bpy.data.lights.new('noon', 'SUN')\n"
+                "lamp.energy, lamp.angle = 3.0, math.radians(0.53)\n"
+                "sun = bpy.data.objects.new('noon', lamp)\n"
+                "scene.collection.objects.link(sun)\n"
+                f"sun.rotation_euler = Vector({(SUN[0], -SUN[2], SUN[1])!r}).to_track_quat('Z', 'Y').to_euler()\n"
+                "bpy.ops.object.light_add(type='POINT')\n"
+                "bpy.ops.render.render()\n"
+                f"bpy.data.images['Render Result'].save_render({still!r})\n"
+                "from eprfarm_blender import export\n"
+                "world.node_tree.links.remove(nodes['Background'].inputs['Color'].links[0])\n"
+                "nodes['Background'].inputs['Color'].default_value = (0.2, 0.3, 0.5, 1)\n"
+                "nodes['Background'].inputs['Strength'].default_value = 2\n"
+                "lighting, _ = export.farm_lighting(scene, bpy.context.evaluated_depsgraph_get(), '.')\n"
+                "print('constant world:', lighting['environment'], flush=True)\n"
+            ),
+        )
+        log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
+        self.assertRegex(r.stdout, r"eprfarm: frame 1: job \S+ done, 16\.0 spp", log)
+        self.assertNotIn("Traceback", r.stdout + r.stderr, log)
+        self.assertIn("Warning: eprfarm: light objects other than Sun lamps are not exported: 'Point' (point)", log)
+        self.assertRegex(r.stdout, r"constant world: \{'color': \[0\.2\d*, 0\.3\d*, 0\.5\], 'strength': 2\.0\}", log)
+        image = read_exr(still)
+        self.assertEqual(image.shape, (HEIGHT, WIDTH, 3))
+
+        def reference(name, seed):
+            return self.epr_render(seed, os.path.join(garden, name, "garden.json"))
+
+        turned = reference("turned", SEED), reference("turned", SEED + 1)
+        self.assert_within_noise(image, "the garden with its World and Sun", *turned)
+        for name in ("unturned", "mirrored"):
+            with self.assertRaises(AssertionError, msg=name):
+                self.assert_within_noise(
+                    image, f"against the {name} sky and sun", reference(name, SEED), reference(name, SEED + 1)
+                )
+
     def test_two_frames(self):
         out = os.path.join(self.tmp, "anim", "box_####")
         r = self.render_blend(out, "-s", "1", "-e", "2", "-a")
@@ -339,7 +415,7 @@ class BlenderAddonTest(BlenderCase):
         refused, package = rest.split("--- package")
         self.assertIn(f"Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
         self.assertIn(f"render raised: Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
-        self.assertIn("Warning: eprfarm: light objects are not exported: 'Point' (point)", refused)
+        self.assertIn("Warning: eprfarm: light objects other than Sun lamps are not exported: 'Point' (point)", refused)
         self.assertRegex(
             refused, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.gltf has no light"
         )
