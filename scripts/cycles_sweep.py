@@ -44,7 +44,12 @@ def cpu_seconds():
 def parse_args():
     argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
     ap = argparse.ArgumentParser(prog="blender -b --factory-startup -noaudio -P scripts/cycles_sweep.py --")
-    ap.add_argument("--obj", required=True)
+    ap.add_argument("--obj")
+    ap.add_argument("--gltf", help="instead of --obj: a glTF file, imported as cycles_reference.py --gltf does")
+    ap.add_argument("--env", default="", help="a sky, as cycles_reference.py --env")
+    ap.add_argument("--env-strength", type=float, default=1.0)
+    ap.add_argument("--env-rotation", type=float, default=0.0)
+    ap.add_argument("--sun", default="", help="a sun, as cycles_reference.py --sun")
     ap.add_argument("--camera", required=True, help="file with --eye= --look= --up= --fov= (speed_accuracy --export-obj)")
     ap.add_argument("--width", type=int, default=512)
     ap.add_argument("--height", type=int, default=512)
@@ -55,6 +60,8 @@ def parse_args():
     ap.add_argument("--emitter-subdiv", type=int, default=16, help="as in cycles_reference.py")
     ap.add_argument("--outdir", required=True)
     a = ap.parse_args(argv)
+    if bool(a.obj) == bool(a.gltf):
+        ap.error("give exactly one of --obj and --gltf")
     with open(a.camera, "r", encoding="utf-8") as f:
         cam = argparse.ArgumentParser()
         cam.add_argument("--eye", type=cr.parse_vec3, required=True)
@@ -77,13 +84,17 @@ def main():
     for stale in ("done", "times.csv"):
         if os.path.exists(os.path.join(a.outdir, stale)):
             os.remove(os.path.join(a.outdir, stale))
-    verts, tris, tri_mat, materials = cr.parse_obj(a.obj)
-    if not tris:
-        raise SystemExit("%s: no faces" % a.obj)
-    verts, tris, tri_mat = cr.subdivide_emitters(verts, tris, tri_mat, materials, a.emitter_subdiv)
     cr.clear_scene()
     scene = bpy.context.scene
-    cr.build_mesh(scene, verts, tris, tri_mat, materials)
+    if a.gltf:
+        triangles = cr.import_gltf(scene, a)
+    else:
+        verts, tris, tri_mat, materials = cr.parse_obj(a.obj)
+        if not tris:
+            raise SystemExit("%s: no faces" % a.obj)
+        verts, tris, tri_mat = cr.subdivide_emitters(verts, tris, tri_mat, materials, a.emitter_subdiv)
+        cr.build_mesh(scene, verts, tris, tri_mat, materials)
+        triangles = len(tris)
     cr.build_camera(scene, a)
     cr.configure_render(scene, a)
     scene.cycles.samples = 1
@@ -91,7 +102,7 @@ def main():
     bpy.ops.render.render(write_still=True)
     os.remove(scene.render.filepath)
     print("cycles_sweep: %s: %d triangles; %dx%d, spp %s, threads %s"
-          % (a.obj, len(tris), a.width, a.height, a.spp_list, a.threads or "auto"), flush=True)
+          % (a.obj or a.gltf, triangles, a.width, a.height, a.spp_list, a.threads or "auto"), flush=True)
     rows = []
     for spp in a.spp_list:
         scene.cycles.samples = spp
