@@ -30,7 +30,9 @@ the image"). The imported cameras and lamps are removed, and each material's Pri
 replaced by eprfarm's model of it (lambertian_material()): a Lambertian Diffuse BSDF of the base
 colour (texture x factor as imported, sRGB, the importer's texel filter), plus an Emission of the
 emissive colour x strength, cut out (a Transparent BSDF) where the alpha is below the material's
-alpha clip threshold (MASK; BLEND at 0.5, as eprfarm renders it). Faces are shaded flat.
+alpha clip threshold (MASK; BLEND at 0.5, as eprfarm renders it). Faces are shaded flat. With
+--principled the imported materials are kept as they are (Cycles' Principled BSDF: a measure of how
+far eprfarm's material model is from Blender's).
 
 Output: a linear (scene-referred) 32-bit float RGB OpenEXR holding raw radiance, row 0 = top
 of the image. The render time (seconds, measured around bpy.ops.render.render, so it includes
@@ -65,6 +67,8 @@ def parse_args():
         description="Render an OBJ+MTL scene (Lambertian Kd, emissive Ke) with Cycles to a linear EXR.")
     ap.add_argument("--obj", help="OBJ file (its mtllib files are read too)")
     ap.add_argument("--gltf", help="instead of --obj: a glTF 2.0 file (.gltf or .glb), imported by Blender")
+    ap.add_argument("--principled", action="store_true",
+                    help="with --gltf: keep the imported Principled BSDFs (measures eprfarm's approximation of them)")
     ap.add_argument("--width", type=int, default=128)
     ap.add_argument("--height", type=int, default=128)
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel")
@@ -550,7 +554,8 @@ def import_gltf(scene, a):
         if obj.type in ("CAMERA", "LIGHT"):
             bpy.data.objects.remove(obj, do_unlink=True)
     for mat in bpy.data.materials:
-        lambertian_material(mat)
+        if not getattr(a, "principled", False):
+            lambertian_material(mat)
     triangles = 0
     for mesh in bpy.data.meshes:
         mesh.polygons.foreach_set("use_smooth", [False] * len(mesh.polygons))
