@@ -247,7 +247,8 @@ class BlenderAddonTest(BlenderCase):
         # scenes/garden's glTF imported, lit as garden.json lights it but set up in Blender: a World
         # with its sky image (an Environment Texture turned 30 degrees by a Mapping node) and a Sun
         # lamp; a point lamp is warned about. Against `epr render` of the JSON with the sky turned as
-        # much; the unturned sky, and a sun from the mirrored side, must fail the comparison.
+        # much, from F12's render and from Render Frames on Farm; the unturned sky, and a sun from the
+        # mirrored side, must fail the comparison.
         import json
 
         garden = os.path.join(self.tmp, "garden")
@@ -290,6 +291,8 @@ class BlenderAddonTest(BlenderCase):
                 "bpy.ops.object.light_add(type='POINT')\n"
                 "bpy.ops.render.render()\n"
                 f"bpy.data.images['Render Result'].save_render({still!r})\n"
+                "scene.frame_start = scene.frame_end = 1\n"
+                "print('operator:', sorted(bpy.ops.eprfarm.render_frames()), flush=True)\n"
                 "from eprfarm_blender import export\n"
                 "world.node_tree.links.remove(nodes['Background'].inputs['Color'].links[0])\n"
                 "nodes['Background'].inputs['Color'].default_value = (0.2, 0.3, 0.5, 1)\n"
@@ -311,6 +314,9 @@ class BlenderAddonTest(BlenderCase):
 
         turned = reference("turned", SEED), reference("turned", SEED + 1)
         self.assert_within_noise(image, "the garden with its World and Sun", *turned)
+        self.assertIn("operator: ['FINISHED']", r.stdout, log)  # Render Frames on Farm: the batch's export
+        batch = read_exr(os.path.join(garden, "frames", "garden_0001.exr"))
+        self.assert_within_noise(batch, "the garden's frame of Render Frames on Farm", *turned)
         for name in ("unturned", "mirrored"):
             with self.assertRaises(AssertionError, msg=name):
                 self.assert_within_noise(
