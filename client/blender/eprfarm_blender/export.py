@@ -83,7 +83,7 @@ def scene_warnings(scene, depsgraph) -> List[str]:
 
 def farm_lighting(scene, depsgraph, folder: str) -> Tuple[Dict, List[str]]:
     """The scene JSON's "environment" and "sun" (scenes/README.md, "Sky and sun") for the World and
-    the first visible Sun lamp, an Environment Texture's image copied into FOLDER; and warnings
+    the visible Sun lamp first by name, an Environment Texture's image copied into FOLDER; and warnings
     about the lamps and world setups the farm cannot model."""
     lighting, warnings = {}, []
     suns, others = [], []
@@ -98,6 +98,7 @@ def farm_lighting(scene, depsgraph, folder: str) -> Tuple[Dict, List[str]]:
             "Sun lamp, the World and emissive materials (Principled BSDF Emission colour and strength)"
         )
     if suns:
+        suns.sort(key=lambda lamp: lamp[0])  # the first by name: the same one on every frame and machine
         name, data, matrix = suns[0]
         lighting["sun"] = _sun(data, matrix)
         if len(suns) > 1:

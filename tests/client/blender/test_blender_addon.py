@@ -299,6 +299,10 @@ class BlenderAddonTest(BlenderCase):
                 "nodes['Background'].inputs['Strength'].default_value = 2\n"
                 "lighting, _ = export.farm_lighting(scene, bpy.context.evaluated_depsgraph_get(), '.')\n"
                 "print('constant world:', lighting['environment'], flush=True)\n"
+                "links.new(nodes.new('ShaderNodeTexSky').outputs['Color'], nodes['Background'].inputs['Color'])\n"
+                "scene.collection.objects.link(bpy.data.objects.new('dusk', bpy.data.lights.new('dusk', 'SUN')))\n"
+                "lighting, warned = export.farm_lighting(scene, bpy.context.evaluated_depsgraph_get(), '.')\n"
+                "print('sky texture:', sorted(lighting), *warned, sep='\\n', flush=True)\n"
             ),
         )
         log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
@@ -306,6 +310,11 @@ class BlenderAddonTest(BlenderCase):
         self.assertNotIn("Traceback", r.stdout + r.stderr, log)
         self.assertIn("Warning: eprfarm: light objects other than Sun lamps are not exported: 'Point' (point)", log)
         self.assertRegex(r.stdout, r"constant world: \{'color': \[0\.2\d*, 0\.3\d*, 0\.5\], 'strength': 2\.0\}", log)
+        self.assertIn("sky texture:\n['sun']\n", r.stdout, log)  # what the farm cannot model: named
+        self.assertIn("the farm has one sun: Sun lamp 'dusk' is exported, not 'noon'", r.stdout, log)
+        self.assertIn(
+            "the world 'yard sky' is not exported: the Background colour comes from a Sky Texture node", r.stdout, log
+        )
         image = read_exr(still)
         self.assertEqual(image.shape, (HEIGHT, WIDTH, 3))
 
