@@ -67,7 +67,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   // give the same M' (docs/DESIGN.md: determinism).
   const VertexCodec codec(scene.bounds());
 
-  const SkyLight sky(scene.lighting, !embree.emitters().empty());
+  const SkyLight sky(scene.lighting, embree);
   PathTracer tracer(embree, camera, opts.seed, opts.rr, opts.mis, opts.sampler, &sky);
   TileRenderer tile_renderer(tracer, filter_for(opts));
   const auto tiles = make_tiles(opts);

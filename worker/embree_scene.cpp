@@ -108,6 +108,7 @@ void EmbreeScene::build_emitter_table() {
   double total = 0;
   for (float w : weights) total += w;
   inv_emitter_weight_ = total > 0 ? float(1 / total) : 0.f;
+  emitted_power_ = 2 * kPi * total;
   for (size_t k = 0; k < emitters_.size(); ++k) emitters_[k].pdf_area = emitter_selection_.pmf(k) / areas[k];
 }
 

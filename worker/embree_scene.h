@@ -67,6 +67,9 @@ class EmbreeScene {
   /// weight, the same for every triangle of the material. 0 for a material no emitter uses (then only
   /// BSDF sampling can find its light). Used by multiple importance sampling.
   float emitter_pdf_area(const Material& m) const { return luminance(m.ke) * inv_emitter_weight_; }
+  /// Power the emitting triangles emit (luminance, W): 2 pi x the sum of area x luminance(Ke), the
+  /// factor 2 for their two sides.
+  double emitted_power() const { return emitted_power_; }
   /// Offset in metres used to step off a surface (scaled to the scene's extent).
   float ray_epsilon() const { return ray_epsilon_; }
 
@@ -86,6 +89,7 @@ class EmbreeScene {
   std::vector<Emitter> emitters_;
   AliasTable emitter_selection_;
   float inv_emitter_weight_ = 0;  // 1 / sum over emitters of area x luminance(Ke)
+  double emitted_power_ = 0;
 };
 
 }  // namespace epr

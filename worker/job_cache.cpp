@@ -121,7 +121,7 @@ std::shared_ptr<const JobContext> JobCache::build(const v1::TileLease& lease, co
   Lighting job;
   if (auto err = from_proto(s.has_environment() ? &s.environment() : nullptr, s.has_sun() ? &s.sun() : nullptr, &job))
     throw std::invalid_argument(*err);
-  ctx->sky = std::make_unique<SkyLight>(job_lighting(ctx->scene->scene, job), !ctx->scene->embree.emitters().empty());
+  ctx->sky = std::make_unique<SkyLight>(job_lighting(ctx->scene->scene, job), ctx->scene->embree);
   // check_render_settings accepted the sampler: from_proto knows it.
   ctx->tracer =
       std::make_unique<PathTracer>(ctx->scene->embree, ctx->camera, ctx->seed, from_proto(s.russian_roulette()),

@@ -15,7 +15,22 @@ inline float power_heuristic(float p_this, float p_other) {
 
 }  // namespace
 
-SkyLight::SkyLight(const Lighting& lighting, bool triangle_emitters) {
+float triangle_share_for_power(double triangle_power, double sky_power) {
+  if (!(triangle_power > 0)) return 0;
+  if (!(sky_power > 0)) return 1;
+  return std::clamp(float(triangle_power / (triangle_power + sky_power)), kMinLightShare, 1 - kMinLightShare);
+}
+
+SkyLight::SkyLight(const Lighting& lighting, const EmbreeScene& scene)
+    : SkyLight(lighting, scene.emitted_power(), scene_radius(scene.scene())) {}
+
+float SkyLight::scene_radius(const Scene& scene) {
+  const float r = 0.5f * scene.bounds().diagonal_length();
+  return std::isfinite(r) ? r : 0.f;
+}
+
+SkyLight::SkyLight(const Lighting& lighting, double triangle_power, float scene_radius,
+                   std::optional<float> fixed_share) {
   float e_env = 0, e_sun = 0;  // irradiance each gives a surface facing it (luminance)
   if (lighting.environment && lighting.environment->strength > 0) {
     env_ = lighting.environment;
@@ -62,7 +77,14 @@ SkyLight::SkyLight(const Lighting& lighting, bool triangle_emitters) {
   if (!env_) e_env = 0;
   if (!sun_) e_sun = 0;
   const bool sky = e_env + e_sun > 0;
-  p_tri_ = triangle_emitters ? (sky ? 0.5f : 1.f) : 0.f;
+  // The sky's power through the scene's bounding sphere: its irradiance on a disc of the sphere's
+  // cross-section facing it.
+  sky_power_ = double(e_env + e_sun) * kPi * double(scene_radius) * double(scene_radius);
+  triangle_power_ = triangle_power > 0 ? triangle_power : 0;
+  p_tri_ = !(triangle_power_ > 0) ? 0.f
+           : !sky                 ? 1.f
+           : fixed_share          ? std::clamp(*fixed_share, 0.f, 1.f)
+                                  : triangle_share_for_power(triangle_power_, sky_power_);
   if (sky) {
     p_env_ = (1 - p_tri_) * e_env / (e_env + e_sun);
     p_sun_ = (1 - p_tri_) - p_env_;

@@ -2,11 +2,17 @@
 // (common/lighting.h) and the sun, each a technique of next event estimation combined with BSDF
 // sampling by MIS, like the emitting triangles.
 //
-// Light selection: one uniform number picks emitting triangles with probability triangle_share()
-// (1/2 when the scene also has a sky, else 1 or 0), else the sky; within the sky the environment and
-// the sun share in proportion to the irradiance each gives a surface facing it (pi x the mean
-// luminance of the environment, the luminance of the sun's irradiance). Each sky light's density in
-// solid angle, selection included, is what both MIS halves use:
+// Light selection: one uniform number picks emitting triangles with probability triangle_share(),
+// else the sky; within the sky the environment and the sun share in proportion to the irradiance
+// each gives a surface facing it (pi x the mean luminance of the environment, the luminance of the
+// sun's irradiance). The triangles' share follows an estimate of each side's power reaching the
+// scene (as pbrt's power light sampler does): the triangles' emitted power, 2 pi x the sum of area x
+// luminance(Ke) (two-sided), against the sky's irradiance on a disc of the scene's bounding-sphere
+// cross-section, (pi L_env + E_sun) x pi R^2 (R half the bounding box's diagonal); clamped to
+// [kMinLightShare, 1 - kMinLightShare] so that neither technique starves where the estimate is wrong
+// (an emitter or a sky hidden from most of the scene). 1 or 0 when only one side gives light. A pure
+// function of the scene, so every worker picks alike. Each sky light's density in solid angle,
+// selection included, is what both MIS halves use:
 //   * environment image: a 2D piecewise-constant distribution over the image's texels, texel weight
 //     luminance x sin(theta) (theta at the texel's centre), uniform within a texel in (u, t); in
 //     solid angle pdf = p(u, t) / (2 pi^2 sin(theta)).
@@ -16,6 +22,7 @@
 // against that light's density (sky_escape); shadow rays towards the sky are unbounded.
 #pragma once
 
+#include <optional>
 #include <vector>
 
 #include "common/lighting.h"
@@ -25,15 +32,34 @@
 
 namespace epr {
 
+/// The floor of either side's share of the light selection when both give light.
+inline constexpr float kMinLightShare = 0.1f;
+
+/// The triangles' share of the light selection for the two powers (W, luminance): their fraction
+/// of the total, clamped to [kMinLightShare, 1 - kMinLightShare]; 0 without triangle power, 1
+/// without sky power.
+float triangle_share_for_power(double triangle_power, double sky_power);
+
 class SkyLight {
  public:
-  /// `triangle_emitters`: whether the scene has emitting triangles to share the light selection with.
-  SkyLight(const Lighting& lighting, bool triangle_emitters);
+  /// The scene's lighting with `scene`'s emitting triangles (EmbreeScene::emitted_power()) and
+  /// bounding sphere.
+  SkyLight(const Lighting& lighting, const EmbreeScene& scene);
+  /// The same from the triangles' power and the scene's bounding-sphere radius; `fixed_share`, if
+  /// given, replaces the power-based triangle share when both sides give light (benchmarks, tests).
+  SkyLight(const Lighting& lighting, double triangle_power, float scene_radius,
+           std::optional<float> fixed_share = std::nullopt);
+
+  /// Half the diagonal of the scene's bounding box, metres.
+  static float scene_radius(const Scene& scene);
 
   /// True if neither an environment nor a sun gives light.
   bool empty() const { return p_env_ == 0 && p_sun_ == 0; }
   /// Probability that next event estimation picks the emitting triangles.
   float triangle_share() const { return p_tri_; }
+  /// The power estimates the share follows (luminance, W): see the file comment.
+  double triangle_power() const { return triangle_power_; }
+  double sky_power() const { return sky_power_; }
 
   /// Splits the selection number: true if it picks the sky, with `u` rescaled to [0, 1) for the next
   /// choice either way (the triangle table's, or sample()'s).
@@ -65,6 +91,7 @@ class SkyLight {
   std::optional<EnvironmentLight> env_;
   std::optional<SunLight> sun_;
   float p_tri_ = 0, p_env_ = 0, p_sun_ = 0;
+  double triangle_power_ = 0, sky_power_ = 0;
   float rotation_ = 0;  // radians
   // Environment image: texel weights (luminance x sin theta), their total, and the 2D distribution.
   int w_ = 0, h_ = 0;

@@ -64,6 +64,19 @@ std::shared_ptr<Image> test_sky(int w, int h) {
   return img;
 }
 
+// The open box with a 0.5 x 0.5 m emitting square (radiance `ke`, both sides) hanging 1.5 m above
+// its floor.
+Scene open_box_with_lamp(float a, float ke) {
+  Scene s = open_box(a);
+  Material m;
+  m.name = "lamp";
+  m.kd = Vec3(0.f);
+  m.ke = Vec3(ke);
+  const uint32_t id = add_material(s, m);
+  add_quad(s, {-0.25f, 1.5f, -0.25f}, {0.25f, 1.5f, -0.25f}, {0.25f, 1.5f, 0.25f}, {-0.25f, 1.5f, 0.25f}, id);
+  return s;
+}
+
 ImageMeans render(const Scene& scene, const SkyLight& sky, bool mis, int size, int spp) {
   EmbreeScene es(scene);
   const Camera cam(scene.camera, size, size);
@@ -97,7 +110,7 @@ TEST(SkyLight, ImageDensityIntegratesToOneAndMatchesItsSamples) {
   l.environment = EnvironmentLight{};
   l.environment->pixels = test_sky(64, 32);
   l.environment->rotation_deg = 30;
-  const SkyLight sky(l, false);
+  const SkyLight sky(l, 0.0, 1.f);
   ASSERT_FALSE(sky.empty());
   EXPECT_EQ(sky.triangle_share(), 0.f);
   // Integral over the sphere on a grid finer than the texels, in (u, t) with |J| = 2 pi^2 sin(theta).
@@ -147,7 +160,7 @@ TEST(SkyLight, SelectionSharesAndTheSunCone) {
   l.sun->direction = normalize(Vec3(1, 2, 0.5f));
   l.sun->angle_deg = 5;
   l.sun->irradiance = Vec3(3 * kPi);
-  const SkyLight sky(l, true);
+  const SkyLight sky(l, 1.0, 1.f, 0.5f);  // a fixed half for the triangles
   EXPECT_EQ(sky.triangle_share(), 0.5f);
   // Environment pi x 1 against sun 3 pi: the sky's half splits 1 : 3.
   float u;
@@ -170,6 +183,59 @@ TEST(SkyLight, SelectionSharesAndTheSunCone) {
   EXPECT_NEAR(irradiance / sun_samples, 3 * kPi, 1e-3 * 3 * kPi);
 }
 
+TEST(SkyLight, TriangleShareFollowsPowerWithinItsFloor) {
+  EXPECT_EQ(triangle_share_for_power(0, 5), 0.f);
+  EXPECT_EQ(triangle_share_for_power(5, 0), 1.f);
+  EXPECT_FLOAT_EQ(triangle_share_for_power(3, 1), 0.75f);
+  EXPECT_FLOAT_EQ(triangle_share_for_power(1, 3), 0.25f);
+  EXPECT_FLOAT_EQ(triangle_share_for_power(1000, 1), 1 - kMinLightShare);
+  EXPECT_FLOAT_EQ(triangle_share_for_power(1, 1000), kMinLightShare);
+
+  // The powers from a scene: the lamp emits 2 pi x 0.25 m^2 x 8 (two sides); a sky of radiance 0.1
+  // and a sun of 0.5 W/m^2 give (pi 0.1 + 0.5) x pi R^2, R = sqrt(2^2 + 2^2 + 2^2) / 2.
+  const Scene scene = open_box_with_lamp(0.5f, 8.f);
+  EmbreeScene es(scene);
+  EXPECT_NEAR(es.emitted_power(), 2 * kPi * 0.25 * 8, 1e-4);
+  Lighting l;
+  l.environment = EnvironmentLight{};
+  l.environment->color = Vec3(0.1f);
+  l.sun = SunLight{};
+  l.sun->irradiance = Vec3(0.5f);
+  const SkyLight sky(l, es);
+  EXPECT_NEAR(SkyLight::scene_radius(scene), std::sqrt(3.0), 1e-5);
+  const double sky_power = (kPi * 0.1 + 0.5) * kPi * 3;
+  EXPECT_NEAR(sky.sky_power(), sky_power, 1e-4 * sky_power);
+  EXPECT_NEAR(sky.triangle_share(), 4 * kPi / (4 * kPi + sky_power), 1e-5);
+  // Brighter sky, dimmer lamp: the sky takes over, never beyond the floor.
+  l.environment->color = Vec3(50.f);
+  EXPECT_FLOAT_EQ(SkyLight(l, es).triangle_share(), kMinLightShare);
+}
+
+// A dim sky and a bright lamp: the lamp gets most of next event estimation's picks, and the image
+// is the same as with the triangles' fixed half (the share changes the noise, not the mean).
+TEST(SkyLight, DimSkyBrightLampGivesTheLampMostPicksAndTheSameImage) {
+  const Scene scene = open_box_with_lamp(0.6f, 20.f);
+  EmbreeScene es(scene);
+  Lighting l;
+  l.environment = EnvironmentLight{};
+  l.environment->color = Vec3(0.05f);
+  const SkyLight power(l, es);
+  const SkyLight half(l, es.emitted_power(), SkyLight::scene_radius(scene), 0.5f);
+  EXPECT_EQ(power.triangle_share(), 1 - kMinLightShare);  // 31 W against 1.5 W: clamped
+  int lamp = 0;
+  const int picks = 10000;
+  for (int k = 0; k < picks; ++k) {
+    float u;
+    lamp += !power.picks_sky((float(k) + 0.5f) / picks, &u);
+  }
+  EXPECT_NEAR(double(lamp) / picks, 1 - kMinLightShare, 1e-3);
+  for (bool mis : {true, false}) {
+    const ImageMeans a = render(scene, power, mis, 32, 256), b = render(scene, half, mis, 32, 256);
+    EXPECT_NEAR(a.pixel, b.pixel, 0.01 * b.pixel) << "mis " << mis;
+    EXPECT_NEAR(a.vertex, b.vertex, 0.015 * b.vertex) << "mis " << mis;
+  }
+}
+
 class WhiteFurnace : public ::testing::TestWithParam<std::tuple<bool, bool>> {};
 
 TEST_P(WhiteFurnace, EverySurfaceOfAlbedoOneShowsTheSky) {
@@ -188,7 +254,7 @@ TEST_P(WhiteFurnace, EverySurfaceOfAlbedoOneShowsTheSky) {
   }
   const Scene scene = open_box(1.f);
   EmbreeScene es(scene);
-  const SkyLight sky(l, !es.emitters().empty());
+  const SkyLight sky(l, es);
   // The vertex mean is a ratio over paths of their records' sum and count, whose records' values
   // are heavy-tailed (long paths in the box carry 1/q factors): an image sampled for next event
   // estimation alone needs about 200k records to come within 1 % (measured: +4.4 % at 64 paths per
@@ -222,7 +288,7 @@ TEST(SkyLight, FloorUnderAnImageReflectsTheHemisphereIntegral) {
   const double expected = a / kPi * 1.5 * e;
   const Scene scene = floor_plane(a);
   EmbreeScene es(scene);
-  const SkyLight sky(l, false);
+  const SkyLight sky(l, 0.0, 1.f);
   for (bool mis : {true, false}) {
     const ImageMeans m = render(scene, sky, mis, 16, 1024);
     EXPECT_NEAR(m.pixel, expected, 0.01 * expected) << "mis " << mis;
@@ -239,7 +305,7 @@ TEST(SkyLight, SunOnAFloorGivesItsIrradianceTimesTheCosine) {
   const double expected = a * irradiance * l.sun->direction.y / kPi;
   const Scene scene = floor_plane(a);
   EmbreeScene es(scene);
-  const SkyLight sky(l, false);
+  const SkyLight sky(l, 0.0, 1.f);
   for (bool mis : {true, false}) {
     const ImageMeans m = render(scene, sky, mis, 16, 64);
     EXPECT_NEAR(m.pixel, expected, 0.005 * expected) << "mis " << mis;
