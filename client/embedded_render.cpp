@@ -114,7 +114,7 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
   auto since_start = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count(); };
   // The scene first: a file that cannot be read or a scene without light is refused before a master
   // and workers start.
-  SceneBundleData bundle = bundle_scene(opts.scene, opts.lighting);
+  SceneBundleData bundle = bundle_scene(opts.scene, opts.lighting, opts.env_folder);
   logger("client")->info("scene bundled: {:.2f} s", since_start());
   // The state folder: the caller's (locked: one master per folder), else a private one that goes
   // with this function (declared first: removed after the master is gone).

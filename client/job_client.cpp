@@ -190,7 +190,7 @@ void JobClient::check_reachable() {
 // ---- submitting ---------------------------------------------------------------------------------
 
 v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, const SubmitOptions& submit) {
-  return make_job_spec(opts, bundle_scene(opts.scene, opts.lighting), submit);
+  return make_job_spec(opts, bundle_scene(opts.scene, opts.lighting, opts.env_folder), submit);
 }
 
 v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, SceneBundleData bundle, const SubmitOptions& submit) {

@@ -49,7 +49,8 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   if (opts.threads > 0)
     threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(opts.threads));
 
-  const Scene scene = load_job_scene(opts.scene, {}, nullptr, opts.lighting);  // warnings once; unlit refused
+  const Scene scene =
+      load_job_scene(opts.scene, {}, nullptr, opts.lighting, opts.env_folder);  // warnings once; unlit refused
   const Camera camera(opts.camera_for(scene.camera), opts.width, opts.height);
   const double t_load = since(t_start);
   const auto t_bvh = std::chrono::steady_clock::now();

@@ -21,18 +21,20 @@ Vec3 parse_vec3(const std::string& flag, const std::string& s) {
 }
 
 // `file` (as the user wrote it) relative to the folder of the scene file `scene`, which it must lie
-// in: it travels in the scene's bundle, whose paths are relative to that folder.
-std::string scene_relative_path(const char* flag, const std::string& scene, const std::string& file) {
+// in: it travels in the scene's bundle, whose paths are relative to that folder. A built-in scene has
+// no folder: the image's own folder stands in for it (*folder), and the image is named by its file
+// name (bundle_scene bundles the two).
+std::string scene_relative_path(const char* flag, const std::string& scene, const std::string& file,
+                                std::string* folder_out) {
   namespace fs = std::filesystem;
-  if (scene.rfind("builtin:", 0) == 0)
-    throw CLI::ValidationError(
-        flag, fmt::format("'{}': a built-in scene carries no files; name the image in a scene JSON beside it, e.g. "
-                          "{{\"builtin\": \"{}\", \"environment\": {{\"image\": \"{}\"}}}}",
-                          file, scene.substr(8), fs::path(file).filename().string()));
   std::error_code ec;
   const fs::path real = fs::weakly_canonical(file, ec);
   if (ec || !fs::is_regular_file(real, ec))
     throw CLI::ValidationError(flag, fmt::format("'{}' is not a readable file", file));
+  if (scene.rfind("builtin:", 0) == 0) {
+    *folder_out = real.parent_path().string();
+    return real.filename().string();
+  }
   const fs::path folder = fs::weakly_canonical(fs::absolute(scene).parent_path(), ec);
   const fs::path rel = real.lexically_relative(folder);
   if (ec || rel.empty() || *rel.begin() == "..")
@@ -117,8 +119,8 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
     cmd->add_option(v, extra[v], fmt::format("camera override x,y,z ({})", v + 2));
   cmd->add_option("--fov", o.fov, "camera override: vertical field of view in degrees");
   cmd->add_option("--env", extra["--env"],
-                  "environment light, replacing the scene's: an equirectangular .hdr/.exr inside the scene's folder, "
-                  "or a constant colour R,G,B (one number: a grey)");
+                  "environment light, replacing the scene's: an equirectangular .hdr/.exr inside the scene's folder "
+                  "(anywhere with a builtin: scene), or a constant colour R,G,B (one number: a grey)");
   cmd->add_option("--sun", extra["--sun"],
                   "sun, replacing the scene's: DX,DY,DZ[,ANGLE_DEG[,E or ,R,G,B]]: direction towards the sun, "
                   "angular diameter (default 0.53) and irradiance in W/m^2 (default 1)");
@@ -162,7 +164,8 @@ void finish_options(RenderOptions& o, const std::map<std::string, std::string>& 
     } catch (const std::invalid_argument& e) {
       throw CLI::ValidationError(std::string(e.what()));
     }
-    if (!file.empty()) o.lighting.environment->image = scene_relative_path("--env", o.scene, file);
+    o.env_folder.clear();
+    if (!file.empty()) o.lighting.environment->image = scene_relative_path("--env", o.scene, file, &o.env_folder);
   }
   if (const auto sun = extra.find("--sun"); sun != extra.end() && !sun->second.empty()) {
     try {

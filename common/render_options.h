@@ -60,6 +60,10 @@ struct RenderOptions {
   // --env / --sun: each replaces the scene's own; an environment image is named relative to the
   // scene's folder (it travels in the scene bundle).
   Lighting lighting;
+  // The client's side only, never sent: the folder `lighting`'s environment image is read from when
+  // the scene is built in (the image's own folder; bundle_scene bundles it with a scene JSON naming
+  // the built-in). Empty for file scenes, whose images lie in the scene's folder.
+  std::string env_folder;
 
   /// Empty if the options are usable; otherwise the reason.
   std::optional<std::string> validate() const;

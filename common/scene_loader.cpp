@@ -57,23 +57,25 @@ Scene load_scene(const std::string& spec, const LoadOptions& opts, LoadReport* r
   return load_obj(spec, opts, report);
 }
 
-Scene load_job_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report, const Lighting& job) {
+Scene load_job_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report, const Lighting& job,
+                     const std::string& env_folder) {
   LoadReport local;
   LoadReport& r = report ? *report : local;
   const size_t first = r.warnings.size();
   Scene scene = load_scene(spec, opts, &r);
-  scene.lighting = job_lighting(scene, job, &r);
+  scene.lighting = job_lighting(scene, job, &r, env_folder);
   for (size_t i = first; i < r.warnings.size(); ++i) loader::scene_log()->warn("{}", r.warnings[i]);
   if (auto reason = unlit_reason(scene)) throw SceneError(*reason);
   return scene;
 }
 
-Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* report) {
+Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* report, const std::string& env_folder) {
   Lighting out = scene.lighting;
   if (job.environment) {
     out.environment = job.environment;
     if (!out.environment->image.empty() && !out.environment->pixels)
-      loader::load_environment_image(*out.environment, scene.folder, "--env", report);
+      loader::load_environment_image(*out.environment, scene.folder.empty() ? env_folder : scene.folder, "--env",
+                                     report);
   }
   if (job.sun) out.sun = job.sun;
   return out;

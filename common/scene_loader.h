@@ -47,12 +47,16 @@ Scene load_scene_json(const std::string& json_path, const LoadOptions& = {}, Loa
 
 /// load_scene for a render the user asked for: applies the job's lighting (job_lighting), logs the
 /// warnings (at warn level, once) and refuses a scene without light (unlit_reason) with SceneError.
-Scene load_job_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* = nullptr, const Lighting& job = {});
+/// `env_folder`: as for job_lighting.
+Scene load_job_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* = nullptr, const Lighting& job = {},
+                     const std::string& env_folder = "");
 
 /// The lighting a job renders `scene` with: the job's environment and sun where it sets them, else the
-/// scene's. An environment image the job names is read inside scene.folder (recorded in `report`);
-/// failures raise SceneError naming `--env`.
-Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* report = nullptr);
+/// scene's. An environment image the job names is read inside scene.folder, or inside `env_folder`
+/// for a scene without one (a built-in scene, on the client's side: RenderOptions::env_folder), and
+/// recorded in `report`; failures raise SceneError naming `--env`.
+Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* report = nullptr,
+                      const std::string& env_folder = "");
 
 /// Nullopt if some triangle emits light (its material has a Ke other than 0 0 0) or the environment or
 /// the sun gives light; else why the image would be black and how to light the scene, naming scene.name.

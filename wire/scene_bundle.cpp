@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 
 #include "common/scene_loader.h"
@@ -41,12 +42,35 @@ bool is_safe_relative_path(const std::string& path) {
   return parts > 0 && path.back() != '/';
 }
 
-SceneBundleData bundle_scene(const std::string& spec, const Lighting& job) {
+namespace {
+
+// A built-in scene with a job's environment image: a scene JSON naming the built-in, beside the
+// image, so that the image travels as a scene JSON's files do. Without `env_folder` (where the image
+// lies) the image is refused with the reason, as a built-in has no folder.
+SceneBundleData bundle_builtin_with_image(const std::string& spec, const Lighting& job, const std::string& env_folder) {
+  const LoadOptions opts;
+  LoadReport report;
+  load_job_scene(spec, opts, &report, job, env_folder);  // reads and checks the image
+  if (report.files.size() != 1) throw SceneError(fmt::format("{}: expected the environment image alone", spec));
+  const FileRef& image = report.files.front();
+  const std::string name = image.real.filename().string();
+  if (!is_safe_relative_path(name) || name != job.environment->image)
+    throw SceneError(fmt::format("{}: environment image '{}' is not a file name", spec, job.environment->image));
+  SceneBundleData b;
+  b.entry_path = name == "builtin.json" ? "builtin-scene.json" : "builtin.json";
+  b.files.emplace_back(b.entry_path, nlohmann::json{{"builtin", spec.substr(8)}}.dump() + "\n");
+  b.files.emplace_back(name, read_scene_file(image, opts.max_file_bytes));
+  std::sort(b.files.begin(), b.files.end());
+  return b;
+}
+
+}  // namespace
+
+SceneBundleData bundle_scene(const std::string& spec, const Lighting& job, const std::string& env_folder) {
   SceneBundleData b;
   if (spec.rfind("builtin:", 0) == 0 && spec.find('\0') == std::string::npos) {
+    if (job.environment && !job.environment->image.empty()) return bundle_builtin_with_image(spec, job, env_folder);
     b.builtin = spec;
-    // A job's environment image is refused with the reason: a built-in has no folder to carry it.
-    if (job.environment && !job.environment->image.empty()) job_lighting(Scene{}, job);
     return b;
   }
   // The scene is loaded here, so that its files are the ones the loader reads (one parser for both),

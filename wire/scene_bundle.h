@@ -25,7 +25,10 @@ struct SceneBundleData {
 /// logged once, a scene without light refused) and bundles the files that load read. Throws
 /// SceneError naming the file when the scene is broken, unlit, or a file cannot be read.
 /// With `job`'s lighting (RenderOptions::lighting), an environment image it names is bundled too.
-SceneBundleData bundle_scene(const std::string& spec, const Lighting& job = {});
+/// With a built-in scene, that image is read inside `env_folder` (RenderOptions::env_folder) and the
+/// bundle is a scene JSON {"builtin": NAME} beside it (builtin stays empty); without `env_folder` it is
+/// refused with the reason.
+SceneBundleData bundle_scene(const std::string& spec, const Lighting& job = {}, const std::string& env_folder = "");
 
 /// Lowercase hex SHA-256 over the canonical serialisation (files) or "epr-builtin-v1\n" + builtin.
 std::string content_hash(const SceneBundleData& bundle);

@@ -19,6 +19,7 @@
 #include <fstream>
 
 #include "client/remote_commands.h"
+#include "common/image.h"
 #include "common/scene_loader.h"
 #include "wire/scene_bundle.h"
 
@@ -259,6 +260,28 @@ TEST_F(JobSpecTest, SmallFileSceneTravelsInlineWithItsHash) {
   EXPECT_EQ(spec.name(), "floor.obj");
   ASSERT_TRUE(spec.has_camera());  // an OBJ's camera is CameraSpec's default
   EXPECT_FLOAT_EQ(spec.camera().eye().z(), CameraSpec{}.eye.z);
+}
+
+// `epr submit builtin:cornell --env FILE`: the image travels in the job's bundle beside a scene JSON
+// naming the built-in, and the job names it by its file name inside that bundle.
+TEST_F(JobSpecTest, BuiltinWithAnEnvironmentImageSendsTheImageInItsBundle) {
+  Image sky(4, 2, 3);
+  for (float& v : sky.data) v = 0.5f;
+  write_exr((dir_ / "sky.exr").string(), sky);
+  RenderOptions o;
+  o.scene = "builtin:cornell";
+  o.lighting.environment = EnvironmentLight{};
+  o.lighting.environment->image = "sky.exr";
+  o.env_folder = dir_.string();
+  const v1::JobSpec spec = client_.make_job_spec(o);
+  ASSERT_TRUE(spec.scene().has_files());
+  EXPECT_EQ(spec.scene().files().entry_path(), "builtin.json");
+  ASSERT_EQ(spec.scene().files().files_size(), 2);
+  EXPECT_EQ(spec.scene().files().files(1).path(), "sky.exr");
+  EXPECT_EQ(spec.environment().image(), "sky.exr");
+  EXPECT_EQ(spec.scene().content_hash(), content_hash(bundle_scene(o.scene, o.lighting, o.env_folder)));
+  EXPECT_EQ(spec.name(), "cornell");
+  EXPECT_FLOAT_EQ(spec.camera().eye().z(), load_scene("builtin:cornell").camera.eye.z);  // the built-in's camera
 }
 
 TEST_F(JobSpecTest, LargeFileSceneIsUploadedFirst) {

@@ -84,8 +84,14 @@ TEST(RenderFlags, EnvAndSunReplaceTheScenesLighting) {
   EXPECT_NE(e.find("lies outside the scene's folder"), std::string::npos) << e;
   e = flag_error({scene, "--env", (dir / "missing.hdr").string()});
   EXPECT_NE(e.find("is not a readable file"), std::string::npos) << e;
-  e = flag_error({"builtin:cornell", "--env", (dir / "elsewhere.hdr").string()});
-  EXPECT_NE(e.find("a built-in scene carries no files"), std::string::npos) << e;
+  // A built-in scene has no folder: the image's own stands in for it, the image named by its file name.
+  o = parse({"builtin:cornell", "--env", (dir / "elsewhere.hdr").string()}, RenderFlagSet::kRemote);
+  EXPECT_EQ(o.lighting.environment->image, "elsewhere.hdr");
+  EXPECT_EQ(o.env_folder, fs::canonical(dir).string());
+  e = flag_error({"builtin:cornell", "--env", (dir / "missing.hdr").string()});
+  EXPECT_NE(e.find("'" + (dir / "missing.hdr").string() + "' is not a readable file"), std::string::npos) << e;
+  o = parse({scene, "--env", "0.5"}, RenderFlagSet::kLocal);
+  EXPECT_TRUE(o.env_folder.empty());
   e = flag_error({scene, "--sun", "1,2"});
   EXPECT_NE(e.find("--sun '1,2': expects DX,DY,DZ"), std::string::npos) << e;
   e = flag_error({scene, "--env", "1,2"});

@@ -1,7 +1,8 @@
 // Scene input through the real `epr` binary (issue 16): a scene's warnings are printed once, naming
 // the user's file; an unlit scene is refused before anything renders, saying how to light it; FIFOs,
 // devices and directories named as scene files fail at once; a texture whose name has blanks renders
-// through the embedded cluster (which bundles the scene) as it does in a single process.
+// through the embedded cluster (which bundles the scene) as it does in a single process; so does a
+// built-in scene under an `--env` image.
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
@@ -196,6 +197,43 @@ TEST_F(SceneInputCli, SkyLitSceneRendersThroughTheClusterAndInSkipMode) {
   const EprRun dark = run_epr(dir.path(""), "render scene/room.obj" + kFast + " --out out/dark");
   EXPECT_NE(dark.exit_code, 0);
   EXPECT_TRUE(contains(dark.output, "--env 1,1,1")) << dark.output;
+}
+
+// `--env FILE` with a built-in scene: the image lies anywhere (a built-in has no folder); the single
+// process reads it there, the embedded cluster gets it in the scene's bundle, and the two images are
+// the same, bit for bit. Seen from afar, the box's surroundings show the sky. A missing file is
+// refused before anything renders, naming it.
+TEST_F(SceneInputCli, BuiltInSceneRendersUnderAnEnvImage) {
+  const Vec3 blue(0.2f, 0.4f, 0.8f);
+  Image sky(16, 8, 3);
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 16; ++x) sky.set_rgb(x, y, blue);
+  fs::create_directories(dir.path("skies"));
+  write_exr(dir.path("skies/blue.exr"), sky);
+  const std::string flags =
+      " --width 24 --height 24 --spp 4 --mode pt --seed 3 --threads 2 --eye 0,1,9 --sun 1,2,3,2,0.5";
+  const EprRun local = run_epr(
+      dir.path(""), "render --single-process builtin:cornell --env skies/blue.exr" + flags + " --out out/local");
+  ASSERT_EQ(local.exit_code, 0) << local.output;
+  const EprRun cluster =
+      run_epr(dir.path(""), "render builtin:cornell --env skies/blue.exr" + flags + " --out out/cluster");
+  ASSERT_EQ(cluster.exit_code, 0) << cluster.output;
+  const Image a = read_image(dir.path("out/local.exr")), b = read_image(dir.path("out/cluster.exr"));
+  ASSERT_EQ(a.data.size(), b.data.size());
+  EXPECT_TRUE(a.data == b.data) << "the cluster's image differs from the single-process one";
+  // The top-left corner looks past the box: the sky's radiance, whatever the samples.
+  const Vec3 corner = a.rgb(0, 0);
+  EXPECT_NEAR(corner.x, blue.x, 1e-5f);
+  EXPECT_NEAR(corner.y, blue.y, 1e-5f);
+  EXPECT_NEAR(corner.z, blue.z, 1e-5f);
+
+  for (const std::string cmd : {"render --single-process", "render", "submit --master 127.0.0.1:1"}) {
+    const EprRun missing =
+        run_epr(dir.path(""), cmd + " builtin:cornell --env skies/none.exr" + kFast + " --out out/m");
+    EXPECT_NE(missing.exit_code, 0) << cmd;
+    EXPECT_TRUE(contains(missing.output, "--env: 'skies/none.exr' is not a readable file"))
+        << cmd << ": " << missing.output;
+  }
 }
 
 }  // namespace

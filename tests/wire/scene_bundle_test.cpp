@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <functional>
 #include <sstream>
 #include <string>
 
@@ -169,6 +170,54 @@ TEST(SceneBundle, EnvironmentImagesTravelInTheBundle) {
     ADD_FAILURE() << "a missing environment image was accepted";
   } catch (const SceneError& e) {
     EXPECT_NE(std::string(e.what()).find("--env: environment image 'skies/c.exr' does not exist"), std::string::npos)
+        << e.what();
+  }
+}
+
+// A built-in scene with a job's image (`--env FILE`, read from the image's folder on the client's
+// side) is bundled as a scene JSON naming the built-in beside the image; master and workers load it
+// as the client does. Without the folder (a raw submission) the image is refused.
+TEST(SceneBundle, ABuiltInSceneTakesAJobsImageAlong) {
+  TempDir dir;
+  std::filesystem::create_directories(dir.path("skies"));
+  Image sky(4, 2, 3);
+  for (float& v : sky.data) v = 0.75f;
+  write_exr(dir.path("skies/sky.exr"), sky);
+  Lighting job;
+  job.environment = EnvironmentLight{};
+  job.environment->image = "sky.exr";
+  const SceneBundleData b = bundle_scene("builtin:cornell?tess=2", job, dir.path("skies"));
+  EXPECT_TRUE(b.builtin.empty());
+  EXPECT_EQ(b.entry_path, "builtin.json");
+  ASSERT_EQ(b.files.size(), 2u);
+  EXPECT_EQ(b.files[0].first, "builtin.json");
+  EXPECT_EQ(b.files[0].second, "{\"builtin\":\"cornell?tess=2\"}\n");
+  EXPECT_EQ(b.files[1].first, "sky.exr");
+  const Scene local = load_job_scene("builtin:cornell?tess=2", {}, nullptr, job, dir.path("skies"));
+  const Scene bundled = load_bundle(b, dir.path("cache"), job);
+  EXPECT_EQ(bundled.positions, local.positions);
+  EXPECT_EQ(bundled.material_of, local.material_of);
+  EXPECT_EQ(bundled.camera.eye, local.camera.eye);
+  ASSERT_TRUE(bundled.lighting.environment && bundled.lighting.environment->pixels);
+  EXPECT_EQ(bundled.lighting.environment->pixels->rgb(1, 1), Vec3(0.75f));
+  // Without the folder: refused with the reason, on the client's side and the master's.
+  for (auto attempt : {std::function<void()>([&] { bundle_scene("builtin:cornell", job); }), std::function<void()>([&] {
+                         load_bundle(SceneBundleData{"builtin:cornell", "", {}}, dir.path("cache"), job);
+                       })}) {
+    try {
+      attempt();
+      ADD_FAILURE() << "a built-in scene read an image without a folder";
+    } catch (const SceneError& e) {
+      EXPECT_NE(std::string(e.what()).find("a built-in scene has no folder"), std::string::npos) << e.what();
+    }
+  }
+  // A missing image names the flag and the file.
+  job.environment->image = "missing.exr";
+  try {
+    bundle_scene("builtin:cornell", job, dir.path("skies"));
+    ADD_FAILURE() << "a missing image was bundled";
+  } catch (const SceneError& e) {
+    EXPECT_NE(std::string(e.what()).find("--env: environment image 'missing.exr' does not exist"), std::string::npos)
         << e.what();
   }
 }
