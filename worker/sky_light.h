@@ -33,7 +33,7 @@
 namespace epr {
 
 /// The floor of either side's share of the light selection when both give light.
-inline constexpr float kMinLightShare = 0.1f;
+inline constexpr float kMinLightShare = 0.25f;
 
 /// The triangles' share of the light selection for the two powers (W, luminance): their fraction
 /// of the total, clamped to [kMinLightShare, 1 - kMinLightShare]; 0 without triangle power, 1
