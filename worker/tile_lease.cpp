@@ -141,21 +141,7 @@ std::optional<TileResult> render_leased_tile(const TileRenderer& renderer, const
   out.path_count.reserve(size_t(tile.rect.pixel_count()));
   for (int y = tile.rect.y0; y < tile.rect.y1; y += rows) {
     if (cancelled && cancelled()) return std::nullopt;
-    TileResult part = renderer.render(tile.strip(y, std::min(tile.rect.y1, y + rows)));
-    out.path_sum.insert(out.path_sum.end(), part.path_sum.begin(), part.path_sum.end());
-    out.path_count.insert(out.path_count.end(), part.path_count.begin(), part.path_count.end());
-    if (out.vertices.empty())
-      out.vertices = std::move(part.vertices);
-    else
-      out.vertices.insert(out.vertices.end(), part.vertices.begin(), part.vertices.end());
-    out.visible.insert(out.visible.end(), part.visible.begin(), part.visible.end());
-    if (out.packed_vertices.empty())
-      out.packed_vertices = std::move(part.packed_vertices);
-    else
-      out.packed_vertices += part.packed_vertices;
-    out.encode_counts += part.encode_counts;
-    out.packed_bounds = part.packed_bounds;
-    out.stats += part.stats;
+    renderer.render_into(tile.strip(y, std::min(tile.rect.y1, y + rows)), out);
   }
   return out;
 }

@@ -56,12 +56,17 @@ void TileRenderer::filter_vertices(std::vector<VertexRecord>& recs, size_t first
 }
 
 TileResult TileRenderer::render(const TileRequest& req) const {
-  const auto start = std::chrono::steady_clock::now();
   TileResult out;
   out.rect = req.rect;
-  const size_t n = size_t(req.rect.pixel_count());
-  out.path_sum.assign(n, Vec3(0.f));
-  out.path_count.assign(n, 0);
+  render_into(req, out);
+  return out;
+}
+
+void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
+  const auto start = std::chrono::steady_clock::now();
+  const size_t n = size_t(req.rect.pixel_count()), at = out.path_sum.size();
+  out.path_sum.resize(at + n, Vec3(0.f));
+  out.path_count.resize(at + n, 0);
   const bool record = filter_.mode != VertexFilter::Mode::kNone;
   const bool encode = codec_.has_value();
   // Exact mode keeps records only until they are turned into VisibleSamples; with a codec, kept
@@ -90,13 +95,12 @@ TileResult TileRenderer::render(const TileRequest& req) const {
           recs.clear();
         }
       }
-      out.path_sum[i] = sum;
-      out.path_count[i] = uint32_t(req.paths_per_pixel);
+      out.path_sum[at + i] = sum;
+      out.path_count[at + i] = uint32_t(req.paths_per_pixel);
     }
   }
   if (encode) codec_->encode_batch(recs, &out.packed_vertices, &out.encode_counts);
-  out.stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  return out;
+  out.stats.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
 }  // namespace epr

@@ -44,6 +44,10 @@ class TileRenderer {
   /// std::invalid_argument for bounds VertexCodec refuses.
   TileRenderer(const PathTracer& tracer, VertexFilter filter, const Bounds3& codec_bounds);
   TileResult render(const TileRequest& request) const;
+  /// Appends `request`'s pixels to `out` (after the ones it holds, in row-major order), its vertices
+  /// after `out`'s, and adds to its stats: rendering a tile strip by strip into one result gives the
+  /// bits one render() of the whole tile gives, with no copy of the strips afterwards.
+  void render_into(const TileRequest& request, TileResult& out) const;
 
   /// With codec bounds, kept records are encoded once at least this many have gathered (a few paths'
   /// worth, 2.5 KB: still in L1), so that the codec's four-record kernel runs on full groups.

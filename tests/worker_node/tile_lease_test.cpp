@@ -190,8 +190,18 @@ TEST(TileLease, StripsAreBitIdenticalToOneCall) {
     EXPECT_TRUE(same_bits(parts->vertices.data(), whole.vertices.data(), whole.vertices.size() * sizeof(VertexRecord)));
     ASSERT_EQ(parts->visible.size(), whole.visible.size());
     EXPECT_TRUE(same_bits(parts->visible.data(), whole.visible.data(), whole.visible.size() * sizeof(VisibleSample)));
+    // Strips rendered into one result (TileRenderer::render_into) add up to one call's stats.
+    EXPECT_EQ(parts->rect.y0, whole.rect.y0);
+    EXPECT_EQ(parts->rect.y1, whole.rect.y1);
     EXPECT_EQ(parts->stats.paths.paths, whole.stats.paths.paths);
+    EXPECT_EQ(parts->stats.paths.vertices, whole.stats.paths.vertices);
+    EXPECT_EQ(parts->stats.paths.rays, whole.stats.paths.rays);
+    EXPECT_EQ(parts->stats.vertices_recorded, whole.stats.vertices_recorded);
     EXPECT_EQ(parts->stats.culled_frustum, whole.stats.culled_frustum);
+    EXPECT_EQ(parts->stats.culled_facing, whole.stats.culled_facing);
+    EXPECT_EQ(parts->stats.culled_glossy, whole.stats.culled_glossy);
+    EXPECT_EQ(parts->stats.exact_occluded, whole.stats.exact_occluded);
+    EXPECT_GT(parts->stats.seconds, 0.0);
     EXPECT_GT(whole.vertices.size() + whole.visible.size(), 0u);
 
     // Packed while tracing (WorkerNode's renderer): the strips' bytes and counts concatenate to one call's.
