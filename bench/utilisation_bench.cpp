@@ -8,7 +8,9 @@
 //   thread util: the worker's own view (WorkerNodeStats::time_*), the share of its tracing threads'
 //                wall time spent inside a tile's tracing rather than waiting for a lease, for the
 //                master (a round barrier, back-pressure), for a submission, or on the worker's own
-//                overhead between tiles. The split by activity is printed under each run.
+//                overhead between tiles. The split by activity is printed under each run; embedded,
+//                also the tiles traced and committed and the sum of the tiles' own timers (node and
+//                master), and with --cpu-split the threads' CPU seconds by activity.
 // On a machine with few cores the master's threads take CPU from the tracing threads: util counts
 // that against the worker, thread util counts it where the thread was preempted. --pin runs the
 // cluster's epr-master on CPU 0 and a one-thread epr-worker on CPU 1, so that they do not share one.
@@ -22,7 +24,7 @@
 // share the machine; the load average is printed with each run.
 //
 //   utilisation_bench [--setups embedded,cluster] [--jobs 1,3] [--reps 3] [--size 192] [--spp 64]
-//                     [--ppr 1] [--mode skip] [--reproject cpu] [--threads 0] [--pin]
+//                     [--ppr 1] [--mode skip] [--reproject cpu] [--threads 0] [--pin] [--cpu-split]
 #include <sched.h>
 #include <signal.h>
 
@@ -80,7 +82,8 @@ double median(std::vector<double> v) {
 
 struct Settings {
   int size = 192, spp = 64, ppr = 1, threads = 0;
-  bool pin = false;  // cluster: epr-master on CPU 0, epr-worker on CPU 1 (--threads 1 unless told)
+  bool pin = false;        // cluster: epr-master on CPU 0, epr-worker on CPU 1 (--threads 1 unless told)
+  bool cpu_split = false;  // embedded: the node's WorkerNodeOptions::cpu_split (reads the CPU clocks)
   std::string mode = "skip", reproject = "cpu";
 };
 
@@ -103,6 +106,10 @@ struct Run {
   double seconds = 0;
   epr::WorkerTimeSplit split;  // the tracing threads' time over the window, by activity
   epr::WorkerTimeSplit cpu;    // their CPU seconds over the window, by activity
+  // Embedded: the node's tiles over the window, and its own sum of the tiles' tracing seconds (all
+  // tiles traced, committed or not), against the master's sum (committed tiles).
+  uint64_t leased = 0, committed = 0, uncommitted = 0;
+  double node_tracing = -1, master_tracing = 0;
 };
 
 /// Submits `n` jobs to `target`, waits for all; the window and the jobs' tracing seconds.
@@ -209,6 +216,7 @@ bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
   wo.master = server.local_target();
   wo.threads = threads_of(s);
   wo.name = "bench";
+  wo.cpu_split = s.cpu_split;
   wo.cache_dir = (dir / "cache").string();
   epr::WorkerNode node(wo);
   std::thread node_thread([&] { node.run(); });
@@ -236,6 +244,12 @@ bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
   out->split.other += none.other;
   out->cpu = after.cpu;
   out->cpu -= before.cpu;
+  out->leased = after.tiles_leased - before.tiles_leased;
+  out->committed = after.tiles_committed - before.tiles_committed;
+  out->uncommitted = (after.tiles_duplicate + after.tiles_stale + after.tiles_abandoned + after.tiles_returned) -
+                     (before.tiles_duplicate + before.tiles_stale + before.tiles_abandoned + before.tiles_returned);
+  out->node_tracing = after.seconds_tracing - before.seconds_tracing;
+  out->master_tracing = tracing;
   return true;
 }
 
@@ -307,6 +321,9 @@ int main(int argc, char** argv) {
   app.add_flag("--pin", s.pin,
                "cluster: epr-master on CPU 0 and epr-worker on CPU 1 (sched_setaffinity), so that the master's "
                "threads do not take the tracing threads' core");
+  app.add_flag("--cpu-split", s.cpu_split,
+               "embedded: also split the tracing threads' CPU seconds by activity (reading their CPU clocks at "
+               "every change moves preemptions to the tiles' hand-offs: a diagnostic that changes the figures)");
   CLI11_PARSE(app, argc, argv);
   epr::set_log_level("warn");
   const std::vector<std::string> series = split(jobs);
@@ -343,6 +360,12 @@ int main(int argc, char** argv) {
             std::printf("          cpu s: tracing %.2f (wall %.2f) other %.2f (wall %.2f)\n", r.cpu.tracing,
                         r.split.tracing, r.cpu.other, r.split.other);
         }
+        if (r.node_tracing >= 0)  // the tiles' own timers against the threads' time inside tiles
+          std::printf(
+              "          tiles: leased %llu committed %llu not committed %llu; tile timers: node %.2f s, "
+              "master %.2f s\n",
+              (unsigned long long)r.leased, (unsigned long long)r.committed, (unsigned long long)r.uncommitted,
+              r.node_tracing, r.master_tracing);
         std::fflush(stdout);
       }
     }

@@ -54,18 +54,23 @@ void TimeAccounting::advance() {
   }
 }
 
-ThreadActivity::ThreadActivity(TimeAccounting& t) : t_(t), cpu_(thread_cpu_seconds()) { t_.enter(current_); }
+ThreadActivity::ThreadActivity(TimeAccounting& t) : t_(t) {
+  if (t_.cpu_clock()) cpu_ = thread_cpu_seconds();
+  t_.enter(current_);
+}
 
 ThreadActivity::~ThreadActivity() {
-  t_.add_cpu(current_, thread_cpu_seconds() - cpu_);
+  if (t_.cpu_clock()) t_.add_cpu(current_, thread_cpu_seconds() - cpu_);
   t_.leave(current_);
 }
 
 void ThreadActivity::set(Activity a) {
   if (a == current_) return;
-  const double cpu = thread_cpu_seconds();
-  t_.add_cpu(current_, cpu - cpu_);
-  cpu_ = cpu;
+  if (t_.cpu_clock()) {
+    const double cpu = thread_cpu_seconds();
+    t_.add_cpu(current_, cpu - cpu_);
+    cpu_ = cpu;
+  }
   t_.move(current_, a);
   current_ = a;
 }

@@ -2,6 +2,13 @@
 // is in one Activity at a time; at every change the elapsed time is credited to the activities of all
 // threads, split by whether another thread was tracing meanwhile. A few changes per tile: one mutex is
 // cheap enough. A ThreadActivity follows one thread; its Doing switches the activity for a scope.
+//
+// The threads' own CPU seconds by activity are read only when asked for (TimeAccounting(true)): reading
+// a thread's CPU clock (clock_gettime(CLOCK_THREAD_CPUTIME_ID)) brings the kernel's accounting of the
+// running thread up to date, and a thread whose time slice has run out loses its core right there
+// instead of at the next tick. On a busy machine the reads at every change put those preemptions at the
+// tiles' hand-offs (between a tile's end and its submission, before the next lease), where they delay
+// the pipeline; docs/BENCHMARKS.md section 9.
 #pragma once
 
 #include <chrono>
@@ -42,11 +49,14 @@ enum class Activity { kOther, kTracing, kLeasing, kWaiting, kSubmitting };
 
 class TimeAccounting {
  public:
+  /// `cpu`: also split the threads' CPU seconds by activity (cpu()); otherwise cpu() stays zero.
+  explicit TimeAccounting(bool cpu = false) : cpu_clock_(cpu) {}
+  bool cpu_clock() const { return cpu_clock_; }
   void enter(Activity a) EPR_EXCLUDES(mu_) { change(nullptr, &a); }
   void leave(Activity a) EPR_EXCLUDES(mu_) { change(&a, nullptr); }
   void move(Activity from, Activity to) EPR_EXCLUDES(mu_) { change(&from, &to); }
   void add_cpu(Activity a, double seconds) EPR_EXCLUDES(mu_);
-  /// The threads' own CPU seconds by activity (up to their last change).
+  /// The threads' own CPU seconds by activity (up to their last change); zero unless constructed with cpu.
   WorkerTimeSplit cpu() EPR_EXCLUDES(mu_);
   /// {while another thread traced, while none did}, up to now.
   std::pair<WorkerTimeSplit, WorkerTimeSplit> split() EPR_EXCLUDES(mu_);
@@ -59,6 +69,7 @@ class TimeAccounting {
   void change(const Activity* from, const Activity* to) EPR_EXCLUDES(mu_);
   void advance() EPR_REQUIRES(mu_);  // credits the time since the last change
 
+  const bool cpu_clock_;
   Mutex mu_;
   Clock::time_point last_ EPR_GUARDED_BY(mu_) = Clock::now();
   int threads_in_[kActivities] EPR_GUARDED_BY(mu_) = {};
@@ -98,7 +109,7 @@ class ThreadActivity {
   void set(Activity a);
   TimeAccounting& t_;
   Activity current_ = Activity::kOther;
-  double cpu_;  // thread CPU seconds at the last change
+  double cpu_ = 0;  // thread CPU seconds at the last change (with TimeAccounting::cpu_clock())
 };
 
 }  // namespace epr

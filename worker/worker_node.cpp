@@ -61,6 +61,7 @@ struct WorkerNode::Impl {
         name(opts.name.empty() ? default_name() : opts.name),
         jobs(size_t(std::max(1, opts.max_cached_jobs)),
              [this](const v1::SceneRef& ref, const std::string& master) { return load_scene_for(ref, master); }),
+        time(opts.cpu_split),
         pool(pool_options(), signal, counters, log),
         rng(std::random_device{}()) {
     if (!cache.fallback_reason().empty())

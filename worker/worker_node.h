@@ -84,6 +84,10 @@ struct WorkerNodeOptions {
   int max_backoff_ms = 5000;  // cap of the reconnect backoff
   int min_backoff_ms = 100;   // first reconnect delay (halved or kept, by the jitter)
   int max_cached_jobs = 3;    // per-job tracing state kept (scenes and BVHs of older jobs are dropped)
+  // Split the tracing threads' CPU seconds by activity (WorkerNodeStats::cpu). A diagnostic: reading a
+  // thread's CPU clock at every change of activity lets the kernel preempt it at the tiles' hand-offs
+  // (worker/time_accounting.h), so it is off unless asked for.
+  bool cpu_split = false;
 };
 
 struct WorkerNodeStats {
@@ -112,7 +116,8 @@ struct WorkerNodeStats {
   // T x the wall time during which the node traced nothing.
   WorkerTimeSplit time_others_tracing;
   WorkerTimeSplit time_none_tracing;
-  WorkerTimeSplit cpu;  // the tracing threads' own CPU seconds by activity (up to their last change)
+  WorkerTimeSplit cpu;  // the tracing threads' own CPU seconds by activity (up to their last change;
+                        // zero unless options.cpu_split)
 };
 
 class WorkerNode {

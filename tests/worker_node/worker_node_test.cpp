@@ -186,16 +186,21 @@ TEST_F(WorkerNodeTest, TwoNodesRenderASkipJobLikeTheSingleProcessRender) {
   EXPECT_GT(sa.vertices_sent + sb.vertices_sent, 0u);
   EXPECT_EQ(sa.tiles_refused + sb.tiles_refused, 0u);
   EXPECT_EQ(sa.registrations, 1u);
+  // Without options.cpu_split the threads' CPU clocks are not read.
+  EXPECT_GT(sb.time_others_tracing.tracing + sb.time_none_tracing.tracing, 0.0);
+  EXPECT_EQ(sb.cpu.total(), 0.0);
   expect_same_as_local(id, o);
 }
 
 // The time split (WorkerNodeStats::time_*, cpu) books every tracing thread's wall time once: over a
 // job that runs entirely while the node does, the threads' booked time covers at least threads x the
 // job's wall time and at most threads x the node's; tracing wall time holds the tiles' own tracing
-// time and the threads' tracing CPU time.
+// time and (options.cpu_split) the threads' tracing CPU time.
 TEST_F(WorkerNodeTest, TimeSplitAccountsForEveryTracingThread) {
   const auto node_started = std::chrono::steady_clock::now();
-  std::optional<RunningNode> node(std::in_place, node_options(2));
+  WorkerNodeOptions options = node_options(2);
+  options.cpu_split = true;
+  std::optional<RunningNode> node(std::in_place, options);
   ASSERT_TRUE(wait_until([&] { return node->stats().registered; }));
   const RenderOptions o = cornell_options(RenderMode::kSkip, ReprojectMethod::kCpu, 48, 8, 2);
   const std::string id = submit(o, bundle_scene(o.scene));
