@@ -8,7 +8,7 @@ Courier::Courier(std::string name) : name_(std::move(name)), thread_([this] { lo
 
 Courier::~Courier() {
   {
-    MutexLock lock(mu_);
+    std::lock_guard<std::mutex> lock(mu_);
     stopping_ = true;
   }
   cv_.notify_one();
@@ -17,9 +17,11 @@ Courier::~Courier() {
 
 void Courier::loop() {
   set_thread_name(name_);
-  MutexLock lock(mu_);
+  std::unique_lock<std::mutex> lock(mu_);
   for (;;) {
-    cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return stopping_ || !tasks_.empty(); });  // with mu_ held
+    waiting_ = true;
+    cv_.wait(lock, [&] { return stopping_ || !tasks_.empty(); });
+    waiting_ = false;
     if (tasks_.empty()) return;
     auto task = std::move(tasks_.front());
     tasks_.pop_front();
