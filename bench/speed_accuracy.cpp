@@ -1,6 +1,7 @@
 // Speed against accuracy: progressive renders of the built-in scenes in every mode, with the error
 // against a converged path-traced reference after every round, plus Blender Cycles' renders of the
-// same scenes scored against the same reference. Driven by scripts/bench.sh (docs/RESULTS.md).
+// same scenes scored against the same reference; everything is also scored against an independent
+// Cycles reference when one is given. Driven by scripts/bench.sh (docs/RESULTS.md).
 //
 // Modes (one single-process render each, client/local_render.h, tracer on --threads threads):
 //   pt     plain path tracing                      (RenderMode::kPathTrace)
@@ -10,7 +11,7 @@
 //
 // Per run, OUT/csv/SCENE_WxH_MODE.csv has one row per round:
 //   round, wall_s, cpu_s, eye_paths, reprojected_samples, mean_spp, rel_mse, rel_mse_trim, rmse,
-//   rel_mse_raw, rel_mse_trim_raw, rmse_raw
+//   rel_mse_raw, rel_mse_trim_raw, rmse_raw, spp, rel_mse_cy, rel_mse_trim_cy, rmse_cy
 // wall_s / cpu_s: seconds since the render started (scene load and BVH included) -- wall clock and
 // process CPU (getrusage) -- with the time this harness spends reading the images and scoring them
 // left out. eye_paths = sum of M, reprojected_samples = sum of M' over the pixels.
@@ -28,7 +29,11 @@
 // --list-references prints the cache file names of the references for the given settings.
 // --export-obj DIR writes each scene as DIR/NAME.obj + NAME.mtl (Kd, Ke; glossy lobes are not
 // exported) and DIR/NAME.camera (eye, look, up, vertical fov) for scripts/cycles_sweep.py, and exits.
-// --cycles DIR scores DIR/SCENE_WxH/times.csv (written by cycles_sweep.py) into OUT/csv/SCENE_WxH_cycles.csv.
+// --cycles DIR scores DIR/SCENE_WxH/times.csv (written by cycles_sweep.py) into OUT/csv/SCENE_WxH_cycles.csv,
+// and DIR/SCENE_WxH_adaptive (Cycles' adaptive sampling) into SCENE_WxH_cycles_adaptive.csv. When
+// DIR/SCENE_WxH_reference/{a,b}.exr exist (two independent Cycles halves, scripts/bench.sh), every
+// round of every run and every Cycles render is scored against (a + b) / 2 too, its floor subtracted
+// the same way: the *_cy columns (nan without that reference).
 //
 // OUT/summary.json and OUT/tables.md: vertex fates and reprojection overhead (rp), share of eye paths
 // traced (skip), converged errors, and the CPU time at which each mode (and Cycles) reaches plain path
@@ -84,9 +89,17 @@ using bench::scene_name;
 struct Sample {
   int round = 0;
   double wall = 0, cpu = 0, eye_paths = 0, reprojected = 0, mean_spp = 0;
-  double spp = 0;       // paths per pixel the round schedule has reached (traced + skipped; = pt's M)
-  ErrorMeans raw, err;  // err = raw - floor
+  double spp = 0;                // paths per pixel the round schedule has reached (traced + skipped; = pt's M)
+  ErrorMeans raw, err;           // err = raw - floor
+  std::optional<ErrorMeans> cy;  // against the Cycles reference, its floor subtracted
 };
+
+// An error of x against eprfarm's reference and, when there is one, against Cycles'.
+void score(Sample& s, const Image& x, const Reference& ref, const Reference* cyref) {
+  s.raw = errors(x, ref.image);
+  s.err = s.raw - ref.floor;
+  if (cyref) s.cy = errors(x, cyref->image) - cyref->floor;
+}
 
 struct Snapshot {
   double cpu = 0;
@@ -116,7 +129,7 @@ ModeSpec mode_spec(const std::string& m) {
 }
 
 // keep_snapshot(round, cpu): whether to keep this round's image for the equal-time strip.
-Run run_mode(const RenderOptions& base, const std::string& mode, const Reference& ref,
+Run run_mode(const RenderOptions& base, const std::string& mode, const Reference& ref, const Reference* cyref,
              const std::function<bool(int, double)>& keep_snapshot) {
   RenderOptions o = base;
   const ModeSpec ms = mode_spec(mode);
@@ -144,8 +157,7 @@ Run run_mode(const RenderOptions& base, const std::string& mode, const Reference
     s.mean_spp = fp.mean_spp;
     s.spp = double(fp.paths_traced + fp.paths_skipped) / pixels;
     Image combined = combined_image(img);
-    s.raw = errors(combined, ref.image);
-    s.err = s.raw - ref.floor;
+    score(s, combined, ref, cyref);
     run.samples.push_back(s);
     if (keep_snapshot && keep_snapshot(int(std::lround(s.spp)), s.cpu))
       run.snapshots.push_back({s.cpu, s.round, std::move(combined), std::move(img.reprojected)});
@@ -161,11 +173,16 @@ void write_csv(const fs::path& file, const std::vector<Sample>& samples) {
   std::ofstream f(file);
   if (!f) throw std::runtime_error("cannot write " + file.string());
   f << "round,wall_s,cpu_s,eye_paths,reprojected_samples,mean_spp,rel_mse,rel_mse_trim,rmse,rel_mse_raw,"
-       "rel_mse_trim_raw,rmse_raw,spp\n";
-  for (const Sample& s : samples)
-    f << fmt::format("{},{:.4f},{:.4f},{:.0f},{:.0f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.4f}\n",
-                     s.round, s.wall, s.cpu, s.eye_paths, s.reprojected, s.mean_spp, s.err.full, s.err.trimmed,
+       "rel_mse_trim_raw,rmse_raw,spp,rel_mse_cy,rel_mse_trim_cy,rmse_cy\n";
+  for (const Sample& s : samples) {
+    f << fmt::format("{},{:.4f},{:.4f},{:.0f},{:.0f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.4f},", s.round,
+                     s.wall, s.cpu, s.eye_paths, s.reprojected, s.mean_spp, s.err.full, s.err.trimmed,
                      std::sqrt(std::max(0.0, s.err.mse)), s.raw.full, s.raw.trimmed, std::sqrt(s.raw.mse), s.spp);
+    if (s.cy)
+      f << fmt::format("{:.6g},{:.6g},{:.6g}\n", s.cy->full, s.cy->trimmed, std::sqrt(std::max(0.0, s.cy->mse)));
+    else
+      f << "nan,nan,nan\n";
+  }
 }
 
 // The error column a table uses: trimmed or full relative MSE (reference noise subtracted).
@@ -231,16 +248,36 @@ double num(const json& j, const char* key) {
 // Cycles
 // ---------------------------------------------------------------------------------------------------
 
-// DIR/SCENE_WxH/times.csv: spp,wall_s,cpu_s,file (one render per row, file relative to the folder).
-// cycles_sweep.py may still be running (scripts/bench.sh runs it alongside): wait for its "done" file.
-std::vector<Sample> score_cycles(const fs::path& dir, const Reference& ref) {
-  std::vector<Sample> out;
-  if (!fs::exists(dir)) return out;
+// scripts/bench.sh renders Cycles alongside: wait for the folder's "done" file.
+void wait_done(const fs::path& dir) {
   for (int waited = 0; !fs::exists(dir / "done"); waited += 5) {
     if (waited % 60 == 0) std::printf("  waiting for %s/done (Cycles still rendering)\n", dir.c_str());
     std::fflush(stdout);
     std::this_thread::sleep_for(std::chrono::seconds(5));
   }
+}
+
+// DIR/SCENE_WxH_reference/{a,b}.exr: an independent Cycles reference as two halves of different seeds,
+// combined and given a floor exactly as eprfarm's (bench_reference.h); nullopt when absent.
+std::optional<Reference> cycles_reference(const fs::path& dir) {
+  if (!fs::exists(dir)) return std::nullopt;
+  wait_done(dir);
+  if (!fs::exists(dir / "a.exr") || !fs::exists(dir / "b.exr")) return std::nullopt;
+  const Image a = read_image((dir / "a.exr").string()), b = read_image((dir / "b.exr").string());
+  if (a.width != b.width || a.height != b.height) throw std::runtime_error(dir.string() + ": halves differ in size");
+  Reference ref;
+  ref.image = Image(a.width, a.height, 3);
+  for (int y = 0; y < a.height; ++y)
+    for (int x = 0; x < a.width; ++x) ref.image.set_rgb(x, y, (a.rgb(x, y) + b.rgb(x, y)) * 0.5f);
+  ref.floor = errors(a, ref.image);
+  return ref;
+}
+
+// DIR/SCENE_WxH/times.csv: spp,wall_s,cpu_s,file (one render per row, file relative to the folder).
+std::vector<Sample> score_cycles(const fs::path& dir, const Reference& ref, const Reference* cyref) {
+  std::vector<Sample> out;
+  if (!fs::exists(dir)) return out;
+  wait_done(dir);
   std::ifstream f(dir / "times.csv");
   if (!f) return out;
   std::string line;
@@ -258,8 +295,7 @@ std::vector<Sample> score_cycles(const fs::path& dir, const Reference& ref) {
     s.mean_spp = s.round;
     s.spp = s.round;
     s.eye_paths = double(s.round) * ref.image.width * ref.image.height;
-    s.raw = errors(read_image((dir / file).string()), ref.image);
-    s.err = s.raw - ref.floor;
+    score(s, read_image((dir / file).string()), ref, cyref);
     out.push_back(s);
   }
   std::sort(out.begin(), out.end(), [](const Sample& a, const Sample& b) { return a.round < b.round; });
@@ -390,6 +426,10 @@ int main(int argc, char** argv) {
     std::printf("\n== %s, load %.2f\n", tag.c_str(), load1());
     std::fflush(stdout);
     const Reference ref = reference(base, ref_spp, cache);
+    const std::optional<Reference> cyref =
+        cycles_dir.empty() ? std::nullopt : cycles_reference(fs::path(cycles_dir) / (tag + "_reference"));
+    const Reference* cy = cyref ? &*cyref : nullptr;
+    if (cy) std::printf("  scored against the Cycles reference too (floor %.3g trimmed)\n", cy->floor.trimmed);
     json js = {{"scene", spec},
                {"tag", tag},
                {"triangles", load_scene(spec).triangle_count()},
@@ -408,7 +448,7 @@ int main(int argc, char** argv) {
           keep = [&](int, double cpu) { return cpu <= 1.5 * strip_cpu; };
       }
       const double l0 = load1();
-      Run run = run_mode(base, mode, ref, keep);
+      Run run = run_mode(base, mode, ref, cy, keep);
       const Sample& last = run.samples.back();
       std::printf("  %-5s %4d rounds  %7.1f s wall %7.1f CPU-s  paths %.3g  M' %.3g  rMSE(trim) %.4g  load %.2f\n",
                   mode.c_str(), last.round, last.wall, last.cpu, last.eye_paths, last.reprojected, last.err.trimmed,
@@ -456,21 +496,23 @@ int main(int argc, char** argv) {
       for (auto& [m, r] : runs) r.snapshots.clear();
     }
 
-    std::vector<Sample> cycles;
-    if (!cycles_dir.empty()) {
-      cycles = score_cycles(fs::path(cycles_dir) / tag, ref);
-      if (!cycles.empty()) {
-        write_csv(out / "csv" / (tag + "_cycles.csv"), cycles);
-        json cj = json::array();
-        for (const Sample& s : cycles)
-          cj.push_back({{"spp", s.round},
-                        {"wall_s", s.wall},
-                        {"cpu_s", s.cpu},
-                        {"rel_mse_trim", s.err.trimmed},
-                        {"rel_mse", s.err.full}});
-        js["cycles"] = cj;
-        std::printf("  cycles: %zu renders scored\n", cycles.size());
-      }
+    std::map<std::string, std::vector<Sample>> cycles;  // "cycles", "cycles_adaptive"
+    for (const std::string suffix : {"", "_adaptive"}) {
+      if (cycles_dir.empty()) break;
+      const std::string name = "cycles" + suffix;
+      std::vector<Sample> c = score_cycles(fs::path(cycles_dir) / (tag + suffix), ref, cy);
+      if (c.empty()) continue;
+      write_csv(out / "csv" / (tag + "_" + name + ".csv"), c);
+      json cj = json::array();
+      for (const Sample& s : c)
+        cj.push_back({{"spp", s.round},
+                      {"wall_s", s.wall},
+                      {"cpu_s", s.cpu},
+                      {"rel_mse_trim", s.err.trimmed},
+                      {"rel_mse", s.err.full}});
+      js[name] = cj;
+      std::printf("  %s: %zu renders scored\n", name.c_str(), c.size());
+      cycles[name] = std::move(c);
     }
 
     // ---- tables
@@ -498,7 +540,7 @@ int main(int argc, char** argv) {
     }
     std::vector<std::pair<std::string, const std::vector<Sample>*>> curves;
     for (const std::string& m : modes) curves.emplace_back(m, &runs[m].samples);
-    if (!cycles.empty()) curves.emplace_back("cycles", &cycles);
+    for (const auto& [name, c] : cycles) curves.emplace_back(name, &c);
     json tte = json::object();
     for (const bool trimmed : {true, false}) {
       const char* name = trimmed ? "rel_mse_trim" : "rel_mse";

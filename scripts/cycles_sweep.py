@@ -10,6 +10,9 @@ The scene is built exactly as scripts/cycles_reference.py builds it (its functio
 Lambertian Diffuse BSDF from Kd, Emission strength 1 of colour Ke, black world, box pixel filter one
 pixel wide, no clamping / denoising / adaptive sampling / light tree, 1024-bounce caps, pinhole camera
 with a vertical field of view). The OBJ, MTL and camera come from `speed_accuracy --export-obj`.
+With --adaptive, Cycles' own adaptive sampling is on (`use_adaptive_sampling`, Blender's default noise
+threshold 0.01 and automatic minimum sample count): each --spp value is then the maximum sample count,
+and pixels that Cycles judges converged stop earlier.
 
 The scene is built once; every sample count is then one bpy.ops.render.render call in the same
 Blender process (seed --seed for all), after one unrecorded 1-sample warm-up render (Cycles' kernel
@@ -58,6 +61,8 @@ def parse_args():
     ap.add_argument("--threads", type=int, default=0, help="Cycles threads, 0 = all cores")
     ap.add_argument("--max-bounces", type=int, default=1024)
     ap.add_argument("--emitter-subdiv", type=int, default=16, help="as in cycles_reference.py")
+    ap.add_argument("--adaptive", action="store_true",
+                    help="Cycles' adaptive sampling (default threshold); --spp values are maximum sample counts")
     ap.add_argument("--outdir", required=True)
     a = ap.parse_args(argv)
     if bool(a.obj) == bool(a.gltf):
@@ -97,12 +102,17 @@ def main():
         triangles = len(tris)
     cr.build_camera(scene, a)
     cr.configure_render(scene, a)
+    if a.adaptive:
+        scene.cycles.use_adaptive_sampling = True
     scene.cycles.samples = 1
     scene.render.filepath = os.path.abspath(os.path.join(a.outdir, "warmup.exr"))
     bpy.ops.render.render(write_still=True)
     os.remove(scene.render.filepath)
-    print("cycles_sweep: %s: %d triangles; %dx%d, spp %s, threads %s"
-          % (a.obj or a.gltf, triangles, a.width, a.height, a.spp_list, a.threads or "auto"), flush=True)
+    print("cycles_sweep: %s: %d triangles; %dx%d, spp %s, threads %s, adaptive sampling %s"
+          % (a.obj or a.gltf, triangles, a.width, a.height, a.spp_list, a.threads or "auto",
+             "on (threshold %g, min samples %d = auto)" % (scene.cycles.adaptive_threshold,
+                                                          scene.cycles.adaptive_min_samples)
+             if a.adaptive else "off"), flush=True)
     rows = []
     for spp in a.spp_list:
         scene.cycles.samples = spp

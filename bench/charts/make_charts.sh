@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Charts and image strips from a scripts/bench.sh output folder: error against CPU and wall time per
-# scene (log-log, every mode and Cycles; trimmed and full relative MSE), bias (error against samples
+# scene (log-log, every mode and Cycles plain and adaptive; trimmed and full relative MSE; against the
+# independent Cycles reference too when the run had one), bias (error against samples
 # per pixel; converged error per mode), the equal-time strips (PNG), and the RESULTS.md tables (OUT/results_tables.md).
 #   bash bench/charts/make_charts.sh OUT CHARTS
 set -euo pipefail
@@ -19,6 +20,12 @@ for part in main big; do
     gnuplot -e "csv='$csv'; tag='$tag'; xcol='wall_s'; out='$CHARTS/error_wall_$tag'; title='$tag: trimmed error against wall time'" \
         "$HERE/error_time.gp"
     rm -f "$CHARTS/error_wall_$tag.svg"   # wall time says little on a shared machine: PNG only
+    if [ "$(tail -1 "$f" | cut -d, -f15)" != nan ] && [ -n "$(tail -1 "$f" | cut -d, -f15)" ]; then   # Cycles reference
+      gnuplot -e "csv='$csv'; tag='$tag'; xcol='cpu_s'; ycol='rel_mse_trim_cy'; out='$CHARTS/error_cpu_cyref_$tag'; title='$tag: trimmed error against the Cycles reference'" \
+          "$HERE/error_time.gp"
+      gnuplot -e "csv='$csv'; tag='$tag'; xcol='cpu_s'; ycol='rel_mse_cy'; out='$CHARTS/error_cpu_cyref_full_$tag'; title='$tag: full error against the Cycles reference'" \
+          "$HERE/error_time.gp"
+    fi
     if [ "$part" = main ]; then
       gnuplot -e "csv='$csv'; tag='$tag'; out='$CHARTS/bias_$tag'" "$HERE/error_spp.gp"
       gnuplot -e "csv='$csv'; tag='$tag'; ycol='rel_mse'; out='$CHARTS/bias_full_$tag'" "$HERE/error_spp.gp"

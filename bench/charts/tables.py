@@ -11,6 +11,12 @@ curves are noisy (a firefly raises the full metric for a while):
   first  the first round at or below the target (optimistic for a noisy curve),
   stays  the round from which on every later round stays at or below it (pessimistic);
 both interpolated log-log between rounds. "-" = not reached within the run.
+
+Every metric comes twice when the run had an independent Cycles reference (the *_cy columns): against
+eprfarm's own converged reference and against Cycles'. Then, per scene, the error of every curve at
+equal CPU time (path tracing's CPU seconds at P = T, and skip's CPU seconds at its last round; each curve interpolated log-log between its
+rounds or renders; "-" where the curve does not span that time), with skip's ratio to Cycles (plain
+and adaptive), and at the end the same ratios for all scenes in one table.
 """
 import csv
 import json
@@ -18,7 +24,12 @@ import math
 import os
 import sys
 
-MODES = ["pt", "rp", "skip", "exact", "cycles"]
+MODES = ["pt", "rp", "skip", "exact", "cycles", "cycles_adaptive"]
+METRICS = (("rel_mse_trim", "trimmed relative MSE"), ("rel_mse", "full relative MSE (fireflies included)"),
+           ("rel_mse_trim_cy", "trimmed relative MSE, Cycles reference"),
+           ("rel_mse_cy", "full relative MSE (fireflies included), Cycles reference"))
+SHORT = {"rel_mse_trim": "trimmed", "rel_mse": "full", "rel_mse_trim_cy": "trimmed, Cycles ref.",
+         "rel_mse_cy": "full, Cycles ref."}
 
 
 def read_csv(path):
@@ -67,6 +78,23 @@ def at_spp(rows, t):
     return None
 
 
+def at_time(rows, t, key, tcol="cpu_s"):
+    """A curve's error at time t, log-log between the two rounds around it; None outside the curve."""
+    rows = sorted(rows, key=lambda r: r[tcol])
+    for i in range(1, len(rows)):
+        a, b = rows[i - 1], rows[i]
+        if a[tcol] <= t <= b[tcol] and a[tcol] > 0 and b[key] > 0 and a[key] > 0:
+            if b[tcol] == a[tcol]:
+                return b[key]
+            f = (math.log(t) - math.log(a[tcol])) / (math.log(b[tcol]) - math.log(a[tcol]))
+            return math.exp(math.log(a[key]) + f * (math.log(b[key]) - math.log(a[key])))
+    return None
+
+
+def has_metric(rows, key):
+    return key in rows[0] and any(r[key] == r[key] for r in rows)
+
+
 def f3(x):
     return "-" if x is None else ("%.3g" % x)
 
@@ -75,7 +103,29 @@ def ratio(x, base):
     return "-" if x is None or not base else "%.2f" % (x / base)
 
 
-def scene_tables(part_dir, js, targets, out):
+def equal_time(tag, curves, keys, targets, out, goal):
+    times = []
+    for t in targets:
+        b = at_spp(curves["pt"], t)
+        if b is not None:
+            times.append(("pt@%d" % t, b["cpu_s"]))
+    if "skip" in curves:
+        times.append(("skip's end", curves["skip"][-1]["cpu_s"]))
+    for label, tc in times:
+        out.append("| at %s, %.3g CPU-s | %s |" % (label, tc, " | ".join(SHORT[k] for k in keys)))
+        out.append("|---|" + "---|" * len(keys))
+        vals = {m: {k: at_time(rows, tc, k) for k in keys} for m, rows in curves.items()}
+        for m in curves:
+            out.append("| %s | %s |" % (m, " | ".join(f3(vals[m][k]) for k in keys)))
+        for c in ("cycles", "cycles_adaptive"):
+            if "skip" in vals and c in vals:
+                r = [vals["skip"][k] / vals[c][k] if vals["skip"][k] and vals[c][k] else None for k in keys]
+                out.append("| **skip / %s** | %s |" % (c, " | ".join("-" if x is None else "**%.2f**" % x for x in r)))
+                goal.append((tag, label, tc, c, dict(zip(keys, r))))
+        out.append("")
+
+
+def scene_tables(part_dir, js, targets, out, goal):
     tag = js["tag"]
     curves = {}
     for m in MODES:
@@ -94,7 +144,10 @@ def scene_tables(part_dir, js, targets, out):
         out.append("|---|---|---|---|---|")
         out.append("| %.1f %% | %.1f %% | %.1f %% | %.1f %% | %s |\n"
                    % (fa["accepted"], fa["occluded"], fa["culled"], fa["overhead"], share))
-    for key, label in (("rel_mse_trim", "trimmed relative MSE"), ("rel_mse", "full relative MSE (fireflies included)")):
+    keys = [k for k, _ in METRICS if has_metric(pt, k)]
+    for key, label in METRICS:
+        if key not in keys:
+            continue
         head = "| %s | final | CPU-s | wall s |" % label
         sep = "|---|---|---|---|"
         for t in targets:
@@ -115,6 +168,7 @@ def scene_tables(part_dir, js, targets, out):
                 line += " %s / %s | %s / %s |" % (f3(fi), f3(st), ratio(fi, b["cpu_s"]), ratio(st, b["cpu_s"]))
             out.append(line)
         out.append("")
+    equal_time(tag, curves, keys, targets, out, goal)
     out.append("")
 
 
@@ -122,7 +176,7 @@ def main():
     if len(sys.argv) != 2:
         raise SystemExit(__doc__)
     root = sys.argv[1]
-    out = []
+    out, goal = [], []
     for part, targets in (("main", [64, 256]), ("big", None)):
         d = os.path.join(root, part)
         if not os.path.isfile(os.path.join(d, "summary.json")):
@@ -135,7 +189,16 @@ def main():
                       summary["load_start"], summary.get("load_end", float("nan")),
                       "; %.0f s wall" % wall if wall else "", "; %.0f CPU-s" % cpu if cpu else ""))
         for js in summary["scenes"]:
-            scene_tables(d, js, tg, out)
+            scene_tables(d, js, tg, out, goal)
+    if goal:
+        keys = [k for k, _ in METRICS if any(k in g[4] for g in goal)]
+        out.append("### Equal CPU time: skip's error / Cycles' error (below 1: skip is ahead)\n")
+        out.append("| scene | at | against | %s |" % " | ".join(SHORT[k] for k in keys))
+        out.append("|---|---|---|" + "---|" * len(keys))
+        for tag, t, tc, c, r in goal:
+            out.append("| %s | %s, %.3g CPU-s | %s | %s |" % (tag, t, tc, c, " | ".join(
+                "-" if r.get(k) is None else "%.2f" % r[k] for k in keys)))
+        out.append("")
     print("\n".join(out))
 
 
