@@ -8,7 +8,7 @@
 #                    [--scenes "cornell conference hall wall glossy"] [--modes "pt rp skip exact"]
 #                    [--cycles-scenes "cornell conference hall wall"] [--cycles-spp 1,2,4,...]
 #                    [--cycles-adaptive-spp 8,16,...] [--big-cycles-spp 2,8,...]
-#                    [--big-cycles-adaptive-spp 8,32,...]
+#                    [--big-cycles-adaptive-spp 8,32,...] [--cycles-ref-spp N] [--big-cycles-ref-spp N]
 #                    [--big-size 512] [--big-spp 64] [--big-ref-spp 512] [--big-modes "pt skip"]
 #                    [--threads N] [--no-cycles | --cycles-only] [--no-big] [--no-build]
 #
@@ -17,7 +17,7 @@
 # comparison at 512 x 512), modes --big-modes, P = --big-spp. Cycles renders with --threads threads
 # too (0 = all cores, for both). Glossy is never given to Cycles: its Phong lobe has no Cycles
 # equivalent (the export drops it). Cycles' adaptive sweep: --cycles-adaptive-spp are maximum sample
-# counts. Cycles references: --ref-spp (big: --big-ref-spp) as two halves of seeds 1000001 and
+# counts. Cycles references: --cycles-ref-spp (big: --big-cycles-ref-spp; default: as eprfarm's) as two halves of seeds 1000001 and
 # 1000002, like eprfarm's, cached in bench/cache/ under a hash of the exported scene, size, spp, seed
 # and Blender's version. --cycles-only renders the Cycles side into OUT and stops; a later run with
 # --no-cycles and the same --out scores what is there. --quick: 64 x 64, P = 64, reference 256, big 128 x 128 P = 16.
@@ -32,6 +32,7 @@ CYCLES_SCENES="cornell conference hall wall" CYCLES_SPP=1,2,4,8,16,32,64,128,256
 CYCLES_ADAPTIVE_SPP=8,16,32,64,128,256
 BIG_SIZE=512 BIG_SPP=64 BIG_REF_SPP=512 BIG_MODES="pt skip" BIG_CYCLES_SPP=2,8,32,128
 BIG_CYCLES_ADAPTIVE_SPP=8,32,128
+CY_REF_SPP= BIG_CY_REF_SPP=
 THREADS=0 CYCLES=1 CYCLES_ONLY=0 BIG=1 BUILD=1
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -48,6 +49,8 @@ while [ $# -gt 0 ]; do
     --cycles-spp) CYCLES_SPP=$2; shift ;;
     --cycles-adaptive-spp) CYCLES_ADAPTIVE_SPP=$2; shift ;;
     --big-cycles-adaptive-spp) BIG_CYCLES_ADAPTIVE_SPP=$2; shift ;;
+    --cycles-ref-spp) CY_REF_SPP=$2; shift ;;
+    --big-cycles-ref-spp) BIG_CY_REF_SPP=$2; shift ;;
     --big-size) BIG_SIZE=$2; shift ;;
     --big-spp) BIG_SPP=$2; shift ;;
     --big-ref-spp) BIG_REF_SPP=$2; shift ;;
@@ -58,7 +61,7 @@ while [ $# -gt 0 ]; do
     --cycles-only) CYCLES_ONLY=1 ;;
     --no-big) BIG=0 ;;
     --no-build) BUILD=0 ;;
-    -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
     *) echo "bench.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -138,8 +141,8 @@ if [ "$CYCLES" = 1 ]; then
   (
     # References first (cached after the first run): speed_accuracy waits for a scene's reference
     # before its runs, to score every round against it too.
-    for s in $CY_SCENES; do cycles_reference "$s" "$SIZE" "$REF_SPP" || true; done
-    [ "$BIG" = 1 ] && { cycles_reference cornell "$BIG_SIZE" "$BIG_REF_SPP" || true; }
+    for s in $CY_SCENES; do cycles_reference "$s" "$SIZE" "${CY_REF_SPP:-$REF_SPP}" || true; done
+    [ "$BIG" = 1 ] && { cycles_reference cornell "$BIG_SIZE" "${BIG_CY_REF_SPP:-$BIG_REF_SPP}" || true; }
     for s in $CY_SCENES; do
       cycles_sweep "$s" "$SIZE" "$CYCLES_SPP" || true
       cycles_sweep "$s" "$SIZE" "$CYCLES_ADAPTIVE_SPP" adaptive || true
