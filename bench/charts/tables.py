@@ -16,7 +16,9 @@ Every metric comes twice when the run had an independent Cycles reference (the *
 eprfarm's own converged reference and against Cycles'. Then, per scene, the error of every curve at
 equal CPU time (path tracing's CPU seconds at P = T, and skip's CPU seconds at its last round; each curve interpolated log-log between its
 rounds or renders; "-" where the curve does not span that time), with skip's ratio to Cycles (plain
-and adaptive), and at the end the same ratios for all scenes in one table.
+and adaptive), and at the end the same ratios for all scenes in one table, and skip against pt in all scenes: at
+equal samples (P paths per pixel traced or skipped) and at equal CPU time (CPU seconds to reach pt's
+error at P, as a ratio to pt's).
 """
 import csv
 import json
@@ -125,7 +127,23 @@ def equal_time(tag, curves, keys, targets, out, goal):
         out.append("")
 
 
-def scene_tables(part_dir, js, targets, out, goal):
+def skip_vs_pt(tag, curves, targets, rows):
+    if "skip" not in curves:
+        return
+    pt, sk = curves["pt"], curves["skip"]
+    for t in targets:
+        a, b = at_spp(pt, t), at_spp(sk, t)
+        if a is None or b is None:
+            continue
+        r = [tag, "%d" % t]
+        for key in ("rel_mse_trim", "rel_mse"):
+            r.append("%.2f" % (b[key] / a[key]) if a[key] > 0 else "-")
+        for key in ("rel_mse_trim", "rel_mse"):
+            r.append(ratio(first_time(sk, a[key], key), a["cpu_s"]))
+        rows.append(r)
+
+
+def scene_tables(part_dir, js, targets, out, goal, svp):
     tag = js["tag"]
     curves = {}
     for m in MODES:
@@ -169,6 +187,7 @@ def scene_tables(part_dir, js, targets, out, goal):
             out.append(line)
         out.append("")
     equal_time(tag, curves, keys, targets, out, goal)
+    skip_vs_pt(tag, curves, targets, svp)
     out.append("")
 
 
@@ -176,7 +195,7 @@ def main():
     if len(sys.argv) != 2:
         raise SystemExit(__doc__)
     root = sys.argv[1]
-    out, goal = [], []
+    out, goal, svp = [], [], []
     for part, targets in (("main", [64, 256]), ("big", None)):
         d = os.path.join(root, part)
         if not os.path.isfile(os.path.join(d, "summary.json")):
@@ -189,7 +208,7 @@ def main():
                       summary["load_start"], summary.get("load_end", float("nan")),
                       "; %.0f s wall" % wall if wall else "", "; %.0f CPU-s" % cpu if cpu else ""))
         for js in summary["scenes"]:
-            scene_tables(d, js, tg, out, goal)
+            scene_tables(d, js, tg, out, goal, svp)
     if goal:
         keys = [k for k, _ in METRICS if any(k in g[4] for g in goal)]
         out.append("### Equal CPU time: skip's error / Cycles' error (below 1: skip is ahead)\n")
@@ -198,6 +217,12 @@ def main():
         for tag, t, tc, c, r in goal:
             out.append("| %s | %s, %.3g CPU-s | %s | %s |" % (tag, t, tc, c, " | ".join(
                 "-" if r.get(k) is None else "%.2f" % r[k] for k in keys)))
+        out.append("")
+    if svp:
+        out.append("### skip against pt: error ratio at equal samples, CPU-time ratio to reach pt's error\n")
+        out.append("| scene | P | error skip / pt, trimmed | full | time to pt@P's error (x pt, first), trimmed | full |")
+        out.append("|---|---|---|---|---|---|")
+        out.extend("| " + " | ".join(r) + " |" for r in svp)
         out.append("")
     print("\n".join(out))
 
