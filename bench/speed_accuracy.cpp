@@ -412,7 +412,16 @@ int main(int argc, char** argv) {
               threads > 0 ? std::to_string(threads).c_str() : "all", load1());
   std::fflush(stdout);
 
-  std::ofstream md(out / "tables.md");
+  // First every scene's runs, then Cycles' renders and the tables: scripts/bench.sh renders Cycles
+  // alongside, so its sweeps may still be running while eprfarm's runs go on.
+  struct SceneResult {
+    std::string tag;
+    json js;
+    std::map<std::string, Run> runs;
+    Reference ref;
+    std::optional<Reference> cyref;
+  };
+  std::vector<SceneResult> done;
   for (const std::string& spec : scenes) {
     RenderOptions base;
     base.scene = spec;
@@ -495,7 +504,20 @@ int main(int argc, char** argv) {
       js["strip"] = strip;
       for (auto& [m, r] : runs) r.snapshots.clear();
     }
+    js["load_end"] = load1();
+    done.push_back({tag, std::move(js), std::move(runs), ref, cyref});
+  }
+  summary["load_end"] = load1();
+  summary["wall_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - w_start).count();
+  summary["cpu_s"] = cpu_seconds() - c_start;
 
+  std::ofstream md(out / "tables.md");
+  for (SceneResult& sr : done) {
+    const std::string& tag = sr.tag;
+    json& js = sr.js;
+    std::map<std::string, Run>& runs = sr.runs;
+    const Reference& ref = sr.ref;
+    const Reference* cy = sr.cyref ? &*sr.cyref : nullptr;
     std::map<std::string, std::vector<Sample>> cycles;  // "cycles", "cycles_adaptive"
     for (const std::string suffix : {"", "_adaptive"}) {
       if (cycles_dir.empty()) break;
@@ -578,13 +600,8 @@ int main(int argc, char** argv) {
     }
     md.flush();
     js["time_to_error"] = tte;
-    js["load_end"] = load1();
     summary["scenes"].push_back(js);
-    std::ofstream(out / "summary.json") << summary.dump(2) << "\n";
   }
-  summary["load_end"] = load1();
-  summary["wall_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - w_start).count();
-  summary["cpu_s"] = cpu_seconds() - c_start;
   std::ofstream(out / "summary.json") << summary.dump(2) << "\n";
   std::printf("\n(total %.0f s wall, %.0f CPU-s; load at end %.2f) -> %s\n", summary["wall_s"].get<double>(),
               summary["cpu_s"].get<double>(), load1(), out.c_str());
