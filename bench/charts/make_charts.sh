@@ -12,6 +12,7 @@ for part in main big; do
   csv=$OUT/$part/csv
   [ -d "$csv" ] || continue
   for f in "$csv"/*_pt.csv; do
+    [ -f "$f" ] || continue
     tag=$(basename "$f" _pt.csv)
     gnuplot -e "csv='$csv'; tag='$tag'; xcol='cpu_s'; out='$CHARTS/error_cpu_$tag'; title='$tag: trimmed error against CPU time'" \
         "$HERE/error_time.gp"
@@ -29,7 +30,7 @@ for part in main big; do
     if [ "$part" = main ]; then
       gnuplot -e "csv='$csv'; tag='$tag'; out='$CHARTS/bias_$tag'" "$HERE/error_spp.gp"
       gnuplot -e "csv='$csv'; tag='$tag'; ycol='rel_mse'; out='$CHARTS/bias_full_$tag'" "$HERE/error_spp.gp"
-      if [ -f "$OUT/$part/strip/${tag}_skip.exr" ]; then
+      if [ -f "$OUT/$part/strip/${tag}_skip.exr" ] && [ -f "$OUT/$part/strip/${tag}_rp.exr" ]; then
         /usr/bin/python3 "$HERE/strip.py" "$OUT/$part/strip/$tag" "$CHARTS/strip_$tag.png"
       fi
     fi
