@@ -32,7 +32,7 @@ CYCLES_SCENES="cornell conference hall wall" CYCLES_SPP=1,2,4,8,16,32,64,128,256
 CYCLES_ADAPTIVE_SPP=8,16,32,64,128,256
 BIG_SIZE=512 BIG_SPP=64 BIG_REF_SPP=512 BIG_MODES="pt skip" BIG_CYCLES_SPP=2,8,32,128
 BIG_CYCLES_ADAPTIVE_SPP=8,32,128
-CY_REF_SPP= BIG_CY_REF_SPP=
+CY_REF_SPP='' BIG_CY_REF_SPP=''
 THREADS=0 CYCLES=1 CYCLES_ONLY=0 BIG=1 BUILD=1
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -115,11 +115,12 @@ cycles_reference() {  # scene size spp
     if [ ! -f "$file" ]; then
       log "cycles reference: $1 at $2x$2, $half spp, seed $seed" | tee -a "$OUT/run.log"
       # shellcheck disable=SC2046
-      blender -b --factory-startup -noaudio -P scripts/cycles_reference.py -- --obj "$obj/$1.obj" \
+      if ! blender -b --factory-startup -noaudio -P scripts/cycles_reference.py -- --obj "$obj/$1.obj" \
           --width "$2" --height "$2" --spp "$half" --seed "$seed" --threads "$CY_THREADS" \
-          --out "$file.tmp.exr" $(cat "$obj/$1.camera") > "$OUT/cycles_ref_$1_$2_$seed.log" 2>&1 &&
-        mv "$file.tmp.exr" "$file" ||
-        { tail -20 "$OUT/cycles_ref_$1_$2_$seed.log"; touch "$dir/done"; return 1; }
+          --out "$file.tmp.exr" $(cat "$obj/$1.camera") > "$OUT/cycles_ref_$1_$2_$seed.log" 2>&1; then
+        tail -20 "$OUT/cycles_ref_$1_$2_$seed.log"; touch "$dir/done"; return 1
+      fi
+      mv "$file.tmp.exr" "$file"
     fi
     ln -sf "$file" "$dir/$ab.exr"
     ab=b
