@@ -50,7 +50,9 @@ for f in "$OUT"/main/csv/*_pt.csv; do
   done
   echo "$row" >> "$dat"
 done
-gnuplot -e "dat='$dat'; out='$CHARTS/bias_converged'" "$HERE/bias_bars.gp"
+if compgen -G "$OUT/main/csv/*_rp.csv" >/dev/null; then   # the bars need rp and exact runs
+  gnuplot -e "dat='$dat'; out='$CHARTS/bias_converged'" "$HERE/bias_bars.gp"
+fi
 /usr/bin/python3 "$HERE/tables.py" "$OUT" > "$OUT/results_tables.md"
 echo "tables: $OUT/results_tables.md"
 ls -la "$CHARTS"
