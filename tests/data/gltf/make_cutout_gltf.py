@@ -111,6 +111,22 @@ class Writer:
         return len(self.doc["materials"]) - 1
 
 
+def camera_node(w, eye, look, yfov_deg, name=None):
+    """A perspective camera at `eye` looking at `look` (up +y): a node turned by yaw, then pitch."""
+    f = [l - e for l, e in zip(look, eye)]
+    n = math.sqrt(sum(c * c for c in f))
+    f = [c / n for c in f]
+    yaw, pitch = math.atan2(-f[0], -f[2]), math.asin(f[1])
+    qy = (0, math.sin(yaw / 2), 0, math.cos(yaw / 2))
+    qx = (math.sin(pitch / 2), 0, 0, math.cos(pitch / 2))
+    q = (qy[3] * qx[0], qy[1] * qx[3], -qy[1] * qx[0], qy[3] * qx[3])  # qy * qx
+    w.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": math.radians(yfov_deg), "znear": 0.01}}]
+    node = {"name": name} if name else {}
+    node.update({"camera": 0, "translation": list(eye), "rotation": list(q)})
+    w.doc["nodes"].append(node)
+    w.doc["scenes"][0]["nodes"].append(len(w.doc["nodes"]) - 1)
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
     write_png(os.path.join(OUT, "floor.png"), 64, 64, 3, floor_texture)
@@ -138,17 +154,7 @@ def main():
     w.quad([(-0.5, 2.5, -1.8), (0.5, 2.5, -1.8), (0.5, 2.5, -1.0), (-0.5, 2.5, -1.0)], lamp)  # lamp behind the screen
 
     # The camera: eye (0.6, 1.3, 3.6) looking at (-0.1, 0.4, -0.8); yfov 40 degrees (the lamp is out of view).
-    eye, look = (0.6, 1.3, 3.6), (-0.1, 0.4, -0.8)
-    f = [l - e for l, e in zip(look, eye)]
-    n = math.sqrt(sum(c * c for c in f))
-    f = [c / n for c in f]
-    yaw, pitch = math.atan2(-f[0], -f[2]), math.asin(f[1])
-    qy = (0, math.sin(yaw / 2), 0, math.cos(yaw / 2))
-    qx = (math.sin(pitch / 2), 0, 0, math.cos(pitch / 2))
-    q = (qy[3] * qx[0], qy[1] * qx[3], -qy[1] * qx[0], qy[3] * qx[3])  # qy * qx
-    w.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": math.radians(40), "znear": 0.01}}]
-    w.doc["nodes"].append({"camera": 0, "translation": list(eye), "rotation": list(q)})
-    w.doc["scenes"][0]["nodes"].append(len(w.doc["nodes"]) - 1)
+    camera_node(w, (0.6, 1.3, 3.6), (-0.1, 0.4, -0.8), 40)
 
     w.doc["buffers"] = [{"uri": "cutout-lattice.bin", "byteLength": len(w.bin)}]
     with open(os.path.join(OUT, "cutout-lattice.bin"), "wb") as f_:

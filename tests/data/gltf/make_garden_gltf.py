@@ -22,7 +22,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(HERE)))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(ROOT, "scripts"))
 sys.dont_write_bytecode = True
-from make_cutout_gltf import Writer, lattice_texture, leaf_texture, write_png  # noqa: E402
+from make_cutout_gltf import Writer, camera_node, lattice_texture, leaf_texture, write_png  # noqa: E402
 
 OUT = os.path.join(ROOT, "scenes", "garden")
 SUN = (-0.6, 0.9, -1.0)  # towards the sun: behind the fence, to the left, 35 degrees up
@@ -63,19 +63,6 @@ def box(w, lo, hi, material):
     w.quad([(x1, y0, z1), (x1, y0, z0), (x1, y1, z0), (x1, y1, z1)], material)  # +x
     w.quad([(x0, y0, z0), (x0, y0, z1), (x0, y1, z1), (x0, y1, z0)], material)  # -x
     w.quad([(x0, y1, z1), (x1, y1, z1), (x1, y1, z0), (x0, y1, z0)], material)  # top
-
-
-def camera_node(w):
-    f = [l - e for l, e in zip(LOOK, EYE)]
-    n = math.sqrt(sum(c * c for c in f))
-    f = [c / n for c in f]
-    yaw, pitch = math.atan2(-f[0], -f[2]), math.asin(f[1])
-    qy = (0, math.sin(yaw / 2), 0, math.cos(yaw / 2))
-    qx = (math.sin(pitch / 2), 0, 0, math.cos(pitch / 2))
-    q = (qy[3] * qx[0], qy[1] * qx[3], -qy[1] * qx[0], qy[3] * qx[3])  # qy * qx
-    w.doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": math.radians(YFOV), "znear": 0.01}}]
-    w.doc["nodes"].append({"name": "camera", "camera": 0, "translation": list(EYE), "rotation": list(q)})
-    w.doc["scenes"][0]["nodes"].append(len(w.doc["nodes"]) - 1)
 
 
 def write_sky(path):
@@ -121,7 +108,7 @@ def main():
     box(w, (1.4, 0, 0.6), (2.1, 0.6, 1.3), plank)  # the crate
     w.quad([(-1.0, 0.05, 0.6), (-0.3, 0.05, 0.3), (-0.3, 0.9, 0.3), (-1.0, 0.9, 0.6)], leaf)  # two leaf cards
     w.quad([(-1.6, 0.2, 1.2), (-0.9, 0.2, 0.9), (-0.9, 1.0, 1.0), (-1.6, 1.0, 1.3)], leaf)
-    camera_node(w)
+    camera_node(w, EYE, LOOK, YFOV, name="camera")
 
     w.doc["buffers"] = [{"uri": "garden.bin", "byteLength": len(w.bin)}]
     with open(os.path.join(OUT, "garden.bin"), "wb") as f:
