@@ -309,6 +309,9 @@ entry=("${client_cmd[@]:0:2}")
 # one slice ago, far less than tracing the tile takes (1024 paths in round 0), so the master has no
 # result for it. Then w2's processes are killed and w1, w3 go on: round 0 cannot end before the dead
 # lease expires (EPR_LEASE_TIMEOUT_MS), so the job is mid-way, and the tile must be traced again.
+# w2 may hold several leases (two threads, a lease asked ahead), and in one slice it may trace and
+# submit a small tile before it logs the submission: the master must re-queue one of the leases w2
+# logged as open, not a particular one.
 victim="$id-w2"
 victim_pids="$(ip netns pids "$victim")"
 others="$(ip netns pids "$id-w1") $(ip netns pids "$id-w3")"
@@ -320,17 +323,17 @@ client_pid=$!
 open_lease() {
   awk '/lease [0-9]+: job [^ ]+ round [0-9]+ tile [0-9]+/ { for (i = 1; i <= NF; i++) { if ($i == "lease") { id = $(i + 1); sub(":", "", id) } if ($i == "tile") t = $(i + 1) } open[id] = t }
        /lease [0-9]+: submitted/ { for (i = 1; i <= NF; i++) if ($i == "lease") { id = $(i + 1); sub(":", "", id); delete open[id] } }
-       END { for (id in open) { print open[id]; exit } }' "$tmp/w2.log"
+       END { for (id in open) print open[id] }' "$tmp/w2.log" | sort -n | tr '\n' ' ' | sed 's/ $//'
 }
-held_tile=""
+held_tiles=""
 deadline=$((SECONDS + 120))
 while [ "$SECONDS" -lt "$deadline" ] && kill -0 "$client_pid" 2>/dev/null; do
   kill -CONT $victim_pids
   kill -STOP $victim_pids
-  held_tile="$(open_lease)"
-  [ -z "$held_tile" ] || break
+  held_tiles="$(open_lease)"
+  [ -z "$held_tiles" ] || break
 done
-if [ -z "$held_tile" ]; then
+if [ -z "$held_tiles" ]; then
   kill -CONT $others $victim_pids
   fail "worker w2 never held a lease while the job ran"
 fi
@@ -343,7 +346,7 @@ job_id="$(head -n 1 "$tmp/client.out")"
 job_master=""
 for m in "${masters[@]}"; do grep -qF "job $job_id submitted" "$tmp/$m.log" && job_master="$m"; done
 [ -n "$job_master" ] || fail "no master logged the submission of job $job_id"
-log "killed worker host w2 (pids $victim_pids) holding tile $held_tile of job $job_id (on $job_master)"
+log "killed worker host w2 (pids $victim_pids) holding tile(s) $held_tiles of job $job_id (on $job_master)"
 sleep 0.2
 [ -z "$(ip netns pids "$victim")" ] || fail "w2's processes survived SIGKILL"
 
@@ -363,11 +366,15 @@ master_log="$tmp/$job_master.log"
 grep -q "reprojection context: " "$master_log" || fail "the master did not bring up its OSMesa context"
 ! grep -q "will use the CPU reprojector" "$master_log" || fail "the master fell back to the CPU reprojector"
 # Mid-job: the master re-queued the dead worker's tile while the job ran, i.e. before "job ... done".
-requeued_line="$(grep -nF "job $job_id tile $held_tile: lease expired, re-queued" "$master_log" | head -n 1 | cut -d: -f1)"
+requeued_line=""
+for t in $held_tiles; do
+  line="$(grep -nF "job $job_id tile $t: lease expired, re-queued" "$master_log" | head -n 1 | cut -d: -f1)"
+  [ -z "$line" ] || { [ -n "$requeued_line" ] && [ "$requeued_line" -lt "$line" ]; } || requeued_line="$line"
+done
 done_line="$(grep -nF "job $job_id done" "$master_log" | head -n 1 | cut -d: -f1)"
-[ -n "$requeued_line" ] || fail "the master never re-queued tile $held_tile of the killed worker"
+[ -n "$requeued_line" ] || fail "the master never re-queued any of tiles $held_tiles of the killed worker"
 [ -n "$done_line" ] && [ "$requeued_line" -lt "$done_line" ] ||
-  fail "the master did not re-queue tile $held_tile before the job ended"
+  fail "the master did not re-queue any of tiles $held_tiles before the job ended"
 re_leased="$("$PY" -c 'import json,sys; print(json.load(open(sys.argv[1])).get("tiles_re_leased", 0))' "$out_dir/cluster.json")"
 [ "$re_leased" -ge 1 ] || fail "cluster.json says tiles_re_leased=$re_leased"
 
