@@ -293,7 +293,7 @@ done
 log "3 workers registered with both masters; on each: ${worker_health[*]}, epr-health worker --ready"
 
 # ---- the job ---------------------------------------------------------------------------------------
-job=(builtin:cornell --width 64 --height 64 --spp 16 --paths-per-round 4 --tile 16 --mode skip
+job=(builtin:cornell --width 64 --height 64 --spp 16 --paths-per-round 4 --tile 32 --mode skip
      --min-paths 1 --seed 11)
 SVC_ENV=("${client_env[@]}")
 out_dir="$tmp/hosts/client/out"
@@ -304,14 +304,14 @@ mkdir -p "$out_dir"
 entry=("${client_cmd[@]:0:2}")
 
 # Kill w2's host while it holds a lease of a tile it cannot have finished. Before the submission,
-# w1 and w3 are frozen (SIGSTOP) and w2 is throttled: it runs in slices of microseconds (SIGCONT then
-# SIGSTOP at once), and after each slice its log is read. The first lease it logs was taken at most
-# one slice ago, far less than tracing the tile takes (1024 paths in round 0), so the master has no
-# result for it. Then w2's processes are killed and w1, w3 go on: round 0 cannot end before the dead
-# lease expires (EPR_LEASE_TIMEOUT_MS), so the job is mid-way, and the tile must be traced again.
-# w2 may hold several leases (two threads, a lease asked ahead), and in one slice it may trace and
-# submit a small tile before it logs the submission: the master must re-queue one of the leases w2
-# logged as open, not a particular one.
+# w1 and w3 are frozen (SIGSTOP) and w2 is throttled: it runs in slices of half a millisecond
+# (SIGCONT, a timed wait, SIGSTOP), and after each slice its log is read. The slices are timed by
+# this shell at real-time priority where the kernel allows it, so no other task can stretch one. A
+# round-0 tile is 4096 paths, several milliseconds of tracing, so the first lease w2 logs cannot
+# have been traced and submitted within the slice that logged it. Then w2's processes are killed and
+# w1, w3 go on: round 0 cannot end before the dead lease expires (EPR_LEASE_TIMEOUT_MS), so the job
+# is mid-way, and the tile must be traced again. w2 may hold several leases (two threads, a lease
+# asked ahead): the master must re-queue one of the leases w2 logged as open, not a particular one.
 victim="$id-w2"
 victim_pids="$(ip netns pids "$victim")"
 others="$(ip netns pids "$id-w1") $(ip netns pids "$id-w3")"
@@ -326,13 +326,20 @@ open_lease() {
        END { for (id in open) print open[id] }' "$tmp/w2.log" | sort -n | tr '\n' ' ' | sed 's/ $//'
 }
 held_tiles=""
+mkfifo "$tmp/never"
+exec {never}<> "$tmp/never"  # nothing is written to it: a read on it waits out its timeout
+realtime=0
+chrt -f -p 1 $$ 2> /dev/null && realtime=1
 deadline=$((SECONDS + 120))
 while [ "$SECONDS" -lt "$deadline" ] && kill -0 "$client_pid" 2>/dev/null; do
   kill -CONT $victim_pids
+  read -r -t 0.0005 -u "$never" _ || true
   kill -STOP $victim_pids
   held_tiles="$(open_lease)"
   [ -z "$held_tiles" ] || break
 done
+[ "$realtime" -eq 0 ] || chrt -o -p 0 $$
+exec {never}<&-
 if [ -z "$held_tiles" ]; then
   kill -CONT $others $victim_pids
   fail "worker w2 never held a lease while the job ran"
