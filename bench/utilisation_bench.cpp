@@ -28,11 +28,14 @@
 #include <sched.h>
 #include <signal.h>
 
+#include <unistd.h>
+
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <functional>
 #include <map>
 #include <regex>
@@ -80,6 +83,44 @@ double median(std::vector<double> v) {
   return v.size() % 2 ? v[v.size() / 2] : (v[v.size() / 2 - 1] + v[v.size() / 2]) / 2;
 }
 
+/// CPU seconds (user + system) of process `pid`: all its threads, living or ended, and those of its
+/// living threads named `name` (the worker's tracing threads are "epr-trace").
+struct ProcessCpu {
+  double total = 0, named = 0;
+};
+
+double stat_cpu_seconds(const fs::path& stat) {
+  std::ifstream in(stat);
+  std::string line;
+  if (!std::getline(in, line)) return 0;
+  const size_t close = line.rfind(')');  // the command name may hold spaces and parentheses
+  if (close == std::string::npos) return 0;
+  std::istringstream fields(line.substr(close + 2));
+  std::string f;
+  unsigned long long utime = 0, stime = 0;
+  for (int i = 3; fields >> f; ++i) {  // field 3 is the state; 14 and 15 are utime and stime
+    if (i == 14) utime = std::stoull(f);
+    if (i == 15) {
+      stime = std::stoull(f);
+      break;
+    }
+  }
+  return double(utime + stime) / double(::sysconf(_SC_CLK_TCK));
+}
+
+ProcessCpu process_cpu(pid_t pid, const std::string& name) {
+  ProcessCpu c;
+  const fs::path proc = fs::path("/proc") / std::to_string(pid);
+  c.total = stat_cpu_seconds(proc / "stat");
+  std::error_code ec;
+  for (const auto& task : fs::directory_iterator(proc / "task", ec)) {
+    std::ifstream comm(task.path() / "comm");
+    std::string n;
+    if (std::getline(comm, n) && n == name) c.named += stat_cpu_seconds(task.path() / "stat");
+  }
+  return c;
+}
+
 struct Settings {
   int size = 192, spp = 64, ppr = 1, threads = 0;
   bool pin = false;        // cluster: epr-master on CPU 0, epr-worker on CPU 1 (--threads 1 unless told)
@@ -110,6 +151,10 @@ struct Run {
   // tiles traced, committed or not), against the master's sum (committed tiles).
   uint64_t leased = 0, committed = 0, uncommitted = 0;
   double node_tracing = -1, master_tracing = 0;
+  // CPU seconds over the window: the tracing threads; the worker's other threads (cluster) or every other
+  // thread of this process (embedded: master, worker's other threads, the bench's client); the master
+  // process (cluster).
+  double cpu_tracing = -1, cpu_worker_other = 0, cpu_master = 0;
 };
 
 /// Submits `n` jobs to `target`, waits for all; the window and the jobs' tracing seconds.
@@ -223,7 +268,10 @@ bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
   epr::test::wait_until([&] { return !server.jobs().workers().empty(); }, 30s, 5ms);
   const epr::WorkerNodeStats before = node.stats();
   double window = 0, tracing = 0;
-  const bool ok = submit_and_wait(server.local_target(), s, n, &window, &tracing);
+  ProcessCpu cpu0, cpu1;
+  const bool ok = submit_and_wait(
+      server.local_target(), s, n, &window, &tracing, [&] { cpu0 = process_cpu(::getpid(), "epr-trace"); },
+      [&] { cpu1 = process_cpu(::getpid(), "epr-trace"); });
   const epr::WorkerNodeStats after = node.stats();
   node.stop();
   node_thread.join();
@@ -250,6 +298,8 @@ bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
                      (before.tiles_duplicate + before.tiles_stale + before.tiles_abandoned + before.tiles_returned);
   out->node_tracing = after.seconds_tracing - before.seconds_tracing;
   out->master_tracing = tracing;
+  out->cpu_tracing = cpu1.named - cpu0.named;
+  out->cpu_worker_other = (cpu1.total - cpu1.named) - (cpu0.total - cpu0.named);
   return true;
 }
 
@@ -282,14 +332,27 @@ bool run_cluster(const Settings& s, int n, const fs::path& dir, Run* out) {
   int seen = 0;
   epr::WorkerTimeSplit before, after;
   bool split_ok = true;
+  ProcessCpu w0, w1, m0, m1;
   const bool ok = submit_and_wait(
-      target, s, n, &window, &tracing, [&] { split_ok &= worker_split(worker, &seen, &before); },
-      [&] { split_ok &= worker_split(worker, &seen, &after); });
+      target, s, n, &window, &tracing,
+      [&] {
+        split_ok &= worker_split(worker, &seen, &before);
+        w0 = process_cpu(worker.pid(), "epr-trace");
+        m0 = process_cpu(master.pid(), "");
+      },
+      [&] {
+        w1 = process_cpu(worker.pid(), "epr-trace");
+        m1 = process_cpu(master.pid(), "");
+        split_ok &= worker_split(worker, &seen, &after);
+      });
   worker.stop();
   master.stop();
   if (!ok) return false;
   out->seconds = window;
   out->utilisation = tracing / (double(threads) * window);
+  out->cpu_tracing = w1.named - w0.named;
+  out->cpu_worker_other = (w1.total - w1.named) - (w0.total - w0.named);
+  out->cpu_master = m1.total - m0.total;
   if (split_ok) {
     after -= before;
     out->split = after;
@@ -359,6 +422,18 @@ int main(int argc, char** argv) {
           if (r.cpu.total() > 0)  // embedded: the threads' own CPU seconds, against their wall seconds
             std::printf("          cpu s: tracing %.2f (wall %.2f) other %.2f (wall %.2f)\n", r.cpu.tracing,
                         r.split.tracing, r.cpu.other, r.split.other);
+        }
+        if (r.cpu_tracing >= 0) {  // who had the CPUs, as shares of the tracing threads' wall time
+          const double tw = double(threads_of(s)) * r.seconds / 100;
+          if (setup == "cluster")
+            std::printf("          cpu / (threads x window): tracing threads %.1f%%, worker's other threads %.1f%%, "
+                        "master %.1f%%%s\n",
+                        r.cpu_tracing / tw, r.cpu_worker_other / tw, r.cpu_master / tw,
+                        s.pin ? " (on its own CPU)" : "");
+          else
+            std::printf("          cpu / (threads x window): tracing threads %.1f%%, the process's other threads "
+                        "(master, worker's others, client) %.1f%%\n",
+                        r.cpu_tracing / tw, r.cpu_worker_other / tw);
         }
         if (r.node_tracing >= 0)  // the tiles' own timers against the threads' time inside tiles
           std::printf(
