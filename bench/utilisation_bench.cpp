@@ -24,10 +24,10 @@
 // share the machine; the load average is printed with each run.
 //
 //   utilisation_bench [--setups embedded,cluster] [--jobs 1,3] [--reps 3] [--size 192] [--spp 64]
-//                     [--ppr 1] [--mode skip] [--reproject cpu] [--threads 0] [--pin] [--cpu-split]
+//                     [--ppr 1] [--mode skip] [--scene builtin:cornell] [--reproject cpu] [--threads 0]
+//                     [--pin] [--cpu-split]
 #include <sched.h>
 #include <signal.h>
-
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
@@ -125,7 +125,7 @@ struct Settings {
   int size = 192, spp = 64, ppr = 1, threads = 0;
   bool pin = false;        // cluster: epr-master on CPU 0, epr-worker on CPU 1 (--threads 1 unless told)
   bool cpu_split = false;  // embedded: the node's WorkerNodeOptions::cpu_split (reads the CPU clocks)
-  std::string mode = "skip", reproject = "cpu";
+  std::string mode = "skip", reproject = "cpu", scene = "builtin:cornell";
 };
 
 epr::RenderOptions job_options(const Settings& s, int j) {
@@ -169,8 +169,8 @@ bool submit_and_wait(const std::string& target, const Settings& s, int n, double
     grpc::ClientContext ctx;
     ctx.set_deadline(std::chrono::system_clock::now() + 60s);
     epr::v1::JobId id;
-    const grpc::Status st = stub->SubmitJob(
-        &ctx, epr::to_job_spec(job_options(s, j), epr::bundle_scene("builtin:cornell"), epr::CameraSpec{}), &id);
+    const grpc::Status st =
+        stub->SubmitJob(&ctx, epr::to_job_spec(job_options(s, j), epr::bundle_scene(s.scene), epr::CameraSpec{}), &id);
     if (!st.ok()) {
       std::fprintf(stderr, "SubmitJob: %s\n", st.error_message().c_str());
       return false;
@@ -378,6 +378,7 @@ int main(int argc, char** argv) {
   app.add_option("--spp", s.spp, "samples per pixel")->capture_default_str();
   app.add_option("--ppr", s.ppr, "paths per pixel per round")->capture_default_str();
   app.add_option("--mode", s.mode, "pt, rp or skip")->capture_default_str();
+  app.add_option("--scene", s.scene, "built-in scene of every job")->capture_default_str();
   app.add_option("--reproject", s.reproject, "cpu or gl")->capture_default_str();
   app.add_option("--threads", s.threads, "tracing threads of the worker (0: all cores; 1 with --pin)")
       ->capture_default_str();
@@ -392,8 +393,8 @@ int main(int argc, char** argv) {
   const std::vector<std::string> series = split(jobs);
   std::printf("# util = workers' tracing s / (threads x window), window = first submit .. last job done\n");
   std::printf("# thread util = the worker's tracing threads' time tracing / their wall time over the window\n");
-  std::printf("# %dx%d, spp %d, k %d, %s, %s reprojector, %d tracing threads, %d reps%s\n", s.size, s.size, s.spp,
-              s.ppr, s.mode.c_str(), s.reproject.c_str(), threads_of(s), reps,
+  std::printf("# %s, %dx%d, spp %d, k %d, %s, %s reprojector, %d tracing threads, %d reps%s\n", s.scene.c_str(), s.size,
+              s.size, s.spp, s.ppr, s.mode.c_str(), s.reproject.c_str(), threads_of(s), reps,
               s.pin ? ", cluster pinned: master CPU 0, worker CPU 1" : "");
   std::printf("%-9s %5s %4s %9s %10s %12s %6s\n", "setup", "jobs", "rep", "seconds", "util", "thread util", "load");
   std::map<std::string, std::map<std::string, std::vector<double>>> util, node_util;
@@ -426,14 +427,15 @@ int main(int argc, char** argv) {
         if (r.cpu_tracing >= 0) {  // who had the CPUs, as shares of the tracing threads' wall time
           const double tw = double(threads_of(s)) * r.seconds / 100;
           if (setup == "cluster")
-            std::printf("          cpu / (threads x window): tracing threads %.1f%%, worker's other threads %.1f%%, "
-                        "master %.1f%%%s\n",
-                        r.cpu_tracing / tw, r.cpu_worker_other / tw, r.cpu_master / tw,
-                        s.pin ? " (on its own CPU)" : "");
+            std::printf(
+                "          cpu / (threads x window): tracing threads %.1f%%, worker's other threads %.1f%%, "
+                "master %.1f%%%s\n",
+                r.cpu_tracing / tw, r.cpu_worker_other / tw, r.cpu_master / tw, s.pin ? " (on its own CPU)" : "");
           else
-            std::printf("          cpu / (threads x window): tracing threads %.1f%%, the process's other threads "
-                        "(master, worker's others, client) %.1f%%\n",
-                        r.cpu_tracing / tw, r.cpu_worker_other / tw);
+            std::printf(
+                "          cpu / (threads x window): tracing threads %.1f%%, the process's other threads "
+                "(master, worker's others, client) %.1f%%\n",
+                r.cpu_tracing / tw, r.cpu_worker_other / tw);
         }
         if (r.node_tracing >= 0)  // the tiles' own timers against the threads' time inside tiles
           std::printf(

@@ -17,7 +17,7 @@ from .farm import Client, JobList, job_id_master
 from .masters import MasterEndpoint, master_endpoints
 from .status import RESULT_KINDS, FetchedFile, JobStatus, ResultBytes, ResultKind, decode_exr
 from .errors import EprError, JobError, RpcError, SceneError, TokenError
-from .scene import SceneBundle, bundle_scene
+from .scene import SceneBundle, bundle_scene, bundle_scene_with_image
 
 __all__ = [
     "Client",
@@ -39,4 +39,5 @@ __all__ = [
     "TokenError",
     "SceneBundle",
     "bundle_scene",
+    "bundle_scene_with_image",
 ]

@@ -86,6 +86,41 @@ def _vec3(name: str, v: Sequence[float]) -> rs_pb.Vec3:
     return rs_pb.Vec3(x=values[0], y=values[1], z=values[2])
 
 
+def _lighting(
+    environment, strength: Optional[float], rotation: float, sun: Optional[Sequence[float]]
+) -> Tuple[Optional[rs_pb.EnvironmentLight], Optional[str], Optional[rs_pb.SunLight]]:
+    """The job's environment (and the image path to bundle, if it is an image) and sun, as `epr
+    submit --env --sun` reads them. The master checks the values' ranges."""
+    env = image = None
+    if environment is not None:
+        env = rs_pb.EnvironmentLight(rotation_degrees=rotation)
+        if isinstance(environment, (str, os.PathLike)):
+            image = os.fspath(environment)
+        else:
+            colour = [environment] * 3 if isinstance(environment, (int, float)) else list(environment)
+            if len(colour) != 3:
+                raise ValueError("environment is an image path, or a colour: one number (a grey) or three (r, g, b)")
+            env.color.CopyFrom(_vec3("environment", colour))
+        if strength is not None:
+            env.strength = strength
+    elif strength is not None or rotation:
+        raise ValueError("environment_strength and environment_rotation need an environment")
+    sun_pb = None
+    if sun is not None:
+        n = [float(x) for x in sun]
+        if len(n) not in (3, 4, 5, 7):
+            raise ValueError(
+                "sun is (dx, dy, dz[, angle_degrees[, irradiance or r, g, b]]): the direction towards the sun, its "
+                "angular diameter (default 0.53) and its irradiance in W/m^2 (default 1)"
+            )
+        sun_pb = rs_pb.SunLight(direction=_vec3("sun direction", n[:3]))
+        if len(n) >= 4:
+            sun_pb.angle_degrees = n[3]
+        if len(n) >= 5:
+            sun_pb.irradiance.CopyFrom(_vec3("sun irradiance", n[4:] if len(n) == 7 else [n[4]] * 3))
+    return env, image, sun_pb
+
+
 def _describe(code: grpc.StatusCode, details: str) -> str:
     return f"{code.name}: {details}" if details else code.name
 
@@ -243,6 +278,10 @@ class MasterClient:
         time_budget: Optional[float] = None,
         request_id: Optional[str] = None,
         sampler: str = "sobol-burley",
+        environment: Union[None, float, Sequence[float], str, os.PathLike] = None,
+        environment_strength: Optional[float] = None,
+        environment_rotation: float = 0.0,
+        sun: Optional[Sequence[float]] = None,
     ) -> pb.JobSpec:
         """The JobSpec submit() sends (see submit for the arguments). Uploads a file scene over the
         inline limit, which is then referred to by hash."""
@@ -265,7 +304,11 @@ class MasterClient:
             missing = ", ".join(k for k in camera_parts if k not in given)
             raise ValueError(f"a camera needs all of eye, look, up and fov (missing: {missing}); none: the scene's own")
 
-        bundle = _scene.bundle_scene(scene)
+        env, env_image, sun_pb = _lighting(environment, environment_strength, environment_rotation, sun)
+        if env_image is not None:
+            bundle, env.image = _scene.bundle_scene_with_image(scene, env_image)
+        else:
+            bundle = _scene.bundle_scene(scene)
         spec = pb.JobSpec(
             width=width,
             height=height,
@@ -305,6 +348,10 @@ class MasterClient:
             spec.camera.CopyFrom(
                 rs_pb.Camera(eye=_vec3("eye", eye), look=_vec3("look", look), up=_vec3("up", up), fov_y_degrees=fov)
             )
+        if env is not None:
+            spec.environment.CopyFrom(env)
+        if sun_pb is not None:
+            spec.sun.CopyFrom(sun_pb)
         job_name = _default_job_name(scene) if name is None else name
         if len(job_name.encode()) > MAX_NAME_BYTES:
             raise ValueError(f"job name is {len(job_name.encode())} bytes long, at most {MAX_NAME_BYTES}")
@@ -342,6 +389,12 @@ class MasterClient:
             mis: MIS for direct light (True); False: next event estimation only.
             tile: tile edge, pixels (64); taper_tiles (False).
             eye, look, up (x, y, z each) and fov (degrees): a camera, all four or none (the scene's own).
+            environment: light from outside, replacing the scene's: a colour (one number, a grey, or
+                r, g, b) or an equirectangular .hdr/.exr path (inside the scene's folder; anywhere with a
+                built-in scene); environment_strength multiplies it, environment_rotation (degrees)
+                turns an image about +Y.
+            sun: (dx, dy, dz[, angle_degrees[, irradiance or r, g, b]]), replacing the scene's sun: the
+                direction towards it, its angular diameter (0.53) and irradiance in W/m^2 (1).
             name: for listings (default: the scene's name); priority (0); time_budget: seconds.
             request_id: idempotency key (default: a random one, so a retried SubmitJob queues once).
 

@@ -521,3 +521,35 @@ def bundle_scene(spec: str) -> SceneBundle:
         files.append((rel, data))
     files.sort(key=lambda f: f[0].encode())
     return SceneBundle(entry_path=os.path.basename(real), files=files)
+
+
+def bundle_scene_with_image(spec: str, image: str) -> Tuple[SceneBundle, str]:
+    """The bundle of `spec` with an environment image, and the image's path inside the bundle, as
+    `epr submit --env FILE` sends them. `image` is a path as given (relative to the working folder).
+    With a built-in scene the image may lie anywhere: it travels beside a generated scene JSON naming
+    the built-in. With a file scene it must lie inside the scene's folder, with the scene's files.
+    """
+    if "\0" in image:
+        raise SceneError(f"{image!r}: the path contains a NUL byte")
+    real = os.path.realpath(os.path.abspath(image))
+    if problem := _file_problem(real, MAX_FILE_BYTES):
+        raise SceneError(f"environment image '{image}' {problem}")
+    if spec.startswith(BUILTIN_PREFIX) and "\0" not in spec:
+        name = os.path.basename(real)
+        entry = "builtin-scene.json" if name == "builtin.json" else "builtin.json"
+        doc = json.dumps({"builtin": spec[len(BUILTIN_PREFIX) :]}, ensure_ascii=False, separators=(",", ":")) + "\n"
+        files = [(entry, doc.encode()), (name, _read_file(_FileRef(real, image), MAX_FILE_BYTES))]
+        files.sort(key=lambda f: f[0].encode())
+        return SceneBundle(entry_path=entry, files=files), name
+    bundle = bundle_scene(spec)
+    root = os.path.dirname(os.path.realpath(os.path.abspath(spec)))
+    rel = os.path.relpath(real, root).replace(os.sep, "/")
+    if not _is_inside(root, real) or not is_safe_relative_path(rel):
+        raise SceneError(
+            f"environment image '{image}' lies outside the scene's folder {root}: the image travels with the "
+            "scene's files, so copy it there"
+        )
+    if rel not in {path for path, _ in bundle.files}:
+        bundle.files.append((rel, _read_file(_FileRef(real, image), MAX_FILE_BYTES)))
+        bundle.files.sort(key=lambda f: f[0].encode())
+    return bundle, rel

@@ -291,6 +291,61 @@ class ClusterTest(unittest.TestCase):
         status = self.client.cancel(r.stdout.strip())
         self.assertEqual(status.proto.scene.content_hash, bundle.content_hash())
 
+    def test_environment_and_sun_as_epr_sends_them(self):
+        # A sky image with a built-in scene travels beside a generated scene JSON, and a sun goes in the
+        # JobSpec: the same bundle, the same lighting and the same pixels as `epr submit --env --sun`.
+        sky = os.path.join(SOURCE_DIR, "scenes", "sky", "sky.exr")
+        sun = (0.3, 1, 0.4, 5, 2)
+        job = self.client.submit("builtin:cornell", environment=sky, sun=sun, **JOB)
+        r = epr("submit", "builtin:cornell", *JOB_FLAGS, "--env", sky, "--sun", "0.3,1,0.4,5,2",
+                "--master", self.farm.address)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        theirs = r.stdout.strip()
+        strong = self.client.submit("builtin:cornell", environment=sky, environment_strength=3, sun=sun, **JOB)
+        plain = self.client.submit("builtin:cornell", **JOB)
+        for j in (job, theirs, strong, plain):
+            self.assertEqual(list(self.client.watch(j))[-1].state, "DONE")
+        ours_status, their_status = self.client.status(job), self.client.status(theirs)
+        self.assertEqual(ours_status.proto.scene.content_hash, their_status.proto.scene.content_hash)
+        self.assertEqual(ours_status.proto.effective.sun, their_status.proto.effective.sun)
+        self.assertEqual(ours_status.proto.effective.environment, their_status.proto.effective.environment)
+        self.assertEqual(ours_status.proto.effective.environment.image, "sky.exr")
+        self.assertEqual(self.client.status(strong).proto.effective.environment.strength, 3)
+        a, b = self.client.get(job, as_arrays=True), self.client.get(theirs, as_arrays=True)
+        self.assertTrue((a["pathtrace"] == b["pathtrace"]).all() and (a["counts"] == b["counts"]).all())
+        brighter = self.client.get(strong, as_arrays=True)["pathtrace"].mean()
+        unlit = self.client.get(plain, as_arrays=True)["pathtrace"].mean()
+        self.assertGreater(float(brighter), float(a["pathtrace"].mean()))  # the sky x 3
+        self.assertGreater(float(a["pathtrace"].mean()), float(unlit))  # the sun and the sky add light
+
+        # A constant colour, as --env R,G,B: bit for bit.
+        grey = self.client.submit("builtin:cornell", environment=(0.5, 0.25, 1), **JOB)
+        r = epr("submit", "builtin:cornell", *JOB_FLAGS, "--env", "0.5,0.25,1", "--master", self.farm.address)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        for j in (grey, r.stdout.strip()):
+            self.assertEqual(list(self.client.watch(j))[-1].state, "DONE")
+        a, b = self.client.get(grey, as_arrays=True), self.client.get(r.stdout.strip(), as_arrays=True)
+        self.assertTrue((a["pathtrace"] == b["pathtrace"]).all() and (a["counts"] == b["counts"]).all())
+
+        # A file scene's sky must lie in the scene's folder; malformed values are refused with a reason.
+        courtyard = os.path.join(SOURCE_DIR, "scenes", "sky", "courtyard.json")
+        bundle, rel = eprfarm.bundle_scene_with_image(courtyard, sky)
+        self.assertEqual(rel, "sky.exr")
+        self.assertEqual(bundle.content_hash(), eprfarm.bundle_scene(courtyard).content_hash())
+        scene = write_textured_scene(os.path.join(self.tmp, "sky-outside"))
+        with self.assertRaisesRegex(eprfarm.SceneError, "lies outside the scene's folder"):
+            self.client.submit(scene, environment=sky, **JOB)
+        with self.assertRaisesRegex(eprfarm.SceneError, "does not exist"):
+            self.client.submit("builtin:cornell", environment=os.path.join(self.tmp, "none.exr"), **JOB)
+        with self.assertRaisesRegex(ValueError, "a colour"):
+            self.client.submit("builtin:cornell", environment=(1, 2), **JOB)
+        with self.assertRaisesRegex(ValueError, "direction towards the sun"):
+            self.client.submit("builtin:cornell", sun=(0, 1), **JOB)
+        with self.assertRaisesRegex(eprfarm.RpcError, "strength"):
+            self.client.submit("builtin:cornell", environment=1, environment_strength=-1, **JOB)
+        with self.assertRaisesRegex(eprfarm.RpcError, "sun direction"):
+            self.client.submit("builtin:cornell", sun=(0, 0, 0), **JOB)
+
     def test_scene_files_bundled_as_epr_does(self):
         scene = write_textured_scene(os.path.join(self.tmp, "textured"))
         bundle = eprfarm.bundle_scene(scene)
