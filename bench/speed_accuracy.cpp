@@ -8,6 +8,9 @@
 //   rp     path tracing plus reprojection (GL)     (RenderMode::kReproject, ReprojectMethod::kGl)
 //   skip   reprojection plus pixel skipping (GL)   (RenderMode::kSkip, ReprojectMethod::kGl)
 //   exact  reprojection with visibility rays       (RenderMode::kReproject, ReprojectMethod::kExact)
+// A reprojecting mode may name a variant: "skip:w=0.5:m=32" runs skip with --reprojected-weight 0.5 and
+// --min-paths 32 (unnamed values: --reprojected-weight and --min-paths, default 1 and 1), and is
+// called skip_w0.5_m32 in file names and tables (skip_w0.5 with m = 1; skip with both at 1).
 //
 // Per run, OUT/csv/SCENE_WxH_MODE.csv has one row per round:
 //   round, wall_s, cpu_s, eye_paths, reprojected_samples, mean_spp, rel_mse, rel_mse_trim, rmse,
@@ -54,6 +57,7 @@
 #include <map>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -118,25 +122,67 @@ struct Run {
 struct ModeSpec {
   RenderMode mode;
   ReprojectMethod reproject;
+  float reprojected_weight = 1.f;
+  int min_paths = 1;
+  std::string name;  // file names and tables
 };
 
-ModeSpec mode_spec(const std::string& m) {
-  if (m == "pt") return {RenderMode::kPathTrace, ReprojectMethod::kGl};
-  if (m == "rp") return {RenderMode::kReproject, ReprojectMethod::kGl};
-  if (m == "skip") return {RenderMode::kSkip, ReprojectMethod::kGl};
-  if (m == "exact") return {RenderMode::kReproject, ReprojectMethod::kExact};
-  throw std::invalid_argument("unknown mode '" + m + "' (pt, rp, skip, exact)");
+// The variant defaults of reprojecting runs (--reprojected-weight, --min-paths).
+float g_reprojected_weight = 1.f;
+int g_min_paths = 1;
+
+// "MODE[:w=W][:m=M]" (see the top of this file).
+ModeSpec mode_spec(const std::string& spec) {
+  const size_t colon = spec.find(':');
+  const std::string m = spec.substr(0, colon);
+  ModeSpec s;
+  if (m == "pt")
+    s = {RenderMode::kPathTrace, ReprojectMethod::kGl};
+  else if (m == "rp")
+    s = {RenderMode::kReproject, ReprojectMethod::kGl};
+  else if (m == "skip")
+    s = {RenderMode::kSkip, ReprojectMethod::kGl};
+  else if (m == "exact")
+    s = {RenderMode::kReproject, ReprojectMethod::kExact};
+  else
+    throw std::invalid_argument("unknown mode '" + m + "' (pt, rp, skip, exact)");
+  if (s.mode != RenderMode::kPathTrace) {
+    s.reprojected_weight = g_reprojected_weight;
+    s.min_paths = g_min_paths;
+  }
+  for (size_t at = colon; at != std::string::npos;) {
+    const size_t next = spec.find(':', at + 1);
+    const std::string part = spec.substr(at + 1, next == std::string::npos ? std::string::npos : next - at - 1);
+    at = next;
+    if (s.mode == RenderMode::kPathTrace) throw std::invalid_argument("mode '" + spec + "': pt has no variants");
+    try {
+      if (part.rfind("w=", 0) == 0)
+        s.reprojected_weight = std::stof(part.substr(2));
+      else if (part.rfind("m=", 0) == 0)
+        s.min_paths = std::stoi(part.substr(2));
+      else
+        throw std::invalid_argument("");
+    } catch (const std::exception&) {
+      throw std::invalid_argument("mode '" + spec + "': '" + part + "' is not w=WEIGHT or m=MIN_PATHS");
+    }
+  }
+  s.name = m;
+  if (s.reprojected_weight != 1.f) s.name += fmt::format("_w{:g}", s.reprojected_weight);
+  if (s.min_paths != 1) s.name += fmt::format("_m{}", s.min_paths);
+  return s;
 }
 
 // keep_snapshot(round, cpu): whether to keep this round's image for the equal-time strip.
-Run run_mode(const RenderOptions& base, const std::string& mode, const Reference& ref, const Reference* cyref,
+Run run_mode(const RenderOptions& base, const ModeSpec& ms, const Reference& ref, const Reference* cyref,
              const std::function<bool(int, double)>& keep_snapshot) {
   RenderOptions o = base;
-  const ModeSpec ms = mode_spec(mode);
   o.mode = ms.mode;
   o.reproject = ms.reproject;
+  o.reprojected_weight = ms.reprojected_weight;
+  o.min_paths = ms.min_paths;
+  if (auto err = o.validate()) throw std::invalid_argument("mode '" + ms.name + "': " + *err);
   Run run;
-  run.mode = mode;
+  run.mode = ms.name;
   const double pixels = double(o.width) * o.height;
   double excluded_wall = 0, excluded_cpu = 0;
   const double c0 = cpu_seconds();
@@ -359,7 +405,12 @@ int main(int argc, char** argv) {
   bench::add_common_options(app, &size, &ref_spp, &cache, &threads, &bench::g_trim);
   app.add_option("--spp", spp, "P: samples per pixel of every run");
   app.add_option("--scene", scenes, "scene specs (builtin:NAME[?tess=N])");
-  app.add_option("--mode", modes, "modes: pt, rp, skip, exact (pt is always run first)");
+  app.add_option("--mode", modes,
+                 "modes: pt, rp, skip, exact (pt is always run first); rp, skip and exact may name a variant: "
+                 "skip:w=0.5:m=32");
+  app.add_option("--reprojected-weight", g_reprojected_weight,
+                 "W of every reprojecting run that does not name its own (w=), in (0, 1]");
+  app.add_option("--min-paths", g_min_paths, "min-paths of every skip run that does not name its own (m=)");
   app.add_option("--target", targets, "the P of plain path tracing whose error the time-to-error columns use");
   app.add_option("--out", out_dir, "output folder (csv/, strip/, summary.json, tables.md)");
   app.add_option("--cycles", cycles_dir, "folder of cycles_sweep.py results to score (SCENE_WxH/times.csv)");
@@ -394,7 +445,17 @@ int main(int argc, char** argv) {
   // pt first: its error at the target P and its CPU time for the strip are needed by the others.
   modes.erase(std::remove(modes.begin(), modes.end(), "pt"), modes.end());
   modes.insert(modes.begin(), "pt");
-  for (const std::string& m : modes) (void)mode_spec(m);
+  // Runs are known by their variant names from here on.
+  std::map<std::string, ModeSpec> specs;
+  for (std::string& m : modes) {
+    const ModeSpec s = mode_spec(m);
+    m = s.name;
+    specs[m] = s;
+  }
+  if (std::set<std::string>(modes.begin(), modes.end()).size() != modes.size()) {
+    std::fprintf(stderr, "speed_accuracy: a mode is named twice\n");
+    return 2;
+  }
 
   const fs::path out(out_dir);
   fs::create_directories(out / "csv");
@@ -457,7 +518,7 @@ int main(int argc, char** argv) {
           keep = [&](int, double cpu) { return cpu <= 1.5 * strip_cpu; };
       }
       const double l0 = load1();
-      Run run = run_mode(base, mode, ref, cy, keep);
+      Run run = run_mode(base, specs.at(mode), ref, cy, keep);
       const Sample& last = run.samples.back();
       std::printf("  %-5s %4d rounds  %7.1f s wall %7.1f CPU-s  paths %.3g  M' %.3g  rMSE(trim) %.4g  load %.2f\n",
                   mode.c_str(), last.round, last.wall, last.cpu, last.eye_paths, last.reprojected, last.err.trimmed,

@@ -82,6 +82,10 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
       ->capture_default_str();
   cmd->add_option("--min-paths", o.min_paths, "real paths a pixel traces before it may be skipped")
       ->capture_default_str();
+  cmd->add_option("--reprojected-weight", o.reprojected_weight,
+                  "W in (0, 1]: what a reprojected sample counts for against a traced path, in the image "
+                  "(sum + W M' L_rp) / (M + W M') and in the skip rule M + W M' >= spp")
+      ->capture_default_str();
   cmd->add_flag("--reproject-glossy", o.reproject_glossy, "also reproject glossy vertices (failure-mode study)");
   cmd->add_flag_callback(
       "--no-joint-test", [&o] { o.joint_test = false; },

@@ -20,6 +20,9 @@ std::optional<std::string> RenderOptions::validate() const {
   if (!std::isfinite(epsilon) || !limits::kEpsilon.contains(epsilon))
     return fmt::format("--epsilon {} must be a fraction of the scene diagonal in [0, 1]", epsilon);
   if (min_paths < 1 || min_paths > spp) return fmt::format("--min-paths {} must be between 1 and --spp", min_paths);
+  if (!(reprojected_weight > 0 && reprojected_weight <= 1))
+    return fmt::format("--reprojected-weight {} must be in (0, 1]: a reprojected sample counts for at most one path",
+                       reprojected_weight);
   if (!std::isfinite(round_growth)) return fmt::format("--round-growth {} must be finite", round_growth);
   if (auto err = limits::kRoundGrowth.check(round_growth)) return err;
   if (auto err = limits::kTileSize.check(tile_size)) return err;

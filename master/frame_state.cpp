@@ -62,7 +62,8 @@ Image combined_image(const FrameImages& images) {
       const float* ps = s.at(x, y);
       out.set_rgb(x, y,
                   combine_pixel(Vec3(ps[0], ps[1], ps[2]), uint32_t(images.path_count.at(x, y)[0]),
-                                uint32_t(images.reprojected.at(x, y)[0]), images.reprojection.rgb(x, y)));
+                                uint32_t(images.reprojected.at(x, y)[0]), images.reprojection.rgb(x, y),
+                                images.reprojected_weight));
     }
   });
   return out;
@@ -195,7 +196,7 @@ bool FrameState::finish_round() {
   for (size_t p = 0; p < skip_.size(); ++p) {
     const uint64_t m = path_count_[p], mp = mprime_[p];
     if (!skip_[p]) {
-      if (m >= target || (skipping && m + mp >= target && m >= uint64_t(opts_.min_paths))) {
+      if (m >= target || (skipping && skip_pixel(m, mp, target, uint64_t(opts_.min_paths), opts_.reprojected_weight))) {
         skip_[p] = 1;
         if (m < target) ++skipped;
       }
@@ -218,8 +219,9 @@ void FrameState::update_sample_progress() {
     traced += m;
     sum_m += double(m);
     sum_mp += double(mp);
-    sum_spp += double(m + mp);
-    min_spp = std::min(min_spp, double(m + mp));
+    const double spp = weighted_samples(m, mp, opts_.reprojected_weight);
+    sum_spp += spp;
+    min_spp = std::min(min_spp, spp);
   }
   const double n = double(skip_.size());
   progress_.paths_traced = traced;
@@ -406,6 +408,7 @@ void FrameState::count_images(FrameImages* out) const {
 
 FrameImages FrameState::release_images() {
   FrameImages out;
+  out.reprojected_weight = opts_.reprojected_weight;
   if (reprojector_) {
     out.reprojection = reprojected_radiance(true);
     released_counts_ = reprojector_->counts();
@@ -421,6 +424,7 @@ FrameImages FrameState::release_images() {
 
 FrameImages FrameState::images(bool preview) {
   FrameImages out;
+  out.reprojected_weight = opts_.reprojected_weight;
   // L_rp is not kept between rounds: it is downsampled from the accumulation here, every pixel. M'
   // comes along (and is kept) unless this is a skip-mode preview, which shows the skipped pixels' M'
   // as of the last round they were active in (their L_rp is current).
@@ -448,6 +452,7 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts, uint64_t worker
       {"sampler", to_string(opts.sampler)},
       {"subpixels", opts.subpixels},
       {"epsilon_fraction", opts.epsilon},
+      {"reprojected_weight", opts.reprojected_weight},
       {"tile_size", opts.tile_size},
       {"taper_tiles", opts.taper_tiles},
       {"rounds", p.round},

@@ -35,12 +35,12 @@ class GlContext;
 
 struct FrameProgress {
   int round = 0;                // rounds finished
-  double mean_spp = 0;          // mean over pixels of M + M'
-  double min_spp = 0;           // min over pixels of M + M'
+  double mean_spp = 0;          // mean over pixels of M + W M' (the samples the skip rule counts)
+  double min_spp = 0;           // min over pixels of M + W M'
   double mean_paths = 0;        // mean M
   double mean_reprojected = 0;  // mean M'
   uint64_t pixels_active = 0;   // pixels that trace paths in the next round
-  uint64_t pixels_skipped = 0;  // pixels with M + M' >= P that trace no more (skip mode)
+  uint64_t pixels_skipped = 0;  // pixels with M + W M' >= P that trace no more (skip mode)
   uint64_t paths_traced = 0;    // sum of M
   uint64_t paths_skipped = 0;   // paths not traced because the pixel was skipped
 };
@@ -50,17 +50,18 @@ struct FrameProgress {
 /// bit as from the frame's arrays while M' < 2^24 (the count images are floats). A set filled the
 /// other way (combined and pathtrace given, path_sum empty) serves them as they are.
 struct FrameImages {
-  Image combined;      // (path_sum + M' L_rp) / (M + M'), or empty
-  Image pathtrace;     // path_sum / M, or empty
-  Image path_sum;      // the RGB sum of each pixel's M path samples, or empty
-  Image reprojection;  // L_rp (empty without reprojection)
-  Image path_count;    // M, one channel
-  Image reprojected;   // M', one channel
+  Image combined;                  // (path_sum + W M' L_rp) / (M + W M'), or empty
+  Image pathtrace;                 // path_sum / M, or empty
+  Image path_sum;                  // the RGB sum of each pixel's M path samples, or empty
+  Image reprojection;              // L_rp (empty without reprojection)
+  Image path_count;                // M, one channel
+  Image reprojected;               // M', one channel
+  float reprojected_weight = 1.f;  // W (RenderOptions::reprojected_weight), for combined_image()
 };
 
 /// path_sum / M per pixel (0 where M = 0), or the stored image.
 Image pathtrace_image(const FrameImages& images);
-/// (path_sum + M' L_rp) / (M + M') per pixel (combine_pixel), the path-traced image without
+/// (path_sum + W M' L_rp) / (M + W M') per pixel (combine_pixel), the path-traced image without
 /// reprojection, or the stored image.
 Image combined_image(const FrameImages& images);
 

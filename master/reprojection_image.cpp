@@ -105,14 +105,16 @@ void downsample_bands(std::span<const AccumulationCell* const> bands, int band_r
       skip, out, parts);
 }
 
-Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint32_t reprojected_count, const Vec3& lrp) {
-  const double m = path_count, mr = double(reprojected_count);
+Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint32_t reprojected_count, const Vec3& lrp,
+                   float reprojected_weight) {
+  const double m = path_count, mr = double(reprojected_weight) * double(reprojected_count);
   if (m + mr == 0) return Vec3(0.f);
   return Vec3(float((path_sum.x + mr * lrp.x) / (m + mr)), float((path_sum.y + mr * lrp.y) / (m + mr)),
               float((path_sum.z + mr * lrp.z) / (m + mr)));
 }
 
-Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp) {
+Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp,
+              float reprojected_weight) {
   const size_t n = size_t(path_sum.width) * size_t(path_sum.height);
   if (path_sum.channels < 3 || path_count.size() != n || rp.radiance.width != path_sum.width ||
       rp.radiance.height != path_sum.height || rp.count.size() != n)
@@ -123,20 +125,22 @@ Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, co
   tbb::parallel_for(0, path_sum.height, [&](int y) {
     for (int x = 0; x < path_sum.width; ++x) {
       const size_t p = size_t(y) * size_t(path_sum.width) + size_t(x);
-      out.set_rgb(x, y, combine_pixel(path_sum.rgb(x, y), path_count[p], rp.count[p], rp.radiance.rgb(x, y)));
+      out.set_rgb(
+          x, y,
+          combine_pixel(path_sum.rgb(x, y), path_count[p], rp.count[p], rp.radiance.rgb(x, y), reprojected_weight));
     }
   });
   return out;
 }
 
 std::vector<uint8_t> skip_mask(const std::vector<uint32_t>& path_count, const std::vector<uint32_t>& reprojected_count,
-                               uint64_t target_samples, uint32_t min_paths) {
+                               uint64_t target_samples, uint32_t min_paths, float reprojected_weight) {
   if (path_count.size() != reprojected_count.size())
     throw std::invalid_argument(fmt::format("skip_mask: {} path counts but {} reprojected counts", path_count.size(),
                                             reprojected_count.size()));
   std::vector<uint8_t> skip(path_count.size());
   for (size_t p = 0; p < skip.size(); ++p)
-    skip[p] = uint64_t(path_count[p]) + reprojected_count[p] >= target_samples && path_count[p] >= min_paths;
+    skip[p] = skip_pixel(path_count[p], reprojected_count[p], target_samples, min_paths, reprojected_weight);
   return skip;
 }
 

@@ -6,9 +6,11 @@
 //   M'(p)    = sum of count(s)
 // Averaging per-subpixel means (not pooling all samples) is the paper's normalisation: a subpixel
 // hit by many reprojected points does not dominate its pixel.
-// Combination with the M path-traced samples of p (their radiance sum and count):
-//   L(p) = (path_sum(p) + M'(p) * L_rp(p)) / (M(p) + M'(p)),   0 if M + M' = 0.
-// Skip mask: pixel p traces no new path next round if M + M' >= P and M >= min_paths.
+// Combination with the M path-traced samples of p (their radiance sum and count), a reprojected
+// sample counting for W in (0, 1] of a path (RenderOptions::reprojected_weight, default 1):
+//   L(p) = (path_sum(p) + W M'(p) L_rp(p)) / (M(p) + W M'(p)),   0 if M + W M' = 0.
+// Skip mask: pixel p traces no new path next round if M + W M' >= P and M >= min_paths.
+// (With W = 1, both are the paper's, bit for bit.)
 //
 // Images are epr::Image (row 0 at the top, 3 channels, linear RGB radiance); counts are row-major
 // vectors of width * height pixels. Sizes are checked (std::invalid_argument).
@@ -65,13 +67,25 @@ void downsample_bands(std::span<const AccumulationCell* const> bands, int band_r
                       int subpixels, std::span<const uint8_t> skip, PixelReprojection* out,
                       DownsampleParts parts = DownsampleParts::kBoth);
 
-/// L(p) of one pixel: (path_sum + M' L_rp) / (M + M') in double, 0 if M + M' = 0.
-Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint32_t reprojected_count, const Vec3& lrp);
-/// L(p) = (path_sum + M' L_rp) / (M + M'). `path_sum` is the sum (not the mean) of p's M path samples.
-Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& reprojected);
+/// L(p) of one pixel: (path_sum + W M' L_rp) / (M + W M') in double, 0 if M + W M' = 0.
+Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint32_t reprojected_count, const Vec3& lrp,
+                   float reprojected_weight = 1.f);
+/// L(p) = (path_sum + W M' L_rp) / (M + W M'). `path_sum` is the sum (not the mean) of p's M path samples.
+Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& reprojected,
+              float reprojected_weight = 1.f);
 
-/// 1 = skip pixel next round (M + M' >= target_samples and M >= min_paths), else 0.
+/// The samples a pixel counts as having: M + W M' (in double: exact for W = 1).
+inline double weighted_samples(uint64_t path_count, uint64_t reprojected_count, float reprojected_weight) {
+  return double(path_count) + double(reprojected_weight) * double(reprojected_count);
+}
+/// The skip rule: M + W M' >= target_samples and M >= min_paths.
+inline bool skip_pixel(uint64_t path_count, uint64_t reprojected_count, uint64_t target_samples, uint64_t min_paths,
+                       float reprojected_weight) {
+  return weighted_samples(path_count, reprojected_count, reprojected_weight) >= double(target_samples) &&
+         path_count >= min_paths;
+}
+/// 1 = skip pixel next round (skip_pixel()), else 0.
 std::vector<uint8_t> skip_mask(const std::vector<uint32_t>& path_count, const std::vector<uint32_t>& reprojected_count,
-                               uint64_t target_samples, uint32_t min_paths = 1);
+                               uint64_t target_samples, uint32_t min_paths = 1, float reprojected_weight = 1.f);
 
 }  // namespace epr

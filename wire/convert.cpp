@@ -134,6 +134,7 @@ void to_proto_reprojection(const RenderOptions& o, v1::ReprojectionSettings* r) 
   r->set_subpixels(uint32_t(o.subpixels));
   r->set_epsilon_fraction(o.epsilon);
   r->set_min_paths(uint32_t(o.min_paths));
+  r->set_reprojected_weight(o.reprojected_weight);
   r->set_reproject_glossy(o.reproject_glossy);
   r->set_joint_test(o.joint_test);
 }
@@ -209,6 +210,9 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
     if (r.min_paths() > kMax) return "min_paths is absurdly large";
     o.min_paths = int(r.min_paths());
   }
+  // Unset is 1 whatever RenderOptions' default: a job or checkpoint written before the field existed
+  // renders and resumes as it began.
+  o.reprojected_weight = r.has_reprojected_weight() ? r.reprojected_weight() : 1.f;
   if (r.has_reproject_glossy()) o.reproject_glossy = r.reproject_glossy();
   if (r.has_joint_test()) o.joint_test = r.joint_test();
   if (spec.has_russian_roulette()) {

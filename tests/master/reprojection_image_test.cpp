@@ -72,6 +72,42 @@ TEST(Combine, WeightsPathSamplesAndReprojectedSamplesByTheirCounts) {
   EXPECT_THROW(combine(path_sum, {1}, rp), std::invalid_argument);
 }
 
+TEST(Combine, AReprojectedSampleCountsForWOfAPath) {
+  const PixelReprojection rp = downsample(two_pixels());  // pixel 0: M' = 4, L_rp = (3, 1, 2)
+  Image path_sum(2, 1, 3);
+  path_sum.set_rgb(0, 0, {2, 2, 2});  // M = 2, mean 1
+  path_sum.set_rgb(1, 0, {6, 3, 0});
+  // W = 0.25: M' = 4 counts as one path. (2 + 1 * 3) / 3, (2 + 1 * 1) / 3, (2 + 1 * 2) / 3.
+  const Image L = combine(path_sum, {2, 3}, rp, 0.25f);
+  EXPECT_FLOAT_EQ(L.rgb(0, 0).x, 5.f / 3.f);
+  EXPECT_FLOAT_EQ(L.rgb(0, 0).y, 1.f);
+  EXPECT_FLOAT_EQ(L.rgb(0, 0).z, 4.f / 3.f);
+  EXPECT_FLOAT_EQ(L.rgb(1, 0).x, 2.f);  // no reprojected samples: W does not matter
+  // Only reprojected samples: L = L_rp whatever W.
+  EXPECT_FLOAT_EQ(combine(Image(2, 1, 3), {0, 0}, rp, 0.25f).rgb(0, 0).x, 3.f);
+  // W = 1 is the unweighted formula bit for bit.
+  const Image one = combine(path_sum, {2, 3}, rp, 1.f), plain = combine(path_sum, {2, 3}, rp);
+  EXPECT_EQ(one.data, plain.data);
+  EXPECT_FLOAT_EQ(one.rgb(0, 0).x, 14.f / 6.f);
+}
+
+// combined_image() takes W from the images, so every consumer of a frame's images (result files,
+// previews, the benchmarks) combines with the job's W.
+TEST(Combine, CombinedImageUsesTheFramesWeight) {
+  const PixelReprojection rp = downsample(two_pixels());
+  FrameImages f;
+  f.path_sum = Image(2, 1, 3);
+  f.path_sum.set_rgb(0, 0, {2, 2, 2});
+  f.path_count = Image(2, 1, 1);
+  f.path_count.at(0, 0)[0] = 2;
+  f.reprojected = Image(2, 1, 1);
+  f.reprojected.at(0, 0)[0] = float(rp.count[0]);
+  f.reprojection = rp.radiance;
+  EXPECT_FLOAT_EQ(combined_image(f).rgb(0, 0).x, 14.f / 6.f);
+  f.reprojected_weight = 0.25f;
+  EXPECT_FLOAT_EQ(combined_image(f).rgb(0, 0).x, 5.f / 3.f);
+}
+
 TEST(SkipMask, SkipsWhenTargetReachedAndEnoughPathsTraced) {
   // P = 8, min_paths = 1 (default).
   const std::vector<uint32_t> m = {0, 1, 4, 8, 7, 2};
@@ -82,6 +118,20 @@ TEST(SkipMask, SkipsWhenTargetReachedAndEnoughPathsTraced) {
   // min_paths = 0: reprojection alone may satisfy a pixel.
   EXPECT_EQ(skip_mask(m, mr, 8, 0), (std::vector<uint8_t>{1, 1, 0, 1, 0, 1}));
   EXPECT_THROW(skip_mask(m, {1, 2}, 8), std::invalid_argument);
+}
+
+TEST(SkipMask, ReprojectedSamplesCountForWEach) {
+  // P = 8, W = 0.5: M + M' / 2 >= 8.
+  const std::vector<uint32_t> m = {1, 1, 4, 4, 7, 8, 0};
+  const std::vector<uint32_t> mr = {7, 14, 7, 8, 2, 0, 16};
+  EXPECT_EQ(skip_mask(m, mr, 8, 1, 0.5f), (std::vector<uint8_t>{0, 1, 0, 1, 1, 1, 0}));
+  // The same counts at W = 1 skip every pixel with a path of its own.
+  EXPECT_EQ(skip_mask(m, mr, 8, 1, 1.f), (std::vector<uint8_t>{1, 1, 1, 1, 1, 1, 0}));
+  // min_paths still applies.
+  EXPECT_EQ(skip_mask(m, mr, 8, 4, 0.5f), (std::vector<uint8_t>{0, 0, 0, 1, 1, 1, 0}));
+  EXPECT_TRUE(skip_pixel(2, 6, 5, 1, 0.5f));
+  EXPECT_FALSE(skip_pixel(2, 5, 5, 1, 0.5f));
+  EXPECT_DOUBLE_EQ(weighted_samples(2, 5, 0.5f), 4.5);
 }
 
 }  // namespace

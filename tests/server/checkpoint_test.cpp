@@ -134,6 +134,7 @@ TEST(CheckpointFormat, RecordsRoundTrip) {
   spec.options.subpixels = 2;
   spec.options.epsilon = 1e-3f;
   spec.options.min_paths = 8;
+  spec.options.reprojected_weight = 0.375f;
   spec.options.seed = 99;
   spec.options.tile_size = 16;
   spec.camera.eye = {0.5f, 1.25f, 3.f};
@@ -156,6 +157,7 @@ TEST(CheckpointFormat, RecordsRoundTrip) {
   EXPECT_EQ(s.options.subpixels, 2);
   EXPECT_EQ(s.options.epsilon, 1e-3f);
   EXPECT_EQ(s.options.min_paths, 8);
+  EXPECT_EQ(s.options.reprojected_weight, 0.375f);  // a resumed job combines and skips with the same W
   EXPECT_EQ(s.options.seed, 99u);
   EXPECT_EQ(s.options.tile_size, 16);
   EXPECT_EQ(s.camera.eye.y, 1.25f);
