@@ -441,6 +441,14 @@ class ClusterTest(unittest.TestCase):
         self.assertIn("refused SubmitJob: INVALID_ARGUMENT: --spp 0", str(e))
         self.assertFalse(e.unreachable)
 
+        for w in (0.0, 1.5):
+            with self.assertRaises(eprfarm.RpcError) as ctx:
+                self.client.submit("builtin:cornell", width=8, height=8, spp=1, reprojected_weight=w)
+            self.assertEqual(ctx.exception.code, grpc.StatusCode.INVALID_ARGUMENT)
+            self.assertIn("--reprojected-weight %g must be in (0, 1]" % w, ctx.exception.reason)
+        spec = self.client.job_spec("builtin:cornell", reprojected_weight=0.5)
+        self.assertEqual(spec.reprojection.reprojected_weight, 0.5)
+
         with self.assertRaises(eprfarm.RpcError) as ctx:
             self.client.submit("builtin:nosuchscene", width=8, height=8, spp=1)
         self.assertEqual(ctx.exception.code, grpc.StatusCode.INVALID_ARGUMENT)

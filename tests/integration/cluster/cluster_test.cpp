@@ -55,6 +55,7 @@ struct Job {
   float round_growth = RenderOptions{}.round_growth;
   uint64_t seed = 7;
   bool mis = true;  // false: --no-mis (next event estimation only)
+  float reprojected_weight = 1.f;
 
   // The flags shared by `epr render` and `epr submit`. The reprojector is the default (the OSMesa
   // deep framebuffer) on both sides: the cluster runs what a user runs.
@@ -79,6 +80,10 @@ struct Job {
            "--seed",
            std::to_string(seed)};
     if (!mis) a.push_back("--no-mis");
+    if (reprojected_weight != 1.f) {
+      a.push_back("--reprojected-weight");
+      a.push_back(fmt::format("{}", reprojected_weight));
+    }
     return a;
   }
 };
@@ -394,6 +399,30 @@ TEST_F(ClusterTest, NextEventEstimationOnlyTravelsToTheWorkers) {
   ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("mis_ref")));
   EXPECT_NE(exact_difference(load_outputs(path("nee")).pathtrace, load_outputs(path("mis_ref")).pathtrace), "")
       << "the MIS and NEE-only renders are identical: the estimator option did nothing";
+}
+
+TEST_F(ClusterTest, TheReprojectedWeightTravelsToTheMaster) {
+  // --reprojected-weight reaches the master's frame (JobSpec.reprojection.reprojected_weight): the
+  // cluster's images and counts equal the single-process render's bit for bit, which traced more
+  // paths than at W = 1.
+  Job job;
+  job.size = 48;
+  job.spp = 16;
+  job.k = 2;
+  job.min_paths = 2;
+  job.reprojected_weight = 0.25f;
+  ASSERT_NO_FATAL_FAILURE(start_master());
+  for (const char* name : {"w1", "w2"}) start_worker(name);
+  ASSERT_NO_FATAL_FAILURE(wait_for_workers(2));
+  ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("w")));
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("w_ref")));
+  expect_equal_to_reference(path("w"), path("w_ref"));
+  EXPECT_EQ(load_outputs(path("w")).stats.value("reprojected_weight", 0.f), 0.25f);
+  job.reprojected_weight = 1.f;
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("one_ref")));
+  EXPECT_GT(summarize(read_image(path("w.counts.exr")), job.spp).m_sum,
+            summarize(read_image(path("one_ref.counts.exr")), job.spp).m_sum)
+      << "W = 0.25 traced no more paths than W = 1: the weight did nothing";
 }
 
 // ---- 2. the number of workers does not change the result ----------------------------------------------
