@@ -9,8 +9,9 @@
 //   skip   reprojection plus pixel skipping (GL)   (RenderMode::kSkip, ReprojectMethod::kGl)
 //   exact  reprojection with visibility rays       (RenderMode::kReproject, ReprojectMethod::kExact)
 // A reprojecting mode may name a variant: "skip:w=0.5:m=32" runs skip with --reprojected-weight 0.5 and
-// --min-paths 32 (unnamed values: --reprojected-weight and --min-paths, default 1 and 1), and is
-// called skip_w0.5_m32 in file names and tables (skip_w0.5 with m = 1; skip with both at 1).
+// --min-paths 32 (unnamed values: --reprojected-weight and --min-paths, by default epr's), and is
+// called skip_w0.5_m32 in file names and tables; a value at epr's default is left out of the name
+// (plain "skip" is skip as `epr render` runs it).
 //
 // Per run, OUT/csv/SCENE_WxH_MODE.csv has one row per round:
 //   round, wall_s, cpu_s, eye_paths, reprojected_samples, mean_spp, rel_mse, rel_mse_trim, rmse,
@@ -128,8 +129,8 @@ struct ModeSpec {
 };
 
 // The variant defaults of reprojecting runs (--reprojected-weight, --min-paths).
-float g_reprojected_weight = 1.f;
-int g_min_paths = 1;
+float g_reprojected_weight = RenderOptions{}.reprojected_weight;
+int g_min_paths = RenderOptions{}.min_paths;
 
 // "MODE[:w=W][:m=M]" (see the top of this file).
 ModeSpec mode_spec(const std::string& spec) {
@@ -167,8 +168,8 @@ ModeSpec mode_spec(const std::string& spec) {
     }
   }
   s.name = m;
-  if (s.reprojected_weight != 1.f) s.name += fmt::format("_w{:g}", s.reprojected_weight);
-  if (s.min_paths != 1) s.name += fmt::format("_m{}", s.min_paths);
+  if (s.reprojected_weight != RenderOptions{}.reprojected_weight) s.name += fmt::format("_w{:g}", s.reprojected_weight);
+  if (s.min_paths != RenderOptions{}.min_paths) s.name += fmt::format("_m{}", s.min_paths);
   return s;
 }
 
