@@ -47,8 +47,9 @@ struct RenderOptions {
   float epsilon = 3e-4f;  // plane-test tolerance as a fraction of the scene's bbox diagonal
   int min_paths = 1;      // a pixel is never skipped before it has this many real paths
   // W in (0, 1]: what one reprojected sample counts for against one of the pixel's own paths, in the
-  // image and in the skip rule (master/reprojection_image.h).
-  float reprojected_weight = 1.f;
+  // image and in the skip rule (master/reprojection_image.h; DESIGN.md "Combining the two estimates"
+  // says why 0.5).
+  float reprojected_weight = 0.5f;
   bool reproject_glossy = false;  // failure-mode study only
   bool joint_test = true;         // the plane test's normal and crease tests (off: failure-mode study)
   RussianRoulette rr = RussianRoulette::paper();

@@ -13,6 +13,7 @@
 
 #include "client/local_render.h"
 #include "client/render_flags.h"
+#include "wire/convert.h"
 
 namespace epr {
 namespace {
@@ -65,10 +66,24 @@ TEST(ReprojectedWeight, TheFlagSetsTheOption) {
   RenderOptions o;
   std::map<std::string, std::string> extra;
   add_render_flags(&app, o, extra, RenderFlagSet::kRemote);
-  app.parse(std::vector<std::string>{"0.5", "--reprojected-weight", "builtin:cornell"});  // reversed
+  app.parse(std::vector<std::string>{"0.75", "--reprojected-weight", "builtin:cornell"});  // reversed
   finish_options(o, extra);
-  EXPECT_EQ(o.reprojected_weight, 0.5f);
-  EXPECT_EQ(RenderOptions{}.reprojected_weight, 1.f);
+  EXPECT_EQ(o.reprojected_weight, 0.75f);
+  EXPECT_EQ(RenderOptions{}.reprojected_weight, 0.5f);
+}
+
+// A job spec carries W; one without the field (written before it existed) means W = 1, whatever the
+// default of new jobs.
+TEST(ReprojectedWeight, TheJobSpecCarriesItAndUnsetMeansOne) {
+  RenderOptions o = skip_job(0.75f);
+  v1::JobSpec spec = to_job_spec(o, SceneBundleData{}, CameraSpec{});
+  RenderOptions back;
+  CameraSpec camera;
+  ASSERT_EQ(from_job_spec(spec, &back, &camera), std::nullopt);
+  EXPECT_EQ(back.reprojected_weight, 0.75f);
+  spec.mutable_reprojection()->clear_reprojected_weight();
+  ASSERT_EQ(from_job_spec(spec, &back, &camera), std::nullopt);
+  EXPECT_EQ(back.reprojected_weight, 1.f);
 }
 
 // `epr render` beside this test binary's tests/ folder, with its output and exit code.

@@ -262,7 +262,7 @@ class MasterClient:
         subpixels: int = 4,
         epsilon: float = 3e-4,
         min_paths: int = 1,
-        reprojected_weight: float = 1.0,
+        reprojected_weight: float = 0.5,
         reproject_glossy: bool = False,
         joint_test: bool = True,
         rr: str = "paper",
@@ -388,7 +388,7 @@ class MasterClient:
             reproject: "gl" (default), "cpu" or "exact".
             subpixels (4), epsilon (3e-4), min_paths (1), reproject_glossy (False), joint_test (True).
             reprojected_weight: W in (0, 1], what a reprojected sample counts for against a traced
-                path (1.0; `--reprojected-weight`).
+                path (0.5, as `epr`; `--reprojected-weight`).
             rr: Russian roulette "paper" (default), "albedo" or "off"; max_depth overrides its cap.
             mis: MIS for direct light (True); False: next event estimation only.
             tile: tile edge, pixels (64); taper_tiles (False).

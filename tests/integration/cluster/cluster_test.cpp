@@ -55,7 +55,7 @@ struct Job {
   float round_growth = RenderOptions{}.round_growth;
   uint64_t seed = 7;
   bool mis = true;  // false: --no-mis (next event estimation only)
-  float reprojected_weight = 1.f;
+  float reprojected_weight = RenderOptions{}.reprojected_weight;
 
   // The flags shared by `epr render` and `epr submit`. The reprojector is the default (the OSMesa
   // deep framebuffer) on both sides: the cluster runs what a user runs.
@@ -80,7 +80,7 @@ struct Job {
            "--seed",
            std::to_string(seed)};
     if (!mis) a.push_back("--no-mis");
-    if (reprojected_weight != 1.f) {
+    if (reprojected_weight != RenderOptions{}.reprojected_weight) {
       a.push_back("--reprojected-weight");
       a.push_back(fmt::format("{}", reprojected_weight));
     }
@@ -481,10 +481,12 @@ TEST_F(ClusterTest, WorkerJoiningMidJobGetsWork) {
 
 TEST_F(ClusterTest, JobEndsWhenReprojectionSkipsEveryPixel) {
   // The furnace (a closed box seen from inside, no background, every surface diffuse) gives every
-  // pixel reprojected samples. With P = 32, k = 4 and min-paths 12, reprojection brings most pixels
-  // to P by the time they have traced min-paths; the rest follow within a few rounds. The job must
-  // end as soon as no pixel is left (no empty rounds, no hang), before P / k rounds.
+  // pixel reprojected samples. With P = 32, k = 4, min-paths 12 and reprojected samples counted in
+  // full (W = 1), reprojection brings most pixels to P by the time they have traced min-paths; the
+  // rest follow within a few rounds. The job must end as soon as no pixel is left (no empty rounds,
+  // no hang), before P / k rounds.
   Job job;
+  job.reprojected_weight = 1.f;
   job.scene = "builtin:furnace";
   job.size = 48;
   job.spp = 32;
