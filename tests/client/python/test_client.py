@@ -446,8 +446,8 @@ class ClusterTest(unittest.TestCase):
                 self.client.submit("builtin:cornell", width=8, height=8, spp=1, reprojected_weight=w)
             self.assertEqual(ctx.exception.code, grpc.StatusCode.INVALID_ARGUMENT)
             self.assertIn("--reprojected-weight %g must be in (0, 1]" % w, ctx.exception.reason)
-        spec = self.client.job_spec("builtin:cornell", reprojected_weight=0.5)
-        self.assertEqual(spec.reprojection.reprojected_weight, 0.5)
+        spec = self.client.job_spec("builtin:cornell", reprojected_weight=0.75)
+        self.assertEqual(spec.reprojection.reprojected_weight, 0.75)
 
         with self.assertRaises(eprfarm.RpcError) as ctx:
             self.client.submit("builtin:nosuchscene", width=8, height=8, spp=1)
