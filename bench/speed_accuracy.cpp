@@ -123,8 +123,8 @@ struct Run {
 struct ModeSpec {
   RenderMode mode;
   ReprojectMethod reproject;
-  float reprojected_weight = 1.f;
-  int min_paths = 1;
+  float reprojected_weight = RenderOptions{}.reprojected_weight;
+  int min_paths = RenderOptions{}.min_paths;
   std::string name;  // file names and tables
 };
 
@@ -168,6 +168,7 @@ ModeSpec mode_spec(const std::string& spec) {
     }
   }
   s.name = m;
+  if (s.mode == RenderMode::kPathTrace) return s;
   if (s.reprojected_weight != RenderOptions{}.reprojected_weight) s.name += fmt::format("_w{:g}", s.reprojected_weight);
   if (s.min_paths != RenderOptions{}.min_paths) s.name += fmt::format("_m{}", s.min_paths);
   return s;
