@@ -104,22 +104,41 @@ constexpr uint32_t reverse_bits(uint32_t x) {
   x = ((x & 0xaaaaaaaau) >> 1) | ((x & 0x55555555u) << 1);
   x = ((x & 0xccccccccu) >> 2) | ((x & 0x33333333u) << 2);
   x = ((x & 0xf0f0f0f0u) >> 4) | ((x & 0x0f0f0f0fu) << 4);
-  x = ((x & 0xff00ff00u) >> 8) | ((x & 0x00ff00ffu) << 8);
-  return (x >> 16) | (x << 16);
+  return __builtin_bswap32(x);
+}
+
+// reverse_bits(sample(index, dim)) by bytes of the index, as kByteTables: the bit order in which
+// Owen scrambling works, so that a scrambled coordinate takes one bit reversal instead of two.
+constexpr std::array<std::array<std::array<uint32_t, 256>, 4>, kDimensions> make_reversed_byte_tables() {
+  std::array<std::array<std::array<uint32_t, 256>, 4>, kDimensions> t{};
+  for (size_t d = 0; d < size_t(kDimensions); ++d)
+    for (size_t b = 0; b < 4; ++b)
+      for (uint32_t v = 0; v < 256; ++v) t[d][b][v] = reverse_bits(kByteTables[d][b][v]);
+  return t;
+}
+inline constexpr auto kReversedByteTables = make_reversed_byte_tables();
+
+/// reverse_bits(sample(index, dim)). Dimension 0 (van der Corput) is the index itself.
+constexpr uint32_t sample_reversed(uint32_t index, int dim) {
+  if (dim == 0) return index;
+  const auto& t = kReversedByteTables[size_t(dim)];
+  return t[0][index & 0xffu] ^ t[1][(index >> 8) & 0xffu] ^ t[2][(index >> 16) & 0xffu] ^ t[3][index >> 24];
 }
 
 /// Nested uniform (Owen) scramble of a 32-bit fraction: bit k (from the top) is flipped by a hash of
-/// the seed and the bits above it. Burley's Laine-Karras-style hash on the reversed bits, with
-/// N. Vegdahl's better-mixing constants ("Building a better LK hash", psychopath.io, 2021), which
+/// the seed and the bits above it. laine_karras() works on the reversed bits: Burley's Laine-Karras-style hash on the
+/// reversed bits, with N. Vegdahl's better-mixing constants ("Building a better LK hash", psychopath.io, 2021), which
 /// keep the property that each reversed bit depends only on the reversed bits below it.
-constexpr uint32_t owen_scramble(uint32_t x, uint32_t seed) {
-  x = reverse_bits(x);
+constexpr uint32_t laine_karras(uint32_t x, uint32_t seed) {
   x ^= x * 0x3d20adeau;
   x += seed;
   x *= (seed >> 16) | 1u;
   x ^= x * 0x05526c56u;
   x ^= x * 0x53a22864u;
-  return reverse_bits(x);
+  return x;
+}
+constexpr uint32_t owen_scramble(uint32_t x, uint32_t seed) {
+  return reverse_bits(laine_karras(reverse_bits(x), seed));
 }
 
 /// A 32-bit fraction to a float in [0, 1) (its top 24 bits).
@@ -145,10 +164,17 @@ class SobolBurleyPixel {
   }
   /// The 32-bit fractions of the first n <= sobol::kDimensions coordinates.
   void sample(uint32_t set, uint32_t index, int n, uint32_t* out) const {
+    sample_reversed_index(set, sobol::reverse_bits(index), n, out);
+  }
+  /// sample() from reverse_bits(index), which a path computes once for all its sets. Every value is
+  /// owen_scramble(sobol::sample(owen_scramble(index, seed), d), seed_d), written with the
+  /// reversals that cancel left out.
+  void sample_reversed_index(uint32_t set, uint32_t reversed_index, int n, uint32_t* out) const {
     const uint64_t h = hash_dimension(key_, set);
-    const uint32_t shuffled = sobol::owen_scramble(index, uint32_t(h));
+    const uint32_t shuffled = sobol::reverse_bits(sobol::laine_karras(reversed_index, uint32_t(h)));
     for (int d = 0; d < n; ++d)
-      out[d] = sobol::owen_scramble(sobol::sample(shuffled, d), uint32_t(mix64(h + uint64_t(d + 1)) >> 32));
+      out[d] = sobol::reverse_bits(
+          sobol::laine_karras(sobol::sample_reversed(shuffled, d), uint32_t(mix64(h + uint64_t(d + 1)) >> 32)));
   }
 
  private:
@@ -166,9 +192,9 @@ class PathSampler {
   };
 
   PathSampler(SamplerKind kind, uint64_t seed, uint32_t pixel, uint32_t sample)
-      : kind_(kind), stream_(seed, pixel, sample), sobol_(seed, pixel), sample_(sample) {}
+      : kind_(kind), stream_(seed, pixel, sample), sobol_(seed, pixel), reversed_sample_(sobol::reverse_bits(sample)) {}
 
-  Vec2 film() { return kind_ == SamplerKind::kIndependent ? stream_.next2() : sobol_.sample2(0, sample_); }
+  Vec2 film() { return kind_ == SamplerKind::kIndependent ? stream_.next2() : sobol2(0); }
   /// The next bounce's numbers (the first call: vertex x_1).
   Bounce bounce() {
     Bounce b;
@@ -181,22 +207,30 @@ class PathSampler {
       b.dir = stream_.next2();
     } else {
       const uint32_t set = 1 + 3 * bounce_++;
-      const Vec3 light = sobol_.sample3(set, sample_);
-      b.light_point = {light.x, light.y};
-      b.light_select = light.z;
-      const Vec2 rr_lobe = sobol_.sample2(set + 1, sample_);
+      uint32_t light[3];
+      sobol_.sample_reversed_index(set, reversed_sample_, 3, light);
+      b.light_point = {sobol::to_unit_float(light[0]), sobol::to_unit_float(light[1])};
+      b.light_select = sobol::to_unit_float(light[2]);
+      const Vec2 rr_lobe = sobol2(set + 1);
       b.rr = rr_lobe.x;
       b.lobe = rr_lobe.y;
-      b.dir = sobol_.sample2(set + 2, sample_);
+      b.dir = sobol2(set + 2);
     }
     return b;
   }
 
  private:
+  // SobolBurleyPixel::sample2(set, sample) for this path's sample number.
+  Vec2 sobol2(uint32_t set) const {
+    uint32_t x[2];
+    sobol_.sample_reversed_index(set, reversed_sample_, 2, x);
+    return {sobol::to_unit_float(x[0]), sobol::to_unit_float(x[1])};
+  }
+
   SamplerKind kind_;
   SampleStream stream_;
   SobolBurleyPixel sobol_;
-  uint32_t sample_;
+  uint32_t reversed_sample_;  // sobol::reverse_bits(sample number)
   uint32_t bounce_ = 0;
 };
 

@@ -110,6 +110,50 @@ TEST(SobolBurley, EverySetsFirstSamplesAreNetsAndContinue) {
       }
 }
 
+TEST(SobolBurley, PointsAreTheScrambledSobolPointsOfTheDefinition) {
+  // sample() leaves out the bit reversals that cancel; its values must be those of the definition:
+  // the index Owen-scrambled (the shuffle), its Sobol point, each coordinate Owen-scrambled, with
+  // owen_scramble written out bit by bit (bit k flipped by a hash of the bits above it).
+  auto reverse = [](uint32_t x) {
+    uint32_t r = 0;
+    for (int k = 0; k < 32; ++k) r |= ((x >> k) & 1u) << (31 - k);
+    return r;
+  };
+  auto owen = [&](uint32_t x, uint32_t seed) {
+    uint32_t y = reverse(x);
+    y ^= y * 0x3d20adeau;
+    y += seed;
+    y *= (seed >> 16) | 1u;
+    y ^= y * 0x05526c56u;
+    y ^= y * 0x53a22864u;
+    return reverse(y);
+  };
+  auto sobol_point = [](uint32_t index, int d) {
+    uint32_t x = 0;
+    for (int k = 0; k < 32; ++k)
+      if ((index >> k) & 1u) x ^= sobol::kMatrices[size_t(d)][size_t(k)];
+    return x;
+  };
+  for (uint32_t x : {0u, 1u, 0x80000000u, 0x12345678u, 0xffffffffu}) EXPECT_EQ(sobol::reverse_bits(x), reverse(x));
+  for (uint64_t seed : {2ull, 991ull})
+    for (uint32_t pixel : {0u, 77u, 262143u}) {
+      const SobolBurleyPixel p(seed, pixel);
+      const uint64_t key = mix64(mix64(seed ^ 0x2545f4914f6cdd1dULL) + (uint64_t(pixel) + 1) * 0x9e3779b97f4a7c15ULL);
+      for (uint32_t set : {0u, 1u, 5u, 3000u})
+        for (uint32_t index : {0u, 1u, 2u, 3u, 100u, 65535u, 65536u, 0x7fffffffu, 0xfffffffeu}) {
+          const uint64_t h = hash_dimension(key, set);
+          const uint32_t shuffled = owen(index, uint32_t(h));
+          uint32_t v[3];
+          p.sample(set, index, 3, v);
+          for (int d = 0; d < 3; ++d) {
+            EXPECT_EQ(sobol::sample_reversed(index, d), reverse(sobol::sample(index, d))) << d;
+            EXPECT_EQ(v[d], owen(sobol_point(shuffled, d), uint32_t(mix64(h + uint64_t(d + 1)) >> 32)))
+                << seed << " " << pixel << " " << set << " " << index << " " << d;
+          }
+        }
+    }
+}
+
 TEST(SobolBurley, InUnitIntervalDeterministicAndPixelsDiffer) {
   std::set<uint64_t> firsts;
   for (uint32_t pixel = 0; pixel < 2000; ++pixel) {
