@@ -278,6 +278,17 @@ class ClusterTest : public ::testing::Test {
     EXPECT_EQ(close_difference(a.combined, b.combined, 1e-4f, 1e-5f), "") << "combined image";
   }
 
+  // A master and two workers render `job` to `prefix`; the single-process render to `prefix`_ref must
+  // equal it bit for bit (expect_equal_to_reference).
+  void expect_two_workers_equal_single_process(const Job& job, const std::string& prefix) {
+    ASSERT_NO_FATAL_FAILURE(start_master());
+    for (const char* name : {"w1", "w2"}) start_worker(name);
+    ASSERT_NO_FATAL_FAILURE(wait_for_workers(2));
+    ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path(prefix)));
+    ASSERT_NO_FATAL_FAILURE(render_single_process(job, path(prefix + "_ref")));
+    expect_equal_to_reference(path(prefix), path(prefix + "_ref"));
+  }
+
   // Tiles the worker's log says the master committed for `job_id` (needs --log-level debug):
   // "lease N: job J round R tile T" when leased, "lease N: submitted, accepted=true" when committed.
   static size_t tiles_committed(const Process& worker, const std::string& job_id) {
@@ -389,12 +400,7 @@ TEST_F(ClusterTest, NextEventEstimationOnlyTravelsToTheWorkers) {
   job.k = 4;
   job.min_paths = 4;
   job.mis = false;
-  ASSERT_NO_FATAL_FAILURE(start_master());
-  for (const char* name : {"w1", "w2"}) start_worker(name);
-  ASSERT_NO_FATAL_FAILURE(wait_for_workers(2));
-  ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("nee")));
-  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("nee_ref")));
-  expect_equal_to_reference(path("nee"), path("nee_ref"));
+  ASSERT_NO_FATAL_FAILURE(expect_two_workers_equal_single_process(job, "nee"));
   job.mis = true;
   ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("mis_ref")));
   EXPECT_NE(exact_difference(load_outputs(path("nee")).pathtrace, load_outputs(path("mis_ref")).pathtrace), "")
@@ -411,12 +417,7 @@ TEST_F(ClusterTest, TheReprojectedWeightTravelsToTheMaster) {
   job.k = 2;
   job.min_paths = 2;
   job.reprojected_weight = 0.25f;
-  ASSERT_NO_FATAL_FAILURE(start_master());
-  for (const char* name : {"w1", "w2"}) start_worker(name);
-  ASSERT_NO_FATAL_FAILURE(wait_for_workers(2));
-  ASSERT_NO_FATAL_FAILURE(submit_and_wait(job, path("w")));
-  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("w_ref")));
-  expect_equal_to_reference(path("w"), path("w_ref"));
+  ASSERT_NO_FATAL_FAILURE(expect_two_workers_equal_single_process(job, "w"));
   EXPECT_EQ(load_outputs(path("w")).stats.value("reprojected_weight", 0.f), 0.25f);
   job.reprojected_weight = 1.f;
   ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("one_ref")));
