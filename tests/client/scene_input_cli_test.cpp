@@ -91,7 +91,7 @@ TEST_F(SceneInputCli, RenderPrintsEachWarningOnceNamingTheUsersFile) {
 TEST_F(SceneInputCli, UnlitSceneIsRefusedSayingHowToLightIt) {
   dir.write("m.mtl", "newmtl wall\nKd 0.5 0.5 0.5\nnewmtl glow\nKd 0.8 0.8 0.8\nKe 0 0 0\n");
   dir.write("dark.obj", "mtllib m.mtl\n" + kRoom);
-  for (const std::string args :
+  for (const std::string& args :
        {"render dark.obj" + kFast + " --out out/a", "render --single-process dark.obj" + kFast + " --out out/b",
         std::string("submit --master 127.0.0.1:1 dark.obj")}) {
     SCOPED_TRACE(args);

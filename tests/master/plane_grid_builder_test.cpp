@@ -55,7 +55,9 @@ TEST(PlaneGridBuilder, CpuBandsEqualTheFullFrame) {
     const DeepFramebuffer dfb = build_deep_framebuffer_cpu(scene, cam, c.subpixels);
     for (bool creases : {true, false}) {
       const detail::PlaneGrid ref = detail::make_plane_grid(dfb, cam.eye(), tolerance_of(scene), creases);
-      if (creases) EXPECT_GT(ref.creased_entries(), 0u) << c.scene;
+      if (creases) {
+        EXPECT_GT(ref.creased_entries(), 0u) << c.scene;
+      }
       for (int rows : kBandRows) {
         SCOPED_TRACE(::testing::Message() << c.scene << " creases " << creases << " band rows " << rows);
         expect_identical(detail::build_plane_grid(scene, cam, c.subpixels, tolerance_of(scene), creases, nullptr, rows),

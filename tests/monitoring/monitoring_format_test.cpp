@@ -15,6 +15,12 @@
 namespace epr::monitoring_test {
 namespace {
 
+MonitoringOptions listening_on(const std::string& address) {
+  MonitoringOptions o;
+  o.listen = address;
+  return o;
+}
+
 TEST(ParseHostPort, AcceptsHostPortAndBracketedV6) {
   EXPECT_EQ(parse_host_port("0.0.0.0:8080"), std::make_pair(std::string("0.0.0.0"), 8080));
   EXPECT_EQ(parse_host_port("127.0.0.1:0"), std::make_pair(std::string("127.0.0.1"), 0));
@@ -28,11 +34,11 @@ TEST(MonitoringServer, RefusesAnAddressInUseAndAMalformedOne) {
   MasterOptions options;
   options.reproject_backend_override = "cpu";
   JobManager jobs(options);
-  MonitoringServer first(jobs, {.listen = "127.0.0.1:0"});
+  MonitoringServer first(jobs, listening_on("127.0.0.1:0"));
   ASSERT_GT(first.port(), 0);
   EXPECT_EQ(first.url(), "http://127.0.0.1:" + std::to_string(first.port()) + "/");
-  EXPECT_THROW(MonitoringServer(jobs, {.listen = "127.0.0.1:" + std::to_string(first.port())}), std::runtime_error);
-  EXPECT_THROW(MonitoringServer(jobs, {.listen = "nonsense"}), std::runtime_error);
+  EXPECT_THROW(MonitoringServer(jobs, listening_on("127.0.0.1:" + std::to_string(first.port()))), std::runtime_error);
+  EXPECT_THROW(MonitoringServer(jobs, listening_on("nonsense")), std::runtime_error);
   first.stop();
   first.stop();  // idempotent
   jobs.shutdown();
