@@ -14,16 +14,17 @@
 // On a machine with few cores the master's threads take CPU from the tracing threads: util counts
 // that against the worker, thread util counts it where the thread was preempted. --pin runs the
 // cluster's epr-master on CPU 0 and a one-thread epr-worker on CPU 1, so that they do not share one.
-// Two set-ups:
-//   embedded: a MasterServer and one WorkerNode in this process over loopback gRPC, as `epr render`
-//             runs them (the split read from the node);
+// Set-ups (every rep runs each set-up in turn, so that drifting load hits them alike):
+//   embedded: a MasterServer and one WorkerNode in this process over the server's in-process gRPC
+//             channel, as `epr render` runs them (the split read from the node);
+//   embedded-socket: the same with the node connected to the server's loopback port;
 //   cluster:  real epr-master and epr-worker processes on loopback (the split read from the worker's
 //             SIGUSR1 line, epr_worker_main.cpp, at the window's start and end).
 // Each (set-up, jobs) pair runs --reps times; the medians are printed side by side with the ratio of
 // the several-jobs figure to the one-job figure. Wall figures are distorted when other processes
 // share the machine; the load average is printed with each run.
 //
-//   utilisation_bench [--setups embedded,cluster] [--jobs 1,3] [--reps 3] [--size 192] [--spp 64]
+//   utilisation_bench [--setups embedded,embedded-socket,cluster] [--jobs 1,3] [--reps 3] [--size 192] [--spp 64]
 //                     [--ppr 1] [--mode skip] [--scene builtin:cornell] [--reproject cpu] [--threads 0]
 //                     [--pin] [--cpu-split]
 #include <sched.h>
@@ -249,7 +250,7 @@ bool worker_split(epr::testing::Process& worker, int* seen, epr::WorkerTimeSplit
   return true;
 }
 
-bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
+bool run_embedded(const Settings& s, int n, const fs::path& dir, bool in_process, Run* out) {
   epr::MasterServerOptions mo;
   mo.listen = "127.0.0.1:0";
   mo.jobs.state_dir = (dir / "state").string();
@@ -259,6 +260,8 @@ bool run_embedded(const Settings& s, int n, const fs::path& dir, Run* out) {
   epr::MasterServer server(mo);
   epr::WorkerNodeOptions wo;
   wo.master = server.local_target();
+  if (in_process)
+    wo.in_process = [&server](const grpc::ChannelArguments& args) { return server.in_process_channel(args); };
   wo.threads = threads_of(s);
   wo.name = "bench";
   wo.cpu_split = s.cpu_split;
@@ -370,7 +373,7 @@ int main(int argc, char** argv) {
   Settings s;
   std::string setups = "embedded,cluster", jobs = "1,3";
   int reps = 3;
-  app.add_option("--setups", setups, "embedded, cluster (comma-separated)")->capture_default_str();
+  app.add_option("--setups", setups, "embedded, embedded-socket, cluster (comma-separated)")->capture_default_str();
   app.add_option("--jobs", jobs, "jobs submitted at once, per series (the first is the baseline)")
       ->capture_default_str();
   app.add_option("--reps", reps, "runs per series (medians printed)")->capture_default_str();
@@ -389,6 +392,12 @@ int main(int argc, char** argv) {
                "embedded: also split the tracing threads' CPU seconds by activity (reading their CPU clocks at "
                "every change moves preemptions to the tiles' hand-offs: a diagnostic that changes the figures)");
   CLI11_PARSE(app, argc, argv);
+  for (const std::string& setup : split(setups))
+    if (setup != "embedded" && setup != "embedded-socket" && setup != "cluster") {
+      std::fprintf(stderr, "utilisation_bench: unknown set-up '%s' (embedded, embedded-socket, cluster)\n",
+                   setup.c_str());
+      return 2;
+    }
   epr::set_log_level("warn");
   const std::vector<std::string> series = split(jobs);
   std::printf("# util = workers' tracing s / (threads x window), window = first submit .. last job done\n");
@@ -396,24 +405,24 @@ int main(int argc, char** argv) {
   std::printf("# %s, %dx%d, spp %d, k %d, %s, %s reprojector, %d tracing threads, %d reps%s\n", s.scene.c_str(), s.size,
               s.size, s.spp, s.ppr, s.mode.c_str(), s.reproject.c_str(), threads_of(s), reps,
               s.pin ? ", cluster pinned: master CPU 0, worker CPU 1" : "");
-  std::printf("%-9s %5s %4s %9s %10s %12s %6s\n", "setup", "jobs", "rep", "seconds", "util", "thread util", "load");
+  std::printf("%-15s %5s %4s %9s %10s %12s %6s\n", "setup", "jobs", "rep", "seconds", "util", "thread util", "load");
   std::map<std::string, std::map<std::string, std::vector<double>>> util, node_util;
   const fs::path dir = fs::temp_directory_path() / ("epr-utilisation-bench-" + std::to_string(::getpid()));
-  for (const std::string& setup : split(setups)) {
-    for (int rep = 0; rep < reps; ++rep) {
+  for (int rep = 0; rep < reps; ++rep) {
+    for (const std::string& setup : split(setups)) {
       for (const std::string& n : series) {  // alternated, so that drifting load hits every series alike
         fs::remove_all(dir);
         fs::create_directories(dir);
         Run r;
-        const bool ok =
-            setup == "cluster" ? run_cluster(s, std::stoi(n), dir, &r) : run_embedded(s, std::stoi(n), dir, &r);
+        const bool ok = setup == "cluster" ? run_cluster(s, std::stoi(n), dir, &r)
+                                           : run_embedded(s, std::stoi(n), dir, setup == "embedded", &r);
         if (!ok) {
           fs::remove_all(dir);
           return 1;
         }
         util[setup][n].push_back(r.utilisation);
         if (r.node_utilisation >= 0) node_util[setup][n].push_back(r.node_utilisation);
-        std::printf("%-9s %5s %4d %9.2f %9.1f%% %11.1f%% %6.2f\n", setup.c_str(), n.c_str(), rep, r.seconds,
+        std::printf("%-15s %5s %4d %9.2f %9.1f%% %11.1f%% %6.2f\n", setup.c_str(), n.c_str(), rep, r.seconds,
                     100 * r.utilisation, r.node_utilisation >= 0 ? 100 * r.node_utilisation : -1.0, load_average());
         if (r.split.total() > 0) {
           const double t = r.split.total() / 100;
@@ -448,12 +457,12 @@ int main(int argc, char** argv) {
     }
   }
   fs::remove_all(dir);
-  std::printf("\n# medians\n%-9s", "setup");
+  std::printf("\n# medians\n%-15s", "setup");
   for (const auto& n : series) std::printf(" %9s", (n + " job" + (n == "1" ? "" : "s")).c_str());
   for (size_t i = 1; i < series.size(); ++i) std::printf(" %9s", (series[i] + "/" + series[0]).c_str());
   std::printf("   (thread util)\n");
   for (const auto& [setup, by_n] : util) {
-    std::printf("%-9s", setup.c_str());
+    std::printf("%-15s", setup.c_str());
     for (const auto& n : series) std::printf(" %8.1f%%", 100 * median(by_n.at(n)));
     for (size_t i = 1; i < series.size(); ++i)
       std::printf(" %9.3f", median(by_n.at(series[i])) / median(by_n.at(series[0])));

@@ -158,6 +158,7 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
   for (int i = 0; i < n; ++i) {
     WorkerNodeOptions wo;
     wo.master = result.master_target;
+    wo.in_process = [&master](const grpc::ChannelArguments& args) { return master.in_process_channel(args); };
     wo.threads = threads;
     wo.name = "local-" + std::to_string(i);
     nodes.push_back(std::make_unique<WorkerNode>(wo));

@@ -109,7 +109,9 @@ MasterSession::MasterSession(Config config, StopSignal& signal, NodeCounters& co
   args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, std::max(config_.min_backoff_ms, config_.max_backoff_ms));
   if (config_.tls.enabled && !config_.tls_server_name.empty())
     args.SetSslTargetNameOverride(config_.tls_server_name);  // connected by address: check the name's certificate
-  channel_ = grpc::CreateCustomChannel(config_.master, rpc::channel_credentials(config_.tls), args);
+  channel_ = config_.in_process
+                 ? config_.in_process(args)
+                 : grpc::CreateCustomChannel(config_.master, rpc::channel_credentials(config_.tls), args);
   stub_ = v1::WorkerService::NewStub(channel_);
 }
 

@@ -73,6 +73,9 @@ class MasterSession {
     int threads = 1;        // WorkerInfo.threads
     std::string cache_dir;  // WorkerInfo.cached_scenes comes from here; FetchScene writes here
     int min_backoff_ms = 100, max_backoff_ms = 5000;  // the channel's own reconnection follows these
+    // A master in this process (the embedded set-up): its in-process channel, made with the session's
+    // channel arguments, instead of a connection to `master` (which still names it).
+    std::function<std::shared_ptr<grpc::Channel>(const grpc::ChannelArguments&)> in_process;
   };
 
   /// A lease held from the moment the master grants it until the master has answered for its tile

@@ -83,7 +83,8 @@ struct WorkerNode::Impl {
                  threads,
                  cache.path(),
                  opts.min_backoff_ms,
-                 opts.max_backoff_ms};
+                 opts.max_backoff_ms,
+                 opts.in_process};
     p.threads = threads;
     return p;
   }

@@ -60,6 +60,11 @@
 #include "worker/master_targets.h"
 #include "worker/time_accounting.h"
 
+namespace grpc {
+class Channel;
+class ChannelArguments;
+}  // namespace grpc
+
 namespace epr {
 
 struct WorkerNodeOptions {
@@ -81,6 +86,9 @@ struct WorkerNodeOptions {
   /// a client certificate for masters that require one.
   bool tls = false;
   std::string ca_file, cert_file, key_file;
+  /// A master in this process (the embedded set-up; `master` is its address): calls go over its
+  /// in-process channel (MasterServer::in_process_channel), without sockets. Empty: connect to `master`.
+  std::function<std::shared_ptr<grpc::Channel>(const grpc::ChannelArguments&)> in_process;
   int max_backoff_ms = 5000;  // cap of the reconnect backoff
   int min_backoff_ms = 100;   // first reconnect delay (halved or kept, by the jitter)
   int max_cached_jobs = 3;    // per-job tracing state kept (scenes and BVHs of older jobs are dropped)

@@ -58,6 +58,10 @@ MasterServer::MasterServer(MasterServerOptions options) : options_(std::move(opt
 
 MasterServer::~MasterServer() { shutdown(); }
 
+std::shared_ptr<grpc::Channel> MasterServer::in_process_channel(const grpc::ChannelArguments& args) const {
+  return server_->InProcessChannel(args);
+}
+
 std::string MasterServer::local_target() const { return fmt::format("127.0.0.1:{}", port_); }
 
 int MasterServer::http_port() const { return monitoring_ ? monitoring_->port() : 0; }

@@ -40,6 +40,9 @@ class MasterServer {
   std::string dashboard_url() const;
   /// "127.0.0.1:PORT"-style target for clients in this process or on this host.
   std::string local_target() const;
+  /// A channel to this server inside the process (no socket): the embedded set-up's worker uses it.
+  /// The server's interceptors (the bearer token) apply as on the port; there is no TLS.
+  std::shared_ptr<grpc::Channel> in_process_channel(const grpc::ChannelArguments& args) const;
   JobManager& jobs() { return *jobs_; }
   /// Stops accepting calls, cancels streams, stops the job manager. Idempotent.
   void shutdown();

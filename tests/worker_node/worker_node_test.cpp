@@ -192,6 +192,26 @@ TEST_F(WorkerNodeTest, TwoNodesRenderASkipJobLikeTheSingleProcessRender) {
   expect_same_as_local(id, o);
 }
 
+// The embedded set-up's in-process channel: every call of the node goes through it, so a node whose
+// `master` names a port nothing listens on renders the job, exactly as over the socket.
+TEST_F(WorkerNodeTest, InProcessChannelCarriesEveryCall) {
+  const RenderOptions o = cornell_options(RenderMode::kSkip);
+  const std::string id = submit(o, bundle_scene(o.scene));
+  WorkerNodeOptions wo = node_options(2);
+  wo.master = "127.0.0.1:1";
+  MasterServer* master = master_.get();
+  wo.in_process = [master](const grpc::ChannelArguments& args) { return master->in_process_channel(args); };
+  RunningNode a(wo);
+  const v1::JobStatus st = wait_done(id);
+  ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
+  a.stop();
+  const WorkerNodeStats sa = a.stats();
+  EXPECT_EQ(sa.tiles_committed, st.tiles_committed());
+  EXPECT_EQ(sa.registrations, 1u);
+  EXPECT_EQ(sa.reconnects, 0u);
+  expect_same_as_local(id, o);
+}
+
 // The time split (WorkerNodeStats::time_*, cpu) books every tracing thread's wall time once: over a
 // job that runs entirely while the node does, the threads' booked time covers at least threads x the
 // job's wall time and at most threads x the node's; tracing wall time holds the tiles' own tracing
