@@ -1,6 +1,7 @@
 // The embedded default (DESIGN.md section 2): `epr render` starts a master in this process on a
-// loopback port, plus local workers connected to it over real gRPC, submits the job with the same
-// client a cluster user has, watches it and fetches the outputs. Same code paths as a cluster.
+// loopback port, plus local workers calling it over real gRPC through the server's in-process channel
+// (no socket), submits the job over the port with the same client a cluster user has, watches it and
+// fetches the outputs. Same code paths as a cluster.
 //
 // The master's state folder is private unless given: TMPDIR/epr-render-PID-XXXXXX, locked while the
 // render runs (master/server/state_dir_lock.h) and removed when it ends, however it ends short of

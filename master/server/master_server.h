@@ -1,7 +1,8 @@
 // The master process in one object: JobManager plus the gRPC server with JobService, WorkerService
 // and the standard health service, behind the bearer-token interceptor (wire/rpc/auth_interceptor.h)
 // when a token is configured. `epr-master` is a thin main around it; `epr render` runs one
-// in-process on a loopback port, so a local render and a cluster use the same code paths.
+// in-process on a loopback port, its workers calling it over the server's in-process channel, so a
+// local render and a cluster use the same code paths.
 #pragma once
 
 #include <grpcpp/grpcpp.h>
