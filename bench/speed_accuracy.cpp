@@ -31,7 +31,7 @@
 // one-pixel box, so the result is a reference at W x H with 4x the samples); otherwise it is rendered.
 //
 // --list-references prints the cache file names of the references for the given settings.
-// --export-obj DIR writes each scene as DIR/NAME.obj + NAME.mtl (Kd, Ke; glossy lobes are not
+// --export-obj DIR writes each scene as DIR/NAME.obj + NAME.mtl (Kd, Ke, emit; glossy lobes are not
 // exported) and DIR/NAME.camera (eye, look, up, vertical fov) for scripts/cycles_sweep.py, and exits.
 // --cycles DIR scores DIR/SCENE_WxH/times.csv (written by cycles_sweep.py) into OUT/csv/SCENE_WxH_cycles.csv,
 // and DIR/SCENE_WxH_adaptive (Cycles' adaptive sampling) into SCENE_WxH_cycles_adaptive.csv. When
@@ -360,11 +360,12 @@ void export_obj(const std::string& spec, const fs::path& dir) {
   fs::create_directories(dir);
   std::ofstream mtl(dir / (name + ".mtl")), obj(dir / (name + ".obj")), cam(dir / (name + ".camera"));
   if (!mtl || !obj || !cam) throw std::runtime_error("cannot write to " + dir.string());
-  mtl << "# " << spec << ": Kd and Ke only (glossy lobes are not exported)\n";
+  mtl << "# " << spec << ": Kd, Ke and emit only (glossy lobes are not exported)\n";
   for (size_t m = 0; m < s.materials.size(); ++m) {
     const Material& mat = s.materials[m];
     mtl << fmt::format("newmtl m{}_{}\nKd {:.9g} {:.9g} {:.9g}\nKe {:.9g} {:.9g} {:.9g}\n", m, mat.name, mat.kd.x,
                        mat.kd.y, mat.kd.z, mat.ke.x, mat.ke.y, mat.ke.z);
+    if (mat.emits_front_only) mtl << "emit front\n";
     if (!mat.diffuse()) mtl << "# glossy: Ks " << mat.ks.x << " exponent " << mat.exponent << " dropped\n";
   }
   obj << "# " << spec << " (" << s.triangle_count() << " triangles)\nmtllib " << name << ".mtl\n";

@@ -193,6 +193,9 @@ constexpr std::array<CornellQuad, 18> kCornellQuads = {{
 
 void build_cornell(Builder& b) {
   for (const auto& m : kCornellMaterials) b.material(m.name, m.kd, m.ke);
+  // The light panel shines downwards only, as the measured box's does (its quad faces down): no
+  // light enters the 1 cm gap between it and the ceiling from above.
+  b.material_ref(kLight).emits_front_only = true;
   for (const auto& q : kCornellQuads) b.quad(q.v[0], q.v[1], q.v[2], q.v[3], uint32_t(q.material));
   b.scene().camera = CameraSpec{};  // the box's conventional camera (see camera.h)
 }

@@ -2,7 +2,9 @@
 // deterministically (no randomness; the same name gives bit-identical scenes on every call).
 //
 //   cornell     CornellBox-Original (the fixed OBJ in scenes/cornell-box): closed, mostly
-//               visible, the best case. 36 triangles at tessellation 1.
+//               visible, the best case. 36 triangles at tessellation 1. One difference: the light
+//               emits from its lower (front) side only, as the real box's light panel does; the
+//               OBJ's light emits from both sides, as Cycles' mesh lights do.
 //   glossy      the Cornell box with a glossy tall box (ks 0.6, Phong exponent 200).
 //   conference  closed 12 x 3 x 8 m meeting room: table, twelve chairs, six ceiling light panels.
 //   hall        Sponza-like closed 30 x 12 x 12 m hall: two colonnades of 12-gon columns, an upper

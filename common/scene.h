@@ -2,7 +2,8 @@
 //
 // Triangles with flat geometric normals, one material per triangle. Materials are Lambertian
 // (constant Kd or a Kd texture), optionally emissive (a diffuse area light of radiance Ke, emitting
-// from both sides as Cycles' mesh lights do), or the one glossy material that exists only to test
+// from both sides as Cycles' mesh lights do, or from the front side only, as a real light panel and
+// pbrt's and Mitsuba's area lights do), or the one glossy material that exists only to test
 // the method's failure mode. A material may be cut out by an alpha mask: where the mask's texel is
 // below the cut-off the surface is not there (rays pass through). No scene graph, no instancing, no
 // shading normals.
@@ -27,15 +28,19 @@ enum class MaterialType : uint8_t {
 struct Material {
   std::string name;
   MaterialType type = MaterialType::kDiffuse;
-  Vec3 kd{0.8f};              // diffuse albedo, linear RGB in [0, 1]
-  int kd_texture = -1;        // index into Scene::textures, replaces kd when >= 0
-  Vec3 ke{0.f};               // emitted radiance, W / (m^2 sr) per channel; non-zero makes an emitter
-  Vec3 ks{0.f};               // glossy albedo (kGlossy only)
-  float exponent = 100.f;     // Phong exponent (kGlossy only)
-  int alpha_texture = -1;     // index into Scene::textures (its alpha): a cut-out when >= 0
-  float alpha_cutoff = 0.5f;  // where the mask's alpha is below this the surface is a hole
+  Vec3 kd{0.8f};                  // diffuse albedo, linear RGB in [0, 1]
+  int kd_texture = -1;            // index into Scene::textures, replaces kd when >= 0
+  Vec3 ke{0.f};                   // emitted radiance, W / (m^2 sr) per channel; non-zero makes an emitter
+  bool emits_front_only = false;  // Ke leaves the front side only (the right-hand-rule normal's side)
+  Vec3 ks{0.f};                   // glossy albedo (kGlossy only)
+  float exponent = 100.f;         // Phong exponent (kGlossy only)
+  int alpha_texture = -1;         // index into Scene::textures (its alpha): a cut-out when >= 0
+  float alpha_cutoff = 0.5f;      // where the mask's alpha is below this the surface is a hole
 
   bool emissive() const { return !is_black(ke); }
+  /// The radiance Ke leaving a surface of this material along a direction on the side of `side` (a
+  /// sign: dot(front normal, direction), the normal by the right-hand rule on the corner order).
+  Vec3 emitted(float side) const { return emits_front_only && !(side > 0) ? Vec3(0.f) : ke; }
   bool cut_out() const { return alpha_texture >= 0; }
   bool diffuse() const { return type == MaterialType::kDiffuse; }
 };

@@ -10,7 +10,8 @@ It renders the same light transport model as eprfarm's path tracer:
   * every surface is Lambertian with albedo Kd (Diffuse BSDF, roughness 0);
   * a material with non-zero Ke is additionally a diffuse area emitter of radiance Ke
     (Emission shader, strength 1, added to the Diffuse BSDF). Cycles mesh lights emit from
-    both sides of the surface, as ours do;
+    both sides of the surface, as ours do, unless the MTL says `emit front` (eprfarm's statement:
+    Ke leaves the front side only): then the strength is 1 - Backfacing, as in eprfarm;
   * black background (world strength 0) unless --env gives a sky (a colour or an equirectangular
     image, mapped as eprfarm maps it: build_sky()), and --sun a sun lamp (angle, strength =
     irradiance), as `epr render --env/--sun` take them; no clamping, no denoising, no adaptive sampling,
@@ -127,7 +128,7 @@ def read_logical_lines(path):
 
 
 def parse_mtl(path, materials):
-    """Adds {name: {'Kd': (r,g,b), 'Ke': (r,g,b)}} from an MTL file to `materials`."""
+    """Adds {name: {'Kd': (r,g,b), 'Ke': (r,g,b), 'front_only': bool}} from an MTL file to `materials`."""
     current = None
     for line in read_logical_lines(path):
         if not line:
@@ -136,7 +137,11 @@ def parse_mtl(path, materials):
         key = tok[0]
         if key == "newmtl":
             name = line[len("newmtl"):].strip()
-            current = materials.setdefault(name, {"Kd": (0.0, 0.0, 0.0), "Ke": (0.0, 0.0, 0.0)})
+            current = materials.setdefault(name, {"Kd": (0.0, 0.0, 0.0), "Ke": (0.0, 0.0, 0.0), "front_only": False})
+        elif current is not None and key == "emit":
+            if tok[1:] not in (["front"], ["both"]):
+                raise SystemExit("%s: bad line %r (emit front or emit both)" % (path, line))
+            current["front_only"] = tok[1] == "front"
         elif current is not None and key in ("Kd", "Ke"):
             vals = tok[1:]
             if vals and vals[0] in ("spectral", "xyz"):
@@ -208,7 +213,7 @@ def parse_obj(path):
 DEFAULT_KD = (0.8, 0.8, 0.8)   # for faces without a (known) material
 
 
-def make_material(name, kd, ke):
+def make_material(name, kd, ke, front_only=False):
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nt = mat.node_tree
@@ -223,6 +228,13 @@ def make_material(name, kd, ke):
         emit = nt.nodes.new("ShaderNodeEmission")
         emit.inputs["Color"].default_value = (ke[0], ke[1], ke[2], 1.0)
         emit.inputs["Strength"].default_value = 1.0      # radiance = Ke
+        if front_only:                                   # no emission seen from the back
+            back = nt.nodes.new("ShaderNodeNewGeometry")
+            front = nt.nodes.new("ShaderNodeMath")
+            front.operation = "SUBTRACT"
+            front.inputs[0].default_value = 1.0
+            nt.links.new(back.outputs["Backfacing"], front.inputs[1])
+            nt.links.new(front.outputs["Value"], emit.inputs["Strength"])
         add = nt.nodes.new("ShaderNodeAddShader")
         nt.links.new(emit.outputs["Emission"], add.inputs[0])
         nt.links.new(diff.outputs["BSDF"], add.inputs[1])
@@ -295,7 +307,7 @@ def build_mesh(scene, verts, tris, tri_mat, materials):
             mesh.materials.append(make_material("__default__", DEFAULT_KD, (0.0, 0.0, 0.0)))
         else:
             m = materials[key]
-            mesh.materials.append(make_material(key, m["Kd"], m["Ke"]))
+            mesh.materials.append(make_material(key, m["Kd"], m["Ke"], m["front_only"]))
     mat_idx = [index_of[m if m in materials else None] for m in tri_mat]
     mesh.polygons.foreach_set("material_index", mat_idx)
     mesh.polygons.foreach_set("use_smooth", [False] * len(tris))   # geometric normals

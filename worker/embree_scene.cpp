@@ -100,15 +100,18 @@ void EmbreeScene::build_emitter_table() {
     if (!(w > 0)) continue;
     const auto& t = scene_.triangles[i];
     emitters_.push_back({scene_.positions[t[0]], scene_.positions[t[1]], scene_.positions[t[2]],
-                         scene_.geometric_normal(i), m.ke, 0.f});
+                         scene_.geometric_normal(i), m.ke, 0.f, m.emits_front_only});
     weights.push_back(w);
     areas.push_back(area);
   }
   if (!emitters_.empty()) emitter_selection_ = AliasTable(weights);
-  double total = 0;
-  for (float w : weights) total += w;
+  double total = 0, power = 0;
+  for (size_t k = 0; k < weights.size(); ++k) {
+    total += weights[k];
+    power += kPi * weights[k] * (emitters_[k].front_only ? 1 : 2);
+  }
   inv_emitter_weight_ = total > 0 ? float(1 / total) : 0.f;
-  emitted_power_ = 2 * kPi * total;
+  emitted_power_ = power;
   for (size_t k = 0; k < emitters_.size(); ++k) emitters_[k].pdf_area = emitter_selection_.pmf(k) / areas[k];
 }
 

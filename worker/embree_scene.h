@@ -9,6 +9,8 @@
 
 #include <embree3/rtcore.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -25,12 +27,20 @@ struct Hit {
   Vec3 ng;             // Embree's geometric normal: not normalised, right-hand rule on the corner order
 };
 
-/// An emitting triangle as next event estimation samples it (64 bytes: one cache line).
+/// An emitting triangle as next event estimation samples it.
 struct Emitter {
   Vec3 p0, p1, p2;  // corners, world space, metres
-  Vec3 normal;      // unit geometric normal (the emitter is two-sided)
+  Vec3 normal;      // unit geometric normal, right-hand rule on the corner order
   Vec3 le;          // emitted radiance Ke, W / (m^2 sr)
   float pdf_area;   // probability of choosing this triangle / its area, 1/m^2
+  bool front_only;  // emits on the normal's side only (else on both sides)
+
+  /// |cos| at the light of a direction `to_light` from a shading point, or 0 where the emitter shows
+  /// that point its dark back.
+  float cos_towards(const Vec3& to_light) const {
+    const float c = dot(normal, to_light);
+    return front_only ? std::max(0.f, -c) : std::abs(c);
+  }
 };
 
 class EmbreeScene {
@@ -67,8 +77,8 @@ class EmbreeScene {
   /// weight, the same for every triangle of the material. 0 for a material no emitter uses (then only
   /// BSDF sampling can find its light). Used by multiple importance sampling.
   float emitter_pdf_area(const Material& m) const { return luminance(m.ke) * inv_emitter_weight_; }
-  /// Power the emitting triangles emit (luminance, W): 2 pi x the sum of area x luminance(Ke), the
-  /// factor 2 for their two sides.
+  /// Power the emitting triangles emit (luminance, W): the sum of pi x area x luminance(Ke) per side
+  /// that emits.
   double emitted_power() const { return emitted_power_; }
   /// Offset in metres used to step off a surface (scaled to the scene's extent).
   float ray_epsilon() const { return ray_epsilon_; }

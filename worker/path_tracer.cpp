@@ -76,8 +76,10 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     // MIS, BSDF-sampling half: the continuation ray of x_{n-1} found emission at x_n. It is light
     // reflected at x_{n-1}, so it belongs to D_{n-1}, weighted by w_bsdf and carried by x_{n-1}'s
     // continuation weight f cos / pdf / q. (Le(x_n) itself stays in the vertex below unweighted:
-    // see the back-propagation.) Two-sided emitters: |cos| at the light.
-    if (mis_ && !path.empty() && mat.emissive()) {
+    // see the back-propagation.) |cos| at the light; a one-sided emitter's back emits nothing.
+    const float side = -dot(hit.ng, ray.dir);  // > 0: the ray arrives at the front
+    const Vec3 le = mat.emitted(side);
+    if (mis_ && !path.empty() && !is_black(le)) {
       PathVertex& prev = path.back();
       float w_bsdf = 1;  // an emitter next event estimation cannot pick: BSDF sampling is the only technique
       const float pdf_area = scene_.emitter_pdf_area(mat) * triangle_share_;
@@ -95,14 +97,14 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
                                                              hit.t * hit.t, cos_y))
                      : 0.f;
       }
-      prev.direct += prev.weight * mat.ke * w_bsdf;
+      prev.direct += prev.weight * le * w_bsdf;
     }
     // Filled in place: building the vertex on the stack and copying it costs more than its shading.
     PathVertex& v = path.emplace_back();
     v.position = ray.origin + ray.dir * hit.t;
     const Vec3 ng = hit.ng * (1 / length(hit.ng));
     v.normal = dot(ng, ray.dir) < 0 ? ng : -ng;
-    v.le = mat.ke;  // two-sided diffuse emitter
+    v.le = le;  // diffuse emitter
     v.diffuse = mat.diffuse();
     const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, -ray.dir);
     const Vec3 origin = v.position + v.normal * eps;
@@ -155,7 +157,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
         const float inv_dist = 1 / dist;
         to_light = to_light * inv_dist;
         const float cos_x = dot(v.normal, to_light);
-        const float cos_y = std::abs(dot(light->normal, to_light));
+        const float cos_y = light->cos_towards(to_light);
         if (cos_x > 0 && cos_y > 0) {
           ++rays;
           // The segment from the offset origin to the light point, parametrised over [0, 1] (Embree

@@ -2,7 +2,8 @@
 // textures loaded, and its materials added to the OBJ's material table.
 //
 // The material model uses newmtl, Kd, Ke, Ks, Ns, map_Kd and map_d (an alpha mask: the material is
-// cut out where the texture's alpha, or the first channel of an image without alpha, is below 0.5);
+// cut out where the texture's alpha, or the first channel of an image without alpha, is below 0.5),
+// and eprfarm's own `emit front` (Ke leaves the faces' front side only; `emit both` is the default);
 // other statements (Ka, Ni, d, illum, other maps...) are ignored. The files named by one mtllib statement are read as
 // one library, in the way of tinyobjloader's MTL reader, so that material tables match that library's:
 //   - a material is added when the next newmtl starts, and once more at the end of the library
@@ -65,6 +66,12 @@ MtlFile read_mtl(ObjContext& ctx, const FileRef& mtl) {
       if (tok.size() != 2) fail(file, ln, fmt::format("Ns needs 1 number, got {}", tok.size() - 1));
       st.kind = MtlStatement::Kind::kNs;
       st.value.x = parse_real(tok[1], 1e6, file, ln, "Ns exponent");
+    } else if (key == "emit") {
+      if (current.empty()) fail(file, ln, "emit before any newmtl");
+      if (tok.size() != 2 || (tok[1] != "front" && tok[1] != "both"))
+        fail(file, ln, "emit needs one word: front (Ke leaves the front side only) or both (the default)");
+      st.kind = MtlStatement::Kind::kEmit;
+      st.value.x = tok[1] == "front" ? 1.f : 2.f;
     } else if (key == "map_Kd" || key == "map_d") {
       if (current.empty()) fail(file, ln, fmt::format("{} before any newmtl", key));
       // The texture options (-s, -o, -clamp...) are parsed to find the file name, and not used.
@@ -121,6 +128,9 @@ void add_library(const std::vector<const MtlFile*>& files, MaterialTable* table)
           break;
         case MtlStatement::Kind::kMapD:
           current.mask = st.texture;
+          break;
+        case MtlStatement::Kind::kEmit:
+          current.emit_front_only = st.value.x == 1.f;
           break;
       }
   add(current);

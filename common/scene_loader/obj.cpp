@@ -208,6 +208,7 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
     mat.name = m.name;
     mat.kd = clamped_colour(ctx.report, m.kd, 1.f, file, m.name, "Kd");
     mat.ke = clamped_colour(ctx.report, m.ke, 1e6f, file, m.name, "Ke");
+    mat.emits_front_only = m.emit_front_only;
     mat.kd_texture = m.texture;
     if (m.mask >= 0 && !is_black(mat.ke))
       warn(ctx.report, fmt::format("{}: material '{}': map_d ignored: an emitter is not cut out", file, m.name));

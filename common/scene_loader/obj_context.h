@@ -25,15 +25,16 @@ struct MtlMaterial {
   std::string name;
   Vec3 kd{0.f}, ke{0.f}, ks{0.f};
   float ns = 1.f;
-  int texture = -1;  // map_Kd: index into ObjContext::textures
-  int mask = -1;     // map_d: index into ObjContext::textures (its alpha)
+  int texture = -1;              // map_Kd: index into ObjContext::textures
+  int mask = -1;                 // map_d: index into ObjContext::textures (its alpha)
+  bool emit_front_only = false;  // emit front
 };
 
 /// One statement of an MTL file that the material model uses.
 struct MtlStatement {
-  enum class Kind : uint8_t { kNewmtl, kKd, kKe, kKs, kNs, kMapKd, kMapD };
+  enum class Kind : uint8_t { kNewmtl, kKd, kKe, kKs, kNs, kMapKd, kMapD, kEmit };
   Kind kind = Kind::kNewmtl;
-  Vec3 value{0.f};   // Kd, Ke, Ks: the colour; Ns: value.x
+  Vec3 value{0.f};   // Kd, Ke, Ks: the colour; Ns: value.x; emit: value.x 1 (front) or 2 (both)
   int texture = -1;  // map_Kd, map_d
   std::string name;  // newmtl
 };

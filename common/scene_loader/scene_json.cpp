@@ -380,7 +380,9 @@ class JsonSceneReader {
         error(p, fmt::format("no material named '{}' in the scene (it has: {})", name, fmt::join(names, ", ")));
       }
       if (!o.is_object()) error(p, fmt::format("material override '{}' must be an object", name));
-      check_keys(o, p, {"kd", "ke", "type", "ks", "exponent"});
+      check_keys(o, p, {"kd", "ke", "emit", "type", "ks", "exponent"});
+      if (o.contains("emit") && o["emit"] != "front" && o["emit"] != "both")
+        error(p + "/emit", "emit must be \"front\" (Ke leaves the front side only) or \"both\"");
       for (size_t i = 0; i < scene->materials.size(); ++i) {
         Material& m = scene->materials[i];
         if (m.name != name) continue;
@@ -389,6 +391,7 @@ class JsonSceneReader {
           m.kd_texture = -1;  // a constant kd replaces the texture
         }
         if (o.contains("ke")) m.ke = colour_at(o["ke"], p + "/ke", "ke", 1e6f);
+        if (o.contains("emit")) m.emits_front_only = o["emit"] == "front";
         if (o.contains("type")) {
           const auto& t = o["type"];
           if (t == "glossy") {

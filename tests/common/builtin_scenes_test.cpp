@@ -126,12 +126,17 @@ TEST(BuiltinScenes, CornellEqualsTheSharedObj) {
       }
     EXPECT_TRUE(matched);
   }
-  // Same materials in the same (MTL) order, same camera.
+  // Same materials in the same (MTL) order, same camera; only the built-in's light is one-sided,
+  // and its front (the quad's normal) faces down into the box.
   ASSERT_EQ(obj.materials.size(), builtin.materials.size());
   for (size_t i = 0; i < obj.materials.size(); ++i) {
     EXPECT_EQ(obj.materials[i].name, builtin.materials[i].name);
     EXPECT_TRUE(builtin.materials[i].diffuse());
+    EXPECT_FALSE(obj.materials[i].emits_front_only);
+    EXPECT_EQ(builtin.materials[i].emits_front_only, builtin.materials[i].name == "light");
   }
+  for (size_t t = 0; t < builtin.triangle_count(); ++t)
+    if (builtin.materials[builtin.material_of[t]].emissive()) EXPECT_LT(builtin.geometric_normal(t).y, -0.999f);
   EXPECT_EQ(obj.camera.eye, builtin.camera.eye);
   EXPECT_EQ(obj.camera.look, builtin.camera.look);
   EXPECT_EQ(obj.camera.up, builtin.camera.up);

@@ -182,6 +182,7 @@ TEST(SceneLoader, BadSceneAuditNamesFileAndLine) {
       {"malformed MTL: order", tri, "Kd 1 1 1\nnewmtl a\n", "m.mtl:1: Kd before any newmtl"},
       {"malformed MTL: arity", tri, "newmtl a\nKe 1 2\n", "m.mtl:2: Ke needs 1 or 3 numbers"},
       {"malformed MTL: name", tri, "newmtl\n", "m.mtl:1: newmtl without a material name"},
+      {"malformed MTL: emit", tri, "newmtl a\nKe 1 1 1\nemit back\n", "m.mtl:3: emit needs one word: front"},
       {"malformed MTL: NaN", tri, "newmtl a\nKd nan 0 0\n", "m.mtl:2: colour value 'nan' is not finite"},
       {"index out of range", kTriangle + "f 1 2 4\n", "", "case.obj:4: vertex index 4 is out of range"},
       {"negative index out of range", kTriangle + "f -1 -2 -4\n", "", "case.obj:4: vertex index -4 is out of range"},
@@ -385,6 +386,18 @@ TEST(SceneLoader, LimitsAreEnforced) {
   EXPECT_NE(load_error(dir.path("")).find(": is a directory"), std::string::npos);
 }
 
+TEST(SceneLoader, MtlEmitFrontMakesAOneSidedEmitter) {
+  TempDir dir;
+  dir.write("m.mtl", "newmtl one\nKe 1 1 1\nemit front\nnewmtl two\nKe 1 1 1\nemit both\nnewmtl plain\nKe 1 1 1\n");
+  const Scene s = load_scene(dir.write("e.obj", "mtllib m.mtl\n" + kTriangle +
+                                                    "usemtl one\nf 1 2 3\nusemtl two\nf 1 3 2\n"
+                                                    "usemtl plain\nf 2 1 3\n"));
+  ASSERT_EQ(s.materials.size(), 3u);
+  EXPECT_TRUE(find_material(s, "one")->emits_front_only);
+  EXPECT_FALSE(find_material(s, "two")->emits_front_only);
+  EXPECT_FALSE(find_material(s, "plain")->emits_front_only);
+}
+
 TEST(SceneLoader, JsonWithBuiltinAppliesCameraAndMaterials) {
   TempDir dir;
   const std::string json = dir.write("glossy.json", R"({
@@ -394,7 +407,7 @@ TEST(SceneLoader, JsonWithBuiltinAppliesCameraAndMaterials) {
     "camera": {"eye": [0, 1, 3.5], "fov": 45},
     "materials": {
       "backWall": {"type": "glossy", "ks": [0.5, 0.5, 0.5], "exponent": 80, "kd": [0.3, 0.3, 0.3]},
-      "light": {"ke": [10, 10, 10]}
+      "light": {"ke": [10, 10, 10], "emit": "both"}
     }
   })");
   const Scene s = load_scene(json);
@@ -409,7 +422,12 @@ TEST(SceneLoader, JsonWithBuiltinAppliesCameraAndMaterials) {
   expect_vec_near(wall->kd, Vec3(0.3f));
   EXPECT_EQ(wall->exponent, 80.f);
   expect_vec_near(find_material(s, "light")->ke, Vec3(10.f));
+  EXPECT_FALSE(find_material(s, "light")->emits_front_only);  // the built-in's one-sided light made two-sided
+  EXPECT_TRUE(load_scene("builtin:cornell").materials.back().emits_front_only);
   EXPECT_TRUE(find_material(s, "floor")->diffuse());
+  const std::string bad =
+      dir.write("bad.json", "{\"builtin\": \"cornell\",\n \"materials\": {\"light\": {\"emit\": \"up\"}}}");
+  EXPECT_NE(load_error(bad).find("bad.json:2: emit must be \"front\""), std::string::npos) << load_error(bad);
 
   const std::string furnace = dir.write("furnace.json", R"({"builtin": "furnace?albedo=0.8&emission=2"})");
   const Scene f = load_scene(furnace);
