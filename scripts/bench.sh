@@ -87,7 +87,7 @@ log "start: $CPUS hardware threads, tracer threads ${THREADS/#0/all}, Cycles thr
 specs() { for s in $1; do printf -- '--scene builtin:%s ' "$s"; done; }
 modes() { for m in $1; do printf -- '--mode %s ' "$m"; done; }
 
-export_obj() {  # scene
+export_obj() {  # scene; OUT/obj is emptied when a run starts, so a changed built-in is exported anew
   [ -f "$OUT/obj/$1.obj" ] || "$SA" --export-obj "$OUT/obj" --scene "builtin:$1" >/dev/null
 }
 
@@ -133,7 +133,7 @@ cycles_reference() {  # scene size spp
 # "done" file before scoring it.
 CYCLES_PID=
 if [ "$CYCLES" = 1 ]; then
-  rm -rf "$OUT/cycles"
+  rm -rf "$OUT/cycles" "$OUT/obj"
   CY_SCENES=$(for s in $CYCLES_SCENES; do [ "$s" = glossy ] || echo "$s"; done)  # the Phong lobe has no Cycles equivalent
   for s in $CY_SCENES; do
     for d in "" _adaptive _reference; do mkdir -p "$OUT/cycles/${s}_${SIZE}x$SIZE$d"; done
