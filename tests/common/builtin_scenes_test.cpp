@@ -135,8 +135,11 @@ TEST(BuiltinScenes, CornellEqualsTheSharedObj) {
     EXPECT_FALSE(obj.materials[i].emits_front_only);
     EXPECT_EQ(builtin.materials[i].emits_front_only, builtin.materials[i].name == "light");
   }
-  for (size_t t = 0; t < builtin.triangle_count(); ++t)
-    if (builtin.materials[builtin.material_of[t]].emissive()) EXPECT_LT(builtin.geometric_normal(t).y, -0.999f);
+  for (size_t t = 0; t < builtin.triangle_count(); ++t) {
+    if (builtin.materials[builtin.material_of[t]].emissive()) {
+      EXPECT_LT(builtin.geometric_normal(t).y, -0.999f);
+    }
+  }
   EXPECT_EQ(obj.camera.eye, builtin.camera.eye);
   EXPECT_EQ(obj.camera.look, builtin.camera.look);
   EXPECT_EQ(obj.camera.up, builtin.camera.up);
