@@ -24,7 +24,7 @@ namespace fs = std::filesystem;
 using test::load_error;
 using test::TempDir;
 
-const std::string kTriangle = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+using test::kTriangle;
 // A lit triangle: its material emits.
 const std::string kLitMtl = "newmtl glow\nKd 0.5 0.5 0.5\nKe 4 4 4\n";
 const std::string kLitObj = "mtllib lit.mtl\n" + kTriangle + "usemtl glow\nf 1 2 3\n";

@@ -47,7 +47,7 @@ void expect_vec_near(const Vec3& a, const Vec3& b, float tol = 1e-6f) {
   EXPECT_NEAR(a.z, b.z, tol);
 }
 
-const std::string kTriangle = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+using test::kTriangle;
 
 // ---------------------------------------------------------------------------------------------------
 

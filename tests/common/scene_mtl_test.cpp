@@ -13,7 +13,7 @@
 namespace epr {
 namespace {
 
-const std::string kTriangle = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+using test::kTriangle;
 
 /// Names of the scene's materials, in order.
 std::vector<std::string> names(const Scene& s) {

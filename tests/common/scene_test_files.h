@@ -13,6 +13,9 @@
 
 namespace epr::test {
 
+/// Three OBJ vertices spanning one triangle (`f 1 2 3`), for the scene files the tests write.
+inline const std::string kTriangle = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+
 /// A fresh folder per test, removed afterwards.
 class TempDir {
  public:
