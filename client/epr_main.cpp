@@ -19,6 +19,7 @@
 #include "client/remote_commands.h"
 #include "client/render_flags.h"
 #include "common/log.h"
+#include "common/tile.h"
 #include "master/memory_estimate.h"
 
 namespace {
@@ -149,6 +150,9 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
       write_outputs(o.out, out);
       std::fprintf(stderr, "wrote %s.exr, %s.png, %s.json (%.2f s, %.0f paths/s)\n", o.out.c_str(), o.out.c_str(),
                    o.out.c_str(), out.stats.value("seconds", 0.0), out.stats.value("paths_per_second", 0.0));
+      if (auto w = nonfinite_warning(out.stats.value("nonfinite_dropped", uint64_t(0)),
+                                     out.stats.value("paths", uint64_t(0))))
+        std::fprintf(stderr, "epr render: warning: %s\n", w->c_str());
       return 0;
     }
     remove_stale_state_dirs();  // what killed renders left behind
@@ -188,6 +192,8 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
     std::fprintf(stderr, "wrote %s (%.2f s, %llu paths, %llu skipped)\n", names.c_str(), r.status.seconds_elapsed(),
                  static_cast<unsigned long long>(r.status.paths_traced()),
                  static_cast<unsigned long long>(r.status.paths_skipped()));
+    if (auto w = nonfinite_warning(r.status.non_finite_dropped(), r.status.paths_traced()))
+      std::fprintf(stderr, "epr render: warning: %s\n", w->c_str());
   } catch (const std::exception& e) {
     if (tty) std::fprintf(stderr, "\n");
     std::fprintf(stderr, "epr render: %s\n", e.what());

@@ -16,6 +16,7 @@
 #include "client/farm.h"
 #include "client/render_flags.h"
 #include "common/scene_loader.h"
+#include "common/tile.h"
 #include "wire/rpc/token.h"
 
 namespace epr {
@@ -214,6 +215,8 @@ int follow_job(JobClient& client, const std::string& job_id, const FollowOptions
   }
   std::fprintf(stderr, "job %s %s after %d round(s), %s%s\n", job_id.c_str(), state.c_str(), int(last.round()),
                duration_text(last.seconds_elapsed()).c_str(), last.budget_exhausted() ? " (time budget used up)" : "");
+  if (auto w = nonfinite_warning(last.non_finite_dropped(), last.paths_traced()))
+    std::fprintf(stderr, "job %s: warning: %s\n", job_id.c_str(), w->c_str());
   // A cancelled job keeps the results of its last committed round.
   const bool has_results = last.state() == v1::JOB_STATE_DONE || last.round() > 0;
   if (options.fetch && has_results) {

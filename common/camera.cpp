@@ -2,14 +2,22 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <utility>
+
+#include "common/limits.h"
 
 namespace epr {
 
 std::optional<std::string> CameraSpec::validate() const {
   if (!is_finite(eye) || !is_finite(look) || !is_finite(up) || !std::isfinite(fov_y_degrees))
     return "camera has non-finite values";
+  for (const auto& [what, v] : {std::pair{"eye", eye}, std::pair{"look-at point", look}, std::pair{"up vector", up}})
+    if (!(std::max({std::abs(v.x), std::abs(v.y), std::abs(v.z)}) <= limits::kMaxCoordinate))
+      return fmt::format("camera {} ({:g}, {:g}, {:g}) exceeds the magnitude limit {:g} (metres)", what, v.x, v.y, v.z,
+                         limits::kMaxCoordinate);
   if (!(fov_y_degrees > 0.01f && fov_y_degrees < 179.f))
     return fmt::format("camera fov {} degrees is outside (0.01, 179)", fov_y_degrees);
   const Vec3 f = look - eye;

@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <vector>
 
+#include "common/limits.h"
+
 namespace epr {
 namespace {
 
@@ -105,7 +107,8 @@ SunLight parse_sun_flag(const std::string& value) {
 }
 
 std::optional<std::string> check_environment(const EnvironmentLight& e) {
-  if (!is_finite(e.color) || e.color.x < 0 || e.color.y < 0 || e.color.z < 0 || max_component(e.color) > 1e6f)
+  if (!is_finite(e.color) || e.color.x < 0 || e.color.y < 0 || e.color.z < 0 ||
+      max_component(e.color) > limits::kMaxColour)
     return "environment colour values must be finite and in [0, 1e6]";
   if (!std::isfinite(e.strength) || e.strength < 0 || e.strength > 1e6f)
     return "environment strength must be finite and in [0, 1e6]";
@@ -116,8 +119,9 @@ std::optional<std::string> check_environment(const EnvironmentLight& e) {
 std::optional<std::string> check_sun(const SunLight& s) {
   if (!is_finite(s.direction) || !(length(s.direction) > 1e-20f))
     return "sun direction must be a finite non-zero vector (towards the sun)";
-  if (!std::isfinite(s.angle_deg) || !(s.angle_deg > 0) || s.angle_deg > 90)
-    return "sun angle (angular diameter, degrees) must be in (0, 90]";
+  if (!std::isfinite(s.angle_deg) || !(s.angle_deg >= limits::kMinSunAngleDeg) || s.angle_deg > 90)
+    return fmt::format("sun angle (angular diameter, degrees) must be in [{:g}, 90], got {:g}", limits::kMinSunAngleDeg,
+                       s.angle_deg);
   if (!is_finite(s.irradiance) || s.irradiance.x < 0 || s.irradiance.y < 0 || s.irradiance.z < 0 ||
       max_component(s.irradiance) > 1e9f)
     return "sun irradiance must be finite and in [0, 1e9] W/m^2";

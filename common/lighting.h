@@ -36,7 +36,7 @@ struct EnvironmentLight {
 
 struct SunLight {
   Vec3 direction{0, 1, 0};  // towards the sun, world space, unit length
-  float angle_deg = 0.53f;  // angular diameter of the disc, degrees, in (0, 90]
+  float angle_deg = 0.53f;  // angular diameter of the disc, degrees, in [limits::kMinSunAngleDeg, 90]
   Vec3 irradiance{1.f};     // W / m^2 per channel on a surface facing the sun (Blender's sun strength)
 
   /// The disc's uniform radiance: irradiance / (pi sin^2(angle / 2)), the irradiance a disc of half

@@ -35,6 +35,13 @@ inline constexpr Range<double> kEpsilon{"--epsilon", 0, 1};
 /// (width x S, height x S) at most: the largest GL viewport the deep framebuffer is rasterised into.
 inline constexpr long long kMaxSubpixels = 1ll << 28;
 inline constexpr int kMaxGridSide = 16384;
+/// Scene coordinates (vertices after their transforms, the camera's eye and look-at point) are at most
+/// this in magnitude, in metres: beyond it float edge lengths, areas and the scene's diagonal overflow.
+inline constexpr double kMaxCoordinate = 1e8;
+/// Colour values (emission, environment colours and image texels) are capped at this.
+inline constexpr float kMaxColour = 1e6f;
+/// The sun's angular diameter is at least this, in degrees (its radiance grows as 1 / angle^2).
+inline constexpr float kMinSunAngleDeg = 0.001f;
 }  // namespace limits
 
 }  // namespace epr

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 #include "common/limits.h"
 
@@ -44,6 +45,10 @@ std::optional<std::string> RenderOptions::validate() const {
           largest > 0 ? fmt::format("--subpixels {} fits", largest) : std::string("use --mode pt"));
     }
   }
+  for (const auto& [flag, v] : {std::pair{"--eye", eye}, std::pair{"--look", look}, std::pair{"--up", up}})
+    if (v && !(std::max({std::abs(v->x), std::abs(v->y), std::abs(v->z)}) <= limits::kMaxCoordinate))
+      return fmt::format("{} {:g},{:g},{:g} exceeds the magnitude limit {:g} (metres)", flag, v->x, v->y, v->z,
+                         limits::kMaxCoordinate);
   CameraSpec probe = camera_for(CameraSpec{});
   if (auto err = probe.validate()) return *err;
   return std::nullopt;

@@ -2,8 +2,11 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
+
+#include "common/limits.h"
 
 namespace epr {
 
@@ -66,8 +69,14 @@ void Scene::validate() const {
     throw std::runtime_error(fmt::format("scene '{}': material list does not match triangles", name));
   if (!uvs.empty() && uvs.size() != triangles.size())
     throw std::runtime_error(fmt::format("scene '{}': uv list does not match triangles", name));
-  for (size_t i = 0; i < positions.size(); ++i)
-    if (!is_finite(positions[i])) throw std::runtime_error(fmt::format("scene '{}': vertex {} is not finite", name, i));
+  for (size_t i = 0; i < positions.size(); ++i) {
+    const Vec3& p = positions[i];
+    if (!is_finite(p)) throw std::runtime_error(fmt::format("scene '{}': vertex {} is not finite", name, i));
+    if (!(std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)}) <= limits::kMaxCoordinate))
+      throw std::runtime_error(
+          fmt::format("scene '{}': vertex {} at ({:g}, {:g}, {:g}) exceeds the magnitude limit {:g} (metres)", name, i,
+                      p.x, p.y, p.z, limits::kMaxCoordinate));
+  }
   for (size_t i = 0; i < triangles.size(); ++i) {
     for (uint32_t v : triangles[i])
       if (v >= positions.size())

@@ -1,5 +1,7 @@
 #include "common/tile.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 
 namespace epr {
@@ -23,6 +25,14 @@ PathStats& PathStats::operator+=(const PathStats& o) {
   rays += o.rays;
   nonfinite_dropped += o.nonfinite_dropped;
   return *this;
+}
+
+std::optional<std::string> nonfinite_warning(uint64_t dropped, uint64_t paths) {
+  if (!(double(dropped) > kNonFiniteWarnFraction * double(paths))) return std::nullopt;
+  return fmt::format(
+      "{} samples came out NaN or infinite and were dropped ({:.3g} per million of the {} paths traced): the image "
+      "lacks their light; look for extreme values in the scene's lights (emission, sky image, sun)",
+      dropped, 1e6 * double(dropped) / double(std::max<uint64_t>(paths, 1)), paths);
 }
 
 TileStats& TileStats::operator+=(const TileStats& o) {

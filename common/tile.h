@@ -50,6 +50,12 @@ struct PathStats {
   PathStats& operator+=(const PathStats& o);
 };
 
+/// Non-finite samples beyond a trace: more than this fraction of the paths traced (one per million).
+inline constexpr double kNonFiniteWarnFraction = 1e-6;
+/// Nullopt unless `dropped` samples (NaN or infinite radiance, dropped) exceed kNonFiniteWarnFraction of
+/// `paths` traced; else the warning a render's end shows: the image lacks those samples' light.
+std::optional<std::string> nonfinite_warning(uint64_t dropped, uint64_t paths);
+
 struct TileStats {
   PathStats paths;
   uint64_t vertices_recorded = 0;  // x_n, n >= 2, before filtering

@@ -67,7 +67,8 @@ SkyLight::SkyLight(const Lighting& lighting, double triangle_power, float scene_
   if (lighting.sun && !is_black(lighting.sun->irradiance)) {
     sun_ = lighting.sun;
     sun_frame_ = Frame::from_normal(normalize(sun_->direction));
-    sun_cos_ = sun_->cos_half_angle();
+    const float sh = std::sin(0.5f * sun_->angle_deg * (kPi / 180));
+    sun_sin2_ = sh * sh;
     const float s = std::sin(0.25f * sun_->angle_deg * (kPi / 180));
     sun_one_minus_cos_ = 2 * s * s;  // 1 - cos(h) without cancellation
     sun_l_ = sun_->radiance();
@@ -131,9 +132,13 @@ SkyLight::Sample SkyLight::sample(float u, Vec2 u_dir, const Vec3& n) const {
 
 Vec3 SkyLight::env_radiance(const Vec3& d) const { return env_ ? env_->radiance(d) : Vec3(0.f); }
 
-Vec3 SkyLight::sun_radiance(const Vec3& d) const {
-  return sun_ && dot(d, sun_frame_.n) >= sun_cos_ ? sun_l_ : Vec3(0.f);
+bool SkyLight::in_sun(const Vec3& d) const {
+  if (!sun_ || !(dot(d, sun_frame_.n) > 0)) return false;
+  const Vec3 c = cross(d, sun_frame_.n);
+  return dot(c, c) <= sun_sin2_;
 }
+
+Vec3 SkyLight::sun_radiance(const Vec3& d) const { return in_sun(d) ? sun_l_ : Vec3(0.f); }
 
 Vec3 SkyLight::radiance(const Vec3& d) const { return env_radiance(d) + sun_radiance(d); }
 
@@ -157,9 +162,7 @@ float SkyLight::pdf_environment(const Vec3& d, const Vec3& n) const {
   return p_env_ * float(p_ut / (2.0 * kPi * kPi * sin_theta));
 }
 
-float SkyLight::pdf_sun(const Vec3& d) const {
-  return sun_ && dot(d, sun_frame_.n) >= sun_cos_ ? p_sun_ / (2 * kPi * sun_one_minus_cos_) : 0.f;
-}
+float SkyLight::pdf_sun(const Vec3& d) const { return in_sun(d) ? p_sun_ / (2 * kPi * sun_one_minus_cos_) : 0.f; }
 
 Vec3 sky_next_event(const SkyLight& sky, const EmbreeScene& scene, const Bsdf& bsdf, const Vec3& n, const Vec3& origin,
                     float u, Vec2 u_dir, bool mis, uint64_t* rays) {

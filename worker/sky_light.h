@@ -87,6 +87,9 @@ class SkyLight {
  private:
   Vec3 env_radiance(const Vec3& d) const;
   Vec3 sun_radiance(const Vec3& d) const;
+  /// Unit direction d lies in the sun's disc: |d x n| <= sin h on the sun's side. The sine, not the
+  /// cosine, which float rounds to 1 for half angles below ~3e-4 rad (the disc would look ~0.03 deg wide).
+  bool in_sun(const Vec3& d) const;
 
   std::optional<EnvironmentLight> env_;
   std::optional<SunLight> sun_;
@@ -101,7 +104,7 @@ class SkyLight {
   std::vector<DiscreteDistribution> columns_;
   // Sun: frame about its direction, cone, radiance.
   Frame sun_frame_;
-  float sun_cos_ = 1, sun_one_minus_cos_ = 0;
+  float sun_sin2_ = 0, sun_one_minus_cos_ = 0;  // sin^2 h and 1 - cos h, h the half angle
   Vec3 sun_l_{0.f};
 };
 

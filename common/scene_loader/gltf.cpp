@@ -16,6 +16,7 @@
 #include <tuple>
 #include <vector>
 
+#include "common/limits.h"
 #include "common/scene_loader/gltf_files.h"
 #include "common/scene_loader/obj_context.h"
 #include "common/scene_loader/text.h"
@@ -41,9 +42,20 @@ Mat4 mul(const Mat4& a, const Mat4& b) {
   return r;
 }
 
+std::array<double, 3> transform_d(const Mat4& m, double x, double y, double z, double w) {
+  return {m[0] * x + m[4] * y + m[8] * z + m[12] * w, m[1] * x + m[5] * y + m[9] * z + m[13] * w,
+          m[2] * x + m[6] * y + m[10] * z + m[14] * w};
+}
+
 Vec3 transform(const Mat4& m, double x, double y, double z, double w) {
-  return {float(m[0] * x + m[4] * y + m[8] * z + m[12] * w), float(m[1] * x + m[5] * y + m[9] * z + m[13] * w),
-          float(m[2] * x + m[6] * y + m[10] * z + m[14] * w)};
+  const auto p = transform_d(m, x, y, z, w);
+  return {float(p[0]), float(p[1]), float(p[2])};
+}
+
+/// False for a point beyond limits::kMaxCoordinate in some coordinate, or not finite.
+bool within_limit(const std::array<double, 3>& p) {
+  return std::abs(p[0]) <= limits::kMaxCoordinate && std::abs(p[1]) <= limits::kMaxCoordinate &&
+         std::abs(p[2]) <= limits::kMaxCoordinate;
 }
 
 double det3(const Mat4& m) {
@@ -110,16 +122,13 @@ class GltfReader {
   Scene read() {
     read_gltf(f_, root_, opts_, report_, &in_);
     const tinygltf::Model& m = in_.model;
-    for (const std::string& ext : m.extensionsRequired)
-      if (ext != "KHR_materials_emissive_strength")
-        error(fmt::format("requires the extension {}, which is not supported", quote_token(ext)));
     if (m.scenes.empty()) error("no scenes: nothing to render");
     const int s = m.defaultScene >= 0 ? m.defaultScene : 0;
     if (size_t(s) >= m.scenes.size()) error(fmt::format("scene {} does not exist ({} scenes)", s, m.scenes.size()));
     if (!m.animations.empty()) note_once("animations ignored: the scene is loaded as it stands");
     if (!m.skins.empty()) note_once("skins ignored: meshes are placed by their nodes only");
     visit(m.scenes[size_t(s)].nodes, fmt::format("scenes[{}]", s));
-    if (scene_.triangles.empty()) error("no triangles: the scene's nodes hold no triangle mesh");
+    if (scene_.triangles.empty()) error(no_triangles_reason(s));
     if (degenerate_ > 0)
       warn(report_, fmt::format("{}: dropped {} degenerate (zero-area) triangles, the first in {}", f_.display,
                                 degenerate_, first_degenerate_));
@@ -131,6 +140,17 @@ class GltfReader {
 
  private:
   [[noreturn]] void error(const std::string& reason) const { fail_file(f_.display, reason); }
+
+  /// Why scenes[s] gave no triangle, naming the primitives it placed.
+  std::string no_triangles_reason(int s) const {
+    if (primitives_ == 0)
+      return fmt::format("no triangles: no node of scenes[{}] holds a mesh ({} nodes, {} meshes in the file)", s,
+                         in_.model.nodes.size(), in_.model.meshes.size());
+    return fmt::format(
+        "no triangles: the {} primitive(s) scenes[{}] places, the first {}, hold {} triangle(s): {} of zero area, {} "
+        "cut out entirely by their material",
+        primitives_, s, first_primitive_, degenerate_ + cut_out_, degenerate_, cut_out_);
+  }
 
   void note_once(const std::string& what) {
     if (file_notes_.insert(what).second) warn(report_, fmt::format("{}: {}", f_.display, what));
@@ -274,10 +294,29 @@ class GltfReader {
     if (size_t(mi) >= meshes.size())
       error(fmt::format("nodes[{}]: mesh {} does not exist ({} meshes)", n, mi, meshes.size()));
     for (size_t p = 0; p < meshes[size_t(mi)].primitives.size(); ++p)
-      add_primitive(meshes[size_t(mi)].primitives[p], world, fmt::format("meshes[{}].primitives[{}]", mi, p));
+      add_primitive(meshes[size_t(mi)].primitives[p], world, fmt::format("meshes[{}].primitives[{}]", mi, p), n);
   }
 
-  void add_primitive(const tinygltf::Primitive& prim, const Mat4& world, const std::string& where) {
+  /// Every element of the POSITION accessor `a` is finite and, placed by `world` (node n's transform
+  /// with its parents'), within limits::kMaxCoordinate.
+  void check_positions(const View& pos, int a, const Mat4& world, const std::string& where, int n) const {
+    for (size_t i = 0; i < pos.count; ++i) {
+      const std::array<double, 3> p{pos.get(i, 0), pos.get(i, 1), pos.get(i, 2)};
+      const std::string element =
+          fmt::format("{}: POSITION accessors[{}] element {} ({:g}, {:g}, {:g})", where, a, i, p[0], p[1], p[2]);
+      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) error(element + " is not finite");
+      if (!within_limit(p))
+        error(fmt::format("{} exceeds the magnitude limit {:g} (metres)", element, limits::kMaxCoordinate));
+      const auto w = transform_d(world, p[0], p[1], p[2], 1);
+      if (!within_limit(w))
+        error(
+            fmt::format("{}, placed by nodes[{}] and its parents at ({:g}, {:g}, {:g}), exceeds the magnitude limit "
+                        "{:g} (metres)",
+                        element, n, w[0], w[1], w[2], limits::kMaxCoordinate));
+    }
+  }
+
+  void add_primitive(const tinygltf::Primitive& prim, const Mat4& world, const std::string& where, int n) {
     if (prim.mode != TINYGLTF_MODE_TRIANGLES)
       error(fmt::format("{}: mode {} ({}) is not supported: only triangle lists (mode 4) are read", where, prim.mode,
                         mode_name(prim.mode)));
@@ -287,6 +326,7 @@ class GltfReader {
     const tinygltf::Accessor& pacc = in_.model.accessors[size_t(pos_it->second)];
     if (pacc.type != TINYGLTF_TYPE_VEC3 || pacc.componentType != TINYGLTF_COMPONENT_TYPE_FLOAT)
       error(where + ": POSITION must be float VEC3");
+    check_positions(pos, pos_it->second, world, where, n);
     if (prim.attributes.count("COLOR_0")) note_once("vertex colours (COLOR_0) ignored");
     if (!prim.targets.empty()) note_once("morph targets ignored");
     if (prim.material >= 0 && size_t(prim.material) >= in_.model.materials.size())
@@ -335,6 +375,8 @@ class GltfReader {
     const size_t corners = prim.indices >= 0 ? index.size() : pos.count;
     if (scene_.triangles.size() + corners / 3 > opts_.max_triangles)
       error(fmt::format("{}: more than {} triangles", where, opts_.max_triangles));
+    if (primitives_++ == 0) first_primitive_ = where;
+    if (hidden_.count(mat)) cut_out_ += corners / 3;
     const bool mirrored = det3(world) < 0;  // keeps the winding, and so the normals, as modelled
     for (size_t t = 0; t < corners && !hidden_.count(mat); t += 3) {
       std::array<size_t, 3> c{t, t + 1, t + 2};
@@ -397,8 +439,8 @@ class GltfReader {
   Scene scene_;
   std::vector<std::array<Vec2, 3>> uvs_;
   bool textured_ = false, camera_found_ = false;
-  size_t degenerate_ = 0;
-  std::string first_degenerate_;
+  size_t degenerate_ = 0, cut_out_ = 0, primitives_ = 0;
+  std::string first_degenerate_, first_primitive_;
 };
 
 std::pair<uint32_t, int> GltfReader::convert_material(int gi) {

@@ -119,6 +119,40 @@ void check_uri(const nlohmann::json& item, const char* kind, size_t i, const Glt
   ctx->allowed.emplace(ref.real, ref);
 }
 
+/// What tinygltf would pass over or report without naming the element, checked on the JSON first:
+/// extensionsRequired (before anything else: a Draco file's accessors have no bufferView) and the
+/// shape of every mesh's primitives (tinygltf skips a "primitives" that is not an array, and a
+/// primitive without attributes, which would shift the indices messages name).
+void check_structure(const nlohmann::json& doc, const std::string& display) {
+  if (doc.contains("extensionsRequired")) {
+    const nlohmann::json& req = doc["extensionsRequired"];
+    if (!req.is_array()) fail_file(display, "extensionsRequired must be an array of extension names");
+    for (const nlohmann::json& ext : req) {
+      if (!ext.is_string()) fail_file(display, "extensionsRequired must be an array of extension names");
+      const std::string name = ext.get<std::string>();
+      if (std::find(std::begin(kSupportedGltfExtensions), std::end(kSupportedGltfExtensions), name) ==
+          std::end(kSupportedGltfExtensions))
+        fail_file(
+            display,
+            fmt::format("requires the extension {}, which is not supported{}", quote_token(name),
+                        name == "KHR_draco_mesh_compression" ? " (export the meshes without Draco compression)" : ""));
+    }
+  }
+  if (!doc.contains("meshes")) return;
+  if (!doc["meshes"].is_array()) fail_file(display, "meshes must be an array");
+  for (size_t m = 0; m < doc["meshes"].size(); ++m) {
+    const nlohmann::json& mesh = doc["meshes"][m];
+    if (!mesh.is_object()) fail_file(display, fmt::format("meshes[{}] must be an object", m));
+    if (!mesh.contains("primitives") || !mesh["primitives"].is_array() || mesh["primitives"].empty())
+      fail_file(display, fmt::format("meshes[{}]: primitives must be a non-empty array", m));
+    for (size_t p = 0; p < mesh["primitives"].size(); ++p) {
+      const nlohmann::json& prim = mesh["primitives"][p];
+      if (!prim.is_object() || !prim.contains("attributes") || !prim["attributes"].is_object())
+        fail_file(display, fmt::format("meshes[{}].primitives[{}] must be an object with attributes", m, p));
+    }
+  }
+}
+
 }  // namespace
 
 std::string decode_uri(const std::string& str) {
@@ -164,6 +198,7 @@ void read_gltf(const FileRef& f, const fs::path& root, const LoadOptions& opts, 
     fail_file(f.display, std::string("invalid JSON: ") + e.what());
   }
   if (!doc.is_object()) fail_file(f.display, "a glTF file must hold a JSON object");
+  check_structure(doc, f.display);
 
   ReadContext ctx;
   ctx.opts = &opts;

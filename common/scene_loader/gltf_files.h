@@ -23,6 +23,9 @@ namespace epr::loader {
 /// Decoded data URIs may hold at most this many bytes each: larger data belongs in a .bin file.
 constexpr size_t kMaxGltfDataUriBytes = size_t(16) << 20;
 
+/// The extensions a glTF file may require (extensionsRequired): any other is refused, naming it.
+inline constexpr const char* kSupportedGltfExtensions[] = {"KHR_materials_emissive_strength"};
+
 /// A glTF file as tinygltf parsed it, with what the loader needs to read its images.
 struct GltfInput {
   tinygltf::Model model;

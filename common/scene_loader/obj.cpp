@@ -20,6 +20,7 @@
 #include <string_view>
 #include <system_error>
 
+#include "common/limits.h"
 #include "common/scene_loader/obj_context.h"
 #include "common/scene_loader/polygon.h"
 #include "common/scene_loader/text.h"
@@ -29,8 +30,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// Larger coordinates would overflow float area and normal computations (cross products of edges).
-constexpr double kMaxCoordinate = 1e8;
 // Ear clipping takes time quadratic in a polygon's corners: a single face of 20000 corners took
 // minutes. Real models' n-gons (cylinder caps) stay far below this.
 constexpr size_t kMaxFaceCorners = 1024;
@@ -116,7 +115,7 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       if (tok.size() < 4 || tok.size() > 8)
         fail(file, ln, fmt::format("vertex needs 3 coordinates (x y z [w] [r g b]), got {}", tok.size() - 1));
       Vec3 p;
-      for (int k = 0; k < 3; ++k) p[k] = parse_real(tok[size_t(k) + 1], kMaxCoordinate, file, ln, "coordinate");
+      for (int k = 0; k < 3; ++k) p[k] = parse_real(tok[size_t(k) + 1], limits::kMaxCoordinate, file, ln, "coordinate");
       for (size_t k = 4; k < tok.size(); ++k) parse_real(tok[k], 1e30, file, ln, "vertex weight or colour");
       if (mesh.positions.size() >= kMaxVertices) fail(file, ln, "too many vertices");
       mesh.positions.push_back(p);
@@ -125,7 +124,7 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
         fail(file, ln, fmt::format("texture coordinate needs 1 to 3 numbers, got {}", tok.size() - 1));
       Vec2 uv{0.f, 0.f};
       for (size_t k = 1; k < tok.size(); ++k) {
-        const float x = parse_real(tok[k], kMaxCoordinate, file, ln, "texture coordinate");
+        const float x = parse_real(tok[k], limits::kMaxCoordinate, file, ln, "texture coordinate");
         if (k == 1) uv.x = x;
         if (k == 2) uv.y = x;
       }

@@ -14,6 +14,7 @@
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "common/thread_name.h"
+#include "common/tile.h"
 #include "master/gl_context.h"
 #include "master/result_files.h"
 #include "master/server/checkpoint.h"
@@ -500,6 +501,12 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
       "job {} done: images {:.2f} s, freeing the frame {:.2f} s, result files {:.2f} s; {} tiles applied in {} batches "
       "(this master so far)",
       job->id, images_s, freed_s - images_s, results_s - freed_s, tiles_applied_, batches_applied_);
+  std::optional<std::string> nonfinite;
+  {
+    MutexLock lock(mu_);
+    nonfinite = nonfinite_warning(job->counters.non_finite + job->counts.invalid, job->progress.paths_traced);
+  }
+  if (nonfinite) logger("master")->warn("job {}: {}", job->id, *nonfinite);
   work_cv_.notify_all();
   notify(job);
 }

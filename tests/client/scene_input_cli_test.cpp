@@ -11,8 +11,10 @@
 #include <array>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 #include <string>
 
@@ -233,6 +235,33 @@ TEST_F(SceneInputCli, BuiltInSceneRendersUnderAnEnvImage) {
     EXPECT_NE(missing.exit_code, 0) << cmd;
     EXPECT_TRUE(contains(missing.output, "--env: 'skies/none.exr' is not a readable file"))
         << cmd << ": " << missing.output;
+  }
+}
+
+// The shipped glTF Cornell box with its first position at 1e25 (issue "Step 14"): every command
+// refuses it naming the file and the element, before anything renders; nothing aborts (rc 134 was
+// Embree's assertion on the worker).
+TEST_F(SceneInputCli, GltfVertexBeyondTheLimitIsRefusedByEveryCommand) {
+  const fs::path src = fs::path(EPR_SOURCE_DIR) / "scenes";
+  dir.write("far/cornell-box.gltf", "");
+  fs::copy_file(src / "cornell-box.gltf", dir.path("far/cornell-box.gltf"), fs::copy_options::overwrite_existing);
+  std::ifstream in(src / "cornell-box.bin", std::ios::binary);
+  std::string bin((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_GE(bin.size(), 4u);
+  const float far = 1e25f;
+  std::memcpy(bin.data(), &far, 4);  // meshes[0].primitives[0]'s POSITION is accessors[0], bytes 0..47
+  dir.write("far/cornell-box.bin", bin);
+  for (const std::string cmd :
+       {"render", "render --single-process", "render --mode pt", "submit --master 127.0.0.1:1"}) {
+    const EprRun r = run_epr(dir.path(""), cmd + " far/cornell-box.gltf" + kFast + " --out out/far");
+    EXPECT_NE(r.exit_code, 0) << cmd << ": " << r.output;
+    EXPECT_NE(r.exit_code, 134) << cmd << ": " << r.output;
+    if (cmd.rfind("render", 0) == 0) EXPECT_EQ(r.exit_code, 1) << cmd << ": " << r.output;
+    EXPECT_TRUE(contains(r.output,
+                         "far/cornell-box.gltf: meshes[0].primitives[0]: POSITION accessors[0] element 0 "
+                         "(1e+25, 0, 0.99) exceeds the magnitude limit 1e+08 (metres)"))
+        << cmd << ": " << r.output;
+    EXPECT_FALSE(fs::exists(dir.path("out/far.exr"))) << cmd;
   }
 }
 

@@ -76,7 +76,7 @@ TEST(Lighting, SunFlagTakesDirectionAngleAndIrradiance) {
       << sun_error("1,1");
   EXPECT_TRUE(contains(sun_error("1,1,0,2,5,4"), "expects DX,DY,DZ"));
   EXPECT_TRUE(contains(sun_error("0,0,0"), "--sun: sun direction must be a finite non-zero vector"));
-  EXPECT_TRUE(contains(sun_error("0,1,0,120"), "--sun: sun angle (angular diameter, degrees) must be in (0, 90]"));
+  EXPECT_TRUE(contains(sun_error("0,1,0,120"), "--sun: sun angle (angular diameter, degrees) must be in [0.001, 90]"));
   EXPECT_TRUE(contains(sun_error("0,1,0,1,-2"), "--sun: sun irradiance must be finite"));
   EXPECT_TRUE(contains(sun_error("0,1,x"), "expects DX,DY,DZ"));
 }
@@ -135,7 +135,7 @@ TEST(Lighting, SceneJsonErrorsNameFileAndLine) {
   e = err("f.json", "\"sun\": {\"angle_deg\": 1}");
   EXPECT_TRUE(contains(e, "f.json:2: the sun needs a \"direction\"")) << e;
   e = err("g.json", "\"sun\": {\"direction\": [0, 1, 0],\n\"angle_deg\": 100}");
-  EXPECT_TRUE(contains(e, "g.json:2: sun angle (angular diameter, degrees) must be in (0, 90]")) << e;
+  EXPECT_TRUE(contains(e, "g.json:2: sun angle (angular diameter, degrees) must be in [0.001, 90]")) << e;
   e = err("h.json", "\"sun\": {\"direction\": [0, 1, 0], \"radiance\": 1, \"irradiance\": 1}");
   EXPECT_TRUE(contains(e, "h.json:2: give at most one of \"irradiance\" and \"radiance\"")) << e;
   e = err("i.json", "\"environment\": {\"colour\": [1, 1, 1]}");

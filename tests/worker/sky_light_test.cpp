@@ -12,7 +12,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <utility>
 
+#include "common/limits.h"
 #include "common/rng.h"
 #include "tests/worker/image_means.h"
 #include "worker/path_tracer.h"
@@ -296,20 +298,41 @@ TEST(SkyLight, FloorUnderAnImageReflectsTheHemisphereIntegral) {
 }
 
 TEST(SkyLight, SunOnAFloorGivesItsIrradianceTimesTheCosine) {
-  const float a = 0.5f, irradiance = 4;
-  Lighting l;
-  l.sun = SunLight{};
-  l.sun->direction = normalize(Vec3(1, 2, 0.5f));
-  l.sun->angle_deg = 3;
-  l.sun->irradiance = Vec3(irradiance);
-  const double expected = a * irradiance * l.sun->direction.y / kPi;
+  const float a = 0.5f;
   const Scene scene = floor_plane(a);
   EmbreeScene es(scene);
-  const SkyLight sky(l, 0.0, 1.f);
-  for (bool mis : {true, false}) {
-    const ImageMeans m = render(scene, sky, mis, 16, 64);
-    EXPECT_NEAR(m.pixel, expected, 0.005 * expected) << "mis " << mis;
+  // A wide disc, and the smallest one of the strongest sun (radiance ~4e18).
+  for (const auto& [angle, irradiance] : {std::pair{3.f, 4.f}, std::pair{limits::kMinSunAngleDeg, 1e9f}}) {
+    Lighting l;
+    l.sun = SunLight{};
+    l.sun->direction = normalize(Vec3(1, 2, 0.5f));
+    l.sun->angle_deg = angle;
+    l.sun->irradiance = Vec3(irradiance);
+    const double expected = a * irradiance * l.sun->direction.y / kPi;
+    const SkyLight sky(l, 0.0, 1.f);
+    for (bool mis : {true, false}) {
+      const ImageMeans m = render(scene, sky, mis, 16, 64);
+      EXPECT_NEAR(m.pixel, expected, 0.005 * expected) << "mis " << mis << " angle " << angle;
+    }
   }
+}
+
+// The disc is as wide as its angle, also where float's cosine of the half angle rounds to 1 (below
+// ~0.02 degrees): a direction 1e-4 rad off the sun is outside a disc of 0.001 degrees (8.7e-6 rad).
+TEST(SkyLight, TheSmallestSunIsAsWideAsItsAngle) {
+  Lighting l;
+  l.sun = SunLight{};
+  l.sun->direction = Vec3(0, 1, 0);
+  l.sun->angle_deg = limits::kMinSunAngleDeg;
+  const SkyLight sky(l, 0.0, 1.f);
+  const auto at = [](double off) { return Vec3(float(std::sin(off)), float(std::cos(off)), 0.f); };
+  const float h = 0.5f * limits::kMinSunAngleDeg * kPi / 180;
+  EXPECT_EQ(sky.radiance(at(0.5 * h)), l.sun->radiance());
+  EXPECT_EQ(sky.radiance(at(0.9 * h)), l.sun->radiance());
+  EXPECT_EQ(sky.radiance(at(1.2 * h)), Vec3(0.f));
+  EXPECT_EQ(sky.radiance(at(1e-4)), Vec3(0.f));
+  EXPECT_EQ(sky.pdf_sun(at(1e-4)), 0.f);
+  EXPECT_GT(sky.pdf_sun(at(0.5 * h)), 0.f);
 }
 
 }  // namespace
