@@ -302,17 +302,17 @@ class GltfReader {
   void check_positions(const View& pos, int a, const Mat4& world, const std::string& where, int n) const {
     for (size_t i = 0; i < pos.count; ++i) {
       const std::array<double, 3> p{pos.get(i, 0), pos.get(i, 1), pos.get(i, 2)};
+      const auto w = transform_d(world, p[0], p[1], p[2], 1);
+      if (within_limit(p) && within_limit(w)) continue;
       const std::string element =
           fmt::format("{}: POSITION accessors[{}] element {} ({:g}, {:g}, {:g})", where, a, i, p[0], p[1], p[2]);
       if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) error(element + " is not finite");
       if (!within_limit(p))
         error(fmt::format("{} exceeds the magnitude limit {:g} (metres)", element, limits::kMaxCoordinate));
-      const auto w = transform_d(world, p[0], p[1], p[2], 1);
-      if (!within_limit(w))
-        error(
-            fmt::format("{}, placed by nodes[{}] and its parents at ({:g}, {:g}, {:g}), exceeds the magnitude limit "
-                        "{:g} (metres)",
-                        element, n, w[0], w[1], w[2], limits::kMaxCoordinate));
+      error(
+          fmt::format("{}, placed by nodes[{}] and its parents at ({:g}, {:g}, {:g}), exceeds the magnitude limit "
+                      "{:g} (metres)",
+                      element, n, w[0], w[1], w[2], limits::kMaxCoordinate));
     }
   }
 
