@@ -2,7 +2,6 @@
 
 #include <fmt/format.h>
 
-#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <utility>
@@ -15,7 +14,7 @@ std::optional<std::string> CameraSpec::validate() const {
   if (!is_finite(eye) || !is_finite(look) || !is_finite(up) || !std::isfinite(fov_y_degrees))
     return "camera has non-finite values";
   for (const auto& [what, v] : {std::pair{"eye", eye}, std::pair{"look-at point", look}, std::pair{"up vector", up}})
-    if (!(std::max({std::abs(v.x), std::abs(v.y), std::abs(v.z)}) <= limits::kMaxCoordinate))
+    if (!limits::within_coordinate_limit(v.x, v.y, v.z))
       return fmt::format("camera {} ({:g}, {:g}, {:g}) exceeds the magnitude limit {:g} (metres)", what, v.x, v.y, v.z,
                          limits::kMaxCoordinate);
   if (!(fov_y_degrees > 0.01f && fov_y_degrees < 179.f))

@@ -38,6 +38,11 @@ inline constexpr int kMaxGridSide = 16384;
 /// Scene coordinates (vertices after their transforms, the camera's eye and look-at point) are at most
 /// this in magnitude, in metres: beyond it float edge lengths, areas and the scene's diagonal overflow.
 inline constexpr double kMaxCoordinate = 1e8;
+/// True if the point (x, y, z) is finite and within kMaxCoordinate in every coordinate.
+inline bool within_coordinate_limit(double x, double y, double z) {
+  const auto in = [](double v) { return v >= -kMaxCoordinate && v <= kMaxCoordinate; };
+  return in(x) && in(y) && in(z);
+}
 /// Colour values (emission, environment colours and image texels) are capped at this.
 inline constexpr float kMaxColour = 1e6f;
 /// The sun's angular diameter is at least this, in degrees (its radiance grows as 1 / angle^2).

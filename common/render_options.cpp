@@ -46,7 +46,7 @@ std::optional<std::string> RenderOptions::validate() const {
     }
   }
   for (const auto& [flag, v] : {std::pair{"--eye", eye}, std::pair{"--look", look}, std::pair{"--up", up}})
-    if (v && !(std::max({std::abs(v->x), std::abs(v->y), std::abs(v->z)}) <= limits::kMaxCoordinate))
+    if (v && !limits::within_coordinate_limit(v->x, v->y, v->z))
       return fmt::format("{} {:g},{:g},{:g} exceeds the magnitude limit {:g} (metres)", flag, v->x, v->y, v->z,
                          limits::kMaxCoordinate);
   CameraSpec probe = camera_for(CameraSpec{});

@@ -72,7 +72,7 @@ void Scene::validate() const {
   for (size_t i = 0; i < positions.size(); ++i) {
     const Vec3& p = positions[i];
     if (!is_finite(p)) throw std::runtime_error(fmt::format("scene '{}': vertex {} is not finite", name, i));
-    if (!(std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)}) <= limits::kMaxCoordinate))
+    if (!limits::within_coordinate_limit(p.x, p.y, p.z))
       throw std::runtime_error(
           fmt::format("scene '{}': vertex {} at ({:g}, {:g}, {:g}) exceeds the magnitude limit {:g} (metres)", name, i,
                       p.x, p.y, p.z, limits::kMaxCoordinate));

@@ -52,11 +52,7 @@ Vec3 transform(const Mat4& m, double x, double y, double z, double w) {
   return {float(p[0]), float(p[1]), float(p[2])};
 }
 
-/// False for a point beyond limits::kMaxCoordinate in some coordinate, or not finite.
-bool within_limit(const std::array<double, 3>& p) {
-  return std::abs(p[0]) <= limits::kMaxCoordinate && std::abs(p[1]) <= limits::kMaxCoordinate &&
-         std::abs(p[2]) <= limits::kMaxCoordinate;
-}
+bool within_limit(const std::array<double, 3>& p) { return limits::within_coordinate_limit(p[0], p[1], p[2]); }
 
 double det3(const Mat4& m) {
   return m[0] * (m[5] * m[10] - m[9] * m[6]) - m[4] * (m[1] * m[10] - m[9] * m[2]) + m[8] * (m[1] * m[6] - m[5] * m[2]);
