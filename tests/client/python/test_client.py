@@ -6,9 +6,9 @@
 --package-dir holds the eprfarm package with its generated stubs (the build tree's copy, CMake
 target eprfarm_python). Checks: a render submitted, watched and fetched through the package has the
 pixels of the same job submitted with `epr` (same seed); file scenes are bundled as `epr` bundles
-them (same content hash, inline and uploaded; the path sandbox); cancel; the master's errors
-(INVALID_ARGUMENT, NOT_FOUND, UNAUTHENTICATED with their reasons; UNAVAILABLE); token rules.
-test_client_checks.py checks the arguments, batches as a whole and `pip install`. Run with Debian's
+them (same content hash, inline and uploaded); cancel; the master's errors (INVALID_ARGUMENT,
+NOT_FOUND, UNAUTHENTICATED with their reasons; UNAVAILABLE); token rules. test_client_checks.py
+checks the arguments, the scene sandbox, batches as a whole and `pip install`. Run with Debian's
 /usr/bin/python3 (python3-grpcio, python3-protobuf, python3-numpy, python3-openimageio).
 """
 
@@ -652,54 +652,6 @@ class MasterRestartTest(unittest.TestCase):
         after = eprfarm.decode_exr(client.fetch_bytes(job, "exr").data)
         self.assertTrue(np.array_equal(before, after))
         client.close()
-
-
-class SceneSandboxTest(unittest.TestCase):
-    """Scene bundling without a master: files must stay inside the scene's folder and be regular."""
-
-    def setUp(self):
-        self.tmp = tempfile.mkdtemp(prefix="epr-python-scene-")
-        self.folder = os.path.join(self.tmp, "scene")
-        os.makedirs(self.folder)
-
-    def tearDown(self):
-        shutil.rmtree(self.tmp, ignore_errors=True)
-
-    def obj(self, mtllib_line: str) -> str:
-        path = os.path.join(self.folder, "m.obj")
-        with open(path, "w") as f:
-            f.write(f"# test\n{mtllib_line}\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-        return path
-
-    def assert_refused(self, scene: str, *fragments: str):
-        with self.assertRaises(eprfarm.SceneError) as ctx:
-            eprfarm.bundle_scene(scene)
-        for fragment in fragments:
-            self.assertIn(fragment, str(ctx.exception))
-
-    def test_sandbox(self):
-        with open(os.path.join(self.tmp, "outside.mtl"), "w") as f:
-            f.write("newmtl x\nKd 1 1 1\n")
-        self.assert_refused(self.obj("mtllib ../outside.mtl"), "m.obj:2:", "mtllib '../outside.mtl' leaves the scene folder")
-        self.assert_refused(self.obj("mtllib /etc/passwd"), "is an absolute path")
-        os.symlink(os.path.join(self.tmp, "outside.mtl"), os.path.join(self.folder, "link.mtl"))
-        self.assert_refused(self.obj("mtllib link.mtl"), "leaves the scene folder")
-        self.assert_refused(self.obj("mtllib missing.mtl"), "mtllib 'missing.mtl' does not exist")
-        os.mkfifo(os.path.join(self.folder, "pipe.mtl"))
-        self.assert_refused(self.obj("mtllib pipe.mtl"), "is a FIFO (named pipe), not a regular file")
-        self.assert_refused(os.path.join(self.folder, "nothing.obj"), "nothing.obj: does not exist")
-        with open(os.path.join(self.folder, "in.mtl"), "w") as f:
-            f.write("newmtl a\nmap_Kd ../outside.png\n")
-        self.assert_refused(self.obj("mtllib in.mtl"), "in.mtl:2:", "texture '../outside.png' leaves the scene folder")
-
-    def test_escaped_names_and_comments(self):
-        with open(os.path.join(self.folder, "a b.mtl"), "w") as f:
-            f.write("newmtl a\nKd 1 1 1\n")
-        with open(os.path.join(self.folder, "c.mtl"), "w") as f:
-            f.write("newmtl c\nKe 1 1 1\n")
-        bundle = eprfarm.bundle_scene(self.obj("mtllib a\\ b.mtl c.mtl # d.mtl"))
-        self.assertEqual([p for p, _ in bundle.files], ["a b.mtl", "c.mtl", "m.obj"])
-        self.assertEqual(len(bundle.content_hash()), 64)
 
 
 def main() -> int:

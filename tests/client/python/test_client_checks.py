@@ -7,7 +7,8 @@ epr-worker processes on loopback.
 Checks: a job's numbers of the wrong type or out of range (common/limits.h's ranges, compared with
 the header) are refused naming the argument and its range before anything is sent, and the ranges'
 ends are accepted by the master; list's limit, the deadlines and a CA file that is not PEM likewise
-(no gRPC output); master addresses with a port outside 1-65535; a batch whose frame 3 camera is
+(no gRPC output); master addresses with a port outside 1-65535; scene files outside the scene's
+folder or not regular refused naming file and line; a batch whose frame 3 camera is
 degenerate: the error names the batch and the frame, and the frames queued before it are cancelled;
 cancel_batch on one master and across two; `pip install ./client/python` into a venv, leaving the
 source tree as it was. Run with Debian's /usr/bin/python3.
@@ -119,7 +120,7 @@ class ArgumentTest(unittest.TestCase):
         script = (
             "import sys, eprfarm\n"
             "try:\n"
-            f"    eprfarm.Client('127.0.0.1:1', ca_file=sys.argv[1], timeout=5).list()\n"
+            "    eprfarm.Client('127.0.0.1:1', ca_file=sys.argv[1], timeout=5).list()\n"
             "except eprfarm.EprError as e:\n"
             "    print(type(e).__name__, e)\n"
         )
@@ -239,6 +240,54 @@ class TwoMastersTest(unittest.TestCase):
         for c in per_master:
             self.assertEqual({j.state for j in c.list(batch=batch)}, {"CANCELLED"})
             c.close()
+
+
+class SceneSandboxTest(unittest.TestCase):
+    """Scene bundling without a master: files must stay inside the scene's folder and be regular."""
+
+    def setUp(self):
+        self.tmp = tempfile.mkdtemp(prefix="epr-python-scene-")
+        self.folder = os.path.join(self.tmp, "scene")
+        os.makedirs(self.folder)
+
+    def tearDown(self):
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def obj(self, mtllib_line: str) -> str:
+        path = os.path.join(self.folder, "m.obj")
+        with open(path, "w") as f:
+            f.write(f"# test\n{mtllib_line}\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+        return path
+
+    def assert_refused(self, scene: str, *fragments: str):
+        with self.assertRaises(eprfarm.SceneError) as ctx:
+            eprfarm.bundle_scene(scene)
+        for fragment in fragments:
+            self.assertIn(fragment, str(ctx.exception))
+
+    def test_sandbox(self):
+        with open(os.path.join(self.tmp, "outside.mtl"), "w") as f:
+            f.write("newmtl x\nKd 1 1 1\n")
+        self.assert_refused(self.obj("mtllib ../outside.mtl"), "m.obj:2:", "mtllib '../outside.mtl' leaves the scene folder")
+        self.assert_refused(self.obj("mtllib /etc/passwd"), "is an absolute path")
+        os.symlink(os.path.join(self.tmp, "outside.mtl"), os.path.join(self.folder, "link.mtl"))
+        self.assert_refused(self.obj("mtllib link.mtl"), "leaves the scene folder")
+        self.assert_refused(self.obj("mtllib missing.mtl"), "mtllib 'missing.mtl' does not exist")
+        os.mkfifo(os.path.join(self.folder, "pipe.mtl"))
+        self.assert_refused(self.obj("mtllib pipe.mtl"), "is a FIFO (named pipe), not a regular file")
+        self.assert_refused(os.path.join(self.folder, "nothing.obj"), "nothing.obj: does not exist")
+        with open(os.path.join(self.folder, "in.mtl"), "w") as f:
+            f.write("newmtl a\nmap_Kd ../outside.png\n")
+        self.assert_refused(self.obj("mtllib in.mtl"), "in.mtl:2:", "texture '../outside.png' leaves the scene folder")
+
+    def test_escaped_names_and_comments(self):
+        with open(os.path.join(self.folder, "a b.mtl"), "w") as f:
+            f.write("newmtl a\nKd 1 1 1\n")
+        with open(os.path.join(self.folder, "c.mtl"), "w") as f:
+            f.write("newmtl c\nKe 1 1 1\n")
+        bundle = eprfarm.bundle_scene(self.obj("mtllib a\\ b.mtl c.mtl # d.mtl"))
+        self.assertEqual([p for p, _ in bundle.files], ["a b.mtl", "c.mtl", "m.obj"])
+        self.assertEqual(len(bundle.content_hash()), 64)
 
 
 class PipInstallTest(unittest.TestCase):
