@@ -9,9 +9,12 @@ Debian: python3-grpcio, python3-protobuf, and for get(as_arrays=True) python3-nu
 python3-openimageio.
 """
 
+import atexit
 import os
 import re
+import shutil
 import sys
+import tempfile
 
 from setuptools import setup
 from setuptools.command.build_py import build_py
@@ -35,6 +38,11 @@ class BuildWithStubs(build_py):
         generate(os.path.join(self.build_lib, "eprfarm", "proto"))
 
 
+# pip builds in the source folder: the build's intermediate files (build/, eprfarm.egg-info) go to a
+# temporary folder instead, removed when the build ends, so that the clone stays as it was.
+SCRATCH = tempfile.mkdtemp(prefix="eprfarm-build-")
+atexit.register(shutil.rmtree, SCRATCH, True)
+
 setup(
     name="eprfarm",
     version=project_version(),
@@ -44,4 +52,5 @@ setup(
     install_requires=["grpcio", "protobuf"],
     extras_require={"arrays": ["numpy"]},
     cmdclass={"build_py": BuildWithStubs},
+    options={"build": {"build_base": os.path.join(SCRATCH, "build")}, "egg_info": {"egg_base": SCRATCH}},
 )

@@ -5,6 +5,7 @@ frames loaded as one image sequence."""
 import os
 import secrets
 import shutil
+import sys
 import tempfile
 import time
 
@@ -35,7 +36,7 @@ class FarmBatch:
         self.eprfarm = settings.import_client()  # ImportError says what to do
         s = self.scene.eprfarm
         try:
-            self.client = self.eprfarm.Client(s.master, **settings.client_options(s))
+            self.client = settings.farm_client(self.eprfarm, s)
         except ValueError as e:
             raise BatchError(str(e)) from None
         self.batch_id = "b-" + secrets.token_hex(6)
@@ -107,8 +108,11 @@ class FarmBatch:
                 continue
             if status.state == "DONE":
                 path = frame_file(self.scene, frame)
-                os.makedirs(os.path.dirname(path), exist_ok=True)
-                self.client.fetch(job, "exr", path)
+                try:
+                    os.makedirs(os.path.dirname(path), exist_ok=True)
+                    self.client.fetch(job, "exr", path)
+                except OSError as e:
+                    raise BatchError(f"frame {frame}: cannot save {path}: {e.strerror or e}") from None
                 self.done[frame] = path
                 print(f"eprfarm: frame {frame}: job {job} done, saved {path}", flush=True)
                 self._load(frame)
@@ -149,6 +153,14 @@ class FarmBatch:
 ACTIVE = {}  # scene name -> the FarmBatch a timer follows (UI)
 
 
+def _reported(e):
+    """True for the errors an operator reports in words: the add-on's, the export's and the client's."""
+    eprfarm = sys.modules.get("eprfarm")
+    return isinstance(e, (ImportError, BatchError, export.ExportError)) or (
+        eprfarm is not None and isinstance(e, eprfarm.EprError)
+    )
+
+
 def _redraw():
     for window in bpy.context.window_manager.windows:
         for area in window.screen.areas:
@@ -168,19 +180,27 @@ class EPRFARM_OT_render_frames(bpy.types.Operator):
         def warn(message):
             self.report({"WARNING"}, f"eprfarm: {message}")
 
+        batch = None
         try:
             batch = FarmBatch(context, warn)
             batch.submit(context)
-        except (ImportError, BatchError, export.ExportError) as e:
-            self.report({"ERROR"}, f"eprfarm: {e}")
-            return None
         except Exception as e:
-            eprfarm = __import__("sys").modules.get("eprfarm")
-            if eprfarm is not None and isinstance(e, eprfarm.EprError):
-                self.report({"ERROR"}, f"eprfarm: {e}")
-                return None
-            raise
+            if not _reported(e):
+                raise
+            self._fail(batch, e)
+            return None
         return batch
+
+    def _fail(self, batch, error):
+        """Reports `error` (the operator then returns CANCELLED; a script's call raises RuntimeError
+        with the message) after cancelling the frames of `batch` that have not ended."""
+        message = f"eprfarm: {error}"
+        if batch is not None:
+            if batch.jobs:
+                batch.cancel()
+                message = f"eprfarm: batch {batch.batch_id}: {error}; its frames that had not ended were cancelled"
+            batch.close()
+        self.report({"ERROR"}, message)
 
     def execute(self, context):
         """Submits, then follows the batch to its end here (background Blender, scripts)."""
@@ -195,12 +215,12 @@ class EPRFARM_OT_render_frames(bpy.types.Operator):
                     print(shown, flush=True)
                 time.sleep(POLL_SECONDS)
         except Exception as e:
-            if not isinstance(e, batch.eprfarm.EprError):
+            if not _reported(e):
+                batch.close()
                 raise
-            self.report({"ERROR"}, f"eprfarm: {e}")
+            self._fail(batch, e)
             return {"CANCELLED"}
-        finally:
-            batch.close()
+        batch.close()
         print(batch.status_line, flush=True)
         if batch.failed:
             self.report({"ERROR"}, f"eprfarm: {len(batch.failed)} of {len(batch.jobs)} frames failed")

@@ -75,7 +75,7 @@ class EprfarmRenderEngine(bpy.types.RenderEngine):
             self._warn(w)
         blend = os.path.splitext(os.path.basename(bpy.data.filepath))[0] or "untitled"
         try:
-            client = eprfarm.Client(s.master, **settings.client_options(s))
+            client = settings.farm_client(eprfarm, s)
         except ValueError as e:  # a malformed address or token
             raise FarmFailure(str(e)) from None
         try:

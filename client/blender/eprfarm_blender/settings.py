@@ -65,6 +65,18 @@ def client_options(s):
     return options
 
 
+# What a master's refusal for want of the right token says to do: the panel's fields (EprfarmSettings).
+TOKEN_HINT = "set the master's token in Render Properties > eprfarm: Token, or Token File"
+
+
+def farm_client(eprfarm, s):
+    """The eprfarm.Client of the scene's farm settings `s`; ValueError for a malformed address, token
+    or CA file (the package's message, naming it)."""
+    client = eprfarm.Client(s.master, **client_options(s))
+    client.token_hint = TOKEN_HINT
+    return client
+
+
 class EprfarmSettings(bpy.types.PropertyGroup):
     master: bpy.props.StringProperty(
         name="Master",

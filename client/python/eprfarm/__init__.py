@@ -16,7 +16,7 @@ from .client import MasterClient
 from .farm import Client, JobList, job_id_master
 from .masters import MasterEndpoint, master_endpoints
 from .status import RESULT_KINDS, FetchedFile, JobStatus, ResultBytes, ResultKind, decode_exr
-from .errors import EprError, JobError, RpcError, SceneError, TokenError
+from .errors import ArgumentError, EprError, JobError, RpcError, SceneError, TokenError
 from .scene import SceneBundle, bundle_scene, bundle_scene_with_image
 
 __all__ = [
@@ -33,6 +33,7 @@ __all__ = [
     "RESULT_KINDS",
     "decode_exr",
     "EprError",
+    "ArgumentError",
     "RpcError",
     "JobError",
     "SceneError",

@@ -26,27 +26,18 @@ from typing import TYPE_CHECKING, Callable, Dict, Iterable, Iterator, List, Opti
 
 import grpc
 
+from . import job_settings as S
+from . import limits as L
 from . import scene as _scene
-from .endpoint import Endpoint
+from .auth import configured_token, is_valid_token
+from .endpoint import Endpoint, pem_roots
+from .errors import TRANSIENT_CODES, ArgumentError, JobError, RpcError
 from .masters import master_endpoints
-from .errors import TRANSIENT_CODES, JobError, RpcError
 from .proto import job_service_pb2 as pb
 from .proto import render_settings_pb2 as rs_pb
 from .proto import scene_pb2 as scene_pb
-from .status import (
-    MODES,
-    RESULT_KINDS,
-    STATES,
-    TERMINAL_STATES,
-    FetchedFile,
-    JobStatus,
-    ResultBytes,
-    ResultKind,
-    decode_exr,
-    output_prefix_error,
-    result_kind,
-)
-from .auth import configured_token, is_valid_token
+from .status import MODES, RESULT_KINDS, STATES, TERMINAL_STATES, FetchedFile, JobStatus, ResultBytes, ResultKind
+from .status import decode_exr, output_prefix_error, result_kind
 
 if TYPE_CHECKING:
     import numpy
@@ -57,68 +48,10 @@ DEFAULT_MASTER = "localhost:50051"
 CHUNK_BYTES = 1 << 20  # SceneFileData.data and ResultData.data carry at most 1 MiB
 MAX_NAME_BYTES = 256  # JobSpec.name
 
-_METHODS = {
-    "gl": rs_pb.REPROJECTION_METHOD_GL,
-    "cpu": rs_pb.REPROJECTION_METHOD_CPU,
-    "exact": rs_pb.REPROJECTION_METHOD_EXACT,
-}
-_SAMPLERS = {
-    "sobol-burley": rs_pb.SAMPLER_SOBOL_BURLEY,
-    "independent": rs_pb.SAMPLER_INDEPENDENT,
-}
-# Russian roulette: (mode, start depth, termination probability, max depth), as common/render_options.h.
-_ROULETTE = {
-    "paper": (rs_pb.RUSSIAN_ROULETTE_MODE_PAPER, 8, 0.1, 1024),
-    "albedo": (rs_pb.RUSSIAN_ROULETTE_MODE_ALBEDO, 3, 0.0, 1024),
-    "off": (rs_pb.RUSSIAN_ROULETTE_MODE_OFF, 0, 0.0, 8),
-}
-
 
 def _default_job_name(scene: str) -> str:
     name = scene[len(_scene.BUILTIN_PREFIX) :] if scene.startswith(_scene.BUILTIN_PREFIX) else os.path.basename(scene)
     return name.encode()[:MAX_NAME_BYTES].decode("utf-8", "ignore")
-
-
-def _vec3(name: str, v: Sequence[float]) -> rs_pb.Vec3:
-    values = [float(x) for x in v]
-    if len(values) != 3:
-        raise ValueError(f"{name} must be three numbers x, y, z")
-    return rs_pb.Vec3(x=values[0], y=values[1], z=values[2])
-
-
-def _lighting(
-    environment, strength: Optional[float], rotation: float, sun: Optional[Sequence[float]]
-) -> Tuple[Optional[rs_pb.EnvironmentLight], Optional[str], Optional[rs_pb.SunLight]]:
-    """The job's environment (and the image path to bundle, if it is an image) and sun, as `epr
-    submit --env --sun` reads them. The master checks the values' ranges."""
-    env = image = None
-    if environment is not None:
-        env = rs_pb.EnvironmentLight(rotation_degrees=rotation)
-        if isinstance(environment, (str, os.PathLike)):
-            image = os.fspath(environment)
-        else:
-            colour = [environment] * 3 if isinstance(environment, (int, float)) else list(environment)
-            if len(colour) != 3:
-                raise ValueError("environment is an image path, or a colour: one number (a grey) or three (r, g, b)")
-            env.color.CopyFrom(_vec3("environment", colour))
-        if strength is not None:
-            env.strength = strength
-    elif strength is not None or rotation:
-        raise ValueError("environment_strength and environment_rotation need an environment")
-    sun_pb = None
-    if sun is not None:
-        n = [float(x) for x in sun]
-        if len(n) not in (3, 4, 5, 7):
-            raise ValueError(
-                "sun is (dx, dy, dz[, angle_degrees[, irradiance or r, g, b]]): the direction towards the sun, its "
-                "angular diameter (default 0.53) and its irradiance in W/m^2 (default 1)"
-            )
-        sun_pb = rs_pb.SunLight(direction=_vec3("sun direction", n[:3]))
-        if len(n) >= 4:
-            sun_pb.angle_degrees = n[3]
-        if len(n) >= 5:
-            sun_pb.irradiance.CopyFrom(_vec3("sun irradiance", n[4:] if len(n) == 7 else [n[4]] * 3))
-    return env, image, sun_pb
 
 
 def _describe(code: grpc.StatusCode, details: str) -> str:
@@ -136,7 +69,8 @@ class MasterClient:
         token_file: a file holding it; with neither, $EPR_TOKEN if set (wire/rpc/token.h's rule).
         tls: connect over TLS (the system's CA roots unless ca_file).
         ca_file: PEM file of CA roots for TLS (implies tls).
-        timeout: deadline of unary calls and of connection checks, seconds (epr's --timeout, 10).
+        timeout: deadline of unary calls and of connection checks, seconds: 0.001 to 86400 (epr's
+            --timeout, 10).
         transfer_timeout: deadline of one result download, seconds.
         watch_call_timeout: one WatchJob call runs this long before it is re-issued, seconds.
         watch_reconnect_timeout: a watch whose master went away retries this long, seconds.
@@ -145,6 +79,8 @@ class MasterClient:
     No connection is made until the first call. Not tied to one thread: calls may run in several.
     """
 
+    # How a refusal for want of the right token says what to do (an application names its own fields).
+    token_hint = "give the master's token with token= or token_file=, or $EPR_TOKEN"
     # File scenes up to this size travel inline in the JobSpec (the master's message limit is 4 MiB
     # for the whole spec); larger ones are streamed with UploadScene first.
     inline_scene_limit = 3 << 20
@@ -167,29 +103,23 @@ class MasterClient:
     ):
         if master is None:
             master = os.environ.get("EPR_MASTER") or DEFAULT_MASTER
-        endpoints = master_endpoints(master)  # ValueError when malformed
+        endpoints = master_endpoints(master)  # ArgumentError when malformed
         if token is not None and token_file is not None:
-            raise ValueError("give token or token_file, not both")
+            raise ArgumentError("give token or token_file, not both")
         if token is not None:
             if not is_valid_token(token):
-                raise ValueError("the bearer token must be printable ASCII without spaces")
+                raise ArgumentError("the bearer token must be printable ASCII without spaces")
             self._token: Optional[str] = token
         else:
             self._token = configured_token(token_file)
+        self.timeout = L.seconds("timeout", timeout)
+        self.transfer_timeout = L.positive_seconds("transfer_timeout", transfer_timeout)
+        self.watch_call_timeout = L.positive_seconds("watch_call_timeout", watch_call_timeout)
+        self.watch_reconnect_timeout = L.positive_seconds("watch_reconnect_timeout", watch_reconnect_timeout)
         credentials = None
         if tls or ca_file:
-            roots = None
-            if ca_file:
-                try:
-                    with open(ca_file, "rb") as f:
-                        roots = f.read()
-                except OSError:
-                    raise ValueError(f"cannot read the CA file '{ca_file}'") from None
+            roots = pem_roots(ca_file) if ca_file else None
             credentials = grpc.ssl_channel_credentials(root_certificates=roots)
-        self.timeout = timeout
-        self.transfer_timeout = transfer_timeout
-        self.watch_call_timeout = watch_call_timeout
-        self.watch_reconnect_timeout = watch_reconnect_timeout
         self.upload_progress = upload_progress
         # The masters this client talks to. Every call goes through _endpoint().
         self._endpoints = [Endpoint(e.target, credentials, e.tls_server_name, e.name) for e in endpoints]
@@ -227,7 +157,7 @@ class MasterClient:
         else:
             message = f"master at {target} refused {call}: {detail}"
             if code == grpc.StatusCode.UNAUTHENTICATED:
-                message += " (give the master's token with token= or token_file=, or $EPR_TOKEN)"
+                message += f" ({self.token_hint})"
         return RpcError(code, details, message, call, target)
 
     def check_reachable(self) -> None:
@@ -288,24 +218,43 @@ class MasterClient:
         inline limit, which is then referred to by hash."""
         mode_value = MODES.get(mode.lower())
         if mode_value is None:
-            raise ValueError(f"mode '{mode}' is not one of skip, rp, pt")
-        method = _METHODS.get(reproject.lower())
+            raise ArgumentError(f"mode '{mode}' is not one of skip, rp, pt")
+        method = S.METHODS.get(reproject.lower())
         if method is None:
-            raise ValueError(f"reproject '{reproject}' is not one of gl, cpu, exact")
-        roulette = _ROULETTE.get(rr.lower())
+            raise ArgumentError(f"reproject '{reproject}' is not one of gl, cpu, exact")
+        roulette = S.ROULETTE.get(rr.lower())
         if roulette is None:
-            raise ValueError(f"rr '{rr}' is not one of paper, albedo, off")
+            raise ArgumentError(f"rr '{rr}' is not one of paper, albedo, off")
         rr_mode, start_depth, termination, default_depth = roulette
-        sampler_value = _SAMPLERS.get(sampler.lower())
+        sampler_value = S.SAMPLERS.get(sampler.lower())
         if sampler_value is None:
-            raise ValueError(f"sampler '{sampler}' is not one of sobol-burley, independent")
+            raise ArgumentError(f"sampler '{sampler}' is not one of sobol-burley, independent")
         camera_parts = {"eye": eye, "look": look, "up": up, "fov": fov}
         given = [k for k, v in camera_parts.items() if v is not None]
         if given and len(given) != 4:
             missing = ", ".join(k for k in camera_parts if k not in given)
-            raise ValueError(f"a camera needs all of eye, look, up and fov (missing: {missing}); none: the scene's own")
+            raise ArgumentError(f"a camera needs all of eye, look, up and fov (missing: {missing}); none: the scene's own")
 
-        env, env_image, sun_pb = _lighting(environment, environment_strength, environment_rotation, sun)
+        width, height = L.job_whole("width", width, L.IMAGE_SIDE), L.job_whole("height", height, L.IMAGE_SIDE)
+        spp = L.job_whole("spp", spp, L.SPP)
+        per_spp = f"between 1 and spp ({spp})"
+        paths_per_round = L.whole("paths_per_round", paths_per_round, 1, spp, per_spp)
+        min_paths = L.whole("min_paths", min_paths, 1, spp, per_spp)
+        round_growth = L.job_real("round_growth", round_growth, L.ROUND_GROWTH)
+        seed = L.whole("seed", seed, 0, L.UINT64_MAX)
+        subpixels = L.job_whole("subpixels", subpixels, L.SUBPIXELS)
+        epsilon = L.job_real("epsilon", epsilon, L.EPSILON)
+        L.real("reprojected_weight", reprojected_weight, 0, 1, "in (0, 1]", above=True)
+        if max_depth is not None:
+            max_depth = L.job_whole("max_depth", max_depth, L.MAX_DEPTH)
+        tile = L.job_whole("tile", tile, L.TILE_SIZE)
+        priority = L.whole("priority", priority, *L.INT32)
+        if time_budget is not None:
+            time_budget = L.positive_seconds("time_budget", time_budget)
+        if fov is not None:
+            fov = L.real("fov", fov)
+
+        env, env_image, sun_pb = S.lighting(environment, environment_strength, environment_rotation, sun)
         if env_image is not None:
             bundle, env.image = _scene.bundle_scene_with_image(scene, env_image)
         else:
@@ -348,7 +297,7 @@ class MasterClient:
         # "camera", the default camera for an OBJ).
         if given:
             spec.camera.CopyFrom(
-                rs_pb.Camera(eye=_vec3("eye", eye), look=_vec3("look", look), up=_vec3("up", up), fov_y_degrees=fov)
+                rs_pb.Camera(eye=S.vec3("eye", eye), look=S.vec3("look", look), up=S.vec3("up", up), fov_y_degrees=fov)
             )
         if env is not None:
             spec.environment.CopyFrom(env)
@@ -356,7 +305,7 @@ class MasterClient:
             spec.sun.CopyFrom(sun_pb)
         job_name = _default_job_name(scene) if name is None else name
         if len(job_name.encode()) > MAX_NAME_BYTES:
-            raise ValueError(f"job name is {len(job_name.encode())} bytes long, at most {MAX_NAME_BYTES}")
+            raise ArgumentError(f"job name is {len(job_name.encode())} bytes long, at most {MAX_NAME_BYTES}")
         spec.name = job_name
         if time_budget is not None:
             spec.time_budget_seconds = time_budget
@@ -402,7 +351,9 @@ class MasterClient:
             name: for listings (default: the scene's name); priority (0); time_budget: seconds.
             request_id: idempotency key (default: a random one, so a retried SubmitJob queues once).
 
-        The values are checked by the master: out of range, it answers INVALID_ARGUMENT with the
+        A number of the wrong type or outside its range (limits.py: epr's ranges) is ArgumentError
+        naming the argument and its range, before anything is sent. What depends on the scene or
+        the master (a camera, this master's limits) the master checks: INVALID_ARGUMENT with the
         reason (raised as RpcError). A broken scene file is INVALID_ARGUMENT naming file and line;
         a file that cannot be read here is SceneError.
         """
@@ -439,7 +390,7 @@ class MasterClient:
     def upload_scene(self, bundle: _scene.SceneBundle) -> str:
         """Streams a file scene to the master (UploadScene); returns its content hash."""
         if bundle.builtin:
-            raise ValueError("built-in scenes are not uploaded")
+            raise ArgumentError("built-in scenes are not uploaded")
         content_hash = bundle.content_hash()
         total = bundle.total_bytes
         self.check_reachable()
@@ -496,11 +447,12 @@ class MasterClient:
     ) -> List[JobStatus]:
         """Jobs newest first (all pages), optionally only those in `states` ("queued", "running",
         "done", "failed", "cancelled") and of the batch `batch` (submit_frames); at most `limit` (0: all)."""
+        limit = L.whole("limit", limit, 0, L.UINT64_MAX, "0 (all jobs) or more")
         by_name = {v.lower(): k for k, v in STATES.items()}
         request = pb.ListJobsRequest(batch_id=batch or "")
         for state in states or ():
             if state.lower() not in by_name:
-                raise ValueError(f"state '{state}' is not one of {', '.join(by_name)}")
+                raise ArgumentError(f"state '{state}' is not one of {', '.join(by_name)}")
             request.states.append(by_name[state.lower()])
         jobs: List[JobStatus] = []
         while True:
@@ -538,6 +490,7 @@ class MasterClient:
         goes away mid-watch (a restart: jobs resume from their checkpoint), the watch reconnects for
         up to watch_reconnect_timeout. Raises RpcError for an unknown job or an unreachable master.
         """
+        min_interval_ms = L.whole("min_interval_ms", min_interval_ms, 0, L.UINT32_MAX)
         request = pb.WatchJobRequest(job_id=job_id, min_interval_ms=min_interval_ms)
         self.check_reachable()  # the first call must not wait out watch_call_timeout on a silent address
         last: Optional[pb.JobStatus] = None
@@ -742,5 +695,5 @@ class MasterClient:
             return {k.array: decode_exr(r.data) for k, r in results}
         prefix = job_id if out is None else out
         if err := output_prefix_error(prefix):
-            raise ValueError(f"out: {err}")
+            raise ArgumentError(f"out: {err}")
         return self._each_kind(job_id, RESULT_KINDS, lambda k: self.fetch(job_id, k, prefix + k.suffix, partial))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import atexit
+import ssl
 import threading
 import time
 import weakref
@@ -10,7 +11,7 @@ from typing import List, Optional
 
 import grpc
 
-from .errors import RpcError
+from .errors import ArgumentError, RpcError
 from .proto import job_service_pb2_grpc as pb_grpc
 
 
@@ -23,6 +24,26 @@ _open: "weakref.WeakSet[Endpoint]" = weakref.WeakSet()
 def _close_open_endpoints() -> None:
     for endpoint in list(_open):
         endpoint.close()
+
+
+def pem_roots(ca_file: str) -> bytes:
+    """The CA file's bytes; ArgumentError unless it can be read and holds PEM certificates (gRPC
+    would only say "empty address list" when connecting)."""
+    try:
+        with open(ca_file, "rb") as f:
+            roots = f.read()
+    except OSError as e:
+        raise ArgumentError(f"cannot read the CA file '{ca_file}': {e.strerror}") from None
+    if not roots.strip():
+        raise ArgumentError(f"the CA file '{ca_file}' is empty: it must hold PEM certificates")
+    try:
+        ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT).load_verify_locations(cadata=roots.decode("latin-1"))
+    except (ssl.SSLError, ValueError):
+        raise ArgumentError(
+            f"the CA file '{ca_file}' is not a PEM file of certificates: it has no readable "
+            "'-----BEGIN CERTIFICATE-----' block"
+        ) from None
+    return roots
 
 
 class Endpoint:

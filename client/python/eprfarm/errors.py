@@ -59,6 +59,11 @@ class RpcError(EprError):
         return self.code in (grpc.StatusCode.UNAVAILABLE, grpc.StatusCode.DEADLINE_EXCEEDED)
 
 
+class ArgumentError(EprError, ValueError):
+    """An argument of the wrong type or out of its range, found before anything is sent; the message
+    names the argument and its range ("spp -4 must be between 1 and 1000000")."""
+
+
 class SceneError(EprError, ValueError):
     """A scene that cannot be bundled: a file missing, unreadable or outside the scene's folder.
     The message names the file (and line) as `epr submit` does."""

@@ -28,7 +28,7 @@ from . import frames as _frames
 from . import scene as _scene
 from .client import MasterClient, _default_job_name
 from .endpoint import Endpoint
-from .errors import RpcError
+from .errors import ArgumentError, EprError, RpcError
 from .proto import job_service_pb2 as pb
 from .proto import scene_pb2 as scene_pb
 from .status import JobStatus
@@ -87,7 +87,8 @@ class Client(MasterClient):
     arguments: `master` may be "A:50051,B:50051" or a list; the token and TLS options apply to every
     master). With several masters, submit, job_spec, upload_scene and submit_spec go to the least
     loaded master, status, watch, wait, cancel, fetch, fetch_bytes and get to the master holding the
-    job, list merges every master's jobs and submit_frames spreads the frames over the masters."""
+    job, list merges every master's jobs, submit_frames spreads the frames over the masters and
+    cancel_batch cancels a batch's jobs on every master."""
 
     def __init__(self, master: Union[str, Sequence[str], None] = None, **options):
         super().__init__(master, **options)
@@ -213,9 +214,13 @@ class Client(MasterClient):
         `name` (default: the scene's) names the batch; the other options as submit's, without a
         camera. With several masters the frames are spread one by one, each to the master with the
         least work (samples left at the start, plus the frames given to it). The batch id and the job
-        ids, in frame order."""
+        ids, in frame order.
+
+        Every argument is checked before anything is sent; the master checks each frame's camera (the
+        scene's animation at that frame) when the frame is submitted. A frame it refuses cancels the
+        frames queued before it: the error (its `batch_id` set) names the batch, the frame and them."""
         if any(options.get(k) is not None for k in ("eye", "look", "up", "fov")):
-            raise ValueError("the frames' cameras come from the scene's animation: give no eye, look, up or fov")
+            raise ArgumentError("the frames' cameras come from the scene's animation: give no eye, look, up or fov")
         frame_list = _frames.parse_frames(frames)
         batch_id = _frames.checked_batch_id(batch_id)
         name = options.pop("name", None) or os.path.splitext(_default_job_name(scene))[0]
@@ -231,18 +236,55 @@ class Client(MasterClient):
         where, masters = self._spread(specs)
         ids: List[str] = [""] * len(specs)
         placed = []
-        for index, master in enumerate(masters):
-            mine = [i for i, m in enumerate(where) if m == index]
-            if not mine:
-                continue
-            if bundle is not None:  # one upload for every frame
-                scene_ref = scene_pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
-            for i in mine:
-                specs[i].scene.CopyFrom(scene_ref)
-                ids[i] = master.submit_spec(specs[i])
-            placed.append(f"{len(mine)} at {master._endpoint().name}")
+        queued: List[Tuple[_OneMaster, int]] = []  # (master, index) of every frame queued so far
+        frame: Optional[int] = None  # the frame being queued; None while uploading the scene
+        try:
+            for index, master in enumerate(masters):
+                mine = [i for i, m in enumerate(where) if m == index]
+                if not mine:
+                    continue
+                frame = None
+                if bundle is not None:  # one upload for every frame
+                    scene_ref = scene_pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
+                for i in mine:
+                    frame = frame_list[i]
+                    specs[i].scene.CopyFrom(scene_ref)
+                    ids[i] = master.submit_spec(specs[i])
+                    queued.append((master, i))
+                placed.append(f"{len(mine)} at {master._endpoint().name}")
+        except EprError as e:
+            raise self._withdraw(batch_id, frame, e, [(m, frame_list[i], ids[i]) for m, i in queued]) from None
         log.info("batch %s (%s): %d frame(s) queued: %s", batch_id, name, len(ids), ", ".join(placed))
         return batch_id, ids
+
+    @staticmethod
+    def _withdraw(batch_id: str, frame: Optional[int], error: EprError, queued) -> EprError:
+        """A batch whose frame (or scene upload) was refused: cancels the frames queued before it
+        (the master checks each frame's camera when it is submitted, so a bad frame is found only
+        then) and returns the error to raise, naming the batch and what became of its frames."""
+        where = f"frame {frame}" if frame is not None else "the scene's upload"
+        left = []
+        for master, f, job in queued:
+            try:
+                master.cancel(job)
+            except RpcError as e:
+                left.append(f"frame {f} ({job}: {e})")
+        if not queued:
+            outcome = "no frame was queued"
+        elif not left:
+            outcome = f"the {len(queued)} frame(s) queued before it were cancelled"
+        else:
+            outcome = (
+                f"of the {len(queued)} frame(s) queued before it, these could not be cancelled: {'; '.join(left)} "
+                f"(cancel_batch('{batch_id}') cancels them)"
+            )
+        message = f"batch {batch_id}: {where}: {error}; {outcome}"
+        if isinstance(error, RpcError):
+            out: EprError = RpcError(error.code, error.reason, message, error.call, error.target)
+        else:
+            out = EprError(message)
+        out.batch_id = batch_id
+        return out
 
     def _spread(self, specs: List[pb.JobSpec]) -> Tuple[List[int], List[_OneMaster]]:
         """For each spec the index of the master it goes to, and the masters."""
@@ -294,6 +336,46 @@ class Client(MasterClient):
                 raise error
 
     # ---- every master ---------------------------------------------------------------------------
+
+    def cancel_batch(self, batch_id: str) -> JobList:
+        """Cancels every job of the batch `batch_id` (submit_frames, `epr submit --frames`, the Blender
+        add-on's Render Frames on Farm) on every master holding some; returns the batch's jobs after
+        the call (as list(batch=...): newest first; those that had ended unchanged). RpcError NOT_FOUND
+        when no master has a job of the batch; RpcError when a master could not be listed or a cancel
+        failed, after the other jobs were cancelled (the message names what may still run)."""
+        if not _frames.valid_batch_id(batch_id):
+            raise ArgumentError(f"batch id {batch_id!r} is not 1 to 64 of [A-Za-z0-9_-]")
+        jobs = self.list(batch=batch_id)
+        views = {m.target: m for m in self.masters()}
+        first = views[self.target]
+
+        def cancel_each(master: _OneMaster) -> List[Tuple[int, JobStatus, Optional[RpcError]]]:
+            out = []
+            for n, s in enumerate(jobs):
+                if (s.master or first.target) != master.target or s.terminal:
+                    continue
+                try:
+                    out.append((n, dataclasses.replace(master.cancel(s.id), master=s.master), None))
+                except RpcError as e:
+                    out.append((n, s, e))
+            return out
+
+        results = [r for found, _ in self._for_each(cancel_each, list(views.values())) for r in found or ()]
+        problems = [f"{label} could not be listed ({e})" for label, e in jobs.failed.items()]
+        for n, s, error in results:
+            jobs[n] = s
+            if error:
+                problems.append(f"job {s.id} (frame {s.frame}) was not cancelled ({error})")
+        if problems:
+            errors = [e for _, _, e in results if e] + list(jobs.failed.values())
+            cancelled = sum(1 for _, _, e in results if not e)
+            message = f"batch {batch_id}: {cancelled} job(s) cancelled, but " + "; ".join(problems)
+            raise RpcError(errors[0].code, errors[0].reason, message, "CancelJob", errors[0].target)
+        if not jobs:
+            asked = ", ".join(m._endpoint().name for m in views.values())
+            raise RpcError(grpc.StatusCode.NOT_FOUND, "unknown batch", f"no master has a job of batch {batch_id} "
+                           f"(asked {asked})", "ListJobs", ",".join(self.targets))  # fmt: skip
+        return jobs
 
     def list(
         self, states: Optional[Iterable[str]] = None, limit: int = 0, batch: Optional[str] = None

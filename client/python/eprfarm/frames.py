@@ -7,6 +7,7 @@ import re
 import secrets
 from typing import Iterable, List, Optional, Union
 
+from .errors import ArgumentError
 from .proto import job_service_pb2 as pb
 
 MAX_NAME_BYTES = 256  # JobSpec.name and batch_name
@@ -24,30 +25,35 @@ def parse_frames(frames: Union[str, Iterable[int]]) -> List[int]:
         for part in frames.split(","):
             m = re.fullmatch(r"([0-9]{1,8})(?:-([0-9]{1,8})(?:x([0-9]{1,8}))?)?", part)
             if not m:
-                raise ValueError(f"frames: '{part}' is not a frame, a range A-B or A-BxSTEP")
+                raise ArgumentError(f"frames: '{part}' is not a frame, a range A-B or A-BxSTEP")
             a = int(m.group(1))
             b = int(m.group(2)) if m.group(2) else a
             step = int(m.group(3)) if m.group(3) else 1
             if b < a or step == 0:
-                raise ValueError(f"frames: range '{part}' is empty")
+                raise ArgumentError(f"frames: range '{part}' is empty")
             if (b - a) // step + 1 + len(out_set) > MAX_BATCH_FRAMES:
-                raise ValueError(f"frames: more than {MAX_BATCH_FRAMES} frames")
+                raise ArgumentError(f"frames: more than {MAX_BATCH_FRAMES} frames")
             out_set.update(range(a, b + 1, step))
         out = sorted(out_set)
     if not out:
-        raise ValueError("frames: a batch needs at least one frame")
+        raise ArgumentError("frames: a batch needs at least one frame")
     if out[0] < 0 or out[-1] > MAX_FRAME:
-        raise ValueError(f"frames must lie in 0..{MAX_FRAME}")
+        raise ArgumentError(f"frames must lie in 0..{MAX_FRAME}")
     if len(out) > MAX_BATCH_FRAMES:
-        raise ValueError(f"frames: more than {MAX_BATCH_FRAMES} frames")
+        raise ArgumentError(f"frames: more than {MAX_BATCH_FRAMES} frames")
     return out
 
 
+def valid_batch_id(batch_id: str) -> bool:
+    """True for an id of 1 to 64 of [A-Za-z0-9_-]."""
+    return isinstance(batch_id, str) and re.fullmatch(r"[A-Za-z0-9_-]{1,64}", batch_id) is not None
+
+
 def checked_batch_id(batch_id: Optional[str]) -> str:
-    """`batch_id`, or a fresh one ("b-" and 12 random hex digits); ValueError unless 1 to 64 of [A-Za-z0-9_-]."""
+    """`batch_id`, or a fresh one ("b-" and 12 random hex digits); ArgumentError unless 1 to 64 of [A-Za-z0-9_-]."""
     batch_id = batch_id or "b-" + secrets.token_hex(6)
-    if not re.fullmatch(r"[A-Za-z0-9_-]{1,64}", batch_id):
-        raise ValueError(f"batch id '{batch_id}' is not 1 to 64 of [A-Za-z0-9_-]")
+    if not valid_batch_id(batch_id):
+        raise ArgumentError(f"batch id '{batch_id}' is not 1 to 64 of [A-Za-z0-9_-]")
     return batch_id
 
 
@@ -55,7 +61,7 @@ def frame_specs(spec: pb.JobSpec, batch_id: str, name: str, frames: List[int]) -
     """One copy of `spec` per frame, with the batch fields, the job name NAME.0007 and the request id
     BATCH-FRAME (a retried submission does not queue a frame twice), as `epr submit --frames` makes them."""
     if len(name.encode()) + 9 > MAX_NAME_BYTES:
-        raise ValueError(f"batch name is {len(name.encode())} bytes long, at most {MAX_NAME_BYTES - 9}")
+        raise ArgumentError(f"batch name is {len(name.encode())} bytes long, at most {MAX_NAME_BYTES - 9}")
     out = []
     for frame in frames:
         one = pb.JobSpec()

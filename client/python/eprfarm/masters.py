@@ -16,6 +16,8 @@ import socket
 from dataclasses import dataclass
 from typing import Callable, Iterable, List, Optional, Union
 
+from .errors import ArgumentError
+
 _GRPC_SCHEMES = ("ipv4:", "ipv6:", "unix:", "unix-abstract:", "vsock:")
 
 # A host name's addresses (numeric, no port), or None when it does not resolve.
@@ -40,28 +42,43 @@ def _is_ip(host: str) -> bool:
         return False
 
 
+def _check_port(spec: str, port: str) -> None:
+    if not re.fullmatch(r"[0-9]+", port):
+        raise ArgumentError(f"master: '{spec}' has no numeric port")
+    if not 1 <= int(port) <= 65535:
+        raise ArgumentError(f"master: '{spec}' has port {int(port)}, outside 1-65535")
+
+
 def _parse_one(entry: str):
-    """(spec, host, port): host "" for a target gRPC takes as is. ValueError when malformed."""
+    """(spec, host, port): host "" for a target gRPC takes as is. ArgumentError when malformed."""
     spec = entry.strip(" \t\n")
     if not spec:
-        raise ValueError("master: an empty entry in the list")
+        raise ArgumentError("master: an empty entry in the list")
     rest = spec
     if rest.startswith("dns:"):
         rest = rest[4:]
         if rest.startswith("//"):  # dns://[authority]/host:port: the authority (a DNS server) is not used
             slash = rest.find("/", 2)
             if slash < 0:
-                raise ValueError(f"master: '{spec}' has no host")
+                raise ArgumentError(f"master: '{spec}' has no host")
             rest = rest[slash + 1 :]
+    elif rest.startswith(("ipv4:", "ipv6:")):  # ADDRESS:PORT, [ADDRESS]:PORT; without a port gRPC takes 443
+        rest = rest[5:]
+        if rest.count(":") == 1 or "]:" in rest:
+            _check_port(spec, rest.rpartition(":")[2])
+        return spec, "", ""
     elif rest.startswith(_GRPC_SCHEMES):
         return spec, "", ""
     if rest.startswith("["):  # [IPV6]:PORT
+        bracket = rest.find("]")
+        if bracket < 0 or rest[bracket + 1 : bracket + 2] != ":":
+            raise ArgumentError(f"master: '{spec}' is not [IPV6]:PORT")
+        _check_port(spec, rest[bracket + 2 :])
         return spec, "", ""
     host, colon, port = rest.rpartition(":")
     if not colon or not host or not port:
-        raise ValueError(f"master: '{spec}' is not HOST:PORT")
-    if not re.fullmatch(r"[0-9]+", port):
-        raise ValueError(f"master: '{spec}' has no numeric port")
+        raise ArgumentError(f"master: '{spec}' is not HOST:PORT")
+    _check_port(spec, port)
     if _is_ip(host) or ":" in host:
         return spec, "", ""
     return spec, host, port
@@ -80,7 +97,7 @@ def resolve_host(host: str) -> Optional[List[str]]:
 
 def master_endpoints(masters: Union[str, Iterable[str]], resolver: Optional[Resolver] = None) -> List[MasterEndpoint]:
     """One endpoint per master of `masters` (a comma-separated string, or a list of such strings),
-    deduplicated by target in list order. ValueError for an empty or malformed entry."""
+    deduplicated by target in list order. ArgumentError (a ValueError) for an empty or malformed entry."""
     text = masters if isinstance(masters, str) else ",".join(masters)
     out: List[MasterEndpoint] = []
     seen = set()

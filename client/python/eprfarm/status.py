@@ -8,6 +8,7 @@ import tempfile
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Optional, Tuple, Union
 
+from .errors import ArgumentError
 from .proto import job_service_pb2 as pb
 from .proto import render_settings_pb2 as rs_pb
 
@@ -139,7 +140,7 @@ def result_kind(kind: Union[str, ResultKind]) -> ResultKind:
     try:
         return _KIND_BY_NAME[kind]
     except KeyError:
-        raise ValueError(f"unknown result kind '{kind}'; one of {', '.join(_KIND_BY_NAME)}") from None
+        raise ArgumentError(f"unknown result kind '{kind}'; one of {', '.join(_KIND_BY_NAME)}") from None
 
 
 @dataclass(frozen=True)

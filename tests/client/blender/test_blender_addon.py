@@ -31,6 +31,7 @@ import argparse
 import re
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -154,15 +155,19 @@ class BlenderCase(unittest.TestCase):
             raise RuntimeError(f"epr render failed:\n{r.stdout}\n{r.stderr}")
         return read_exr(out + ".exr")
 
-    def render_blend(self, out: str, *frame_args: str, master=None, python=None) -> subprocess.CompletedProcess:
+    def render_blend(
+        self, out: str, *frame_args: str, master=None, python=None, exit_code=False
+    ) -> subprocess.CompletedProcess:
         """`blender -b` of the test's .blend with the add-on enabled (as Preferences keep it) and its
-        package folder set; `python` runs after the file is loaded; `frame_args`: -f 1, -a, ..."""
+        package folder set; `python` runs after the file is loaded; `frame_args`: -f 1, -a, ...;
+        exit_code: `--python-exit-code 1` (a script's uncaught exception ends Blender with status 1)."""
         enable = (
             "import addon_utils, bpy; addon_utils.enable('eprfarm_blender', default_set=True); "
             f"bpy.context.preferences.addons['eprfarm_blender'].preferences.package_path = {ARGS.package_dir!r}"
         )
         after = f"import bpy; bpy.context.scene.eprfarm.master = {(master or self.farm.address)!r}\n" + (python or "")
-        return self.blender("--python-expr", enable, self.blend, "-o", out, "--python-expr", after, *frame_args)
+        first = ["--python-exit-code", "1"] if exit_code else []
+        return self.blender(*first, "--python-expr", enable, self.blend, "-o", out, "--python-expr", after, *frame_args)
 
     def assert_within_noise(self, image, what: str, reference=None, other_seed=None):
         """`image` against `epr render`'s `reference` (default: scenes/cornell-box.gltf's), block by
@@ -394,6 +399,58 @@ class BlenderAddonTest(BlenderCase):
             sorted((j.frame, j.state, j.name) for j in jobs), [(1, "DONE", "box.0001"), (2, "DONE", "box.0002")]
         )
 
+    def test_batch_operator_errors(self):
+        # Render Frames on Farm from a script: an unreachable master, a port beyond 65535 (not taken
+        # modulo 65536: that is the farm's port) and an output folder that cannot be made (a file is
+        # in the way: the frames are cancelled) are reported in words; the script's call raises them as
+        # RuntimeError, whose traceback is the script's alone, and --python-exit-code 1 makes that
+        # Blender's status.
+        dead, port = harness.free_port(), int(self.farm.address.rpartition(":")[2])
+        blocked = os.path.join(self.tmp, "operator-errors", "a-file")
+        os.makedirs(os.path.dirname(blocked))
+        open(blocked, "w").close()
+        r = self.render_blend(
+            os.path.join(blocked, "frames", "box_####"),
+            exit_code=True,
+            python=(
+                "def run(master):\n"
+                "    bpy.context.scene.eprfarm.master = master\n"
+                "    try:\n"
+                "        print('operator:', sorted(bpy.ops.eprfarm.render_frames()), flush=True)\n"
+                "    except RuntimeError as e:\n"
+                "        print('operator raised:', e, flush=True)\n"
+                f"run('127.0.0.1:{dead}')\n"
+                f"run('127.0.0.1:{port + 65536}')\n"
+                f"run({self.farm.address!r})\n"
+                "print('--- uncaught', flush=True)\n"
+                f"bpy.context.scene.eprfarm.master = '127.0.0.1:{dead}'\n"
+                "bpy.ops.eprfarm.render_frames()\n"
+                "print('after', 'the call', flush=True)\n"
+            ),
+        )
+        log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
+        self.assertEqual(r.returncode, 1, log)
+        self.assertIn(f"operator raised: Error: eprfarm: cannot reach master at 127.0.0.1:{dead}", r.stdout, log)
+        self.assertIn(
+            f"operator raised: Error: eprfarm: master: '127.0.0.1:{port + 65536}' has port {port + 65536}, "
+            "outside 1-65535", r.stdout, log
+        )  # fmt: skip
+        self.assertRegex(
+            r.stdout, r"operator raised: Error: eprfarm: batch \S+: frame 1: cannot save \S+a-file/frames/box_0001\.exr: "
+            r"Not a directory; its frames that had not ended were cancelled", log
+        )  # fmt: skip
+        self.assertNotIn("operator: ['FINISHED']", r.stdout, log)
+        self.assertNotIn("after the call", r.stdout, log)
+        before, uncaught = r.stdout.split("--- uncaught", 1)
+        self.assertNotIn("Traceback", before, log)
+        self.assertIn("RuntimeError: Error: eprfarm: cannot reach master", uncaught, log)
+        self.assertNotIn("eprfarm_blender", uncaught, log)  # no frame of the add-on's in the traceback
+        import eprfarm
+
+        with eprfarm.Client(self.farm.address) as client:
+            batch = re.search(r"eprfarm: batch (\S+): frame 1: cannot save", r.stdout).group(1)
+            self.assertLessEqual({j.state for j in client.list(batch=batch)}, {"DONE", "CANCELLED"}, log)
+
     def test_errors(self):
         # Three renders in one Blender: an unreachable master; then the right master, but no emitter
         # left and a point lamp, which the add-on does not export: the master refuses the scene and
@@ -475,6 +532,9 @@ class BlenderAddonTest(BlenderCase):
         self.assertIn("--- with token", r.stdout, log)
         without, with_token = r.stdout.split("--- with token")
         self.assertIn(f"Error: eprfarm: master at {farm.address} refused SubmitJob: UNAUTHENTICATED", without, log)
+        # What to do, in the words of the add-on's panel, not the package's arguments.
+        self.assertIn("(set the master's token in Render Properties > eprfarm: Token, or Token File)", without, log)
+        self.assertNotIn("token=", without, log)
         self.assertRegex(with_token, r"eprfarm: frame 1: job \S+ done, 16\.0 spp", log)
         self.assertNotIn("Traceback", r.stdout + r.stderr)
         self.assertFalse(os.path.exists(os.path.dirname(out)), "an image was written for a refused job")
@@ -494,14 +554,25 @@ class BlenderUiTest(BlenderCase):
             f"bpy.context.preferences.addons['eprfarm_blender'].preferences.package_path = {ARGS.package_dir!r}"
         )
         try:
-            r = subprocess.run(
+            # A session of its own: should Blender not quit, the whole group (xvfb-run, Xvfb, Blender) is
+            # killed and the test fails with Blender's output; killing xvfb-run alone leaves Blender
+            # running, holding the pipes.
+            p = subprocess.Popen(
                 [ARGS.xvfb_run, "-a", "-s", "-screen 0 1280x1024x24", ARGS.blender, "--factory-startup",
                  "--python-expr", enable, self.blend, "--python", os.path.join(HERE, "ui_render.py"),
                  "--", "--still", still, "--frames", frames, "--batch", batch_frames],
-                capture_output=True, text=True, timeout=300, env=self.env, stdin=subprocess.DEVNULL,
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=self.env, stdin=subprocess.DEVNULL,
+                start_new_session=True,
             )  # fmt: skip
         except FileNotFoundError:
             self.fail(f"cannot run {ARGS.xvfb_run}: scripts/setup.sh installs Debian's xvfb")
+        try:
+            stdout, stderr = p.communicate(timeout=270)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            stdout, stderr = p.communicate()
+            self.fail(f"Blender did not quit within 270 s:\n{stdout[-6000:]}\n{stderr[-3000:]}")
+        r = subprocess.CompletedProcess(p.args, p.returncode, stdout, stderr)
         log = f"{r.stdout[-6000:]}\n{r.stderr[-3000:]}"
         self.assertIn("ui_render: animation finished", r.stdout, log)
         quit_while = re.search(r"ui_render: quitting while (\S+) runs", r.stdout)

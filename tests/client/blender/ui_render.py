@@ -8,7 +8,7 @@ The still is the Render Result saved as EXR (linear); the animation writes the s
 to --frames; then Render Frames on Farm (invoked as the panel's button does: a timer follows the
 batch) writes it to --batch. Last, F12 of a job too long to wait for (1000000 spp): once the farm
 runs it, Blender quits, which stops the render and must cancel the farm job. Prints "ui_render: ..."
-lines, then quits (also after 240 s: "ui_render: timeout").
+lines, then quits (also after 240 s: "ui_render: timeout", and after an error it does not expect).
 """
 
 import sys
@@ -35,10 +35,27 @@ def quit_blender():
 
 
 def tick():
+    """One step of the script; never raises: a timer whose function raises is unregistered, and
+    Blender would then sit idle until killed."""
     if time.monotonic() - started > 240:
         say("timeout")
         quit_blender()
         return None
+    try:
+        return step_once()
+    except Exception as e:
+        # Blender's guard against writes from read-only Python callbacks is one flag for all its
+        # threads: under load a write here was refused right after Render Animation ended ("Writing
+        # to ID classes in this context is not allowed"). A step runs again until it is done.
+        if "not allowed" in str(e):
+            say(f"{steps[0]}: {e}; again")
+            return 0.25
+        say(f"{steps[0]} failed: {e!r}")
+        quit_blender()
+        return None
+
+
+def step_once():
     step = steps[0]
     if step == "wait_batch":
         from eprfarm_blender import batch

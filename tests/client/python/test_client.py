@@ -6,10 +6,10 @@
 --package-dir holds the eprfarm package with its generated stubs (the build tree's copy, CMake
 target eprfarm_python). Checks: a render submitted, watched and fetched through the package has the
 pixels of the same job submitted with `epr` (same seed); file scenes are bundled as `epr` bundles
-them (same content hash, inline and uploaded; the path sandbox); cancel; the master's errors
-(INVALID_ARGUMENT, NOT_FOUND, UNAUTHENTICATED with their reasons; UNAVAILABLE); token rules; and
-`pip install` of client/python into a venv. Run with Debian's /usr/bin/python3 (python3-grpcio,
-python3-protobuf, python3-numpy, python3-openimageio, python3-venv).
+them (same content hash, inline and uploaded); cancel; the master's errors (INVALID_ARGUMENT,
+NOT_FOUND, UNAUTHENTICATED with their reasons; UNAVAILABLE); token rules. test_client_checks.py
+checks the arguments, the scene sandbox, batches as a whole and `pip install`. Run with Debian's
+/usr/bin/python3 (python3-grpcio, python3-protobuf, python3-numpy, python3-openimageio).
 """
 
 from __future__ import annotations
@@ -433,8 +433,11 @@ class ClusterTest(unittest.TestCase):
         self.assertEqual(r.returncode, 0, r.stderr)
 
     def test_master_errors(self):
+        # A spec the client's checks would refuse (test_client_checks.py), sent as it is.
+        spec = self.client.job_spec("builtin:cornell")
+        spec.target_spp = 0
         with self.assertRaises(eprfarm.RpcError) as ctx:
-            self.client.submit("builtin:cornell", spp=0)
+            self.client.submit_spec(spec)
         e = ctx.exception
         self.assertEqual(e.code, grpc.StatusCode.INVALID_ARGUMENT)
         self.assertEqual(e.reason, "--spp 0 must be between 1 and 1000000")
@@ -442,8 +445,10 @@ class ClusterTest(unittest.TestCase):
         self.assertFalse(e.unreachable)
 
         for w in (0.0, 1.5):
+            spec = self.client.job_spec("builtin:cornell", width=8, height=8, spp=1)
+            spec.reprojection.reprojected_weight = w
             with self.assertRaises(eprfarm.RpcError) as ctx:
-                self.client.submit("builtin:cornell", width=8, height=8, spp=1, reprojected_weight=w)
+                self.client.submit_spec(spec)
             self.assertEqual(ctx.exception.code, grpc.StatusCode.INVALID_ARGUMENT)
             self.assertIn("--reprojected-weight %g must be in (0, 1]" % w, ctx.exception.reason)
         spec = self.client.job_spec("builtin:cornell", reprojected_weight=0.75)
@@ -647,93 +652,6 @@ class MasterRestartTest(unittest.TestCase):
         after = eprfarm.decode_exr(client.fetch_bytes(job, "exr").data)
         self.assertTrue(np.array_equal(before, after))
         client.close()
-
-
-class SceneSandboxTest(unittest.TestCase):
-    """Scene bundling without a master: files must stay inside the scene's folder and be regular."""
-
-    def setUp(self):
-        self.tmp = tempfile.mkdtemp(prefix="epr-python-scene-")
-        self.folder = os.path.join(self.tmp, "scene")
-        os.makedirs(self.folder)
-
-    def tearDown(self):
-        shutil.rmtree(self.tmp, ignore_errors=True)
-
-    def obj(self, mtllib_line: str) -> str:
-        path = os.path.join(self.folder, "m.obj")
-        with open(path, "w") as f:
-            f.write(f"# test\n{mtllib_line}\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-        return path
-
-    def assert_refused(self, scene: str, *fragments: str):
-        with self.assertRaises(eprfarm.SceneError) as ctx:
-            eprfarm.bundle_scene(scene)
-        for fragment in fragments:
-            self.assertIn(fragment, str(ctx.exception))
-
-    def test_sandbox(self):
-        with open(os.path.join(self.tmp, "outside.mtl"), "w") as f:
-            f.write("newmtl x\nKd 1 1 1\n")
-        self.assert_refused(self.obj("mtllib ../outside.mtl"), "m.obj:2:", "mtllib '../outside.mtl' leaves the scene folder")
-        self.assert_refused(self.obj("mtllib /etc/passwd"), "is an absolute path")
-        os.symlink(os.path.join(self.tmp, "outside.mtl"), os.path.join(self.folder, "link.mtl"))
-        self.assert_refused(self.obj("mtllib link.mtl"), "leaves the scene folder")
-        self.assert_refused(self.obj("mtllib missing.mtl"), "mtllib 'missing.mtl' does not exist")
-        os.mkfifo(os.path.join(self.folder, "pipe.mtl"))
-        self.assert_refused(self.obj("mtllib pipe.mtl"), "is a FIFO (named pipe), not a regular file")
-        self.assert_refused(os.path.join(self.folder, "nothing.obj"), "nothing.obj: does not exist")
-        with open(os.path.join(self.folder, "in.mtl"), "w") as f:
-            f.write("newmtl a\nmap_Kd ../outside.png\n")
-        self.assert_refused(self.obj("mtllib in.mtl"), "in.mtl:2:", "texture '../outside.png' leaves the scene folder")
-
-    def test_escaped_names_and_comments(self):
-        with open(os.path.join(self.folder, "a b.mtl"), "w") as f:
-            f.write("newmtl a\nKd 1 1 1\n")
-        with open(os.path.join(self.folder, "c.mtl"), "w") as f:
-            f.write("newmtl c\nKe 1 1 1\n")
-        bundle = eprfarm.bundle_scene(self.obj("mtllib a\\ b.mtl c.mtl # d.mtl"))
-        self.assertEqual([p for p, _ in bundle.files], ["a b.mtl", "c.mtl", "m.obj"])
-        self.assertEqual(len(bundle.content_hash()), 64)
-
-
-class PipInstallTest(unittest.TestCase):
-    """`pip install ./client/python` into a venv over Debian's packages, offline."""
-
-    def test_pip_install(self):
-        tmp = tempfile.mkdtemp(prefix="epr-python-pip-")
-        try:
-            # A copy of what the package build reads, so that the build leaves the source tree alone.
-            repo = os.path.join(tmp, "repo")
-            shutil.copytree(
-                os.path.join(SOURCE_DIR, "client", "python"),
-                os.path.join(repo, "client", "python"),
-                ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"),
-            )
-            shutil.copytree(os.path.join(SOURCE_DIR, "proto"), os.path.join(repo, "proto"))
-            shutil.copy(os.path.join(SOURCE_DIR, "CMakeLists.txt"), repo)
-            venv = os.path.join(tmp, "venv")
-            subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", venv], check=True)
-            python = os.path.join(venv, "bin", "python")
-            r = subprocess.run(
-                [python, "-m", "pip", "install", "--no-index", "--quiet", os.path.join(repo, "client", "python")],
-                capture_output=True,
-                text=True,
-                cwd=tmp,
-            )
-            self.assertEqual(r.returncode, 0, r.stdout + r.stderr)
-            r = subprocess.run(
-                [python, "-c", "import eprfarm, eprfarm.proto.job_service_pb2_grpc as g; "
-                 "print(eprfarm.__file__); print(g.JobServiceStub.__name__)"],
-                capture_output=True,
-                text=True,
-                cwd=tmp,
-            )
-            self.assertEqual(r.returncode, 0, r.stderr)
-            self.assertTrue(r.stdout.startswith(venv), r.stdout)
-            self.assertIn("JobServiceStub", r.stdout)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def main() -> int:
