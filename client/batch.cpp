@@ -24,8 +24,8 @@ uint32_t frame_number(const std::string& digits, const std::string& part) {
     throw std::invalid_argument(fmt::format("--frames: '{}' is not a frame, a range A-B or A-BxSTEP", part));
   const size_t first = std::min(digits.find_first_not_of('0'), digits.size() - 1);  // leading zeros dropped
   if (digits.size() - first > 9)
-    throw std::invalid_argument(fmt::format("--frames: '{}': the number {} is too large (at most {})", part, digits,
-                                            kMaxFrame));
+    throw std::invalid_argument(
+        fmt::format("--frames: '{}': the number {} is too large (at most {})", part, digits, kMaxFrame));
   const unsigned long v = std::stoul(digits.substr(first));
   if (v > kMaxFrame) throw std::invalid_argument(fmt::format("--frames: frame {} is over {}", v, kMaxFrame));
   return uint32_t(v);

@@ -236,7 +236,8 @@ int main(int argc, char** argv) {
                    "the embedded master's dashboard address HOST:PORT (port 0: a free one; \"\" disables it)")
       ->check([](const std::string& v) -> std::string {
         std::string why;
-        return v.empty() || parse_address(v, {.port_zero = true, .empty_host = true}, &why) ? "" : "'" + v + "': " + why;
+        return v.empty() || parse_address(v, {.port_zero = true, .empty_host = true}, &why) ? ""
+                                                                                            : "'" + v + "': " + why;
       })
       ->capture_default_str();
   std::string render_memory_budget;

@@ -281,9 +281,10 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
       ->add_option("--time-budget", s.time_budget, "wall-clock budget in seconds: the job ends DONE when it runs out")
       ->check(CLI::PositiveNumber);
   s.submit->add_flag("--wait", s.wait, "follow the job with a progress line and fetch its results to --out at the end");
-  s.frames_flag = s.submit->add_option("--frames", s.frames,
-                       "submit a batch of frames of the scene's camera animation: 1-240, 1-240x2 (step), 1,5,9; "
-                       "prints the batch id (results: --out PREFIX gives PREFIX.0001.exr, ...)");
+  s.frames_flag =
+      s.submit->add_option("--frames", s.frames,
+                           "submit a batch of frames of the scene's camera animation: 1-240, 1-240x2 (step), 1,5,9; "
+                           "prints the batch id (results: --out PREFIX gives PREFIX.0001.exr, ...)");
   add_connection_flags(s.submit, s.submit_conn, /*whole_job=*/true);
 
   s.watch = app.add_subcommand("watch", "follow a job's progress until it ends (exit 0 DONE, 1 FAILED/CANCELLED)");

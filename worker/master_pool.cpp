@@ -21,9 +21,9 @@ struct MasterPool::Link {
   explicit Link(MasterEndpoint e) : endpoint(std::move(e)) { status.name = endpoint.name; }
 
   const MasterEndpoint endpoint;
-  std::atomic<bool> removed{false};   // gone from the resolution: leave the master
-  std::atomic<bool> shutdown{false};  // the master answered a lease with Shutdown: end this session
-  std::atomic<bool> refused{false};   // for good
+  std::atomic<bool> removed{false};    // gone from the resolution: leave the master
+  std::atomic<bool> shutdown{false};   // the master answered a lease with Shutdown: end this session
+  std::atomic<bool> refused{false};    // for good
   std::atomic<bool> duplicate{false};  // the same master as another link's (MasterInfo.instance): ended
   Mutex mu;
   std::condition_variable_any idle;                           // users dropped

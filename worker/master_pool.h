@@ -109,8 +109,8 @@ class MasterPool {
   std::atomic<bool> resolve_requested_{false};
 
   mutable Mutex mu_;
-  std::vector<std::shared_ptr<Link>> links_ EPR_GUARDED_BY(mu_);    // current endpoints, in list order
-  std::vector<std::shared_ptr<Link>> retired_ EPR_GUARDED_BY(mu_);  // gone from the resolution, being left
+  std::vector<std::shared_ptr<Link>> links_ EPR_GUARDED_BY(mu_);      // current endpoints, in list order
+  std::vector<std::shared_ptr<Link>> retired_ EPR_GUARDED_BY(mu_);    // gone from the resolution, being left
   std::map<std::string, std::string> instances_ EPR_GUARDED_BY(mu_);  // master instance -> serving link's target
 };
 

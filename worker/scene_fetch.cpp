@@ -1,7 +1,7 @@
 #include "worker/scene_fetch.h"
 
-#include <fmt/format.h>
 #include <fcntl.h>
+#include <fmt/format.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -11,8 +11,8 @@
 #include <fstream>
 #include <random>
 #include <set>
-#include <utility>
 #include <stdexcept>
+#include <utility>
 
 #include "wire/scene_bundle.h"
 #include "wire/sha256.h"
@@ -232,8 +232,8 @@ std::optional<std::string> SceneReceiver::fail(std::string reason) {
 
 std::optional<std::string> SceneReceiver::disk_fail(const std::string& what, const std::string& reason) {
   disk_failure_ = true;
-  return fail(fmt::format("the worker's scene cache {}: {}: {} (this worker's disk, not the scene)", cache_root_,
-                          what, reason));
+  return fail(fmt::format("the worker's scene cache {}: {}: {} (this worker's disk, not the scene)", cache_root_, what,
+                          reason));
 }
 
 std::optional<std::string> SceneReceiver::add(const v1::SceneChunk& chunk) {
@@ -304,7 +304,8 @@ std::optional<std::string> SceneReceiver::close_current() {
   if (out_) {
     const int fd = std::exchange(out_->fd, -1);
     out_.reset();
-    if (::close(fd) != 0) return disk_fail(fmt::format("cannot write '{}'", files_[current_].first), std::strerror(errno));
+    if (::close(fd) != 0)
+      return disk_fail(fmt::format("cannot write '{}'", files_[current_].first), std::strerror(errno));
   }
   ++current_;
   written_ = rpc::ChunkTracker(current_ < files_.size() ? files_[current_].second : 0);

@@ -108,10 +108,10 @@ TEST(RenderFlags, AnOutputPrefixMayNotReplaceAFileTheSceneReads) {
   for (const char* f : {"scene.json", "scene.obj", "sky.exr", "shot.v2.obj"})
     inputs.push_back(fs::canonical(dir / "scn" / f));
   const std::string scn = (dir / "scn").string();
-  EXPECT_TRUE(output_replaces_input(scn + "/scene", inputs));                     // scene.json
-  EXPECT_TRUE(output_replaces_input(scn + "/../scn/sky", inputs));                // sky.exr, another spelling
-  EXPECT_TRUE(output_replaces_input(scn + "/sky", {dir / "scn/./sky.exr"}));      // compared by identity
-  EXPECT_FALSE(output_replaces_input(scn + "/shot", inputs));                     // shot.exr, ... : no clash
+  EXPECT_TRUE(output_replaces_input(scn + "/scene", inputs));                 // scene.json
+  EXPECT_TRUE(output_replaces_input(scn + "/../scn/sky", inputs));            // sky.exr, another spelling
+  EXPECT_TRUE(output_replaces_input(scn + "/sky", {dir / "scn/./sky.exr"}));  // compared by identity
+  EXPECT_FALSE(output_replaces_input(scn + "/shot", inputs));                 // shot.exr, ... : no clash
   EXPECT_FALSE(output_replaces_input(scn + "/render", inputs));
   EXPECT_FALSE(output_replaces_input((dir / "other" / "scene").string(), inputs));  // another folder
   std::ofstream(dir / "scn" / "frames.0007.png") << "x";

@@ -36,8 +36,8 @@ TEST(Address, PortsOutsideTheRangeAreRefusedNotWrapped) {
 }
 
 TEST(Address, MalformedAddressesSayWhy) {
-  for (const char* bad : {"", "host", "host:", ":80", "::1:80", "[::1]", "[::1]80", "[host]:80", "[::1:80", "a b:1",
-                          "h:http"}) {
+  for (const char* bad :
+       {"", "host", "host:", ":80", "::1:80", "[::1]", "[::1]80", "[host]:80", "[::1:80", "a b:1", "h:http"}) {
     std::string why;
     EXPECT_FALSE(parse_address(bad, {}, &why)) << bad;
     EXPECT_FALSE(why.empty()) << bad;

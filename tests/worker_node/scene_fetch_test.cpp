@@ -4,7 +4,6 @@
 #include "worker/scene_fetch.h"
 
 #include <gtest/gtest.h>
-
 #include <sys/resource.h>
 
 #include <cerrno>
