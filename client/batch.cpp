@@ -20,10 +20,13 @@ constexpr size_t kMaxNameBytes = 256;  // JobSpec.name and batch_name
 
 // A frame number of `part` ("12"), or std::invalid_argument.
 uint32_t frame_number(const std::string& digits, const std::string& part) {
-  if (digits.empty() || digits.size() > 8 ||
-      !std::all_of(digits.begin(), digits.end(), [](unsigned char c) { return std::isdigit(c); }))
+  if (digits.empty() || !std::all_of(digits.begin(), digits.end(), [](unsigned char c) { return std::isdigit(c); }))
     throw std::invalid_argument(fmt::format("--frames: '{}' is not a frame, a range A-B or A-BxSTEP", part));
-  const unsigned long v = std::stoul(digits);
+  const size_t first = std::min(digits.find_first_not_of('0'), digits.size() - 1);  // leading zeros dropped
+  if (digits.size() - first > 9)
+    throw std::invalid_argument(
+        fmt::format("--frames: '{}': the number {} is too large (at most {})", part, digits, kMaxFrame));
+  const unsigned long v = std::stoul(digits.substr(first));
   if (v > kMaxFrame) throw std::invalid_argument(fmt::format("--frames: frame {} is over {}", v, kMaxFrame));
   return uint32_t(v);
 }

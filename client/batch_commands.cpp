@@ -14,6 +14,7 @@
 
 #include "client/batch.h"
 #include "client/exit_codes.h"
+#include "client/render_flags.h"
 
 namespace epr {
 namespace {
@@ -73,6 +74,8 @@ std::vector<size_t> spread_frames(Farm& farm, const FrameBatch& batch) {
 int submit_frames(Farm& farm, const RenderOptions& opts, const SubmitOptions& submit, const std::string& frames,
                   bool wait, const std::string& out_prefix) {
   const FrameBatch batch = plan_batch(opts, submit, parse_frame_list(frames));
+  if (wait)  // the frames are fetched into out_prefix
+    if (auto err = output_replaces_input(out_prefix, batch.bundle.sources)) throw OutputError("--out " + *err);
   const std::vector<size_t> where = spread_frames(farm, batch);
   print_failed(farm, "submit", "no frame goes to it");
   // Each master's frames in frame order, its scene uploaded once before them.
@@ -234,6 +237,44 @@ int print_batch_json(Farm& farm, const std::string& batch_id) {
   }
   std::printf("%s]\n", out.c_str());
   return kExitOk;
+}
+
+int cancel_batch(Farm& farm, const std::string& batch_id) {
+  // Every master's frames of the batch, then each running or queued one cancelled on its master.
+  std::vector<std::vector<v1::JobStatus>> per(farm.masters().size());
+  std::vector<size_t> cancelled(per.size(), 0), ended(per.size(), 0);
+  farm.for_each([&](FarmMaster& m) {
+    m.error.reset();
+    const size_t i = size_t(&m - farm.masters().data());
+    per[i] = list_batch(*m.client, batch_id);
+    for (const v1::JobStatus& s : per[i]) {
+      if (is_terminal(s.state())) {
+        ++ended[i];
+        continue;
+      }
+      const v1::JobState after = m.client->cancel(s.id()).state();
+      ++(after == v1::JOB_STATE_CANCELLED ? cancelled[i] : ended[i]);
+    }
+  });
+  if (!farm.several() && farm.masters()[0].error) throw *farm.masters()[0].error;
+  print_failed(farm, "cancel", "its frames of the batch may still run");
+  size_t total_cancelled = 0, total_ended = 0, frames = 0;
+  for (size_t i = 0; i < per.size(); ++i) {
+    total_cancelled += cancelled[i];
+    total_ended += ended[i];
+    frames += per[i].size();
+  }
+  if (frames == 0 && farm.failed().empty())
+    throw RpcError(grpc::Status(grpc::StatusCode::NOT_FOUND, "unknown batch"),
+                   fmt::format("no master knows job or batch {}", batch_id));
+  std::printf("%s CANCELLED\n", batch_id.c_str());
+  std::fprintf(stderr, "batch %s: %zu job(s) cancelled, %zu had already ended\n", batch_id.c_str(), total_cancelled,
+               total_ended);
+  const auto failed = farm.failed();
+  if (failed.empty()) return kExitOk;
+  return std::any_of(failed.begin(), failed.end(), [](const FarmMaster* m) { return m->error->unreachable(); })
+             ? kExitUnreachable
+             : kExitRefused;
 }
 
 }  // namespace epr

@@ -42,6 +42,11 @@ struct BatchFollowOptions {
 /// is RpcError NOT_FOUND.
 int follow_batch(Farm& farm, const std::string& batch_id, const BatchFollowOptions& options);
 
+/// Cancels every job of the batch still queued or running, on every master that holds some (`epr
+/// cancel BATCH`); prints "BATCH CANCELLED" on stdout and the counts on stderr. An unknown batch is
+/// RpcError NOT_FOUND; kExitUnreachable when a master did not answer (its frames may still run).
+int cancel_batch(Farm& farm, const std::string& batch_id);
+
 /// Prints the batch's jobs' statuses as a JSON array on stdout (`epr get BATCH --json`).
 int print_batch_json(Farm& farm, const std::string& batch_id);
 

@@ -13,6 +13,7 @@
 #include <regex>
 #include <thread>
 
+#include "client/render_flags.h"
 #include "common/log.h"
 #include "common/result_kinds.h"
 #include "master/server/master_server.h"
@@ -115,6 +116,8 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
   // The scene first: a file that cannot be read or a scene without light is refused before a master
   // and workers start.
   SceneBundleData bundle = bundle_scene(opts.scene, opts.lighting, opts.env_folder);
+  if (!opts.out.empty())
+    if (auto err = output_replaces_input(opts.out, bundle.sources)) throw OutputError("--out " + *err);
   logger("client")->info("scene bundled: {:.2f} s", since_start());
   // The state folder: the caller's (locked: one master per folder), else a private one that goes
   // with this function (declared first: removed after the master is gone).

@@ -6,7 +6,9 @@
 
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -18,6 +20,7 @@
 #include "client/local_render.h"
 #include "client/remote_commands.h"
 #include "client/render_flags.h"
+#include "common/address.h"
 #include "common/log.h"
 #include "common/tile.h"
 #include "master/memory_estimate.h"
@@ -74,13 +77,15 @@ std::optional<std::string> prepare_output_folder(const std::string& prefix) {
     if (ec) return fmt::format("cannot create the output folder '{}': {}", dir.string(), ec.message());
   }
   const fs::path probe = (dir.empty() ? fs::path(".") : dir) / fmt::format(".epr-write-check-{}", ::getpid());
+  errno = 0;
   bool ok = false;
   {
     std::ofstream f(probe);
     ok = bool(f);
   }
+  const std::string why = errno ? std::strerror(errno) : "cannot create a file";
   fs::remove(probe, ec);
-  if (!ok) return fmt::format("cannot write into the output folder '{}'", dir.empty() ? "." : dir.string());
+  if (!ok) return fmt::format("cannot write into the output folder '{}': {}", dir.empty() ? "." : dir.string(), why);
   return std::nullopt;
 }
 
@@ -194,6 +199,9 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
                  static_cast<unsigned long long>(r.status.paths_skipped()));
     if (auto w = nonfinite_warning(r.status.non_finite_dropped(), r.status.paths_traced()))
       std::fprintf(stderr, "epr render: warning: %s\n", w->c_str());
+  } catch (const OutputError& e) {  // refused before anything was rendered or written
+    std::fprintf(stderr, "epr render: %s\n", e.what());
+    return 2;
   } catch (const std::exception& e) {
     if (tty) std::fprintf(stderr, "\n");
     std::fprintf(stderr, "epr render: %s\n", e.what());
@@ -232,6 +240,11 @@ int main(int argc, char** argv) {
   render
       ->add_option("--http", render_http,
                    "the embedded master's dashboard address HOST:PORT (port 0: a free one; \"\" disables it)")
+      ->check([](const std::string& v) -> std::string {
+        std::string why;
+        return v.empty() || parse_address(v, {.port_zero = true, .empty_host = true}, &why) ? ""
+                                                                                            : "'" + v + "': " + why;
+      })
       ->capture_default_str();
   std::string render_memory_budget;
   render

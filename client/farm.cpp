@@ -51,6 +51,28 @@ void Farm::probe() {
     m.error.reset();
   }
   for_each([](FarmMaster& m) { m.info = m.client->master_info(); });
+  // One master under two addresses answers with one instance: it is used once (the first address).
+  // Two masters with one name answer with two: their job ids cannot tell them apart.
+  for (size_t i = 0; i < masters_.size(); ++i) {
+    const FarmMaster& a = masters_[i];
+    if (!a.info || a.info->instance().empty()) continue;
+    for (size_t j = i + 1; j < masters_.size();) {
+      const FarmMaster& b = masters_[j];
+      if (b.info && b.info->instance() == a.info->instance()) {
+        std::fprintf(stderr, "epr: %s and %s are the same master%s; using it once\n", a.endpoint.name.c_str(),
+                     b.endpoint.name.c_str(), a.info->name().empty() ? "" : (" (" + a.info->name() + ")").c_str());
+        masters_.erase(masters_.begin() + std::ptrdiff_t(j));
+        continue;
+      }
+      if (b.info && !a.info->name().empty() && b.info->name() == a.info->name() &&
+          warned_clashes_.insert(a.info->name()).second)
+        std::fprintf(stderr,
+                     "epr: %s and %s are two masters with the same name '%s': their job ids look alike (a job is "
+                     "looked for on both); give each master its own --name\n",
+                     a.endpoint.name.c_str(), b.endpoint.name.c_str(), a.info->name().c_str());
+      ++j;
+    }
+  }
 }
 
 std::vector<const FarmMaster*> Farm::failed() const {
@@ -79,9 +101,16 @@ FarmMaster& Farm::locate(const std::string& job_id) {
   if (!several()) return masters_[0];
   probe();
   const std::string name = job_id_master(job_id);
-  if (!name.empty())
+  if (!name.empty()) {  // the master of that name, unless several answer to it (then asked below)
+    FarmMaster* named = nullptr;
+    size_t count = 0;
     for (FarmMaster& m : masters_)
-      if (m.info && m.info->name() == name) return m;
+      if (m.info && m.info->name() == name) {
+        named = &m;
+        ++count;
+      }
+    if (count == 1) return *named;
+  }
   // No master answers to the id's name (it has none, or its master is down or renamed): ask them all.
   std::vector<bool> has(masters_.size(), false);
   for_each([&](FarmMaster& m) {

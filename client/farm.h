@@ -12,6 +12,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -52,7 +53,9 @@ class Farm {
   /// Runs fn for every master at once (a thread each) and waits for them all. What fn throws is kept
   /// in the master's `error` (an RpcError; UNKNOWN for other exceptions). Callers clear `error` first.
   void for_each(const std::function<void(FarmMaster&)>& fn);
-  /// GetMasterInfo of every master (for_each); `info` is set for those that answered.
+  /// GetMasterInfo of every master (for_each); `info` is set for those that answered. A master
+  /// reached under two addresses (one MasterInfo.instance) is kept once, with a note on stderr; two
+  /// masters sharing a name get a note too (locate() then asks both).
   void probe();
   /// The masters the last for_each could not use, e.g. for "master X is down" notes.
   std::vector<const FarmMaster*> failed() const;
@@ -71,6 +74,7 @@ class Farm {
 
  private:
   std::vector<FarmMaster> masters_;
+  std::set<std::string> warned_clashes_;  // master names already said to be shared by two masters
 };
 
 /// For each master the last call could not use: "epr CMD: master LABEL did not answer (ERROR); WHAT"

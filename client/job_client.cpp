@@ -5,7 +5,9 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -471,26 +473,34 @@ FetchedFile JobClient::fetch_to(const std::string& job_id, v1::ResultKind kind,
   std::string tmp;
   std::ofstream out;
   Sha256 sha;
+  // "cannot write TMP: REASON", the system's reason of the failed call (errno, cleared before it).
+  auto cannot_write = [&](std::error_code ec = {}) {
+    const std::string why = ec ? ec.message() : errno ? std::strerror(errno) : "write failed";
+    return std::runtime_error(fmt::format("cannot write {}: {}", tmp, why));
+  };
   auto take = [&](const v1::ResultChunk& chunk) -> std::optional<std::string> {
     if (!header) {
       if (!chunk.has_header()) return "the first message is not the header";
       header = chunk.header();
       received.emplace(header->total_bytes());
       file = {kind, path_for(*header), header->total_bytes(), header->round(), header->partial()};
+      tmp = fmt::format("{}.part-{}-{}", file.path, ::getpid(), counter++);
       if (const auto dir = fs::path(file.path).parent_path(); !dir.empty()) {
         std::error_code ec;
-        fs::create_directories(dir, ec);  // a failure shows as "cannot write" below
+        fs::create_directories(dir, ec);
+        if (ec) throw cannot_write(ec);
       }
-      tmp = fmt::format("{}.part-{}-{}", file.path, ::getpid(), counter++);
+      errno = 0;
       out.open(tmp, std::ios::binary | std::ios::trunc);
-      if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
+      if (!out) throw cannot_write();
       return std::nullopt;
     }
     if (!chunk.has_data()) return "a second header";
     const auto& d = chunk.data();
     if (auto err = received->add(d.offset(), d.data().size())) return err;
+    errno = 0;
     out.write(d.data().data(), std::streamsize(d.data().size()));
-    if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
+    if (!out) throw cannot_write();
     sha.update(d.data());
     return std::nullopt;
   };
@@ -504,8 +514,9 @@ FetchedFile JobClient::fetch_to(const std::string& job_id, v1::ResultKind kind,
     if (end.error) throw bad_stream(*end.error);
     if (!end.status.ok()) fail(end.status, call);
     if (!header) throw bad_stream("no header");
+    errno = 0;
     out.close();
-    if (!out) throw std::runtime_error(fmt::format("cannot write {}", tmp));
+    if (!out) throw cannot_write();
     if (!received->complete())
       throw bad_stream(fmt::format("{} bytes received, {} announced", received->received(), header->total_bytes()));
     if (const std::string got = sha.hex(); got != lower(header->sha256()))

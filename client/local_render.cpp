@@ -6,10 +6,12 @@
 
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <memory>
 #include <stdexcept>
 
+#include "client/render_flags.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
 #include "common/vertex_codec.h"
@@ -49,8 +51,14 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   if (opts.threads > 0)
     threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(opts.threads));
 
+  LoadReport report;
   const Scene scene =
-      load_job_scene(opts.scene, {}, nullptr, opts.lighting, opts.env_folder);  // warnings once; unlit refused
+      load_job_scene(opts.scene, {}, &report, opts.lighting, opts.env_folder);  // warnings once; unlit refused
+  if (!opts.out.empty()) {
+    std::vector<std::filesystem::path> inputs;
+    for (const FileRef& f : report.files) inputs.push_back(f.real);
+    if (auto err = output_replaces_input(opts.out, inputs)) throw OutputError("--out " + *err);
+  }
   const Camera camera(opts.camera_for(scene.camera), opts.width, opts.height);
   const double t_load = since(t_start);
   const auto t_bvh = std::chrono::steady_clock::now();

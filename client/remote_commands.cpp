@@ -93,11 +93,15 @@ JobClientOptions client_options(const ConnectionFlags& f) {
 
 // The masters of --master: one, a list, or names resolving to several (client/farm.h).
 std::unique_ptr<Farm> make_farm(const ConnectionFlags& f) {
+  std::unique_ptr<Farm> farm;
   try {
-    return std::make_unique<Farm>(f.master, client_options(f));
+    farm = std::make_unique<Farm>(f.master, client_options(f));
   } catch (const std::invalid_argument& e) {
     throw UsageError(e.what());
   }
+  // Asked once first: a master given under two addresses is used once by every command.
+  if (farm->several()) farm->probe();
+  return farm;
 }
 
 // The client of the master a command goes to: for a submission (no job_id) the least loaded one,
@@ -244,6 +248,7 @@ struct RemoteCommands::State {
   std::optional<double> time_budget;
   bool wait = false;
   std::string frames;  // --frames: a batch (client/batch_commands.h)
+  CLI::Option* frames_flag = nullptr;
   // watch / get / cancel
   CLI::App* watch = nullptr;
   CLI::App* get = nullptr;
@@ -252,8 +257,9 @@ struct RemoteCommands::State {
   std::string watch_job, get_job, cancel_job;
   std::string get_out;
   bool get_partial = false, get_json = false;
-  bool watch_batch = false, get_batch = false, get_no_wait = false;
+  bool watch_batch = false, get_batch = false, get_no_wait = false, cancel_batch = false;
   std::string list_batch;
+  CLI::Option* list_batch_flag = nullptr;
   // list
   CLI::App* list = nullptr;
   ConnectionFlags list_conn;
@@ -278,9 +284,10 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
       ->add_option("--time-budget", s.time_budget, "wall-clock budget in seconds: the job ends DONE when it runs out")
       ->check(CLI::PositiveNumber);
   s.submit->add_flag("--wait", s.wait, "follow the job with a progress line and fetch its results to --out at the end");
-  s.submit->add_option("--frames", s.frames,
-                       "submit a batch of frames of the scene's camera animation: 1-240, 1-240x2 (step), 1,5,9; "
-                       "prints the batch id (results: --out PREFIX gives PREFIX.0001.exr, ...)");
+  s.frames_flag =
+      s.submit->add_option("--frames", s.frames,
+                           "submit a batch of frames of the scene's camera animation: 1-240, 1-240x2 (step), 1,5,9; "
+                           "prints the batch id (results: --out PREFIX gives PREFIX.0001.exr, ...)");
   add_connection_flags(s.submit, s.submit_conn, /*whole_job=*/true);
 
   s.watch = app.add_subcommand("watch", "follow a job's progress until it ends (exit 0 DONE, 1 FAILED/CANCELLED)");
@@ -302,11 +309,13 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
   s.list->add_option("--state", s.list_states, "only jobs in this state (repeatable)")
       ->check(CLI::IsMember({"queued", "running", "done", "failed", "cancelled"}, CLI::ignore_case));
   s.list->add_option("--limit", s.list_limit, "at most this many jobs (0: all)")->capture_default_str();
-  s.list->add_option("--batch", s.list_batch, "only the jobs of this batch");
+  s.list_batch_flag = s.list->add_option("--batch", s.list_batch, "only the jobs of this batch");
   add_connection_flags(s.list, s.list_conn);
 
   s.cancel = app.add_subcommand("cancel", "stop a job; the results of its last committed round stay fetchable");
-  s.cancel->add_option("job", s.cancel_job, "job id")->required();
+  s.cancel->add_option("job", s.cancel_job, "job id, or batch id (every job of the batch, on every master)")
+      ->required();
+  s.cancel->add_flag("--batch", s.cancel_batch, "the id is a batch's");
   add_connection_flags(s.cancel, s.cancel_conn);
 }
 
@@ -327,9 +336,13 @@ int RemoteCommands::State::run_submit() {
   if (auto err = render.validate()) throw UsageError(*err);
   submit_opts.time_budget_seconds = time_budget;
   auto farm = make_farm(submit_conn);
-  if (!frames.empty()) return submit_frames(*farm, render, submit_opts, frames, wait, render.out);
+  // --frames '' is an empty frame list (parse_frame_list refuses it), not a plain job.
+  if (frames_flag->count()) return submit_frames(*farm, render, submit_opts, frames, wait, render.out);
+  SceneBundleData bundle = bundle_scene(render.scene, render.lighting, render.env_folder);
+  if (wait)  // the results are fetched into render.out
+    if (auto err = output_replaces_input(render.out, bundle.sources)) throw OutputError("--out " + *err);
   auto client = take_client(*farm);
-  const std::string id = client->submit(render, submit_opts);
+  const std::string id = client->submit(client->make_job_spec(render, std::move(bundle), submit_opts));
   std::printf("%s\n", id.c_str());  // alone on its line, for scripts: ID=$(epr submit ...)
   std::fflush(stdout);
   if (!wait) {
@@ -383,6 +396,7 @@ int RemoteCommands::State::run_get() {
     return kExitJobFailed;
   }
   const std::string prefix = get_out.empty() ? get_job : output_prefix(get_out);
+  if (auto err = output_replaces_input(prefix, {})) throw OutputError("--out " + *err);
   const auto files = client->fetch_all(get_job, prefix, get_partial);
   const bool partial = std::any_of(files.begin(), files.end(), [](const FetchedFile& f) { return f.partial; });
   std::fprintf(stderr, "wrote %s (round %d%s)\n", join_paths(files).c_str(), files.empty() ? 0 : int(files[0].round),
@@ -403,6 +417,8 @@ int RemoteCommands::State::run_list() {
   }
   // Every master's jobs in one table (a MASTER column when there are several); a master that does
   // not answer is named on stderr and the exit code says the list is partial.
+  if (list_batch_flag->count() && !valid_batch_id(list_batch))  // '' would list every job
+    throw UsageError(fmt::format("--batch '{}': a batch id is 1 to 64 of A-Z a-z 0-9 _ -", list_batch));
   auto farm = make_farm(list_conn);
   const std::vector<FarmJob> jobs = farm->list(states, list_limit, list_batch);
   print_failed(*farm, "list", "its jobs are not listed");
@@ -435,6 +451,7 @@ int RemoteCommands::State::run_list() {
 
 int RemoteCommands::State::run_cancel() {
   auto farm = make_farm(cancel_conn);
+  if (cancel_batch || is_batch(*farm, cancel_job)) return epr::cancel_batch(*farm, cancel_job);
   auto client = take_client(*farm, cancel_job);
   const v1::JobStatus before_or_after = client->cancel(cancel_job);
   std::printf("%s %s\n", cancel_job.c_str(), state_name(before_or_after.state()).c_str());

@@ -6,7 +6,11 @@
 #include <cctype>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
 #include <string_view>
+
+#include "common/result_kinds.h"
 
 namespace epr {
 namespace {
@@ -139,6 +143,39 @@ std::optional<std::string> output_prefix_error(const std::string& prefix) {
   std::error_code ec;
   if (std::filesystem::is_directory(prefix, ec))
     return fmt::format("'{}' is a folder; give a file prefix inside it such as '{}/render'", prefix, prefix);
+  return std::nullopt;
+}
+
+std::optional<std::string> output_replaces_input(const std::string& prefix,
+                                                 const std::vector<std::filesystem::path>& inputs) {
+  namespace fs = std::filesystem;
+  const fs::path out(prefix);
+  const std::string stem = out.filename().string();
+  const fs::path out_dir = out.parent_path().empty() ? fs::path(".") : out.parent_path();
+  for (const fs::path& in : inputs) {
+    const std::string name = in.filename().string();
+    if (name.rfind(stem, 0) != 0) continue;
+    // What follows the prefix: a result suffix, or ".NNNN" (a batch frame) and one.
+    std::string_view rest = std::string_view(name).substr(stem.size());
+    if (rest.size() > 1 && rest[0] == '.' && std::isdigit(static_cast<unsigned char>(rest[1]))) {
+      size_t d = 1;
+      while (d < rest.size() && std::isdigit(static_cast<unsigned char>(rest[d]))) ++d;
+      rest = rest.substr(d);
+    }
+    const auto kinds = result_kinds();
+    if (std::none_of(kinds.begin(), kinds.end(), [&](const ResultKindInfo& k) { return k.suffix == rest; })) continue;
+    std::error_code ec;
+    if (fs::equivalent(out_dir, in.parent_path(), ec))
+      return fmt::format("'{}' would replace {}, which the scene reads; give another output prefix", prefix,
+                         in.string());
+  }
+  // Nor a scene JSON beside the scene (garden.json next to the garden.gltf being rendered).
+  const fs::path stats = prefix + std::string(result_kind(ResultKind::kJson).suffix);
+  if (std::ifstream f(stats); f) {
+    const nlohmann::json j = nlohmann::json::parse(f, nullptr, /*allow_exceptions=*/false, /*ignore_comments=*/true);
+    if (j.is_object() && (j.contains("obj") || j.contains("builtin")))
+      return fmt::format("'{}' would replace {}, a scene file; give another output prefix", prefix, stats.string());
+  }
   return std::nullopt;
 }
 

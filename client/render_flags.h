@@ -3,9 +3,12 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <filesystem>
 #include <map>
 #include <optional>
+#include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "common/render_options.h"
 
@@ -23,6 +26,19 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
 /// ends in '/', ends in "." or "..", or names a folder, so the files would be hidden or land
 /// elsewhere. nullopt when it is usable.
 std::optional<std::string> output_prefix_error(const std::string& prefix);
+
+/// An output prefix that cannot be used (output_replaces_input): a usage error, nothing was written.
+class OutputError : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+/// Why the outputs of `prefix` (PREFIX.exr, PREFIX.json, ... and a batch's PREFIX.0001.exr, ...)
+/// would replace one of `inputs`, the files a scene reads (SceneBundleData::sources, LoadReport), or
+/// a scene JSON (PREFIX.json holding "obj" or "builtin"); nullopt when they would not. Files are
+/// compared by identity (the same folder and name), not by how they are written.
+std::optional<std::string> output_replaces_input(const std::string& prefix,
+                                                 const std::vector<std::filesystem::path>& inputs);
 
 /// The output prefix for what a user typed: "frame.exr" or "frame.png" (any case) means the prefix
 /// "frame", so that the image is frame.exr and not frame.exr.exr; anything else is the prefix itself.

@@ -8,6 +8,7 @@
 #include <string>
 #include <thread>
 
+#include "common/address.h"
 #include "common/log.h"
 #include "master/memory_estimate.h"
 #include "master/server/master_name.h"
@@ -136,6 +137,15 @@ int main(int argc, char** argv) {
                                : memory_budget == "0" ? 0
                                                       : *epr::parse_byte_size(memory_budget);
 
+  // Addresses by the rules every program follows (common/address.h): a port outside 0-65535 is an
+  // error, never taken modulo 65536 by gRPC. A unix: socket is gRPC's own.
+  try {
+    if (o.listen.rfind("unix:", 0) != 0) epr::require_address("--listen", o.listen, {.port_zero = true});
+    if (!o.http_listen.empty()) epr::require_address("--http", o.http_listen, {.port_zero = true, .empty_host = true});
+  } catch (const std::invalid_argument& e) {
+    std::fprintf(stderr, "epr-master: %s\n", e.what());
+    return 2;
+  }
   if ((o.tls_cert_file.empty()) != (o.tls_key_file.empty())) {
     std::fprintf(stderr, "epr-master: --tls-cert and --tls-key go together\n");
     return 2;

@@ -60,6 +60,7 @@ SceneBundleData bundle_builtin_with_image(const std::string& spec, const Lightin
   b.entry_path = name == "builtin.json" ? "builtin-scene.json" : "builtin.json";
   b.files.emplace_back(b.entry_path, nlohmann::json{{"builtin", spec.substr(8)}}.dump() + "\n");
   b.files.emplace_back(name, read_scene_file(image, opts.max_file_bytes));
+  b.sources.push_back(image.real);
   std::sort(b.files.begin(), b.files.end());
   return b;
 }
@@ -85,6 +86,7 @@ SceneBundleData bundle_scene(const std::string& spec, const Lighting& job, const
     if (!is_safe_relative_path(rel))
       throw SceneError(fmt::format("{}: '{}' lies outside the scene folder {}", spec, f.display, root.string()));
     b.files.emplace_back(rel, read_scene_file(f, opts.max_file_bytes));
+    b.sources.push_back(f.real);
   }
   b.entry_path = report.files.front().real.filename().string();
   std::sort(b.files.begin(), b.files.end());

@@ -4,6 +4,7 @@
 // scene.proto gives the canonical serialisation) is the cache key on master and workers.
 #pragma once
 
+#include <filesystem>
 #include <string>
 #include <utility>
 #include <vector>
@@ -17,6 +18,9 @@ struct SceneBundleData {
   std::string builtin;     // "builtin:NAME?..." for generated scenes; then files is empty
   std::string entry_path;  // relative path of the file the loader starts from
   std::vector<std::pair<std::string, std::string>> files;  // (relative path, bytes)
+  // The files the scene's load read on this machine (canonical paths), for the client's checks
+  // (an output prefix must not replace one); not part of the bundle's content.
+  std::vector<std::filesystem::path> sources;
 
   size_t total_bytes() const;
 };

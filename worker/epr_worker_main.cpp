@@ -12,9 +12,11 @@
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
+#include <stdexcept>
 #include <thread>
 
 #include "common/log.h"
+#include "wire/rpc/master_list.h"
 #include "worker/worker_node.h"
 
 int main(int argc, char** argv) {
@@ -54,6 +56,12 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
+  try {  // the addresses, by the rules every program follows (common/address.h)
+    epr::parse_master_list(opts.master);
+  } catch (const std::invalid_argument& e) {
+    std::fprintf(stderr, "epr-worker: %s\n", e.what());
+    return 2;
+  }
   opts.cache_max_bytes = cache_max_mb << 20;
   epr::set_log_level(log_level);
   auto log = epr::logger("worker");

@@ -21,9 +21,10 @@ struct MasterPool::Link {
   explicit Link(MasterEndpoint e) : endpoint(std::move(e)) { status.name = endpoint.name; }
 
   const MasterEndpoint endpoint;
-  std::atomic<bool> removed{false};   // gone from the resolution: leave the master
-  std::atomic<bool> shutdown{false};  // the master answered a lease with Shutdown: end this session
-  std::atomic<bool> refused{false};   // for good
+  std::atomic<bool> removed{false};    // gone from the resolution: leave the master
+  std::atomic<bool> shutdown{false};   // the master answered a lease with Shutdown: end this session
+  std::atomic<bool> refused{false};    // for good
+  std::atomic<bool> duplicate{false};  // the same master as another link's (MasterInfo.instance): ended
   Mutex mu;
   std::condition_variable_any idle;                           // users dropped
   std::shared_ptr<MasterSession> session EPR_GUARDED_BY(mu);  // from before Register until its farewell
@@ -228,7 +229,7 @@ std::optional<std::string> MasterPool::all_refused() const {
   if (links_.empty()) return std::nullopt;
   std::string reasons;
   for (const auto& l : links_) {
-    if (!l->refused) return std::nullopt;
+    if (!l->refused && !l->duplicate) return std::nullopt;
     MutexLock link_lock(l->mu);
     reasons += (reasons.empty() ? "" : "; ") + l->status.detail;
   }
@@ -322,7 +323,23 @@ void MasterPool::link_loop(const std::shared_ptr<Link>& link) {
       signal_.wait_for(delay, [&] { return link->removed.load(); });
       continue;
     }
-    if (run_session(*link, s)) break;
+    if (const std::string other = claim(*link, s->master_instance()); !other.empty()) {
+      // One master under two addresses: it is served once, on the link that registered first.
+      const std::string reason = fmt::format("the same master as {}; served once", other);
+      log_->warn("master {}: {}", e.name, reason);
+      s->farewell(reason);
+      {
+        MutexLock lock(link->mu);
+        link->session.reset();
+      }
+      set_state(*link, MasterState::kLeaving, reason);
+      link->duplicate = true;
+      changed();
+      break;
+    }
+    const bool ended = run_session(*link, s);
+    release(*link, s->master_instance());
+    if (ended) break;
     const bool shutdown = link->shutdown.exchange(false);
     if (s->healthy() && !shutdown) backoff.reset();
     ++counters_.reconnects;
@@ -337,6 +354,22 @@ void MasterPool::link_loop(const std::shared_ptr<Link>& link) {
     if (link->status.state != MasterState::kRefused) link->status.state = MasterState::kLeaving;
   }
   changed();
+}
+
+std::string MasterPool::claim(const Link& link, const std::string& instance) {
+  if (instance.empty()) return "";
+  MutexLock lock(mu_);
+  const auto [it, added] = instances_.emplace(instance, link.endpoint.target);
+  if (added || it->second == link.endpoint.target) return "";
+  for (const auto& l : links_)
+    if (l->endpoint.target == it->second) return l->endpoint.name;
+  return it->second;
+}
+
+void MasterPool::release(const Link& link, const std::string& instance) {
+  MutexLock lock(mu_);
+  if (auto it = instances_.find(instance); it != instances_.end() && it->second == link.endpoint.target)
+    instances_.erase(it);
 }
 
 // Runs one registered session until it ends and nothing uses it any more; then says farewell (a

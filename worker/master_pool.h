@@ -94,6 +94,10 @@ class MasterPool {
   void changed();  // bumps the generation and wakes the waits
   void resolve_soon();
   std::optional<std::string> all_refused() const EPR_EXCLUDES(mu_);
+  /// Takes MasterInfo.instance for `link` while its session runs; "" when it is the link's (or
+  /// unknown), else the name of the link that serves that master already.
+  std::string claim(const Link& link, const std::string& instance) EPR_EXCLUDES(mu_);
+  void release(const Link& link, const std::string& instance) EPR_EXCLUDES(mu_);
 
   const Options opts_;
   StopSignal& signal_;
@@ -105,8 +109,9 @@ class MasterPool {
   std::atomic<bool> resolve_requested_{false};
 
   mutable Mutex mu_;
-  std::vector<std::shared_ptr<Link>> links_ EPR_GUARDED_BY(mu_);    // current endpoints, in list order
-  std::vector<std::shared_ptr<Link>> retired_ EPR_GUARDED_BY(mu_);  // gone from the resolution, being left
+  std::vector<std::shared_ptr<Link>> links_ EPR_GUARDED_BY(mu_);      // current endpoints, in list order
+  std::vector<std::shared_ptr<Link>> retired_ EPR_GUARDED_BY(mu_);    // gone from the resolution, being left
+  std::map<std::string, std::string> instances_ EPR_GUARDED_BY(mu_);  // master instance -> serving link's target
 };
 
 }  // namespace epr

@@ -195,6 +195,15 @@ grpc::Status MasterSession::register_worker() {
   if (resp.max_vertices_per_chunk()) limits_.max_vertices_per_chunk = resp.max_vertices_per_chunk();
   if (resp.max_chunk_bytes()) limits_.max_chunk_bytes = resp.max_chunk_bytes();
   registered_ = true;
+  // Which master this is, whatever the address (a master under two addresses is served once).
+  grpc::ClientContext info_ctx;
+  prepare(info_ctx, kRegisterDeadline);
+  v1::MasterInfo master;
+  {
+    CallScope scope(*this, info_ctx, /*cancel_on_stop=*/true);
+    if (v1::JobService::NewStub(channel_)->GetMasterInfo(&info_ctx, v1::MasterInfoRequest{}, &master).ok())
+      master_instance_ = master.instance();
+  }
   return grpc::Status::OK;
 }
 
@@ -354,7 +363,7 @@ void MasterSession::salvage() {
     send_return(ids, "worker lost its session", v1::LEASE_FAILURE_UNSPECIFIED, kLostReturnDeadline, /*tracked=*/false);
 }
 
-std::string MasterSession::fetch_scene(const v1::SceneRef& ref) {
+std::string MasterSession::fetch_scene(const v1::SceneRef& ref, const std::string& cache_root) {
   log_->info("fetching scene {} ({} bytes) from the master", ref.content_hash(), ref.total_bytes());
   v1::FetchSceneRequest req;
   req.mutable_worker_id()->set_id(worker_id_);
@@ -362,15 +371,21 @@ std::string MasterSession::fetch_scene(const v1::SceneRef& ref) {
   grpc::ClientContext ctx;
   prepare(ctx, size_deadline(kFetchDeadlineBase, double(ref.total_bytes())));
   CallScope scope(*this, ctx, /*cancel_on_stop=*/true);
-  SceneReceiver rx(config_.cache_dir, ref.content_hash());
+  SceneReceiver rx(cache_root.empty() ? config_.cache_dir : cache_root, ref.content_hash());
   auto reader = stub_->FetchScene(&ctx, req);
   const rpc::StreamEnd end =
       rpc::read_stream<v1::SceneChunk>(ctx, *reader, [&](const v1::SceneChunk& chunk) { return rx.add(chunk); });
+  if (end.error && rx.disk_failure())
+    throw CacheWriteError(fmt::format("FetchScene {}: {}", ref.content_hash(), *end.error));
   if (end.error) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), *end.error));
   if (!end.status.ok())
     throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), rpc::describe(end.status)));
   std::string entry;
-  if (auto e = rx.finish(&entry)) throw std::runtime_error(fmt::format("FetchScene {}: {}", ref.content_hash(), *e));
+  if (auto e = rx.finish(&entry)) {
+    const std::string what = fmt::format("FetchScene {}: {}", ref.content_hash(), *e);
+    if (rx.disk_failure()) throw CacheWriteError(what);
+    throw std::runtime_error(what);
+  }
   ++counters_.scenes_fetched;
   counters_.scene_bytes_fetched += rx.bytes_received();
   return entry;

@@ -25,6 +25,7 @@
 
 #include "common/check.h"
 #include "common/math.h"
+#include "epr/v1/job_service.grpc.pb.h"
 #include "epr/v1/worker_service.grpc.pb.h"
 #include "wire/rpc/channel.h"
 #include "wire/tile_result_stream.h"
@@ -101,6 +102,9 @@ class MasterSession {
   /// whether registering again may help).
   grpc::Status register_worker();
   const std::string& worker_id() const { return worker_id_; }
+  /// MasterInfo.instance of the master registered with (asked right after Register): the same for
+  /// one master under two addresses. Empty when the master did not tell.
+  const std::string& master_instance() const { return master_instance_; }
   bool registered() const { return registered_; }
   uint32_t heartbeat_ms() const { return heartbeat_ms_; }
 
@@ -135,7 +139,8 @@ class MasterSession {
   /// leasing it the job's tiles after a few) and drops their holds. A failed call loses the session.
   bool return_leases(const std::vector<uint64_t>& ids, const std::string& reason, v1::LeaseFailure failure);
   /// Fetches a file scene into the cache; returns its entry file. Throws std::runtime_error.
-  std::string fetch_scene(const v1::SceneRef& ref);
+  /// Into `cache_root` (empty: Config::cache_dir). A failure to write there throws CacheWriteError.
+  std::string fetch_scene(const v1::SceneRef& ref, const std::string& cache_root = "");
   /// After a stop: gives back the leases still held, with `reason`, and unregisters.
   void farewell(const std::string& reason);
   /// After the session was lost: tries to give back the leases still held (the master may be there).
@@ -164,6 +169,7 @@ class MasterSession {
 
   // Set by register_worker, before any other call.
   std::string worker_id_;
+  std::string master_instance_;
   uint32_t heartbeat_ms_ = 1000;
   TileResultLimits limits_;
 

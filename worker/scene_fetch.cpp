@@ -1,5 +1,6 @@
 #include "worker/scene_fetch.h"
 
+#include <fcntl.h>
 #include <fmt/format.h>
 #include <unistd.h>
 
@@ -11,6 +12,7 @@
 #include <random>
 #include <set>
 #include <stdexcept>
+#include <utility>
 
 #include "wire/scene_bundle.h"
 #include "wire/sha256.h"
@@ -32,19 +34,42 @@ std::optional<std::string> read_small_file(const fs::path& p) {
   return s;
 }
 
+// All of `size` bytes to `fd`; false with errno set when the disk refuses them.
+bool write_all(int fd, const char* data, size_t size) {
+  while (size > 0) {
+    const ssize_t n = ::write(fd, data, size);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    data += n;
+    size -= size_t(n);
+  }
+  return true;
+}
+
 // Writes `data` to `path` through a temporary file and a rename (readers never see half of it).
-bool write_atomically(const fs::path& path, const std::string& data) {
+// The reason (with the system's error) when it cannot.
+std::optional<std::string> write_atomically(const fs::path& path, const std::string& data) {
   std::random_device rd;
   const fs::path tmp = path.string() + fmt::format(".tmp-{}-{:08x}", ::getpid(), rd());
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    out << data;
-    if (!out) return false;
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return fmt::format("cannot create {}: {}", tmp.string(), std::strerror(errno));
+  bool ok = write_all(fd, data.data(), data.size());
+  int err = ok ? 0 : errno;
+  if (::close(fd) != 0 && ok) {
+    ok = false;
+    err = errno;
   }
   std::error_code ec;
+  if (!ok) {
+    fs::remove(tmp, ec);
+    return fmt::format("cannot write {}: {}", tmp.string(), std::strerror(err));
+  }
   fs::rename(tmp, path, ec);
-  if (ec) fs::remove(tmp, ec);
-  return !ec;
+  if (ec) {
+    fs::remove(tmp, ec);
+    return fmt::format("cannot rename {} to {}: {}", tmp.string(), path.string(), ec.message());
+  }
+  return std::nullopt;
 }
 
 // Bytes of the regular files below `dir`.
@@ -111,26 +136,53 @@ std::vector<std::string> trim_scene_cache(const std::string& cache_root, uint64_
   return removed;
 }
 
-CacheRoot::CacheRoot(const std::string& wanted) : path_(wanted) {
-  auto why = unwritable(wanted);
-  if (!why) return;
+namespace {
+// A private folder TMPDIR/epr-worker-cache-PID-XXXXXX that can hold the cache, or runtime_error
+// ("no scene cache: WHY, and ...").
+std::string private_cache_folder(const std::string& why) {
   std::string tmpl = (fs::temp_directory_path() / fmt::format("epr-worker-cache-{}-XXXXXX", ::getpid())).string();
   if (!::mkdtemp(tmpl.data()))
     throw std::runtime_error(
-        fmt::format("no scene cache: {}, and cannot create {}: {}", *why, tmpl, std::strerror(errno)));
-  path_ = tmpl;
+        fmt::format("no scene cache: {}, and cannot create {}: {}", why, tmpl, std::strerror(errno)));
+  if (auto err = unwritable(tmpl)) {
+    std::error_code ec;
+    fs::remove_all(tmpl, ec);
+    throw std::runtime_error(fmt::format("no scene cache: {}, and {}", why, *err));
+  }
+  return tmpl;
+}
+}  // namespace
+
+CacheRoot::CacheRoot(const std::string& wanted) : path_(wanted) {
+  auto why = unwritable(wanted);
+  if (!why) return;
+  path_ = private_cache_folder(*why);
   fallback_reason_ = *why;
-  if (auto err = unwritable(path_)) throw std::runtime_error(fmt::format("no scene cache: {}, and {}", *why, *err));
 }
 
 CacheRoot::~CacheRoot() {
-  if (fallback_reason_.empty()) return;
   std::error_code ec;
-  fs::remove_all(path_, ec);
+  if (!fallback_.empty()) fs::remove_all(fallback_, ec);
+  if (!fallback_reason_.empty()) fs::remove_all(path_, ec);
+}
+
+std::string CacheRoot::fallback() {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (!fallback_reason_.empty()) return path_;  // already a private folder
+  if (fallback_.empty()) fallback_ = private_cache_folder(fmt::format("{} cannot take the scene", path_));
+  return fallback_;
+}
+
+std::string CacheRoot::fallback_if_made() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return fallback_;
 }
 
 struct SceneReceiver::OpenFile {
-  std::ofstream out;
+  int fd = -1;
+  ~OpenFile() {
+    if (fd >= 0) ::close(fd);
+  }
 };
 
 bool is_content_hash(const std::string& s) {
@@ -178,6 +230,12 @@ std::optional<std::string> SceneReceiver::fail(std::string reason) {
   return error_;
 }
 
+std::optional<std::string> SceneReceiver::disk_fail(const std::string& what, const std::string& reason) {
+  disk_failure_ = true;
+  return fail(fmt::format("the worker's scene cache {}: {}: {} (this worker's disk, not the scene)", cache_root_, what,
+                          reason));
+}
+
 std::optional<std::string> SceneReceiver::add(const v1::SceneChunk& chunk) {
   if (error_) return error_;
   if (finished_) return fail("chunk after the end of the scene");
@@ -222,13 +280,15 @@ std::optional<std::string> SceneReceiver::add_manifest(const v1::SceneManifest& 
   tmp_dir_ = (fs::path(cache_root_) / "scenes" / fmt::format(".tmp-{}-{}-{:016x}", hash_, ::getpid(), nonce)).string();
   std::error_code ec;
   fs::create_directories(tmp_dir_, ec);
-  if (ec) return fail(fmt::format("cannot create {}: {}", tmp_dir_, ec.message()));
+  if (ec) return disk_fail(fmt::format("cannot create {}", tmp_dir_), ec.message());
   // Every file exists from the start (empty files get no chunks); path clashes show up here.
   for (const auto& [path, size] : files_) {
     const fs::path p = fs::path(tmp_dir_) / path;
     fs::create_directories(p.parent_path(), ec);
-    std::ofstream touch(p, std::ios::binary | std::ios::trunc);
-    if (ec || !touch) return fail(fmt::format("cannot create scene file '{}' in the cache", path));
+    if (ec) return disk_fail(fmt::format("cannot create the folder of '{}'", path), ec.message());
+    const int fd = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) return disk_fail(fmt::format("cannot create '{}'", path), std::strerror(errno));
+    ::close(fd);
   }
   have_manifest_ = true;
   current_ = 0;
@@ -242,10 +302,10 @@ std::optional<std::string> SceneReceiver::close_current() {
     return fail(fmt::format("file '{}' ended after {} of {} bytes", files_[current_].first, written_.received(),
                             written_.size()));
   if (out_) {
-    out_->out.close();
-    const bool ok = !out_->out.fail();
+    const int fd = std::exchange(out_->fd, -1);
     out_.reset();
-    if (!ok) return fail(fmt::format("cannot write scene file '{}' in the cache", files_[current_].first));
+    if (::close(fd) != 0)
+      return disk_fail(fmt::format("cannot write '{}'", files_[current_].first), std::strerror(errno));
   }
   ++current_;
   written_ = rpc::ChunkTracker(current_ < files_.size() ? files_[current_].second : 0);
@@ -263,11 +323,11 @@ std::optional<std::string> SceneReceiver::add_data(const v1::SceneFileData& d) {
   if (auto err = written_.add(d.offset(), d.data().size())) return fail(fmt::format("file '{}': {}", path, *err));
   if (!out_) {
     out_ = std::make_unique<OpenFile>();
-    out_->out.open(fs::path(tmp_dir_) / path, std::ios::binary | std::ios::trunc);
-    if (!out_->out) return fail(fmt::format("cannot write scene file '{}' in the cache", path));
+    out_->fd = ::open((fs::path(tmp_dir_) / path).c_str(), O_WRONLY | O_TRUNC | O_CLOEXEC);
+    if (out_->fd < 0) return disk_fail(fmt::format("cannot write '{}'", path), std::strerror(errno));
   }
-  out_->out.write(d.data().data(), std::streamsize(d.data().size()));
-  if (!out_->out) return fail(fmt::format("cannot write scene file '{}' in the cache", path));
+  if (!write_all(out_->fd, d.data().data(), d.data().size()))
+    return disk_fail(fmt::format("cannot write '{}'", path), std::strerror(errno));
   bytes_received_ += d.data().size();
   return std::nullopt;
 }
@@ -299,24 +359,25 @@ std::optional<std::string> SceneReceiver::finish(std::string* entry_file) {
       sha.update(buf.data(), size_t(in.gcount()));
       read += uint64_t(in.gcount());
     }
-    if (read != size) return fail(fmt::format("cannot read back scene file '{}'", path));
+    if (read != size) return disk_fail(fmt::format("cannot read back '{}'", path), std::strerror(errno));
   }
   const std::string got = sha.hex();
   if (got != hash_) return fail(fmt::format("content hash mismatch: received {}, expected {}", got, hash_));
 
-  if (!write_atomically(fs::path(tmp_dir_) / kEntryFile, entry_path_ + "\n") ||
-      !write_atomically(fs::path(tmp_dir_) / kCompleteMarker, hash_ + "\n"))
-    return fail("cannot write the cache markers");
+  for (const auto& [name, text] : {std::pair{kEntryFile, entry_path_}, std::pair{kCompleteMarker, hash_}})
+    if (auto err = write_atomically(fs::path(tmp_dir_) / name, text + "\n")) return disk_fail("a marker", *err);
   const fs::path dir = scene_dir(cache_root_, hash_);
   std::error_code ec;
   fs::rename(tmp_dir_, dir, ec);
   if (ec) {
     // Someone else's copy is already there (identical by hash); it may lack the entry file if
     // load_bundle wrote it.
+    const std::string why = ec.message();
     fs::remove_all(tmp_dir_, ec);
-    if (!fs::exists(dir / kCompleteMarker, ec)) return fail(fmt::format("cannot move the scene into {}", dir.string()));
-    if (!fs::exists(dir / kEntryFile, ec) && !write_atomically(dir / kEntryFile, entry_path_ + "\n"))
-      return fail("cannot write the cache's entry file");
+    if (!fs::exists(dir / kCompleteMarker, ec))
+      return disk_fail(fmt::format("cannot move the scene into {}", dir.string()), why);
+    if (!fs::exists(dir / kEntryFile, ec))
+      if (auto err = write_atomically(dir / kEntryFile, entry_path_ + "\n")) return disk_fail("the entry file", *err);
   }
   tmp_dir_.clear();
   finished_ = true;

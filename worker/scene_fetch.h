@@ -21,7 +21,9 @@
 
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -67,10 +69,25 @@ class CacheRoot {
   const std::string& path() const { return path_; }
   /// Why `wanted` is not used; empty when it is.
   const std::string& fallback_reason() const { return fallback_reason_; }
+  /// The private temporary folder scenes go to when path() fails to take one (a full disk): made on
+  /// first use, removed when this object is destroyed; path() itself when that is already one.
+  /// Throws std::runtime_error with the reason if it cannot be made. Thread-safe.
+  std::string fallback();
+  /// fallback() if it was made, else empty.
+  std::string fallback_if_made() const;
 
  private:
   std::string path_;
   std::string fallback_reason_;
+  mutable std::mutex mu_;
+  std::string fallback_;  // made by fallback(); removed by the destructor
+};
+
+/// A scene could not be written into a worker's cache: the worker's disk, not the scene
+/// (SceneReceiver::disk_failure); the message has the system's reason.
+class CacheWriteError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
 };
 
 class SceneReceiver {
@@ -88,9 +105,13 @@ class SceneReceiver {
   std::optional<std::string> finish(std::string* entry_file);
 
   uint64_t bytes_received() const { return bytes_received_; }
+  /// The error is this worker's disk (a write, a folder, a rename in the cache failed: the message
+  /// has the system's reason), not the stream or the scene.
+  bool disk_failure() const { return disk_failure_; }
 
  private:
   std::optional<std::string> fail(std::string reason);
+  std::optional<std::string> disk_fail(const std::string& what, const std::string& reason);
   std::optional<std::string> add_manifest(const v1::SceneManifest& m);
   std::optional<std::string> add_data(const v1::SceneFileData& d);
   /// Closes the current file after checking it is complete; advances to the next one.
@@ -99,7 +120,7 @@ class SceneReceiver {
   std::string cache_root_, hash_;
   SceneFetchLimits limits_;
   std::string tmp_dir_;
-  bool have_manifest_ = false, finished_ = false;
+  bool have_manifest_ = false, finished_ = false, disk_failure_ = false;
   std::optional<std::string> error_;
   std::string entry_path_;
   std::vector<std::pair<std::string, uint64_t>> files_;  // (path, size) in manifest order

@@ -127,14 +127,27 @@ struct WorkerNode::Impl {
     if (!is_content_hash(ref.content_hash()))
       throw std::runtime_error(
           fmt::format("scene reference '{}' is neither a built-in nor a content hash", ref.content_hash()));
-    const std::string& root = cache.path();
+    std::string root = cache.path();
     std::optional<std::string> entry = cached_scene_entry(root, ref.content_hash());
+    if (!entry && !cache.fallback_if_made().empty()) {  // fetched into the fallback folder before
+      root = cache.fallback_if_made();
+      entry = cached_scene_entry(root, ref.content_hash());
+    }
     if (entry) {
       touch_cached_scene(root, ref.content_hash());
     } else {
       const std::shared_ptr<MasterSession> s = pool.session(master);
       if (!s || s->ending()) throw std::runtime_error("no master session to fetch the scene from");
-      entry = s->fetch_scene(ref);
+      try {
+        entry = s->fetch_scene(ref, root);
+      } catch (const CacheWriteError& e) {
+        // This worker's disk (full, read-only...), not the scene: the private temporary folder.
+        const std::string fallback = cache.fallback();
+        if (fallback == root) throw;
+        log->warn("{}; fetching the scene into {} instead (removed when the worker ends)", e.what(), fallback);
+        root = fallback;
+        entry = s->fetch_scene(ref, root);
+      }
       for (const std::string& gone : trim_scene_cache(root, opts.cache_max_bytes, ref.content_hash()))
         log->info("scene cache over {} MiB: removed scene {} (least recently used)", opts.cache_max_bytes >> 20, gone);
     }

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <atomic>
 #include <optional>
+#include <random>
+#include <string>
 
 #include "common/camera_animation.h"
 #include "common/check.h"
@@ -355,9 +357,19 @@ grpc::ServerUnaryReactor* JobServiceImpl::ListJobs(grpc::CallbackServerContext* 
   return finish(ctx, grpc::Status::OK);
 }
 
+namespace {
+std::string random_instance() {
+  std::random_device rd;
+  return fmt::format("{:08x}{:08x}{:08x}{:08x}", rd(), rd(), rd(), rd());
+}
+}  // namespace
+
+JobServiceImpl::JobServiceImpl(JobManager& jobs) : jobs_(jobs), instance_(random_instance()) {}
+
 grpc::ServerUnaryReactor* JobServiceImpl::GetMasterInfo(grpc::CallbackServerContext* ctx, const v1::MasterInfoRequest*,
                                                         v1::MasterInfo* resp) {
   resp->set_name(jobs_.options().name);
+  resp->set_instance(instance_);
   uint32_t queued = 0, running = 0;
   double samples_left = 0;
   for (const auto& s : jobs_.list()) {

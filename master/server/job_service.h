@@ -9,7 +9,7 @@ namespace epr {
 
 class JobServiceImpl final : public v1::JobService::CallbackService {
  public:
-  explicit JobServiceImpl(JobManager& jobs) : jobs_(jobs) {}
+  explicit JobServiceImpl(JobManager& jobs);
 
   grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
                                       v1::JobId* resp) override;
@@ -29,6 +29,7 @@ class JobServiceImpl final : public v1::JobService::CallbackService {
 
  private:
   JobManager& jobs_;
+  const std::string instance_;  // MasterInfo.instance: random, per server
 };
 
 /// The wire form of a job's progress (shared with tests and the monitoring endpoint's gRPC twin).

@@ -8,6 +8,8 @@
 #include <random>
 #include <stdexcept>
 
+#include "common/address.h"
+
 namespace epr {
 namespace fs = std::filesystem;
 namespace {
@@ -82,16 +84,8 @@ std::string choose_master_name(const std::string& flag, const std::string& state
 }
 
 int listen_port(const std::string& listen) {
-  const size_t colon = listen.rfind(':');
-  if (colon == std::string::npos) return 0;
-  try {
-    size_t used = 0;
-    const std::string p = listen.substr(colon + 1);
-    const int port = std::stoi(p, &used);
-    return used == p.size() && port > 0 && port < 65536 ? port : 0;
-  } catch (const std::exception&) {
-    return 0;
-  }
+  const auto a = parse_address(listen, {.port_zero = true, .empty_host = true});
+  return a ? a->port : 0;
 }
 
 }  // namespace epr

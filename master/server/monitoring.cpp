@@ -10,6 +10,7 @@
 #include <string_view>
 #include <thread>
 
+#include "common/address.h"
 #include "common/check.h"
 #include "common/log.h"
 #include "common/thread_name.h"
@@ -104,20 +105,10 @@ std::string etag_of(const std::vector<unsigned char>& bytes) {
 
 }  // namespace
 
-std::optional<std::pair<std::string, int>> parse_host_port(const std::string& address) {
-  const size_t colon = address.rfind(':');
-  if (colon == std::string::npos || colon + 1 >= address.size()) return std::nullopt;
-  std::string host = address.substr(0, colon);
-  const std::string port_text = address.substr(colon + 1);
-  if (port_text.size() > 5 || port_text.find_first_not_of("0123456789") != std::string::npos) return std::nullopt;
-  const int port = std::stoi(port_text);
-  if (port > 65535) return std::nullopt;
-  if (host.size() >= 2 && host.front() == '[' && host.back() == ']')
-    host = host.substr(1, host.size() - 2);
-  else if (host.find(':') != std::string::npos)
-    return std::nullopt;  // an unbracketed IPv6 address
-  if (host.empty()) host = "0.0.0.0";
-  return std::make_pair(host, port);
+std::optional<std::pair<std::string, int>> parse_host_port(const std::string& address, std::string* why) {
+  auto a = parse_address(address, {.port_zero = true, .empty_host = true}, why);
+  if (!a) return std::nullopt;
+  return std::make_pair(a->host.empty() ? std::string("0.0.0.0") : a->host, a->port);
 }
 
 struct MonitoringServer::Impl {
@@ -300,8 +291,9 @@ void MonitoringServer::Impl::image(const httplib::Request& req, httplib::Respons
 
 MonitoringServer::MonitoringServer(JobManager& jobs, MonitoringOptions options)
     : impl_(std::make_unique<Impl>(jobs, std::move(options))) {
-  auto hp = parse_host_port(impl_->options.listen);
-  if (!hp) throw std::runtime_error(fmt::format("monitoring address '{}' is not HOST:PORT", impl_->options.listen));
+  std::string why;
+  auto hp = parse_host_port(impl_->options.listen, &why);
+  if (!hp) throw std::runtime_error(fmt::format("monitoring address '{}': {}", impl_->options.listen, why));
   impl_->host = hp->first;
   if (!impl_->options.token.empty()) {
     if (!rpc::is_valid_token(impl_->options.token))

@@ -75,7 +75,8 @@ class MonitoringServer {
   std::unique_ptr<Impl> impl_;
 };
 
-/// Splits "HOST:PORT" or "[V6]:PORT"; nullopt if malformed (no port, port outside 0..65535).
-std::optional<std::pair<std::string, int>> parse_host_port(const std::string& address);
+/// Splits "HOST:PORT", "[V6]:PORT" or ":PORT" (host 0.0.0.0) by common/address.h's rules, port 0
+/// allowed (a free one); nullopt if malformed, the reason in *why.
+std::optional<std::pair<std::string, int>> parse_host_port(const std::string& address, std::string* why = nullptr);
 
 }  // namespace epr

@@ -99,5 +99,30 @@ TEST(RenderFlags, EnvAndSunReplaceTheScenesLighting) {
   fs::remove_all(dir);
 }
 
+TEST(RenderFlags, AnOutputPrefixMayNotReplaceAFileTheSceneReads) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("epr-out-input-" + std::to_string(::getpid()));
+  fs::create_directories(dir / "scn");
+  for (const char* f : {"scene.json", "scene.obj", "sky.exr", "shot.v2.obj"}) std::ofstream(dir / "scn" / f) << "x";
+  std::vector<fs::path> inputs;
+  for (const char* f : {"scene.json", "scene.obj", "sky.exr", "shot.v2.obj"})
+    inputs.push_back(fs::canonical(dir / "scn" / f));
+  const std::string scn = (dir / "scn").string();
+  EXPECT_TRUE(output_replaces_input(scn + "/scene", inputs));                 // scene.json
+  EXPECT_TRUE(output_replaces_input(scn + "/../scn/sky", inputs));            // sky.exr, another spelling
+  EXPECT_TRUE(output_replaces_input(scn + "/sky", {dir / "scn/./sky.exr"}));  // compared by identity
+  EXPECT_FALSE(output_replaces_input(scn + "/shot", inputs));                 // shot.exr, ... : no clash
+  EXPECT_FALSE(output_replaces_input(scn + "/render", inputs));
+  EXPECT_FALSE(output_replaces_input((dir / "other" / "scene").string(), inputs));  // another folder
+  std::ofstream(dir / "scn" / "frames.0007.png") << "x";
+  EXPECT_TRUE(output_replaces_input(scn + "/frames", {fs::canonical(dir / "scn/frames.0007.png")}));  // a frame
+  // A scene JSON is never replaced, even when this scene does not read it (garden.json beside garden.gltf).
+  std::ofstream(dir / "scn" / "garden.json") << "{\n  // comment\n  \"obj\": \"garden.gltf\"\n}\n";
+  std::ofstream(dir / "scn" / "old.json") << R"({"seconds": 1.5})";
+  EXPECT_TRUE(output_replaces_input(scn + "/garden", {}));
+  EXPECT_FALSE(output_replaces_input(scn + "/old", {}));  // earlier statistics: replaced as always
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace epr

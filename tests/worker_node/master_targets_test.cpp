@@ -38,6 +38,18 @@ TEST(WorkerMasterTargets, MalformedEntriesAreRefusedByName) {
   }
 }
 
+TEST(WorkerMasterTargets, PortsOutsideTheRangeAreRefusedNotWrapped) {
+  for (const std::string bad : {"127.0.0.1:112837", "localhost:65536", "dns:///m:70000", "ipv4:127.0.0.1:112837",
+                                "ipv6:[::1]:0", "[::1]:99999", "m:1,m:0"}) {
+    try {
+      parse_master_list(bad);
+      ADD_FAILURE() << "accepted '" << bad << "'";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("is outside 1-65535"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(WorkerMasterTargets, ANameWithSeveralAddressesIsOneMasterPerAddress) {
   int calls = 0;
   const MasterResolver resolver = [&](const std::string& host) -> std::optional<std::vector<std::string>> {

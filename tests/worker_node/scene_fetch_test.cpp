@@ -4,7 +4,11 @@
 #include "worker/scene_fetch.h"
 
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 
+#include <cerrno>
+#include <csignal>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -188,6 +192,61 @@ TEST(SceneFetch, MalformedStreamsAreRefusedAndLeaveNothingBehind) {
   SceneReceiver rx(dir.str(), hash, small);
   EXPECT_TRUE(rx.add(scene_stream(b, 700)[0]).has_value());
   EXPECT_THROW(SceneReceiver(dir.str(), "not-a-hash"), std::invalid_argument);
+}
+
+// A write the disk refuses (here: over RLIMIT_FSIZE, EFBIG, as a full disk gives ENOSPC) is the
+// worker's disk, named with the system's reason, not blamed on the scene.
+TEST(SceneFetch, AWriteTheDiskRefusesIsTheWorkersDiskWithTheSystemsReason) {
+  TempDir dir;
+  SceneBundleData b;
+  b.entry_path = "big.obj";
+  b.files = {{b.entry_path, "# big\n" + std::string(256 << 10, 'x')}};
+  const auto chunks = scene_stream(b, 64 << 10);
+  SceneReceiver rx(dir.str(), content_hash(b));
+  rlimit old{};
+  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &old), 0);
+  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);  // the write fails with EFBIG instead
+  rlimit small = old;
+  small.rlim_cur = 100 << 10;
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &small), 0);
+  std::optional<std::string> err;
+  for (const auto& c : chunks)
+    if ((err = rx.add(c))) break;
+  ::setrlimit(RLIMIT_FSIZE, &old);
+  std::signal(SIGXFSZ, old_handler);
+  ASSERT_TRUE(err);
+  EXPECT_TRUE(rx.disk_failure());
+  EXPECT_NE(err->find(std::strerror(EFBIG)), std::string::npos) << *err;
+  EXPECT_NE(err->find("the worker's scene cache " + dir.str()), std::string::npos) << *err;
+  EXPECT_NE(err->find("'big.obj'"), std::string::npos) << *err;
+}
+
+// A cache whose scenes folder is gone for a regular file: a disk failure too, and CacheRoot's
+// private fallback folder takes the scene (removed with the CacheRoot).
+TEST(SceneFetch, ACacheThatCannotTakeASceneHasAPrivateFallback) {
+  TempDir dir;
+  std::string fallback;
+  {
+    CacheRoot root(dir.str());
+    ASSERT_EQ(root.path(), dir.str());
+    EXPECT_EQ(root.fallback_if_made(), "");
+    fs::remove_all(dir.path / "scenes");
+    std::ofstream(dir.path / "scenes") << "x\n";
+    const SceneBundleData b = bundle_scene(kCornellObj);
+    std::string entry;
+    SceneReceiver rx(root.path(), content_hash(b));
+    const auto err = rx.add(scene_stream(b, 1 << 20)[0]);
+    ASSERT_TRUE(err);
+    EXPECT_TRUE(rx.disk_failure());
+    EXPECT_NE(err->find(std::strerror(ENOTDIR)), std::string::npos) << *err;
+    fallback = root.fallback();
+    EXPECT_NE(fallback, dir.str());
+    EXPECT_EQ(root.fallback(), fallback);  // made once
+    EXPECT_EQ(receive(fallback, content_hash(b), scene_stream(b, 1 << 20), &entry), std::nullopt);
+    EXPECT_TRUE(fs::exists(entry));
+    EXPECT_EQ(cached_scene_entry(fallback, content_hash(b)), entry);
+  }
+  EXPECT_FALSE(fs::exists(fallback));
 }
 
 }  // namespace

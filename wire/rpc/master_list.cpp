@@ -9,6 +9,8 @@
 #include <set>
 #include <stdexcept>
 
+#include "common/address.h"
+
 namespace epr {
 namespace {
 
@@ -25,6 +27,13 @@ bool is_ip_literal(const std::string& host) {
   return inet_pton(AF_INET, host.c_str(), buf) == 1 || inet_pton(AF_INET6, host.c_str(), buf) == 1;
 }
 
+// The HOST:PORT part of an entry (common/address.h), or std::invalid_argument naming the entry.
+HostPort address(const std::string& spec, const std::string& host_port) {
+  std::string why;
+  if (auto a = parse_address(host_port, {}, &why)) return *a;
+  throw std::invalid_argument(fmt::format("--master '{}': {}", spec, why));
+}
+
 MasterTarget parse_one(const std::string& entry) {
   MasterTarget t;
   t.spec = trim(entry);
@@ -38,17 +47,17 @@ MasterTarget parse_one(const std::string& entry) {
       rest = rest.substr(slash + 1);
     }
   } else {
-    for (const char* scheme : {"ipv4:", "ipv6:", "unix:", "unix-abstract:", "vsock:"})
+    for (const char* scheme : {"unix:", "unix-abstract:", "vsock:"})
       if (starts_with(rest, scheme)) return t;  // gRPC's own: taken as is
+    for (const char* scheme : {"ipv4:", "ipv6:"})
+      if (starts_with(rest, scheme)) {  // gRPC's own, one address: its port is checked
+        address(t.spec, rest.substr(std::string(scheme).size()));
+        return t;
+      }
   }
-  if (starts_with(rest, "[")) return t;  // [IPV6]:PORT
-  const size_t colon = rest.rfind(':');
-  if (colon == std::string::npos || colon == 0 || colon + 1 == rest.size())
-    throw std::invalid_argument(fmt::format("--master: '{}' is not HOST:PORT", t.spec));
-  const std::string host = rest.substr(0, colon), port = rest.substr(colon + 1);
-  if (port.find_first_not_of("0123456789") != std::string::npos)
-    throw std::invalid_argument(fmt::format("--master: '{}' has no numeric port", t.spec));
-  if (is_ip_literal(host) || host.find(':') != std::string::npos) return t;
+  const HostPort a = address(t.spec, rest);
+  if (starts_with(rest, "[") || is_ip_literal(a.host)) return t;  // an address: the channel's target as is
+  const std::string host = a.host, port = std::to_string(a.port);
   t.host = host;
   t.port = port;
   return t;
