@@ -1,6 +1,8 @@
 #include "worker/path_tracer.h"
 
 #include <cmath>
+#include <cstdlib>
+#include <limits>
 
 #include "common/sampler.h"
 #include "worker/bsdf.h"
@@ -25,6 +27,18 @@ struct PathVertex {
 inline float power_heuristic(float p_this, float p_other) {
   const float r = p_other / p_this;
   return 1 / (1 + r * r);
+}
+
+// A test hook: with EPR_TEST_NONFINITE_EVERY=N (N > 0) in the environment, every Nth path sample of
+// a pixel (samples N-1, 2N-1, ...) comes out NaN. No valid scene makes non-finite samples, so the
+// tests of the warnings a render's end gives about them (tests/integration/cluster/
+// nonfinite_warning_test.cpp) set it on the real programs. 0 (unset): off.
+uint32_t test_nonfinite_every() {
+  static const uint32_t every = [] {
+    const char* e = std::getenv("EPR_TEST_NONFINITE_EVERY");
+    return e ? uint32_t(std::strtoul(e, nullptr, 10)) : 0u;
+  }();
+  return every;
 }
 
 }  // namespace
@@ -204,6 +218,8 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     }
   }
   Vec3 pixel = path.empty() ? background : path[0].le + r;
+  if (const uint32_t every = test_nonfinite_every(); every && (sample + 1) % every == 0)
+    pixel = Vec3(std::numeric_limits<float>::quiet_NaN());
 
   if (stats) {
     stats->paths += 1;

@@ -1,0 +1,168 @@
+// A render whose samples come out NaN or infinite beyond a trace says so at its end, however it ran:
+// `epr submit --wait`, `epr watch`, the master's log, `epr render` (embedded master) and
+// `epr render --single-process`. No valid scene makes such samples, so the tracing programs run with
+// the path tracer's test hook EPR_TEST_NONFINITE_EVERY=4 (worker/path_tracer.cpp): samples 3 and 7 of
+// every pixel's 8 come out NaN, are dropped and counted by the real code, and their counts travel the
+// real way (tile statistics over gRPC, the master's job counters, JobStatus). The same renders
+// without the hook give no warning.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <memory>
+#include <regex>
+#include <string>
+#include <vector>
+
+#include "binaries.h"
+#include "farm_steps.h"
+#include "process.h"
+
+namespace epr::testing {
+namespace {
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+// The end-of-render warning's text (common/tile.cpp, nonfinite_warning) with its two counts.
+const std::regex kDropped(
+    "([0-9]+) samples came out NaN or infinite and were dropped \\([^)]* per million of the ([0-9]+) paths traced\\)");
+constexpr const char* kNaNOrInfinite = "came out NaN or infinite";
+
+// 32x32 pixels of 8 path-traced samples: 8192 paths.
+constexpr uint64_t kPaths = 32 * 32 * 8;
+Args job_flags() {
+  return {
+      "builtin:cornell", "--width", "32",     "--height", "32", "--spp", "8", "--paths-per-round", "4", "--tile", "16",
+      "--round-growth",  "0",       "--mode", "pt"};
+}
+
+// `text` as a regular expression that matches it literally (job ids hold dots).
+std::string literal(const std::string& text) {
+  return std::regex_replace(text, std::regex(R"([.^$|()\[\]{}*+?\\])"), R"(\$&)");
+}
+
+// `argv` with every 4th sample of a pixel NaN.
+Args poisoned(Args argv) {
+  argv.insert(argv.begin(), {"/usr/bin/env", "EPR_TEST_NONFINITE_EVERY=4"});
+  return argv;
+}
+
+// The warning in `text` reports a quarter of the job's paths dropped (`prefix`, a regular expression,
+// starts its line).
+void expect_quarter_dropped(const std::string& text, const std::string& prefix, const std::string& what) {
+  std::smatch m;
+  const std::regex line(prefix + "[^\\n]*");
+  ASSERT_TRUE(std::regex_search(text, m, line)) << what << " has no line starting '" << prefix << "':\n" << text;
+  const std::string warning = m.str();
+  ASSERT_TRUE(std::regex_search(warning, m, kDropped)) << what << ": no non-finite warning in: " << warning;
+  EXPECT_EQ(std::stoull(m[2].str()), kPaths) << what << ": " << warning;
+  EXPECT_EQ(std::stoull(m[1].str()), kPaths / 4) << what << ": " << warning;
+}
+
+class NonFiniteWarningTest : public StoryTest {
+ protected:
+  void SetUp() override { start_story("epr-nonfinite"); }
+
+  void TearDown() override {
+    for (auto& w : workers_) w->stop();
+    if (master_) master_->stop();
+    if (HasFailure()) {
+      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
+      if (master_) print_log_tail("epr-master", master_->err());
+      for (auto& w : workers_) print_log_tail("epr-worker", w->err());
+    } else {
+      fs::remove_all(dir_);
+    }
+  }
+
+  RunResult epr(Args args, Millis timeout = 120s) {
+    args.insert(args.begin(), kEpr);
+    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
+  }
+
+  // `epr submit --wait --out JOB-N` of the job: its id (first line of stdout) and the run.
+  RunResult submit_and_wait(std::string* id) {
+    Args args{"submit"};
+    const Args f = job_flags();
+    args.insert(args.end(), f.begin(), f.end());
+    args.insert(args.end(), {"--master", address_, "--wait", "--out", path("job-" + std::to_string(runs_ + 1))});
+    RunResult r = epr(args);
+    EXPECT_FALSE(r.timed_out) << "epr submit --wait did not return within 120 s:\n" << r.err;
+    EXPECT_EQ(r.code, 0) << r.err;
+    *id = r.out.substr(0, r.out.find('\n'));
+    EXPECT_FALSE(id->empty()) << "no job id printed:\n" << r.out << r.err;
+    return r;
+  }
+
+  // One epr-worker, only tracing while the job runs (the previous one is stopped first).
+  void start_worker(const std::string& name, bool nonfinite) {
+    for (auto& w : workers_) w->stop();
+    const Args argv = worker_argv(address_, name, path("cache-" + name));
+    workers_.push_back(std::make_unique<Process>(nonfinite ? poisoned(argv) : argv, dir_ / name));
+  }
+
+  std::unique_ptr<Process> master_;
+  std::vector<std::unique_ptr<Process>> workers_;
+  std::string address_;
+  int runs_ = 0;
+};
+
+TEST_F(NonFiniteWarningTest, SubmitWaitWatchAndTheMasterLogWarnOfDroppedSamples) {
+  master_ = std::make_unique<Process>(master_argv(0, {"--state-dir", path("state")}), dir_ / "master");
+  const int port = listening_port(*master_, 30s);
+  ASSERT_GT(port, 0) << "epr-master did not start:\n" << master_->err();
+  address_ = "127.0.0.1:" + std::to_string(port);
+
+  start_worker("poisoned", true);
+  std::string id;
+  const RunResult waited = submit_and_wait(&id);
+  ASSERT_FALSE(id.empty());
+  note("job %s done", id.c_str());
+  expect_quarter_dropped(waited.err, literal("job " + id + ": warning: "), "epr submit --wait");
+
+  const RunResult watched = epr({"watch", id, "--master", address_});
+  ASSERT_EQ(watched.code, 0) << watched.err;
+  expect_quarter_dropped(watched.err, literal("job " + id + ": warning: "), "epr watch");
+
+  // The master logs it when the job is done (a moment after the clients may see DONE).
+  const std::string master_line = "job " + id + ": ";
+  EXPECT_TRUE(wait_until(
+      [&] { return master_->err().find(master_line + std::to_string(kPaths / 4)) != std::string::npos; }, 30s))
+      << "the master did not log the warning";
+  expect_quarter_dropped(master_->err(), literal(master_line) + "[0-9]+ samples", "the master's log");
+
+  // A clean worker's job: no warning anywhere.
+  start_worker("clean", false);
+  std::string clean;
+  const RunResult clean_wait = submit_and_wait(&clean);
+  ASSERT_FALSE(clean.empty());
+  EXPECT_EQ(clean_wait.err.find(kNaNOrInfinite), std::string::npos) << clean_wait.err;
+  const RunResult clean_watch = epr({"watch", clean, "--master", address_});
+  ASSERT_EQ(clean_watch.code, 0) << clean_watch.err;
+  EXPECT_EQ(clean_watch.err.find(kNaNOrInfinite), std::string::npos) << clean_watch.err;
+  // Stopped, the master has logged all it will about both jobs: one warning, the first job's.
+  master_->stop(30s);
+  EXPECT_EQ(count_of(master_->err(), kNaNOrInfinite), 1u) << master_->err();
+}
+
+TEST_F(NonFiniteWarningTest, EprRenderWarnsOfDroppedSamples) {
+  for (const bool single : {false, true}) {
+    for (const bool nonfinite : {true, false}) {
+      const std::string name = std::string(single ? "single" : "embedded") + (nonfinite ? "-nan" : "-clean");
+      Args argv{kEpr, "render"};
+      const Args f = job_flags();
+      argv.insert(argv.end(), f.begin(), f.end());
+      argv.insert(argv.end(), {"--http", "", "--out", path(name)});
+      if (single) argv.push_back("--single-process");
+      const RunResult r = run_process(nonfinite ? poisoned(argv) : argv, dir_ / name, 120s);
+      ASSERT_EQ(r.code, 0) << name << ":\n" << r.err;
+      note("%s rendered", name.c_str());
+      if (nonfinite)
+        expect_quarter_dropped(r.err, "epr render: warning: ", name);
+      else
+        EXPECT_EQ(r.err.find(kNaNOrInfinite), std::string::npos) << name << ":\n" << r.err;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace epr::testing
