@@ -1,39 +1,16 @@
 // A state folder that cannot take a job: SubmitJob is refused with RESOURCE_EXHAUSTED, naming what
 // could not be stored and the errno, and nothing of the job remains (not listed, no folder, not back
-// after a restart). The full disk is this process's RLIMIT_FSIZE, lowered around the one call with
-// SIGXFSZ ignored: a write past it fails with EFBIG, as root too. Nothing else of this process writes
+// after a restart). The full disk is this process's RLIMIT_FSIZE around the one call
+// (tests/file_size_limit.h). Nothing else of this process writes
 // to a file meanwhile (the master's one running job has no worker).
-#include <signal.h>
-#include <sys/resource.h>
-
 #include <cerrno>
 #include <cstring>
 
+#include "tests/file_size_limit.h"
 #include "tests/server/farm_fixture.h"
 
 namespace epr::test {
 namespace {
-
-// This process's writes past `bytes` of a file fail with EFBIG while it lives.
-class FileSizeLimit {
- public:
-  explicit FileSizeLimit(rlim_t bytes) {
-    struct sigaction ignore {};
-    ignore.sa_handler = SIG_IGN;
-    EXPECT_EQ(::sigaction(SIGXFSZ, &ignore, &old_action_), 0);
-    EXPECT_EQ(::getrlimit(RLIMIT_FSIZE, &old_limit_), 0);
-    const struct rlimit limit { bytes, old_limit_.rlim_max };
-    EXPECT_EQ(::setrlimit(RLIMIT_FSIZE, &limit), 0) << std::strerror(errno);
-  }
-  ~FileSizeLimit() {
-    ::setrlimit(RLIMIT_FSIZE, &old_limit_);
-    ::sigaction(SIGXFSZ, &old_action_, nullptr);
-  }
-
- private:
-  struct rlimit old_limit_ {};
-  struct sigaction old_action_ {};
-};
 
 class FullStateDirTest : public FarmFixture {
  protected:
