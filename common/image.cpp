@@ -9,6 +9,8 @@
 #include <memory>
 #include <stdexcept>
 
+#include "common/checked_file.h"
+
 namespace epr {
 namespace {
 
@@ -33,22 +35,55 @@ void write_with(OIIO::ImageOutput& out, const std::string& name, const OIIO::Ima
     throw std::runtime_error(fmt::format("cannot write image '{}': {}", name, out.geterror()));
 }
 
+// OpenImageIO's writers over a CheckedFile: a write that fails (a full disk, a file size limit) is
+// reported with its errno, where OpenImageIO's own file output would leave a short file and succeed.
+class CheckedFileProxy final : public OIIO::Filesystem::IOProxy {
+ public:
+  explicit CheckedFileProxy(const std::string& path) : IOProxy(path, Write), file_(path) {}
+  const char* proxytype() const override { return "epr-checked-file"; }
+  size_t write(const void* buf, size_t size) override {
+    const size_t n = file_.pwrite(buf, size, uint64_t(m_pos));
+    m_pos += int64_t(n);
+    return n;
+  }
+  size_t pwrite(const void* buf, size_t size, int64_t offset) override {
+    return file_.pwrite(buf, size, uint64_t(offset));
+  }
+  size_t read(void*, size_t) override { return 0; }
+  size_t pread(void*, size_t, int64_t) override { return 0; }
+  size_t size() const override { return size_t(file_.size()); }
+  CheckedFile& file() { return file_; }
+
+ private:
+  CheckedFile file_;
+};
+
+// Writes through a CheckedFileProxy, fsyncs and closes; the error names the errno if a write failed.
+void write_checked(const std::string& path, const OIIO::ImageSpec& spec, OIIO::TypeDesc type, const void* pixels) {
+  auto out = OIIO::ImageOutput::create(path);
+  if (!out) throw std::runtime_error(fmt::format("cannot write '{}': {}", path, OIIO::geterror()));
+  CheckedFileProxy proxy(path);
+  out->set_ioproxy(&proxy);
+  try {
+    write_with(*out, path, spec, type, pixels);
+  } catch (const std::exception&) {
+    if (proxy.file().error() == 0) throw;
+  }
+  out.reset();
+  proxy.file().finish();  // throws naming the errno of a failed write
+}
 }  // namespace
 
 void write_exr(const std::string& path, const Image& img, const char* compression) {
-  auto out = OIIO::ImageOutput::create(path);
-  if (!out) throw std::runtime_error(fmt::format("cannot write '{}': {}", path, OIIO::geterror()));
   OIIO::ImageSpec spec(img.width, img.height, img.channels, OIIO::TypeDesc::FLOAT);
   spec.attribute("compression", compression);
-  write_with(*out, path, spec, OIIO::TypeDesc::FLOAT, img.data.data());
+  write_checked(path, spec, OIIO::TypeDesc::FLOAT, img.data.data());
 }
 
 void write_png_srgb(const std::string& path, const Image& img) {
-  auto out = OIIO::ImageOutput::create(path);
-  if (!out) throw std::runtime_error(fmt::format("cannot write '{}': {}", path, OIIO::geterror()));
   OIIO::ImageSpec spec(img.width, img.height, img.channels, OIIO::TypeDesc::UINT8);
   const auto bytes = to_srgb8(img);
-  write_with(*out, path, spec, OIIO::TypeDesc::UINT8, bytes.data());
+  write_checked(path, spec, OIIO::TypeDesc::UINT8, bytes.data());
 }
 
 std::vector<unsigned char> encode_png_srgb(const Image& img) {

@@ -31,10 +31,12 @@ struct Image {
   }
 };
 
-/// Linear 32-bit float OpenEXR, `compression` as OpenImageIO names it ("zip", "none", ...). Throws
-/// std::runtime_error naming the file on failure.
+/// Linear 32-bit float OpenEXR, `compression` as OpenImageIO names it ("zip", "none", ...), fsynced.
+/// Throws std::runtime_error naming the file on failure (std::system_error naming the errno when a
+/// write fails: a full disk leaves a short file, never a reported success).
 void write_exr(const std::string& path, const Image& img, const char* compression = "zip");
-/// 8-bit PNG; colour is clamped to [0,1] and encoded with the sRGB transfer curve.
+/// 8-bit PNG; colour is clamped to [0,1] and encoded with the sRGB transfer curve. Written and
+/// reported like write_exr().
 void write_png_srgb(const std::string& path, const Image& img);
 /// The same PNG encoded to bytes in memory (for previews served over the network).
 std::vector<unsigned char> encode_png_srgb(const Image& img);

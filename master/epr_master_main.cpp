@@ -121,6 +121,11 @@ int main(int argc, char** argv) {
                  "failed tiles after which a worker gets no more tiles of that job (0: never block)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  app.add_option("--max-tile-losses", o.jobs.max_tile_losses,
+                 "a job fails once one of its tiles has lost its worker this many times (a lease expired: the "
+                 "worker crashed or vanished), rather than crash worker after worker (0: never)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   std::string token_file;
   app.add_option("--token-file", token_file,
                  "file holding the bearer token clients and workers must send (else $EPR_TOKEN; none: no check)");

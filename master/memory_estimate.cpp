@@ -7,6 +7,7 @@
 #include <cctype>
 #include <cmath>
 #include <fstream>
+#include <iterator>
 
 namespace epr {
 
@@ -79,14 +80,25 @@ std::optional<uint64_t> parse_byte_size(const std::string& text) {
   return uint64_t(bytes);
 }
 
-std::string format_gib(uint64_t bytes) { return fmt::format("{:.2f} GiB", double(bytes) / double(1ull << 30)); }
+std::string format_byte_size(uint64_t bytes) {
+  static constexpr const char* kUnits[] = {"KiB", "MiB", "GiB", "TiB"};
+  if (bytes < 1024) return fmt::format("{} bytes", bytes);
+  double v = double(bytes) / 1024;
+  size_t u = 0;
+  while (u + 1 < std::size(kUnits) && v >= 1024) {
+    v /= 1024;
+    ++u;
+  }
+  return fmt::format("{:.2f} {}", v, kUnits[u]);
+}
 
 std::optional<std::string> memory_budget_error(const RenderOptions& opts, bool checkpoints, uint64_t budget) {
   if (budget == 0) return std::nullopt;
   const uint64_t need = estimate_job_memory(opts, checkpoints).total();
   if (need <= budget) return std::nullopt;
   return fmt::format("a {}x{} frame at S={} needs {} of master memory; the budget is {}", opts.width, opts.height,
-                     opts.mode == RenderMode::kPathTrace ? 1 : opts.subpixels, format_gib(need), format_gib(budget));
+                     opts.mode == RenderMode::kPathTrace ? 1 : opts.subpixels, format_byte_size(need),
+                     format_byte_size(budget));
 }
 
 }  // namespace epr

@@ -66,8 +66,8 @@ uint64_t default_memory_budget();
 /// "8G", "512M", "1.5GiB", "100000" (bytes), suffixes K M G T (powers of 1024, optional "i", "B").
 /// nullopt if malformed or zero.
 std::optional<uint64_t> parse_byte_size(const std::string& text);
-/// "1.93 GiB"-style text.
-std::string format_gib(uint64_t bytes);
+/// "1.93 GiB", "256.00 MiB", "12.50 KiB", "100 bytes": the largest binary unit the size reaches.
+std::string format_byte_size(uint64_t bytes);
 
 /// Why a job with these options does not fit `budget` bytes ("a 7680x4320 frame at S=4 needs 9.12 GiB
 /// of master memory; the budget is 6.20 GiB"), or nullopt when it fits (or budget is 0: no limit).

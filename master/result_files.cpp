@@ -1,13 +1,18 @@
 #include "master/result_files.h"
 
 #include <fmt/format.h>
+#include <stdio.h>
 #include <tbb/task_group.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
+#include <system_error>
+
+#include "common/checked_file.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -48,12 +53,9 @@ void write_kind(const ResultKindInfo& k, const FrameImages& img, const nlohmann:
     case ResultKind::kSamplesPng:
       write_png_srgb(path, samples_heat_map(img.reprojected));
       return;
-    case ResultKind::kJson: {
-      std::ofstream out(path);
-      out << stats.dump(2) << "\n";
-      if (!out.flush()) throw std::runtime_error(fmt::format("cannot write '{}'", path));
+    case ResultKind::kJson:
+      write_file_checked(path, stats.dump(2) + "\n");
       return;
-    }
   }
 }
 
@@ -101,10 +103,20 @@ void write_results(const FrameImages& images, bool reprojects, const nlohmann::j
     if (path.empty()) continue;
     files.run([&k, &images, &stats, path] {
       // The temp name keeps the extension, which OpenImageIO picks the format by.
+      // Renamed into place only once written whole and fsynced: a failed write (a full disk) leaves
+      // no file under the final name, and the temp file is removed.
       const fs::path final_path(path);
       const fs::path tmp = final_path.parent_path() / (".tmp-" + final_path.filename().string());
-      write_kind(k, images, stats, tmp.string());
-      fs::rename(tmp, final_path);
+      try {
+        write_kind(k, images, stats, tmp.string());
+        if (::rename(tmp.c_str(), final_path.c_str()) != 0)
+          throw std::system_error(errno, std::generic_category(),
+                                  fmt::format("cannot rename '{}' to '{}'", tmp.string(), final_path.string()));
+      } catch (...) {
+        std::error_code ec;
+        fs::remove(tmp, ec);
+        throw;
+      }
     });
   }
   files.wait();  // rethrows what a write threw

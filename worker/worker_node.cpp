@@ -9,8 +9,11 @@
 #include <algorithm>
 #include <atomic>
 #include <condition_variable>
+#include <cstdio>
+#include <cstdlib>
 #include <future>
 #include <map>
+#include <optional>
 #include <random>
 #include <stdexcept>
 #include <thread>
@@ -38,7 +41,20 @@ namespace epr {
 namespace {
 
 constexpr int kMinWaitMs = 5, kMaxWaitMs = 60000;  // bounds on the master's Wait.retry_after_ms
-constexpr size_t kMaxFailingJobs = 256;            // job failure records kept
+
+// Test hook (tests/integration/cluster/tile_loss_test.cpp): EPR_TEST_ABORT_ON_TILE=X,Y makes the
+// worker call std::abort(), as a crash in Embree would, when it starts a tile holding pixel (X, Y).
+std::optional<std::pair<int, int>> abort_on_tile_pixel() {
+  static const std::optional<std::pair<int, int>> pixel = []() -> std::optional<std::pair<int, int>> {
+    const char* v = std::getenv("EPR_TEST_ABORT_ON_TILE");
+    int x = 0, y = 0;
+    char extra = 0;
+    if (!v || std::sscanf(v, "%d,%d%c", &x, &y, &extra) != 2) return std::nullopt;
+    return std::pair{x, y};
+  }();
+  return pixel;
+}
+constexpr size_t kMaxFailingJobs = 256;  // job failure records kept
 // How long a master may hold a LeaseTile call when no tile is available yet (a round closing, its
 // last tiles out, no job): the answer then comes the moment a tile is there (LeaseRequest.max_wait_ms).
 constexpr uint32_t kLeaseMaxWaitMs = 1000;
@@ -209,6 +225,11 @@ struct WorkerNode::Impl {
     }
     job_ok(job_key);
 
+    if (const auto p = abort_on_tile_pixel(); p && tile.rect.x0 <= p->first && p->first < tile.rect.x1 &&
+                                              tile.rect.y0 <= p->second && p->second < tile.rect.y1) {
+      log->critical("EPR_TEST_ABORT_ON_TILE: aborting on job {} tile {}", lease.job_id(), lease.tile_index());
+      std::abort();
+    }
     std::optional<TileResult> result;
     try {
       // Vertices are encoded as they are traced (the bytes SubmitTile sends), not in a pass afterwards.

@@ -169,8 +169,14 @@ std::string unseal(RecordKind kind, std::string_view bytes, uint32_t* version_ou
 
 void write_file_atomically(const fs::path& path, std::string_view bytes) {
   const fs::path tmp = temp_of(path);
-  write_and_sync(tmp, {bytes});
-  rename_or_throw(tmp, path);
+  try {
+    write_and_sync(tmp, {bytes});
+    rename_or_throw(tmp, path);
+  } catch (...) {
+    std::error_code ec;
+    fs::remove(tmp, ec);  // a short file (a full disk) is left nowhere
+    throw;
+  }
   fsync_dir(path.parent_path().empty() ? fs::path(".") : path.parent_path());
 }
 

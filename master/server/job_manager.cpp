@@ -117,35 +117,51 @@ std::optional<std::string> JobManager::validate(const JobRequest& req) const {
 JobManager::SubmitResult JobManager::submit(JobRequest req) {
   const std::string hash = content_hash(req.bundle);
   if (auto err = validate(req)) return {"", *err, hash};
+  // The scene and the spec are stored before the client learns the id (what a restart needs); a
+  // job the state folder cannot take is refused.
+  auto unstored = [&](const std::string& what, const std::string& id, const std::exception& e) {
+    logger("master")->error("job {}refused: cannot store {}: {}", id.empty() ? "" : id + " ", what, e.what());
+    return SubmitResult{"", fmt::format("this master cannot store {}: {}", what, e.what()), hash, true};
+  };
   try {
     if (checkpointer_) store_->save_scene(hash, req.bundle);
   } catch (const std::exception& e) {
-    logger("master")->error("cannot store scene {}: {} (its jobs will not survive a restart)", hash, e.what());
+    return unstored("the job's scene", "", e);
   }
-  std::shared_ptr<Job> job;
-  std::vector<std::string> forgotten;
+  auto job = std::make_shared<Job>();
   {
     MutexLock lock(mu_);
     if (auto earlier = jobs_.find_request(req.request_id)) return {earlier->id, "", hash};
-    job = std::make_shared<Job>();
     job->seq = jobs_.next_seq();
     job->submitted_ms = clock_();
-    job->id = fmt::format("{}{}j{:06d}-{:04x}", options_.name, options_.name.empty() ? "" : ".", job->seq,
-                          uint32_t(job->submitted_ms) & 0xffff);
-    job->scene_hash = hash;
+  }
+  job->id = fmt::format("{}{}j{:06d}-{:04x}", options_.name, options_.name.empty() ? "" : ".", job->seq,
+                        uint32_t(job->submitted_ms) & 0xffff);
+  job->scene_hash = hash;
+  job->tiles = make_tiles(req.options);
+  SceneBundleData bundle = std::move(req.bundle);
+  job->request = std::move(req);
+  try {
+    if (checkpointer_) store_->save_spec(spec_record(*job));
+  } catch (const std::exception& e) {
+    store_->remove_job(job->id);
+    return unstored("the job's spec", job->id, e);
+  }
+  std::vector<std::string> forgotten;
+  std::string earlier_id;
+  {
+    MutexLock lock(mu_);
+    if (auto earlier = jobs_.find_request(job->request.request_id)) earlier_id = earlier->id;  // submitted meanwhile
     auto& cached = scenes_[hash];
-    if (!cached) cached = std::make_shared<const SceneBundleData>(std::move(req.bundle));
+    if (!cached) cached = std::make_shared<const SceneBundleData>(std::move(bundle));
     job->bundle = cached;
-    job->tiles = make_tiles(req.options);
-    job->request = std::move(req);
-    forgotten = jobs_.add(job, size_t(options_.max_jobs));
+    if (earlier_id.empty()) forgotten = jobs_.add(job, size_t(options_.max_jobs));
+  }
+  if (!earlier_id.empty()) {
+    store_->remove_job(job->id);
+    return {earlier_id, "", hash};
   }
   for (const auto& id : forgotten) store_->remove_job(id);
-  try {
-    if (checkpointer_) store_->save_spec(spec_record(*job));  // before the client learns the id
-  } catch (const std::exception& e) {
-    logger("master")->error("job {}: cannot store its spec: {} (it will not survive a restart)", job->id, e.what());
-  }
   const RenderOptions& o = job->request.options;
   logger("master")->info("job {} submitted: {} {}x{} spp {} mode {}", job->id, job->scene_hash.substr(0, 12), o.width,
                          o.height, o.spp, to_string(o.mode));
@@ -384,7 +400,7 @@ void JobManager::fail_leases(const std::string& worker, const std::vector<uint64
       for (const auto& job : running_) {
         if (!job->leases || !job->leases->release(lease, worker, failure, reason)) continue;
         ++job->version;
-        if (failure != LeaseFailure::kNone) fail_if_all_blocked(job, &failed);
+        if (failure != LeaseFailure::kNone) fail_if_stuck(job, &failed);
         break;
       }
     }
@@ -392,12 +408,24 @@ void JobManager::fail_leases(const std::string& worker, const std::vector<uint64
   }
   answer_due();
   if (!failed.empty()) work_cv_.notify_all();
-  for (const auto& job : failed) notify(job);
+  for (const auto& job : failed) {
+    save_final_checkpoint(job);  // a restart must not run it again
+    notify(job);
+  }
 }
 
-void JobManager::fail_if_all_blocked(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed) {
+void JobManager::fail_if_stuck(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed) {
   if (job->state != JobState::kRunning || !job->leases) return;
-  auto why = job->leases->all_blocked(workers_.ids());
+  std::optional<std::string> why;
+  if (const auto lost = job->leases->lost_tile()) {
+    const TileRect& r = job->tiles.at(lost->tile);
+    why = fmt::format(
+        "tile {} (pixels x {}-{}, y {}-{}) lost its worker {} times: every worker that took it vanished (crashed, "
+        "killed or cut off) before returning it, so it is not handed out again",
+        lost->tile, r.x0, r.x1 - 1, r.y0, r.y1 - 1, lost->losses);
+  } else {
+    why = job->leases->all_blocked(workers_.ids());
+  }
   if (!why) return;
   logger("master")->error("job {} failed: {}", job->id, *why);
   if (job->end(JobState::kFailed, *why, clock_())) failed->push_back(job);
@@ -581,17 +609,20 @@ void JobManager::reaper_loop() {
         if (WorkerRegistry::Worker* w = workers_.find(e.worker)) w->leases.erase(e.lease);
         ++job->version;
       }
-      if (!expired.empty()) fail_if_all_blocked(job, &failed);
+      if (!expired.empty()) fail_if_stuck(job, &failed);
     }
     workers_.forget_silent(clock_(), options_.worker_timeout_ms);
     // The workers that were not blocked may have left.
-    for (const auto& job : running_) fail_if_all_blocked(job, &failed);
+    for (const auto& job : running_) fail_if_stuck(job, &failed);
     // Parked lease requests: tiles that came back, speculative copies, and the ones out of time.
     wake_parked(/*all=*/false);
     lock.unlock();
     answer_due();
     if (!failed.empty()) work_cv_.notify_all();
-    for (const auto& job : failed) notify(job);
+    for (const auto& job : failed) {
+      save_final_checkpoint(job);  // a restart must not run it again
+      notify(job);
+    }
     lock.lock();
   }
 }

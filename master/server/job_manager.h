@@ -109,6 +109,7 @@ struct MasterOptions {
   double speculative_factor = 2.0;
   int speculative_floor_ms = 1000;
   int max_worker_failures = 3;
+  int max_tile_losses = 3;
   // A running job holds a copy of its images (32 bytes per pixel) only while someone asks for its
   // previews or partial results: for this long after the last ask (Job::preview_images).
   int preview_interest_ms = 10000;
@@ -122,7 +123,8 @@ struct MasterOptions {
   std::function<void(const std::string& job_id, uint32_t round)> before_round_close;
 
   LeasePolicy lease_policy() const {
-    return {lease_timeout_ms, heartbeat_interval_ms, speculative_factor, speculative_floor_ms, max_worker_failures};
+    return {lease_timeout_ms,     heartbeat_interval_ms, speculative_factor,
+            speculative_floor_ms, max_worker_failures,   max_tile_losses};
   }
 };
 
@@ -141,6 +143,7 @@ class JobManager {
     std::string id;          // the new (or, for a repeated request_id, the earlier) job
     std::string error;       // non-empty: why the request is invalid (INVALID_ARGUMENT)
     std::string scene_hash;  // the request's scene
+    bool unstored = false;   // the error: the state folder could not store the job (RESOURCE_EXHAUSTED)
   };
   SubmitResult submit(JobRequest request) EPR_EXCLUDES(mu_);
   std::optional<JobSnapshot> get(const std::string& id) const EPR_EXCLUDES(mu_);
@@ -279,9 +282,9 @@ class JobManager {
   void answer_due() EPR_EXCLUDES(mu_);
   JobSnapshot snapshot(const Job& job) const EPR_REQUIRES(mu_);
   void notify(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
-  /// Fails the running job if every registered worker is blocked for it.
-  void fail_if_all_blocked(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed)
-      EPR_REQUIRES(mu_);
+  /// Fails the running job if one of its tiles was given up (its leases expired max_tile_losses
+  /// times: lease_table.h) or every registered worker is blocked for it.
+  void fail_if_stuck(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed) EPR_REQUIRES(mu_);
   std::string job_dir(const Job& job) const;
   std::string cache_dir() const;
 

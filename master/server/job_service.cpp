@@ -307,6 +307,10 @@ grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext*
     jr.camera = scene_camera;
   }
   const auto r = jobs_.submit(std::move(jr));
+  if (r.unstored) {
+    jobs_.discard_checked_scene(r.scene_hash);
+    return finish(ctx, grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED, r.error));
+  }
   if (!r.error.empty()) return refuse(r.error, r.scene_hash);
   resp->set_id(r.id);
   return finish(ctx, grpc::Status::OK);

@@ -38,6 +38,7 @@ std::optional<LeaseTable::Grant> LeaseTable::lease(const std::string& worker, ui
   const int64_t now = clock_();
   std::optional<uint32_t> speculative;
   if (pending_.empty() && !(speculative = speculative_tile(worker, now))) return std::nullopt;
+  if (lost_tile_) return std::nullopt;  // the job is failing: no tile goes out again
   const uint32_t t = speculative ? *speculative : pending_.front();
   if (!speculative) pending_.pop_front();
   Slot& slot = slots_[t];
@@ -166,6 +167,12 @@ std::vector<LeaseTable::Expired> LeaseTable::expire() {
                 e.tile, e.lease, e.worker);
     drop_hold(e.tile, e.lease);
     count_failure(e.worker, LeaseFailure::kExpired, fmt::format("lease of tile {} expired without a result", e.tile));
+    const int losses = ++losses_[e.tile];
+    if (policy_.max_tile_losses > 0 && losses >= policy_.max_tile_losses && !lost_tile_) {
+      lost_tile_ = LostTile{e.tile, losses};
+      log->error("job {} tile {}: its lease expired {} times (its workers vanished): the tile is given up", job_id_,
+                 e.tile, losses);
+    }
   }
   return expired;
 }

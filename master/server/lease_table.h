@@ -13,6 +13,10 @@
 //    round; the first complete result wins and the other leases lose.
 //  - A lease that expires, a result refused as invalid and a failure a worker reports count against
 //    the worker; at max_worker_failures it gets no more tiles of the job.
+//  - A lease that expires (its worker vanished: crashed, killed or cut off; a worker that stops
+//    gracefully gives its leases back instead) counts against the tile, across rounds: at
+//    max_tile_losses the tile is handed out no more and lost_tile() names it (the JobManager fails
+//    the job), so a tile that crashes every worker taking it does not take the farm with it.
 // Not thread-safe: the JobManager calls it under its mutex. Time comes from an injected clock, so the
 // policy is tested without gRPC and without sleeping.
 #pragma once
@@ -44,6 +48,7 @@ struct LeasePolicy {
   double speculative_factor = 2.0;  // <= 0: no speculative copies
   int speculative_floor_ms = 1000;
   int max_worker_failures = 3;  // <= 0: never block
+  int max_tile_losses = 3;      // <= 0: never give a tile up
 };
 
 class LeaseTable {
@@ -100,6 +105,13 @@ class LeaseTable {
   /// Releases every lease past its deadline and counts a failure against its holder.
   std::vector<Expired> expire();
 
+  /// A tile whose leases expired max_tile_losses times (the first such tile), and that count.
+  struct LostTile {
+    uint32_t tile = 0;
+    int losses = 0;
+  };
+  std::optional<LostTile> lost_tile() const { return lost_tile_; }
+
   /// The reason the job cannot go on if every one of `workers` is blocked for it, else nullopt.
   std::optional<std::string> all_blocked(const std::vector<std::string>& workers) const;
 
@@ -137,6 +149,8 @@ class LeaseTable {
   std::map<std::string, int> failures_;  // worker -> failed leases of this job
   std::set<std::string> blocked_, scene_failed_;
   std::string last_failure_;
+  std::map<uint32_t, int> losses_;  // tile -> leases of it that expired, over every round
+  std::optional<LostTile> lost_tile_;
 };
 
 }  // namespace epr

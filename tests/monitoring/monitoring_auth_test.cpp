@@ -53,6 +53,8 @@ TEST_F(MonitoringAuthTest, EveryRouteButTheProbesNeedsTheToken) {
       {"wrong token", {{"Authorization", "Bearer " + kToken + "x"}}},
       {"a prefix of the token", {{"Authorization", "Bearer " + kToken.substr(0, 5)}}},
       {"not a bearer", {{"Authorization", "Basic " + kToken}}},
+      {"no space after the scheme", {{"Authorization", "Bearer" + kToken}}},
+      {"the scheme alone", {{"Authorization", "Bearer "}}},
       {"the token without a scheme", {{"Authorization", kToken}}},
       {"the token as the cookie", {{"Cookie", "epr_session=" + kToken}}},
   };
@@ -107,6 +109,19 @@ TEST_F(MonitoringAuthTest, TheBearerTokenOpensEveryRoute) {
   auto post = http.Post("/api/v1/jobs", "{}", "application/json");
   ASSERT_TRUE(post);
   EXPECT_EQ(post->status, 405);
+}
+
+TEST_F(MonitoringAuthTest, TheSchemeIsCaseInsensitive) {
+  // RFC 7235: "bearer", "BEARER" and "Bearer" are one scheme; one or more spaces part it from the token.
+  auto http = http_client(*master_);
+  for (const std::string scheme : {"bearer ", "BEARER ", "bEaReR ", "Bearer   "}) {
+    for (const char* path : {"/metrics", "/api/v1/jobs"}) {
+      SCOPED_TRACE(scheme + path);
+      auto r = http.Get(path, {{"Authorization", scheme + kToken}});
+      ASSERT_TRUE(r);
+      EXPECT_EQ(r->status, 200) << r->body;
+    }
+  }
 }
 
 TEST_F(MonitoringAuthTest, LoginSetsAStrictHttpOnlySessionCookieThatIsNotTheToken) {

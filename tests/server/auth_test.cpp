@@ -54,6 +54,23 @@ TEST(Auth, BearerTokenIsRequiredWhenConfigured) {
   EXPECT_EQ(wrong.error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_EQ(wrong.error_message().find("s3cret"), std::string::npos) << "the reason must not echo the token";
   EXPECT_TRUE(list_jobs(channel, "s3cret-token").ok());
+  // The scheme is case-insensitive (RFC 7235); a scheme run into the token is not one.
+  for (const char* value : {"bearer s3cret-token", "BEARER s3cret-token", "Bearer  s3cret-token"}) {
+    auto stub = v1::JobService::NewStub(channel);
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(5));
+    ctx.AddMetadata("authorization", value);
+    v1::ListJobsResponse resp;
+    EXPECT_TRUE(stub->ListJobs(&ctx, v1::ListJobsRequest(), &resp).ok()) << value;
+  }
+  {
+    auto stub = v1::JobService::NewStub(channel);
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(5));
+    ctx.AddMetadata("authorization", "Bearers3cret-token");
+    v1::ListJobsResponse resp;
+    EXPECT_EQ(stub->ListJobs(&ctx, v1::ListJobsRequest(), &resp).error_code(), grpc::StatusCode::UNAUTHENTICATED);
+  }
   // Streams too: without the token the stream is refused before any chunk is looked at.
   EXPECT_EQ(submit_tile(channel, "").error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_EQ(submit_tile(channel, "s3cret-token").error_code(), grpc::StatusCode::INVALID_ARGUMENT);

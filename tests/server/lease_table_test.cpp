@@ -213,5 +213,50 @@ TEST_F(LeaseTableTest, ANewRoundForgetsTheOldRoundsLeases) {
   EXPECT_EQ(t.round(), 1u);
 }
 
+TEST_F(LeaseTableTest, ATileWhoseLeasesExpireMaxTileLossesTimesIsGivenUp) {
+  policy.max_worker_failures = 0;  // the dead workers' own failures are not what this tests
+  policy.max_tile_losses = 3;
+  LeaseTable t = make(2);
+  t.open_round(0, {0, 1});
+  // Tile 1's lease is given back (a graceful stop): that loses no worker.
+  uint64_t back = 0;
+  ASSERT_EQ(lease(t, "a", &back)->tile, 0u);
+  EXPECT_TRUE(t.release(back, "a", LeaseFailure::kNone, ""));
+  // Each worker that takes tile 0 vanishes: its lease expires.
+  for (int i = 1; i <= 2; ++i) {
+    ASSERT_EQ(lease(t, "dies" + std::to_string(i))->tile, 0u);
+    now += policy.lease_timeout_ms + 1;
+    ASSERT_EQ(t.expire().size(), 1u);
+    EXPECT_FALSE(t.lost_tile()) << "after " << i << " losses";
+  }
+  // The losses count over rounds.
+  uint64_t other = 0;
+  ASSERT_EQ(lease(t, "b", &other)->tile, 0u);
+  std::vector<uint64_t> losers;
+  t.commit(0, other, &losers);
+  t.open_round(1, {0, 1});
+  ASSERT_EQ(lease(t, "dies3")->tile, 0u);
+  now += policy.lease_timeout_ms + 1;
+  ASSERT_EQ(t.expire().size(), 1u);
+  ASSERT_TRUE(t.lost_tile());
+  EXPECT_EQ(t.lost_tile()->tile, 0u);
+  EXPECT_EQ(t.lost_tile()->losses, 3);
+  EXPECT_FALSE(lease(t, "fresh")) << "no tile goes out once one is given up";
+}
+
+TEST_F(LeaseTableTest, ZeroMaxTileLossesNeverGivesATileUp) {
+  policy.max_worker_failures = 0;
+  policy.max_tile_losses = 0;
+  LeaseTable t = make(1);
+  t.open_round(0, {0});
+  for (int i = 0; i < 5; ++i) {
+    ASSERT_TRUE(lease(t, "dies" + std::to_string(i)));
+    now += policy.lease_timeout_ms + 1;
+    ASSERT_EQ(t.expire().size(), 1u);
+  }
+  EXPECT_FALSE(t.lost_tile());
+  EXPECT_TRUE(lease(t, "fresh"));
+}
+
 }  // namespace
 }  // namespace epr

@@ -5,6 +5,7 @@
 #include <grpcpp/server_context.h>
 
 #include <algorithm>
+#include <cctype>
 
 namespace epr::rpc {
 namespace {
@@ -70,9 +71,14 @@ grpc::Status BearerTokenCheck::check(const std::multimap<grpc::string_ref, grpc:
   const auto it = metadata.find("authorization");
   if (it == metadata.end())
     return {grpc::StatusCode::UNAUTHENTICATED, "this master requires a bearer token (authorization metadata)"};
-  const std::string_view value(it->second.data(), it->second.size());
-  constexpr std::string_view kPrefix = "Bearer ";
-  if (value.substr(0, kPrefix.size()) != kPrefix || !constant_time_equal(value.substr(kPrefix.size()), token_))
+  std::string_view value(it->second.data(), it->second.size());
+  // "Bearer" 1*SP token, the scheme case-insensitive (RFC 7235 section 2.1).
+  constexpr std::string_view kScheme = "bearer";
+  const bool bearer = value.size() > kScheme.size() && value[kScheme.size()] == ' ' &&
+                      std::equal(kScheme.begin(), kScheme.end(), value.begin(),
+                                 [](char a, char b) { return a == std::tolower(static_cast<unsigned char>(b)); });
+  if (bearer) value.remove_prefix(std::min(value.find_first_not_of(' ', kScheme.size()), value.size()));
+  if (!bearer || !constant_time_equal(value, token_))
     return {grpc::StatusCode::UNAUTHENTICATED, "the bearer token is not valid for this master"};
   return grpc::Status::OK;
 }

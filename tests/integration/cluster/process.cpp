@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/prctl.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -19,7 +20,7 @@ namespace epr::testing {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-Process::Process(std::vector<std::string> argv, const fs::path& log_prefix)
+Process::Process(std::vector<std::string> argv, const fs::path& log_prefix, const ProcessOptions& options)
     : name_(fs::path(argv.at(0)).filename().string()),
       out_path_(log_prefix.string() + ".out"),
       err_path_(log_prefix.string() + ".err") {
@@ -29,6 +30,19 @@ Process::Process(std::vector<std::string> argv, const fs::path& log_prefix)
   std::vector<char*> args;
   for (auto& a : argv) args.push_back(a.data());
   args.push_back(nullptr);
+  std::vector<std::string> env_strings;
+  for (char** e = environ; *e; ++e) {
+    const std::string entry = *e;
+    const std::string name = entry.substr(0, entry.find('='));
+    bool replaced = false;
+    for (const auto& o : options.env) replaced |= o.substr(0, o.find('=')) == name;
+    if (!replaced) env_strings.push_back(entry);
+  }
+  env_strings.insert(env_strings.end(), options.env.begin(), options.env.end());
+  std::vector<char*> env;
+  for (auto& e : env_strings) env.push_back(e.data());
+  env.push_back(nullptr);
+  const rlim_t file_size_limit = rlim_t(options.file_size_limit);
   const pid_t parent = ::getpid();
   pid_ = ::fork();
   if (pid_ < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));
@@ -43,7 +57,13 @@ Process::Process(std::vector<std::string> argv, const fs::path& log_prefix)
     ::dup2(in, STDIN_FILENO);
     ::dup2(out, STDOUT_FILENO);
     ::dup2(err, STDERR_FILENO);
-    ::execv(args[0], args.data());
+    if (file_size_limit > 0) {
+      struct sigaction ignore {};
+      ignore.sa_handler = SIG_IGN;
+      const struct rlimit limit { file_size_limit, file_size_limit };
+      if (::sigaction(SIGXFSZ, &ignore, nullptr) != 0 || ::setrlimit(RLIMIT_FSIZE, &limit) != 0) ::_exit(127);
+    }
+    ::execve(args[0], args.data(), env.data());
     ::_exit(127);
   }
 }

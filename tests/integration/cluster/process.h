@@ -5,6 +5,7 @@
 #include <sys/types.h>
 
 #include <chrono>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <functional>
@@ -17,13 +18,21 @@ namespace epr::testing {
 
 using Millis = std::chrono::milliseconds;
 
+/// What a child gets besides this process's environment.
+struct ProcessOptions {
+  std::vector<std::string> env;  // NAME=VALUE, set in the child (over this process's value)
+  // > 0: the child's RLIMIT_FSIZE, with SIGXFSZ ignored: a write past it fails with EFBIG (a full
+  // disk, for one process, that works as root too). Its logs count: keep them under it.
+  uint64_t file_size_limit = 0;
+};
+
 /// A running (or finished) child process. Not copyable; the destructor ends and reaps it.
 class Process {
  public:
   /// Starts argv[0] (a path) with argv and this process's environment; stdin is /dev/null, stdout
   /// goes to `log_prefix`.out and stderr to `log_prefix`.err. The child gets SIGKILL if this process
   /// dies first. Throws std::runtime_error if the program cannot be started.
-  Process(std::vector<std::string> argv, const std::filesystem::path& log_prefix);
+  Process(std::vector<std::string> argv, const std::filesystem::path& log_prefix, const ProcessOptions& options = {});
   ~Process();
   Process(const Process&) = delete;
   Process& operator=(const Process&) = delete;

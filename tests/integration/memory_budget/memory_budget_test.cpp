@@ -22,7 +22,7 @@ class MemoryBudgetTest : public FarmFixture {
   void SetUp() override {
     FarmFixture::SetUp();
     MasterOptions mo;
-    mo.memory_budget_bytes = 256ull << 20;  // 0.25 GiB
+    mo.memory_budget_bytes = 256ull << 20;  // 256 MiB
     start(mo);
   }
 };
@@ -36,9 +36,9 @@ TEST_F(MemoryBudgetTest, AnOversizeFrameIsRefusedWithWhatItNeeds) {
   EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(5));  // no setup
   EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   // The fixture's master has a state folder: its checkpoints count.
-  const std::string need = format_gib(estimate_job_memory(big, /*checkpoints=*/true).total());
+  const std::string need = format_byte_size(estimate_job_memory(big, /*checkpoints=*/true).total());
   EXPECT_NE(
-      st.error_message().find("a 1024x1024 frame at S=4 needs " + need + " of master memory; the budget is 0.25 GiB"),
+      st.error_message().find("a 1024x1024 frame at S=4 needs " + need + " of master memory; the budget is 256.00 MiB"),
       std::string::npos)
       << st.error_message();
   // Path tracing needs no subpixel arrays: the same frame fits.
@@ -160,6 +160,22 @@ TEST(MemoryEstimate, ParsesSizesAndCountsTheSubpixels) {
   EXPECT_FALSE(parse_byte_size("8X"));
   EXPECT_FALSE(parse_byte_size("G"));
   EXPECT_FALSE(parse_byte_size("0"));
+  EXPECT_EQ(format_byte_size(3ull << 29), "1.50 GiB");
+  EXPECT_EQ(format_byte_size(256ull << 20), "256.00 MiB");
+  EXPECT_EQ(format_byte_size(1536), "1.50 KiB");
+  EXPECT_EQ(format_byte_size(100), "100 bytes");
+  // A small budget shows its figure, not "0.00 GiB".
+  RenderOptions small;
+  small.width = 64;
+  small.height = 64;
+  small.subpixels = 4;
+  small.mode = RenderMode::kSkip;
+  const std::optional<std::string> refusal = memory_budget_error(small, false, 64 << 10);
+  ASSERT_TRUE(refusal);
+  EXPECT_NE(refusal->find("needs " + format_byte_size(estimate_job_memory(small, false).total())), std::string::npos)
+      << *refusal;
+  EXPECT_NE(refusal->find("the budget is 64.00 KiB"), std::string::npos) << *refusal;
+  EXPECT_EQ(refusal->find("0.00 GiB"), std::string::npos) << *refusal;
   RenderOptions o;
   o.width = 1920;
   o.height = 1080;
