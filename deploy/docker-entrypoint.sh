@@ -18,6 +18,7 @@
 #           EPR_LEASE_TIMEOUT_MS  EPR_HEARTBEAT_MS  EPR_REPROJECT (cpu)  EPR_MAX_QUEUED_VERTICES
 #           EPR_CHECKPOINT_INTERVAL   seconds between a job's round checkpoints, 0 or auto
 #           EPR_MEMORY_BUDGET         jobs needing more master memory are refused (8G, 512M; 0: no limit)
+#           EPR_MAX_TILE_LOSSES       a job fails once one tile has lost its worker this often (3; 0: never)
 #           EPR_DRAIN_TIMEOUT         SIGTERM: seconds at most for the open rounds to finish and be
 #                                     checkpointed before the master exits (0: at once)
 #           EPR_TOKEN_FILE            the bearer token every client and worker must send (a secret)
@@ -65,6 +66,7 @@ case "$role" in
     flag max-queued-vertices "${EPR_MAX_QUEUED_VERTICES:-}"
     flag checkpoint-interval "${EPR_CHECKPOINT_INTERVAL:-}"
     flag memory-budget "${EPR_MEMORY_BUDGET:-}"
+    flag max-tile-losses "${EPR_MAX_TILE_LOSSES:-}"
     flag drain-timeout "${EPR_DRAIN_TIMEOUT:-}"
     flag log-level "${EPR_LOG_LEVEL:-}"
     flag token-file "${EPR_TOKEN_FILE:-}"

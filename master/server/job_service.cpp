@@ -246,74 +246,96 @@ void to_proto(const JobSnapshot& s, v1::JobStatus* out) {
   out->set_batch_frames(s.batch.frames);
 }
 
-grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
-                                                    v1::JobId* resp) {
-  JobRequest jr;
-  if (auto err = from_job_spec(*req, &jr.options, &jr.camera)) return finish(ctx, invalid(*err));
-  const auto& scene = req->scene();
+grpc::Status JobServiceImpl::checked_request(const v1::JobSpec& req, const std::vector<uint32_t>& frames,
+                                             JobRequest* jr) {
+  if (auto err = from_job_spec(req, &jr->options, &jr->camera)) return invalid(*err);
+  const auto& scene = req.scene();
   switch (scene.source_case()) {
     case v1::SceneBundle::kBuiltin:
-      jr.bundle.builtin = scene.builtin();
+      jr->bundle.builtin = scene.builtin();
       break;
     case v1::SceneBundle::kFiles:
-      jr.bundle = from_proto(scene.files());
-      if (!scene.content_hash().empty() && scene.content_hash() != content_hash(jr.bundle))
-        return finish(ctx, invalid("the scene's content_hash does not match its files"));
+      jr->bundle = from_proto(scene.files());
+      if (!scene.content_hash().empty() && scene.content_hash() != content_hash(jr->bundle))
+        return invalid("the scene's content_hash does not match its files");
       break;
     case v1::SceneBundle::kUploadedHash: {
       auto b = jobs_.scene(scene.uploaded_hash());
-      if (!b)
-        return finish(ctx, {grpc::StatusCode::NOT_FOUND, fmt::format("no uploaded scene '{}'", scene.uploaded_hash())});
-      jr.bundle = *b;
+      if (!b) return {grpc::StatusCode::NOT_FOUND, fmt::format("no uploaded scene '{}'", scene.uploaded_hash())};
+      jr->bundle = *b;
       break;
     }
     default:
-      return finish(ctx, invalid("the job has no scene"));
+      return invalid("the job has no scene");
   }
-  if (req->name().size() > 256) return finish(ctx, invalid("job names are limited to 256 bytes"));
-  jr.name = req->name();
-  jr.priority = req->priority();
-  jr.request_id = req->request_id();
-  if (req->has_time_budget_seconds()) jr.time_budget_seconds = req->time_budget_seconds();
-  if (auto err = batch_error(*req)) return finish(ctx, invalid(*err));
-  jr.batch = {req->batch_id(), req->batch_name(),
-              req->has_frame() ? std::optional<uint32_t>(req->frame()) : std::nullopt, req->batch_frames()};
+  if (req.name().size() > 256) return invalid("job names are limited to 256 bytes");
+  jr->name = req.name();
+  jr->priority = req.priority();
+  jr->request_id = req.request_id();
+  if (req.has_time_budget_seconds()) jr->time_budget_seconds = req.time_budget_seconds();
+  if (auto err = batch_error(req)) return invalid(*err);
+  jr->batch = {req.batch_id(), req.batch_name(), req.has_frame() ? std::optional<uint32_t>(req.frame()) : std::nullopt,
+               req.batch_frames()};
   // The limits first (cheap, and a huge bundle is not parsed), then the scene itself, so that a
   // malformed file is an INVALID_ARGUMENT naming file and line, not a job that fails later. Without a
   // camera in the spec the job takes the scene's own.
-  if (auto err = jobs_.validate(jr)) return finish(ctx, invalid(*err));
+  if (auto err = jobs_.validate(*jr)) return invalid(*err);
   // A frame this master cannot hold is refused now, with what it would need, not after the setup.
   // INVALID_ARGUMENT rather than RESOURCE_EXHAUSTED: clients retry the latter, and the same request
   // never fits this master.
   const MasterOptions& mo = jobs_.options();
-  if (auto err = memory_budget_error(jr.options, mo.checkpoints && !mo.state_dir.empty(), mo.memory_budget_bytes))
-    return finish(ctx, invalid(*err));
+  if (auto err = memory_budget_error(jr->options, mo.checkpoints && !mo.state_dir.empty(), mo.memory_budget_bytes))
+    return invalid(*err);
   CameraSpec scene_camera;
-  CameraAnimation animation;  // a frame without a camera: the scene's camera at that frame
-  const bool frame_camera = !req->has_camera() && req->has_frame();
+  CameraAnimation animation;  // frames without a camera: the scene's camera at each frame
+  const bool frame_camera = !req.has_camera() && !frames.empty();
   // From here on the scene is in the master's cache: a refusal removes it again.
-  auto refuse = [&](const std::string& why, const std::string& hash) {
-    jobs_.discard_checked_scene(hash);
-    return finish(ctx, invalid(why));
+  auto refuse = [&](const std::string& why) {
+    jobs_.discard_checked_scene(content_hash(jr->bundle));
+    return invalid(why);
   };
-  if (auto err = jobs_.check_scene(jr.bundle, &scene_camera, frame_camera ? &animation : nullptr, jr.options.lighting))
-    return refuse(*err, content_hash(jr.bundle));
-  if (frame_camera) {
-    if (auto err = animation.frame_problem(req->frame(), scene_camera)) return refuse(*err, content_hash(jr.bundle));
-    scene_camera = animation.at(req->frame(), scene_camera);
+  if (auto err =
+          jobs_.check_scene(jr->bundle, &scene_camera, frame_camera ? &animation : nullptr, jr->options.lighting))
+    return refuse(*err);
+  if (req.has_camera()) return grpc::Status::OK;
+  const CameraSpec own = scene_camera;
+  for (uint32_t frame : frames.empty() ? std::vector<uint32_t>{0} : frames) {
+    if (frame_camera) {
+      if (auto err = animation.frame_problem(frame, own)) return refuse(*err);
+      scene_camera = animation.at(frame, own);
+    }
+    if (auto err = scene_camera.validate())
+      return refuse(frame_camera ? fmt::format("frame {}: the scene's camera: {}", frame, *err)
+                                 : "the scene's own camera: " + *err);
   }
-  if (!req->has_camera()) {
-    if (auto err = scene_camera.validate()) return refuse("the scene's own camera: " + *err, content_hash(jr.bundle));
-    jr.camera = scene_camera;
-  }
+  jr->camera = scene_camera;
+  return grpc::Status::OK;
+}
+
+grpc::ServerUnaryReactor* JobServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
+                                                    v1::JobId* resp) {
+  JobRequest jr;
+  const std::vector<uint32_t> frames = req->has_frame() ? std::vector<uint32_t>{req->frame()} : std::vector<uint32_t>{};
+  if (grpc::Status st = checked_request(*req, frames, &jr); !st.ok()) return finish(ctx, st);
   const auto r = jobs_.submit(std::move(jr));
   if (r.unstored) {
     jobs_.discard_checked_scene(r.scene_hash);
     return finish(ctx, grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED, r.error));
   }
-  if (!r.error.empty()) return refuse(r.error, r.scene_hash);
+  if (!r.error.empty()) {
+    jobs_.discard_checked_scene(r.scene_hash);
+    return finish(ctx, invalid(r.error));
+  }
   resp->set_id(r.id);
   return finish(ctx, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* JobServiceImpl::CheckFrames(grpc::CallbackServerContext* ctx,
+                                                      const v1::CheckFramesRequest* req, v1::CheckFramesReply*) {
+  if (req->frames_size() == 0) return finish(ctx, invalid("no frames to check"));
+  if (req->spec().has_frame()) return finish(ctx, invalid("the frames to check are in 'frames', not in the spec"));
+  JobRequest jr;
+  return finish(ctx, checked_request(req->spec(), {req->frames().begin(), req->frames().end()}, &jr));
 }
 
 grpc::ServerReadReactor<v1::SceneChunk>* JobServiceImpl::UploadScene(grpc::CallbackServerContext* ctx,

@@ -13,6 +13,8 @@ class JobServiceImpl final : public v1::JobService::CallbackService {
 
   grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* ctx, const v1::JobSpec* req,
                                       v1::JobId* resp) override;
+  grpc::ServerUnaryReactor* CheckFrames(grpc::CallbackServerContext* ctx, const v1::CheckFramesRequest* req,
+                                        v1::CheckFramesReply* resp) override;
   grpc::ServerReadReactor<v1::SceneChunk>* UploadScene(grpc::CallbackServerContext* ctx, v1::SceneRef* resp) override;
   grpc::ServerUnaryReactor* GetJob(grpc::CallbackServerContext* ctx, const v1::JobId* req,
                                    v1::JobStatus* resp) override;
@@ -28,6 +30,11 @@ class JobServiceImpl final : public v1::JobService::CallbackService {
                                           v1::MasterInfo* resp) override;
 
  private:
+  /// Everything SubmitJob checks before it queues a job: the spec, its scene (loaded) and, without a
+  /// camera in the spec, the scene's camera at each of `frames` (none: the scene's own camera). Fills
+  /// `jr` for the last frame. A refusal removes what the check left in the scene cache.
+  grpc::Status checked_request(const v1::JobSpec& req, const std::vector<uint32_t>& frames, JobRequest* jr);
+
   JobManager& jobs_;
   const std::string instance_;  // MasterInfo.instance: random, per server
 };

@@ -4,6 +4,7 @@
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
+#include <filesystem>
 #include <fstream>
 #include <thread>
 
@@ -336,6 +337,44 @@ TEST_F(MasterServiceTest, WholeJobOverGrpcEqualsSingleProcessRender) {
   ASSERT_EQ(rc.data.size(), local.counts.data.size());
   EXPECT_EQ(rc.data, local.counts.data) << "M and M' must be identical";
   EXPECT_EQ(rp.data, local.pathtrace.data) << "path-traced sums must be identical";
+}
+
+TEST_F(MasterServiceTest, CheckFramesRefusesABadFrameAndQueuesNothing) {
+  // The camera passes through its target between the keys: frame 3 is degenerate.
+  const std::string dir = ::testing::TempDir() + "/epr-check-frames";
+  std::filesystem::create_directories(dir);
+  std::ofstream(dir + "/through.json") << R"({"builtin": "cornell", "animation": {"camera": [
+  {"frame": 1, "eye": [0, 1, 2], "look": [0, 1, 0]},
+  {"frame": 5, "eye": [0, 1, -2]}]}})";
+  RenderOptions o;
+  o.width = o.height = 16;
+  o.spp = 1;
+  v1::JobSpec spec = to_job_spec(o, bundle_scene(dir + "/through.json"), CameraSpec{});
+  spec.clear_camera();
+  auto check = [&](std::vector<uint32_t> frames) {
+    grpc::ClientContext ctx;
+    deadline(&ctx);
+    v1::CheckFramesRequest req;
+    *req.mutable_spec() = spec;
+    for (uint32_t f : frames) req.add_frames(f);
+    v1::CheckFramesReply reply;
+    return jobs_->CheckFrames(&ctx, req, &reply);
+  };
+  EXPECT_TRUE(check({1, 2, 4, 5}).ok());
+  const grpc::Status bad = check({1, 2, 3, 4});
+  EXPECT_EQ(bad.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(bad.error_message().find("frame 3: camera eye and look-at point coincide"), std::string::npos)
+      << bad.error_message();
+  EXPECT_EQ(check({}).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  spec.set_frame(2);
+  EXPECT_EQ(check({1}).error_code(), grpc::StatusCode::INVALID_ARGUMENT) << "a frame in the spec is ambiguous";
+
+  grpc::ClientContext ctx;
+  deadline(&ctx);
+  v1::ListJobsRequest req;
+  v1::ListJobsResponse jobs;
+  ASSERT_TRUE(jobs_->ListJobs(&ctx, req, &jobs).ok());
+  EXPECT_EQ(jobs.jobs_size(), 0) << "checking frames queues nothing";
 }
 
 }  // namespace

@@ -362,12 +362,7 @@ class MasterClient:
     def submit_spec(self, spec: pb.JobSpec) -> str:
         """Queues a ready JobSpec (retrying once after a deadline when it has a request_id)."""
         attempts = 2 if spec.request_id else 1
-        # The master loads a file scene before it answers: the deadline grows with the scene's size.
-        scene_bytes = sum(len(f.data) for f in spec.scene.files.files)
-        if spec.scene.WhichOneof("source") == "uploaded_hash":
-            with self._lock:
-                scene_bytes = self._uploaded_bytes.get(spec.scene.uploaded_hash, scene_bytes)
-        timeout = self.timeout + scene_bytes / self.min_scene_load_bytes_per_second
+        timeout = self._scene_deadline(spec)
         for attempt in range(1, attempts + 1):
             try:
                 job_id = self._endpoint().stub.SubmitJob(spec, timeout=timeout, metadata=self._metadata()).id
@@ -386,6 +381,24 @@ class MasterClient:
                 )
             return job_id
         raise AssertionError("unreachable")
+
+    def check_frames(self, spec: pb.JobSpec, frames: List[int]) -> None:
+        """Has the master check a batch's spec (no camera, no frame) at each of `frames` as SubmitJob
+        would (CheckFrames: the scene loaded once); queues nothing. Raises RpcError with the refusal."""
+        request = pb.CheckFramesRequest(spec=spec, frames=frames)
+        try:
+            self._endpoint().stub.CheckFrames(request, timeout=self._scene_deadline(spec), metadata=self._metadata())
+        except grpc.RpcError as e:
+            raise self._error(e, "CheckFrames") from None
+
+    def _scene_deadline(self, spec: pb.JobSpec) -> float:
+        """The deadline of a call that has the master load the spec's file scene before it answers:
+        it grows with the scene's size."""
+        scene_bytes = sum(len(f.data) for f in spec.scene.files.files)
+        if spec.scene.WhichOneof("source") == "uploaded_hash":
+            with self._lock:
+                scene_bytes = self._uploaded_bytes.get(spec.scene.uploaded_hash, scene_bytes)
+        return self.timeout + scene_bytes / self.min_scene_load_bytes_per_second
 
     def upload_scene(self, bundle: _scene.SceneBundle) -> str:
         """Streams a file scene to the master (UploadScene); returns its content hash."""

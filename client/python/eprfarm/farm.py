@@ -216,9 +216,11 @@ class Client(MasterClient):
         least work (samples left at the start, plus the frames given to it). The batch id and the job
         ids, in frame order.
 
-        Every argument is checked before anything is sent; the master checks each frame's camera (the
-        scene's animation at that frame) when the frame is submitted. A frame it refuses cancels the
-        frames queued before it: the error (its `batch_id` set) names the batch, the frame and them."""
+        Every argument is checked before anything is sent, and every frame before any is queued: each
+        master that gets frames uploads the scene and checks the scene's camera animation at all of
+        its frames (CheckFrames). Should a master still refuse a frame when it is submitted, the frames
+        queued before it are cancelled: the error (its `batch_id` set) names the batch, the frame and
+        them."""
         if any(options.get(k) is not None for k in ("eye", "look", "up", "fov")):
             raise ArgumentError("the frames' cameras come from the scene's animation: give no eye, look, up or fov")
         frame_list = _frames.parse_frames(frames)
@@ -238,24 +240,47 @@ class Client(MasterClient):
         placed = []
         queued: List[Tuple[_OneMaster, int]] = []  # (master, index) of every frame queued so far
         frame: Optional[int] = None  # the frame being queued; None while uploading the scene
+        mine = [[i for i, m in enumerate(where) if m == index] for index in range(len(masters))]
+        refs: List[Optional[scene_pb.SceneBundle]] = [None] * len(masters)
         try:
-            for index, master in enumerate(masters):
-                mine = [i for i, m in enumerate(where) if m == index]
-                if not mine:
+            for index, master in enumerate(masters):  # every frame checked before any is queued
+                if not mine[index]:
                     continue
                 frame = None
+                refs[index] = scene_ref
                 if bundle is not None:  # one upload for every frame
-                    scene_ref = scene_pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
-                for i in mine:
+                    refs[index] = scene_pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
+                check = pb.JobSpec()
+                check.CopyFrom(specs[mine[index][0]])
+                check.ClearField("frame")
+                check.scene.CopyFrom(refs[index])
+                try:
+                    master.check_frames(check, [frame_list[i] for i in mine[index]])
+                except RpcError as e:
+                    raise self._refused_frames(batch_id, e) from None
+            for index, master in enumerate(masters):
+                for i in mine[index]:
                     frame = frame_list[i]
-                    specs[i].scene.CopyFrom(scene_ref)
+                    specs[i].scene.CopyFrom(refs[index])
                     ids[i] = master.submit_spec(specs[i])
                     queued.append((master, i))
-                placed.append(f"{len(mine)} at {master._endpoint().name}")
+                if mine[index]:
+                    placed.append(f"{len(mine[index])} at {master._endpoint().name}")
         except EprError as e:
+            if getattr(e, "batch_id", None):
+                raise
+
             raise self._withdraw(batch_id, frame, e, [(m, frame_list[i], ids[i]) for m, i in queued]) from None
         log.info("batch %s (%s): %d frame(s) queued: %s", batch_id, name, len(ids), ", ".join(placed))
         return batch_id, ids
+
+    @staticmethod
+    def _refused_frames(batch_id: str, error: RpcError) -> RpcError:
+        """A batch refused by a master's check of its frames: nothing was queued."""
+        out = RpcError(error.code, error.reason, f"batch {batch_id}: {error}; no frame was queued", error.call,
+                       error.target)
+        out.batch_id = batch_id
+        return out
 
     @staticmethod
     def _withdraw(batch_id: str, frame: Optional[int], error: EprError, queued) -> EprError:

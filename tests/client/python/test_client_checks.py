@@ -185,18 +185,17 @@ class OneMasterTest(unittest.TestCase):
             eprfarm.Client(f"127.0.0.1:{port + 65536}").list()  # not the farm's port modulo 65536
         self.assertIn(f"'127.0.0.1:{port + 65536}' has port {port + 65536}, outside 1-65535", str(ctx.exception))
 
-    def test_degenerate_frame_cancels_the_frames_before_it(self):
+    def test_degenerate_frame_refuses_the_batch_before_any_frame_is_queued(self):
         scene = self.scene("through.json", THROUGH_THE_TARGET)
         with self.assertRaises(eprfarm.RpcError) as ctx:
             self.client.submit_frames(scene, "1-5", **LONG)
         e = ctx.exception
         self.assertEqual(e.code, grpc.StatusCode.INVALID_ARGUMENT)
         batch = e.batch_id
-        self.assertRegex(str(e), rf"^batch {batch}: frame 3: master at \S+ refused SubmitJob: INVALID_ARGUMENT: "
+        self.assertRegex(str(e), rf"^batch {batch}: master at \S+ refused CheckFrames: INVALID_ARGUMENT: "
                                  r"through\.json:\d+: frame 3: camera eye and look-at point coincide; "
-                                 r"the 2 frame\(s\) queued before it were cancelled$")  # fmt: skip
-        jobs = self.client.list(batch=batch)
-        self.assertEqual(sorted((j.frame, j.state) for j in jobs), [(1, "CANCELLED"), (2, "CANCELLED")])
+                                 r"no frame was queued$")  # fmt: skip
+        self.assertEqual(self.client.list(batch=batch), [])
 
     def test_cancel_batch(self):
         scene = self.scene("walk.json", multi.ANIMATION)
