@@ -655,8 +655,12 @@ class MasterRestartTest(unittest.TestCase):
 
 
 def main() -> int:
+    """Runs the tests of the script started (this file, or a test file using its helpers): the flags they
+    all take (--package-dir, --epr, --master, --worker) go to ARGS, the rest to unittest; eprfarm and grpc
+    are imported from the package folder into this module and the script's."""
     global eprfarm, grpc
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    script = sys.modules["__main__"]
+    parser = argparse.ArgumentParser(description=script.__doc__.split("\n\n")[0])
     parser.add_argument("--package-dir", required=True, help="folder holding the eprfarm package with its stubs")
     parser.add_argument("--epr", required=True)
     parser.add_argument("--master", required=True)
@@ -667,7 +671,8 @@ def main() -> int:
     import grpc
     import eprfarm
 
-    program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
+    script.eprfarm, script.grpc = eprfarm, grpc
+    program = unittest.main(module=script, argv=[sys.argv[0], *rest], exit=False, verbosity=2)
     return 0 if program.result.wasSuccessful() else 1
 
 
