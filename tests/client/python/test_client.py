@@ -164,13 +164,17 @@ def write_textured_scene(folder: str) -> str:
     return os.path.join(folder, "box.obj")
 
 
-class ClusterTest(unittest.TestCase):
-    """A master and a worker without a token."""
+class FarmClientTest(unittest.TestCase):
+    """Tests sharing one Farm (with a worker unless WORKER is false) in a temporary folder named PREFIX...,
+    and an eprfarm.Client of its master."""
+
+    PREFIX = "epr-python-client-"
+    WORKER = True
 
     @classmethod
     def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="epr-python-client-")
-        cls.farm = Farm(cls.tmp)
+        cls.tmp = tempfile.mkdtemp(prefix=cls.PREFIX)
+        cls.farm = Farm(cls.tmp, worker=cls.WORKER)
         cls.client = eprfarm.Client(cls.farm.address)
 
     @classmethod
@@ -178,6 +182,10 @@ class ClusterTest(unittest.TestCase):
         cls.client.close()
         cls.farm.stop()
         shutil.rmtree(cls.tmp, ignore_errors=True)
+
+
+class ClusterTest(FarmClientTest):
+    """A master and a worker without a token."""
 
     def run(self, result=None):
         # On a failure, the programs' logs help more than the assertion alone.

@@ -148,20 +148,11 @@ class ArgumentTest(unittest.TestCase):
                          ["127.0.0.1:65535", "127.0.0.1:1", "[::1]:80"])  # fmt: skip
 
 
-class OneMasterTest(unittest.TestCase):
+class OneMasterTest(base.FarmClientTest):
     """A master without a worker: jobs stay queued until cancelled."""
 
-    @classmethod
-    def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="epr-python-checks-")
-        cls.farm = base.Farm(cls.tmp, worker=False)
-        cls.client = eprfarm.Client(cls.farm.address)
-
-    @classmethod
-    def tearDownClass(cls):
-        cls.client.close()
-        cls.farm.stop()
-        shutil.rmtree(cls.tmp, ignore_errors=True)
+    PREFIX = "epr-python-checks-"
+    WORKER = False
 
     def scene(self, name: str, text: str) -> str:
         path = os.path.join(self.tmp, name)
