@@ -24,13 +24,6 @@ using testing::Process;
 using testing::run_process;
 using testing::RunResult;
 
-std::string probe_file_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 class HostileProbe : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -84,9 +77,9 @@ class HostileProbe : public ::testing::Test {
 // ---- 1: --out never replaces a file the scene reads ------------------------------------------------
 
 TEST_F(HostileProbe, RenderRefusesAnOutputPrefixThatReplacesTheScenesFiles) {
-  const std::string json = probe_file_text(scn("courtyard.json"));
-  const std::string sky = probe_file_text(scn("sky.exr"));
-  const std::string gltf_json = probe_file_text(scn("cornell-box.json"));
+  const std::string json = testing::read_text(scn("courtyard.json"));
+  const std::string sky = testing::read_text(scn("sky.exr"));
+  const std::string gltf_json = testing::read_text(scn("cornell-box.json"));
   struct Case {
     std::vector<std::string> args;
     std::string replaced;
@@ -112,9 +105,9 @@ TEST_F(HostileProbe, RenderRefusesAnOutputPrefixThatReplacesTheScenesFiles) {
     EXPECT_NE(r.err.find("would replace"), std::string::npos) << r.err;
     EXPECT_NE(r.err.find(c.replaced), std::string::npos) << r.err;
   }
-  EXPECT_EQ(probe_file_text(scn("courtyard.json")), json);
-  EXPECT_EQ(probe_file_text(scn("sky.exr")), sky);
-  EXPECT_EQ(probe_file_text(scn("cornell-box.json")), gltf_json);
+  EXPECT_EQ(testing::read_text(scn("courtyard.json")), json);
+  EXPECT_EQ(testing::read_text(scn("sky.exr")), sky);
+  EXPECT_EQ(testing::read_text(scn("cornell-box.json")), gltf_json);
   EXPECT_FALSE(fs::exists(scn("courtyard.png")));
   EXPECT_FALSE(fs::exists(scn("cornell-box.png")));
 }
@@ -124,7 +117,7 @@ TEST_F(HostileProbe, SubmitWaitRefusesAnOutputPrefixThatReplacesTheScenesFilesBe
   const int port = start_master(master, "master");
   ASSERT_NE(port, 0) << master->err();
   const std::string target = "127.0.0.1:" + std::to_string(port);
-  const std::string json = probe_file_text(scn("courtyard.json"));
+  const std::string json = testing::read_text(scn("courtyard.json"));
   RunResult r = epr(tiny({"submit", scn("courtyard.json"), "--wait", "--out", scn("courtyard"), "--master", target}));
   EXPECT_EQ(r.code, 2) << r.err;
   EXPECT_NE(r.err.find("would replace"), std::string::npos) << r.err;
@@ -135,7 +128,7 @@ TEST_F(HostileProbe, SubmitWaitRefusesAnOutputPrefixThatReplacesTheScenesFilesBe
   r = epr({"list", "--master", target});
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_EQ(count_of(r.out, "\n"), 1u) << "a job was submitted:\n" << r.out;  // the header alone
-  EXPECT_EQ(probe_file_text(scn("courtyard.json")), json);
+  EXPECT_EQ(testing::read_text(scn("courtyard.json")), json);
 }
 
 // ---- 2: write errors name the reason; a broken worker cache falls back ---------------------------------

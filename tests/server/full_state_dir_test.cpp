@@ -26,7 +26,21 @@ class FullStateDirTest : public FarmFixture {
       for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir_ / "master" / "jobs")) ++n;
     return n;
   }
-  std::string efbig() const { return std::strerror(EFBIG); }
+  // Submits spec() with room for `room` bytes a file: refused with RESOURCE_EXHAUSTED, naming
+  // "cannot store the job's WHAT" and EFBIG, with no job id.
+  void expect_submit_refused(rlim_t room, const std::string& what) {
+    std::string id;
+    grpc::Status st;
+    {
+      FileSizeLimit limit(room);
+      st = submit(spec(), &id);
+    }
+    const std::string efbig = std::strerror(EFBIG);
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << st.error_message();
+    EXPECT_NE(st.error_message().find("cannot store the job's " + what), std::string::npos) << st.error_message();
+    EXPECT_NE(st.error_message().find(efbig), std::string::npos) << st.error_message();
+    EXPECT_TRUE(id.empty()) << id;
+  }
 };
 
 TEST_F(FullStateDirTest, AJobWhoseSpecCannotBeStoredIsRefused) {
@@ -36,16 +50,7 @@ TEST_F(FullStateDirTest, AJobWhoseSpecCannotBeStoredIsRefused) {
   ASSERT_TRUE(submit(spec(), &first).ok());
   // Started (its frame built), it waits for workers, of which there are none: it writes nothing more.
   ASSERT_TRUE(wait_until([&] { return status(first).state() == v1::JOB_STATE_RUNNING; }, 30s));
-  std::string id;
-  grpc::Status st;
-  {
-    FileSizeLimit limit(256);
-    st = submit(spec(), &id);
-  }
-  EXPECT_EQ(st.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << st.error_message();
-  EXPECT_NE(st.error_message().find("cannot store the job's spec"), std::string::npos) << st.error_message();
-  EXPECT_NE(st.error_message().find(efbig()), std::string::npos) << st.error_message();
-  EXPECT_TRUE(id.empty()) << id;
+  expect_submit_refused(256, "spec");
   EXPECT_EQ(server_->jobs().list().size(), 1u);
   EXPECT_EQ(job_folders(), 1u) << "the refused job's folder is removed";
   // A restart brings back the first job only.
@@ -55,21 +60,13 @@ TEST_F(FullStateDirTest, AJobWhoseSpecCannotBeStoredIsRefused) {
   ASSERT_EQ(jobs.size(), 1u);
   EXPECT_EQ(jobs[0].id, first);
   // With room again, the same submission is taken.
+  std::string id;
   EXPECT_TRUE(submit(spec(), &id).ok());
 }
 
 TEST_F(FullStateDirTest, AJobWhoseSceneCannotBeStoredIsRefused) {
   start();
-  std::string id;
-  grpc::Status st;
-  {
-    FileSizeLimit limit(8);
-    st = submit(spec(), &id);
-  }
-  EXPECT_EQ(st.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << st.error_message();
-  EXPECT_NE(st.error_message().find("cannot store the job's scene"), std::string::npos) << st.error_message();
-  EXPECT_NE(st.error_message().find(efbig()), std::string::npos) << st.error_message();
-  EXPECT_TRUE(id.empty()) << id;
+  expect_submit_refused(8, "scene");
   EXPECT_TRUE(server_->jobs().list().empty());
   EXPECT_EQ(job_folders(), 0u);
 }

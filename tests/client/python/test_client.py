@@ -164,13 +164,17 @@ def write_textured_scene(folder: str) -> str:
     return os.path.join(folder, "box.obj")
 
 
-class ClusterTest(unittest.TestCase):
-    """A master and a worker without a token."""
+class FarmClientTest(unittest.TestCase):
+    """Tests sharing one Farm (with a worker unless WORKER is false) in a temporary folder named PREFIX...,
+    and an eprfarm.Client of its master."""
+
+    PREFIX = "epr-python-client-"
+    WORKER = True
 
     @classmethod
     def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="epr-python-client-")
-        cls.farm = Farm(cls.tmp)
+        cls.tmp = tempfile.mkdtemp(prefix=cls.PREFIX)
+        cls.farm = Farm(cls.tmp, worker=cls.WORKER)
         cls.client = eprfarm.Client(cls.farm.address)
 
     @classmethod
@@ -178,6 +182,10 @@ class ClusterTest(unittest.TestCase):
         cls.client.close()
         cls.farm.stop()
         shutil.rmtree(cls.tmp, ignore_errors=True)
+
+
+class ClusterTest(FarmClientTest):
+    """A master and a worker without a token."""
 
     def run(self, result=None):
         # On a failure, the programs' logs help more than the assertion alone.
@@ -655,8 +663,12 @@ class MasterRestartTest(unittest.TestCase):
 
 
 def main() -> int:
+    """Runs the tests of the script started (this file, or a test file using its helpers): the flags they
+    all take (--package-dir, --epr, --master, --worker) go to ARGS, the rest to unittest; eprfarm and grpc
+    are imported from the package folder into this module and the script's."""
     global eprfarm, grpc
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    script = sys.modules["__main__"]
+    parser = argparse.ArgumentParser(description=script.__doc__.split("\n\n")[0])
     parser.add_argument("--package-dir", required=True, help="folder holding the eprfarm package with its stubs")
     parser.add_argument("--epr", required=True)
     parser.add_argument("--master", required=True)
@@ -667,7 +679,8 @@ def main() -> int:
     import grpc
     import eprfarm
 
-    program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
+    script.eprfarm, script.grpc = eprfarm, grpc
+    program = unittest.main(module=script, argv=[sys.argv[0], *rest], exit=False, verbosity=2)
     return 0 if program.result.wasSuccessful() else 1
 
 

@@ -16,7 +16,6 @@ source tree as it was. Run with Debian's /usr/bin/python3.
 
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import shutil
@@ -29,6 +28,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.dont_write_bytecode = True  # no __pycache__ in the source tree
 import test_client as base  # noqa: E402  (the process helpers: Farm, Process, epr, free_port)
 import test_multi_master as multi  # noqa: E402  (TwoMasters)
+
+eprfarm = grpc = None  # imported from --package-dir by base.main()
 
 LONG = {"width": 32, "height": 32, "spp": 100000, "mode": "pt"}
 # Keys at frames 1 and 5 whose eyes lie on either side of the look-at point: at frame 3 the eye is on it.
@@ -147,20 +148,11 @@ class ArgumentTest(unittest.TestCase):
                          ["127.0.0.1:65535", "127.0.0.1:1", "[::1]:80"])  # fmt: skip
 
 
-class OneMasterTest(unittest.TestCase):
+class OneMasterTest(base.FarmClientTest):
     """A master without a worker: jobs stay queued until cancelled."""
 
-    @classmethod
-    def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="epr-python-checks-")
-        cls.farm = base.Farm(cls.tmp, worker=False)
-        cls.client = eprfarm.Client(cls.farm.address)
-
-    @classmethod
-    def tearDownClass(cls):
-        cls.client.close()
-        cls.farm.stop()
-        shutil.rmtree(cls.tmp, ignore_errors=True)
+    PREFIX = "epr-python-checks-"
+    WORKER = False
 
     def scene(self, name: str, text: str) -> str:
         path = os.path.join(self.tmp, name)
@@ -334,22 +326,5 @@ class PipInstallTest(unittest.TestCase):
             shutil.rmtree(tmp, ignore_errors=True)
 
 
-def main() -> int:
-    global eprfarm, grpc
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--package-dir", required=True, help="folder holding the eprfarm package with its stubs")
-    parser.add_argument("--epr", required=True)
-    parser.add_argument("--master", required=True)
-    parser.add_argument("--worker", required=True)
-    args, rest = parser.parse_known_args()
-    base.ARGS.__dict__.update(vars(args))
-    sys.path.insert(0, os.path.abspath(args.package_dir))
-    import grpc
-    import eprfarm
-
-    program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
-    return 0 if program.result.wasSuccessful() else 1
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(base.main())

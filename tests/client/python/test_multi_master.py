@@ -20,7 +20,6 @@ refuses them. Run with Debian's /usr/bin/python3.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
@@ -33,6 +32,8 @@ import test_client as base  # noqa: E402  (the process helpers: Farm, Process, e
 
 # A small job whose cluster render equals the single-process one bit for bit: explicit tiles, CPU
 # reprojection, constant rounds (as tests/integration/cluster's jobs).
+eprfarm = grpc = None  # imported from --package-dir by base.main()
+
 JOB = {"width": 48, "height": 40, "spp": 8, "seed": 7, "mode": "skip", "tile": 32, "reproject": "cpu",
        "round_growth": 0}
 JOB_FLAGS = ["--width", "48", "--height", "40", "--spp", "8", "--seed", "7", "--mode", "skip", "--tile", "32",
@@ -479,23 +480,5 @@ class GltfAndSamplerTest(FarmCase):
         self.assertEqual([p for p, _ in eprfarm.bundle_scene(inline).files], ["inline.gltf"])
 
 
-def main() -> int:
-    global eprfarm, grpc
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--package-dir", required=True, help="folder holding the eprfarm package with its stubs")
-    parser.add_argument("--epr", required=True)
-    parser.add_argument("--master", required=True)
-    parser.add_argument("--worker", required=True)
-    args, rest = parser.parse_known_args()
-    base.ARGS.__dict__.update(vars(args))
-    sys.path.insert(0, os.path.abspath(args.package_dir))
-    import grpc
-    import eprfarm
-
-    base.eprfarm, base.grpc = eprfarm, grpc
-    program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
-    return 0 if program.result.wasSuccessful() else 1
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(base.main())

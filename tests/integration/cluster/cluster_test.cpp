@@ -33,6 +33,7 @@
 #include "binaries.h"
 #include "common/image.h"
 #include "common/render_options.h"
+#include "farm_steps.h"
 #include "image_difference.h"
 #include "process.h"
 
@@ -140,33 +141,9 @@ Counts summarize(const Image& counts, int target) {
 
 // ---- the fixture -----------------------------------------------------------------------------------
 
-class ClusterTest : public ::testing::Test {
+class ClusterTest : public SingleMasterTest {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    static int n = 0;  // --gtest_repeat runs a test again in the same process
-    dir_ = fs::temp_directory_path() /
-           ("epr-cluster-" + std::to_string(::getpid()) + "-" + info->name() + "-" + std::to_string(++n));
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-
-  void TearDown() override {
-    // Workers first: they return their leases to a master that is still there.
-    for (auto& w : workers_) w->stop();
-    if (master_) master_->stop();
-    if (HasFailure()) {
-      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
-      if (master_) print_log_tail("epr-master", master_->err());
-      for (auto& w : workers_) print_log_tail(w->name() + " " + std::to_string(w->pid()), w->err());
-    } else {
-      workers_.clear();
-      master_.reset();
-      fs::remove_all(dir_);
-    }
-  }
-
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  void SetUp() override { start_story("epr-cluster"); }
 
   // Starts epr-master on a free loopback port and waits until it says which.
   void start_master(Args extra = {}) {
@@ -185,7 +162,7 @@ class ClusterTest : public ::testing::Test {
         },
         10s);
     ASSERT_TRUE(up && master_->running() && m.size() == 2) << "epr-master did not start:\n" << err;
-    address_ = "127.0.0.1:" + m[1].str();
+    port_ = std::stoi(m[1].str());
     // The default reprojector: the OSMesa context holds the deep framebuffer, no CPU fallback.
     const bool gl_known = wait_until(
         [&] {
@@ -201,16 +178,10 @@ class ClusterTest : public ::testing::Test {
 
   // Starts an epr-worker with one tracing thread. Debug logs name every lease and its outcome.
   Process& start_worker(const std::string& name) {
-    workers_.push_back(std::make_unique<Process>(Args{kWorker, "--master", address_, "--threads", "1", "--name", name,
+    workers_.push_back(std::make_unique<Process>(Args{kWorker, "--master", address(), "--threads", "1", "--name", name,
                                                       "--cache-dir", path("cache-" + name), "--log-level", "debug"},
                                                  dir_ / name));
     return *workers_.back();
-  }
-
-  // Runs `epr ARGS...` to the end (killed after `timeout`).
-  RunResult epr(Args args, Millis timeout = 60s) {
-    args.insert(args.begin(), kEpr);
-    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
   }
 
   // `epr render --single-process` of the job into PREFIX.*: the reference.
@@ -219,7 +190,7 @@ class ClusterTest : public ::testing::Test {
     const Args f = job.flags();
     args.insert(args.end(), f.begin(), f.end());
     args.insert(args.end(), {"--single-process", "--threads", "2", "--out", prefix});
-    const RunResult r = epr(args, 120s);
+    const RunResult r = run_epr(args, 120s);
     ASSERT_EQ(r.code, 0) << "epr render --single-process failed:\n" << r.err;
   }
 
@@ -228,7 +199,7 @@ class ClusterTest : public ::testing::Test {
     Args args{"submit"};
     const Args f = job.flags();
     args.insert(args.end(), f.begin(), f.end());
-    args.insert(args.end(), {"--master", address_, "--wait", "--out", prefix});
+    args.insert(args.end(), {"--wait", "--out", prefix});
     const RunResult r = epr(args, 120s);
     ASSERT_FALSE(r.timed_out) << "epr submit --wait did not return within 120 s:\n" << r.err;
     ASSERT_EQ(r.code, 0) << r.err;
@@ -237,19 +208,11 @@ class ClusterTest : public ::testing::Test {
   }
 
   // `epr submit` without --wait: the job id.
-  std::string submit(const Job& job) {
-    Args args{"submit"};
-    const Args f = job.flags();
-    args.insert(args.end(), f.begin(), f.end());
-    args.insert(args.end(), {"--master", address_});
-    const RunResult r = epr(args, 30s);
-    EXPECT_EQ(r.code, 0) << r.err;
-    return r.out.substr(0, r.out.find('\n'));
-  }
+  std::string submit(const Job& job) { return SingleMasterTest::submit(job.flags()); }
 
   // `epr get JOB --json`: the job's status as the master reports it.
   nlohmann::json status(const std::string& id) {
-    const RunResult r = epr({"get", id, "--json", "--master", address_}, 20s);
+    const RunResult r = epr({"get", id, "--json"}, 20s);
     EXPECT_EQ(r.code, 0) << r.err;
     try {
       return nlohmann::json::parse(r.out);
@@ -261,10 +224,10 @@ class ClusterTest : public ::testing::Test {
 
   // `epr watch JOB` until the job ends, then `epr get JOB --out PREFIX`.
   void watch_and_get(const std::string& id, const std::string& prefix) {
-    const RunResult w = epr({"watch", id, "--master", address_}, 120s);
+    const RunResult w = epr({"watch", id}, 120s);
     ASSERT_FALSE(w.timed_out) << "the job did not end within 120 s:\n" << w.err;
     ASSERT_EQ(w.code, 0) << w.err;
-    const RunResult g = epr({"get", id, "--out", prefix, "--master", address_}, 30s);
+    const RunResult g = epr({"get", id, "--out", prefix}, 30s);
     ASSERT_EQ(g.code, 0) << g.err;
   }
 
@@ -322,12 +285,6 @@ class ClusterTest : public ::testing::Test {
         },
         timeout);
   }
-
-  fs::path dir_;
-  std::unique_ptr<Process> master_;
-  std::vector<std::unique_ptr<Process>> workers_;
-  std::string address_;
-  int runs_ = 0;
 };
 
 // ---- 1. a cluster equals the single-process render ---------------------------------------------------
@@ -618,7 +575,7 @@ TEST_F(ClusterTest, WorkerKilledMidJobLosesNothing) {
 
 TEST_F(ClusterTest, UnreachableMasterFailsQuicklyNamingTheAddress) {
   const RunResult r =
-      epr({"submit", "builtin:cornell", "--width", "16", "--height", "16", "--master", "127.0.0.1:1"}, 30s);
+      run_epr({"submit", "builtin:cornell", "--width", "16", "--height", "16", "--master", "127.0.0.1:1"}, 30s);
   EXPECT_FALSE(r.timed_out);
   EXPECT_NE(r.code, 0);
   EXPECT_LT(r.seconds, 12.0) << "epr submit took " << r.seconds << " s to give up";
@@ -627,33 +584,34 @@ TEST_F(ClusterTest, UnreachableMasterFailsQuicklyNamingTheAddress) {
 }
 
 TEST_F(ClusterTest, UnknownSceneIsRefusedWithAClearMessage) {
-  const RunResult local = epr({"render", "builtin:nope", "--width", "16", "--height", "16", "--out", path("x")}, 30s);
+  const RunResult local =
+      run_epr({"render", "builtin:nope", "--width", "16", "--height", "16", "--out", path("x")}, 30s);
   EXPECT_FALSE(local.timed_out);
   EXPECT_NE(local.code, 0);
   EXPECT_NE(local.err.find("nope"), std::string::npos) << local.err;
   EXPECT_FALSE(fs::exists(path("x.exr")));
 
-  const RunResult single =
-      epr({"render", "builtin:nope", "--single-process", "--width", "16", "--height", "16", "--out", path("y")}, 30s);
+  const RunResult single = run_epr(
+      {"render", "builtin:nope", "--single-process", "--width", "16", "--height", "16", "--out", path("y")}, 30s);
   EXPECT_NE(single.code, 0);
   EXPECT_NE(single.err.find("nope"), std::string::npos) << single.err;
 }
 
 TEST_F(ClusterTest, BadRequestsToARunningMasterFailWithReasons) {
   ASSERT_NO_FATAL_FAILURE(start_master());
-  const RunResult spp = epr({"submit", "builtin:cornell", "--spp", "0", "--master", address_}, 30s);
+  const RunResult spp = epr({"submit", "builtin:cornell", "--spp", "0"}, 30s);
   EXPECT_NE(spp.code, 0);
   EXPECT_NE(spp.err.find("spp"), std::string::npos) << spp.err;
 
-  const RunResult scene = epr({"submit", "builtin:nope", "--master", address_}, 30s);
+  const RunResult scene = epr({"submit", "builtin:nope"}, 30s);
   EXPECT_NE(scene.code, 0);
   EXPECT_NE(scene.err.find("nope"), std::string::npos) << scene.err;
 
-  const RunResult get = epr({"get", "no-such-job", "--out", path("z"), "--master", address_}, 30s);
+  const RunResult get = epr({"get", "no-such-job", "--out", path("z")}, 30s);
   EXPECT_NE(get.code, 0);
   EXPECT_NE(get.err.find("no-such-job"), std::string::npos) << get.err;
 
-  const RunResult list = epr({"list", "--master", address_}, 30s);
+  const RunResult list = epr({"list"}, 30s);
   EXPECT_EQ(list.code, 0) << list.err;
   EXPECT_EQ(count_of(list.out, "\n"), 1u) << "nothing was queued: " << list.out;
   EXPECT_TRUE(master_->running()) << "the master survived the bad requests";

@@ -51,60 +51,15 @@ Args slow_tile_job() {
           "0"};
 }
 
-class DrainTest : public StoryTest {
+class DrainTest : public SingleMasterTest {
  protected:
   void SetUp() override { start_story("epr-drain"); }
-
-  void TearDown() override {
-    if (reference_) reference_->stop();
-    for (auto& w : workers_) w->stop();
-    if (master_) master_->stop();
-    if (HasFailure()) {
-      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
-      for (const auto& m : old_master_logs_) print_log_tail("stopped epr-master", m);
-      if (master_) print_log_tail("epr-master", master_->err());
-      for (auto& w : workers_) print_log_tail(w->name(), w->err());
-    } else {
-      fs::remove_all(dir_);
-    }
-  }
-
-  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
 
   // epr-master's flags for the drains of open rounds: the test's state folder and a checkpoint an
   // hour after the first round's, so that without the drain only round 0 would be on disk.
   Args draining_master_flags() const {
     return {"--state-dir",     path("state"), "--checkpoint-interval", "3600",
             "--drain-timeout", "60",          "--lease-timeout-ms",    "1500"};
-  }
-
-  // Starts epr-master on `port` (0: a free one) with `extra` flags.
-  void start_master(int port, const Args& extra) {
-    const int bound = start_listening(master_, master_argv(port, extra),
-                                      [&] { return dir_ / ("master-" + std::to_string(++masters_)); });
-    if (bound == 0) FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
-    port_ = bound;
-  }
-
-  Process& start_worker(const std::string& name) {
-    workers_.push_back(std::make_unique<Process>(worker_argv(address(), name, path("cache-" + name)), dir_ / name));
-    return *workers_.back();
-  }
-
-  size_t registered() const { return count_of(master_->err(), ") registered"); }
-
-  RunResult epr(Args args, Millis timeout = 60s) {
-    args.insert(args.begin(), kEpr);
-    args.insert(args.end(), {"--master", address()});
-    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
-  }
-
-  std::string submit(const Args& job) {
-    Args args{"submit"};
-    args.insert(args.end(), job.begin(), job.end());
-    const RunResult r = epr(args, 30s);
-    EXPECT_EQ(r.code, 0) << r.err;
-    return r.out.substr(0, r.out.find('\n'));
   }
 
   // The highest round some worker has leased a tile of.
@@ -118,11 +73,6 @@ class DrainTest : public StoryTest {
       if (log.find("lease " + (*it)[1].str() + ": submitted") == std::string::npos) found = (*it)[2];
     return found;
   }
-
-  std::unique_ptr<Process> master_, reference_;
-  std::vector<std::unique_ptr<Process>> workers_;
-  std::vector<std::string> old_master_logs_;
-  int port_ = 0, masters_ = 0, runs_ = 0;
 };
 
 TEST_F(DrainTest, WorkerSigtermReturnsItsLeasesAndTheirTilesAreLeasedAgainAtOnce) {

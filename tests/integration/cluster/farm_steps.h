@@ -1,7 +1,8 @@
-// What the process tests of a master with workers share (drain_test.cpp, master_restart_test.cpp and
-// the multi-master fixture): job flags, the test's folder of logs and story, epr-master's and
-// epr-worker's argv, the single-process reference render, the rounds the workers have leased,
-// and the comparison of a job's images with the reference's.
+// What the process tests of a master with workers share (the tests of this folder and the
+// multi-master fixture): job flags, the test's folder of logs and story, the fixture holding the
+// farm's processes and running `epr` against it, epr-master's and epr-worker's argv, the
+// single-process reference render, the rounds the workers have leased, and the comparison of a
+// job's images with the reference's.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -9,10 +10,12 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <memory>
 #include <regex>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "binaries.h"
@@ -53,15 +56,18 @@ inline Args skip_job(int size, int spp, int paths_per_round, int min_paths, int 
 /// the first 12 rounds (min-paths), skipping thins out the rest.
 inline Args restart_job() { return skip_job(128, 256, 8, 96, 11); }
 
-/// A process test with a folder of logs, TMP/PREFIX-PID-TEST (made empty by start_story), and a
-/// story: lines printed with the seconds since it began.
+/// A process test with a folder of logs, TMP/PREFIX-PID-TEST-N (made empty by start_story; N counts
+/// the tests run, as --gtest_repeat runs a test again in the same process), and a story: lines
+/// printed with the seconds since it began.
 class StoryTest : public ::testing::Test {
  protected:
   /// Starts the story's clock and makes the test's folder.
   void start_story(const std::string& prefix) {
     start_ = std::chrono::steady_clock::now();
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = std::filesystem::temp_directory_path() / (prefix + "-" + std::to_string(::getpid()) + "-" + info->name());
+    static int n = 0;
+    dir_ = std::filesystem::temp_directory_path() /
+           (prefix + "-" + std::to_string(::getpid()) + "-" + info->name() + "-" + std::to_string(++n));
     std::filesystem::remove_all(dir_);
     std::filesystem::create_directories(dir_);
   }
@@ -139,5 +145,75 @@ inline void expect_images_equal(const std::string& prefix, const std::string& re
       << what << "path-traced estimate";
   EXPECT_EQ(close_difference(read_image(prefix + ".exr"), read_image(ref + ".exr")), "") << what << "combined image";
 }
+
+/// A story test of a farm: epr-master (master_, on 127.0.0.1:port_), its workers, and `epr` runs with
+/// their output in the test's folder. TearDown stops them all; the folder is removed, or kept and the
+/// logs' tails printed when the test failed.
+class SingleMasterTest : public StoryTest {
+ protected:
+  void TearDown() override {
+    if (reference_) reference_->stop();
+    // Workers first: they return their leases to a master that is still there.
+    for (auto& w : workers_) w->stop();
+    if (master_) master_->stop();
+    if (HasFailure()) {
+      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
+      for (const auto& m : old_master_logs_) print_log_tail("earlier epr-master", m);
+      if (master_) print_log_tail("epr-master", master_->err());
+      for (auto& w : workers_) print_log_tail(w->name() + " " + std::to_string(w->pid()), w->err());
+    } else {
+      workers_.clear();
+      master_.reset();
+      reference_.reset();
+      std::filesystem::remove_all(dir_);
+    }
+  }
+
+  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
+
+  /// Starts epr-master (master_argv) on `port` (0: a free one) with `extra` flags, its output in
+  /// master-N; fails the test when it does not listen.
+  void start_master(int port, const Args& extra) {
+    const int bound = start_listening(master_, master_argv(port, extra),
+                                      [&] { return dir_ / ("master-" + std::to_string(++masters_)); });
+    if (bound == 0) FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
+    port_ = bound;
+  }
+
+  /// Starts epr-worker NAME (worker_argv) of the master, its output in NAME.
+  Process& start_worker(const std::string& name) {
+    workers_.push_back(std::make_unique<Process>(worker_argv(address(), name, path("cache-" + name)), dir_ / name));
+    return *workers_.back();
+  }
+
+  /// Registrations of workers the current master has logged.
+  size_t registered() const { return count_of(master_->err(), ") registered"); }
+
+  /// Runs `epr ARGS...` to the end (killed after `timeout`), its output in epr-N.
+  RunResult run_epr(Args args, Millis timeout) {
+    args.insert(args.begin(), kEpr);
+    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
+  }
+
+  /// Runs `epr ARGS... --master ADDRESS` against the farm's master.
+  RunResult epr(Args args, Millis timeout = std::chrono::seconds(60)) {
+    args.insert(args.end(), {"--master", address()});
+    return run_epr(std::move(args), timeout);
+  }
+
+  /// `epr submit JOB...`: the job id (the first line it prints); exit code 0 is expected.
+  std::string submit(const Args& job) {
+    Args args{"submit"};
+    args.insert(args.end(), job.begin(), job.end());
+    const RunResult r = epr(args, std::chrono::seconds(30));
+    EXPECT_EQ(r.code, 0) << r.err;
+    return r.out.substr(0, r.out.find('\n'));
+  }
+
+  std::unique_ptr<Process> master_, reference_;
+  std::vector<std::unique_ptr<Process>> workers_;
+  std::vector<std::string> old_master_logs_;  // the stopped or killed masters' logs
+  int port_ = 0, masters_ = 0, runs_ = 0;
+};
 
 }  // namespace epr::testing

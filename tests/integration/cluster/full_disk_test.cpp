@@ -30,31 +30,9 @@ using namespace std::chrono_literals;
 // uncompressed 256x256 RGB float image (768 KiB).
 constexpr uint64_t kFileSizeLimit = 512 << 10;
 
-class FullDiskTest : public StoryTest {
+class FullDiskTest : public SingleMasterTest {
  protected:
   void SetUp() override { start_story("epr-full-disk"); }
-
-  void TearDown() override {
-    for (auto& w : workers_) w->stop();
-    if (master_) master_->stop();
-    if (HasFailure()) {
-      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
-      if (master_) print_log_tail("epr-master", master_->err());
-    } else {
-      fs::remove_all(dir_);
-    }
-  }
-
-  RunResult epr(Args args, Millis timeout = 60s) {
-    args.insert(args.begin(), kEpr);
-    args.insert(args.end(), {"--master", address_});
-    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
-  }
-
-  std::unique_ptr<Process> master_;
-  std::vector<std::unique_ptr<Process>> workers_;
-  std::string address_;
-  int runs_ = 0;
 };
 
 TEST_F(FullDiskTest, AResultFileThatDoesNotFitIsNotLeftUnderItsName) {
@@ -62,17 +40,11 @@ TEST_F(FullDiskTest, AResultFileThatDoesNotFitIsNotLeftUnderItsName) {
   po.file_size_limit = kFileSizeLimit;
   master_ = std::make_unique<Process>(master_argv(0, {"--state-dir", path("state"), "--no-checkpoints"}),
                                       dir_ / "master", po);
-  const int port = listening_port(*master_, 30s);
-  ASSERT_NE(port, 0) << master_->err();
-  address_ = "127.0.0.1:" + std::to_string(port);
-  for (const char* name : {"w1", "w2"})
-    workers_.push_back(
-        std::make_unique<Process>(worker_argv(address_, name, path(std::string("cache-") + name)), dir_ / name));
-  Args submit{"submit"};
-  for (const auto& a : skip_job(256, 8, 8, 8, 5)) submit.push_back(a);
-  const RunResult submitted = epr(submit, 30s);
-  ASSERT_EQ(submitted.code, 0) << submitted.err;
-  const std::string id = submitted.out.substr(0, submitted.out.find('\n'));
+  port_ = listening_port(*master_, 30s);
+  ASSERT_NE(port_, 0) << master_->err();
+  for (const char* name : {"w1", "w2"}) start_worker(name);
+  const std::string id = submit(skip_job(256, 8, 8, 8, 5));
+  ASSERT_FALSE(HasFailure()) << "epr submit failed";
   note("job %s submitted", id.c_str());
 
   const RunResult watched = epr({"watch", id}, 180s);

@@ -45,7 +45,7 @@ uint64_t test_seed() {
 // no growing rounds). The kills are placed by round (an early random round, then a random pause of
 // at most 100 ms), not by wall time, so that they land mid-job however loaded the machine is: a kill
 // at round 1-4 leaves most of the rounds to run.
-class MasterRestartTest : public StoryTest {
+class MasterRestartTest : public SingleMasterTest {
  protected:
   void SetUp() override {
     start_story("epr-restart");
@@ -57,49 +57,19 @@ class MasterRestartTest : public StoryTest {
 
   void TearDown() override {
     if (watch_) watch_->stop();
-    if (reference_) reference_->stop();
-    for (auto& w : workers_) w->stop();
-    if (master_) master_->stop();
     if (HasFailure()) {
-      std::fprintf(stderr, "seed %llu; logs kept in %s\n", static_cast<unsigned long long>(seed_), dir_.c_str());
-      for (const auto& m : old_master_logs_) print_log_tail("killed epr-master", m);
-      if (master_) print_log_tail("epr-master", master_->err());
-      for (auto& w : workers_) print_log_tail(w->name(), w->err());
+      std::fprintf(stderr, "seed %llu\n", static_cast<unsigned long long>(seed_));
       if (watch_) print_log_tail("epr watch", watch_->err());
-    } else {
-      fs::remove_all(dir_);
     }
+    SingleMasterTest::TearDown();
   }
 
   // Starts epr-master on `port` (0: a free one) with the test's state directory.
   void start_master(int port) {
-    const int bound =
-        start_listening(master_, master_argv(port, {"--state-dir", path("state"), "--lease-timeout-ms", "1500"}),
-                        [&] { return dir_ / ("master-" + std::to_string(++masters_)); });
-    if (bound == 0) FAIL() << "epr-master did not start on port " << port << ":\n" << master_->err();
-    port_ = bound;
+    SingleMasterTest::start_master(port, {"--state-dir", path("state"), "--lease-timeout-ms", "1500"});
   }
 
-  void start_worker(const std::string& name) {
-    workers_.push_back(std::make_unique<Process>(worker_argv(address(), name, path("cache-" + name)), dir_ / name));
-  }
-
-  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
-
-  RunResult epr(Args args, Millis timeout = 60s) {
-    args.insert(args.begin(), kEpr);
-    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
-  }
-
-  std::string submit() {
-    Args args{"submit"};
-    const Args f = restart_job();
-    args.insert(args.end(), f.begin(), f.end());
-    args.insert(args.end(), {"--master", address()});
-    const RunResult r = epr(args, 30s);
-    EXPECT_EQ(r.code, 0) << r.err;
-    return r.out.substr(0, r.out.find('\n'));
-  }
+  std::string submit() { return SingleMasterTest::submit(restart_job()); }
 
   // The undisturbed render of the job, `epr render --single-process`, in the background while the
   // cluster starts (most of that is waiting for processes to come up).
@@ -115,9 +85,6 @@ class MasterRestartTest : public StoryTest {
         << "epr watch printed no progress";
     ASSERT_TRUE(watch_->running()) << watch_->err();
   }
-
-  // Registrations the current master has logged.
-  size_t registered() const { return count_of(master_->err(), ") registered"); }
 
   // Waits until some worker has leased a tile of round `round` or later.
   bool wait_for_round(int round, Millis timeout) {
@@ -164,7 +131,7 @@ class MasterRestartTest : public StoryTest {
     note("epr watch ended");
     EXPECT_EQ(watch_->exit_code(), 0) << "epr watch across the restart:\n" << watch_->err();
     EXPECT_NE(watch_->err().find("DONE"), std::string::npos) << watch_->err();
-    const RunResult g = epr({"get", id, "--out", path("cluster"), "--master", address()}, 30s);
+    const RunResult g = epr({"get", id, "--out", path("cluster")}, 30s);
     ASSERT_EQ(g.code, 0) << g.err;
     note("fetched the result");
     ASSERT_NO_FATAL_FAILURE(expect_reference_done(*reference_));
@@ -179,10 +146,7 @@ class MasterRestartTest : public StoryTest {
 
   uint64_t seed_ = 0;
   std::mt19937_64 rng_;
-  std::unique_ptr<Process> master_, watch_, reference_;
-  std::vector<std::unique_ptr<Process>> workers_;
-  std::vector<std::string> old_master_logs_;
-  int port_ = 0, masters_ = 0, runs_ = 0;
+  std::unique_ptr<Process> watch_;
 };
 
 TEST_F(MasterRestartTest, MasterKilledMidJobResumesFromItsCheckpoint) {

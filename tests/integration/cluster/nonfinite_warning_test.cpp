@@ -58,34 +58,17 @@ void expect_quarter_dropped(const std::string& text, const std::string& prefix, 
   EXPECT_EQ(std::stoull(m[1].str()), kPaths / 4) << what << ": " << warning;
 }
 
-class NonFiniteWarningTest : public StoryTest {
+class NonFiniteWarningTest : public SingleMasterTest {
  protected:
   void SetUp() override { start_story("epr-nonfinite"); }
-
-  void TearDown() override {
-    for (auto& w : workers_) w->stop();
-    if (master_) master_->stop();
-    if (HasFailure()) {
-      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
-      if (master_) print_log_tail("epr-master", master_->err());
-      for (auto& w : workers_) print_log_tail("epr-worker", w->err());
-    } else {
-      fs::remove_all(dir_);
-    }
-  }
-
-  RunResult epr(Args args, Millis timeout = 120s) {
-    args.insert(args.begin(), kEpr);
-    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
-  }
 
   // `epr submit --wait --out JOB-N` of the job: its id (first line of stdout) and the run.
   RunResult submit_and_wait(std::string* id) {
     Args args{"submit"};
     const Args f = job_flags();
     args.insert(args.end(), f.begin(), f.end());
-    args.insert(args.end(), {"--master", address_, "--wait", "--out", path("job-" + std::to_string(runs_ + 1))});
-    RunResult r = epr(args);
+    args.insert(args.end(), {"--wait", "--out", path("job-" + std::to_string(runs_ + 1))});
+    RunResult r = epr(args, 120s);
     EXPECT_FALSE(r.timed_out) << "epr submit --wait did not return within 120 s:\n" << r.err;
     EXPECT_EQ(r.code, 0) << r.err;
     *id = r.out.substr(0, r.out.find('\n'));
@@ -96,21 +79,15 @@ class NonFiniteWarningTest : public StoryTest {
   // One epr-worker, only tracing while the job runs (the previous one is stopped first).
   void start_worker(const std::string& name, bool nonfinite) {
     for (auto& w : workers_) w->stop();
-    const Args argv = worker_argv(address_, name, path("cache-" + name));
+    const Args argv = worker_argv(address(), name, path("cache-" + name));
     workers_.push_back(std::make_unique<Process>(nonfinite ? poisoned(argv) : argv, dir_ / name));
   }
-
-  std::unique_ptr<Process> master_;
-  std::vector<std::unique_ptr<Process>> workers_;
-  std::string address_;
-  int runs_ = 0;
 };
 
 TEST_F(NonFiniteWarningTest, SubmitWaitWatchAndTheMasterLogWarnOfDroppedSamples) {
   master_ = std::make_unique<Process>(master_argv(0, {"--state-dir", path("state")}), dir_ / "master");
-  const int port = listening_port(*master_, 30s);
-  ASSERT_GT(port, 0) << "epr-master did not start:\n" << master_->err();
-  address_ = "127.0.0.1:" + std::to_string(port);
+  port_ = listening_port(*master_, 30s);
+  ASSERT_GT(port_, 0) << "epr-master did not start:\n" << master_->err();
 
   start_worker("poisoned", true);
   std::string id;
@@ -119,7 +96,7 @@ TEST_F(NonFiniteWarningTest, SubmitWaitWatchAndTheMasterLogWarnOfDroppedSamples)
   note("job %s done", id.c_str());
   expect_quarter_dropped(waited.err, literal("job " + id + ": warning: "), "epr submit --wait");
 
-  const RunResult watched = epr({"watch", id, "--master", address_});
+  const RunResult watched = epr({"watch", id}, 120s);
   ASSERT_EQ(watched.code, 0) << watched.err;
   expect_quarter_dropped(watched.err, literal("job " + id + ": warning: "), "epr watch");
 
@@ -136,7 +113,7 @@ TEST_F(NonFiniteWarningTest, SubmitWaitWatchAndTheMasterLogWarnOfDroppedSamples)
   const RunResult clean_wait = submit_and_wait(&clean);
   ASSERT_FALSE(clean.empty());
   EXPECT_EQ(clean_wait.err.find(kNaNOrInfinite), std::string::npos) << clean_wait.err;
-  const RunResult clean_watch = epr({"watch", clean, "--master", address_});
+  const RunResult clean_watch = epr({"watch", clean}, 120s);
   ASSERT_EQ(clean_watch.code, 0) << clean_watch.err;
   EXPECT_EQ(clean_watch.err.find(kNaNOrInfinite), std::string::npos) << clean_watch.err;
   // Stopped, the master has logged all it will about both jobs: one warning, the first job's.

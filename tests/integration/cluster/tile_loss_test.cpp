@@ -27,31 +27,13 @@ using namespace std::chrono_literals;
 const char* const kAbortPixel = "40,40";
 const char* const kLostTileReason = "tile 5 (pixels x 32-63, y 32-63) lost its worker 3 times";
 
-class TileLossTest : public StoryTest {
+class TileLossTest : public SingleMasterTest {
  protected:
   void SetUp() override { start_story("epr-tile-loss"); }
 
-  void TearDown() override {
-    for (auto& w : workers_) w->stop();
-    if (master_) master_->stop();
-    if (HasFailure()) {
-      std::fprintf(stderr, "logs kept in %s\n", dir_.c_str());
-      if (master_) print_log_tail("epr-master", master_->err());
-      for (auto& w : workers_) print_log_tail(w->name(), w->err());
-    } else {
-      fs::remove_all(dir_);
-    }
-  }
-
-  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
-
   void start_master() {
-    const Args flags{"--state-dir",       path("state"), "--lease-timeout-ms",   "2000",
-                     "--max-tile-losses", "3",           "--speculative-factor", "0"};
-    const int bound = start_listening(master_, master_argv(0, flags),
-                                      [&] { return dir_ / ("master-" + std::to_string(++masters_)); });
-    if (bound == 0) FAIL() << "epr-master did not start:\n" << master_->err();
-    port_ = bound;
+    SingleMasterTest::start_master(0, {"--state-dir", path("state"), "--lease-timeout-ms", "2000", "--max-tile-losses",
+                                       "3", "--speculative-factor", "0"});
   }
 
   // A worker; with `crashing`, one that aborts on the tile holding kAbortPixel.
@@ -63,29 +45,13 @@ class TileLossTest : public StoryTest {
     return *workers_.back();
   }
 
-  RunResult epr(Args args, Millis timeout = 60s) {
-    args.insert(args.begin(), kEpr);
-    args.insert(args.end(), {"--master", address()});
-    return run_process(args, dir_ / ("epr-" + std::to_string(++runs_)), timeout);
-  }
-
-  std::string submit(const Args& job) {
-    Args args{"submit"};
-    args.insert(args.end(), job.begin(), job.end());
-    const RunResult r = epr(args, 30s);
-    EXPECT_EQ(r.code, 0) << r.err;
-    return r.out.substr(0, r.out.find('\n'));
-  }
-
   nlohmann::json status(const std::string& id) {
     const RunResult r = epr({"get", id, "--json"}, 30s);
     EXPECT_EQ(r.code, 0) << r.err;
     return nlohmann::json::parse(r.out, nullptr, false);
   }
 
-  std::unique_ptr<Process> master_;
-  std::vector<std::unique_ptr<Process>> workers_;
-  int port_ = 0, masters_ = 0, runs_ = 0, started_ = 0;
+  int started_ = 0;
 };
 
 TEST_F(TileLossTest, ATileThatKillsItsWorkersFailsItsJobAndTheFarmGoesOn) {
