@@ -140,7 +140,12 @@ namespace {
 // A private folder TMPDIR/epr-worker-cache-PID-XXXXXX that can hold the cache, or runtime_error
 // ("no scene cache: WHY, and ...").
 std::string private_cache_folder(const std::string& why) {
-  std::string tmpl = (fs::temp_directory_path() / fmt::format("epr-worker-cache-{}-XXXXXX", ::getpid())).string();
+  std::error_code tmp_error;
+  const fs::path tmp = fs::temp_directory_path(tmp_error);
+  if (tmp_error)
+    throw std::runtime_error(
+        fmt::format("no scene cache: {}, and no temporary folder (TMPDIR): {}", why, tmp_error.message()));
+  std::string tmpl = (tmp / fmt::format("epr-worker-cache-{}-XXXXXX", ::getpid())).string();
   if (!::mkdtemp(tmpl.data()))
     throw std::runtime_error(
         fmt::format("no scene cache: {}, and cannot create {}: {}", why, tmpl, std::strerror(errno)));

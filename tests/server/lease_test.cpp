@@ -5,9 +5,11 @@
 //    worker's tile (no heartbeat) is not copied but comes back when its lease expires;
 //  - a worker that keeps failing tiles is blocked for the job after 3 failures while a good worker
 //    finishes it; a job every registered worker is blocked for fails with the reason;
-//  - a file scene no worker can load (a WorkerNode whose scene cache cannot be written) fails its job
-//    with a clear error, and the same worker then renders the next job.
+//  - a file scene no worker can load (a WorkerNode whose scene cache and temporary folder cannot be
+//    written) fails its job with a clear error, and the same worker then renders the next job.
 #include <atomic>
+#include <cstdlib>
+#include <optional>
 
 #include "tests/server/farm_fixture.h"
 
@@ -17,6 +19,24 @@ namespace {
 const std::string kCornellObj = EPR_SOURCE_DIR "/scenes/cornell-box/CornellBox-Original.obj";
 
 class LeaseTest : public FarmFixture {};
+
+// TMPDIR set to `value` for the object's lifetime (set before the workers that read it start).
+class ScopedTmpdir {
+ public:
+  explicit ScopedTmpdir(const std::string& value) {
+    if (const char* old = std::getenv("TMPDIR")) old_ = old;
+    ::setenv("TMPDIR", value.c_str(), 1);
+  }
+  ~ScopedTmpdir() {
+    if (old_)
+      ::setenv("TMPDIR", old_->c_str(), 1);
+    else
+      ::unsetenv("TMPDIR");
+  }
+
+ private:
+  std::optional<std::string> old_;
+};
 
 TEST_F(LeaseTest, StalledTileIsCopiedToAnIdleWorkerAndTheFirstResultWins) {
   MasterOptions mo;
@@ -212,9 +232,12 @@ TEST_F(LeaseTest, JobFailsWithTheReasonWhenEveryRegisteredWorkerIsBlocked) {
 
 TEST_F(LeaseTest, SceneNoWorkerCanLoadFailsTheJobAndTheMasterServesTheNext) {
   start();
-  // A worker whose cache holds a regular file where the scene's folder goes: the cache itself is
-  // writable (no fallback folder), but the fetched file scene cannot be moved into place.
+  // A worker whose cache holds a regular file where the scene's folder goes (the fetched file scene
+  // cannot be moved into place), and whose temporary folder, where it would fetch the scene instead,
+  // is a regular file too.
   const SceneBundleData bundle = bundle_scene(kCornellObj);
+  std::ofstream(dir_ / "not-a-folder") << "x";
+  const ScopedTmpdir no_fallback((dir_ / "not-a-folder").string());
   WorkerNodeOptions no = node_options("broken-cache", 1);
   no.cache_dir = (dir_ / "cache").string();
   fs::create_directories(dir_ / "cache" / "scenes");
