@@ -2,7 +2,7 @@
 # The farm in real containers: the images of deploy/Dockerfile (scripts/container_images.sh) run with
 # podman, driven from the host's `epr` through the published ports.
 #
-#   scripts/container_test.sh --epr BIN [--keep]
+#   scripts/container_test.sh --epr BIN [--keep] [--single | --compose]
 #
 # Needs root, podman set up by scripts/container_setup.sh and the images eprfarm/epr-master and
 # eprfarm/epr-worker (EPR_REGISTRY, EPR_TAG as in the compose file). --keep leaves the containers,
@@ -19,18 +19,36 @@
 #   - a job submitted from the host's epr (--wait) ends DONE, and its PREFIX.counts.exr (M, M' per
 #     pixel) and PREFIX.pathtrace.exr equal those of `epr render --single-process` with the same flags,
 #     bit for bit (tests/deploy/same_images.py).
-# Exit 0 passed, 1 failed (the reason on stderr). A missing or refusing engine is a failure, not a skip.
+# --compose (deploy/docker-compose.yml, run by Debian's docker-compose against podman's Docker API on a
+# socket of this run: Debian's podman-compose 1.0.3 cannot read the file's service networks with
+# ipv4_address and aliases), with EPR_WORKER_THREADS=1, a 2 s lease timeout and ports podman's host has
+# free: two masters, workers scaled to three, the state on the named volumes, the token as the compose
+# secret. Checked:
+#   - both masters' health checks pass; every worker registers with both through the alias `masters`;
+#   - /metrics answers on both masters with the token;
+#   - a batch of eight frames of a camera fly-through, submitted from the host's epr to both published
+#     gRPC ports, during which one worker container is killed (SIGKILL; compose restarts it), master2's
+#     container is stopped (SIGTERM: it drains; its open rounds are checkpointed) and started again on
+#     its volume, and another worker container is stopped (SIGTERM: it returns its leases): `epr watch`
+#     and `epr get` ride through, all eight frames end DONE, `epr list --batch` shows them on both
+#     masters, and each frame's counts.exr and pathtrace.exr equal `epr render --single-process` of
+#     that frame's camera (tests/deploy/frame_cameras.py);
+#   - measured from the workers' debug logs: tiles whose result was submitted more than once (a
+#     killed worker's expired lease, or a speculative copy), printed, not asserted.
+# Default: --single, then --compose. Exit 0 passed, 1 failed (the reason on stderr). A missing or refusing engine is a failure, not a skip.
 set -uo pipefail
 
 here="$(cd "$(dirname "$0")" && pwd)"
 src="$(cd "$here/.." && pwd)"
 PY=/usr/bin/python3
-EPR_BIN="" KEEP=""
+EPR_BIN="" KEEP="" PHASES="single compose"
 while [ $# -gt 0 ]; do
   case "$1" in
     --epr) EPR_BIN="$2"; shift 2 ;;
     --keep) KEEP=1; shift ;;
-    *) echo "usage: $0 --epr BIN [--keep]" >&2; exit 2 ;;
+    --single) PHASES=single; shift ;;
+    --compose) PHASES=compose; shift ;;
+    *) echo "usage: $0 --epr BIN [--keep] [--single | --compose]" >&2; exit 2 ;;
   esac
 done
 [ -x "$EPR_BIN" ] || { echo "container_test: --epr: not an executable: '$EPR_BIN'" >&2; exit 2; }
@@ -45,18 +63,24 @@ tmp="$(mktemp -d "/tmp/epr-containers.XXXXXX")"
 log() { echo "[containers $(date +%T)] $*" >&2; }
 fail() {
   echo "FAILED: container test: $*" >&2
-  for c in $(podman ps -a --filter "name=^$id-" --format '{{.Names}}' 2>/dev/null); do
-    echo "---- podman logs $c (last 30 lines)" >&2
-    podman logs --tail 30 "$c" >&2 2>&1
+  for c in $(podman ps -a --filter "name=^$id" --format '{{.Names}}' 2>/dev/null); do
+    podman logs "$c" > "$tmp/$c.log" 2>&1
+    echo "---- podman logs $c (last 30 lines; all in $tmp/$c.log)" >&2
+    tail -n 30 "$tmp/$c.log" >&2
   done
   echo "(files in $tmp)" >&2
   exit 1
 }
+service_pid=""
 cleanup() {
-  [ -z "$KEEP" ] || { log "kept: containers, network and volumes $id-*; files in $tmp"; return; }
-  podman rm -f -t 0 $(podman ps -a --filter "name=^$id-" --format '{{.Names}}') >/dev/null 2>&1
-  podman volume rm -f $(podman volume ls --filter "name=^$id-" --format '{{.Name}}') >/dev/null 2>&1
-  podman network rm -f "$id-net" >/dev/null 2>&1
+  if [ -n "$KEEP" ]; then
+    log "kept: containers, networks and volumes $id*; files in $tmp"
+  else
+    podman rm -f -t 0 $(podman ps -a --filter "name=^$id" --format '{{.Names}}') >/dev/null 2>&1
+    podman volume rm -f $(podman volume ls --filter "name=^$id" --format '{{.Name}}') >/dev/null 2>&1
+    podman network rm -f "$id-net" "${id}_farm" >/dev/null 2>&1
+  fi
+  [ -z "$service_pid" ] || kill "$service_pid" 2>/dev/null
 }
 trap cleanup EXIT
 
@@ -83,6 +107,8 @@ wait_for() {
 token="$tmp/epr_token"
 head -c 32 /dev/urandom | base64 > "$token"
 chmod 0644 "$token"  # read by uid 10001 in the containers: the bind mount keeps the host's mode
+code() { curl -s -o /dev/null -w '%{http_code}' "$@"; }
+auth=(-H "Authorization: Bearer $(cat "$token")")
 
 podman network create "$id-net" >/dev/null || fail "podman network create failed"
 # The compose services' settings (deploy/docker-compose.yml), with a short lease timeout and debug logs.
@@ -102,6 +128,7 @@ start_worker() { # NAME
 host_port() { podman port "$id-$1" "$2/tcp" | head -n 1 | sed 's/.*://'; }
 
 # ---- one master, one worker ---------------------------------------------------------------------------
+single_phase() {
 start=$SECONDS
 start_master master1 || fail "podman run of $MASTER_IMAGE failed"
 grpc="127.0.0.1:$(host_port master1 50051)"
@@ -115,8 +142,6 @@ podman healthcheck run "$id-worker1" >/dev/null || fail "worker1's health check 
 log "worker1 registered with master1 through the alias 'masters'"
 
 # ---- HTTP: open probes, the token for the rest --------------------------------------------------------
-code() { curl -s -o /dev/null -w '%{http_code}' "$@"; }
-auth=(-H "Authorization: Bearer $(cat "$token")")
 [ "$(code "$http/healthz")" = 200 ] || fail "/healthz without a token: $(code "$http/healthz")"
 [ "$(code "$http/readyz")" = 200 ] || fail "/readyz without a token: $(code "$http/readyz")"
 for path in /metrics /; do
@@ -145,6 +170,12 @@ log "counts.exr and pathtrace.exr: identical to the single-process reference"
 podman logs "$id-master1" > "$tmp/master1.log" 2>&1
 grep -q "reprojection context: " "$tmp/master1.log" ||
   fail "the master container did not bring up its OSMesa context"
+podman rm -f -t 0 "$id-master1" "$id-worker1" >/dev/null 2>&1
+log "single: passed"
+}
 
-log "PASSED"
-rm -rf "$tmp"
+. "$here/container_test_compose.sh"
+
+for phase in $PHASES; do "${phase}_phase"; done
+log "PASSED: $PHASES"
+[ -n "$KEEP" ] || rm -rf "$tmp"
