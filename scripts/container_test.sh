@@ -27,10 +27,10 @@
 #   - both masters' health checks pass; every worker registers with both through the alias `masters`;
 #   - /metrics answers on both masters with the token;
 #   - a batch of eight frames of a camera fly-through, submitted from the host's epr to both published
-#     gRPC ports, during which one worker container is killed (SIGKILL; compose restarts it), master2's
+#     gRPC ports, during which one worker container is killed (SIGKILL; it stays down), master2's
 #     container is stopped (SIGTERM: it drains; its open rounds are checkpointed) and started again on
 #     its volume, and another worker container is stopped (SIGTERM: it returns its leases): `epr watch`
-#     and `epr get` ride through, all eight frames end DONE, `epr list --batch` shows them on both
+#     rides through, all eight frames end DONE and `epr get` fetches them, `epr list --batch` shows them on both
 #     masters, and each frame's counts.exr and pathtrace.exr equal `epr render --single-process` of
 #     that frame's camera (tests/deploy/frame_cameras.py);
 #   - measured from the workers' debug logs: tiles whose result was submitted more than once (a
