@@ -76,7 +76,7 @@ cleanup() {
   if [ -n "$KEEP" ]; then
     log "kept: containers, networks and volumes $id*; files in $tmp"
   else
-    podman rm -f -t 0 $(podman ps -a --filter "name=^$id" --format '{{.Names}}') >/dev/null 2>&1
+    podman rm -f -v -t 0 $(podman ps -a --filter "name=^$id" --format '{{.Names}}') >/dev/null 2>&1
     podman volume rm -f $(podman volume ls --filter "name=^$id" --format '{{.Name}}') >/dev/null 2>&1
     podman network rm -f "$id-net" "${id}_farm" >/dev/null 2>&1
   fi
@@ -170,7 +170,7 @@ log "counts.exr and pathtrace.exr: identical to the single-process reference"
 podman logs "$id-master1" > "$tmp/master1.log" 2>&1
 grep -q "reprojection context: " "$tmp/master1.log" ||
   fail "the master container did not bring up its OSMesa context"
-podman rm -f -t 0 "$id-master1" "$id-worker1" >/dev/null 2>&1
+podman rm -f -v -t 0 "$id-master1" "$id-worker1" >/dev/null 2>&1
 log "single: passed"
 }
 
