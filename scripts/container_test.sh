@@ -33,8 +33,8 @@
 #     rides through, all eight frames end DONE and `epr get` fetches them, `epr list --batch` shows them on both
 #     masters, and each frame's counts.exr and pathtrace.exr equal `epr render --single-process` of
 #     that frame's camera (tests/deploy/frame_cameras.py);
-#   - measured from the workers' debug logs: tiles whose result was submitted more than once (a
-#     killed worker's expired lease, or a speculative copy), printed, not asserted.
+#   - measured from the frames' statistics (the masters' counters): tiles committed, leased, re-leased,
+#     speculative copies and dropped results (a tile traced twice), printed, not asserted.
 # Default: --single, then --compose. Exit 0 passed, 1 failed (the reason on stderr). A missing or refusing engine is a failure, not a skip.
 set -uo pipefail
 
