@@ -126,7 +126,8 @@ class Scripts(unittest.TestCase):
     def test_shell_syntax(self):
         for path in ("deploy/docker-entrypoint.sh", "deploy/image-packages.sh", "tests/deploy/netns_cluster_test.sh",
                      "scripts/container_setup.sh", "scripts/container_images.sh", "scripts/container_test.sh",
-                     "scripts/container_test_compose.sh", "scripts/container_k8s_test.sh", "scripts/container_bench.sh"):
+                     "scripts/container_test_compose.sh", "scripts/container_k8s_test.sh", "scripts/container_bench.sh",
+                     "scripts/container_ci.sh"):
             subprocess.run(["bash", "-n", os.path.join(SRC, path)], check=True)
 
     def test_health_script_compiles(self):
