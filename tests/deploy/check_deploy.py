@@ -97,7 +97,23 @@ class Dockerfile(unittest.TestCase):
 
     def test_copied_files_exist(self):
         for src in re.findall(r"^COPY (deploy/\S+|scripts/\S+)", self.text, re.M):
+            if src == "deploy/prebuilt/":
+                continue  # not in the tree: scripts/container_images.sh --prebuilt fills it in its context
             self.assertTrue(os.path.exists(os.path.join(SRC, src)), f"COPY {src}: no such file")
+
+    def test_prebuilt_binaries_stage(self):
+        """--build-arg BINARIES=prebuilt takes the binaries of scripts/container_images.sh's context."""
+        m = re.search(r"^ARG BINARIES=(\S+)", self.text, re.M)
+        self.assertIsNotNone(m, "no ARG BINARIES")
+        self.assertEqual(m.group(1), "build", "by default the image compiles the project")
+        self.assertEqual(self.stages["binaries"]["from"], "${BINARIES}")
+        self.assertEqual(self.stages["prebuilt"]["from"], "scratch")
+        script = read(os.path.join(SRC, "scripts", "container_images.sh"))
+        for path in ("deploy/prebuilt/bin", "deploy/prebuilt/runtime-packages.txt", "BINARIES=prebuilt"):
+            self.assertIn(path, script, f"scripts/container_images.sh does not fill {path}")
+        runtime = self.text[self.text.index("AS runtime"):]
+        self.assertNotIn("--from=build", runtime, "the runtime stage must copy from the stage BINARIES names")
+        self.assertEqual(len(re.findall(r"--from=binaries", runtime)), 2)
 
     def test_image_env_is_known_to_the_entrypoint(self):
         known = entrypoint_variables()
@@ -108,7 +124,10 @@ class Dockerfile(unittest.TestCase):
 
 class Scripts(unittest.TestCase):
     def test_shell_syntax(self):
-        for path in ("deploy/docker-entrypoint.sh", "deploy/image-packages.sh", "tests/deploy/netns_cluster_test.sh"):
+        for path in ("deploy/docker-entrypoint.sh", "deploy/image-packages.sh", "tests/deploy/netns_cluster_test.sh",
+                     "scripts/container_setup.sh", "scripts/container_images.sh", "scripts/container_test.sh",
+                     "scripts/container_test_compose.sh", "scripts/container_k8s_test.sh", "scripts/container_bench.sh",
+                     "scripts/container_ci.sh"):
             subprocess.run(["bash", "-n", os.path.join(SRC, path)], check=True)
 
     def test_health_script_compiles(self):

@@ -388,25 +388,7 @@ re_leased="$("$PY" -c 'import json,sys; print(json.load(open(sys.argv[1])).get("
 # ---- against the undisturbed reference -------------------------------------------------------------------
 # same_images A1 B1 [A2 B2 ...]: each Ai holds the same bytes as Bi, else (e.g. other metadata)
 # exactly the same pixels; names the first pair that differs. One Python for all the pairs.
-same_images() {
-  "$PY" - "$@" <<'EOF'
-import filecmp, os, sys
-import OpenImageIO as oiio
-paths = sys.argv[1:]
-for a, b in zip(paths[0::2], paths[1::2]):
-    if not os.path.isfile(a) or os.path.getsize(a) == 0:
-        sys.exit(f"missing or empty: {a}")
-    if filecmp.cmp(a, b, shallow=False):
-        continue
-    pa, pb = (oiio.ImageBuf(p).get_pixels(oiio.FLOAT) for p in (a, b))
-    if pa is None or pb is None or pa.shape != pb.shape:
-        sys.exit(f"{a} vs {b}: cannot compare: shapes {getattr(pa, 'shape', None)} vs {getattr(pb, 'shape', None)}")
-    diff = pa != pb
-    if diff.any():
-        sys.exit(f"{a} vs {b}: {int(diff.sum())} of {diff.size} values differ")
-    print(f"{a}: same {pa.shape} pixels as {os.path.basename(b)} (bytes differ)", file=sys.stderr)
-EOF
-}
+same_images() { "$PY" "$here/same_images.py" "$@"; }
 "$EPR_BIN" render "${job[@]}" --single-process --out "$tmp/ref" > "$tmp/reference.log" 2>&1 ||
   fail "epr render --single-process failed"
 same_images "$out_dir/cluster.counts.exr" "$tmp/ref.counts.exr" "$out_dir/cluster.pathtrace.exr" "$tmp/ref.pathtrace.exr" ||
@@ -530,19 +512,7 @@ log "batch done after $((SECONDS - start)) s in all; epr watch and epr get rode 
 # The references: each frame's camera as CameraAnimation::at computes it (common/camera_animation.cpp:
 # float keys, doubles in between, float results), given to `epr render --single-process` as overrides
 # (9 significant digits give a float back exactly).
-"$PY" - "$scene" > "$tmp/cameras.txt" <<'EOF' || fail "cannot compute the frames' cameras"
-import json, struct, sys
-f32 = lambda x: struct.unpack("f", struct.pack("f", x))[0]
-keys = json.load(open(sys.argv[1]))["animation"]["camera"]
-for frame in range(1, 9):
-    i = max(k for k in range(len(keys)) if keys[k]["frame"] <= frame)
-    a = keys[i]
-    b = keys[i + 1] if frame > a["frame"] and i + 1 < len(keys) else None
-    t = (frame - a["frame"]) / (b["frame"] - a["frame"]) if b else 0.0
-    lerp = lambda x, y: f32(f32(x) + (f32(y) - f32(x)) * t) if b else f32(x)
-    vec = lambda n: ",".join("%.9g" % lerp(x, b[n][k] if b else x) for k, x in enumerate(a[n]))
-    print(frame, vec("eye"), vec("look"), vec("up"), "%.9g" % lerp(a["fov"], b["fov"] if b else a["fov"]))
-EOF
+"$PY" "$here/frame_cameras.py" "$scene" 1 8 > "$tmp/cameras.txt" || fail "cannot compute the frames' cameras"
 [ "$(wc -l < "$tmp/cameras.txt")" -eq 8 ] || fail "not 8 cameras: $(cat "$tmp/cameras.txt")"
 # All eight at once: a render this small mostly waits (about 1.6 s wall for 0.5 s of CPU).
 declare -A ref_pid
