@@ -46,18 +46,7 @@ print(" ".join(str(s.getsockname()[1]) for s in socks))'))
 
   # ---- the batch ----
   local scene="$tmp/flythrough.json"
-  cat > "$scene" <<'EOF'
-{
-  "builtin": "cornell",
-  "animation": {
-    "camera": [
-      {"frame": 1, "eye": [0, 1, 3.9],      "look": [0, 1, 0],        "up": [0, 1, 0],    "fov": 39.3},
-      {"frame": 5, "eye": [0.4, 1.15, 3.2], "look": [0.05, 1, 0],     "up": [0, 1, 0],    "fov": 44},
-      {"frame": 8, "eye": [-0.3, 1.2, 2.8], "look": [-0.1, 0.95, 0],  "up": [0.05, 1, 0], "fov": 50}
-    ]
-  }
-}
-EOF
+  cp "$src/tests/deploy/flythrough8.json" "$scene"  # every key a whole camera: 8 frames through the Cornell box
   # 96x96 pixels in 9 tiles, 16 rounds of 8 paths: about 3 s of one core per frame.
   local flags=(--width 96 --height 96 --spp 128 --paths-per-round 8 --tile 32 --mode skip --min-paths 128
                --round-growth 0 --seed 31)
