@@ -54,6 +54,9 @@ else
   # podman reads .dockerignore (or .containerignore) at the context's root, not BuildKit's
   # <Dockerfile>.dockerignore: pass it explicitly.
   args+=(--ignorefile "$src/deploy/Dockerfile.dockerignore")
+  # Named although it is the default: podman 4.3's stage skipping resolves `FROM ${BINARIES}` against
+  # the stages only for a value given here, and with the default it looks for an image called "build".
+  args+=(--build-arg BINARIES=build)
   context="$src"
 fi
 

@@ -45,3 +45,7 @@ if [ ${#missing[@]} -gt 0 ]; then
 else
   echo "setup: all packages present"
 fi
+
+# The container engine (podman with runc, the base image made from Debian's archive): the test command's
+# container stage (scripts/container_ci.sh) and DEPLOY.md's container commands need it.
+bash "$(dirname "$0")/container_setup.sh"

@@ -20,3 +20,8 @@ cmake -S tests/fuzz -B build/fuzz -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_
       -DEPR_FUZZ_SECONDS="${EPR_FUZZ_SECONDS:-45}"
 cmake --build build/fuzz -j "$(nproc)"
 (cd build/fuzz && ctest --output-on-failure -j 2)
+
+# Containers (docs/DEPLOY.md): runtime-only images of this build, the farm from deploy/docker-compose.yml
+# and deploy/k8s (podman kube play) in real containers. A container engine that is missing or refuses
+# to start fails this stage with its reason.
+bash scripts/container_ci.sh build

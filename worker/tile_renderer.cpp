@@ -3,6 +3,8 @@
 #include <chrono>
 #include <cmath>
 
+#include "common/denormals.h"
+
 namespace epr {
 
 TileRenderer::TileRenderer(const PathTracer& tracer, VertexFilter filter, const Bounds3& codec_bounds)
@@ -63,6 +65,7 @@ TileResult TileRenderer::render(const TileRequest& req) const {
 }
 
 void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
+  const ScopedFlushDenormals flush_denormals;  // the same samples whichever thread traces the tile
   const auto start = std::chrono::steady_clock::now();
   const size_t n = size_t(req.rect.pixel_count()), at = out.path_sum.size();
   out.path_sum.resize(at + n, Vec3(0.f));
