@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -67,24 +68,16 @@ std::string lower(std::string s) {
 bool RpcError::unreachable() const { return rpc::is_unreachable(code()); }
 
 std::string state_name(v1::JobState state) {
-  switch (state) {
-    case v1::JOB_STATE_QUEUED:
-      return "QUEUED";
-    case v1::JOB_STATE_RUNNING:
-      return "RUNNING";
-    case v1::JOB_STATE_DONE:
-      return "DONE";
-    case v1::JOB_STATE_FAILED:
-      return "FAILED";
-    case v1::JOB_STATE_CANCELLED:
-      return "CANCELLED";
-    default:
-      return "UNSPECIFIED";
-  }
+  const std::optional<JobState> s = from_proto(state);
+  if (!s) return "UNSPECIFIED";
+  std::string name = to_string(*s);
+  for (char& c : name) c = char(std::toupper(static_cast<unsigned char>(c)));
+  return name;
 }
 
 bool is_terminal(v1::JobState state) {
-  return state == v1::JOB_STATE_DONE || state == v1::JOB_STATE_FAILED || state == v1::JOB_STATE_CANCELLED;
+  const std::optional<JobState> s = from_proto(state);
+  return s && is_terminal(*s);
 }
 
 void CallCanceller::cancel() {

@@ -5,6 +5,7 @@
 
 #include <fmt/format.h>
 
+#include <cstddef>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -31,6 +32,8 @@ inline constexpr Range<int> kTileSize{"--tile", 4, 1024};
 inline constexpr Range<int> kMaxDepth{"--max-depth", 1, 100000};
 inline constexpr Range<double> kRoundGrowth{"--round-growth", 0, 16};
 inline constexpr Range<double> kEpsilon{"--epsilon", 0, 1};
+/// Job, batch and worker names are at most this many bytes (UTF-8).
+inline constexpr size_t kMaxNameBytes = 256;
 /// The deep framebuffer's subpixels (width x height x S^2) at most, and its texels per axis
 /// (width x S, height x S) at most: the largest GL viewport the deep framebuffer is rasterised into.
 inline constexpr long long kMaxSubpixels = 1ll << 28;

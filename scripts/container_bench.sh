@@ -9,7 +9,10 @@
 # image until the worker's log shows its first lease. The farm: two masters and three one-thread
 # workers render the container test's batch of eight 96x96 frames (no faults), once from
 # deploy/docker-compose.yml on podman and once as processes on loopback with the same flags; the time
-# is from `epr submit --frames` to the end of `epr watch`. Prints one line per measurement.
+# is from `epr submit --frames` to the end of `epr watch`, and the farm's CPU seconds over that time
+# (the masters' and workers' own: their containers' cgroups, cpuacct or cpu.stat; the processes'
+# utime + stime from /proc), which a busy machine does not inflate as it does the wall time. Prints one
+# line per measurement.
 set -uo pipefail
 
 here="$(cd "$(dirname "$0")" && pwd)"
@@ -81,15 +84,41 @@ cat > "$tmp/flythrough.json" <<'EOF'
   {"frame": 8, "eye": [-0.3, 1.2, 2.8], "look": [-0.1, 0.95, 0], "up": [0.05, 1, 0], "fov": 50}]}}
 EOF
 flags=(--width 96 --height 96 --spp 128 --paths-per-round 8 --tile 32 --mode skip --min-paths 128 --round-growth 0 --seed 31)
-# batch MASTERS LABEL: submit the frames and watch them to the end; prints the wall time.
+# farm_cpu: the CPU seconds the farm has used so far (farm_cpu_containers or farm_cpu_processes).
+farm_cpu_containers() {
+  local total=0 c cid dir v
+  for c in $(podman ps --filter "name=^${id}_" --format '{{.ID}}'); do
+    cid="$(podman inspect --format '{{.Id}}' "$c")"
+    dir="$(find /sys/fs/cgroup -maxdepth 4 -type d -name "*libpod-$cid*" 2>/dev/null | head -n 1)"
+    [ -n "$dir" ] || die "no cgroup of container $c"
+    if [ -r "$dir/cpuacct.usage" ]; then
+      v="$(awk '{ printf "%.6f", $1 / 1e9 }' "$dir/cpuacct.usage")"
+    else
+      v="$(awk '$1 == "usage_usec" { printf "%.6f", $2 / 1e6 }' "$dir/cpu.stat")"
+    fi
+    total="$(awk -v a="$total" -v b="$v" 'BEGIN { printf "%.6f", a + b }')"
+  done
+  echo "$total"
+}
+farm_cpu_processes() {
+  local tck
+  tck="$(getconf CLK_TCK)"
+  cat "${farm_pids[@]/#//proc/}" 2>/dev/null | sed 's/.*) //' |
+    awk -v t="$tck" '{ s += $12 + $13 } END { printf "%.6f", s / t }'
+}
+farm_pids=()
+# batch MASTERS LABEL: submit the frames and watch them to the end; prints the wall and CPU time.
 batch() {
-  local t0 t1 b
+  local t0 t1 b c0 c1
+  c0="$($farm_cpu)"
   t0="$(now)"
   b="$("$EPR" --log-level warn submit "$tmp/flythrough.json" --frames 1-8 "${flags[@]}" --master "$1" --token-file "$token" 2>"$tmp/submit.log")" ||
     die "$2: epr submit"
   "$EPR" --log-level warn watch "$b" --master "$1" --token-file "$token" >/dev/null 2>&1 || die "$2: epr watch $b"
   t1="$(now)"
-  echo "$2: 8 frames in $(elapsed "$t0" "$t1") s (load average $(cut -d' ' -f1-3 /proc/loadavg))"
+  c1="$($farm_cpu)"
+  echo "$2: 8 frames in $(elapsed "$t0" "$t1") s, the farm's CPU $(elapsed "$c0" "$c1") s" \
+    "(load average $(cut -d' ' -f1-3 /proc/loadavg))"
 }
 wait_ports() { # PORT...: until each answers an unauthenticated health probe (epr list with the token)
   local p
@@ -109,6 +138,7 @@ dc() { docker-compose -p "$id" -f "$src/deploy/docker-compose.yml" "$@"; }
 dc up -d --no-build --scale worker=3 >/dev/null 2>&1 || die "docker-compose up"
 wait_ports "$p1" "$p2"
 until [ "$(podman logs "${id}_worker_3" 2>&1 | grep -c 'registered with')" -ge 2 ]; do sleep 0.2; done
+farm_cpu=farm_cpu_containers
 for run in $(seq "$RUNS"); do batch "127.0.0.1:$p1,127.0.0.1:$p2" "compose farm run $run"; done
 dc down -v -t 120 >/dev/null 2>&1
 
@@ -118,12 +148,15 @@ for m in 1 2; do
   "$BUILD/master/epr-master" --listen "127.0.0.1:$port" --http "" --state-dir "$tmp/state$m" --name "master$m" \
     --token-file "$token" --log-level warn >"$tmp/master$m.log" 2>&1 &
   pids+=($!)
+  farm_pids+=("$!/stat")
 done
 wait_ports "$p1" "$p2"
 for w in 1 2 3; do
   "$BUILD/worker/epr-worker" --master "127.0.0.1:$p1,127.0.0.1:$p2" --threads 1 --name "w$w" \
     --cache-dir "$tmp/cache$w" --token-file "$token" --log-level warn >"$tmp/worker$w.log" 2>&1 &
   pids+=($!)
+  farm_pids+=("$!/stat")
 done
 sleep 2
+farm_cpu=farm_cpu_processes
 for run in $(seq "$RUNS"); do batch "127.0.0.1:$p1,127.0.0.1:$p2" "processes run $run"; done

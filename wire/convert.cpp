@@ -5,6 +5,32 @@
 #include <cmath>
 
 namespace epr {
+namespace {
+
+// The one table of job states and their wire values.
+struct JobStateWire {
+  JobState state;
+  v1::JobState wire;
+};
+constexpr JobStateWire kJobStateWire[] = {{JobState::kQueued, v1::JOB_STATE_QUEUED},
+                                          {JobState::kRunning, v1::JOB_STATE_RUNNING},
+                                          {JobState::kDone, v1::JOB_STATE_DONE},
+                                          {JobState::kFailed, v1::JOB_STATE_FAILED},
+                                          {JobState::kCancelled, v1::JOB_STATE_CANCELLED}};
+
+}  // namespace
+
+v1::JobState to_proto(JobState s) {
+  for (const auto& row : kJobStateWire)
+    if (row.state == s) return row.wire;
+  return v1::JOB_STATE_UNSPECIFIED;
+}
+
+std::optional<JobState> from_proto(v1::JobState s) {
+  for (const auto& row : kJobStateWire)
+    if (row.wire == s) return row.state;
+  return std::nullopt;
+}
 
 Vec3 from_proto(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
 void to_proto(const Vec3& v, v1::Vec3* out) {

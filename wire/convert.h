@@ -5,6 +5,7 @@
 #include <optional>
 #include <string>
 
+#include "common/job_state.h"
 #include "common/render_options.h"
 #include "common/result_kinds.h"
 #include "epr/v1/job_service.pb.h"
@@ -28,6 +29,9 @@ void to_proto(const RussianRoulette& rr, v1::RussianRouletteSettings* out);
 /// field existed); nullopt for a value this build does not know.
 std::optional<SamplerKind> from_proto(v1::Sampler s);
 v1::Sampler to_proto(SamplerKind s);
+/// A job's state on the wire and back: nullopt for JOB_STATE_UNSPECIFIED and values this build does not know.
+v1::JobState to_proto(JobState s);
+std::optional<JobState> from_proto(v1::JobState s);
 
 /// A JobSpec for `opts` with the scene carried as `bundle`. Camera overrides are applied to
 /// `scene_camera` (the camera of the loaded scene) so the job names its camera explicitly.

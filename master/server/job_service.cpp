@@ -10,6 +10,7 @@
 
 #include "common/camera_animation.h"
 #include "common/check.h"
+#include "common/limits.h"
 #include "common/log.h"
 #include "master/memory_estimate.h"
 #include "master/reprojection_outcomes.h"
@@ -20,7 +21,7 @@
 namespace epr {
 namespace {
 
-// The batch fields of a spec: an id of [A-Za-z0-9_-]{1,64}, a name of at most 256 bytes, and no frame
+// The batch fields of a spec: an id of [A-Za-z0-9_-]{1,64}, a name of at most limits::kMaxNameBytes, and no frame
 // or count without an id.
 std::optional<std::string> batch_error(const v1::JobSpec& spec) {
   const std::string& id = spec.batch_id();
@@ -33,27 +34,12 @@ std::optional<std::string> batch_error(const v1::JobSpec& spec) {
                     return std::isalnum(c) || c == '_' || c == '-';
                   });
   if (!ok) return fmt::format("batch_id '{}' is not 1 to 64 of [A-Za-z0-9_-]", id.substr(0, 80));
-  if (spec.batch_name().size() > 256) return std::string("batch names are limited to 256 bytes");
+  if (spec.batch_name().size() > limits::kMaxNameBytes)
+    return fmt::format("batch names are limited to {} bytes", limits::kMaxNameBytes);
   return std::nullopt;
 }
 
 grpc::Status no_job(const std::string& id) { return {grpc::StatusCode::NOT_FOUND, fmt::format("no job '{}'", id)}; }
-
-v1::JobState to_proto(JobState s) {
-  switch (s) {
-    case JobState::kQueued:
-      return v1::JOB_STATE_QUEUED;
-    case JobState::kRunning:
-      return v1::JOB_STATE_RUNNING;
-    case JobState::kDone:
-      return v1::JOB_STATE_DONE;
-    case JobState::kFailed:
-      return v1::JOB_STATE_FAILED;
-    case JobState::kCancelled:
-      return v1::JOB_STATE_CANCELLED;
-  }
-  return v1::JOB_STATE_UNSPECIFIED;
-}
 
 // Sends a status whenever the job changes, at most one write in flight; the newest status wins.
 class JobWatcher final : public grpc::ServerWriteReactor<v1::JobStatus> {
@@ -268,7 +254,8 @@ grpc::Status JobServiceImpl::checked_request(const v1::JobSpec& req, const std::
     default:
       return invalid("the job has no scene");
   }
-  if (req.name().size() > 256) return invalid("job names are limited to 256 bytes");
+  if (req.name().size() > limits::kMaxNameBytes)
+    return invalid(fmt::format("job names are limited to {} bytes", limits::kMaxNameBytes));
   jr->name = req.name();
   jr->priority = req.priority();
   jr->request_id = req.request_id();

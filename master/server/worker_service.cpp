@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include "common/limits.h"
 #include "common/log.h"
 #include "master/server/reactors.h"
 #include "wire/convert.h"
@@ -90,7 +91,8 @@ grpc::ServerUnaryReactor* WorkerServiceImpl::Register(grpc::CallbackServerContex
                   {grpc::StatusCode::FAILED_PRECONDITION,
                    fmt::format("this master speaks protocol version 1, the worker {}", int(req->protocol_version()))});
   if (req->threads() < 1 || req->threads() > 4096) return finish(ctx, invalid("threads must be between 1 and 4096"));
-  if (req->name().size() > 256) return finish(ctx, invalid("worker names are limited to 256 bytes"));
+  if (req->name().size() > limits::kMaxNameBytes)
+    return finish(ctx, invalid(fmt::format("worker names are limited to {} bytes", limits::kMaxNameBytes)));
   if (req->cached_scenes_size() > 4096) return finish(ctx, invalid("cached_scenes is limited to 4096 hashes"));
   resp->mutable_worker_id()->set_id(
       jobs_.register_worker(req->name(), req->threads(), {req->cached_scenes().begin(), req->cached_scenes().end()}));

@@ -46,12 +46,11 @@ log = logging.getLogger("eprfarm")
 
 DEFAULT_MASTER = "localhost:50051"
 CHUNK_BYTES = 1 << 20  # SceneFileData.data and ResultData.data carry at most 1 MiB
-MAX_NAME_BYTES = 256  # JobSpec.name
 
 
 def _default_job_name(scene: str) -> str:
     name = scene[len(_scene.BUILTIN_PREFIX) :] if scene.startswith(_scene.BUILTIN_PREFIX) else os.path.basename(scene)
-    return name.encode()[:MAX_NAME_BYTES].decode("utf-8", "ignore")
+    return name.encode()[:L.MAX_NAME_BYTES].decode("utf-8", "ignore")
 
 
 def _describe(code: grpc.StatusCode, details: str) -> str:
@@ -304,8 +303,8 @@ class MasterClient:
         if sun_pb is not None:
             spec.sun.CopyFrom(sun_pb)
         job_name = _default_job_name(scene) if name is None else name
-        if len(job_name.encode()) > MAX_NAME_BYTES:
-            raise ArgumentError(f"job name is {len(job_name.encode())} bytes long, at most {MAX_NAME_BYTES}")
+        if len(job_name.encode()) > L.MAX_NAME_BYTES:
+            raise ArgumentError(f"job name is {len(job_name.encode())} bytes long, at most {L.MAX_NAME_BYTES}")
         spec.name = job_name
         if time_budget is not None:
             spec.time_budget_seconds = time_budget

@@ -8,9 +8,9 @@ import secrets
 from typing import Iterable, List, Optional, Union
 
 from .errors import ArgumentError
+from .limits import MAX_NAME_BYTES
 from .proto import job_service_pb2 as pb
 
-MAX_NAME_BYTES = 256  # JobSpec.name and batch_name
 MAX_FRAME = 9_999_999  # common/camera_animation.h kMaxFrame
 MAX_BATCH_FRAMES = 100_000  # client/batch.h kMaxBatchFrames
 

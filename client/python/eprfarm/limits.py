@@ -32,6 +32,7 @@ MAX_DEPTH = Range("--max-depth", 1, 100000)
 ROUND_GROWTH = Range("--round-growth", 0, 16)
 EPSILON = Range("--epsilon", 0, 1)
 JOB_RANGES = (IMAGE_SIDE, SPP, SUBPIXELS, TILE_SIZE, MAX_DEPTH, ROUND_GROWTH, EPSILON)
+MAX_NAME_BYTES = 256  # kMaxNameBytes: job, batch and worker names, UTF-8
 
 UINT32_MAX = (1 << 32) - 1
 UINT64_MAX = (1 << 64) - 1

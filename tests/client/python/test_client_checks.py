@@ -95,6 +95,10 @@ class ArgumentTest(unittest.TestCase):
 
         ours = {r.flag: (float(r.lo), float(r.hi)) for r in limits.JOB_RANGES}
         self.assertEqual(ours, limits_h())
+        with open(os.path.join(base.SOURCE_DIR, "common", "limits.h")) as f:
+            name_bytes = re.search(r"kMaxNameBytes = (\d+);", f.read())
+        self.assertIsNotNone(name_bytes, "no kMaxNameBytes in common/limits.h")
+        self.assertEqual(limits.MAX_NAME_BYTES, int(name_bytes.group(1)))
 
     def test_list_and_watch_arguments(self):
         self.assert_refused(lambda: self.client.list(limit=-1), "limit -1 must be 0 (all jobs) or more")
