@@ -134,7 +134,7 @@ until [ -S "$sock" ]; do sleep 0.1; done
 read -r p1 p2 h1 h2 <<< "$(free_ports 4)"
 export DOCKER_HOST="unix://$sock" EPR_TOKEN_PATH="$token" EPR_GRPC_PORT="$p1" EPR_GRPC_PORT2="$p2"
 export EPR_HTTP_PORT="$h1" EPR_HTTP_PORT2="$h2" EPR_WORKER_THREADS=1
-dc() { docker-compose -p "$id" -f "$src/deploy/docker-compose.yml" "$@"; }
+dc() { docker-compose -p "$id" -f "$src/deploy/docker-compose.yml" -f "$src/deploy/docker-compose.podman.yml" "$@"; }
 dc up -d --no-build --scale worker=3 >/dev/null 2>&1 || die "docker-compose up"
 wait_ports "$p1" "$p2"
 until [ "$(podman logs "${id}_worker_3" 2>&1 | grep -c 'registered with')" -ge 2 ]; do sleep 0.2; done

@@ -21,7 +21,7 @@ print(" ".join(str(s.getsockname()[1]) for s in socks))'))
   export EPR_TOKEN_PATH="$token" EPR_GRPC_PORT="${ports[0]}" EPR_GRPC_PORT2="${ports[1]}"
   export EPR_HTTP_PORT="${ports[2]}" EPR_HTTP_PORT2="${ports[3]}" EPR_HTTP_HOST_IP=127.0.0.1
   export EPR_LEASE_TIMEOUT_MS=2000 EPR_HEARTBEAT_MS=500 EPR_LOG_LEVEL=debug EPR_WORKER_THREADS=1
-  dc() { docker-compose -p "$id" -f "$src/deploy/docker-compose.yml" "$@"; }
+  dc() { docker-compose -p "$id" -f "$src/deploy/docker-compose.yml" -f "$src/deploy/docker-compose.podman.yml" "$@"; }
   local m1="${id}_master1_1" m2="${id}_master2_1" w1="${id}_worker_1" w2="${id}_worker_2" w3="${id}_worker_3"
   local both="127.0.0.1:${ports[0]},127.0.0.1:${ports[1]}"
 
@@ -70,12 +70,12 @@ print(" ".join(str(s.getsockname()[1]) for s in socks))'))
   checkpointed() { podman logs "$m2" 2>&1 | grep -q "round checkpoint synced"; }
   wait_for 120 "master2 checkpointing a round" checkpointed
   local t0=$SECONDS
-  podman stop -t 120 "$m2" > /dev/null || fail "podman stop $m2"
+  dc stop -t 120 master2 > "$tmp/compose-stop.log" 2>&1 || fail "docker-compose stop master2: $(tail -n 3 "$tmp/compose-stop.log")"
   podman logs "$m2" > "$tmp/master2.stopped.log" 2>&1
   grep -E "drained in|drain ended|nothing to keep" "$tmp/master2.stopped.log" >&2 ||
     fail "master2 did not drain on SIGTERM"
-  log "compose: master2 stopped in $((SECONDS - t0)) s (podman stop: SIGTERM)"
-  podman start "$m2" > /dev/null || fail "podman start $m2"
+  log "compose: master2 stopped in $((SECONDS - t0)) s (docker-compose stop: SIGTERM)"
+  dc start master2 > "$tmp/compose-start.log" 2>&1 || fail "docker-compose start master2: $(tail -n 3 "$tmp/compose-start.log")"
   wait_for 120 "master2's health check after its restart" podman healthcheck run "$m2"
   local loaded
   loaded="$(podman logs "$m2" 2>&1 | grep 'state directory' | tail -n 1)"
@@ -99,6 +99,12 @@ print(" ".join(str(s.getsockname()[1]) for s in socks))'))
   # The jobs of both masters (named by their ids' prefix), each under the address it was reached at.
   grep -q "^master1\.j.* 127.0.0.1:${ports[0]}\$" <<< "$list" && grep -q "^master2\.j.* 127.0.0.1:${ports[1]}\$" <<< "$list" ||
     fail "epr list does not show both masters' frames"
+  # The compose file's client service, as DEPLOY.md runs it: both masters through the alias.
+  mkdir -p "$tmp/out" && chmod 0777 "$tmp/out"
+  list="$(EPR_OUT_DIR="$tmp/out" dc run --rm client list 2>&1)" || fail "docker-compose run --rm client list: $list"
+  grep -q "^master1\.j" <<< "$list" && grep -q "^master2\.j" <<< "$list" ||
+    fail "docker-compose run --rm client list does not show both masters' jobs: $list"
+  log "compose: docker-compose run --rm client list shows both masters' jobs"
 
   # ---- against the single-process references ----
   "$PY" "$src/tests/deploy/frame_cameras.py" "$scene" 1 8 > "$tmp/cameras.txt" || fail "cannot compute the cameras"
