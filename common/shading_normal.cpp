@@ -50,4 +50,9 @@ Vec3 oriented_shading_normal(Vec3 n, Vec3 ng, Vec3 wo) {
   return l > 0 && std::isfinite(l) ? bent / l : ng;
 }
 
+Vec3 shading_normal_towards(const Scene& s, size_t tri, float u, float v, Vec3 ng, Vec3 wo) {
+  if (s.normals.empty() && s.materials[s.material_of[tri]].normal_texture < 0) return ng;
+  return oriented_shading_normal(shading_normal(s, tri, u, v), ng, wo);
+}
+
 }  // namespace epr

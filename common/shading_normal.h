@@ -23,4 +23,9 @@ Vec3 shading_normal(const Scene& s, size_t tri, float u, float v);
 /// by min(0.9 dot(wo, ng), 0.01): wo is then never below the shading hemisphere. Unit length.
 Vec3 oriented_shading_normal(Vec3 n, Vec3 ng, Vec3 wo);
 
+/// What a hit on triangle `tri` at (u, v) shades with, seen from wo with the oriented geometric
+/// normal ng: oriented_shading_normal(shading_normal(...), ng, wo), or ng itself (bit for bit, so
+/// that flat scenes render as they did) where the triangle has neither corner normals nor a normal map.
+Vec3 shading_normal_towards(const Scene& s, size_t tri, float u, float v, Vec3 ng, Vec3 wo);
+
 }  // namespace epr

@@ -122,7 +122,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     v.normal = dot(ng, ray.dir) < 0 ? ng : -ng;
     v.le = le;  // diffuse emitter
     v.diffuse = mat.diffuse();
-    v.shading = oriented_shading_normal(shading_normal(s, hit.prim, hit.u, hit.v), v.normal, -ray.dir);
+    v.shading = shading_normal_towards(s, hit.prim, hit.u, hit.v, v.normal, -ray.dir);
     const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, v.shading, -ray.dir);
     const Vec3 origin = v.position + v.normal * eps;
 
