@@ -98,7 +98,7 @@ std::vector<unsigned char> encode_png_srgb(const Image& img) {
   return file;
 }
 
-Image read_image(const std::string& path) {
+Image read_image(const std::string& path, bool colour) {
   // Colour as stored, not multiplied by alpha (OpenImageIO associates alpha by default).
   OIIO::ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1);
@@ -111,7 +111,7 @@ Image read_image(const std::string& path) {
   if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, img.data.data()))
     throw std::runtime_error(fmt::format("cannot read image '{}': {}", path, in->geterror()));
   // 8-bit files hold sRGB-encoded colour: linearise so textures are in the renderer's space.
-  if (spec.format == OIIO::TypeDesc::UINT8 || spec.format == OIIO::TypeDesc::UINT16) {
+  if (colour && (spec.format == OIIO::TypeDesc::UINT8 || spec.format == OIIO::TypeDesc::UINT16)) {
     for (float& v : img.data) v = v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
   }
   return img;

@@ -40,8 +40,9 @@ void write_exr(const std::string& path, const Image& img, const char* compressio
 void write_png_srgb(const std::string& path, const Image& img);
 /// The same PNG encoded to bytes in memory (for previews served over the network).
 std::vector<unsigned char> encode_png_srgb(const Image& img);
-/// Any format OpenImageIO reads, as float; 8-bit sRGB inputs are linearised by OpenImageIO.
-Image read_image(const std::string& path);
+/// Any format OpenImageIO reads, as float; 8- and 16-bit inputs hold sRGB-encoded colour and are
+/// linearised unless `colour` is false (data such as normal maps, read as stored).
+Image read_image(const std::string& path, bool colour = true);
 
 /// False-colour heat map (black - blue - green - yellow - white) of a one-channel image, 0 .. max_value.
 Image heat_map(const Image& scalar, float max_value);

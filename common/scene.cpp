@@ -21,8 +21,25 @@ size_t Texture::texel(Vec2 uv) const {
 
 Vec3 Texture::lookup(Vec2 uv) const {
   if (width <= 0 || height <= 0 || rgb.empty()) return Vec3(0.f);
-  const float* p = &rgb[texel(uv) * 3];
-  return {p[0], p[1], p[2]};
+  if (nearest) {
+    const float* p = &rgb[texel(uv) * 3];
+    return {p[0], p[1], p[2]};
+  }
+  // Texel centres at (i + 0.5) / width; the four around uv, wrapping at the edges (Repeat).
+  float u = uv.x - std::floor(uv.x), v = uv.y - std::floor(uv.y);
+  if (!(u >= 0.f && u < 1.f)) u = 0.f;  // non-finite coordinates
+  if (!(v >= 0.f && v < 1.f)) v = 0.f;
+  const float fx = u * float(width) - 0.5f, fy = (1 - v) * float(height) - 0.5f;
+  const float x0f = std::floor(fx), y0f = std::floor(fy);
+  const float ax = fx - x0f, ay = fy - y0f;
+  const auto wrap = [](int i, int n) { return i < 0 ? i + n : (i >= n ? i - n : i); };
+  const int x0 = wrap(int(x0f), width), x1 = wrap(int(x0f) + 1, width);
+  const int y0 = wrap(int(y0f), height), y1 = wrap(int(y0f) + 1, height);
+  const auto at = [&](int x, int y) {
+    const float* p = &rgb[(size_t(y) * size_t(width) + size_t(x)) * 3];
+    return Vec3(p[0], p[1], p[2]);
+  };
+  return (at(x0, y0) * (1 - ax) + at(x1, y0) * ax) * (1 - ay) + (at(x0, y1) * (1 - ax) + at(x1, y1) * ax) * ay;
 }
 
 bool Scene::has_cut_outs() const {
@@ -69,6 +86,19 @@ void Scene::validate() const {
     throw std::runtime_error(fmt::format("scene '{}': material list does not match triangles", name));
   if (!uvs.empty() && uvs.size() != triangles.size())
     throw std::runtime_error(fmt::format("scene '{}': uv list does not match triangles", name));
+  if (!normals.empty() && normals.size() != triangles.size())
+    throw std::runtime_error(fmt::format("scene '{}': normal list does not match triangles", name));
+  if (!tangents.empty() && tangents.size() != triangles.size())
+    throw std::runtime_error(fmt::format("scene '{}': tangent list does not match triangles", name));
+  for (size_t i = 0; i < normals.size(); ++i)
+    for (size_t k = 0; k < 3; ++k)
+      if (!is_finite(normals[i][k]) || !(length(normals[i][k]) > 0.f))
+        throw std::runtime_error(
+            fmt::format("scene '{}': triangle {} corner {} has a zero or non-finite normal", name, i, k));
+  for (size_t i = 0; i < tangents.size(); ++i)
+    for (size_t k = 0; k < 3; ++k)
+      if (!is_finite(tangents[i][k].t) || !std::isfinite(tangents[i][k].w))
+        throw std::runtime_error(fmt::format("scene '{}': triangle {} corner {} has a non-finite tangent", name, i, k));
   for (size_t i = 0; i < positions.size(); ++i) {
     const Vec3& p = positions[i];
     if (!is_finite(p)) throw std::runtime_error(fmt::format("scene '{}': vertex {} is not finite", name, i));
@@ -98,6 +128,12 @@ void Scene::validate() const {
          textures[size_t(m.alpha_texture)].alpha.size() !=
              size_t(textures[size_t(m.alpha_texture)].width) * size_t(textures[size_t(m.alpha_texture)].height)))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' names a missing alpha mask", name, m.name));
+    if (m.normal_texture >= int(textures.size()) ||
+        (m.normal_texture >= 0 &&
+         textures[size_t(m.normal_texture)].rgb.size() != 3 * size_t(textures[size_t(m.normal_texture)].width) *
+                                                              size_t(textures[size_t(m.normal_texture)].height)) ||
+        !std::isfinite(m.normal_scale))
+      throw std::runtime_error(fmt::format("scene '{}': material '{}' names a missing normal map", name, m.name));
     if (m.cut_out() && !std::isfinite(m.alpha_cutoff))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' has a non-finite alpha cut-off", name, m.name));
   }
@@ -109,6 +145,15 @@ void add_triangle(Scene& s, Vec3 a, Vec3 b, Vec3 c, uint32_t mat) {
   s.triangles.push_back({base, base + 1, base + 2});
   s.material_of.push_back(mat);
   if (!s.uvs.empty()) s.uvs.push_back({Vec2{0, 0}, Vec2{1, 0}, Vec2{0, 1}});
+  append_flat_shading(s, 1);
+}
+
+void append_flat_shading(Scene& s, size_t count) {
+  for (size_t i = s.triangles.size() - count; i < s.triangles.size(); ++i) {
+    const Vec3 n = s.geometric_normal(i);
+    if (!s.normals.empty()) s.normals.push_back({n, n, n});
+    if (!s.tangents.empty()) s.tangents.push_back({});
+  }
 }
 
 void add_quad(Scene& s, Vec3 a, Vec3 b, Vec3 c, Vec3 d, uint32_t mat) { add_tessellated_quad(s, a, b, c, d, mat, 1); }
@@ -137,6 +182,7 @@ void add_tessellated_quad(Scene& s, Vec3 a, Vec3 b, Vec3 c, Vec3 d, uint32_t mat
         s.uvs.push_back({uv(i, j), uv(i + 1, j + 1), uv(i, j + 1)});
       }
     }
+  append_flat_shading(s, size_t(2 * n * n));
 }
 
 uint32_t add_material(Scene& s, Material m) {

@@ -1,12 +1,12 @@
 // The scene model: "model no more than a scene needs" (DESIGN.md section 2).
 //
-// Triangles with flat geometric normals, one material per triangle. Materials are Lambertian
+// Triangles with geometric normals and, where the scene gives them, per-corner shading normals
+// (smooth shading) and normal maps (common/shading_normal.h), one material per triangle. Materials are Lambertian
 // (constant Kd or a Kd texture), optionally emissive (a diffuse area light of radiance Ke, emitting
 // from both sides as Cycles' mesh lights do, or from the front side only, as a real light panel and
 // pbrt's and Mitsuba's area lights do), or the one glossy material that exists only to test
 // the method's failure mode. A material may be cut out by an alpha mask: where the mask's texel is
-// below the cut-off the surface is not there (rays pass through). No scene graph, no instancing, no
-// shading normals.
+// below the cut-off the surface is not there (rays pass through). No scene graph, no instancing.
 #pragma once
 
 #include <array>
@@ -36,6 +36,8 @@ struct Material {
   float exponent = 100.f;         // Phong exponent (kGlossy only)
   int alpha_texture = -1;         // index into Scene::textures (its alpha): a cut-out when >= 0
   float alpha_cutoff = 0.5f;      // where the mask's alpha is below this the surface is a hole
+  int normal_texture = -1;        // index into Scene::textures: a tangent-space normal map (linear data) when >= 0
+  float normal_scale = 1.f;       // multiplies the map's x and y (glTF normalTexture.scale)
 
   bool emissive() const { return !is_black(ke); }
   /// The radiance Ke leaving a surface of this material along a direction on the side of `side` (a
@@ -45,17 +47,27 @@ struct Material {
   bool diffuse() const { return type == MaterialType::kDiffuse; }
 };
 
-/// A linear-RGB float image sampled with wrapping texture coordinates, nearest texel.
+/// A linear-RGB float image sampled with wrapping texture coordinates: colour bilinear (Blender's
+/// "Linear") unless `nearest`, alpha masks nearest texel.
 struct Texture {
   std::string path;  // as named in the MTL file, for messages
   int width = 0, height = 0;
+  bool nearest = false;      // colour lookups take the nearest texel (a glTF sampler's NEAREST)
   std::vector<float> rgb;    // width * height * 3, row 0 is the top (v = 1); empty if only a mask
   std::vector<float> alpha;  // width * height, the same layout; empty unless a material's mask
 
   /// The texel (nearest, wrapping) uv falls in, as an index into the width x height texels.
   size_t texel(Vec2 uv) const;
+  /// The colour at uv: bilinear between the four nearest texel centres (wrapping), or the nearest texel.
   Vec3 lookup(Vec2 uv) const;
   float alpha_at(Vec2 uv) const { return alpha[texel(uv)]; }
+};
+
+/// A tangent-space basis vector at a triangle corner: the tangent (along +u) and the handedness w
+/// (+1 or -1) of the bitangent w * cross(normal, t) (along +v), as glTF's TANGENT.
+struct Tangent {
+  Vec3 t{0.f};
+  float w = 1.f;
 };
 
 struct Scene {
@@ -64,6 +76,8 @@ struct Scene {
   std::vector<std::array<uint32_t, 3>> triangles;  // indices into positions
   std::vector<uint32_t> material_of;               // per triangle, index into materials
   std::vector<std::array<Vec2, 3>> uvs;            // per triangle corner; empty if untextured
+  std::vector<std::array<Vec3, 3>> normals;        // per triangle corner, unit shading normals; empty: flat
+  std::vector<std::array<Tangent, 3>> tangents;    // per triangle corner; empty unless a normal map is used
   std::vector<Material> materials;
   std::vector<Texture> textures;
   CameraSpec camera;
@@ -91,5 +105,8 @@ void add_quad(Scene& s, Vec3 a, Vec3 b, Vec3 c, Vec3 d, uint32_t mat);
 /// Appends a quad split into n x n cells (2 n^2 triangles): the tessellation knob of built-ins.
 void add_tessellated_quad(Scene& s, Vec3 a, Vec3 b, Vec3 c, Vec3 d, uint32_t mat, int n);
 uint32_t add_material(Scene& s, Material m);
+/// Gives the last `count` triangles flat shading normals (and no tangents) if the scene keeps either
+/// list, so that the lists stay one entry per triangle.
+void append_flat_shading(Scene& s, size_t count);
 
 }  // namespace epr

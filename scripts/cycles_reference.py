@@ -31,7 +31,10 @@ the image"). The imported cameras and lamps are removed, and each material's Pri
 replaced by eprfarm's model of it (lambertian_material()): a Lambertian Diffuse BSDF of the base
 colour (texture x factor as imported, sRGB, the importer's texel filter), plus an Emission of the
 emissive colour x strength, cut out (a Transparent BSDF) where the alpha is below the material's
-alpha clip threshold (MASK; BLEND at 0.5, as eprfarm renders it). Faces are shaded flat. With
+alpha clip threshold (MASK; BLEND at 0.5, as eprfarm renders it). Normals are the importer's
+(smooth where the glTF has NORMAL, flat elsewhere) and the Principled BSDF's normal input (the
+imported normal map, with its strength = the glTF scale) feeds the Diffuse BSDF, as eprfarm shades
+(scenes/README.md, "Shading normals"). With
 --principled the imported materials are kept as they are (Cycles' Principled BSDF: a measure of how
 far eprfarm's material model is from Blender's).
 
@@ -516,6 +519,8 @@ def lambertian_material(mat):
 
     diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
     diffuse.inputs["Roughness"].default_value = 0.0
+    if source(principled.inputs["Normal"]):  # the normal map
+        nt.links.new(source(principled.inputs["Normal"]), diffuse.inputs["Normal"])
     base = principled.inputs["Base Color"]
     if source(base):
         nt.links.new(source(base), diffuse.inputs["Color"])
@@ -553,8 +558,8 @@ def lambertian_material(mat):
 
 
 def import_gltf(scene, a):
-    """The glTF's meshes and materials (eprfarm's model of them, flat faces); the camera in Blender's
-    frame. Returns the triangle count."""
+    """The glTF's meshes and materials (eprfarm's model of them, the importer's normals); the camera in
+    Blender's frame. Returns the triangle count."""
     import numpy
 
     if "bool" not in vars(numpy):  # Debian's numpy lacks numpy.bool, which the importer uses
@@ -570,9 +575,6 @@ def import_gltf(scene, a):
             lambertian_material(mat)
     triangles = 0
     for mesh in bpy.data.meshes:
-        mesh.polygons.foreach_set("use_smooth", [False] * len(mesh.polygons))
-        if mesh.has_custom_normals:
-            mesh.free_normals_split()
         mesh.calc_loop_triangles()
         triangles += len(mesh.loop_triangles)
     a.eye, a.look, a.up = blender_frame(a.eye), blender_frame(a.look), blender_frame(a.up)

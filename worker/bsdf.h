@@ -1,7 +1,11 @@
 // The two reflection models a scene may use (common/scene.h): Lambertian, and Lambertian plus a
 // normalised Phong lobe (the glossy material, only there to exercise the method's failure mode).
-// Directions are in world space and unit length; `n` is the geometric normal oriented to the side
-// the path arrived from, `wo` points back along the incoming ray.
+// Directions are in world space and unit length; `wo` points back along the incoming ray. `n` is the
+// shading normal (common/shading_normal.h: oriented_shading_normal) and `ng` the geometric normal,
+// both turned to the side the path arrived from: the lobes and cosines follow n, and no direction
+// below the geometric surface is reflected into (f, pdf and samples there are zero: no light leaks
+// through a smooth-shaded surface). For the radiance a camera path carries nothing else corrects
+// for shading normals (pbrt's CorrectShadingNormal is for importance transport, light paths).
 #pragma once
 
 #include "common/math.h"
@@ -19,17 +23,26 @@ struct BsdfSample {
 
 class Bsdf {
  public:
-  Bsdf(const Material& m, Vec3 kd, Vec3 n, Vec3 wo)
-      : kd_(kd), ks_(m.type == MaterialType::kGlossy ? m.ks : Vec3(0.f)), exponent_(m.exponent), n_(n), wo_(wo) {
+  Bsdf(const Material& m, Vec3 kd, Vec3 n, Vec3 wo) : Bsdf(m, kd, n, n, wo) {}
+  Bsdf(const Material& m, Vec3 kd, Vec3 ng, Vec3 n, Vec3 wo)
+      : kd_(kd),
+        ks_(m.type == MaterialType::kGlossy ? m.ks : Vec3(0.f)),
+        exponent_(m.exponent),
+        n_(n),
+        ng_(ng),
+        wo_(wo) {
     if (m.type == MaterialType::kGlossy) {
       const float ld = luminance(kd_), ls = luminance(ks_);
       p_glossy_ = (ld + ls) > 0 ? ls / (ld + ls) : 0.f;
     }
   }
 
+  /// The cosine a reflection towards wi is weighted with: dot(n, wi), 0 below either surface.
+  float cosine(const Vec3& wi) const { return dot(wi, ng_) > 0 ? std::max(0.f, dot(wi, n_)) : 0.f; }
+
   /// f(wo, wi), 1/sr.
   Vec3 eval(const Vec3& wi) const {
-    if (dot(wi, n_) <= 0) return Vec3(0.f);
+    if (dot(wi, n_) <= 0 || dot(wi, ng_) <= 0) return Vec3(0.f);
     Vec3 f = kd_ * kInvPi;
     if (p_glossy_ > 0) {
       const float c = dot(reflect(wo_), wi);
@@ -40,7 +53,7 @@ class Bsdf {
 
   float pdf(const Vec3& wi) const {
     const float cos_n = dot(wi, n_);
-    if (cos_n <= 0) return 0;
+    if (cos_n <= 0 || dot(wi, ng_) <= 0) return 0;
     float p = (1 - p_glossy_) * cosine_hemisphere_pdf(cos_n);
     if (p_glossy_ > 0) p += p_glossy_ * phong_lobe_pdf(dot(reflect(wo_), wi), exponent_);
     return p;
@@ -54,7 +67,7 @@ class Bsdf {
       s.wi = Frame::from_normal(n_).to_world(sample_cosine_hemisphere(u));
       s.weight = kd_;
       s.pdf = cosine_hemisphere_pdf(dot(s.wi, n_));
-      s.valid = s.pdf > 0;
+      s.valid = s.pdf > 0 && dot(s.wi, ng_) > 0;
       return s;
     }
     if (u_lobe < p_glossy_)
@@ -80,7 +93,7 @@ class Bsdf {
 
   Vec3 kd_, ks_;
   float exponent_;
-  Vec3 n_, wo_;
+  Vec3 n_, ng_, wo_;
   float p_glossy_ = 0;
 };
 

@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "common/sampler.h"
+#include "common/shading_normal.h"
 #include "worker/bsdf.h"
 #include "worker/emitter_sampling.h"
 
@@ -13,7 +14,8 @@ namespace {
 
 // One traced vertex, kept until the path ends and radiance can be propagated back.
 struct PathVertex {
-  Vec3 position, normal;       // normal oriented towards the previous vertex
+  Vec3 position, normal;       // geometric normal oriented towards the previous vertex
+  Vec3 shading;                // shading normal the BSDF uses (common/shading_normal.h), same side
   Vec3 le;                     // emitted radiance at the vertex
   Vec3 direct;                 // D_n, the direct-light estimate (MIS-weighted, or NEE only)
   Vec3 weight;                 // f cos / pdf / q for the continuation (0 if the path ended here)
@@ -82,7 +84,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       if (sky_ && path.empty()) background = sky_->radiance(ray.dir);
       if (sky_ && mis_ && !path.empty()) {
         PathVertex& prev = path.back();
-        prev.direct += prev.weight * sky_->escaped(ray.dir, prev.normal, prev.continuation_pdf);
+        prev.direct += prev.weight * sky_->escaped(ray.dir, prev.shading, prev.continuation_pdf);
       }
       break;
     }
@@ -120,7 +122,8 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     v.normal = dot(ng, ray.dir) < 0 ? ng : -ng;
     v.le = le;  // diffuse emitter
     v.diffuse = mat.diffuse();
-    const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, -ray.dir);
+    v.shading = shading_normal_towards(s, hit.prim, hit.u, hit.v, v.normal, -ray.dir);
+    const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, v.shading, -ray.dir);
     const Vec3 origin = v.position + v.normal * eps;
 
     // This vertex's random numbers, in the fixed dimension layout of common/sampler.h.
@@ -155,7 +158,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     if (!bsdf.black()) {
       float u_pick = u_light;
       if (sky_ && sky_->picks_sky(u_light, &u_pick))
-        v.direct = sky_next_event(*sky_, scene_, bsdf, v.normal, origin, u_pick, u_point, mis_ && q > 0, &rays);
+        v.direct = sky_next_event(*sky_, scene_, bsdf, v.shading, origin, u_pick, u_point, mis_ && q > 0, &rays);
       else
         light = scene_.sample_emitter(u_pick);
     }
@@ -170,7 +173,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       if (dist > 4 * eps) {
         const float inv_dist = 1 / dist;
         to_light = to_light * inv_dist;
-        const float cos_x = dot(v.normal, to_light);
+        const float cos_x = bsdf.cosine(to_light);  // 0 below the geometric surface
         const float cos_y = light->cos_towards(to_light);
         if (cos_x > 0 && cos_y > 0) {
           ++rays;

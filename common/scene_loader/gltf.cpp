@@ -17,9 +17,12 @@
 #include <vector>
 
 #include "common/limits.h"
+#include "common/scene_loader/gltf_accessor.h"
 #include "common/scene_loader/gltf_files.h"
+#include "common/scene_loader/gltf_normals.h"
 #include "common/scene_loader/obj_context.h"
 #include "common/scene_loader/text.h"
+#include "common/tangents.h"
 
 namespace epr::loader {
 namespace {
@@ -77,39 +80,6 @@ const char* mode_name(int mode) {
   }
 }
 
-/// An accessor's elements in their buffer, bounds checked.
-struct View {
-  const unsigned char* base = nullptr;
-  size_t count = 0, stride = 0;
-  int component = 0;  // TINYGLTF_COMPONENT_TYPE_*
-  bool normalized = false;
-
-  double get(size_t i, size_t k) const {
-    const unsigned char* p = base + i * stride;
-    switch (component) {
-      case TINYGLTF_COMPONENT_TYPE_FLOAT: {
-        float f;
-        std::memcpy(&f, p + 4 * k, 4);
-        return f;
-      }
-      case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE:
-        return p[k] / (normalized ? 255.0 : 1.0);
-      case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
-        uint16_t v;
-        std::memcpy(&v, p + 2 * k, 2);
-        return v / (normalized ? 65535.0 : 1.0);
-      }
-      case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT: {
-        uint32_t v;
-        std::memcpy(&v, p + 4 * k, 4);
-        return v;
-      }
-      default:
-        return 0;
-    }
-  }
-};
-
 class GltfReader {
  public:
   GltfReader(const FileRef& f, const fs::path& root, const LoadOptions& opts, LoadReport& report)
@@ -129,6 +99,11 @@ class GltfReader {
       warn(report_, fmt::format("{}: dropped {} degenerate (zero-area) triangles, the first in {}", f_.display,
                                 degenerate_, first_degenerate_));
     if (textured_) scene_.uvs = std::move(uvs_);
+    if (smooth_) scene_.normals = std::move(normals_);
+    if (mapped_) {
+      scene_.tangents = std::move(tangents_);
+      generate_tangents(scene_, tangent_needed_);
+    }
     scene_.textures = std::move(textures_.textures);
     scene_.name = f_.display;
     return std::move(scene_);
@@ -253,36 +228,7 @@ class GltfReader {
   }
 
   View view(int a, const std::string& where, const char* role) const {
-    const tinygltf::Model& m = in_.model;
-    if (a < 0 || size_t(a) >= m.accessors.size())
-      error(fmt::format("{}: {} accessor {} does not exist ({} accessors)", where, role, a, m.accessors.size()));
-    const tinygltf::Accessor& acc = m.accessors[size_t(a)];
-    const std::string aw = fmt::format("{}: {} accessors[{}]", where, role, a);
-    if (acc.sparse.isSparse) error(aw + " is sparse, which is not supported");
-    if (acc.bufferView < 0 || size_t(acc.bufferView) >= m.bufferViews.size())
-      error(fmt::format("{} has no bufferView (bufferView {})", aw, acc.bufferView));
-    const tinygltf::BufferView& bv = m.bufferViews[size_t(acc.bufferView)];
-    if (bv.buffer < 0 || size_t(bv.buffer) >= m.buffers.size())
-      error(fmt::format("{}: bufferViews[{}] names buffer {}, which does not exist", aw, acc.bufferView, bv.buffer));
-    const std::vector<unsigned char>& data = m.buffers[size_t(bv.buffer)].data;
-    if (bv.byteOffset > data.size() || bv.byteLength > data.size() - bv.byteOffset)
-      error(fmt::format("{}: bufferViews[{}] (bytes {}..{}) lies outside buffers[{}] ({} bytes)", aw, acc.bufferView,
-                        bv.byteOffset, bv.byteOffset + bv.byteLength, bv.buffer, data.size()));
-    const int csize = tinygltf::GetComponentSizeInBytes(uint32_t(acc.componentType));
-    const int ncomp = tinygltf::GetNumComponentsInType(uint32_t(acc.type));
-    if (csize <= 0 || ncomp <= 0) error(aw + " has an unknown component type or type");
-    const size_t elem = size_t(csize) * size_t(ncomp);
-    const size_t stride = bv.byteStride > 0 ? bv.byteStride : elem;
-    if (stride < elem) error(fmt::format("{}: byteStride {} is less than an element ({} bytes)", aw, stride, elem));
-    View v{data.data() + bv.byteOffset + std::min(acc.byteOffset, bv.byteLength), acc.count, stride, acc.componentType,
-           acc.normalized};
-    if (acc.count > 0 && (acc.byteOffset > bv.byteLength || acc.count - 1 > (bv.byteLength - acc.byteOffset) / stride ||
-                          (acc.count - 1) * stride + elem > bv.byteLength - acc.byteOffset))
-      error(
-          fmt::format("{} is out of range: {} elements of {} bytes from byte {} do not fit in bufferViews[{}] ({} "
-                      "bytes)",
-                      aw, acc.count, elem, acc.byteOffset, acc.bufferView, bv.byteLength));
-    return v;
+    return accessor_view(in_.model, a, where, role, f_.display);
   }
 
   void add_mesh(int mi, const Mat4& world, int n) {
@@ -329,6 +275,12 @@ class GltfReader {
       error(fmt::format("{}: material {} does not exist ({} materials)", where, prim.material,
                         in_.model.materials.size()));
     const auto [mat, texcoord] = material_for(prim.material);
+    const bool mapped = scene_.materials[mat].normal_texture >= 0;
+    const std::vector<Vec3> normals = read_normals(in_.model, prim, where, pos.count, world, f_.display);
+    const std::vector<Tangent> tangents =
+        mapped ? read_tangents(in_.model, prim, where, pos.count, world, f_.display) : std::vector<Tangent>{};
+    smooth_ |= !normals.empty() || mapped;
+    mapped_ |= mapped;
 
     View uv;
     bool has_uv = false;
@@ -378,9 +330,12 @@ class GltfReader {
       std::array<size_t, 3> c{t, t + 1, t + 2};
       if (!index.empty()) c = {index[t], index[t + 1], index[t + 2]};
       if (mirrored) std::swap(c[1], c[2]);
-      std::array<Vec3, 3> p;
+      std::array<Vec3, 3> p, nc{};
       std::array<Vec2, 3> tc{};
+      std::array<Tangent, 3> tan{};
       for (int k = 0; k < 3; ++k) {
+        if (!normals.empty()) nc[size_t(k)] = normals[c[size_t(k)]];
+        if (!tangents.empty()) tan[size_t(k)] = tangents[c[size_t(k)]];
         p[size_t(k)] =
             transform(world, pos.get(c[size_t(k)], 0), pos.get(c[size_t(k)], 1), pos.get(c[size_t(k)], 2), 1);
         if (has_uv) tc[size_t(k)] = {float(uv.get(c[size_t(k)], 0)), float(1.0 - uv.get(c[size_t(k)], 1))};
@@ -394,6 +349,12 @@ class GltfReader {
       scene_.triangles.push_back({base, base + 1, base + 2});
       scene_.material_of.push_back(mat);
       uvs_.push_back(tc);
+      const Vec3 face = normalize(cross(p[1] - p[0], p[2] - p[0]));  // glTF: flat where NORMAL is absent
+      for (Vec3& nk : nc)
+        if (!(length(nk) > 0.f)) nk = face;
+      normals_.push_back(nc);
+      tangents_.push_back(tan);
+      tangent_needed_.push_back(mapped && tangents.empty());
     }
   }
 
@@ -420,6 +381,12 @@ class GltfReader {
   /// The texture of `info` times `factor`, or (alpha) its plain image with the alpha mask read.
   int texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where, bool alpha = false);
   int image_texture(int image, bool alpha);
+  /// The image of glTF texture `index` read with texCoord `texcoord`, checked; its sampler's NEAREST
+  /// magFilter is noted for the scene texture `apply_sampler` gives it.
+  int image_of(int index, int texcoord, const std::string& where) const;
+  void apply_sampler(int index, int texture);
+  /// A normalTexture's image as stored (linear data), one scene texture per image.
+  int normal_texture(int index, int texcoord, const std::string& where);
 
   const FileRef& f_;
   fs::path root_;
@@ -427,14 +394,17 @@ class GltfReader {
   LoadReport& report_;
   GltfInput in_;
   ObjContext textures_;  // the textures read so far (shared with the OBJ reader's texture loading)
-  std::map<int, int> texture_of_image_;
+  std::map<int, int> texture_of_image_, normal_of_image_;
   std::map<std::tuple<int, float, float, float>, int> baked_;  // (image, factor) -> texture
   std::map<int, std::pair<uint32_t, int>> materials_;
   std::set<uint32_t> hidden_;  // materials whose surface is cut out entirely: their triangles are dropped
   std::set<std::string> file_notes_;
   Scene scene_;
   std::vector<std::array<Vec2, 3>> uvs_;
-  bool textured_ = false, camera_found_ = false;
+  std::vector<std::array<Vec3, 3>> normals_;  // per triangle; kept if some primitive has NORMAL or a normal map
+  std::vector<std::array<Tangent, 3>> tangents_;
+  std::vector<bool> tangent_needed_;  // a normal-mapped triangle without TANGENT: generated
+  bool textured_ = false, camera_found_ = false, smooth_ = false, mapped_ = false;
   size_t degenerate_ = 0, cut_out_ = 0, primitives_ = 0;
   std::string first_degenerate_, first_primitive_;
 };
@@ -512,7 +482,17 @@ std::pair<uint32_t, int> GltfReader::convert_material(int gi) {
 
   const bool hidden = set_cut_out(gm, where, &out, &notes);
   if (pbr.metallicRoughnessTexture.index >= 0) notes.push_back("metallicRoughnessTexture ignored (factors used)");
-  if (gm.normalTexture.index >= 0) notes.push_back("normalTexture ignored (faces are flat)");
+  if (gm.normalTexture.index >= 0) {
+    const tinygltf::NormalTextureInfo& nt = gm.normalTexture;
+    const std::string nw = where + ".normalTexture";
+    if (!std::isfinite(nt.scale)) error(nw + ": scale must be finite");
+    out.normal_texture = normal_texture(nt.index, nt.texCoord, nw);
+    out.normal_scale = float(nt.scale);
+    if (texcoord < 0) texcoord = nt.texCoord;
+    if (texcoord != nt.texCoord)
+      notes.push_back(fmt::format("normalTexture read with TEXCOORD_{} (the base colour's), not TEXCOORD_{}", texcoord,
+                                  nt.texCoord));
+  }
   if (gm.occlusionTexture.index >= 0) notes.push_back("occlusionTexture ignored");
   for (const auto& [name, value] : gm.extensions)
     if (name != "KHR_materials_emissive_strength")
@@ -557,15 +537,52 @@ bool GltfReader::set_cut_out(const tinygltf::Material& gm, const std::string& wh
   return false;
 }
 
-int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where, bool alpha) {
+int GltfReader::image_of(int index, int texcoord, const std::string& where) const {
   const auto& textures = in_.model.textures;
-  if (size_t(info.index) >= textures.size())
-    error(fmt::format("{}: texture {} does not exist ({} textures)", where, info.index, textures.size()));
-  if (info.texCoord < 0 || info.texCoord > 7) error(fmt::format("{}: texCoord {} is not 0..7", where, info.texCoord));
-  const int image = textures[size_t(info.index)].source;
+  if (index < 0 || size_t(index) >= textures.size())
+    error(fmt::format("{}: texture {} does not exist ({} textures)", where, index, textures.size()));
+  if (texcoord < 0 || texcoord > 7) error(fmt::format("{}: texCoord {} is not 0..7", where, texcoord));
+  const int image = textures[size_t(index)].source;
   if (image < 0 || size_t(image) >= in_.model.images.size())
-    error(fmt::format("{}: textures[{}] has no image (source {})", where, info.index, image));
+    error(fmt::format("{}: textures[{}] has no image (source {})", where, index, image));
+  return image;
+}
+
+void GltfReader::apply_sampler(int index, int texture) {
+  const int sampler = in_.model.textures[size_t(index)].sampler;
+  if (sampler >= 0 && size_t(sampler) < in_.model.samplers.size() &&
+      in_.model.samplers[size_t(sampler)].magFilter == TINYGLTF_TEXTURE_FILTER_NEAREST)
+    textures_.textures[size_t(texture)].nearest = true;
+}
+
+int GltfReader::normal_texture(int index, int texcoord, const std::string& where) {
+  const int image = image_of(index, texcoord, where);
+  int t;
+  if (auto it = normal_of_image_.find(image); it != normal_of_image_.end()) {
+    t = it->second;
+  } else {
+    const tinygltf::Image& img = in_.model.images[size_t(image)];
+    const std::string iw = fmt::format("{}: images[{}]", f_.display, image);
+    if (auto e = in_.embedded_images.find(image); e != in_.embedded_images.end()) {
+      const std::string name = img.name.empty() ? fmt::format("images[{}]", image) : img.name;
+      textures_.textures.push_back(
+          decode_image_bytes(e->second, name, iw, opts_, &textures_.texture_pixels, false, true));
+      t = int(textures_.textures.size() - 1);
+    } else if (!img.uri.empty()) {
+      t = load_texture(textures_, decode_uri(img.uri), in_.dir, in_.display_dir, iw, 0, TextureUse::kData);
+    } else {
+      fail_file(iw, "the image has neither data nor a uri");
+    }
+    normal_of_image_[image] = t;
+  }
+  apply_sampler(index, t);
+  return t;
+}
+
+int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, const std::string& where, bool alpha) {
+  const int image = image_of(info.index, info.texCoord, where);
   const int plain = image_texture(image, alpha);
+  if (!alpha) apply_sampler(info.index, plain);
   if (factor == Vec3(1.f) || alpha) return plain;
   // A colour factor other than white is baked into a copy of the texture.
   const auto key = std::make_tuple(image, factor.x, factor.y, factor.z);

@@ -224,7 +224,7 @@ void read_gltf(const FileRef& f, const fs::path& root, const LoadOptions& opts, 
 }
 
 Texture decode_image_bytes(const std::string& bytes, const std::string& name, const std::string& where,
-                           const LoadOptions& opts, size_t* pixels, bool alpha) {
+                           const LoadOptions& opts, size_t* pixels, bool alpha, bool linear_data) {
   const char* ext = nullptr;
   if (bytes.size() >= 8 && bytes.compare(0, 4, "\x89PNG") == 0) ext = "embedded.png";
   if (bytes.size() >= 3 && static_cast<unsigned char>(bytes[0]) == 0xFF && static_cast<unsigned char>(bytes[1]) == 0xD8)
@@ -249,7 +249,7 @@ Texture decode_image_bytes(const std::string& bytes, const std::string& name, co
   if (!input->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, data.data()))
     fail_file(where, fmt::format("cannot read image '{}': {}", name, input->geterror()));
   // 8- and 16-bit images hold sRGB-encoded colour (glTF's base colour and emissive textures are sRGB).
-  const bool srgb = spec.format == OIIO::TypeDesc::UINT8 || spec.format == OIIO::TypeDesc::UINT16;
+  const bool srgb = !linear_data && (spec.format == OIIO::TypeDesc::UINT8 || spec.format == OIIO::TypeDesc::UINT16);
   Texture t;
   t.path = name;
   t.width = spec.width;

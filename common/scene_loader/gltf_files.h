@@ -41,9 +41,10 @@ void read_gltf(const FileRef& f, const std::filesystem::path& root, const LoadOp
 
 /// Decodes an image held in memory (PNG, JPEG...), `name` and `where` naming it in messages; the
 /// scene's texture pixels so far are in *pixels, checked against the limit before decoding. With
-/// `alpha` the Texture's alpha mask is filled too (1 where the image has no alpha channel).
+/// `alpha` the Texture's alpha mask is filled too (1 where the image has no alpha channel). With
+/// `data` (a normal map) 8- and 16-bit values are read as stored, not as sRGB-encoded colour.
 Texture decode_image_bytes(const std::string& bytes, const std::string& name, const std::string& where,
-                           const LoadOptions& opts, size_t* pixels, bool alpha = false);
+                           const LoadOptions& opts, size_t* pixels, bool alpha = false, bool data = false);
 
 /// tinygltf's percent-decoding of uris, so that the file checked is the one tinygltf asks for.
 std::string decode_uri(const std::string& uri);

@@ -4,7 +4,8 @@
 //   - f: corners "v", "v/vt", "v//vn" or "v/vt/vn" with absolute or relative indices, each checked
 //     against what is defined so far; polygons are triangulated as polygon.h describes;
 //   - mtllib / usemtl: material libraries (mtl.cpp) and the material of the faces that follow;
-//   - vn is validated and not used (faces are flat); g, o, s, l, p and vp are ignored, other
+//   - vn: finite, non-zero; faces whose corners name them are smooth-shaded with them (normalised;
+//     corners without one take the face's normal); g, o, s, l, p and vp are ignored, other
 //     statements are ignored with a warning.
 #include "common/scene_loader/obj.h"
 
@@ -36,10 +37,10 @@ constexpr size_t kMaxFaceCorners = 1024;
 // Vertex and texture coordinate indices are kept as 32-bit integers.
 constexpr size_t kMaxVertices = size_t(std::numeric_limits<int32_t>::max()) - 1;
 
-/// Parses one face corner ("v", "v/vt", "v//vn", "v/vt/vn") into absolute 0-based indices (vt -1 if
-/// absent); returns the reason if malformed.
+/// Parses one face corner ("v", "v/vt", "v//vn", "v/vt/vn") into absolute 0-based indices (vt and vn
+/// -1 if absent); returns the reason if malformed.
 std::optional<std::string> parse_corner(std::string_view tok, size_t nv, size_t nvt, size_t nvn, uint32_t* v,
-                                        int32_t* vt) {
+                                        int32_t* vt, int32_t* vn) {
   std::string_view parts[3];
   int count = 0;
   size_t start = 0;
@@ -67,12 +68,14 @@ std::optional<std::string> parse_corner(std::string_view tok, size_t nv, size_t 
   if (auto e = resolve(parts[0], nv, "vertex", &index)) return e;
   *v = uint32_t(index);
   *vt = -1;
+  *vn = -1;
   if (count >= 2 && !parts[1].empty()) {  // "v//vn" has no texture coordinate
     if (auto e = resolve(parts[1], nvt, "texture coordinate", &index)) return e;
     *vt = int32_t(index);
   }
   if (count == 3) {
     if (auto e = resolve(parts[2], nvn, "normal", &index)) return e;
+    *vn = int32_t(index);
   }
   return std::nullopt;
 }
@@ -82,12 +85,14 @@ std::optional<std::string> parse_corner(std::string_view tok, size_t nv, size_t 
 struct ObjTriangle {
   std::array<uint32_t, 3> v;
   std::array<int32_t, 3> vt;
+  std::array<int32_t, 3> vn;
   int material;
 };
 
 struct ObjMesh {
   std::vector<Vec3> positions;
   std::vector<Vec2> texcoords;
+  std::vector<Vec3> normals;  // vn, unit length
   std::vector<ObjTriangle> triangles;
   size_t first_degenerate_line = 0;  // first triangle face of zero area (0: none), for messages
 };
@@ -99,10 +104,10 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
   const std::string display_dir = fs::path(obj.display).parent_path().string();
 
   ObjMesh mesh;
-  size_t nvn = 0, faces = 0, triangles = 0;
+  size_t faces = 0, triangles = 0;
   int material = -1;
   std::vector<uint32_t> corner_v;
-  std::vector<int32_t> corner_vt;
+  std::vector<int32_t> corner_vt, corner_vn;
   std::vector<std::array<uint32_t, 3>> face_triangles;
   std::set<std::string, std::less<>> warned_keywords;
   StatementReader statements(text, file);
@@ -132,8 +137,12 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       mesh.texcoords.push_back(uv);
     } else if (key == "vn") {
       if (tok.size() != 4) fail(file, ln, fmt::format("normal needs 3 numbers, got {}", tok.size() - 1));
-      for (size_t k = 1; k < 4; ++k) parse_real(tok[k], 1e30, file, ln, "normal component");
-      if (++nvn > kMaxVertices) fail(file, ln, "too many normals");
+      Vec3 n;
+      for (int k = 0; k < 3; ++k) n[k] = parse_real(tok[size_t(k) + 1], 1e30, file, ln, "normal component");
+      const float l = length(n);
+      if (!(l > 0) || !std::isfinite(l)) fail(file, ln, "normal has zero length");
+      if (mesh.normals.size() >= kMaxVertices) fail(file, ln, "too many normals");
+      mesh.normals.push_back(n / l);
     } else if (key == "f") {
       const size_t n = tok.size() - 1;
       if (n < 3) fail(file, ln, fmt::format("face needs at least 3 vertices, got {}", n));
@@ -144,9 +153,10 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
         fail(file, ln, fmt::format("more than {} triangles (the limit)", ctx.opts.max_triangles));
       corner_v.resize(n);
       corner_vt.resize(n);
+      corner_vn.resize(n);
       for (size_t k = 0; k < n; ++k)
-        if (auto err = parse_corner(tok[k + 1], mesh.positions.size(), mesh.texcoords.size(), nvn, &corner_v[k],
-                                    &corner_vt[k]))
+        if (auto err = parse_corner(tok[k + 1], mesh.positions.size(), mesh.texcoords.size(), mesh.normals.size(),
+                                    &corner_v[k], &corner_vt[k], &corner_vn[k]))
           fail(file, ln, *err);
       ++faces;
       if (n == 3 && mesh.first_degenerate_line == 0) {  // build_scene's zero-area test
@@ -158,6 +168,7 @@ ObjMesh read_obj(ObjContext& ctx, const FileRef& obj, const std::string& text) {
       for (const auto& t : face_triangles)
         mesh.triangles.push_back({{corner_v[t[0]], corner_v[t[1]], corner_v[t[2]]},
                                   {corner_vt[t[0]], corner_vt[t[1]], corner_vt[t[2]]},
+                                  {corner_vn[t[0]], corner_vn[t[1]], corner_vn[t[2]]},
                                   material});
     } else if (key == "usemtl") {
       if (tok.size() < 2) fail(file, ln, "usemtl without a material name");
@@ -224,6 +235,8 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
   size_t degenerate = 0;
   bool uses_texture = false, textured_without_uv = false;
   std::vector<std::array<Vec2, 3>> uvs;
+  std::vector<std::array<Vec3, 3>> normals;
+  bool smooth = false;
   scene.triangles.reserve(mesh.triangles.size());
   scene.material_of.reserve(mesh.triangles.size());
   for (const ObjTriangle& t : mesh.triangles) {
@@ -258,6 +271,11 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
     scene.triangles.push_back(t.v);
     scene.material_of.push_back(uint32_t(mat));
     uvs.push_back(uv);
+    const Vec3 face = normalize(cross(b - a, c - a));
+    std::array<Vec3, 3> n{face, face, face};
+    for (size_t k = 0; k < 3; ++k)
+      if (t.vn[k] >= 0) n[k] = mesh.normals[size_t(t.vn[k])], smooth = true;
+    normals.push_back(n);
   }
   // Zero-area triangles are dropped, not fatal (exporters leave slivers behind); a scene of nothing but
   // them is an error. Both messages name the first zero-area triangle face when there is one (a
@@ -270,6 +288,7 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
   if (degenerate > 0)
     warn(ctx.report, fmt::format("{}: dropped {} degenerate (zero-area) triangles{}", where, degenerate, first));
   if (uses_texture) scene.uvs = std::move(uvs);
+  if (smooth) scene.normals = std::move(normals);
   if (textured_without_uv)
     warn(ctx.report, fmt::format("{}: some textured faces have no texture coordinates; they use texel (0, 0)", file));
   return scene;

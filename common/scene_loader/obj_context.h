@@ -71,8 +71,9 @@ struct ObjContext {
 
 /// What a texture file is read for: its colour (Texture::rgb), or its alpha as a cut-out mask
 /// (Texture::alpha): the alpha channel, or where the image has none its first channel (kMask: MTL
-/// map_d, which may name a grey image) or full opacity (kAlpha: glTF base colour).
-enum class TextureUse : uint8_t { kColour, kMask, kAlpha };
+/// map_d, which may name a grey image) or full opacity (kAlpha: glTF base colour), or its RGB as
+/// stored, not sRGB-decoded (kData: a normal map; a Texture of its own, not shared with the others).
+enum class TextureUse : uint8_t { kColour, kMask, kAlpha, kData };
 
 /// Loads the texture `name` (from map_Kd or map_d in `file` at `line`, relative to `dir`), one
 /// Texture per file, holding what the uses asked for so far; returns its index in ctx.textures.

@@ -67,7 +67,8 @@ int load_texture(ObjContext& ctx, const std::string& name, const fs::path& dir, 
   std::string portable = name;
   std::replace(portable.begin(), portable.end(), '\\', '/');  // textures named on Windows
   const FileRef ref = resolve_inside(ctx.root, dir, display_dir, portable, file, line, "texture");
-  if (auto it = ctx.texture_of_path.find(ref.real); it != ctx.texture_of_path.end()) {
+  const bool data = use == TextureUse::kData;
+  if (auto it = ctx.texture_of_path.find(ref.real); !data && it != ctx.texture_of_path.end()) {
     // Read before, perhaps for the other use: add what this use needs.
     Texture& t = ctx.textures[size_t(it->second)];
     if (use != TextureUse::kColour && t.alpha.empty()) {
@@ -109,10 +110,10 @@ int load_texture(ObjContext& ctx, const std::string& name, const fs::path& dir, 
   Texture t;
   t.path = name;
   size_t clamped = 0;
-  if (use == TextureUse::kColour) {
+  if (use == TextureUse::kColour || data) {
     Image img;
     try {
-      img = read_image(ref.real.string());
+      img = read_image(ref.real.string(), !data);
     } catch (const std::exception& e) {
       fail(file, line, fmt::format("cannot read texture '{}': {}", name, e.what()));
     }
@@ -133,12 +134,12 @@ int load_texture(ObjContext& ctx, const std::string& name, const fs::path& dir, 
   }
   ctx.texture_pixels += size_t(t.width) * size_t(t.height);
   ctx.textures.push_back(std::move(t));
-  if (clamped > 0)
+  if (clamped > 0 && !data)
     warn(ctx.report, fmt::format("{}:{}: texture '{}': {} values outside [0, 1] clamped (it is a diffuse albedo)", file,
                                  line, name, clamped));
   record_file(ref, &ctx.report);
   const int index = int(ctx.textures.size() - 1);
-  ctx.texture_of_path.emplace(ref.real, index);
+  if (!data) ctx.texture_of_path.emplace(ref.real, index);
   return index;
 }
 
