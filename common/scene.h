@@ -16,6 +16,7 @@
 
 #include "common/camera.h"
 #include "common/lighting.h"
+#include "common/lights.h"
 #include "common/math.h"
 
 namespace epr {
@@ -68,6 +69,7 @@ struct Scene {
   std::vector<Texture> textures;
   CameraSpec camera;
   Lighting lighting;   // environment and sun (a scene JSON's, or a job's, common/lighting.h)
+  std::vector<PunctualLight> lights;  // point, spot and directional lights (common/lights.h)
   std::string folder;  // canonical folder the scene's files are read from; empty for built-ins
 
   size_t triangle_count() const { return triangles.size(); }
