@@ -373,9 +373,13 @@ class JsonSceneReader {
   // "lights": [{"type": "point" | "spot" | "sun" | "area", ...}] (scenes/README.md, "Lamps").
   void read_lights(const nlohmann::json& lights, Scene* scene) {
     if (!lights.is_array()) error("/lights", "\"lights\" must be an array of lights like {\"type\": \"point\", ...}");
+    constexpr size_t kMaxLights = 4096;
+    if (lights.size() > kMaxLights) error("/lights", fmt::format("at most {} lights", kMaxLights));
     for (size_t i = 0; i < lights.size(); ++i) {
       const nlohmann::json& o = lights[i];
       const std::string p = "/lights/" + std::to_string(i);
+      if (scene->triangle_count() > opts_.max_triangles)
+        error(p, fmt::format("the lamps' triangles exceed the limit of {} triangles", opts_.max_triangles));
       if (!o.is_object() || !o.contains("type") || !o["type"].is_string())
         error(p, "a light must be an object with a \"type\": \"point\", \"spot\", \"sun\" or \"area\"");
       const std::string type = o["type"].get<std::string>();
