@@ -36,7 +36,7 @@ TEST(SceneJsonLights, BlenderLampsInWatts) {
     {"type": "spot", "position": [0, 3, 0], "direction": [0, -1, 0], "intensity": 2, "inner_cone_deg": 10, "outer_cone_deg": 30},
     {"type": "sun", "name": "fill", "direction": [0, 1, 0], "angle_deg": 2, "irradiance": 5},
     {"type": "point", "name": "ball", "position": [0, 5, 0], "power": 60, "radius": 0.2},
-    {"type": "area", "name": "panel", "corners": [[0, 4, 0], [0, 4, 1], [2, 4, 1], [2, 4, 0]], "power": 30}
+    {"type": "area", "name": "panel", "corners": [[0, 4, 0], [2, 4, 0], [2, 4, 1], [0, 4, 1]], "power": 30}
   ]})"));
   ASSERT_EQ(s.lights.size(), 4u);  // the sphere and the panel are triangles
   EXPECT_EQ(s.lights[0].name, "bulb");
