@@ -69,8 +69,9 @@ struct Scene {
   std::vector<Texture> textures;
   CameraSpec camera;
   Lighting lighting;   // environment and sun (a scene JSON's, or a job's, common/lighting.h)
-  std::vector<PunctualLight> lights;  // point, spot and directional lights (common/lights.h)
   std::string folder;  // canonical folder the scene's files are read from; empty for built-ins
+  /// Point, spot and directional lights (common/lights.h).
+  std::vector<PunctualLight> lights;
 
   size_t triangle_count() const { return triangles.size(); }
   Bounds3 bounds() const;
