@@ -96,7 +96,8 @@ def farm_lighting(scene, depsgraph, folder: str) -> Tuple[Dict, List[str]]:
     lights = []
     for name, data, matrix in lamps:
         if data.use_nodes:
-            warnings.append(f"{data.type.title()} lamp '{name}': its shader nodes are ignored (colour x power)")
+            unit = "strength" if data.type == "SUN" else "power"
+            warnings.append(f"{data.type.title()} lamp '{name}': its shader nodes are ignored (colour x {unit})")
         if data.type == "SUN":
             if "sun" not in lighting:
                 lighting["sun"] = _sun(data, matrix)
