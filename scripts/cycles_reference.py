@@ -515,14 +515,27 @@ def build_lamps(scene, path):
     with open(path, encoding="utf-8") as f:
         lights = json.load(f).get("lights", [])
     for i, light in enumerate(lights):
-        if light["type"] not in ("point", "spot") or "power" not in light or light.get("radius", 0):
-            raise SystemExit("%s: lights[%d]: only point and spot lamps with a power and no radius" % (path, i))
+        rectangle = light["type"] == "area" and len(light.get("corners", [])) == 4
+        if light["type"] not in ("point", "spot") and not rectangle or "power" not in light or light.get("radius", 0):
+            raise SystemExit("%s: lights[%d]: only point and spot lamps with a power and no radius, and "
+                             "rectangular area lamps" % (path, i))
         power = light["power"] if isinstance(light["power"], list) else [light["power"]] * 3
         data = bpy.data.lights.new(light.get("name", "lamp%d" % i), type=light["type"].upper())
         data.energy = max(power)
         data.color = [c / data.energy for c in power] if data.energy > 0 else (1.0, 1.0, 1.0)
         data.shadow_soft_size = 0.0
         obj = bpy.data.objects.new(data.name, data)
+        if rectangle:  # corners counter-clockwise seen from the lit side: local X along the first edge, -Z lit
+            c = [Vector(p) for p in light["corners"]]
+            u, v = c[1] - c[0], c[3] - c[0]
+            data.shape = "RECTANGLE"
+            data.size, data.size_y = u.length, v.length
+            obj.matrix_world = Matrix((
+                (*u.normalized(), 0), (*(-v.normalized()), 0), (*u.cross(v).normalized() * -1, 0), (0, 0, 0, 1)
+            )).transposed()
+            obj.location = (c[0] + c[2]) / 2
+            scene.collection.objects.link(obj)
+            continue
         obj.location = Vector(light["position"])
         if light["type"] == "spot":
             data.spot_size = math.radians(light["spot_size_deg"])

@@ -505,7 +505,8 @@ class JsonSceneReader {
 
   // An area lamp: a planar convex polygon of "corners" (counter-clockwise seen from the side it lights,
   // its front; Blender's square, rectangle, disk and ellipse), one-sided, of radiance "radiance" or
-  // power / (pi A).
+  // power / (4 A): Cycles' area lamp (its kernel's 0.25 / area, measured with Blender 3.4; not
+  // P / (pi A)), whose emitted flux is pi P / 4.
   void add_area_lamp(const nlohmann::json& o, const std::string& p, const std::string& name,
                      std::pair<Vec3, bool> strength, Scene* scene) {
     if (!o.contains("corners") || !o["corners"].is_array() || o["corners"].size() < 3 || o["corners"].size() > 256)
@@ -520,7 +521,7 @@ class JsonSceneReader {
       area += 0.5 * length(cross(c[k] - c[0], c[k + 1] - c[0]));
     }
     if (!(area > 0) || !std::isfinite(area)) error(p + "/corners", fmt::format("area light '{}' has no area", name));
-    add_lamp_triangles(name, strength.second ? strength.first / float(kPi * area) : strength.first, tris, scene);
+    add_lamp_triangles(name, strength.second ? strength.first / float(4 * area) : strength.first, tris, scene);
   }
 
   void add_lamp_triangles(const std::string& name, Vec3 radiance, const std::vector<std::array<Vec3, 3>>& tris,

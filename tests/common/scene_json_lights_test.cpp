@@ -1,7 +1,7 @@
 // A scene JSON's "lights" (common/scene_loader/scene_json.cpp; scenes/README.md, "Lamps"): Blender's
-// power in W converted as Cycles reads it (point and spot: P / (4 pi) W/sr; area lamps and point lamps
-// with a radius: emitting triangles of radiance P / (pi A), front side only), suns as directional
-// lights, and bad values refused naming the file and line.
+// power in W converted as Cycles reads it (point and spot: P / (4 pi) W/sr; point lamps with a radius:
+// emitting spheres of radiance P / (pi A); area lamps: emitting polygons of radiance P / (4 A), front
+// side only), suns as directional lights, and bad values refused naming the file and line.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -52,13 +52,14 @@ TEST(SceneJsonLights, BlenderLampsInWatts) {
   EXPECT_NEAR(s.lights[2].cos_inner, std::cos(10 * kPi / 180), 1e-6f);
   EXPECT_EQ(s.lights[3].type, LightType::kDirectional);
   EXPECT_EQ(s.lights[3].angle_deg, 2.f);
-  // The sphere and the panel emit their power (pi L A over their triangles), front side only.
+  // The sphere emits its power (pi L A over its triangles), the panel pi / 4 of it (Cycles' area
+  // lamp), front side only.
   ASSERT_EQ(s.materials.size(), 3u);
   const Material& ball = s.materials[1];
   EXPECT_TRUE(ball.emits_front_only);
   EXPECT_NEAR(emitted_flux(s, 1), 60, 1e-3);
   Vec3 n;
-  EXPECT_NEAR(emitted_flux(s, 2, &n), 30, 1e-4);
+  EXPECT_NEAR(emitted_flux(s, 2, &n), 30 * kPi / 4, 1e-4);
   EXPECT_LT(n.y, 0);  // counter-clockwise seen from below: it lights the floor
   EXPECT_EQ(s.triangle_count(), 1u + 320u + 2u);
 }

@@ -147,11 +147,11 @@ TEST(CyclesReference, OneSidedLightBuiltinCornellBoxAgrees) {
   expect_block_means_match_cycles("builtin:cornell", "cornell_onesided_cycles_128.exr", 512);
 }
 
-// A room lit only by a point lamp and a spot lamp in Blender's units (tests/data/scenes/lamps/
-// lamps.json: power in W, the spot's size and blend), against Cycles rendering the same lamps
-// (scripts/cycles_reference.py --lamps; 2048 spp, tests/data/README.md): the conversion P / (4 pi)
-// W/sr and Cycles' spot falloff, direct and bounced light.
-TEST(CyclesReference, PointAndSpotLampsAgree) {
+// A room lit only by a point lamp, a spot lamp and a rectangular area lamp in Blender's units
+// (tests/data/scenes/lamps/lamps.json: power in W, the spot's size and blend), against Cycles
+// rendering the same lamps (scripts/cycles_reference.py --lamps; 2048 spp, tests/data/README.md):
+// the conversions P / (4 pi) W/sr and P / (4 A), Cycles' spot falloff, direct and bounced light.
+TEST(CyclesReference, PointSpotAndAreaLampsAgree) {
   expect_block_means_match_cycles(std::string(EPR_SOURCE_DIR) + "/tests/data/scenes/lamps/lamps.json",
                                   "lamps_cycles_128.exr", 512);
 }

@@ -123,8 +123,8 @@ def farm_lighting(scene, depsgraph, folder: str) -> Tuple[Dict, List[str]]:
 
 def _lamp(name: str, lamp, matrix) -> Tuple[Optional[Dict], str]:
     """A point, spot or area lamp as a scene JSON light (Blender's power in W times its colour; the
-    farm converts as Cycles does: intensity P / (4 pi) W/sr for point and spot lamps, radiance
-    P / (pi A) for area lamps and point lamps with a radius), and a warning about what it approximates."""
+    farm converts as Cycles does: intensity P / (4 pi) W/sr for point and spot lamps and point lamps
+    with a radius, radiance P / (4 A) for area lamps), and a warning about what it approximates."""
     power = [round(lamp.energy * c, 7) for c in lamp.color]
     rot = matrix.to_3x3()
     position = [round(v, 7) for v in _y_up(matrix.translation)]
