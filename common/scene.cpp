@@ -115,6 +115,9 @@ void Scene::validate() const {
     if (material_of[i] >= materials.size())
       throw std::runtime_error(fmt::format("scene '{}': triangle {} has no material", name, i));
   }
+  for (const PunctualLight& l : lights)
+    if (auto reason = check_light(l))
+      throw std::runtime_error(fmt::format("scene '{}': light '{}': {}", name, l.name, *reason));
   for (const Material& m : materials) {
     if (!is_finite(m.kd) || !is_finite(m.ke) || !is_finite(m.ks) || !std::isfinite(m.exponent))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' has non-finite values", name, m.name));

@@ -16,6 +16,7 @@
 
 #include "common/camera.h"
 #include "common/lighting.h"
+#include "common/lights.h"
 #include "common/math.h"
 
 namespace epr {
@@ -83,6 +84,8 @@ struct Scene {
   CameraSpec camera;
   Lighting lighting;   // environment and sun (a scene JSON's, or a job's, common/lighting.h)
   std::string folder;  // canonical folder the scene's files are read from; empty for built-ins
+  /// Point, spot and directional lights (common/lights.h).
+  std::vector<PunctualLight> lights;
 
   size_t triangle_count() const { return triangles.size(); }
   Bounds3 bounds() const;

@@ -83,6 +83,8 @@ Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* repor
 
 std::optional<std::string> unlit_reason(const Scene& scene) {
   if (scene.lighting.lights()) return std::nullopt;
+  for (const PunctualLight& l : scene.lights)
+    if (!is_black(l.intensity)) return std::nullopt;
   std::vector<bool> used(scene.materials.size(), false);
   for (uint32_t m : scene.material_of)
     if (m < used.size()) used[m] = true;

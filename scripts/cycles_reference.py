@@ -89,6 +89,9 @@ def parse_args():
     ap.add_argument("--env-rotation", type=float, default=0.0, help="degrees about +Y, as rotation_deg")
     ap.add_argument("--sun", default="",
                     help="a sun as `epr render --sun`: DX,DY,DZ[,ANGLE_DEG[,E]] (towards the sun; irradiance W/m^2)")
+    ap.add_argument("--lamps", default="",
+                    help="a scene JSON whose \"lights\" (point and spot lamps in Blender's units, scenes/README.md, "
+                         "\"Lamps\") become Cycles lamps, in the OBJ's frame")
     ap.add_argument("--emitter-subdiv", type=int, default=16,
                     help="split each emissive triangle into N x N (1: as exported)")
     ap.add_argument("--max-bounces", type=int, default=1024,
@@ -506,6 +509,45 @@ def build_sky(scene, nt, bg, a):
         obj.rotation_euler = d.to_track_quat("Z", "Y").to_euler()  # the lamp shines along its -Z
 
 
+def build_lamps(scene, path):
+    """The point and spot lamps of a scene JSON's "lights" (power in W, Blender's spot size and blend;
+    positions and directions in the OBJ's frame, which this script does not rotate) as Cycles lamps
+    with radius 0, as the add-on exports Blender's (client/blender/eprfarm_blender/export.py)."""
+    import json
+
+    with open(path, encoding="utf-8") as f:
+        lights = json.load(f).get("lights", [])
+    for i, light in enumerate(lights):
+        rectangle = light["type"] == "area" and len(light.get("corners", [])) == 4
+        if light["type"] not in ("point", "spot") and not rectangle or "power" not in light or light.get("radius", 0):
+            raise SystemExit("%s: lights[%d]: only point and spot lamps with a power and no radius, and "
+                             "rectangular area lamps" % (path, i))
+        power = light["power"] if isinstance(light["power"], list) else [light["power"]] * 3
+        data = bpy.data.lights.new(light.get("name", "lamp%d" % i), type=light["type"].upper())
+        data.energy = max(power)
+        data.color = [c / data.energy for c in power] if data.energy > 0 else (1.0, 1.0, 1.0)
+        data.shadow_soft_size = 0.0
+        obj = bpy.data.objects.new(data.name, data)
+        if rectangle:  # corners counter-clockwise seen from the lit side: local X along the first edge, -Z lit
+            c = [Vector(p) for p in light["corners"]]
+            u, v = c[1] - c[0], c[3] - c[0]
+            data.shape = "RECTANGLE"
+            data.size, data.size_y = u.length, v.length
+            obj.matrix_world = Matrix((
+                (*u.normalized(), 0), (*(-v.normalized()), 0), (*u.cross(v).normalized() * -1, 0), (0, 0, 0, 1)
+            )).transposed()
+            obj.location = (c[0] + c[2]) / 2
+            scene.collection.objects.link(obj)
+            continue
+        obj.location = Vector(light["position"])
+        if light["type"] == "spot":
+            data.spot_size = math.radians(light["spot_size_deg"])
+            data.spot_blend = light.get("spot_blend", 0.0)
+            # The lamp shines along its local -Z.
+            obj.rotation_euler = Vector(light["direction"]).normalized().to_track_quat("-Z", "Y").to_euler()
+        scene.collection.objects.link(obj)
+
+
 def lambertian_material(mat):
     """Replaces an imported material's Principled BSDF by eprfarm's model of it (see the top)."""
     nt = mat.node_tree if mat.use_nodes else None
@@ -602,6 +644,8 @@ def main():
     clear_scene()
     scene = bpy.context.scene
     build_mesh(scene, verts, tris, tri_mat, materials)
+    if a.lamps:
+        build_lamps(scene, a.lamps)
     build_camera(scene, a)
     configure_render(scene, a)
     os.makedirs(os.path.dirname(os.path.abspath(a.out)) or ".", exist_ok=True)

@@ -22,7 +22,7 @@ float triangle_share_for_power(double triangle_power, double sky_power) {
 }
 
 SkyLight::SkyLight(const Lighting& lighting, const EmbreeScene& scene)
-    : SkyLight(lighting, scene.emitted_power(), scene_radius(scene.scene())) {}
+    : SkyLight(lighting, scene.emitted_power(), scene_radius(scene.scene()), std::nullopt, scene.scene().lights) {}
 
 float SkyLight::scene_radius(const Scene& scene) {
   const float r = 0.5f * scene.bounds().diagonal_length();
@@ -30,8 +30,8 @@ float SkyLight::scene_radius(const Scene& scene) {
 }
 
 SkyLight::SkyLight(const Lighting& lighting, double triangle_power, float scene_radius,
-                   std::optional<float> fixed_share) {
-  float e_env = 0, e_sun = 0;  // irradiance each gives a surface facing it (luminance)
+                   std::optional<float> fixed_share, std::span<const PunctualLight> lights) {
+  float e_env = 0;  // irradiance the environment gives a surface facing it (luminance)
   if (lighting.environment && lighting.environment->strength > 0) {
     env_ = lighting.environment;
     rotation_ = env_->rotation_deg * (kPi / 180);
@@ -64,32 +64,61 @@ SkyLight::SkyLight(const Lighting& lighting, double triangle_power, float scene_
     }
     if (!(e_env > 0)) env_.reset();
   }
-  if (lighting.sun && !is_black(lighting.sun->irradiance)) {
-    sun_ = lighting.sun;
-    sun_frame_ = Frame::from_normal(normalize(sun_->direction));
-    const float sh = std::sin(0.5f * sun_->angle_deg * (kPi / 180));
-    sun_sin2_ = sh * sh;
-    const float s = std::sin(0.25f * sun_->angle_deg * (kPi / 180));
-    sun_one_minus_cos_ = 2 * s * s;  // 1 - cos(h) without cancellation
-    sun_l_ = sun_->radiance();
-    e_sun = luminance(sun_->irradiance);
-    if (!(e_sun > 0)) sun_.reset();
-  }
   if (!env_) e_env = 0;
-  if (!sun_) e_sun = 0;
-  const bool sky = e_env + e_sun > 0;
+  // The suns: the lighting's and the directional lights, each with the irradiance it gives (luminance).
+  std::vector<float> e_suns;
+  const auto add_sun = [&](const SunLight& sun) {
+    const float e = luminance(sun.irradiance);
+    if (!(e > 0)) return;
+    Sun s;
+    s.frame = Frame::from_normal(normalize(sun.direction));
+    const float sh = std::sin(0.5f * sun.angle_deg * (kPi / 180));
+    s.sin2 = sh * sh;
+    const float q = std::sin(0.25f * sun.angle_deg * (kPi / 180));
+    s.one_minus_cos = 2 * q * q;  // 1 - cos(h) without cancellation
+    s.l = sun.radiance();
+    suns_.push_back(s);
+    e_suns.push_back(e);
+  };
+  if (lighting.sun) add_sun(*lighting.sun);
+  std::vector<double> punctual_power;
+  for (const PunctualLight& l : lights) {
+    if (l.type == LightType::kDirectional) {
+      add_sun(l.as_sun());
+    } else if (const double power = l.power(); power > 0) {
+      punctual_.push_back(l);
+      punctual_power.push_back(power);
+    }
+  }
+  double e_sun = 0;
+  for (float e : e_suns) e_sun += e;
   // The sky's power through the scene's bounding sphere: its irradiance on a disc of the sphere's
-  // cross-section facing it.
-  sky_power_ = double(e_env + e_sun) * kPi * double(scene_radius) * double(scene_radius);
+  // cross-section facing it. (For the split between the sky and the point lights a degenerate scene
+  // counts as 1 mm across.)
+  const double disc = kPi * double(scene_radius) * double(scene_radius);
+  sky_power_ = (double(e_env) + e_sun) * disc;
+  double other_power = sky_power_;
+  for (double w : punctual_power) other_power += w;
+  const bool others = e_env + e_sun > 0 || !punctual_.empty();
   triangle_power_ = triangle_power > 0 ? triangle_power : 0;
   p_tri_ = !(triangle_power_ > 0) ? 0.f
-           : !sky                 ? 1.f
+           : !others              ? 1.f
            : fixed_share          ? std::clamp(*fixed_share, 0.f, 1.f)
-                                  : triangle_share_for_power(triangle_power_, sky_power_);
-  if (sky) {
-    p_env_ = (1 - p_tri_) * e_env / (e_env + e_sun);
-    p_sun_ = (1 - p_tri_) - p_env_;
-    if (!sun_) p_sun_ = 0;
+                                  : triangle_share_for_power(triangle_power_, other_power);
+  if (!others) return;
+  // The others' weights: the sky lights' powers and the point lights' (as above).
+  const double sky_disc = std::max(disc, kPi * 2.5e-7);
+  double total = (double(e_env) + e_sun) * sky_disc;
+  for (double w : punctual_power) total += w;
+  const double rest = 1.0 - double(p_tri_);
+  p_env_ = float(rest * double(e_env) * sky_disc / total);
+  for (size_t i = 0; i < suns_.size(); ++i) {
+    suns_[i].p = float(rest * double(e_suns[i]) * sky_disc / total);
+    p_sun_ += suns_[i].p;
+  }
+  for (double w : punctual_power) {
+    p_punctual_each_.push_back(float(rest * w / total));
+    p_punctual_ += p_punctual_each_.back();
   }
 }
 
@@ -102,51 +131,76 @@ bool SkyLight::picks_sky(float u_select, float* u) const {
   return true;
 }
 
-SkyLight::Sample SkyLight::sample(float u, Vec2 u_dir, const Vec3& n) const {
+SkyLight::Sample SkyLight::sample(float u, Vec2 u_dir, const Vec3& n, const Vec3& p) const {
   Sample s;
-  const float p_sky = p_env_ + p_sun_;
+  const float p_sky = p_env_ + p_sun_ + p_punctual_;
   if (!(p_sky > 0)) return s;
-  if (env_ && u * p_sky < p_env_) {
+  float x = u * p_sky;  // walks down the lights' probabilities
+  if (env_ && x < p_env_) {
     if (!env_->pixels) {
       s.wi = Frame::from_normal(n).to_world(sample_cosine_hemisphere(u_dir));
     } else {
       float pmf, ry, rx;
       const size_t y = rows_.sample(u_dir.y, &pmf, &ry);
-      const size_t x = columns_[y].sample(u_dir.x, &pmf, &rx);
-      s.wi = equirect_to_direction({(float(x) + rx) / float(w_), (float(y) + ry) / float(h_)}, rotation_);
+      const size_t col = columns_[y].sample(u_dir.x, &pmf, &rx);
+      s.wi = equirect_to_direction({(float(col) + rx) / float(w_), (float(y) + ry) / float(h_)}, rotation_);
     }
     s.radiance = env_radiance(s.wi);
     s.pdf = pdf_environment(s.wi, n);
     return s;
   }
-  if (!sun_) return s;
-  // Uniform in the cone: cos = 1 - u (1 - cos h).
-  const float cos_t = 1 - u_dir.x * sun_one_minus_cos_;
-  const float sin_t = std::sqrt(std::max(0.f, u_dir.x * sun_one_minus_cos_ * (2 - u_dir.x * sun_one_minus_cos_)));
-  const float phi = 2 * kPi * u_dir.y;
-  s.wi = sun_frame_.to_world({sin_t * std::cos(phi), sin_t * std::sin(phi), cos_t});
-  s.radiance = sun_l_;
-  s.pdf = p_sun_ / (2 * kPi * sun_one_minus_cos_);
+  x -= p_env_;
+  const auto sample_sun = [&](const Sun& sun) {
+    // Uniform in the cone: cos = 1 - u (1 - cos h).
+    const float cos_t = 1 - u_dir.x * sun.one_minus_cos;
+    const float sin_t = std::sqrt(std::max(0.f, u_dir.x * sun.one_minus_cos * (2 - u_dir.x * sun.one_minus_cos)));
+    const float phi = 2 * kPi * u_dir.y;
+    s.wi = sun.frame.to_world({sin_t * std::cos(phi), sin_t * std::sin(phi), cos_t});
+    s.radiance = sun.l;
+    s.pdf = sun.pdf();
+    return s;
+  };
+  for (const Sun& sun : suns_) {
+    if (x < sun.p) return sample_sun(sun);
+    x -= sun.p;
+  }
+  if (punctual_.empty()) return suns_.empty() ? s : sample_sun(suns_.back());  // (rounding)
+  size_t i = 0;
+  while (i + 1 < punctual_.size() && x >= p_punctual_each_[i]) x -= p_punctual_each_[i++];
+  const PunctualLight& l = punctual_[i];
+  const Vec3 to = l.position - p;
+  const float d2 = dot(to, to);
+  if (!(d2 > 0)) return s;
+  s.distance = std::sqrt(d2);
+  s.wi = to / s.distance;
+  s.radiance = l.intensity_towards(-s.wi) / d2;
+  s.pdf = p_punctual_each_[i];
+  s.delta = true;
   return s;
 }
 
 Vec3 SkyLight::env_radiance(const Vec3& d) const { return env_ ? env_->radiance(d) : Vec3(0.f); }
 
-bool SkyLight::in_sun(const Vec3& d) const {
-  if (!sun_ || !(dot(d, sun_frame_.n) > 0)) return false;
-  const Vec3 c = cross(d, sun_frame_.n);
-  return dot(c, c) <= sun_sin2_;
+bool SkyLight::Sun::contains(const Vec3& d) const {
+  if (!(dot(d, frame.n) > 0)) return false;
+  const Vec3 c = cross(d, frame.n);
+  return dot(c, c) <= sin2;
 }
 
-Vec3 SkyLight::sun_radiance(const Vec3& d) const { return in_sun(d) ? sun_l_ : Vec3(0.f); }
+Vec3 SkyLight::sun_radiance(const Vec3& d) const {
+  Vec3 out(0.f);
+  for (const Sun& sun : suns_)
+    if (sun.contains(d)) out += sun.l;
+  return out;
+}
 
 Vec3 SkyLight::radiance(const Vec3& d) const { return env_radiance(d) + sun_radiance(d); }
 
 Vec3 SkyLight::escaped(const Vec3& d, const Vec3& n, float pdf_bsdf) const {
   Vec3 out(0.f);
   if (env_) out += env_radiance(d) * power_heuristic(pdf_bsdf, pdf_environment(d, n));
-  const Vec3 ls = sun_radiance(d);
-  if (!is_black(ls)) out += ls * power_heuristic(pdf_bsdf, pdf_sun(d));
+  for (const Sun& sun : suns_)
+    if (sun.contains(d)) out += sun.l * power_heuristic(pdf_bsdf, sun.pdf());
   return out;
 }
 
@@ -162,19 +216,27 @@ float SkyLight::pdf_environment(const Vec3& d, const Vec3& n) const {
   return p_env_ * float(p_ut / (2.0 * kPi * kPi * sin_theta));
 }
 
-float SkyLight::pdf_sun(const Vec3& d) const { return in_sun(d) ? p_sun_ / (2 * kPi * sun_one_minus_cos_) : 0.f; }
+float SkyLight::pdf_sun(const Vec3& d) const {
+  float pdf = 0;
+  for (const Sun& sun : suns_)
+    if (sun.contains(d)) pdf += sun.pdf();
+  return pdf;
+}
 
 Vec3 sky_next_event(const SkyLight& sky, const EmbreeScene& scene, const Bsdf& bsdf, const Vec3& n, const Vec3& origin,
                     float u, Vec2 u_dir, bool mis, uint64_t* rays) {
-  const SkyLight::Sample s = sky.sample(u, u_dir, n);
+  const SkyLight::Sample s = sky.sample(u, u_dir, n, origin);
   if (!(s.pdf > 0) || is_black(s.radiance)) return Vec3(0.f);
   const float cos_x = dot(n, s.wi);
   if (!(cos_x > 0)) return Vec3(0.f);
   const Vec3 f = bsdf.eval(s.wi);
   if (is_black(f)) return Vec3(0.f);
   ++*rays;
-  if (scene.occluded(origin, s.wi, 0.f, std::numeric_limits<float>::infinity())) return Vec3(0.f);
-  const float w = mis ? power_heuristic(s.pdf, bsdf.pdf(s.wi)) : 1.f;
+  // Towards a point light the ray ends just short of it (Embree's far distance along the unit wi).
+  const float far = s.delta ? s.distance * (1 - 1e-5f) : std::numeric_limits<float>::infinity();
+  if (scene.occluded(origin, s.wi, 0.f, far)) return Vec3(0.f);
+  // A delta light has no BSDF-sampling technique: next event estimation's weight is 1.
+  const float w = mis && !s.delta ? power_heuristic(s.pdf, bsdf.pdf(s.wi)) : 1.f;
   return f * s.radiance * (w * cos_x / s.pdf);
 }
 

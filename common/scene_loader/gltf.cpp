@@ -19,6 +19,7 @@
 #include "common/limits.h"
 #include "common/scene_loader/gltf_accessor.h"
 #include "common/scene_loader/gltf_files.h"
+#include "common/scene_loader/gltf_lights.h"
 #include "common/scene_loader/gltf_normals.h"
 #include "common/scene_loader/obj_context.h"
 #include "common/scene_loader/text.h"
@@ -93,6 +94,9 @@ class GltfReader {
     if (size_t(s) >= m.scenes.size()) error(fmt::format("scene {} does not exist ({} scenes)", s, m.scenes.size()));
     if (!m.animations.empty()) note_once("animations ignored: the scene is loaded as it stands");
     if (!m.skins.empty()) note_once("skins ignored: meshes are placed by their nodes only");
+    std::vector<std::string> light_notes;
+    lights_ = read_gltf_lights(m, f_.display, &light_notes);
+    for (const std::string& note : light_notes) note_once(note);
     visit(m.scenes[size_t(s)].nodes, fmt::format("scenes[{}]", s));
     if (scene_.triangles.empty()) error(no_triangles_reason(s));
     if (degenerate_ > 0)
@@ -150,6 +154,7 @@ class GltfReader {
       const Mat4 world = mul(parent, local_transform(node, n));
       if (node.mesh >= 0) add_mesh(node.mesh, world, n);
       if (node.camera >= 0 && !camera_found_) set_camera(node.camera, world, n);
+      place_gltf_light(node, n, world, lights_, f_.display, &scene_.lights);
       push_children(node.children, world, fmt::format("nodes[{}].children", n));
     }
   }
@@ -400,6 +405,7 @@ class GltfReader {
   std::set<uint32_t> hidden_;  // materials whose surface is cut out entirely: their triangles are dropped
   std::set<std::string> file_notes_;
   Scene scene_;
+  std::vector<PunctualLight> lights_;  // KHR_lights_punctual's, in light space
   std::vector<std::array<Vec2, 3>> uvs_;
   std::vector<std::array<Vec3, 3>> normals_;  // per triangle; kept if some primitive has NORMAL or a normal map
   std::vector<std::array<Tangent, 3>> tangents_;

@@ -157,7 +157,8 @@ class JsonSceneReader {
     }
     lines_ = std::make_unique<JsonLines>(text);
     if (!doc.is_object()) error("", "a scene file must be a JSON object");
-    check_keys(doc, "", {"obj", "builtin", "tessellation", "camera", "materials", "animation", "environment", "sun"});
+    check_keys(doc, "",
+               {"obj", "builtin", "tessellation", "camera", "materials", "animation", "environment", "sun", "lights"});
 
     Scene scene;
     std::vector<GlossyDefaults> glossy;
@@ -202,7 +203,8 @@ class JsonSceneReader {
     scene.name = path_;
     scene.folder = self.real.parent_path().string();
     if (doc.contains("environment")) scene.lighting.environment = read_environment(doc["environment"], scene.folder);
-    if (doc.contains("sun")) scene.lighting.sun = read_sun(doc["sun"]);
+    if (doc.contains("sun")) scene.lighting.sun = read_sun(doc["sun"], "/sun");
+    if (doc.contains("lights")) read_lights(doc["lights"], &scene);
     validate_or_fail(scene, path_);
     return scene;
   }
@@ -336,10 +338,12 @@ class JsonSceneReader {
 
   // "sun": {"direction": [x, y, z], "angle_deg": 0.53, "irradiance": E or [r, g, b]} ("radiance" instead
   // of "irradiance" gives the disc's radiance).
-  SunLight read_sun(const nlohmann::json& sun) {
-    const std::string p = "/sun";
+  SunLight read_sun(const nlohmann::json& sun, const std::string& p, bool typed = false) {
     if (!sun.is_object()) error(p, "\"sun\" must be an object like {\"direction\": [1, 2, 1], \"irradiance\": 3}");
-    check_keys(sun, p, {"direction", "angle_deg", "irradiance", "radiance"});
+    if (typed)
+      check_keys(sun, p, {"type", "name", "direction", "angle_deg", "irradiance", "radiance"});
+    else
+      check_keys(sun, p, {"direction", "angle_deg", "irradiance", "radiance"});
     if (!sun.contains("direction")) error(p, "the sun needs a \"direction\" (towards the sun)");
     if (sun.contains("irradiance") && sun.contains("radiance"))
       error(p, "give at most one of \"irradiance\" and \"radiance\" for the sun");
@@ -364,6 +368,171 @@ class JsonSceneReader {
       s.irradiance = colour_or_grey("radiance") * (kPi * h * h);
     }
     return s;
+  }
+
+  // "lights": [{"type": "point" | "spot" | "sun" | "area", ...}] (scenes/README.md, "Lamps").
+  void read_lights(const nlohmann::json& lights, Scene* scene) {
+    if (!lights.is_array()) error("/lights", "\"lights\" must be an array of lights like {\"type\": \"point\", ...}");
+    constexpr size_t kMaxLights = 4096;
+    if (lights.size() > kMaxLights) error("/lights", fmt::format("at most {} lights", kMaxLights));
+    for (size_t i = 0; i < lights.size(); ++i) {
+      const nlohmann::json& o = lights[i];
+      const std::string p = "/lights/" + std::to_string(i);
+      if (scene->triangle_count() > opts_.max_triangles)
+        error(p, fmt::format("the lamps' triangles exceed the limit of {} triangles", opts_.max_triangles));
+      if (!o.is_object() || !o.contains("type") || !o["type"].is_string())
+        error(p, "a light must be an object with a \"type\": \"point\", \"spot\", \"sun\" or \"area\"");
+      const std::string type = o["type"].get<std::string>();
+      const std::string name =
+          o.contains("name") && o["name"].is_string() ? o["name"].get<std::string>() : fmt::format("light {}", i);
+      const auto grey_or_rgb = [&](const char* key) {
+        const std::string at = p + "/" + key;
+        if (o[key].is_number()) {
+          const float g = number_at(o[key], at, key);
+          if (!(g >= 0)) error(at, fmt::format("light {} must be >= 0", key));
+          return Vec3(g);
+        }
+        return colour_at(o[key], at, key, 1e12f);
+      };
+      // Power (W, Blender's and Cycles' unit) or the radiometric quantity itself.
+      const auto strength = [&](const char* direct) {
+        if (o.contains("power") == o.contains(direct))
+          error(p, fmt::format("give exactly one of \"power\" and \"{}\" for light '{}'", direct, name));
+        return o.contains("power") ? std::pair{grey_or_rgb("power"), true} : std::pair{grey_or_rgb(direct), false};
+      };
+      PunctualLight l;
+      l.name = name;
+      if (type == "sun") {
+        const SunLight sun = read_sun(o, p, true);
+        l.type = LightType::kDirectional;
+        l.direction = sun.direction;
+        l.angle_deg = sun.angle_deg;
+        l.intensity = sun.irradiance;
+      } else if (type == "point" || type == "spot") {
+        if (type == "point")
+          check_keys(o, p, {"type", "name", "position", "power", "intensity", "radius"});
+        else
+          check_keys(o, p,
+                     {"type", "name", "position", "direction", "power", "intensity", "spot_size_deg", "spot_blend",
+                      "inner_cone_deg", "outer_cone_deg"});
+        if (!o.contains("position")) error(p, fmt::format("light '{}' needs a \"position\"", name));
+        l.position = vec3_at(o["position"], p + "/position", "light position");
+        // Cycles' point and spot lamp of power P: intensity P / (4 pi) W/sr (a spot's cone does not
+        // concentrate it).
+        const auto [value, is_power] = strength("intensity");
+        l.intensity = is_power ? value / (4 * kPi) : value;
+        if (type == "spot") read_spot(o, p, &l);
+        const float radius = o.contains("radius") ? number_at(o["radius"], p + "/radius", "light radius") : 0.f;
+        if (!(radius >= 0)) error(p + "/radius", "light radius must be >= 0");
+        if (radius > 0) {
+          if (auto reason = check_light(l)) error(p, fmt::format("light '{}': {}", name, *reason));
+          add_sphere_lamp(l, radius, scene);
+          continue;
+        }
+      } else if (type == "area") {
+        check_keys(o, p, {"type", "name", "corners", "power", "radiance"});
+        add_area_lamp(o, p, name, strength("radiance"), scene);
+        continue;
+      } else {
+        error(p + "/type", fmt::format("unknown light type {} (point, spot, sun, area)", quote_token(type)));
+      }
+      if (auto reason = check_light(l)) error(p, fmt::format("light '{}': {}", name, *reason));
+      scene->lights.push_back(l);
+    }
+  }
+
+  // A spot's cone: Blender's "spot_size_deg" (the full angle) and "spot_blend" (Cycles' falloff), or
+  // glTF's half angles "inner_cone_deg" and "outer_cone_deg" (glTF's falloff).
+  void read_spot(const nlohmann::json& o, const std::string& p, PunctualLight* l) {
+    l->type = LightType::kSpot;
+    if (!o.contains("direction")) error(p, fmt::format("spot '{}' needs a \"direction\" (the way it shines)", l->name));
+    const Vec3 d = vec3_at(o["direction"], p + "/direction", "spot direction");
+    if (!(length(d) > 0)) error(p + "/direction", "spot direction must not be 0");
+    l->direction = normalize(d);
+    const float rad = kPi / 180;
+    if (o.contains("spot_size_deg")) {
+      const float size = number_at(o["spot_size_deg"], p + "/spot_size_deg", "spot_size_deg");
+      if (!(size > 0 && size <= 180)) error(p + "/spot_size_deg", "spot_size_deg must be in (0, 180]");
+      const float blend = o.contains("spot_blend") ? number_at(o["spot_blend"], p + "/spot_blend", "spot_blend") : 0.f;
+      if (!(blend >= 0 && blend <= 1)) error(p + "/spot_blend", "spot_blend must be in [0, 1]");
+      l->falloff = SpotFalloff::kBlender;
+      l->cos_outer = std::max(0.f, std::cos(0.5f * size * rad));
+      l->cos_inner = l->cos_outer + (1 - l->cos_outer) * blend;
+    } else if (o.contains("outer_cone_deg")) {
+      const float outer = number_at(o["outer_cone_deg"], p + "/outer_cone_deg", "outer_cone_deg");
+      const float inner =
+          o.contains("inner_cone_deg") ? number_at(o["inner_cone_deg"], p + "/inner_cone_deg", "inner_cone_deg") : 0.f;
+      if (!(inner >= 0 && inner < outer && outer <= 90))
+        error(p, "spot cone angles must satisfy 0 <= inner_cone_deg < outer_cone_deg <= 90");
+      l->cos_inner = std::cos(inner * rad);
+      l->cos_outer = std::max(0.f, std::cos(outer * rad));
+    } else {
+      error(p, fmt::format("spot '{}' needs \"spot_size_deg\" (and \"spot_blend\") or \"outer_cone_deg\"", l->name));
+    }
+  }
+
+  // A point lamp with a radius: an emitting sphere (an icosahedron subdivided twice, 320 triangles,
+  // front side out) of the same power, radiance P / (pi A) with A the triangles' area (a convex
+  // Lambertian emitter of power P). A spot with a radius stays a point (read_lights refuses none:
+  // the add-on warns).
+  void add_sphere_lamp(const PunctualLight& l, float radius, Scene* scene) {
+    std::vector<std::array<Vec3, 3>> tris;
+    const float t = (1 + std::sqrt(5.f)) / 2;
+    const Vec3 v[12] = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                        {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
+    const int f[20][3] = {{0, 11, 5},  {0, 5, 1},  {0, 1, 7},  {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+                          {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
+                          {3, 8, 9},   {4, 9, 5},  {2, 4, 11}, {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
+    for (const auto& c : f) tris.push_back({normalize(v[c[0]]), normalize(v[c[1]]), normalize(v[c[2]])});
+    for (int level = 0; level < 2; ++level) {
+      std::vector<std::array<Vec3, 3>> finer;
+      for (const auto& [a, b, c] : tris) {
+        const Vec3 ab = normalize(a + b), bc = normalize(b + c), ca = normalize(c + a);
+        finer.push_back({a, ab, ca});
+        finer.push_back({ab, b, bc});
+        finer.push_back({ca, bc, c});
+        finer.push_back({ab, bc, ca});
+      }
+      tris = std::move(finer);
+    }
+    double area = 0;
+    for (auto& tri : tris) {
+      for (Vec3& c : tri) c = l.position + c * radius;
+      area += 0.5 * length(cross(tri[1] - tri[0], tri[2] - tri[0]));
+    }
+    add_lamp_triangles(l.name, l.intensity * float(4 * kPi / (kPi * area)), tris, scene);
+  }
+
+  // An area lamp: a planar convex polygon of "corners" (counter-clockwise seen from the side it lights,
+  // its front; Blender's square, rectangle, disk and ellipse), one-sided, of radiance "radiance" or
+  // power / (4 A): Cycles' area lamp (its kernel's 0.25 / area, measured with Blender 3.4; not
+  // P / (pi A)), whose emitted flux is pi P / 4.
+  void add_area_lamp(const nlohmann::json& o, const std::string& p, const std::string& name,
+                     std::pair<Vec3, bool> strength, Scene* scene) {
+    if (!o.contains("corners") || !o["corners"].is_array() || o["corners"].size() < 3 || o["corners"].size() > 256)
+      error(p, fmt::format("area light '{}' needs \"corners\": 3 to 256 points of a convex polygon", name));
+    std::vector<Vec3> c;
+    for (size_t k = 0; k < o["corners"].size(); ++k)
+      c.push_back(vec3_at(o["corners"][k], p + "/corners/" + std::to_string(k), "area light corner"));
+    std::vector<std::array<Vec3, 3>> tris;
+    double area = 0;
+    for (size_t k = 1; k + 1 < c.size(); ++k) {
+      tris.push_back({c[0], c[k], c[k + 1]});
+      area += 0.5 * length(cross(c[k] - c[0], c[k + 1] - c[0]));
+    }
+    if (!(area > 0) || !std::isfinite(area)) error(p + "/corners", fmt::format("area light '{}' has no area", name));
+    add_lamp_triangles(name, strength.second ? strength.first / float(4 * area) : strength.first, tris, scene);
+  }
+
+  void add_lamp_triangles(const std::string& name, Vec3 radiance, const std::vector<std::array<Vec3, 3>>& tris,
+                          Scene* scene) {
+    Material m;
+    m.name = "lamp '" + name + "'";
+    m.kd = Vec3(0.f);
+    m.ke = radiance;
+    m.emits_front_only = true;
+    const uint32_t id = add_material(*scene, m);
+    for (const auto& [a, b, c] : tris) add_triangle(*scene, a, b, c, id);
   }
 
   void apply_materials(const nlohmann::json& mats, const std::vector<GlossyDefaults>& glossy, Scene* scene) {

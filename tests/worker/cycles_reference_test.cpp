@@ -35,6 +35,7 @@
 #include "common/rng.h"
 #include "common/scene_loader.h"
 #include "worker/path_tracer.h"
+#include "worker/sky_light.h"
 
 namespace epr {
 namespace {
@@ -63,7 +64,8 @@ void expect_block_means_match_cycles(const std::string& spec, const std::string&
   const Scene scene = load_scene(spec);
   EmbreeScene es(scene);
   const Camera cam(scene.camera, kSize, kSize);
-  PathTracer tracer(es, cam, 2024, RussianRoulette::paper());
+  const SkyLight lights(scene.lighting, es);  // the scene's lamps, if any
+  PathTracer tracer(es, cam, 2024, RussianRoulette::paper(), true, SamplerKind::kSobolBurley, &lights);
 
   std::vector<BlockStats> blocks(kBlocks * kBlocks);
   tbb::parallel_for(0, kBlocks * kBlocks, [&](int b) {
@@ -143,6 +145,15 @@ TEST(CyclesReference, CornellBoxBlockMeansAgreeWithinNoise) {
 // front`) with an Emission strength of 1 - Backfacing. Rendered two-sided, ours is ~15 % brighter.
 TEST(CyclesReference, OneSidedLightBuiltinCornellBoxAgrees) {
   expect_block_means_match_cycles("builtin:cornell", "cornell_onesided_cycles_128.exr", 512);
+}
+
+// A room lit only by a point lamp, a spot lamp and a rectangular area lamp in Blender's units
+// (tests/data/scenes/lamps/lamps.json: power in W, the spot's size and blend), against Cycles
+// rendering the same lamps (scripts/cycles_reference.py --lamps; 2048 spp, tests/data/README.md):
+// the conversions P / (4 pi) W/sr and P / (4 A), Cycles' spot falloff, direct and bounced light.
+TEST(CyclesReference, PointSpotAndAreaLampsAgree) {
+  expect_block_means_match_cycles(std::string(EPR_SOURCE_DIR) + "/tests/data/scenes/lamps/lamps.json",
+                                  "lamps_cycles_128.exr", 512);
 }
 
 }  // namespace

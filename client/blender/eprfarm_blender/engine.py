@@ -245,8 +245,8 @@ class RENDER_PT_eprfarm(bpy.types.Panel):
             layout.label(text=line)
         col = layout.column(align=True)
         col.label(text="Exports meshes, materials, the World", icon="INFO")
-        col.label(text="(colour or HDR image) and a Sun lamp")
-        col.label(text="Other lamps: not exported")
+        col.label(text="(colour or HDR image) and the lamps:")
+        col.label(text="sun, point, spot, area (a spot's radius ignored)")
 
 
 def register_panels():

@@ -1,6 +1,6 @@
 """The scene as the farm gets it: a glTF 2.0 export of the current frame (meshes and materials,
-without cameras and lights), the World and a Sun lamp as the sky and sun of a scene JSON beside it,
-and the active camera as the job's camera."""
+without cameras and lights), the World, the Sun lamps and the point, spot and area lamps as the sky,
+sun and "lights" of a scene JSON beside it, and the active camera as the job's camera."""
 
 import json
 import math
@@ -82,30 +82,35 @@ def scene_warnings(scene, depsgraph) -> List[str]:
 
 
 def farm_lighting(scene, depsgraph, folder: str) -> Tuple[Dict, List[str]]:
-    """The scene JSON's "environment" and "sun" (scenes/README.md, "Sky and sun") for the World and
-    the visible Sun lamp first by name, an Environment Texture's image copied into FOLDER; and warnings
-    about the lamps and world setups the farm cannot model."""
+    """The scene JSON's "environment", "sun" and "lights" (scenes/README.md, "Sky and sun", "Lamps")
+    for the World and the visible lamps, an Environment Texture's image copied into FOLDER; and
+    warnings about the lamp and world setups the farm approximates or cannot model. The first Sun lamp
+    by name is the "sun" (the one a job's --sun replaces); the other suns and the point, spot and area
+    lamps are "lights", in Blender's units (power in W, as Cycles reads it)."""
     lighting, warnings = {}, []
-    suns, others = [], []
+    lamps = []
     for inst in depsgraph.object_instances:  # (an instance lives only during its iteration step)
         if inst.object.type == "LIGHT":
-            lamp = (inst.object.name, inst.object.data, inst.matrix_world.copy())
-            (suns if lamp[1].type == "SUN" else others).append(lamp)
-    if others:
-        names = sorted({f"'{name}' ({data.type.lower()})" for name, data, _ in others})
-        warnings.append(
-            f"light objects other than Sun lamps are not exported: {', '.join(names)}; the farm is lit by a "
-            "Sun lamp, the World and emissive materials (Principled BSDF Emission colour and strength)"
-        )
-    if suns:
-        suns.sort(key=lambda lamp: lamp[0])  # the first by name: the same one on every frame and machine
-        name, data, matrix = suns[0]
-        lighting["sun"] = _sun(data, matrix)
-        if len(suns) > 1:
-            rest = ", ".join(sorted({f"'{other}'" for other, _, _ in suns[1:]}))
-            warnings.append(f"the farm has one sun: Sun lamp '{name}' is exported, not {rest}")
+            lamps.append((inst.object.name, inst.object.data, inst.matrix_world.copy()))
+    lamps.sort(key=lambda lamp: lamp[0])  # by name: the same order on every frame and machine
+    lights = []
+    for name, data, matrix in lamps:
         if data.use_nodes:
-            warnings.append(f"Sun lamp '{name}': its shader nodes are ignored (colour x strength)")
+            unit = "strength" if data.type == "SUN" else "power"
+            warnings.append(f"{data.type.title()} lamp '{name}': its shader nodes are ignored (colour x {unit})")
+        if data.type == "SUN":
+            if "sun" not in lighting:
+                lighting["sun"] = _sun(data, matrix)
+            else:
+                lights.append({"type": "sun", "name": name, **_sun(data, matrix)})
+            continue
+        light, problem = _lamp(name, data, matrix)
+        if problem:
+            warnings.append(problem)
+        if light:
+            lights.append(light)
+    if lights:
+        lighting["lights"] = lights
     world = scene.world
     if world is not None:
         environment, problem = _environment(world, folder)
@@ -114,6 +119,55 @@ def farm_lighting(scene, depsgraph, folder: str) -> Tuple[Dict, List[str]]:
         elif environment:
             lighting["environment"] = environment
     return lighting, warnings
+
+
+def _lamp(name: str, lamp, matrix) -> Tuple[Optional[Dict], str]:
+    """A point, spot or area lamp as a scene JSON light (Blender's power in W times its colour; the
+    farm converts as Cycles does: intensity P / (4 pi) W/sr for point and spot lamps and point lamps
+    with a radius, radiance P / (4 A) for area lamps), and a warning about what it approximates."""
+    power = [round(lamp.energy * c, 7) for c in lamp.color]
+    rot = matrix.to_3x3()
+    position = [round(v, 7) for v in _y_up(matrix.translation)]
+    shines = [round(v, 7) for v in _y_up((rot.col[2] * -1.0).normalized())]  # lamps shine along local -Z
+    problem = ""
+    if lamp.type == "POINT":
+        light = {"type": "point", "name": name, "position": position, "power": power}
+        if lamp.shadow_soft_size > 0:
+            light["radius"] = round(lamp.shadow_soft_size, 7)
+        return light, ""
+    if lamp.type == "SPOT":
+        if lamp.shadow_soft_size > 0:
+            problem = f"Spot lamp '{name}': its radius is ignored (a point: hard shadows)"
+        return {
+            "type": "spot",
+            "name": name,
+            "position": position,
+            "direction": shines,
+            "power": power,
+            "spot_size_deg": round(math.degrees(lamp.spot_size), 6),
+            "spot_blend": round(lamp.spot_blend, 6),
+        }, problem
+    if lamp.type == "AREA":
+        sx = lamp.size
+        sy = lamp.size_y if lamp.shape in ("RECTANGLE", "ELLIPSE") else lamp.size
+        if getattr(lamp, "spread", math.pi) < math.pi - 1e-6:
+            problem = f"Area lamp '{name}': its spread is ignored (it emits as a Lambertian surface, spread 180)"
+        if lamp.shape in ("SQUARE", "RECTANGLE"):
+            local = [(-sx / 2, -sy / 2), (sx / 2, -sy / 2), (sx / 2, sy / 2), (-sx / 2, sy / 2)]
+        else:  # DISK, ELLIPSE: a 32-gon (the farm divides the power by the polygon's area)
+            local = [
+                (sx / 2 * math.cos(2 * math.pi * k / 32), sy / 2 * math.sin(2 * math.pi * k / 32)) for k in range(32)
+            ]
+        # Counter-clockwise seen from local -Z, the side the lamp lights: the farm's front.
+        corners = [[round(v, 7) for v in _y_up(matrix @ _vector((x, y, 0.0)))] for x, y in reversed(local)]
+        return {"type": "area", "name": name, "corners": corners, "power": power}, problem
+    return None, f"lamp '{name}' ({lamp.type.lower()}) is not exported"
+
+
+def _vector(v):
+    from mathutils import Vector
+
+    return Vector(v)
 
 
 def _sun(lamp, matrix) -> Dict:
@@ -230,8 +284,9 @@ def export_gltf(scene, view_layer, folder: str, name: str = "scene") -> str:
 
 
 def scene_file(gltf: str, lighting: Dict) -> str:
-    """What the job renders: the glTF itself, or with a sky or a sun a scene JSON beside it naming
-    the glTF, the environment and the sun (the client bundles the JSON, the glTF and the sky image)."""
+    """What the job renders: the glTF itself, or with a sky, a sun or lamps a scene JSON beside it
+    naming the glTF, the environment, the sun and the lights (the client bundles the JSON, the glTF
+    and the sky image)."""
     if not lighting:
         return gltf
     path = os.path.splitext(gltf)[0] + ".json"

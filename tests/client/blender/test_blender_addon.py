@@ -293,7 +293,8 @@ class BlenderAddonTest(BlenderCase):
                 "sun = bpy.data.objects.new('noon', lamp)\n"
                 "scene.collection.objects.link(sun)\n"
                 f"sun.rotation_euler = Vector({(SUN[0], -SUN[2], SUN[1])!r}).to_track_quat('Z', 'Y').to_euler()\n"
-                "bpy.ops.object.light_add(type='POINT')\n"
+                "bpy.ops.object.light_add(type='SPOT')\n"  # dark: its radius is warned about
+                "bpy.context.object.data.energy = 0\n"
                 "bpy.ops.render.render()\n"
                 f"bpy.data.images['Render Result'].save_render({still!r})\n"
                 "scene.frame_start = scene.frame_end = 1\n"
@@ -313,10 +314,9 @@ class BlenderAddonTest(BlenderCase):
         log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
         self.assertRegex(r.stdout, r"eprfarm: frame 1: job \S+ done, 16\.0 spp", log)
         self.assertNotIn("Traceback", r.stdout + r.stderr, log)
-        self.assertIn("Warning: eprfarm: light objects other than Sun lamps are not exported: 'Point' (point)", log)
+        self.assertIn("Warning: eprfarm: Spot lamp 'Spot': its radius is ignored (a point: hard shadows)", log)
         self.assertRegex(r.stdout, r"constant world: \{'color': \[0\.2\d*, 0\.3\d*, 0\.5\], 'strength': 2\.0\}", log)
-        self.assertIn("sky texture:\n['sun']\n", r.stdout, log)  # what the farm cannot model: named
-        self.assertIn("the farm has one sun: Sun lamp 'dusk' is exported, not 'noon'", r.stdout, log)
+        self.assertIn("sky texture:\n['lights', 'sun']\n", r.stdout, log)  # what the farm cannot model: named
         self.assertIn(
             "the world 'yard sky' is not exported: the Background colour comes from a Sky Texture node", r.stdout, log
         )
@@ -474,7 +474,8 @@ class BlenderAddonTest(BlenderCase):
                 f"bpy.context.scene.eprfarm.master = {self.farm.address!r}\n"
                 "bpy.data.materials['light'].node_tree.nodes['Principled BSDF'].inputs['Emission Strength']"
                 ".default_value = 0\n"
-                "bpy.ops.object.light_add(type='POINT')\n"
+                "bpy.ops.object.light_add(type='SPOT')\n"  # a dark lamp: warned about, and no light
+                "bpy.context.object.data.energy = 0\n"
                 "render()\n"
                 "print('--- package', flush=True)\n"
                 f"bpy.context.preferences.addons['eprfarm_blender'].preferences.package_path = {nowhere!r}\n"
@@ -487,9 +488,9 @@ class BlenderAddonTest(BlenderCase):
         refused, package = rest.split("--- package")
         self.assertIn(f"Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
         self.assertIn(f"render raised: Error: eprfarm: cannot reach master at 127.0.0.1:{port}", unreachable)
-        self.assertIn("Warning: eprfarm: light objects other than Sun lamps are not exported: 'Point' (point)", refused)
+        self.assertIn("Warning: eprfarm: Spot lamp 'Spot': its radius is ignored (a point: hard shadows)", refused)
         self.assertRegex(
-            refused, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.gltf has no light"
+            refused, r"Error: eprfarm: master at \S+ refused SubmitJob: INVALID_ARGUMENT: scene\.json has no light"
         )
         self.assertIn(
             f"Error: eprfarm: the eprfarm package folder '{nowhere}' (add-on preferences) has no eprfarm package",
