@@ -18,11 +18,11 @@ double path_sample_variance(double m2, uint32_t rounds) {
   return std::max(0.0, m2) / double(rounds - 1);
 }
 
-double reprojected_worth(double path_variance, double reprojection_variance, double fallback) {
+double reprojected_worth(double path_variance, double reprojection_variance, double fallback, double discount) {
   if (!(path_variance >= 0) || !(reprojection_variance >= 0)) return fallback;
   if (path_variance == 0 && reprojection_variance == 0) return fallback;
   if (reprojection_variance == 0) return kWorthLimit;
-  return std::min(path_variance / reprojection_variance, kWorthLimit);
+  return std::min(discount * path_variance / reprojection_variance, kWorthLimit);
 }
 
 Vec3 combine_weighted(const Vec3& path_sum, uint32_t path_count, double worth, const Vec3& lrp) {

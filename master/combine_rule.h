@@ -12,8 +12,10 @@
 //                (n ≤ S²), and any variation of the radiance inside the pixel counts as noise too.
 //                Undefined for n < min_subpixels(S).
 // Inverse-variance weights 1/Var(x̄) and 1/v_rp give
-//   L = (Σ_M + M'_eq L_rp) / (M + M'_eq),   M'_eq = σ̂² / v_rp  (the paths L_rp is worth),
-// the same form as the fixed rule with W M' replaced by M'_eq. Where σ̂² or v_rp is undefined (too
+//   L = (Σ_M + M'_eq L_rp) / (M + M'_eq),   M'_eq = W σ̂² / v_rp  (the paths L_rp is worth),
+// the same form as the fixed rule with W M' replaced by M'_eq; W discounts σ̂² / M for the
+// stratification of the pixel's own paths (W = 1: plain inverse-variance weights), so that a pixel
+// whose v_rp is what M'_eff independent samples give weighs L_rp as the fixed rule does. Where σ̂² or v_rp is undefined (too
 // few rounds or subpixels: their estimates would be too noisy to weigh by) or both are 0, M'_eq
 // falls back to W M'_eff; v_rp = 0 < σ̂² gives L_rp alone.
 //
@@ -43,10 +45,12 @@ double add_batch(double m2, double sum, uint32_t count, double batch, uint32_t k
 /// σ̂² = B / (R − 1): one path's variance from the batch scatter of R batches; -1 for R < kMinRounds.
 double path_sample_variance(double m2, uint32_t rounds);
 
-/// M'_eq, the paths the reprojected estimate is worth: σ̂² / v_rp (kWorthLimit if v_rp = 0 < σ̂²);
-/// `fallback` (W M'_eff) when σ̂² < 0 or v_rp < 0 (undefined) or both are 0.
+/// M'_eq, the paths the reprojected estimate is worth: discount σ̂² / v_rp (kWorthLimit if v_rp = 0 <
+/// σ̂²); `fallback` (W M'_eff) when σ̂² < 0 or v_rp < 0 (undefined) or both are 0. `discount` is 1 for
+/// independent path samples; the render passes W (a pixel's own Sobol-Burley paths are stratified,
+/// so their mean's error is below σ̂² / M, which the batch moments of single-path rounds cannot see).
 inline constexpr double kWorthLimit = 1e30;
-double reprojected_worth(double path_variance, double reprojection_variance, double fallback);
+double reprojected_worth(double path_variance, double reprojection_variance, double fallback, double discount = 1);
 
 /// (Σ_M + worth L_rp) / (M + worth) per channel, in double; 0 if M + worth = 0.
 Vec3 combine_weighted(const Vec3& path_sum, uint32_t path_count, double worth, const Vec3& lrp);

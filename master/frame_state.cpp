@@ -220,7 +220,7 @@ Image FrameState::worth_image(const PixelReprojection& rp) const {
       const size_t p = pixel(x, y);
       const double variance = path_sample_variance(path_m2_[p], rounds_at_[std::min<size_t>(path_count_[p], rounds_at_.size() - 1)]);
       const double fallback = double(opts_.reprojected_weight) * double(reprojected_effective_[p]);
-      out.at(x, y)[0] = float(reprojected_worth(variance, rp.variance[p], fallback));
+      out.at(x, y)[0] = float(reprojected_worth(variance, rp.variance[p], fallback, opts_.reprojected_weight));
     }
   });
   return out;
