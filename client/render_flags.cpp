@@ -91,7 +91,7 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
                   "(sum + W M' L_rp) / (M + W M') and in the skip rule M + W M' >= spp")
       ->capture_default_str();
   const std::map<std::string, CombineRule> combine_rules{{"fixed", CombineRule::kFixed},
-                                                          {"variance", CombineRule::kVariance}};
+                                                         {"variance", CombineRule::kVariance}};
   cmd->add_option("--combine", o.combine,
                   "fixed: a reprojected sample counts for W of a path; variance: inverse-variance weights from the "
                   "pixel's second moments, skip once the effective sample count reaches spp")

@@ -15,9 +15,9 @@
 //   L = (Σ_M + M'_eq L_rp) / (M + M'_eq),   M'_eq = W σ̂² / v_rp  (the paths L_rp is worth),
 // the same form as the fixed rule with W M' replaced by M'_eq; W discounts σ̂² / M for the
 // stratification of the pixel's own paths (W = 1: plain inverse-variance weights), so that a pixel
-// whose v_rp is what M'_eff independent samples give weighs L_rp as the fixed rule does. Where σ̂² or v_rp is undefined (too
-// few rounds or subpixels: their estimates would be too noisy to weigh by) or both are 0, M'_eq
-// falls back to W M'_eff; v_rp = 0 < σ̂² gives L_rp alone.
+// whose v_rp is what M'_eff independent samples give weighs L_rp as the fixed rule does. Where σ̂² or v_rp is undefined
+// (too few rounds or subpixels: their estimates would be too noisy to weigh by) or both are 0, M'_eq falls back to W
+// M'_eff; v_rp = 0 < σ̂² gives L_rp alone.
 //
 // M'_eff = n² / Σ_s (1 / c_s): the samples of equal variance that the average of subpixel means is
 // worth (M' when the counts are even, fewer when they are not). The skip rule counts N_eff =

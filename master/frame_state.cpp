@@ -148,8 +148,9 @@ void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3>
     for (int x = x0; x < x1; ++x, ++i) {
       const size_t p = pixel(x, y);
       if (!path_m2_.empty() && counts[i] > 0)
-        path_m2_[p] = float(add_batch(path_m2_[p], luminance_of(path_sum_[3 * p], path_sum_[3 * p + 1], path_sum_[3 * p + 2]),
-                                      path_count_[p], luminance_of(sums[i].x, sums[i].y, sums[i].z), counts[i]));
+        path_m2_[p] =
+            float(add_batch(path_m2_[p], luminance_of(path_sum_[3 * p], path_sum_[3 * p + 1], path_sum_[3 * p + 2]),
+                            path_count_[p], luminance_of(sums[i].x, sums[i].y, sums[i].z), counts[i]));
       path_sum_[3 * p + 0] += sums[i].x;
       path_sum_[3 * p + 1] += sums[i].y;
       path_sum_[3 * p + 2] += sums[i].z;
@@ -218,7 +219,8 @@ Image FrameState::worth_image(const PixelReprojection& rp) const {
   tbb::parallel_for(0, height_, [&](int y) {
     for (int x = 0; x < width_; ++x) {
       const size_t p = pixel(x, y);
-      const double variance = path_sample_variance(path_m2_[p], rounds_at_[std::min<size_t>(path_count_[p], rounds_at_.size() - 1)]);
+      const double variance =
+          path_sample_variance(path_m2_[p], rounds_at_[std::min<size_t>(path_count_[p], rounds_at_.size() - 1)]);
       const double fallback = double(opts_.reprojected_weight) * double(reprojected_effective_[p]);
       out.at(x, y)[0] = float(reprojected_worth(variance, rp.variance[p], fallback, opts_.reprojected_weight));
     }

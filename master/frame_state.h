@@ -35,8 +35,9 @@ class GlContext;
 
 struct FrameProgress {
   int round = 0;                // rounds finished
-  double mean_spp = 0;          // mean over pixels of M + W M' (the samples the skip rule counts)
-  double min_spp = 0;           // min over pixels of M + W M'
+  double mean_spp = 0;          // mean over pixels of M + W M' (N_eff with --combine variance: the
+                                // samples the skip rule counts)
+  double min_spp = 0;           // min over pixels of the same
   double mean_paths = 0;        // mean M
   double mean_reprojected = 0;  // mean M'
   uint64_t pixels_active = 0;   // pixels that trace paths in the next round
@@ -226,7 +227,7 @@ class FrameState {
   std::vector<float> path_m2_;
   std::vector<float> reprojected_effective_;
   std::vector<uint16_t> rounds_at_;
-  int paths_done_ = 0;                  // paths every active pixel has traced
+  int paths_done_ = 0;  // paths every active pixel has traced
   bool done_ = false;
   FrameProgress progress_;
   double seconds_reprojecting_ = 0;

@@ -1,13 +1,13 @@
 // See reprojection_image.h.
 #include "master/reprojection_image.h"
 
-#include "master/combine_rule.h"
-
 #include <fmt/format.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <stdexcept>
+
+#include "master/combine_rule.h"
 
 namespace epr {
 
@@ -92,8 +92,7 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
                     : Vec3(0.f));
       if (with_counts) out.count[p] = saturate_count(total);
       if (stats) {
-        if (with_counts)
-          out.effective[p] = non_empty ? float(double(non_empty) * double(non_empty) / inverse) : 0.f;
+        if (with_counts) out.effective[p] = non_empty ? float(double(non_empty) * double(non_empty) / inverse) : 0.f;
         double v = -1;
         if (non_empty >= min_subpixels(S)) {
           double avg = 0, scatter = 0;
