@@ -21,8 +21,8 @@
 //
 // M'_eff = n² / Σ_s (1 / c_s): the samples of equal variance that the average of subpixel means is
 // worth (M' when the counts are even, fewer when they are not). The skip rule counts N_eff =
-// M + W M'_eff, which uses only counts: M and the subpixel counts are the same in every back-end and
-// in a cluster, bit for bit, so the decisions are too (radiance sums agree only to float rounding).
+// M + W M'_eff, which uses only counts: M and the subpixel counts are integers, the same in a
+// cluster as in one process, so the decisions are too (radiance sums agree only to float rounding).
 #pragma once
 
 #include <algorithm>

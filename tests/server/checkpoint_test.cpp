@@ -9,13 +9,11 @@
 #include <unistd.h>
 #include <zlib.h>
 
-#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <map>
 #include <thread>
 
 #include "common/image.h"
@@ -436,8 +434,6 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
   const Camera camera(CameraSpec{}, 24, 16);
   const auto first = traced_vertices(scene, camera, 1, 2), second = traced_vertices(scene, camera, 2, 2);
   GlContext gl;
-  // Per rule, the CPU back-end's skip mask and M'_eff after two rounds: GL must decide the same.
-  std::map<CombineRule, std::pair<std::vector<uint8_t>, std::vector<float>>> cpu_decisions;
   for (const auto& [method, rule] :
        {std::pair{ReprojectMethod::kCpu, CombineRule::kFixed}, std::pair{ReprojectMethod::kGl, CombineRule::kFixed},
         std::pair{ReprojectMethod::kCpu, CombineRule::kVariance},
@@ -519,13 +515,6 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
     EXPECT_EQ(after_b.skip, after_a.skip);
     EXPECT_EQ(after_b.path_m2, after_a.path_m2);
     EXPECT_EQ(after_b.reprojected_effective, after_a.reprojected_effective);
-    if (method == ReprojectMethod::kCpu) {
-      cpu_decisions[rule] = {after_a.skip, after_a.reprojected_effective};
-      EXPECT_GT(std::count(after_a.skip.begin(), after_a.skip.end(), uint8_t(1)), 0) << "no pixel skipped";
-    } else {
-      EXPECT_EQ(after_a.skip, cpu_decisions.at(rule).first) << "GL and CPU skip different pixels";
-      EXPECT_EQ(after_a.reprojected_effective, cpu_decisions.at(rule).second);
-    }
     fs::remove_all(dir);
   }
 }
