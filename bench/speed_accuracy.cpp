@@ -125,6 +125,7 @@ struct ModeSpec {
   ReprojectMethod reproject;
   float reprojected_weight = RenderOptions{}.reprojected_weight;
   int min_paths = RenderOptions{}.min_paths;
+  CombineRule combine = RenderOptions{}.combine;
   std::string name;  // file names and tables
 };
 
@@ -132,7 +133,7 @@ struct ModeSpec {
 float g_reprojected_weight = RenderOptions{}.reprojected_weight;
 int g_min_paths = RenderOptions{}.min_paths;
 
-// "MODE[:w=W][:m=M]" (see the top of this file).
+// "MODE[:w=W][:m=M][:c=fixed|variance]" (see the top of this file).
 ModeSpec mode_spec(const std::string& spec) {
   const size_t colon = spec.find(':');
   const std::string m = spec.substr(0, colon);
@@ -161,16 +162,19 @@ ModeSpec mode_spec(const std::string& spec) {
         s.reprojected_weight = std::stof(part.substr(2));
       else if (part.rfind("m=", 0) == 0)
         s.min_paths = std::stoi(part.substr(2));
+      else if (part == "c=fixed" || part == "c=variance")
+        s.combine = part == "c=variance" ? CombineRule::kVariance : CombineRule::kFixed;
       else
         throw std::invalid_argument("");
     } catch (const std::exception&) {
-      throw std::invalid_argument("mode '" + spec + "': '" + part + "' is not w=WEIGHT or m=MIN_PATHS");
+      throw std::invalid_argument("mode '" + spec + "': '" + part + "' is not w=WEIGHT, m=MIN_PATHS or c=RULE");
     }
   }
   s.name = m;
   if (s.mode == RenderMode::kPathTrace) return s;
   if (s.reprojected_weight != RenderOptions{}.reprojected_weight) s.name += fmt::format("_w{:g}", s.reprojected_weight);
   if (s.min_paths != RenderOptions{}.min_paths) s.name += fmt::format("_m{}", s.min_paths);
+  if (s.combine != RenderOptions{}.combine) s.name += std::string("_") + to_string(s.combine);
   return s;
 }
 
@@ -182,6 +186,7 @@ Run run_mode(const RenderOptions& base, const ModeSpec& ms, const Reference& ref
   o.reproject = ms.reproject;
   o.reprojected_weight = ms.reprojected_weight;
   o.min_paths = ms.min_paths;
+  o.combine = ms.combine;
   if (auto err = o.validate()) throw std::invalid_argument("mode '" + ms.name + "': " + *err);
   Run run;
   run.mode = ms.name;

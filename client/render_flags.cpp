@@ -90,6 +90,13 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
                   "W in (0, 1]: what a reprojected sample counts for against a traced path, in the image "
                   "(sum + W M' L_rp) / (M + W M') and in the skip rule M + W M' >= spp")
       ->capture_default_str();
+  const std::map<std::string, CombineRule> combine_rules{{"fixed", CombineRule::kFixed},
+                                                         {"variance", CombineRule::kVariance}};
+  cmd->add_option("--combine", o.combine,
+                  "fixed: a reprojected sample counts for W of a path; variance: inverse-variance weights from the "
+                  "pixel's second moments, skip once the effective sample count reaches spp")
+      ->transform(CLI::CheckedTransformer(combine_rules, CLI::ignore_case))
+      ->capture_default_str();
   cmd->add_flag("--reproject-glossy", o.reproject_glossy, "also reproject glossy vertices (failure-mode study)");
   cmd->add_flag_callback(
       "--no-joint-test", [&o] { o.joint_test = false; },

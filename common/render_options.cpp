@@ -103,6 +103,8 @@ const char* to_string(RenderMode m) {
   return "?";
 }
 
+const char* to_string(CombineRule c) { return c == CombineRule::kVariance ? "variance" : "fixed"; }
+
 const char* to_string(ReprojectMethod m) {
   switch (m) {
     case ReprojectMethod::kGl:

@@ -30,6 +30,13 @@ struct RussianRoulette {
 
 enum class RenderMode { kPathTrace, kReproject, kSkip };
 enum class ReprojectMethod { kGl, kCpu, kExact };
+// How a pixel's own path estimate and its reprojected estimate are combined, and when a pixel skips
+// (master/combine_rule.h; DESIGN.md "Combining the two estimates"):
+//   kFixed     a reprojected sample counts for W of a path: (sum + W M' L_rp) / (M + W M'), skip once
+//              M + W M' >= P;
+//   kVariance  inverse-variance weights from the pixel's measured second moments, skip once the
+//              effective sample count N_eff >= P.
+enum class CombineRule { kFixed, kVariance };
 
 struct RenderOptions {
   std::string scene = "builtin:cornell";  // OBJ path, scene JSON path or builtin:NAME[?k=v&...]
@@ -50,6 +57,7 @@ struct RenderOptions {
   // image and in the skip rule (master/reprojection_image.h; DESIGN.md "Combining the two estimates"
   // says why 0.5).
   float reprojected_weight = 0.5f;
+  CombineRule combine = CombineRule::kFixed;
   bool reproject_glossy = false;  // failure-mode study only
   bool joint_test = true;         // the plane test's normal and crease tests (off: failure-mode study)
   RussianRoulette rr = RussianRoulette::paper();
@@ -98,5 +106,6 @@ inline constexpr int kTilesPerThread = 8;
 
 const char* to_string(RenderMode m);
 const char* to_string(ReprojectMethod m);
+const char* to_string(CombineRule c);
 
 }  // namespace epr

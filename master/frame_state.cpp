@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "master/combine_rule.h"
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
 #include "master/make_reprojector.h"
@@ -17,6 +18,9 @@ namespace epr {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// Luminance of an RGB sum, in double (the variance combination's moments).
+double luminance_of(double r, double g, double b) { return 0.2126 * r + 0.7152 * g + 0.0722 * b; }
 
 // Adds the time spent in a scope to a counter.
 class ScopedTimer {
@@ -57,9 +61,16 @@ Image combined_image(const FrameImages& images) {
   if (images.reprojection.data.empty()) return pathtrace_image(images);
   const Image& s = images.path_sum;
   Image out(s.width, s.height, 3);
+  const bool worth = !images.reprojected_worth.data.empty();
   tbb::parallel_for(0, s.height, [&](int y) {
     for (int x = 0; x < s.width; ++x) {
       const float* ps = s.at(x, y);
+      if (worth) {
+        out.set_rgb(x, y,
+                    combine_weighted(Vec3(ps[0], ps[1], ps[2]), uint32_t(images.path_count.at(x, y)[0]),
+                                     images.reprojected_worth.at(x, y)[0], images.reprojection.rgb(x, y)));
+        continue;
+      }
       out.set_rgb(x, y,
                   combine_pixel(Vec3(ps[0], ps[1], ps[2]), uint32_t(images.path_count.at(x, y)[0]),
                                 uint32_t(images.reprojected.at(x, y)[0]), images.reprojection.rgb(x, y),
@@ -108,6 +119,20 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
   }
+  if (variance_rule() && reprojector_) {
+    path_m2_.assign(path_count_.size(), 0.f);
+    reprojected_effective_.assign(path_count_.size(), 0.f);
+    // rounds_at_[M]: the rounds of the schedule whose paths add up to at most M.
+    rounds_at_.assign(size_t(opts.spp) + 1, 0);
+    int done = 0, rounds = 0;
+    while (done < opts.spp) {
+      const int k = round_paths(opts, done);
+      if (k <= 0) break;
+      for (int m = done + 1; m < done + k; ++m) rounds_at_[size_t(m)] = uint16_t(rounds);
+      done += k;
+      rounds_at_[size_t(done)] = uint16_t(++rounds);
+    }
+  }
   progress_.pixels_active = uint64_t(width_) * uint64_t(height_);
 }
 
@@ -122,6 +147,10 @@ void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3>
   for (int y = y0; y < y1; ++y)
     for (int x = x0; x < x1; ++x, ++i) {
       const size_t p = pixel(x, y);
+      if (!path_m2_.empty() && counts[i] > 0)
+        path_m2_[p] =
+            float(add_batch(path_m2_[p], luminance_of(path_sum_[3 * p], path_sum_[3 * p + 1], path_sum_[3 * p + 2]),
+                            path_count_[p], luminance_of(sums[i].x, sums[i].y, sums[i].z), counts[i]));
       path_sum_[3 * p + 0] += sums[i].x;
       path_sum_[3 * p + 1] += sums[i].y;
       path_sum_[3 * p + 2] += sums[i].z;
@@ -156,24 +185,53 @@ void FrameState::refresh_counts(bool active_only) {
   if (!reprojector_) return;
   ScopedTimer t(&seconds_reprojecting_);
   ScopedTimer d(&seconds_downsampling_);
-  PixelReprojection pr{Image(), std::move(mprime_)};
+  PixelReprojection pr;
+  pr.count = std::move(mprime_);
+  pr.statistics = variance_rule();
+  pr.effective = std::move(reprojected_effective_);
   reprojector_->downsample_pixels_into(&pr, active_only ? std::span<const uint8_t>(skip_) : std::span<const uint8_t>(),
                                        DownsampleParts::kCounts);
   mprime_ = std::move(pr.count);
+  if (variance_rule()) reprojected_effective_ = std::move(pr.effective);
   reprojection_partial_ = active_only;
 }
 
-Image FrameState::reprojected_radiance(bool counts_too) {
+PixelReprojection FrameState::reprojected_radiance(bool counts_too) {
   ScopedTimer t(&seconds_reprojecting_);
   ScopedTimer d(&seconds_downsampling_);
   PixelReprojection pr;
-  if (counts_too) pr.count = std::move(mprime_);
+  pr.statistics = variance_rule();
+  if (counts_too) {
+    pr.count = std::move(mprime_);
+    pr.effective = std::move(reprojected_effective_);
+  }
   reprojector_->downsample_pixels_into(&pr, {}, counts_too ? DownsampleParts::kBoth : DownsampleParts::kRadiance);
   if (counts_too) {
     mprime_ = std::move(pr.count);
+    if (variance_rule()) reprojected_effective_ = std::move(pr.effective);
     reprojection_partial_ = false;
   }
-  return std::move(pr.radiance);
+  return pr;
+}
+
+Image FrameState::worth_image(const PixelReprojection& rp) const {
+  Image out(width_, height_, 1);
+  tbb::parallel_for(0, height_, [&](int y) {
+    for (int x = 0; x < width_; ++x) {
+      const size_t p = pixel(x, y);
+      const double variance =
+          path_sample_variance(path_m2_[p], rounds_at_[std::min<size_t>(path_count_[p], rounds_at_.size() - 1)]);
+      const double fallback = double(opts_.reprojected_weight) * double(reprojected_effective_[p]);
+      out.at(x, y)[0] = float(reprojected_worth(variance, rp.variance[p], fallback, opts_.reprojected_weight));
+    }
+  });
+  return out;
+}
+
+double FrameState::pixel_samples(size_t p) const {
+  return variance_rule() && !reprojected_effective_.empty()
+             ? effective_samples(path_count_[p], reprojected_effective_[p], opts_.reprojected_weight)
+             : weighted_samples(path_count_[p], mprime_[p], opts_.reprojected_weight);
 }
 
 int FrameState::next_paths_per_pixel() const { return round_paths(opts_, paths_done_); }
@@ -194,9 +252,9 @@ bool FrameState::finish_round() {
   const uint64_t target = uint64_t(opts_.spp);
   uint64_t active = 0, skipped = 0;
   for (size_t p = 0; p < skip_.size(); ++p) {
-    const uint64_t m = path_count_[p], mp = mprime_[p];
+    const uint64_t m = path_count_[p];
     if (!skip_[p]) {
-      if (m >= target || (skipping && skip_pixel(m, mp, target, uint64_t(opts_.min_paths), opts_.reprojected_weight))) {
+      if (m >= target || (skipping && pixel_samples(p) >= double(target) && m >= uint64_t(opts_.min_paths))) {
         skip_[p] = 1;
         if (m < target) ++skipped;
       }
@@ -219,7 +277,7 @@ void FrameState::update_sample_progress() {
     traced += m;
     sum_m += double(m);
     sum_mp += double(mp);
-    const double spp = weighted_samples(m, mp, opts_.reprojected_weight);
+    const double spp = pixel_samples(p);
     sum_spp += spp;
     min_spp = std::min(min_spp, spp);
   }
@@ -265,6 +323,8 @@ FrameSnapshot FrameState::save() {
   s.path_count = path_count_;
   s.mprime = mprime_;
   s.skip = skip_;
+  s.path_m2 = path_m2_;
+  s.reprojected_effective = reprojected_effective_;
   s.paths_done = paths_done_;
   s.done = done_;
   s.progress = progress_;
@@ -286,6 +346,8 @@ FrameView FrameState::view() {
   v.path_count = path_count_;
   v.mprime = mprime_;
   v.skip = skip_;
+  v.path_m2 = path_m2_;
+  v.reprojected_effective = reprojected_effective_;
   v.paths_done = paths_done_;
   v.done = done_;
   v.progress = progress_;
@@ -314,6 +376,8 @@ FrameView view_of(const FrameSnapshot& s) {
   v.mprime = s.mprime;
   v.reprojected = s.reprojected;
   v.skip = s.skip;
+  v.path_m2 = s.path_m2;
+  v.reprojected_effective = s.reprojected_effective;
   v.paths_done = s.paths_done;
   v.done = s.done;
   v.progress = s.progress;
@@ -357,6 +421,10 @@ void FrameState::restore(const FrameSnapshot& s) {
   if (s.path_sum.size() != 3 * n || s.path_count.size() != n || s.mprime.size() != n ||
       (!s.reprojected.empty() && s.reprojected.size() != 3 * n) || s.skip.size() != n)
     throw std::invalid_argument("the snapshot's per-pixel arrays do not match the frame size");
+  if (s.path_m2.size() != path_m2_.size() || s.reprojected_effective.size() != reprojected_effective_.size())
+    throw std::invalid_argument(path_m2_.empty() ? "the snapshot has the variance combination's moments, this frame "
+                                                   "combines with the fixed rule"
+                                                 : "the snapshot has no moments for the variance combination");
   if (s.has_accumulation != (reprojector_ != nullptr))
     throw std::invalid_argument(s.has_accumulation
                                     ? "the snapshot has a reprojection accumulation, this frame reprojects nothing"
@@ -386,6 +454,8 @@ void FrameState::restore(const FrameSnapshot& s) {
   path_count_ = s.path_count;
   mprime_ = s.mprime;
   skip_ = s.skip;
+  path_m2_ = s.path_m2;
+  reprojected_effective_ = s.reprojected_effective;
   paths_done_ = s.paths_done;
   done_ = s.done;
   progress_ = s.progress;
@@ -410,7 +480,9 @@ FrameImages FrameState::release_images() {
   FrameImages out;
   out.reprojected_weight = opts_.reprojected_weight;
   if (reprojector_) {
-    out.reprojection = reprojected_radiance(true);
+    PixelReprojection rp = reprojected_radiance(true);
+    if (variance_rule()) out.reprojected_worth = worth_image(rp);
+    out.reprojection = std::move(rp.radiance);
     released_counts_ = reprojector_->counts();
     reprojector_.reset();
   }
@@ -431,7 +503,9 @@ FrameImages FrameState::images(bool preview) {
   if (reprojector_) {
     const bool was_partial = reprojection_partial_;
     const bool keep_counts = preview && opts_.mode == RenderMode::kSkip;
-    out.reprojection = reprojected_radiance(!keep_counts);
+    PixelReprojection rp = reprojected_radiance(!keep_counts);
+    if (variance_rule()) out.reprojected_worth = worth_image(rp);
+    out.reprojection = std::move(rp.radiance);
     if (was_partial && !reprojection_partial_) update_sample_progress();  // M' of the skipped pixels changed
   }
   // The path sums as they are; combined_image() and pathtrace_image() make the rest when asked.
@@ -453,6 +527,7 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts, uint64_t worker
       {"subpixels", opts.subpixels},
       {"epsilon_fraction", opts.epsilon},
       {"reprojected_weight", opts.reprojected_weight},
+      {"combine", to_string(opts.combine)},
       {"tile_size", opts.tile_size},
       {"taper_tiles", opts.taper_tiles},
       {"rounds", p.round},

@@ -35,8 +35,9 @@ class GlContext;
 
 struct FrameProgress {
   int round = 0;                // rounds finished
-  double mean_spp = 0;          // mean over pixels of M + W M' (the samples the skip rule counts)
-  double min_spp = 0;           // min over pixels of M + W M'
+  double mean_spp = 0;          // mean over pixels of M + W M' (N_eff with --combine variance: the
+                                // samples the skip rule counts)
+  double min_spp = 0;           // min over pixels of the same
   double mean_paths = 0;        // mean M
   double mean_reprojected = 0;  // mean M'
   uint64_t pixels_active = 0;   // pixels that trace paths in the next round
@@ -57,12 +58,15 @@ struct FrameImages {
   Image path_count;                // M, one channel
   Image reprojected;               // M', one channel
   float reprojected_weight = 1.f;  // W (RenderOptions::reprojected_weight), for combined_image()
+  // The variance combination's M'_eq per pixel (master/combine_rule.h), one channel: the paths L_rp
+  // is worth, in place of W M'; empty for the fixed rule.
+  Image reprojected_worth;
 };
 
 /// path_sum / M per pixel (0 where M = 0), or the stored image.
 Image pathtrace_image(const FrameImages& images);
-/// (path_sum + W M' L_rp) / (M + W M') per pixel (combine_pixel), the path-traced image without
-/// reprojection, or the stored image.
+/// (path_sum + W M' L_rp) / (M + W M') per pixel (combine_pixel), or with M'_eq in place of W M'
+/// where reprojected_worth is given; the path-traced image without reprojection, or the stored image.
 Image combined_image(const FrameImages& images);
 
 /// Everything a FrameState holds after a finished round, for checkpoints: restoring it into a
@@ -76,6 +80,10 @@ struct FrameSnapshot {
   std::vector<float>
       reprojected;  // empty (L_rp is downsampled when needed); older checkpoints' 3 per pixel are ignored
   std::vector<uint8_t> skip;
+  // The variance combination's (empty for the fixed rule): B, the scatter of each pixel's batch
+  // means (combine_rule.h), and M'_eff as of the last downsample.
+  std::vector<float> path_m2;
+  std::vector<float> reprojected_effective;
   int paths_done = 0;
   bool done = false;
   FrameProgress progress;
@@ -98,6 +106,8 @@ struct FrameView {
   std::span<const uint32_t> mprime;
   std::span<const float> reprojected;  // empty (FrameSnapshot::reprojected)
   std::span<const uint8_t> skip;
+  std::span<const float> path_m2;
+  std::span<const float> reprojected_effective;
   int paths_done = 0;
   bool done = false;
   FrameProgress progress;
@@ -187,9 +197,14 @@ class FrameState {
  private:
   // M' from the reprojector: every pixel, or (active_only) the pixels not skipped.
   void refresh_counts(bool active_only);
-  // L_rp of every pixel, downsampled from the accumulation (reprojecting frames only); with
-  // `counts_too` M' of every pixel is brought up to date on the way.
-  Image reprojected_radiance(bool counts_too);
+  // L_rp of every pixel (and v_rp with the variance combination), downsampled from the accumulation
+  // (reprojecting frames only); with `counts_too` M' of every pixel is brought up to date on the way.
+  PixelReprojection reprojected_radiance(bool counts_too);
+  // The variance combination's M'_eq per pixel from the state and `rp`'s v_rp.
+  Image worth_image(const PixelReprojection& rp) const;
+  // The samples the skip rule counts for pixel p: M + W M' (fixed) or N_eff (variance).
+  double pixel_samples(size_t p) const;
+  bool variance_rule() const { return opts_.combine == CombineRule::kVariance; }
   // M and M' of every pixel as float images.
   void count_images(FrameImages* out) const;
   // progress_'s path and sample counts (paths traced, mean M, M', M + M', min M + M') from the arrays.
@@ -207,7 +222,12 @@ class FrameState {
   std::vector<uint32_t> mprime_;        // M' as of the last downsample (L_rp is made when asked for)
   bool reprojection_partial_ = false;   // the last downsample left skipped pixels' M' as they were
   std::vector<uint8_t> skip_;           // 1 = no more paths for this pixel
-  int paths_done_ = 0;                  // paths every active pixel has traced
+  // The variance combination only (else empty): B per pixel, M'_eff as of the last downsample, and
+  // the rounds a pixel with M paths has traced in (rounds_at_[M], from the schedule).
+  std::vector<float> path_m2_;
+  std::vector<float> reprojected_effective_;
+  std::vector<uint16_t> rounds_at_;
+  int paths_done_ = 0;  // paths every active pixel has traced
   bool done_ = false;
   FrameProgress progress_;
   double seconds_reprojecting_ = 0;

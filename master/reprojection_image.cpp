@@ -7,11 +7,15 @@
 #include <algorithm>
 #include <stdexcept>
 
+#include "master/combine_rule.h"
+
 namespace epr {
 
 namespace {
 
 uint32_t saturate_count(uint64_t n) { return uint32_t(std::min<uint64_t>(n, UINT32_MAX)); }
+
+constexpr int kMaxSubpixelsPerPixel = 64;  // S <= 8
 
 // The downsampling, for any storage of the cells: `cell(gy, gx)` returns the subpixel of grid row gy
 // and column gx. Only pixels p with skip[p] == 0 (every pixel if `skip` is empty, or if what is
@@ -32,27 +36,53 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
     out.radiance = Image(W, H, 3);
     skip = {};
   }
+  const bool stats = out.statistics;
+  if (stats && with_counts && out.effective.size() != pixels) {
+    out.effective.assign(pixels, 0.f);
+    skip = {};
+  }
+  if (stats && !counts_only && out.variance.size() != pixels) {
+    out.variance.assign(pixels, -1.f);
+    skip = {};
+  }
+  if (S * S > kMaxSubpixelsPerPixel) throw std::invalid_argument("downsample: more than 8 x 8 subpixels");
   if (!skip.empty() && skip.size() != pixels) throw std::invalid_argument("downsample: skip mask of the wrong size");
   tbb::parallel_for(0, H, [&](int y) {
     for (int x = 0; x < W; ++x) {
       if (!skip.empty() && skip[size_t(y) * size_t(W) + size_t(x)]) continue;
+      const size_t p = size_t(y) * size_t(W) + size_t(x);
       if (counts_only) {
         uint64_t total = 0;
+        double inverse = 0;  // Σ 1 / c_s over the non-empty subpixels (M'_eff)
+        int non_empty = 0;
         for (int j = 0; j < S; ++j)
-          for (int i = 0; i < S; ++i) total += cell(y * S + j, x * S + i).n;
-        out.count[size_t(y) * size_t(W) + size_t(x)] = saturate_count(total);
+          for (int i = 0; i < S; ++i) {
+            const uint32_t n = cell(y * S + j, x * S + i).n;
+            total += n;
+            if (stats && n > 0) {
+              inverse += 1.0 / double(n);
+              ++non_empty;
+            }
+          }
+        out.count[p] = saturate_count(total);
+        if (stats) out.effective[p] = non_empty ? float(double(non_empty) * double(non_empty) / inverse) : 0.f;
         continue;
       }
       double mean[3] = {0, 0, 0};
+      double lum[kMaxSubpixelsPerPixel];  // the non-empty subpixels' mean luminances
+      double inverse = 0;
       uint64_t total = 0;
       int non_empty = 0;
       for (int j = 0; j < S; ++j)
         for (int i = 0; i < S; ++i) {
           const AccumulationCell c = cell(y * S + j, x * S + i);
           if (c.n == 0) continue;
-          mean[0] += double(c.r) / double(c.n);
-          mean[1] += double(c.g) / double(c.n);
-          mean[2] += double(c.b) / double(c.n);
+          const double r = double(c.r) / double(c.n), g = double(c.g) / double(c.n), b = double(c.b) / double(c.n);
+          mean[0] += r;
+          mean[1] += g;
+          mean[2] += b;
+          lum[non_empty] = 0.2126 * r + 0.7152 * g + 0.0722 * b;
+          inverse += 1.0 / double(c.n);
           total += c.n;
           ++non_empty;
         }
@@ -60,7 +90,19 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
           x, y,
           non_empty ? Vec3(float(mean[0] / non_empty), float(mean[1] / non_empty), float(mean[2] / non_empty))
                     : Vec3(0.f));
-      if (with_counts) out.count[size_t(y) * size_t(W) + size_t(x)] = saturate_count(total);
+      if (with_counts) out.count[p] = saturate_count(total);
+      if (stats) {
+        if (with_counts) out.effective[p] = non_empty ? float(double(non_empty) * double(non_empty) / inverse) : 0.f;
+        double v = -1;
+        if (non_empty >= min_subpixels(S)) {
+          double avg = 0, scatter = 0;
+          for (int k = 0; k < non_empty; ++k) avg += lum[k];
+          avg /= non_empty;
+          for (int k = 0; k < non_empty; ++k) scatter += (lum[k] - avg) * (lum[k] - avg);
+          v = scatter / (double(non_empty) * double(non_empty - 1));
+        }
+        out.variance[p] = float(v);
+      }
     }
   });
 }
@@ -107,10 +149,7 @@ void downsample_bands(std::span<const AccumulationCell* const> bands, int band_r
 
 Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint32_t reprojected_count, const Vec3& lrp,
                    float reprojected_weight) {
-  const double m = path_count, mr = double(reprojected_weight) * double(reprojected_count);
-  if (m + mr == 0) return Vec3(0.f);
-  return Vec3(float((path_sum.x + mr * lrp.x) / (m + mr)), float((path_sum.y + mr * lrp.y) / (m + mr)),
-              float((path_sum.z + mr * lrp.z) / (m + mr)));
+  return combine_weighted(path_sum, path_count, double(reprojected_weight) * double(reprojected_count), lrp);
 }
 
 Image combine(const Image& path_sum, const std::vector<uint32_t>& path_count, const PixelReprojection& rp,

@@ -36,6 +36,11 @@ struct SubpixelAccumulation {
 struct PixelReprojection {
   Image radiance;               // L_rp, 3 channels, width x height pixels
   std::vector<uint32_t> count;  // M', per pixel (saturating at 2^32 - 1)
+  // With `statistics` set, per pixel (master/combine_rule.h): M'_eff, written with the counts, and
+  // v_rp (the variance of L_rp's luminance; -1 where undefined), written with the radiance.
+  bool statistics = false;
+  std::vector<float> effective;
+  std::vector<float> variance;
 };
 
 /// Downsamples an S*W x S*H subpixel accumulation to W x H pixels.
@@ -67,7 +72,8 @@ void downsample_bands(std::span<const AccumulationCell* const> bands, int band_r
                       int subpixels, std::span<const uint8_t> skip, PixelReprojection* out,
                       DownsampleParts parts = DownsampleParts::kBoth);
 
-/// L(p) of one pixel: (path_sum + W M' L_rp) / (M + W M') in double, 0 if M + W M' = 0.
+/// L(p) of one pixel: (path_sum + W M' L_rp) / (M + W M') in double, 0 if M + W M' = 0
+/// (combine_weighted() with W M').
 Vec3 combine_pixel(const Vec3& path_sum, uint32_t path_count, uint32_t reprojected_count, const Vec3& lrp,
                    float reprojected_weight = 1.f);
 /// L(p) = (path_sum + W M' L_rp) / (M + W M'). `path_sum` is the sum (not the mean) of p's M path samples.

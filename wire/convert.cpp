@@ -161,6 +161,7 @@ void to_proto_reprojection(const RenderOptions& o, v1::ReprojectionSettings* r) 
   r->set_epsilon_fraction(o.epsilon);
   r->set_min_paths(uint32_t(o.min_paths));
   r->set_reprojected_weight(o.reprojected_weight);
+  r->set_combine(o.combine == CombineRule::kVariance ? v1::COMBINE_RULE_VARIANCE : v1::COMBINE_RULE_FIXED);
   r->set_reproject_glossy(o.reproject_glossy);
   r->set_joint_test(o.joint_test);
 }
@@ -239,6 +240,12 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
   // Unset is 1 whatever RenderOptions' default: a job or checkpoint written before the field existed
   // renders and resumes as it began.
   o.reprojected_weight = r.has_reprojected_weight() ? r.reprojected_weight() : 1.f;
+  if (r.has_combine()) {
+    if (r.combine() < 0 || r.combine() > v1::COMBINE_RULE_VARIANCE) return "unknown combine rule";
+    o.combine = r.combine() == v1::COMBINE_RULE_VARIANCE ? CombineRule::kVariance : CombineRule::kFixed;
+  } else {
+    o.combine = CombineRule::kFixed;  // as before the field existed
+  }
   if (r.has_reproject_glossy()) o.reproject_glossy = r.reproject_glossy();
   if (r.has_joint_test()) o.joint_test = r.joint_test();
   if (spec.has_russian_roulette()) {

@@ -319,7 +319,7 @@ JobProgressRecord decode_job_progress(std::string_view payload, uint32_t version
   get_progress_head(rd, &r, version);
   if (rd.get_bool()) {
     check_progress_version(version);
-    r.frame = get_frame(rd);
+    r.frame = get_frame(rd, version);
   }
   get_previews(rd, &r);
   return r;
@@ -562,7 +562,7 @@ JobProgressRecord CheckpointStore::read_progress(const fs::path& path, std::vect
     }
     if (has_frame) {
       FrameSnapshot f;
-      const uint64_t cells = get_frame_head(rd, &f);
+      const uint64_t cells = get_frame_head(rd, &f, h.version);
       if (f.has_accumulation) {
         const uint64_t at = kSealHeaderBytes + rd.offset();
         rd.skip(cells * sizeof(AccumulationCell));

@@ -42,8 +42,10 @@ enum class RecordKind : uint32_t { kEpoch = 1, kScene = 2, kJobSpec = 3, kJobPro
 // progress record's frame as the back-ends' cells ({float r, g, b; uint32 n} per subpixel, written
 // span by span straight from the live accumulation) instead of separate sum and count arrays: the
 // frame of an older progress record is refused (the record's other fields are read; the job starts
-// again from round 0, the reason logged). Other records did not change.
-inline constexpr uint32_t kCheckpointVersion = 3;
+// again from round 0, the reason logged). Version 4 adds the variance combination's per-pixel
+// arrays to a frame, after the skip mask (empty for the fixed rule); a version 3 frame has none, so
+// it restores into a fixed-rule job as before. Other records did not change.
+inline constexpr uint32_t kCheckpointVersion = 4;
 inline constexpr uint32_t kOldestCheckpointVersion = 1;
 inline constexpr uint32_t kOldestFrameVersion = 3;
 inline constexpr size_t kSealHeaderBytes = 32;

@@ -94,6 +94,8 @@ void put(ByteWriter& w, const FrameView& f) {
   put_widened<uint64_t>(w, f.mprime);
   w.put_vector(f.reprojected);
   w.put_vector(f.skip);
+  w.put_vector(f.path_m2);  // version 4
+  w.put_vector(f.reprojected_effective);
   w.put<int32_t>(f.paths_done);
   w.put<uint8_t>(f.done);
   put(w, f.progress);
@@ -118,7 +120,7 @@ void put(ByteWriter& w, const FrameView& f) {
   }
 }
 
-uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f) {
+uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f, uint32_t version) {
   f->width = r.get<int32_t>();
   f->height = r.get<int32_t>();
   f->path_sum = get_narrowed<double, float>(r);
@@ -126,6 +128,10 @@ uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f) {
   f->mprime = get_narrowed<uint64_t, uint32_t>(r);
   f->reprojected = r.get_vector<float>();
   f->skip = r.get_vector<uint8_t>();
+  if (version >= 4) {
+    f->path_m2 = r.get_vector<float>();
+    f->reprojected_effective = r.get_vector<float>();
+  }
   f->paths_done = r.get<int32_t>();
   f->done = r.get_bool();
   f->progress = get_progress(r);
@@ -146,9 +152,9 @@ uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f) {
   return cells;
 }
 
-FrameSnapshot get_frame(ByteReader& r) {
+FrameSnapshot get_frame(ByteReader& r, uint32_t version) {
   FrameSnapshot f;
-  const uint64_t cells = get_frame_head(r, &f);
+  const uint64_t cells = get_frame_head(r, &f, version);
   if (f.has_accumulation) {
     SubpixelAccumulation& a = f.accumulation;
     a.sum.resize(3 * cells);

@@ -163,8 +163,8 @@ ReprojectionCounts get_counts(ByteReader& r);
 /// The frame, its accumulation visited a span at a time (format version 3).
 void put(ByteWriter& w, const FrameView& f);
 /// The frame up to its accumulation's cells; returns the number of cells that follow (0 without).
-uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f);
+uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f, uint32_t version);
 /// The whole frame, its accumulation converted from cells.
-FrameSnapshot get_frame(ByteReader& r);
+FrameSnapshot get_frame(ByteReader& r, uint32_t version);
 
 }  // namespace epr::checkpoint_io

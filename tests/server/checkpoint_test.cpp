@@ -135,6 +135,7 @@ TEST(CheckpointFormat, RecordsRoundTrip) {
   spec.options.epsilon = 1e-3f;
   spec.options.min_paths = 8;
   spec.options.reprojected_weight = 0.375f;
+  spec.options.combine = CombineRule::kVariance;
   spec.options.seed = 99;
   spec.options.tile_size = 16;
   spec.camera.eye = {0.5f, 1.25f, 3.f};
@@ -157,7 +158,8 @@ TEST(CheckpointFormat, RecordsRoundTrip) {
   EXPECT_EQ(s.options.subpixels, 2);
   EXPECT_EQ(s.options.epsilon, 1e-3f);
   EXPECT_EQ(s.options.min_paths, 8);
-  EXPECT_EQ(s.options.reprojected_weight, 0.375f);  // a resumed job combines and skips with the same W
+  EXPECT_EQ(s.options.reprojected_weight, 0.375f);       // a resumed job combines and skips with the same W
+  EXPECT_EQ(s.options.combine, CombineRule::kVariance);  // ... and the same rule
   EXPECT_EQ(s.options.seed, 99u);
   EXPECT_EQ(s.options.tile_size, 16);
   EXPECT_EQ(s.camera.eye.y, 1.25f);
@@ -432,8 +434,11 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
   const Camera camera(CameraSpec{}, 24, 16);
   const auto first = traced_vertices(scene, camera, 1, 2), second = traced_vertices(scene, camera, 2, 2);
   GlContext gl;
-  for (ReprojectMethod method : {ReprojectMethod::kCpu, ReprojectMethod::kGl}) {
-    SCOPED_TRACE(to_string(method));
+  for (const auto& [method, rule] :
+       {std::pair{ReprojectMethod::kCpu, CombineRule::kFixed}, std::pair{ReprojectMethod::kGl, CombineRule::kFixed},
+        std::pair{ReprojectMethod::kCpu, CombineRule::kVariance},
+        std::pair{ReprojectMethod::kGl, CombineRule::kVariance}}) {
+    SCOPED_TRACE(std::string(to_string(method)) + " " + to_string(rule));
     const fs::path dir = fresh_dir("streamed");
     CheckpointStore store(dir);
     RenderOptions o;
@@ -445,6 +450,7 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
     o.reproject = method;
     o.subpixels = 2;
     o.min_paths = 4;
+    o.combine = rule;
     FrameState a(o, camera, scene, &gl);
     std::vector<Vec3> sums;
     std::vector<uint32_t> counts;
@@ -489,6 +495,9 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
     EXPECT_EQ(restored.mprime, copy.mprime);
     EXPECT_EQ(restored.reprojected, copy.reprojected);
     EXPECT_EQ(restored.skip, copy.skip);
+    EXPECT_EQ(restored.path_m2, copy.path_m2);
+    EXPECT_EQ(restored.reprojected_effective, copy.reprojected_effective);
+    EXPECT_EQ(copy.path_m2.empty(), rule == CombineRule::kFixed);
     EXPECT_EQ(restored.paths_done, copy.paths_done);
     EXPECT_EQ(restored.accumulation.sum, copy.accumulation.sum);
     EXPECT_EQ(restored.accumulation.count, copy.accumulation.count);
@@ -502,6 +511,10 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
     }
     EXPECT_EQ(b.reprojected_counts(), a.reprojected_counts());
     EXPECT_EQ(b.counts(), a.counts());
+    const FrameSnapshot after_a = a.save(), after_b = b.save();
+    EXPECT_EQ(after_b.skip, after_a.skip);
+    EXPECT_EQ(after_b.path_m2, after_a.path_m2);
+    EXPECT_EQ(after_b.reprojected_effective, after_a.reprojected_effective);
     fs::remove_all(dir);
   }
 }
