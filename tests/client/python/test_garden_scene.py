@@ -12,36 +12,19 @@ sky (blue above red) pixels, which an opaque or a missing fence would not give. 
 /usr/bin/python3 (numpy, OpenImageIO).
 """
 
-import argparse
 import math
 import os
-import shutil
 import sys
-import tempfile
-import unittest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.dont_write_bytecode = True  # no __pycache__ in the source tree
-import test_client as harness  # noqa: E402  (Farm: a master and a worker on loopback)
+from scene_renders import SceneRenderTest, main  # noqa: E402
 
 SCENE = os.path.join(HERE, "..", "..", "..", "scenes", "garden", "garden.json")
 WIDTH, HEIGHT, SPP, SEED = 96, 72, 8, 5
 JOB = ["--width", str(WIDTH), "--height", str(HEIGHT), "--spp", str(SPP), "--seed", str(SEED), "--mode", "skip"]
 EYE, LOOK, YFOV = (0.9, 1.5, 4.2), (0.1, 0.7, -0.6), 45.0  # the glTF's camera (make_garden_gltf.py)
-
-
-def read_exr(path):
-    import numpy as np
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(path)
-    if inp is None:
-        raise AssertionError(f"cannot read {path}: {oiio.geterror()}")
-    spec = inp.spec()
-    pixels = np.asarray(inp.read_image(format="float")).reshape(spec.height, spec.width, spec.nchannels)
-    inp.close()
-    return pixels[:, :, :3]
 
 
 def project(point):
@@ -61,33 +44,11 @@ def project(point):
     return x, y
 
 
-class GardenSceneTest(unittest.TestCase):
-    @classmethod
-    def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="epr-garden-")
-
-    @classmethod
-    def tearDownClass(cls):
-        shutil.rmtree(cls.tmp, ignore_errors=True)
-
-    def render(self, name, *args):
-        out = os.path.join(self.tmp, name)
-        r = harness.epr(*args, "--out", out, timeout=120)
-        self.assertEqual(r.returncode, 0, f"{args}:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
-        return read_exr(out + ".exr")
-
+class GardenSceneTest(SceneRenderTest):
     def test_every_path_renders_the_same_lit_garden(self):
         import numpy as np
 
-        single = self.render("single", "render", SCENE, *JOB, "--single-process", "--threads", "2")
-        embedded = self.render("embedded", "render", SCENE, *JOB, "--threads", "2")
-        os.makedirs(os.path.join(self.tmp, "farm"))
-        farm = harness.Farm(os.path.join(self.tmp, "farm"))
-        self.addCleanup(farm.stop)
-        submitted = self.render("submitted", "submit", SCENE, *JOB, "--master", farm.address, "--wait")
-        self.assertEqual(single.shape, (HEIGHT, WIDTH, 3))
-        self.assertTrue(np.array_equal(single, embedded), "epr render differs from epr render --single-process")
-        self.assertTrue(np.array_equal(single, submitted), f"epr submit differs from epr render:\n{farm.logs()}")
+        single = self.render_every_way(SCENE, JOB, WIDTH, HEIGHT)
 
         # Lit: the sunny paving is bright, every pixel finite.
         self.assertTrue(np.isfinite(single).all())
@@ -102,16 +63,5 @@ class GardenSceneTest(unittest.TestCase):
         self.assertGreater(wood, len(band) // 10, f"no fence in front of the sky ({wood} of {len(band)} pixels)")
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--epr", required=True)
-    parser.add_argument("--master", required=True)
-    parser.add_argument("--worker", required=True)
-    args, rest = parser.parse_known_args()
-    harness.ARGS.__dict__.update(vars(args))
-    program = unittest.main(argv=[sys.argv[0], *rest], exit=False, verbosity=2)
-    return 0 if program.result.wasSuccessful() else 1
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(__doc__))
