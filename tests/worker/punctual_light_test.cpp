@@ -11,6 +11,7 @@
 #include <functional>
 #include <vector>
 
+#include "tests/worker/floor_scene.h"
 #include "tests/worker/image_means.h"
 #include "worker/path_tracer.h"
 #include "worker/sky_light.h"
@@ -22,15 +23,7 @@ constexpr float kAlbedo = 0.5f, kHeight = 2.f;
 
 // A 4 x 4 m floor at y = 0 seen straight down from (0, kHeight, 0), where the lamps are.
 Scene lamp_floor(float fov) {
-  Scene s;
-  s.name = "lamp-floor";
-  Material m;
-  m.name = "floor";
-  m.kd = Vec3(kAlbedo);
-  const uint32_t id = add_material(s, m);
-  add_quad(s, {-2, 0, -2}, {-2, 0, 2}, {2, 0, 2}, {2, 0, -2}, id);
-  s.camera = {Vec3(0, kHeight, 0), Vec3(0, 0, 0), Vec3(0, 0, 1), fov};
-  return s;
+  return diffuse_floor("lamp-floor", 2, kAlbedo, {Vec3(0, kHeight, 0), Vec3(0, 0, 0), Vec3(0, 0, 1), fov});
 }
 
 // Per-pixel means ((r + g + b) / 3) of a size x size render.

@@ -16,6 +16,7 @@
 
 #include "common/limits.h"
 #include "common/rng.h"
+#include "tests/worker/floor_scene.h"
 #include "tests/worker/image_means.h"
 #include "worker/path_tracer.h"
 
@@ -43,15 +44,7 @@ Scene open_box(float a) {
 
 // A 200 m floor at y = 0, albedo a, seen from 1 m above: every pixel is a point of the floor.
 Scene floor_plane(float a) {
-  Scene s;
-  s.name = "floor";
-  Material m;
-  m.name = "floor";
-  m.kd = Vec3(a);
-  const uint32_t id = add_material(s, m);
-  add_quad(s, {-100, 0, -100}, {-100, 0, 100}, {100, 0, 100}, {100, 0, -100}, id);
-  s.camera = {Vec3(0, 1, 0), Vec3(0.01f, 0, 0), Vec3(0, 0, 1), 40.f};
-  return s;
+  return diffuse_floor("floor", 100, a, {Vec3(0, 1, 0), Vec3(0.01f, 0, 0), Vec3(0, 0, 1), 40.f});
 }
 
 // An 8 x 4 .. image with a bright patch near the horizon and a dimmer coloured sky.
