@@ -108,13 +108,15 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     rs.joint_test = opts.joint_test;
     // Exact mode decides visibility with rays on the workers; the accumulation is the same, so the
     // CPU back-end (no GL needed) holds it.
-    // The deep framebuffer is built band by band straight into the compact plane grid.
+    // The deep framebuffer is built band by band straight into the compact plane grid, by the same
+    // builder whatever the back-end: the GL rasteriser where OSMesa is there (on `gl`, else on a
+    // private context), the CPU builder only without it. The two builders pick different triangles
+    // where an edge passes through a texel centre (deep_framebuffer.h); with one builder the GL and
+    // CPU back-ends, whose kernels agree bit for bit, decide every vertex alike.
     const bool use_gl = opts.reproject == ReprojectMethod::kGl;
     const float tolerance = rs.epsilon * detail::kCreaseToleranceFraction;
-    detail::PlaneGrid grid =
-        use_gl && gl ? detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, gl)
-        : use_gl     ? detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test)
-                     : detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
+    detail::PlaneGrid grid = gl ? detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, gl)
+                                : detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test);
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
