@@ -18,22 +18,10 @@
 #include "master/plane_grid_builder.h"
 #include "master/reprojection_kernel.h"
 #include "tests/master/test_scenes.h"
-#include "worker/embree_scene.h"
-#include "worker/path_tracer.h"
-#include "worker/tile_renderer.h"
+#include "tests/master/traced_vertices.h"
 
 namespace epr {
 namespace {
-
-std::vector<VertexRecord> decisions_traced(const Scene& scene, const Camera& camera, uint64_t seed, int subpixels) {
-  EmbreeScene es(scene);
-  PathTracer tracer(es, camera, seed, RussianRoulette::paper());
-  VertexFilter f;
-  f.mode = VertexFilter::Mode::kAll;
-  f.subpixels = subpixels;
-  TileRenderer tr(tracer, f);
-  return tr.render({{0, 0, camera.width(), camera.height()}, {}, {}, 2}).vertices;
-}
 
 // Texels whose plane differs between the two builders' grids.
 size_t builders_disagree(const detail::PlaneGrid& a, const detail::PlaneGrid& b) {
@@ -106,7 +94,7 @@ class BackendDecisions : public ::testing::Test {
     EXPECT_GT(disagree, 0u) << "no texel where the builders differ: the test would not see the cause";
 
     std::mt19937 rng(seed);
-    std::vector<VertexRecord> v = decisions_traced(scene, camera, seed, subpixels);
+    std::vector<VertexRecord> v = test::traced_vertices(scene, camera, seed, subpixels);
     const size_t traced = v.size();
     ASSERT_GT(traced, 500u);
     test::add_random_points(scene, 20000, rng, v);
@@ -153,7 +141,7 @@ class BackendDecisions : public ::testing::Test {
     const ReprojectionCounts c = ref.counts;
     EXPECT_GT(c.accepted, v.size() / 4);
     EXPECT_GT(c.occluded - c.backfacing, v.size() / 50);
-    EXPECT_GT(c.culled, v.size() / 50);
+    EXPECT_GT(c.culled, v.size() / 100);
     for (size_t i = 1; i < frames.size(); ++i) {
       SCOPED_TRACE("frame " + std::to_string(i) + " against GL's; builders disagree on " + std::to_string(disagree) +
                    " texels");
