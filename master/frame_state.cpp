@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "common/log.h"
 #include "master/combine_rule.h"
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
@@ -115,8 +116,17 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     // CPU back-ends, whose kernels agree bit for bit, decide every vertex alike.
     const bool use_gl = opts.reproject == ReprojectMethod::kGl;
     const float tolerance = rs.epsilon * detail::kCreaseToleranceFraction;
-    detail::PlaneGrid grid = gl ? detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, gl)
-                                : detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test);
+    detail::PlaneGrid grid;
+    try {
+      grid = gl ? detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, gl)
+                : detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test);
+    } catch (const std::runtime_error& e) {
+      // What this GL cannot rasterise (more triangles than its buffer textures hold) the CPU builder
+      // can; only the GL back-end needs GL.
+      if (use_gl) throw;
+      logger("master")->info("deep framebuffer built on the CPU: {}", e.what());
+      grid = detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
+    }
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
