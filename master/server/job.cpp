@@ -31,6 +31,7 @@ JobSnapshot Job::snapshot(int64_t now_ms) const {
   s.progress = progress;
   s.counts = counts;
   s.counters = counters;
+  s.drops = drops;
   s.rounds_planned = rounds_planned(request.options);
   s.workers_blocked = leases ? uint32_t(leases->blocked_count()) : 0;
   s.submitted_ms = submitted_ms;

@@ -20,6 +20,7 @@
 #include "master/round_driver.h"
 #include "master/server/job_counters.h"
 #include "master/server/lease_table.h"
+#include "master/server/tile_outcomes.h"
 #include "wire/scene_bundle.h"
 
 namespace epr {
@@ -58,6 +59,7 @@ struct JobSnapshot {
   FrameProgress progress;
   ReprojectionCounts counts;
   JobCounters counters;
+  TileDrops drops;
   int rounds_planned = 0;
   uint32_t workers_active = 0;
   uint32_t workers_blocked = 0;  // workers given no more tiles of this job
@@ -91,6 +93,7 @@ struct Job {
   FrameProgress progress;
   ReprojectionCounts counts;
   JobCounters counters;
+  TileDrops drops;  // counters.tiles_dropped by reason, in this master's run
   bool budget_exhausted = false;
   uint64_t version = 0;
 

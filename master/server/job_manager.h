@@ -58,6 +58,7 @@
 #include "master/server/job_registry.h"
 #include "master/server/lease_parking.h"
 #include "master/server/lease_table.h"
+#include "master/server/tile_outcomes.h"
 #include "master/server/worker_registry.h"
 #include "wire/scene_bundle.h"
 #include "wire/tile_result_stream.h"
@@ -128,8 +129,6 @@ struct MasterOptions {
   }
 };
 
-enum class CommitOutcome { kCommitted, kDuplicate, kStale };
-
 class JobManager {
  public:
   /// `clock`: Unix milliseconds (tests may inject their own).
@@ -179,6 +178,12 @@ class JobManager {
   /// The size and shape checks of a job request (dimensions, sample counts, camera, scene bundle)
   /// against the MasterOptions limits; the reason if it is invalid. submit() applies them too.
   std::optional<std::string> validate(const JobRequest& request) const;
+  /// Every check of a request before submit(), the reason (for INVALID_ARGUMENT) if it is refused:
+  /// the name, the batch fields, validate(), the memory budget, and check_scene() (a refusal from then
+  /// on discards the checked scene again). Without `has_camera` the request takes the scene's own
+  /// camera (at each of `frames`, if any: its animation's; each must be valid).
+  std::optional<std::string> admit(JobRequest* request, bool has_camera, const std::vector<uint32_t>& frames = {})
+      EPR_EXCLUDES(mu_);
   /// Stores an uploaded scene under its content hash.
   std::string add_scene(SceneBundleData bundle) EPR_EXCLUDES(mu_);
   /// Loads the scene to check it; the reason (naming file and line inside the bundle) if it is bad.
@@ -229,12 +234,11 @@ class JobManager {
                    const std::string& reason) EPR_EXCLUDES(mu_);
   std::vector<WorkerSnapshot> workers() const EPR_EXCLUDES(mu_);
 
-  /// What a SubmitTile stream with this header must contain, or why it cannot be accepted
-  /// (`stale` is set when the job or round moved on: the stream is drained and acknowledged as stale).
-  std::variant<TileExpectation, std::string> expect(const v1::TileResultHeader& header, bool* stale) const
-      EPR_EXCLUDES(mu_);
-  /// Counts a complete result that arrived for a closed round of a still-known job as dropped.
-  void count_stale(const std::string& job_id) EPR_EXCLUDES(mu_);
+  /// The verdict on a SubmitTile stream with this header: what it must contain, or why it is refused or
+  /// drained as stale.
+  TileCheck expect(const v1::TileResultHeader& header) const EPR_EXCLUDES(mu_);
+  /// Counts a complete result of a still-known job as dropped for `reason` (a stale verdict of expect()).
+  void count_dropped(const std::string& job_id, DropReason reason) EPR_EXCLUDES(mu_);
   /// Commits a complete, checked tile result (never blocks on reprojection).
   CommitOutcome commit(const std::string& job_id, uint32_t round, uint32_t tile_index, AssembledTile tile)
       EPR_EXCLUDES(mu_);
