@@ -294,7 +294,29 @@ class JobManager {
 
   // The reprojection thread.
   void reprojection_loop() EPR_EXCLUDES(mu_);
+  /// One step of the reprojection thread: decided under the mutex (next_work, which also takes what
+  /// it decides on: a dropped job out of running_, a started one into it, a batch out of the commit
+  /// queue), then done without it (do_work).
+  struct RenderWork {
+    // The first that applies: stop; drop a cancelled or failed job; start a queued one; take an
+    // asked-for preview copy; apply a batch of queued commits. kWait: nothing to do yet.
+    enum class Kind { kWait, kStop, kDrop, kStart, kCopy, kApply };
+    Kind kind = Kind::kWait;
+    std::shared_ptr<Job> job;
+    JobCounters counters;                      // kCopy: the copy's statistics as of the decision
+    std::vector<std::unique_ptr<Task>> batch;  // kApply: one job and round, in commit order
+  };
+  RenderWork next_work() EPR_REQUIRES(mu_);
+  void do_work(RenderWork& work, GlContext* gl) EPR_EXCLUDES(mu_);
+  std::shared_ptr<Job> ended_job() const EPR_REQUIRES(mu_);
+  std::shared_ptr<Job> startable_job() const EPR_REQUIRES(mu_);
+  std::shared_ptr<Job> copy_asked_job() const EPR_REQUIRES(mu_);
   void start_job(const std::shared_ptr<Job>& job, GlContext* gl) EPR_EXCLUDES(mu_);
+  /// A starting job runs (unless it was cancelled meanwhile): its leases and its first round in this
+  /// master open (round 0 of a fresh job, before its frame exists; the next round of a resumed one,
+  /// from its restored frame and `resume`, its checkpoint or null), and parked workers hear of it.
+  /// False if it was cancelled meanwhile.
+  bool begin_running(const std::shared_ptr<Job>& job, const JobProgressRecord* resume) EPR_EXCLUDES(mu_);
   /// Opens job.round with `plan` (RoundDriver::open, or first_plan before a fresh job's frame exists).
   void open_round(Job& job, RoundPlan plan) EPR_REQUIRES(mu_);
   /// Applies queued commits of one job and round, in commit order (RoundDriver::apply of a span).
