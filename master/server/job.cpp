@@ -8,8 +8,8 @@ bool Job::end(JobState final_state, std::string why, int64_t now_ms) {
   error = std::move(why);
   finished_ms = now_ms;
   round_open = false;
-  partial_pending = (final_state == JobState::kCancelled || final_state == JobState::kFailed) && !preview_images &&
-                    progress.round > 0;
+  preview.partial_pending = (final_state == JobState::kCancelled || final_state == JobState::kFailed) &&
+                            !preview.images && progress.round > 0;
   ++version;
   return true;
 }

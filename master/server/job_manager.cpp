@@ -433,31 +433,31 @@ void JobManager::fail_if_stuck(const std::shared_ptr<Job>& job, std::vector<std:
 
 // ---- results --------------------------------------------------------------------------------------
 
-TileCheck JobManager::expect(const v1::TileResultHeader& h) const {
+TileCheck JobManager::expect(const TileResultIdentity& h) const {
   auto verdict = [](TileVerdict v, std::string why) { return TileCheck{v, {}, std::move(why)}; };
   MutexLock lock(mu_);
-  if (h.lease_id() == 0 || h.lease_id() >= next_lease_) return verdict(TileVerdict::kInvalid, "unknown lease id");
-  if ((h.lease_id() >> kLeaseEpochShift) != epoch_)
+  if (h.lease_id == 0 || h.lease_id >= next_lease_) return verdict(TileVerdict::kInvalid, "unknown lease id");
+  if ((h.lease_id >> kLeaseEpochShift) != epoch_)
     return verdict(TileVerdict::kEarlierEpoch, "the lease is from before the master restarted");
-  auto found = jobs_.find(h.job_id());
+  auto found = jobs_.find(h.job_id);
   if (!found) return verdict(TileVerdict::kUnknownJob, "no such job (finished and forgotten, or never existed)");
   const Job& job = *found;
-  if (job.state != JobState::kRunning || h.round() != job.round || !job.round_open)
+  if (job.state != JobState::kRunning || h.round != job.round || !job.round_open)
     return verdict(TileVerdict::kStaleRound, fmt::format("job {} is {} in round {}, the result is for round {}", job.id,
-                                                         to_string(job.state), job.round, h.round()));
-  if (h.tile_index() >= job.tiles.size())
+                                                         to_string(job.state), job.round, h.round));
+  if (h.tile_index >= job.tiles.size())
     return verdict(TileVerdict::kInvalid,
-                   fmt::format("tile index {} is outside the job's {} tiles", h.tile_index(), job.tiles.size()));
-  if (!job.leases->issued(h.tile_index(), h.lease_id()))
+                   fmt::format("tile index {} is outside the job's {} tiles", h.tile_index, job.tiles.size()));
+  if (!job.leases->issued(h.tile_index, h.lease_id))
     return verdict(TileVerdict::kInvalid, fmt::format("lease {} was not issued for tile {} of job {} round {}",
-                                                      h.lease_id(), h.tile_index(), job.id, job.round));
-  const TileRect& r = job.tiles[h.tile_index()];
+                                                      h.lease_id, h.tile_index, job.id, job.round));
+  const TileRect& r = job.tiles[h.tile_index];
   const RenderOptions& o = job.request.options;
   TileCheck check{TileVerdict::kExpected, {}, {}};
   TileExpectation& e = check.expectation;
   e.job_id = job.id;
   e.round = job.round;
-  e.tile_index = h.tile_index();
+  e.tile_index = h.tile_index;
   e.x0 = uint32_t(r.x0);
   e.y0 = uint32_t(r.y0);
   e.x1 = uint32_t(r.x1);
@@ -470,7 +470,7 @@ TileCheck JobManager::expect(const v1::TileResultHeader& h) const {
               : o.reproject == ReprojectMethod::kExact ? TileExpectation::Payload::kExactSamples
                                                        : TileExpectation::Payload::kVertices;
   e.paths_per_pixel = uint32_t(job.plan.paths_per_pixel);
-  e.skip = job.plan.skip[h.tile_index()];
+  e.skip = job.plan.skip[h.tile_index];
   e.max_vertices_per_tile = std::max<uint64_t>(options_.max_queued_vertices, 1u << 20);
   e.keep_packed = true;  // decoded by the reprojector, in place
   return check;
@@ -582,7 +582,7 @@ void JobManager::load_state() {
         job->error = r.error;
         job->finished_ms = r.finished_ms;
         job->budget_exhausted = r.budget_exhausted;
-        job->previews = std::move(r.previews);
+        job->preview.pngs = std::move(r.previews);
       }
     } else if (job->state == JobState::kQueued) {
       ++restarted;

@@ -112,7 +112,7 @@ struct MasterOptions {
   int max_worker_failures = 3;
   int max_tile_losses = 3;
   // A running job holds a copy of its images (32 bytes per pixel) only while someone asks for its
-  // previews or partial results: for this long after the last ask (Job::preview_images).
+  // previews or partial results: for this long after the last ask (Job::preview.images).
   int preview_interest_ms = 10000;
 
   // Called on the reprojection thread just before a job's frame is built (a fresh job's round 0 is
@@ -169,7 +169,7 @@ class JobManager {
   /// about a second after the one before, or on this ask, waiting up to kPartialWaitMs for it),
   /// encoded on the calling thread.
   ResultFile result_file(const std::string& id, ResultKind kind, bool allow_partial) const EPR_EXCLUDES(mu_);
-  /// Bytes of the running jobs' preview copies (Job::preview_images).
+  /// Bytes of the running jobs' preview copies (Job::preview.images).
   size_t preview_copy_bytes() const EPR_EXCLUDES(mu_);
   /// PNG of a preview layer (previews.h) of the job's preview copy (encoded on demand, on the calling
   /// thread; a first ask waits up to kPreviewWaitMs for the copy), or of the finished job's results.
@@ -234,9 +234,9 @@ class JobManager {
                    const std::string& reason) EPR_EXCLUDES(mu_);
   std::vector<WorkerSnapshot> workers() const EPR_EXCLUDES(mu_);
 
-  /// The verdict on a SubmitTile stream with this header: what it must contain, or why it is refused or
-  /// drained as stale.
-  TileCheck expect(const v1::TileResultHeader& header) const EPR_EXCLUDES(mu_);
+  /// The verdict on a SubmitTile stream whose header names this lease, job, round and tile: what it must contain, or
+  /// why it is refused or drained as stale.
+  TileCheck expect(const TileResultIdentity& result) const EPR_EXCLUDES(mu_);
   /// Counts a complete result of a still-known job as dropped for `reason` (a stale verdict of expect()).
   void count_dropped(const std::string& job_id, DropReason reason) EPR_EXCLUDES(mu_);
   /// Commits a complete, checked tile result (never blocks on reprojection).

@@ -77,7 +77,7 @@ std::shared_ptr<Job> JobManager::startable_job() const {
 
 std::shared_ptr<Job> JobManager::copy_asked_job() const {
   for (const auto& job : running_)
-    if (job->preview_requested && job->state == JobState::kRunning) return job;
+    if (job->preview.copy == PreviewState::Copy::kRequested && job->state == JobState::kRunning) return job;
   return nullptr;
 }
 
@@ -98,8 +98,7 @@ JobManager::RenderWork JobManager::next_work() {
     // Between batches: the frame as it stands (its closed rounds and the tiles of the open one
     // applied so far).
     work.kind = Kind::kCopy;
-    work.job->preview_requested = false;
-    work.job->preview_copying = true;  // for those waiting on copy_cv_
+    work.job->preview.copy = PreviewState::Copy::kTaking;  // for those waiting on copy_cv_
     work.counters = work.job->counters;
   } else if (!tasks_.empty()) {
     // The queued commits of the front one's job and round, in commit order, up to
@@ -140,7 +139,7 @@ void JobManager::do_work(RenderWork& work, GlContext* gl) {
       }
       {
         MutexLock lock(mu_);
-        job->preview_copying = false;
+        job->preview.copy = PreviewState::Copy::kIdle;
       }
       copy_cv_.notify_all();
       return;
@@ -190,8 +189,8 @@ void JobManager::drop_job(const std::shared_ptr<Job>& job) {
   JobCounters counters;
   {
     MutexLock lock(mu_);
-    images = job->preview_images;
-    from_frame = job->partial_pending && !images && job->driver;
+    images = job->preview.images;
+    from_frame = job->preview.partial_pending && !images && job->driver;
     counters = job->counters;
     dir = job_dir(*job);
   }
@@ -205,9 +204,9 @@ void JobManager::drop_job(const std::shared_ptr<Job>& job) {
   bool reprojects;
   {
     MutexLock lock(mu_);
-    images = job->preview_images;
-    reprojects = job->preview_reprojects;  // written with the copy, under the mutex
-    if (job->preview_stats) stats = *job->preview_stats;
+    images = job->preview.images;
+    reprojects = job->preview.reprojects;  // written with the copy, under the mutex
+    if (job->preview.stats) stats = *job->preview.stats;
     stats.update({{"partial", true}, {"state", to_string(job->state)}});
   }
   if (images) {
@@ -222,12 +221,12 @@ void JobManager::drop_job(const std::shared_ptr<Job>& job) {
     for (std::string_view layer : kPreviewLayers)
       if (auto png = encode_preview(*images, reprojects, layer)) pngs[std::string(layer)] = std::move(*png);
     MutexLock lock(mu_);
-    job->previews = std::move(pngs);
-    job->preview_images.reset();
+    job->preview.pngs = std::move(pngs);
+    job->preview.images.reset();
   }
   {
     MutexLock lock(mu_);
-    job->partial_pending = false;
+    job->preview.partial_pending = false;
   }
   copy_cv_.notify_all();
   job->driver.reset();
@@ -389,9 +388,9 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     if (job->request.time_budget_seconds)
       budget_over = double(now - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
     // Renewed while someone asks (at most once a second); dropped once nobody has for a while.
-    const bool watched = job->preview_asked_ms >= 0 && now - job->preview_asked_ms <= options_.preview_interest_ms;
-    want_preview = watched && now - job->last_preview_ms >= 1000;
-    if (!watched) job->preview_images.reset();
+    const bool watched = job->preview.asked_ms >= 0 && now - job->preview.asked_ms <= options_.preview_interest_ms;
+    want_preview = watched && now - job->preview.last_ms >= 1000;
+    if (!watched) job->preview.images.reset();
     checkpoint = progress_record(*job);  // the counters as of the round's end
     at_close = job->counters;
   }
@@ -428,21 +427,21 @@ void JobManager::take_preview_copy(const std::shared_ptr<Job>& job, const JobCou
     // The old copy goes first, so that the job never holds two (32 bytes per pixel each); the PNGs
     // encoded from it keep serving previews meanwhile.
     MutexLock lock(mu_);
-    job->preview_images.reset();
-    job->preview_copying = true;
+    job->preview.images.reset();
+    job->preview.copy = PreviewState::Copy::kTaking;
   }
   auto images = std::make_shared<const FrameImages>(frame.images(/*preview=*/true));
   nlohmann::json stats = frame.statistics(job->request.options, counters.worker_culled);
   MutexLock lock(mu_);
   job->add_statistics(&stats, counters, clock_());
-  job->preview_images = std::move(images);
-  job->preview_copying = false;
-  job->preview_stats = std::make_shared<const nlohmann::json>(std::move(stats));
-  job->preview_round = frame.round();
-  job->preview_reprojects = frame.reprojects();
-  job->previews.clear();
+  job->preview.images = std::move(images);
+  job->preview.copy = PreviewState::Copy::kIdle;
+  job->preview.stats = std::make_shared<const nlohmann::json>(std::move(stats));
+  job->preview.round = frame.round();
+  job->preview.reprojects = frame.reprojects();
+  job->preview.pngs.clear();
   const int64_t now = clock_();
-  job->last_preview_ms = now + std::max<int64_t>(0, 10 * (now - copy_started) - 1000);
+  job->preview.last_ms = now + std::max<int64_t>(0, 10 * (now - copy_started) - 1000);
   copy_cv_.notify_all();
 }
 
@@ -457,8 +456,8 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     // The result files replace the preview copy: it goes before the final images are made, so that
     // the job's peak holds one set of images. Its PNGs serve previews until the files exist.
     MutexLock lock(mu_);
-    job->preview_images.reset();
-    job->preview_copying = true;
+    job->preview.images.reset();
+    job->preview.copy = PreviewState::Copy::kTaking;
   }
   {
     FrameState& frame = job->driver->frame();
@@ -497,8 +496,8 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     // Done once every file is in place.
     MutexLock lock(mu_);
     job->seconds_writing_results = seconds_since(start);
-    job->previews.clear();  // from now on made from the result files
-    job->preview_copying = false;
+    job->preview.pngs.clear();  // from now on made from the result files
+    job->preview.copy = PreviewState::Copy::kIdle;
   }
   // The finished state is on disk before anyone hears of it (after the results: it promises them),
   // so that a master killed after a client saw DONE comes back with the job done.

@@ -11,6 +11,10 @@
 namespace epr {
 namespace {
 
+TileResultIdentity identity_of(const v1::TileResultHeader& h) {
+  return {h.lease_id(), h.job_id(), h.round(), h.tile_index(), h.worker_id().id()};
+}
+
 grpc::Status unknown_worker(const std::string& id) {
   return {grpc::StatusCode::NOT_FOUND, fmt::format("unknown worker id '{}': register again", id)};
 }
@@ -26,7 +30,7 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
     if (!assembler_) {
       if (chunk_.part_case() != v1::TileResultChunk::kHeader)
         return Finish(invalid("the first chunk must be the header"));
-      TileCheck check = jobs_.expect(chunk_.header());
+      TileCheck check = jobs_.expect(identity_of(chunk_.header()));
       if (check.verdict != TileVerdict::kExpected) {
         if (!check.stale()) return refuse(chunk_.header(), check.why);
         draining_ = true;

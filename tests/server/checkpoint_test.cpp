@@ -580,8 +580,9 @@ class InProcessWorker {
     f.mode = l.options.mode == RenderMode::kPathTrace ? VertexFilter::Mode::kNone : VertexFilter::Mode::kCull;
     f.subpixels = l.options.subpixels;
     const TileResult r = TileRenderer(*tracer_, f).render({l.rect, l.skip, l.first_sample, int(l.paths_per_pixel)});
-    const auto chunks = split_tile_result(r, {l.lease_id, l.job_id, l.round, l.tile_index, id_}, l.codec_bounds, {});
-    TileCheck e = jobs_.expect(chunks.at(0).header());
+    const TileResultIdentity identity{l.lease_id, l.job_id, l.round, l.tile_index, id_};
+    const auto chunks = split_tile_result(r, identity, l.codec_bounds, {});
+    TileCheck e = jobs_.expect(identity);
     if (e.verdict != TileVerdict::kExpected) {
       EXPECT_TRUE(e.stale()) << e.why;
       if (why) *why = e.why;
