@@ -8,6 +8,7 @@
 #include "common/shading_normal.h"
 #include "worker/bsdf.h"
 #include "worker/emitter_sampling.h"
+#include "worker/roulette.h"
 
 namespace epr {
 namespace {
@@ -73,6 +74,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
   Ray ray = camera_.generate_ray(float(x) + film.x, float(y) + film.y);
   uint64_t rays = 0;
   Vec3 background(0.f);  // the sky seen by a camera ray that escapes
+  PathRoulette roulette(rr_, camera_);
 
   // ---- trace forwards: NEE and continuation at every vertex ----------------------------------------
   for (int depth = 1;; ++depth) {
@@ -134,18 +136,12 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     // Russian roulette (q is the probability of continuing from this vertex) and the continuation,
     // chosen before the shadow ray is cast: the two dependency chains then overlap, and the next
     // ray is ready when the shadow query returns.
-    float q = 1;
-    if (depth >= rr_.max_depth) {
-      q = 0;
-    } else if (rr_.mode == RussianRoulette::Mode::kPaper && depth > rr_.start_depth) {
-      q = 1 - rr_.termination;
-    } else if (rr_.mode == RussianRoulette::Mode::kAlbedo && depth > rr_.start_depth) {
-      q = std::clamp(bsdf.albedo(), 0.05f, 1.f);
-    }
+    const float q = roulette.survival(depth, bsdf.albedo(), v.position, v.normal, v.diffuse);
     if (u_rr < q) {
       const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
       if (bs.valid && !is_black(bs.weight)) {
         v.weight = bs.weight / q;
+        roulette.continued(v.weight);
         v.continuation_pdf = bs.pdf;
         ray = {origin, bs.wi};
       }

@@ -18,11 +18,10 @@
 // picks the sky or the triangles, and a continuation ray that escapes adds the sky's MIS-weighted
 // radiance to D_n like an emitter it hits; a camera ray that escapes sees the sky (no record).
 //
-// Parameters: RussianRoulette (common/render_options.h); `mis`; the seed and the sampler of the path's
-// random numbers (common/sampler.h: Sobol-Burley by default, or independent per dimension).
-// Determinism: a path depends only on (seed, pixel, sample index): same inputs, same bits.
-// Caveat: a hard depth cap (`max_depth`, default 1024) stops pathological paths; its bias is below
-// float precision for albedos < 0.95 with the paper's roulette.
+// Parameters: RussianRoulette (common/roulette.h, applied by worker/roulette.h); `mis`; the seed and the sampler of the
+// path's random numbers (common/sampler.h: Sobol-Burley by default, or independent per dimension). Determinism: a path
+// depends only on (seed, pixel, sample index): same inputs, same bits. Caveat: a hard depth cap (`max_depth`, default
+// 1024) stops pathological paths; its bias is below float precision for albedos < 0.95 with the paper's roulette.
 #pragma once
 
 #include <cstdint>
