@@ -15,18 +15,6 @@ git ls-files -- '*.cpp' '*.h' | xargs clang-format --dry-run --Werror
 
 (cd build && ctest --output-on-failure -j 1 "$@")
 
-# ThreadSanitizer: the tests of the master (tests/server) and of the worker node (tests/worker_node),
-# whose threads (gRPC handlers, the reprojection thread, the reaper, tracing threads, couriers) share
-# data, built with clang and -fsanitize=thread in build/tsan -- only what those two binaries need -- at
-# -O1 without NDEBUG, so EPR_DCHECK and assert() run too. Any report fails the stage (TSan's exit
-# code 66); scripts/tsan.supp names what is suppressed and why.
-cmake -S . -B build/tsan -G Ninja -DCMAKE_BUILD_TYPE=Release -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
-      -DCMAKE_C_FLAGS_RELEASE=-O1 -DCMAKE_CXX_FLAGS_RELEASE=-O1 -DEPR_SANITIZE=thread -DEPR_BUILD_BENCH=OFF
-cmake --build build/tsan -j "$(nproc)" --target server_test worker_node_test
-for t in server_test worker_node_test; do
-  TSAN_OPTIONS="suppressions=$PWD/scripts/tsan.supp second_deadlock_stack=1 ${TSAN_OPTIONS:-}" build/tsan/tests/$t
-done
-
 # Fuzzing (tests/fuzz/): the libFuzzer targets, built with clang and the sanitizers in build/fuzz, each
 # run for EPR_FUZZ_SECONDS (default 45) in parallel, then every saved crash input replayed.
 cmake -S tests/fuzz -B build/fuzz -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
