@@ -150,14 +150,18 @@ ModeSpec mode_spec(const std::string& spec) {
   const size_t colon = spec.find(':');
   const std::string m = spec.substr(0, colon);
   ModeSpec s;
+  const auto set = [&](RenderMode mode, ReprojectMethod reproject) {
+    s.mode = mode;
+    s.reproject = reproject;
+  };
   if (m == "pt")
-    s = {RenderMode::kPathTrace, ReprojectMethod::kGl};
+    set(RenderMode::kPathTrace, ReprojectMethod::kGl);
   else if (m == "rp")
-    s = {RenderMode::kReproject, ReprojectMethod::kGl};
+    set(RenderMode::kReproject, ReprojectMethod::kGl);
   else if (m == "skip")
-    s = {RenderMode::kSkip, ReprojectMethod::kGl};
+    set(RenderMode::kSkip, ReprojectMethod::kGl);
   else if (m == "exact")
-    s = {RenderMode::kReproject, ReprojectMethod::kExact};
+    set(RenderMode::kReproject, ReprojectMethod::kExact);
   else
     throw std::invalid_argument("unknown mode '" + m + "' (pt, rp, skip, exact)");
   if (s.mode != RenderMode::kPathTrace) {

@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "common/check.h"
 #include "common/log.h"
 #include "master/combine_rule.h"
 #include "master/deep_framebuffer.h"
@@ -249,6 +250,7 @@ double FrameState::pixel_samples(size_t p) const {
 int FrameState::next_paths_per_pixel() const { return round_paths(opts_, paths_done_); }
 
 bool FrameState::finish_round() {
+  EPR_DCHECK(!done_);
   paths_done_ += next_paths_per_pixel();
   ++progress_.round;
   const bool skipping = opts_.mode == RenderMode::kSkip;
@@ -265,6 +267,7 @@ bool FrameState::finish_round() {
   uint64_t active = 0, skipped = 0;
   for (size_t p = 0; p < skip_.size(); ++p) {
     const uint64_t m = path_count_[p];
+    EPR_DCHECK_LE(m, uint64_t(paths_done_));  // no pixel traces more paths than the rounds asked for
     if (!skip_[p]) {
       if (m >= target || (skipping && pixel_samples(p) >= double(target) && m >= uint64_t(opts_.min_paths))) {
         skip_[p] = 1;
@@ -290,6 +293,7 @@ void FrameState::update_sample_progress() {
     sum_m += double(m);
     sum_mp += double(mp);
     const double spp = pixel_samples(p);
+    EPR_DCHECK_GE(spp, double(m));  // reprojected samples add to the traced ones, never subtract
     sum_spp += spp;
     min_spp = std::min(min_spp, spp);
   }
@@ -300,6 +304,7 @@ void FrameState::update_sample_progress() {
   progress_.mean_spp = sum_spp / n;
   progress_.min_spp = min_spp;
   // Paths a skipped pixel did not trace, against plain path tracing at P.
+  if (done_) EPR_CHECK_LE(traced, uint64_t(opts_.spp) * uint64_t(skip_.size()));
   progress_.paths_skipped = done_ ? uint64_t(opts_.spp) * uint64_t(skip_.size()) - traced : 0;
 }
 

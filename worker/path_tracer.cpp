@@ -4,6 +4,7 @@
 #include <cstdlib>
 #include <limits>
 
+#include "common/check.h"
 #include "common/sampler.h"
 #include "common/shading_normal.h"
 #include "worker/bsdf.h"
@@ -28,6 +29,7 @@ struct PathVertex {
 // as 1 / (1 + (p_other / p_this)^2) so that a huge density (a grazing emitter) cannot overflow to
 // inf / inf. p_this > 0.
 inline float power_heuristic(float p_this, float p_other) {
+  EPR_DCHECK_GT(p_this, 0.f);
   const float r = p_other / p_this;
   return 1 / (1 + r * r);
 }
@@ -64,6 +66,17 @@ Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) c
 }
 
 Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats) const {
+  const size_t first_record = records ? records->size() : 0;
+  const Vec3 pixel = trace_unfiltered(x, y, sample, records, stats);
+  if (is_finite(pixel)) return pixel;
+  // Never let a NaN reach the image; drop this path's sample and its vertices.
+  if (stats) stats->nonfinite_dropped += 1;
+  if (records) records->resize(first_record);
+  return Vec3(0.f);
+}
+
+Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<VertexRecord>* records,
+                                  PathStats* stats) const {
   thread_local std::vector<PathVertex> path;
   path.clear();
   const Scene& s = scene_.scene();
@@ -137,11 +150,13 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     // chosen before the shadow ray is cast: the two dependency chains then overlap, and the next
     // ray is ready when the shadow query returns.
     const float q = roulette.survival(depth, bsdf.albedo(), v.position, v.normal, v.diffuse);
+    EPR_DCHECK_LE(q, 1.f);
     if (u_rr < q) {
       const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
       if (bs.valid && !is_black(bs.weight)) {
         v.weight = bs.weight / q;
         roulette.continued(v.weight);
+        EPR_DCHECK_GT(bs.pdf, 0.f);
         v.continuation_pdf = bs.pdf;
         ray = {origin, bs.wi};
       }
@@ -183,6 +198,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
             const float pdf_light =
                 lp.solid_angle > 0 ? light_pdf_area * triangle_area(light->p0, light->p1, light->p2) / lp.solid_angle
                                    : light_pdf_area * dist2 / cos_y;
+            EPR_DCHECK_GT(pdf_light, 0.f);
             float w_light = 1;
             if (mis_ && q > 0) w_light = power_heuristic(pdf_light, bsdf.pdf(to_light));
             v.direct = bsdf.eval(to_light) * light->le * (w_light * cos_x / pdf_light);
@@ -224,12 +240,6 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     stats->paths += 1;
     stats->vertices += path.size();
     stats->rays += rays;
-  }
-  if (!is_finite(pixel)) {
-    // Never let a NaN reach the image; drop this path's sample and its vertices.
-    if (stats) stats->nonfinite_dropped += 1;
-    if (records) records->resize(first_record);
-    pixel = Vec3(0.f);
   }
   return pixel;
 }

@@ -46,9 +46,15 @@ class PathTracer {
 
   /// Traces path number `sample` of pixel (x, y); returns the pixel sample Le(x_1) + R_1. When
   /// `vertices` is not null, appends one record per vertex x_n, n >= 2.
+  /// A sample that comes out NaN or infinite is dropped: counted in stats->nonfinite_dropped, its
+  /// records removed, 0 returned.
   Vec3 trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats) const;
+  /// trace() keeping a NaN or infinite sample as it came out, with its records and not counted as
+  /// dropped: the replay of a dropped sample (`epr render --single-process --trace-path`).
+  Vec3 trace_unfiltered(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats) const;
 
   const Camera& camera() const { return camera_; }
+  uint64_t seed() const { return seed_; }
   const EmbreeScene& scene() const { return scene_; }
   bool mis() const { return mis_; }
   SamplerKind sampler() const { return sampler_; }
