@@ -22,6 +22,7 @@
 #include "common/camera.h"
 #include "common/math.h"
 #include "common/roulette.h"
+#include "worker/view_test.h"
 
 namespace epr {
 
@@ -51,12 +52,9 @@ class PathRoulette {
  private:
   static constexpr float kMinSurvival = 0.05f;
 
-  // What worker/tile_renderer.cpp's filter keeps: inside the image, in front of the eye, facing it.
   bool in_view(const Vec3& p, const Vec3& n) const {
-    float rx, ry;
-    if (!camera_.project(p, &rx, &ry)) return false;
-    if (!(rx >= 0 && rx < float(camera_.width()) && ry >= 0 && ry < float(camera_.height()))) return false;
-    return dot(n, camera_.eye() - p) > 0;
+    float sx, sy;
+    return view_test(camera_, p, n, 1, &sx, &sy) == ViewTest::kVisible;
   }
 
   const RussianRoulette& rr_;

@@ -5,6 +5,7 @@
 
 #include "common/denormals.h"
 #include "worker/nonfinite_log.h"
+#include "worker/view_test.h"
 
 namespace epr {
 
@@ -18,7 +19,6 @@ void TileRenderer::filter_vertices(std::vector<VertexRecord>& recs, size_t first
   const Camera& cam = tracer_.camera();
   const EmbreeScene& scene = tracer_.scene();
   const int S = filter_.subpixels;
-  const float sw = float(cam.width() * S), sh = float(cam.height() * S);
   size_t kept = first;
   for (size_t i = first; i < recs.size(); ++i) {
     const VertexRecord& r = recs[i];
@@ -26,21 +26,17 @@ void TileRenderer::filter_vertices(std::vector<VertexRecord>& recs, size_t first
       ++out.stats.culled_glossy;
       continue;
     }
-    float rx, ry;
-    if (!cam.project(r.position, &rx, &ry)) {
+    float sx, sy;
+    const ViewTest view = view_test(cam, r.position, r.normal, S, &sx, &sy);
+    if (view == ViewTest::kOutsideImage) {
       ++out.stats.culled_frustum;
       continue;
     }
-    const float sx = rx * float(S), sy = ry * float(S);
-    if (!(sx >= 0 && sx < sw && sy >= 0 && sy < sh)) {
-      ++out.stats.culled_frustum;
-      continue;
-    }
-    const Vec3 to_eye = cam.eye() - r.position;
-    if (!(dot(r.normal, to_eye) > 0)) {
+    if (view == ViewTest::kBackFacing) {
       ++out.stats.culled_facing;
       continue;
     }
+    const Vec3 to_eye = cam.eye() - r.position;
     if (filter_.mode == VertexFilter::Mode::kExact) {
       const float dist = length(to_eye);
       const float eps = scene.ray_epsilon();
