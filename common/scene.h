@@ -4,8 +4,9 @@
 // (constant Kd or a Kd texture), optionally emissive (a diffuse area light of radiance Ke, emitting
 // from both sides as Cycles' mesh lights do, or from the front side only, as a real light panel and
 // pbrt's and Mitsuba's area lights do), or the one glossy material that exists only to test
-// the method's failure mode. A material may be cut out by an alpha mask: where the mask's texel is
-// below the cut-off the surface is not there (rays pass through). No scene graph, no instancing, no
+// the method's failure mode, or glTF's metallic-roughness material on a GGX microfacet model (metals,
+// dielectrics with a specular layer, glass: worker/bsdf_ggx.h). A material may be cut out by an alpha mask: where the
+// mask's texel is below the cut-off the surface is not there (rays pass through). No scene graph, no instancing, no
 // shading normals.
 #pragma once
 
@@ -21,8 +22,9 @@
 namespace epr {
 
 enum class MaterialType : uint8_t {
-  kDiffuse,  // Lambertian: f = Kd / pi
-  kGlossy,   // Kd / pi + normalised Phong lobe: Ks (n + 2) / (2 pi) cos^n(alpha)
+  kDiffuse,     // Lambertian: f = Kd / pi
+  kGlossy,      // Kd / pi + normalised Phong lobe: Ks (n + 2) / (2 pi) cos^n(alpha)
+  kMicrofacet,  // glTF metallic-roughness on GGX (worker/bsdf_ggx.h); Kd is the base colour
 };
 
 struct Material {
@@ -36,6 +38,11 @@ struct Material {
   float exponent = 100.f;         // Phong exponent (kGlossy only)
   int alpha_texture = -1;         // index into Scene::textures (its alpha): a cut-out when >= 0
   float alpha_cutoff = 0.5f;      // where the mask's alpha is below this the surface is a hole
+  // kMicrofacet only: glTF's factors (alpha = roughness^2), linear; the texture's G and B channels
+  // (factors applied) replace roughness and metallic when >= 0.
+  float metallic = 0, roughness = 1, transmission = 0, ior = 1.5f;
+  int metallic_roughness_texture = -1;
+  int ke_texture = -1;  // multiplies Ke per texel when >= 0 (its mean is 1 per channel: Ke stays the mean)
 
   bool emissive() const { return !is_black(ke); }
   /// The radiance Ke leaving a surface of this material along a direction on the side of `side` (a

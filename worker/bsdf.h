@@ -1,5 +1,6 @@
-// The two reflection models a scene may use (common/scene.h): Lambertian, and Lambertian plus a
-// normalised Phong lobe (the glossy material, only there to exercise the method's failure mode).
+// The reflection models a scene may use (common/scene.h): Lambertian, Lambertian plus a normalised
+// Phong lobe (the glossy material, only there to exercise the method's failure mode), and glTF's
+// metallic-roughness material on GGX (worker/bsdf_ggx.h), to which this class hands over.
 // Directions are in world space and unit length; `n` is the geometric normal oriented to the side
 // the path arrived from, `wo` points back along the incoming ray.
 #pragma once
@@ -7,15 +8,10 @@
 #include "common/math.h"
 #include "common/sampling.h"
 #include "common/scene.h"
+#include "worker/bsdf_ggx.h"
+#include "worker/bsdf_sample.h"
 
 namespace epr {
-
-struct BsdfSample {
-  Vec3 wi;
-  Vec3 weight;    // f * cos / pdf
-  float pdf = 0;  // solid-angle density of wi (the mixture of both lobes for the glossy material), 1/sr
-  bool valid = false;
-};
 
 class Bsdf {
  public:
@@ -27,8 +23,12 @@ class Bsdf {
     }
   }
 
+  /// A metallic-roughness (MaterialType::kMicrofacet) surface point.
+  Bsdf(const MicrofacetInputs& in, Vec3 n, Vec3 wo) : n_(n), wo_(wo), ggx_(in, n, wo), microfacet_(true) {}
+
   /// f(wo, wi), 1/sr.
   Vec3 eval(const Vec3& wi) const {
+    if (microfacet_) return ggx_.eval(wi);
     if (dot(wi, n_) <= 0) return Vec3(0.f);
     Vec3 f = kd_ * kInvPi;
     if (p_glossy_ > 0) {
@@ -39,6 +39,7 @@ class Bsdf {
   }
 
   float pdf(const Vec3& wi) const {
+    if (microfacet_) return ggx_.pdf(wi);
     const float cos_n = dot(wi, n_);
     if (cos_n <= 0) return 0;
     float p = (1 - p_glossy_) * cosine_hemisphere_pdf(cos_n);
@@ -48,6 +49,7 @@ class Bsdf {
 
   /// u_lobe picks the lobe, u the direction inside it.
   BsdfSample sample(float u_lobe, Vec2 u) const {
+    if (microfacet_) return ggx_.sample(u_lobe, u);
     BsdfSample s;
     if (p_glossy_ == 0) {
       // Pure Lambertian: f cos / pdf = kd exactly.
@@ -69,19 +71,23 @@ class Bsdf {
     return s;
   }
 
-  bool glossy() const { return p_glossy_ > 0; }
+  bool glossy() const { return microfacet_ || p_glossy_ > 0; }
   /// Reflects nothing (f = 0 everywhere): no estimate at this vertex can be non-zero.
-  bool black() const { return is_black(kd_) && is_black(ks_); }
+  bool black() const { return microfacet_ ? ggx_.albedo() == 0 : is_black(kd_) && is_black(ks_); }
+  /// Only delta lobes: next event estimation cannot find a direction the BSDF reflects.
+  bool delta_only() const { return microfacet_ && ggx_.delta_only(); }
   /// Largest total reflectance, the albedo-based Russian roulette's survival probability.
-  float albedo() const { return max_component(kd_ + ks_); }
+  float albedo() const { return microfacet_ ? ggx_.albedo() : max_component(kd_ + ks_); }
 
  private:
   Vec3 reflect(const Vec3& w) const { return n_ * (2 * dot(w, n_)) - w; }
 
-  Vec3 kd_, ks_;
-  float exponent_;
+  Vec3 kd_{0.f}, ks_{0.f};
+  float exponent_ = 1;
   Vec3 n_, wo_;
   float p_glossy_ = 0;
+  MicrofacetBsdf ggx_;
+  bool microfacet_ = false;
 };
 
 }  // namespace epr
