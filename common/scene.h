@@ -38,8 +38,10 @@ struct Material {
   float exponent = 100.f;         // Phong exponent (kGlossy only)
   int alpha_texture = -1;         // index into Scene::textures (its alpha): a cut-out when >= 0
   float alpha_cutoff = 0.5f;      // where the mask's alpha is below this the surface is a hole
-  // kMicrofacet only: glTF's factors (alpha = roughness^2), linear; the texture's G and B channels
-  // (factors applied) replace roughness and metallic when >= 0.
+  // kMicrofacet only: glTF's factors (alpha = roughness^2), linear. With a texture (>= 0) they
+  // multiply its G (roughness) and B (metallic) channels, which hold data: the texture is the image
+  // as decoded for colour, and the sRGB curve is re-applied per lookup (exact for 8- and 16-bit
+  // images up to float rounding).
   float metallic = 0, roughness = 1, transmission = 0, ior = 1.5f;
   int metallic_roughness_texture = -1;
   int ke_texture = -1;  // multiplies Ke per texel when >= 0 (its mean is 1 per channel: Ke stays the mean)

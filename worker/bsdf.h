@@ -73,7 +73,7 @@ class Bsdf {
 
   bool glossy() const { return microfacet_ || p_glossy_ > 0; }
   /// Reflects nothing (f = 0 everywhere): no estimate at this vertex can be non-zero.
-  bool black() const { return microfacet_ ? ggx_.albedo() == 0 : is_black(kd_) && is_black(ks_); }
+  bool black() const { return !microfacet_ && is_black(kd_) && is_black(ks_); }  // Fresnel reflects at grazing
   /// Only delta lobes: next event estimation cannot find a direction the BSDF reflects.
   bool delta_only() const { return microfacet_ && ggx_.delta_only(); }
   /// Largest total reflectance, the albedo-based Russian roulette's survival probability.

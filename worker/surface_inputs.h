@@ -5,6 +5,7 @@
 
 #include <cstdint>
 
+#include "common/image.h"
 #include "common/scene.h"
 #include "worker/bsdf_ggx.h"
 
@@ -24,8 +25,8 @@ inline MicrofacetInputs microfacet_inputs(const Scene& s, const Material& m, Vec
   MicrofacetInputs in{base, m.metallic, m.roughness, m.transmission, m.ior, front};
   if (m.metallic_roughness_texture >= 0 && !s.uvs.empty()) {
     const Vec3 t = s.textures[size_t(m.metallic_roughness_texture)].lookup(texcoord_at(s, tri, u, v));
-    in.roughness = t.y;
-    in.metallic = t.z;
+    in.roughness = m.roughness * linear_to_srgb(t.y);
+    in.metallic = m.metallic * linear_to_srgb(t.z);
   }
   return in;
 }

@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <cmath>
 
-#include "common/image.h"
 #include "common/scene_loader/text.h"
 
 namespace epr::loader {
@@ -54,18 +53,10 @@ int set_metallic_roughness(const tinygltf::Material& gm, const std::string& wher
     out->kd = base;
   }
   if (pbr.metallicRoughnessTexture.index >= 0) {
-    const std::string w = where + ".pbrMetallicRoughness.metallicRoughnessTexture";
-    // Its values are linear: the colour decoding's sRGB curve is undone (exactly, up to float
-    // rounding, for the 8- and 16-bit images glTF holds), then the factors applied.
-    Texture t = tex.get(tex.colour(pbr.metallicRoughnessTexture, Vec3(1.f), w));
-    t.alpha.clear();
-    t.path += " (metallic-roughness)";
-    for (size_t i = 0; i + 2 < t.rgb.size(); i += 3) {
-      const float rough = linear_to_srgb(t.rgb[i + 1]) * out->roughness;
-      const float metal = linear_to_srgb(t.rgb[i + 2]) * out->metallic;
-      t.rgb[i] = 0, t.rgb[i + 1] = rough, t.rgb[i + 2] = metal;
-    }
-    out->metallic_roughness_texture = tex.add(std::move(t), w);
+    // The image as decoded for colour (no copy: scenes such as Sponza fill the texture pixel limit
+    // with their images alone); the worker undoes the sRGB curve per lookup (Material).
+    out->metallic_roughness_texture =
+        tex.colour(pbr.metallicRoughnessTexture, Vec3(1.f), where + ".pbrMetallicRoughness.metallicRoughnessTexture");
     use_texcoord(pbr.metallicRoughnessTexture, &texcoord, notes);
   }
   out->transmission =

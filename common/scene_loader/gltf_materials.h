@@ -24,8 +24,8 @@ struct GltfMaterialContext {
 };
 
 /// Makes *out a kMicrofacet material from glTF material gm (`where`: "materials[i]"): base colour
-/// (factor times texture), metallic and roughness (factors times metallicRoughnessTexture's B and G,
-/// read as stored, not sRGB), transmission and ior. Returns the TEXCOORD set its textures use (-1:
+/// (factor times texture), metallic and roughness (factors, and metallicRoughnessTexture: Material
+/// says how it is read), transmission and ior. Returns the TEXCOORD set its textures use (-1:
 /// none); approximations are appended to *notes.
 int set_metallic_roughness(const tinygltf::Material& gm, const std::string& where, const GltfMaterialContext& tex,
                            Material* out, std::vector<std::string>* notes);

@@ -36,7 +36,8 @@ TEST(GltfMaterials, MetallicMaterialLoadsAsAConductor) {
 }
 
 // The texture's G (roughness) and B (metallic) channels are data, not sRGB colour: a stored 127 is
-// 127 / 255 (0.50), not the 0.21 that decoding it as sRGB would give; the factors multiply them.
+// 127 / 255 (0.50), not the 0.21 that decoding it as sRGB gives. The scene keeps the image as decoded
+// (no copy); re-encoding a lookup gives the stored value, which the factors multiply.
 TEST(GltfMaterials, MetallicRoughnessTextureSetsRoughnessPerTexel) {
   test::TempDir dir;
   Image img(2, 1);
@@ -62,10 +63,13 @@ TEST(GltfMaterials, MetallicRoughnessTextureSetsRoughnessPerTexel) {
   ASSERT_EQ(s.uvs.size(), 1u);
   const Texture& t = s.textures[size_t(m.metallic_roughness_texture)];
   const Vec3 left = t.lookup(s.uvs[0][0]), right = t.lookup(s.uvs[0][1]);
-  EXPECT_NEAR(left.y, 0.8f * stored, 1e-5f);  // roughness
-  EXPECT_NEAR(left.z, 0.5f, 1e-5f);           // metallic
-  EXPECT_NEAR(right.y, 0.8f, 1e-5f);
-  EXPECT_NEAR(right.z, 0.f, 1e-5f);
+  EXPECT_FLOAT_EQ(m.roughness, 0.8f);
+  EXPECT_FLOAT_EQ(m.metallic, 0.5f);
+  EXPECT_NEAR(linear_to_srgb(left.y), stored, 1e-5f);  // roughness
+  EXPECT_NEAR(linear_to_srgb(left.z), 1.f, 1e-5f);     // metallic
+  EXPECT_NEAR(linear_to_srgb(right.y), 1.f, 1e-5f);
+  EXPECT_NEAR(linear_to_srgb(right.z), 0.f, 1e-5f);
+  EXPECT_EQ(s.textures.size(), 1u);  // the image itself, not a copy
 }
 
 TEST(GltfMaterials, TransmissionAndIorMakeGlass) {

@@ -193,25 +193,29 @@ TEST(MicrofacetBsdf, SmoothGlassSlabTransmitsOneMinusFSquared) {
 }
 
 // metallicRoughnessTexture per texel: the worker's inputs at two points of one triangle differ as
-// the texture's G (roughness) and B (metallic) do.
+// the texture's G (roughness) and B (metallic) do, read as data (the sRGB curve of the colour
+// decoding undone) and multiplied by the factors.
 TEST(MicrofacetBsdf, MetallicRoughnessTextureIsReadPerTexel) {
   Scene s;
   Texture t;
   t.width = 2, t.height = 1;
-  t.rgb = {0, 0.1f, 1, 0, 0.9f, 0};
+  const auto decoded = [](float v) { return std::pow((v + 0.055f) / 1.055f, 2.4f); };  // as stored v
+  t.rgb = {0, decoded(0.2f), 1, 0, decoded(0.9f), 0};
   s.textures.push_back(t);
   Material m;
   m.type = MaterialType::kMicrofacet;
   m.metallic_roughness_texture = 0;
+  m.roughness = 0.5f;
+  m.metallic = 0.8f;
   const uint32_t id = add_material(s, m);
   add_triangle(s, {0, 0, 0}, {1, 0, 0}, {0, 1, 0}, id);
   s.uvs = {{Vec2{0.25f, 0.5f}, Vec2{0.75f, 0.5f}, Vec2{0.25f, 0.5f}}};
   const MicrofacetInputs left = microfacet_inputs(s, s.materials[id], Vec3(1.f), 0, 0.f, 0.f, true);
   const MicrofacetInputs right = microfacet_inputs(s, s.materials[id], Vec3(1.f), 0, 1.f, 0.f, true);
-  EXPECT_FLOAT_EQ(left.roughness, 0.1f);
-  EXPECT_FLOAT_EQ(left.metallic, 1.f);
-  EXPECT_FLOAT_EQ(right.roughness, 0.9f);
-  EXPECT_FLOAT_EQ(right.metallic, 0.f);
+  EXPECT_NEAR(left.roughness, 0.5f * 0.2f, 1e-5f);
+  EXPECT_NEAR(left.metallic, 0.8f, 1e-5f);
+  EXPECT_NEAR(right.roughness, 0.5f * 0.9f, 1e-5f);
+  EXPECT_NEAR(right.metallic, 0.f, 1e-5f);
 }
 
 // A closed box of Lambertian emitting walls whose floor (y = -1) is a rough metal: every recorded
