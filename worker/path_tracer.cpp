@@ -8,6 +8,7 @@
 #include "common/shading_normal.h"
 #include "worker/bsdf.h"
 #include "worker/emitter_sampling.h"
+#include "worker/surface_inputs.h"
 
 namespace epr {
 namespace {
@@ -19,9 +20,15 @@ struct PathVertex {
   Vec3 le;                     // emitted radiance at the vertex
   Vec3 direct;                 // D_n, the direct-light estimate (MIS-weighted, or NEE only)
   Vec3 weight;                 // f cos / pdf / q for the continuation (0 if the path ended here)
-  float continuation_pdf = 0;  // solid-angle pdf of the continuation direction (BSDF sampling), 1/sr
+  float continuation_pdf = 0;  // solid-angle pdf of the continuation direction (BSDF sampling), 1/sr;
+                               // kOnlyBsdf where next event estimation cannot pick it
   bool diffuse = true;
 };
+
+// The continuation_pdf of a direction next event estimation never picks: a delta lobe's, or one
+// below the surface (transmission; light samples lie above it). BSDF sampling is then the only
+// technique (MIS weight power_heuristic(inf, p) = 1, also with MIS off).
+constexpr float kOnlyBsdf = std::numeric_limits<float>::infinity();
 
 // Power heuristic (beta = 2) weight of the technique with density p_this against p_other, written
 // as 1 / (1 + (p_other / p_this)^2) so that a huge density (a grazing emitter) cannot overflow to
@@ -57,9 +64,7 @@ PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t 
 Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) const {
   const Scene& s = scene_.scene();
   if (m.kd_texture < 0 || s.uvs.empty()) return m.kd;
-  const auto& uv = s.uvs[prim];
-  const Vec2 st{uv[0].x * (1 - u - v) + uv[1].x * u + uv[2].x * v, uv[0].y * (1 - u - v) + uv[1].y * u + uv[2].y * v};
-  return s.textures[size_t(m.kd_texture)].lookup(st);
+  return s.textures[size_t(m.kd_texture)].lookup(texcoord_at(s, prim, u, v));
 }
 
 Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats) const {
@@ -82,7 +87,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       // The ray escapes: a camera ray shows the sky; a continuation ray's sky radiance is light
       // reflected at x_{n-1}, MIS-weighted into D_{n-1} as an emitter hit is below.
       if (sky_ && path.empty()) background = sky_->radiance(ray.dir);
-      if (sky_ && mis_ && !path.empty()) {
+      if (sky_ && !path.empty() && (mis_ || path.back().continuation_pdf == kOnlyBsdf)) {
         PathVertex& prev = path.back();
         prev.direct += prev.weight * sky_->escaped(ray.dir, prev.shading, prev.continuation_pdf);
       }
@@ -94,8 +99,8 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     // continuation weight f cos / pdf / q. (Le(x_n) itself stays in the vertex below unweighted:
     // see the back-propagation.) |cos| at the light; a one-sided emitter's back emits nothing.
     const float side = -dot(hit.ng, ray.dir);  // > 0: the ray arrives at the front
-    const Vec3 le = mat.emitted(side);
-    if (mis_ && !path.empty() && !is_black(le)) {
+    const Vec3 le = emission_at(s, mat, mat.emitted(side), hit.prim, hit.u, hit.v);
+    if (!path.empty() && !is_black(le) && (mis_ || path.back().continuation_pdf == kOnlyBsdf)) {
       PathVertex& prev = path.back();
       float w_bsdf = 1;  // an emitter next event estimation cannot pick: BSDF sampling is the only technique
       const float pdf_area = scene_.emitter_pdf_area(mat) * triangle_share_;
@@ -123,7 +128,11 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     v.le = le;  // diffuse emitter
     v.diffuse = mat.diffuse();
     v.shading = shading_normal_towards(s, hit.prim, hit.u, hit.v, v.normal, -ray.dir);
-    const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, v.shading, -ray.dir);
+    const Vec3 base = albedo_at(mat, hit.prim, hit.u, hit.v);
+    const Bsdf bsdf =
+        mat.type == MaterialType::kMicrofacet
+            ? Bsdf(microfacet_inputs(s, mat, base, hit.prim, hit.u, hit.v, side > 0), v.normal, v.shading, -ray.dir)
+            : Bsdf(mat, base, v.normal, v.shading, -ray.dir);
     const Vec3 origin = v.position + v.normal * eps;
 
     // This vertex's random numbers, in the fixed dimension layout of common/sampler.h.
@@ -146,8 +155,9 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
       if (bs.valid && !is_black(bs.weight)) {
         v.weight = bs.weight / q;
-        v.continuation_pdf = bs.pdf;
-        ray = {origin, bs.wi};
+        const bool below = dot(bs.wi, v.normal) <= 0;  // transmitted: leaves from the other side
+        v.continuation_pdf = bs.delta || below ? kOnlyBsdf : bs.pdf;
+        ray = {below ? v.position - v.normal * eps : origin, bs.wi};
       }
     }
 
@@ -155,7 +165,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     // can be non-zero (the surface reflects, the point is in front of it and it faces the point).
     // The sky (when there is one) takes its share of the selection number first.
     const Emitter* light = nullptr;
-    if (!bsdf.black()) {
+    if (!bsdf.black() && !bsdf.delta_only()) {
       float u_pick = u_light;
       if (sky_ && sky_->picks_sky(u_light, &u_pick))
         v.direct = sky_next_event(*sky_, scene_, bsdf, v.shading, origin, u_pick, u_point, mis_ && q > 0, &rays);
@@ -189,7 +199,12 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
                                    : light_pdf_area * dist2 / cos_y;
             float w_light = 1;
             if (mis_ && q > 0) w_light = power_heuristic(pdf_light, bsdf.pdf(to_light));
-            v.direct = bsdf.eval(to_light) * light->le * (w_light * cos_x / pdf_light);
+            Vec3 le_light = light->le;  // Ke, times the emission texture at the point if it has one
+            if (const Material& lm = s.materials[s.material_of[light->tri]]; lm.ke_texture >= 0) {
+              const Vec2 b = barycentrics_of(s, light->tri, light_pos);
+              le_light = emission_at(s, lm, light->le, light->tri, b.x, b.y);
+            }
+            v.direct = bsdf.eval(to_light) * le_light * (w_light * cos_x / pdf_light);
           }
         }
       }
