@@ -53,6 +53,14 @@ class Bsdf {
     return f;
   }
 
+  /// The diffuse lobe's share of eval(wi): Kd / pi for the Lambertian and glossy materials, the
+  /// diffuse base for the microfacet one; 0 where eval() is 0.
+  Vec3 eval_diffuse(const Vec3& wi) const {
+    if (microfacet_) return same_side(wi) ? ggx_.eval_diffuse(wi) : Vec3(0.f);
+    if (dot(wi, n_) <= 0 || dot(wi, ng_) <= 0) return Vec3(0.f);
+    return kd_ * kInvPi;
+  }
+
   float pdf(const Vec3& wi) const {
     if (microfacet_) return same_side(wi) ? ggx_.pdf(wi) : 0.f;
     const float cos_n = dot(wi, n_);
@@ -91,6 +99,8 @@ class Bsdf {
   }
 
   bool glossy() const { return microfacet_ || p_glossy_ > 0; }
+  /// Has a diffuse lobe that reflects something (eval_diffuse() is not 0 everywhere).
+  bool has_diffuse() const { return microfacet_ ? ggx_.has_diffuse() : !is_black(kd_); }
   /// Reflects nothing (f = 0 everywhere): no estimate at this vertex can be non-zero.
   bool black() const { return !microfacet_ && is_black(kd_) && is_black(ks_); }  // Fresnel reflects at grazing
   /// Only delta lobes: next event estimation cannot find a direction the BSDF reflects.

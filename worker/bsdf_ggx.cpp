@@ -21,6 +21,7 @@ MicrofacetBsdf::MicrofacetBsdf(const MicrofacetInputs& in, const Vec3& n, const 
   // An opaque surface is entered from whichever side: only a transmissive one has an inside.
   eta_ = (in.front || trans_ == 0) ? in.ior : 1 / in.ior;
   f_o_ = ggx::fresnel_dielectric(wo_.z, eta_);
+  diffuse_ = c_ * ((1 - metal_) * (1 - trans_) * (1 - f_o_) * kInvPi);
   const float lc = luminance(c_);
   const float e_spec = metal_ * luminance(ggx::fresnel_schlick(c_, wo_.z)) + (1 - metal_) * f_o_;
   const float e_trans = (1 - metal_) * trans_ * (1 - f_o_) * lc;
@@ -45,13 +46,16 @@ Vec3 MicrofacetBsdf::refraction_half(const Vec3& wi) const {
 }
 
 Vec3 MicrofacetBsdf::eval(const Vec3& wi) const { return valid_ ? eval_local(frame_.to_local(wi)) : Vec3(0.f); }
+Vec3 MicrofacetBsdf::eval_diffuse(const Vec3& wi) const {
+  return valid_ && frame_.to_local(wi).z > 0 ? diffuse_ : Vec3(0.f);
+}
 float MicrofacetBsdf::pdf(const Vec3& wi) const { return valid_ ? pdf_local(frame_.to_local(wi)) : 0.f; }
 
 Vec3 MicrofacetBsdf::eval_local(const Vec3& wi) const {
   const float co = wo_.z, ci = wi.z;
   Vec3 f(0.f);
   if (ci > 0) {
-    f += c_ * ((1 - metal_) * (1 - trans_) * (1 - f_o_) * kInvPi);
+    f += diffuse_;
     if (smooth_) return f;
     const Vec3 h = normalize(wo_ + wi);
     const float coh = dot(wo_, h);

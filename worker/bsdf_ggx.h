@@ -34,6 +34,11 @@ class MicrofacetBsdf {
   MicrofacetBsdf(const MicrofacetInputs& in, const Vec3& n, const Vec3& wo);
 
   Vec3 eval(const Vec3& wi) const;
+  /// The diffuse base's share of eval(wi): (1 - metallic) (1 - t) (1 - F(cos_o)) c / pi above the
+  /// surface, 0 below (the view-independent lobe, DESIGN.md "Diffuse-share reprojection").
+  Vec3 eval_diffuse(const Vec3& wi) const;
+  /// The diffuse base reflects something.
+  bool has_diffuse() const { return valid_ && !is_black(diffuse_); }
   float pdf(const Vec3& wi) const;
   /// u_lobe picks the lobe, u the direction inside it.
   BsdfSample sample(float u_lobe, Vec2 u) const;
@@ -54,6 +59,7 @@ class MicrofacetBsdf {
   Frame frame_{};
   Vec3 wo_{0.f};  // local
   Vec3 c_{0.f};
+  Vec3 diffuse_{0.f};  // the diffuse base's f, c (1 - metallic) (1 - t) (1 - F(cos_o)) / pi
   float metal_ = 0, trans_ = 0, alpha_ = 1, eta_ = 1.5f;
   float f_o_ = 0;      // dielectric Fresnel at cos_o
   float p_micro_ = 1;  // probability of sampling the microfacet lobes (else the diffuse base)

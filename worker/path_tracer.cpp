@@ -23,6 +23,11 @@ struct PathVertex {
   float continuation_pdf = 0;  // solid-angle pdf of the continuation direction (BSDF sampling), 1/sr;
                                // kOnlyBsdf where next event estimation cannot pick it
   bool diffuse = true;
+  // A microfacet vertex with a diffuse base beside its glossy lobes: its record carries the diffuse
+  // base's share of its reflected light, from direct_diffuse and weight_diffuse (the same estimates
+  // through that lobe alone, Bsdf::eval_diffuse). Otherwise the whole is diffuse or nothing is.
+  bool split = false;
+  Vec3 direct_diffuse, weight_diffuse;
 };
 
 // The continuation_pdf of a direction next event estimation never picks: a delta lobe's, or one
@@ -67,7 +72,8 @@ Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) c
   return s.textures[size_t(m.kd_texture)].lookup(texcoord_at(s, prim, u, v));
 }
 
-Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats) const {
+Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats,
+                       Vec3* glossy) const {
   thread_local std::vector<PathVertex> path;
   path.clear();
   const Scene& s = scene_.scene();
@@ -89,7 +95,9 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       if (sky_ && path.empty()) background = sky_->radiance(ray.dir);
       if (sky_ && !path.empty() && (mis_ || path.back().continuation_pdf == kOnlyBsdf)) {
         PathVertex& prev = path.back();
-        prev.direct += prev.weight * sky_->escaped(ray.dir, prev.shading, prev.continuation_pdf);
+        const Vec3 sky = sky_->escaped(ray.dir, prev.shading, prev.continuation_pdf);
+        prev.direct += prev.weight * sky;
+        if (prev.split) prev.direct_diffuse += prev.weight_diffuse * sky;
       }
       break;
     }
@@ -119,6 +127,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
                      : 0.f;
       }
       prev.direct += prev.weight * le * w_bsdf;
+      if (prev.split) prev.direct_diffuse += prev.weight_diffuse * le * w_bsdf;
     }
     // Filled in place: building the vertex on the stack and copying it costs more than its shading.
     PathVertex& v = path.emplace_back();
@@ -126,13 +135,14 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     const Vec3 ng = hit.ng * (1 / length(hit.ng));
     v.normal = dot(ng, ray.dir) < 0 ? ng : -ng;
     v.le = le;  // diffuse emitter
-    v.diffuse = mat.diffuse();
     v.shading = shading_normal_towards(s, hit.prim, hit.u, hit.v, v.normal, -ray.dir);
     const Vec3 base = albedo_at(mat, hit.prim, hit.u, hit.v);
     const Bsdf bsdf =
         mat.type == MaterialType::kMicrofacet
             ? Bsdf(microfacet_inputs(s, mat, base, hit.prim, hit.u, hit.v, side > 0), v.normal, v.shading, -ray.dir)
             : Bsdf(mat, base, v.normal, v.shading, -ray.dir);
+    v.split = mat.type == MaterialType::kMicrofacet && bsdf.has_diffuse();
+    v.diffuse = mat.diffuse() || v.split;
     const Vec3 origin = v.position + v.normal * eps;
 
     // This vertex's random numbers, in the fixed dimension layout of common/sampler.h.
@@ -155,6 +165,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
       const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
       if (bs.valid && !is_black(bs.weight)) {
         v.weight = bs.weight / q;
+        if (v.split && !bs.delta) v.weight_diffuse = bsdf.eval_diffuse(bs.wi) * (bsdf.cosine(bs.wi) / bs.pdf / q);
         const bool below = dot(bs.wi, v.normal) <= 0;  // transmitted: leaves from the other side
         v.continuation_pdf = bs.delta || below ? kOnlyBsdf : bs.pdf;
         ray = {below ? v.position - v.normal * eps : origin, bs.wi};
@@ -168,7 +179,8 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     if (!bsdf.black() && !bsdf.delta_only()) {
       float u_pick = u_light;
       if (sky_ && sky_->picks_sky(u_light, &u_pick))
-        v.direct = sky_next_event(*sky_, scene_, bsdf, v.shading, origin, u_pick, u_point, mis_ && q > 0, &rays);
+        v.direct = sky_next_event(*sky_, scene_, bsdf, v.shading, origin, u_pick, u_point, mis_ && q > 0, &rays,
+                                  v.split ? &v.direct_diffuse : nullptr);
       else
         light = scene_.sample_emitter(u_pick);
     }
@@ -205,6 +217,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
               le_light = emission_at(s, lm, light->le, light->tri, b.x, b.y);
             }
             v.direct = bsdf.eval(to_light) * le_light * (w_light * cos_x / pdf_light);
+            if (v.split) v.direct_diffuse = bsdf.eval_diffuse(to_light) * le_light * (w_light * cos_x / pdf_light);
           }
         }
       }
@@ -221,21 +234,28 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
   // share of Le(x_n) went into D_{n-1} (the estimate of x_{n-1}'s reflected light, part of its own
   // record) and is a different quantity. Reprojection then shows x_n with Le + R_n from any other
   // pixel, exactly as a path-traced sample of x_n would: Le(x_1) + R_1.
-  Vec3 r(0.f);
+  // A split vertex's record holds Le + R_n^d instead, R_n^d = D_n^d + w_n^d R_{n+1} the light its
+  // diffuse base reflects (the view-independent part), and the pixel's own sample is split the same
+  // way at x_1: *glossy gets Le(x_1) + R_1 - (Le(x_1) + R_1^d), the part the master adds unchanged
+  // rather than combining it with reprojected samples (DESIGN.md "Diffuse-share reprojection").
+  Vec3 r(0.f), r_diffuse(0.f);
   const size_t first_record = records ? records->size() : 0;
   if (records && path.size() > 1) records->resize(first_record + path.size() - 1);
   for (size_t i = path.size(); i-- > 0;) {
     const PathVertex& v = path[i];
+    if (v.split) r_diffuse = v.direct_diffuse + v.weight_diffuse * r;
     r = v.direct + v.weight * r;
     if (i >= 1 && records) {
       VertexRecord& rec = (*records)[first_record + i - 1];
       rec.position = v.position;
       rec.normal = v.normal;
-      rec.radiance = v.le + r;
+      rec.radiance = v.le + (v.split ? r_diffuse : r);
       rec.flags = v.diffuse ? VertexRecord::kDiffuse : 0;
     }
   }
   Vec3 pixel = path.empty() ? background : path[0].le + r;
+  Vec3 own_glossy(0.f);
+  if (!path.empty() && path[0].split) own_glossy = max(pixel - (path[0].le + r_diffuse), Vec3(0.f));
   if (const uint32_t every = test_nonfinite_every(); every && (sample + 1) % every == 0)
     pixel = Vec3(std::numeric_limits<float>::quiet_NaN());
 
@@ -249,7 +269,9 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     if (stats) stats->nonfinite_dropped += 1;
     if (records) records->resize(first_record);
     pixel = Vec3(0.f);
+    own_glossy = Vec3(0.f);
   }
+  if (glossy) *glossy = own_glossy;
   return pixel;
 }
 
