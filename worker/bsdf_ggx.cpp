@@ -21,16 +21,18 @@ MicrofacetBsdf::MicrofacetBsdf(const MicrofacetInputs& in, const Vec3& n, const 
   // An opaque surface is entered from whichever side: only a transmissive one has an inside.
   eta_ = (in.front || trans_ == 0) ? in.ior : 1 / in.ior;
   f_o_ = ggx::fresnel_dielectric(wo_.z, eta_);
-  diffuse_ = c_ * ((1 - metal_) * (1 - trans_) * (1 - f_o_) * kInvPi);
+  // Blender's Principled BSDF v1 (Cycles 3.x): the diffuse base is not weighted by 1 - F, so it is
+  // the same for every viewer; the specular layer adds on top (the sum can exceed 1 at grazing wo).
+  diffuse_ = c_ * ((1 - metal_) * (1 - trans_) * kInvPi);
   const float lc = luminance(c_);
   const float e_spec = metal_ * luminance(ggx::fresnel_schlick(c_, wo_.z)) + (1 - metal_) * f_o_;
   const float e_trans = (1 - metal_) * trans_ * (1 - f_o_) * lc;
-  const float e_diff = (1 - metal_) * (1 - trans_) * (1 - f_o_) * lc;
+  const float e_diff = (1 - metal_) * (1 - trans_) * lc;
   const float total = e_spec + e_trans + e_diff;
   p_micro_ = total > 0 ? (e_spec + e_trans) / total : 1.f;
   if (e_diff == 0) p_micro_ = 1;
   const float mc = max_component(c_);
-  albedo_ = std::min(1.f, metal_ * mc + (1 - metal_) * (f_o_ + (1 - f_o_) * mc));
+  albedo_ = std::min(1.f, metal_ * mc + (1 - metal_) * (f_o_ + (1 - trans_ * f_o_) * mc));
 }
 
 float MicrofacetBsdf::reflect_share(float cos_oh) const {

@@ -2,17 +2,18 @@
 // (worker/microfacet.h), with KHR_materials_transmission and KHR_materials_ior:
 //   f = metallic       * conductor:  D G2 F_schlick(c, wo.h) / (4 cos_o cos_i)         (F0 = base colour c)
 //     + (1 - metallic) * dielectric: D G2 F(wo.h) / (4 cos_o cos_i)                    (specular layer)
-//                                    + (1 - t) (1 - F(cos_o)) c / pi                   (diffuse base)
+//                                    + (1 - t) c / pi                                  (diffuse base)
 //                                    + t c (1 - F(wo.h)) D G2 |wi.h wo.h| / (cos_i cos_o (wi.h + wo.h / eta)^2 eta^2)
 // F the exact dielectric Fresnel for eta = ior (or 1 / ior leaving a transmissive surface from its
 // back), t the transmission; the transmission lobe refracts (Walter et al. 2007; solid glass, not
 // glTF's thin-walled default) and carries radiance (the 1 / eta^2). alpha = roughness^2; below
-// ggx::kMinAlpha the microfacet lobes are Dirac deltas. Single scattering only: rough surfaces lose
-// the energy that multiple scattering between microfacets would return (no compensation).
-// Sampling: the microfacet lobes (a visible normal, then reflection or refraction in proportion to
-// their Fresnel-weighted albedos at that normal) or the diffuse base (cosine), chosen in proportion
-// to estimates of their albedos seen from wo. pdf() is the density of that whole mixture; it leaves
-// out delta lobes, which eval() leaves out too.
+// ggx::kMinAlpha the microfacet lobes are Dirac deltas. The diffuse base is not weighted by 1 - F, as in
+// Blender's Principled BSDF v1 (Cycles 3.x, the reference renderer): it is view-independent, and the
+// sum of it and the specular layer reflects more than 1 at grazing wo for a white base. Single scattering only: rough
+// surfaces lose the energy that multiple scattering between microfacets would return (no compensation). Sampling: the
+// microfacet lobes (a visible normal, then reflection or refraction in proportion to their Fresnel-weighted albedos at
+// that normal) or the diffuse base (cosine), chosen in proportion to estimates of their albedos seen from wo. pdf() is
+// the density of that whole mixture; it leaves out delta lobes, which eval() leaves out too.
 #pragma once
 
 #include "common/math.h"
@@ -34,8 +35,8 @@ class MicrofacetBsdf {
   MicrofacetBsdf(const MicrofacetInputs& in, const Vec3& n, const Vec3& wo);
 
   Vec3 eval(const Vec3& wi) const;
-  /// The diffuse base's share of eval(wi): (1 - metallic) (1 - t) (1 - F(cos_o)) c / pi above the
-  /// surface, 0 below (the view-independent lobe, DESIGN.md "Diffuse-share reprojection").
+  /// The diffuse base's share of eval(wi): (1 - metallic) (1 - t) c / pi above the surface, 0 below
+  /// (the view-independent lobe, DESIGN.md "Diffuse-share reprojection").
   Vec3 eval_diffuse(const Vec3& wi) const;
   /// The diffuse base reflects something.
   bool has_diffuse() const { return valid_ && !is_black(diffuse_); }
@@ -59,7 +60,7 @@ class MicrofacetBsdf {
   Frame frame_{};
   Vec3 wo_{0.f};  // local
   Vec3 c_{0.f};
-  Vec3 diffuse_{0.f};  // the diffuse base's f, c (1 - metallic) (1 - t) (1 - F(cos_o)) / pi
+  Vec3 diffuse_{0.f};  // the diffuse base's f, c (1 - metallic) (1 - t) / pi
   float metal_ = 0, trans_ = 0, alpha_ = 1, eta_ = 1.5f;
   float f_o_ = 0;      // dielectric Fresnel at cos_o
   float p_micro_ = 1;  // probability of sampling the microfacet lobes (else the diffuse base)

@@ -15,9 +15,9 @@ namespace epr {
 namespace {
 
 // A closed box of Lambertian walls (albedo 0.5) emitting radiance 1 around a floor (y = -1) of
-// material `floor`: a nearly uniform field of light, in which the floor reflects c (1 - F(cos_o)) of
-// it through its diffuse base (F the dielectric Fresnel, 0.04 head-on for ior 1.5) plus what its
-// specular layer reflects.
+// material `floor`: a nearly uniform field of light, in which the floor reflects c of it through its
+// diffuse base plus what its specular layer reflects (F the dielectric Fresnel, 0.04 head-on for
+// ior 1.5).
 Scene share_box(const Material& floor) {
   Scene s;
   s.name = "test-share-box";

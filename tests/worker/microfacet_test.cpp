@@ -1,5 +1,6 @@
 // The GGX metallic-roughness BSDF (worker/bsdf_ggx.h) and its use by the path tracer: the sampling
-// density against eval() and against what sample() returns, the white furnace of a conductor,
+// density against eval() and against what sample() returns, the white furnaces of a conductor and of a
+// dielectric over an unweighted diffuse base,
 // smooth glass, metallic-roughness textures per texel, emission textures, and which vertices are
 // recorded as reprojectable.
 #include "worker/microfacet.h"
@@ -146,6 +147,40 @@ TEST(MicrofacetBsdf, WhiteFurnaceConductorReflectsAtMostOne) {
         EXPECT_NEAR(albedo, 1 - std::log(2.0), 5 * se + 1e-4);
       }
       EXPECT_GT(albedo, 0.25);
+    }
+}
+
+// White furnace of a dielectric with a white base (Blender's Principled BSDF v1, the reference): the
+// diffuse base is c (1 - metallic) / pi for every wo, not weighted by 1 - F(cos_o), so it alone
+// reflects exactly 1 and the specular layer adds its own albedo on top: above 1 everywhere (about
+// 1.04 head-on at roughness 0.3, 1.01 at roughness 1, single scattering), most at grazing wo (1.29 at
+// cos_o 0.15, roughness 0.3; asserted above 1.2). eval_diffuse is the same
+// from every wo.
+TEST(MicrofacetBsdf, WhiteFurnaceDielectricAddsItsSpecularToAnUnweightedDiffuseBase) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> U(0.f, 1.f);
+  const Vec3 n(0, 0, 1), wi = normalize(Vec3(0.2f, 0.4f, 1));
+  const float head_on = MicrofacetBsdf({Vec3(1.f), 0, 0.3f, 0, 1.5f, true}, n, n).eval_diffuse(wi).x;
+  EXPECT_FLOAT_EQ(head_on, kInvPi);
+  for (const float rough : {0.3f, 1.f})
+    for (const float cos_o : {1.f, 0.5f, 0.15f}) {
+      SCOPED_TRACE(testing::Message() << "roughness " << rough << " cos_o " << cos_o);
+      const MicrofacetBsdf b({Vec3(1.f), 0, rough, 0, 1.5f, true}, n, ggx_view(cos_o));
+      EXPECT_FLOAT_EQ(b.eval_diffuse(wi).x, head_on);
+      const int N = 100000;
+      double sum = 0, sum2 = 0;
+      for (int i = 0; i < N; ++i) {
+        const BsdfSample s = b.sample(U(rng), {U(rng), U(rng)});
+        if (s.valid) sum += s.weight.y, sum2 += double(s.weight.y) * s.weight.y;
+      }
+      const double albedo = sum / N, se = std::sqrt((sum2 / N - albedo * albedo) / N);
+      RecordProperty("albedo_r" + std::to_string(int(rough * 10)) + "_c" + std::to_string(int(cos_o * 100)),
+                     std::to_string(albedo));
+      EXPECT_GT(albedo, 1.0 + 5 * se);
+      EXPECT_LT(albedo, 2.0);
+      if (rough == 0.3f && cos_o == 0.15f) {
+        EXPECT_GT(albedo, 1.2);
+      }
     }
 }
 
