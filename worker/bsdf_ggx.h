@@ -7,13 +7,14 @@
 // F the exact dielectric Fresnel for eta = ior (or 1 / ior leaving a transmissive surface from its
 // back), t the transmission; the transmission lobe refracts (Walter et al. 2007; solid glass, not
 // glTF's thin-walled default) and carries radiance (the 1 / eta^2). alpha = roughness^2; below
-// ggx::kMinAlpha the microfacet lobes are Dirac deltas. The diffuse base is not weighted by 1 - F, as in
-// Blender's Principled BSDF v1 (Cycles 3.x, the reference renderer): it is view-independent, and the
-// sum of it and the specular layer reflects more than 1 at grazing wo for a white base. Single scattering only: rough
-// surfaces lose the energy that multiple scattering between microfacets would return (no compensation). Sampling: the
-// microfacet lobes (a visible normal, then reflection or refraction in proportion to their Fresnel-weighted albedos at
-// that normal) or the diffuse base (cosine), chosen in proportion to estimates of their albedos seen from wo. pdf() is
-// the density of that whole mixture; it leaves out delta lobes, which eval() leaves out too.
+// ggx::kMinAlpha the microfacet lobes are Dirac deltas. The diffuse base is not weighted by 1 - F, as
+// in Blender's Principled BSDF v1 (Cycles 3.x, the reference renderer): it is view-independent, and
+// with the specular layer on top a white base reflects more than 1 at grazing wo. Single scattering
+// only: rough surfaces lose the energy that multiple scattering between microfacets would return (no
+// compensation). Sampling: the microfacet lobes (a visible normal, then reflection or refraction in
+// proportion to their Fresnel-weighted albedos at that normal) or the diffuse base (cosine), chosen
+// in proportion to estimates of their albedos seen from wo. pdf() is the density of that whole
+// mixture; it leaves out delta lobes, which eval() leaves out too.
 #pragma once
 
 #include "common/math.h"
