@@ -11,7 +11,14 @@
 // A reprojecting mode may name a variant: "skip:w=0.5:m=32" runs skip with --reprojected-weight 0.5 and
 // --min-paths 32 (unnamed values: --reprojected-weight and --min-paths, by default epr's), and is
 // called skip_w0.5_m32 in file names and tables; a value at epr's default is left out of the name
-// (plain "skip" is skip as `epr render` runs it).
+// (plain "skip" is skip as `epr render` runs it). Every mode, pt included, may name its Russian
+// roulette (common/roulette.h) and the depth it starts at: "pt:rr=albedo", "skip:rr=reuse:rs=3" (pt_albedo,
+// skip_reuse_s3; the default roulette is left out of the name).
+//
+// The baseline is the best plain path tracer: every pt run (plain "pt" is always run, and
+// --pt-rr adds "pt:rr=NAME" for each NAME) is a candidate, and at each --target P the one with the
+// least error x CPU seconds at P is the one the time-to-error columns compare with ("pt*" in the
+// tables and summary.json's "baseline").
 //
 // Per run, OUT/csv/SCENE_WxH_MODE.csv has one row per round:
 //   round, wall_s, cpu_s, eye_paths, reprojected_samples, mean_spp, rel_mse, rel_mse_trim, rmse,
@@ -45,6 +52,7 @@
 // (bench/charts/tables.py writes the same tables from the CSVs for docs/RESULTS.md).
 // OUT/strip/: the equal-time images (pt, rp, skip at half of pt's CPU time for P = --strip-p) and skip's M'.
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <sys/resource.h>
 
 #include <CLI/CLI.hpp>
@@ -55,6 +63,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -70,6 +79,7 @@
 #include "common/image.h"
 #include "common/log.h"
 #include "common/scene_loader.h"
+#include "error_curves.h"
 #include "master/frame_state.h"
 
 using namespace epr;
@@ -78,26 +88,23 @@ using nlohmann::json;
 
 namespace {
 
+using bench::at_spp;
 using bench::cpu_seconds;
 using bench::ErrorMeans;
 using bench::errors;
 using bench::load1;
+using bench::metric;
+using bench::Reach;
 using bench::Reference;
 using bench::reference;
 using bench::reference_file;
+using bench::Sample;
 using bench::scene_name;
+using bench::time_to;
 
 // ---------------------------------------------------------------------------------------------------
 // Runs
 // ---------------------------------------------------------------------------------------------------
-
-struct Sample {
-  int round = 0;
-  double wall = 0, cpu = 0, eye_paths = 0, reprojected = 0, mean_spp = 0;
-  double spp = 0;                // paths per pixel the round schedule has reached (traced + skipped; = pt's M)
-  ErrorMeans raw, err;           // err = raw - floor
-  std::optional<ErrorMeans> cy;  // against the Cycles reference, its floor subtracted
-};
 
 // An error of x against eprfarm's reference and, when there is one, against Cycles'.
 void score(Sample& s, const Image& x, const Reference& ref, const Reference* cyref) {
@@ -126,8 +133,13 @@ struct ModeSpec {
   float reprojected_weight = RenderOptions{}.reprojected_weight;
   int min_paths = RenderOptions{}.min_paths;
   CombineRule combine = RenderOptions{}.combine;
+  RussianRoulette rr = RenderOptions{}.rr;
   std::string name;  // file names and tables
 };
+
+// Every reference is rendered with one roulette, whatever the runs' (all of them unbiased), so that
+// changing the default does not re-render the cache.
+const RussianRoulette kReferenceRoulette = RussianRoulette::albedo();
 
 // The variant defaults of reprojecting runs (--reprojected-weight, --min-paths).
 float g_reprojected_weight = RenderOptions{}.reprojected_weight;
@@ -138,26 +150,41 @@ ModeSpec mode_spec(const std::string& spec) {
   const size_t colon = spec.find(':');
   const std::string m = spec.substr(0, colon);
   ModeSpec s;
+  const auto set = [&](RenderMode mode, ReprojectMethod reproject) {
+    s.mode = mode;
+    s.reproject = reproject;
+  };
   if (m == "pt")
-    s = {RenderMode::kPathTrace, ReprojectMethod::kGl};
+    set(RenderMode::kPathTrace, ReprojectMethod::kGl);
   else if (m == "rp")
-    s = {RenderMode::kReproject, ReprojectMethod::kGl};
+    set(RenderMode::kReproject, ReprojectMethod::kGl);
   else if (m == "skip")
-    s = {RenderMode::kSkip, ReprojectMethod::kGl};
+    set(RenderMode::kSkip, ReprojectMethod::kGl);
   else if (m == "exact")
-    s = {RenderMode::kReproject, ReprojectMethod::kExact};
+    set(RenderMode::kReproject, ReprojectMethod::kExact);
   else
     throw std::invalid_argument("unknown mode '" + m + "' (pt, rp, skip, exact)");
   if (s.mode != RenderMode::kPathTrace) {
     s.reprojected_weight = g_reprojected_weight;
     s.min_paths = g_min_paths;
   }
+  std::optional<int> start_depth;  // rs=, applied after rr=
   for (size_t at = colon; at != std::string::npos;) {
     const size_t next = spec.find(':', at + 1);
     const std::string part = spec.substr(at + 1, next == std::string::npos ? std::string::npos : next - at - 1);
     at = next;
-    if (s.mode == RenderMode::kPathTrace) throw std::invalid_argument("mode '" + spec + "': pt has no variants");
     try {
+      if (part.rfind("rr=", 0) == 0) {
+        const auto rr = roulette_named(part.substr(3));
+        if (!rr) throw std::invalid_argument("");
+        s.rr = *rr;
+        continue;
+      }
+      if (part.rfind("rs=", 0) == 0) {
+        start_depth = std::stoi(part.substr(3));
+        continue;
+      }
+      if (s.mode == RenderMode::kPathTrace) throw std::invalid_argument("");
       if (part.rfind("w=", 0) == 0)
         s.reprojected_weight = std::stof(part.substr(2));
       else if (part.rfind("m=", 0) == 0)
@@ -167,10 +194,16 @@ ModeSpec mode_spec(const std::string& spec) {
       else
         throw std::invalid_argument("");
     } catch (const std::exception&) {
-      throw std::invalid_argument("mode '" + spec + "': '" + part + "' is not w=WEIGHT, m=MIN_PATHS or c=RULE");
+      throw std::invalid_argument("mode '" + spec + "': '" + part + "' is not rr=ROULETTE (" + roulette_names() +
+                                  "), rs=START_DEPTH" +
+                                  (s.mode == RenderMode::kPathTrace ? "" : ", w=WEIGHT, m=MIN_PATHS or c=RULE"));
     }
   }
+  if (start_depth) s.rr.start_depth = *start_depth;
   s.name = m;
+  if (s.rr.mode != RenderOptions{}.rr.mode) s.name += "_" + std::string(roulette_name(s.rr.mode));
+  if (s.rr.start_depth != roulette_named(roulette_name(s.rr.mode))->start_depth)
+    s.name += fmt::format("_s{}", s.rr.start_depth);
   if (s.mode == RenderMode::kPathTrace) return s;
   if (s.reprojected_weight != RenderOptions{}.reprojected_weight) s.name += fmt::format("_w{:g}", s.reprojected_weight);
   if (s.min_paths != RenderOptions{}.min_paths) s.name += fmt::format("_m{}", s.min_paths);
@@ -187,6 +220,7 @@ Run run_mode(const RenderOptions& base, const ModeSpec& ms, const Reference& ref
   o.reprojected_weight = ms.reprojected_weight;
   o.min_paths = ms.min_paths;
   o.combine = ms.combine;
+  o.rr = ms.rr;
   if (auto err = o.validate()) throw std::invalid_argument("mode '" + ms.name + "': " + *err);
   Run run;
   run.mode = ms.name;
@@ -236,61 +270,6 @@ void write_csv(const fs::path& file, const std::vector<Sample>& samples) {
     else
       f << "nan,nan,nan\n";
   }
-}
-
-// The error column a table uses: trimmed or full relative MSE (reference noise subtracted).
-double metric(const Sample& s, bool trimmed) { return trimmed ? s.err.trimmed : s.err.full; }
-
-// A curve's state at exactly t paths per pixel: the round that ends there, or a log-log interpolation
-// between the two rounds around it (the growing round schedule need not end a round at t).
-std::optional<Sample> at_spp(const std::vector<Sample>& s, double t) {
-  for (size_t i = 0; i < s.size(); ++i) {
-    if (s[i].spp == t) return s[i];
-    if (s[i].spp < t) continue;
-    if (i == 0 || !(s[i - 1].spp > 0)) return std::nullopt;
-    const Sample &a = s[i - 1], &b = s[i];
-    const double f = (std::log(t) - std::log(a.spp)) / (std::log(b.spp) - std::log(a.spp));
-    const auto lerp = [f](double x, double y) {
-      return x > 0 && y > 0 ? std::exp(std::log(x) + f * (std::log(y) - std::log(x))) : x + f * (y - x);
-    };
-    Sample r = b;
-    r.spp = t;
-    r.wall = lerp(a.wall, b.wall);
-    r.cpu = lerp(a.cpu, b.cpu);
-    r.err = {lerp(a.err.full, b.err.full), lerp(a.err.trimmed, b.err.trimmed), lerp(a.err.mse, b.err.mse)};
-    return r;
-  }
-  return std::nullopt;
-}
-
-// log(time) at which log(error) crosses `target` on the segment between rounds a and b.
-double crossing(const Sample& a, const Sample& b, double target, bool use_cpu, bool trimmed) {
-  const double t0 = use_cpu ? a.cpu : a.wall, t1 = use_cpu ? b.cpu : b.wall;
-  const double e0 = metric(a, trimmed), e1 = metric(b, trimmed);
-  if (!(e0 > 0) || !(e1 > 0) || !(t0 > 0) || e0 == e1) return t1;
-  const double f = (std::log(target) - std::log(e0)) / (std::log(e1) - std::log(e0));
-  return std::exp(std::log(t0) + f * (std::log(t1) - std::log(t0)));
-}
-
-// When a curve reaches `target`, read two ways because the curves are noisy (a firefly raises the
-// full metric for a while): `first`, the first round at or below it (optimistic), and `stays`, the
-// round from which on every later round stays at or below it (pessimistic); both interpolated
-// log-log between rounds, nullopt if not reached.
-struct Reach {
-  std::optional<double> first, stays;
-};
-
-Reach time_to(const std::vector<Sample>& s, double target, bool use_cpu, bool trimmed) {
-  Reach r;
-  if (!(target > 0) || s.empty()) return r;
-  for (size_t i = 0; i < s.size() && !r.first; ++i)
-    if (metric(s[i], trimmed) <= target)
-      r.first = i == 0 ? (use_cpu ? s[0].cpu : s[0].wall) : crossing(s[i - 1], s[i], target, use_cpu, trimmed);
-  if (!(metric(s.back(), trimmed) <= target)) return r;
-  size_t i = s.size() - 1;
-  while (i > 0 && metric(s[i - 1], trimmed) <= target) --i;
-  r.stays = i == 0 ? (use_cpu ? s[0].cpu : s[0].wall) : crossing(s[i - 1], s[i], target, use_cpu, trimmed);
-  return r;
 }
 
 double num(const json& j, const char* key) {
@@ -408,6 +387,7 @@ int main(int argc, char** argv) {
                                      "builtin:glossy"};
   std::vector<std::string> modes = {"pt", "rp", "skip", "exact"};
   std::vector<int> targets = {64, 256};
+  std::vector<std::string> pt_rr;
   std::string cache = bench::default_cache_dir(), out_dir = "bench_out", export_dir, cycles_dir;
   bool no_strip = false, list_references = false;
   bench::add_common_options(app, &size, &ref_spp, &cache, &threads, &bench::g_trim);
@@ -419,6 +399,8 @@ int main(int argc, char** argv) {
   app.add_option("--reprojected-weight", g_reprojected_weight,
                  "W of every reprojecting run that does not name its own (w=), in (0, 1]");
   app.add_option("--min-paths", g_min_paths, "min-paths of every skip run that does not name its own (m=)");
+  app.add_option("--pt-rr", pt_rr,
+                 "more baseline candidates: pt with each of these roulettes (" + roulette_names() + ")");
   app.add_option("--target", targets, "the P of plain path tracing whose error the time-to-error columns use");
   app.add_option("--out", out_dir, "output folder (csv/, strip/, summary.json, tables.md)");
   app.add_option("--cycles", cycles_dir, "folder of cycles_sweep.py results to score (SCENE_WxH/times.csv)");
@@ -445,25 +427,34 @@ int main(int argc, char** argv) {
     for (const std::string& s : scenes) {
       RenderOptions o;
       o.scene = s;
+      o.rr = kReferenceRoulette;
       for (uint64_t seed : {1000001u, 1000002u})
         std::printf("%s\n", (fs::path(cache) / reference_file(o, size, size, std::max(1, ref_spp / 2), seed)).c_str());
     }
     return 0;
   }
   // pt first: its error at the target P and its CPU time for the strip are needed by the others.
+  // The other pt runs follow it: all of them are baseline candidates.
   modes.erase(std::remove(modes.begin(), modes.end(), "pt"), modes.end());
+  for (auto it = pt_rr.rbegin(); it != pt_rr.rend(); ++it) modes.insert(modes.begin(), "pt:rr=" + *it);
   modes.insert(modes.begin(), "pt");
+  std::stable_partition(modes.begin(), modes.end(), [](const std::string& m) { return m.rfind("pt", 0) == 0; });
   // Runs are known by their variant names from here on.
   std::map<std::string, ModeSpec> specs;
-  for (std::string& m : modes) {
+  std::vector<std::string> named, pt_runs;  // pt_runs: the baseline candidates
+  for (const std::string& m : modes) {
     const ModeSpec s = mode_spec(m);
-    m = s.name;
-    specs[m] = s;
+    const bool pt = s.mode == RenderMode::kPathTrace;
+    if (specs.count(s.name)) {
+      if (pt) continue;  // --pt-rr naming the default roulette
+      std::fprintf(stderr, "speed_accuracy: mode %s is named twice\n", s.name.c_str());
+      return 2;
+    }
+    if (pt) pt_runs.push_back(s.name);
+    named.push_back(s.name);
+    specs[s.name] = s;
   }
-  if (std::set<std::string>(modes.begin(), modes.end()).size() != modes.size()) {
-    std::fprintf(stderr, "speed_accuracy: a mode is named twice\n");
-    return 2;
-  }
+  modes = named;
 
   const fs::path out(out_dir);
   fs::create_directories(out / "csv");
@@ -503,7 +494,9 @@ int main(int argc, char** argv) {
     const std::string tag = fmt::format("{}_{}x{}", scene_name(spec), size, size);
     std::printf("\n== %s, load %.2f\n", tag.c_str(), load1());
     std::fflush(stdout);
-    const Reference ref = reference(base, ref_spp, cache);
+    RenderOptions ref_options = base;
+    ref_options.rr = kReferenceRoulette;
+    const Reference ref = reference(ref_options, ref_spp, cache);
     const std::optional<Reference> cyref =
         cycles_dir.empty() ? std::nullopt : cycles_reference(fs::path(cycles_dir) / (tag + "_reference"));
     const Reference* cy = cyref ? &*cyref : nullptr;
@@ -637,18 +630,44 @@ int main(int argc, char** argv) {
       const char* name = trimmed ? "rel_mse_trim" : "rel_mse";
       md << (trimmed ? "Trimmed relative MSE (without the 1 % largest pixel terms):\n\n"
                      : "Full relative MSE (every pixel, fireflies included):\n\n");
-      md << "| mode | final error | CPU-s | wall s |";
-      for (int t : targets) md << fmt::format(" to pt@{}: CPU-s first / stays | x pt first / stays |", t);
+      // The baseline at each target: the pt run of least error x CPU seconds at P = t.
+      std::map<int, std::string> best_pt;
+      for (int t : targets) {
+        double best = std::numeric_limits<double>::infinity();
+        for (const std::string& p : pt_runs)
+          if (const auto at = at_spp(runs[p].samples, t); at && metric(*at, trimmed) * at->cpu < best) {
+            best = metric(*at, trimmed) * at->cpu;
+            best_pt[t] = p;
+          }
+        if (best_pt.count(t)) js["baseline"][name][std::to_string(t)] = best_pt[t];
+      }
+      md << "Baseline pt* (least error x CPU-s among " << fmt::format("{}", fmt::join(pt_runs, ", ")) << "):";
+      for (int t : targets) md << fmt::format(" P = {}: {};", t, best_pt.count(t) ? best_pt[t] : "-");
+      md << "\n\n| mode | final error | CPU-s | wall s |";
+      for (int t : targets) md << fmt::format(" error x CPU-s at P = {} | x pt* |", t);
+      for (int t : targets) md << fmt::format(" to pt*@{}: CPU-s first / stays | x pt* first / stays |", t);
       md << "\n|---|---|---|---|";
-      for (size_t i = 0; i < targets.size(); ++i) md << "---|---|";
+      for (size_t i = 0; i < 2 * targets.size(); ++i) md << "---|---|";
       md << "\n";
       for (const auto& [m, s] : curves) {
         const Sample& last = s->back();
         md << fmt::format("| {} | {:.4g} | {:.1f} | {:.1f} |", m, metric(last, trimmed), last.cpu, last.wall);
         for (int t : targets) {
-          // The target and the time it is compared with: plain path tracing's error and CPU time at t
-          // paths per pixel.
-          const std::optional<Sample> base = at_spp(runs["pt"].samples, t);
+          const std::optional<Sample> at = at_spp(*s, t);
+          const std::optional<Sample> base = best_pt.count(t) ? at_spp(runs[best_pt[t]].samples, t) : std::nullopt;
+          if (!at || !base) {
+            md << " - | - |";
+            continue;
+          }
+          const double product = metric(*at, trimmed) * at->cpu, base_product = metric(*base, trimmed) * base->cpu;
+          md << fmt::format(" {:.4g} | {:.2f} |", product, product / base_product);
+          tte[name][m][std::to_string(t)]["error_x_cpu_s"] = product;
+          tte[name][m][std::to_string(t)]["error_x_cpu_s_vs_best_pt"] = product / base_product;
+        }
+        for (int t : targets) {
+          // The target and the time it is compared with: the best plain path tracer's error and CPU
+          // time at t paths per pixel.
+          const std::optional<Sample> base = best_pt.count(t) ? at_spp(runs[best_pt[t]].samples, t) : std::nullopt;
           if (!base) {
             md << " - | - |";
             continue;
@@ -658,10 +677,14 @@ int main(int argc, char** argv) {
           md << fmt::format(" {} / {} | {} / {} |", fmt_time(c.first), fmt_time(c.stays), fmt_ratio(c.first, base->cpu),
                             fmt_ratio(c.stays, base->cpu));
           auto opt = [](std::optional<double> v) { return v ? json(*v) : json(nullptr); };
-          tte[name][m][std::to_string(t)] = {{"target", metric(*base, trimmed)}, {"pt_cpu_s", base->cpu},
-                                             {"pt_wall_s", base->wall},          {"cpu_s_first", opt(c.first)},
-                                             {"cpu_s_stays", opt(c.stays)},      {"wall_s_first", opt(w.first)},
-                                             {"wall_s_stays", opt(w.stays)}};
+          tte[name][m][std::to_string(t)].update({{"baseline", best_pt[t]},
+                                                  {"target", metric(*base, trimmed)},
+                                                  {"pt_cpu_s", base->cpu},
+                                                  {"pt_wall_s", base->wall},
+                                                  {"cpu_s_first", opt(c.first)},
+                                                  {"cpu_s_stays", opt(c.stays)},
+                                                  {"wall_s_first", opt(w.first)},
+                                                  {"wall_s_stays", opt(w.stays)}});
         }
         md << "\n";
       }

@@ -20,6 +20,7 @@
 #include "client/local_render.h"
 #include "client/remote_commands.h"
 #include "client/render_flags.h"
+#include "client/trace_path.h"
 #include "common/address.h"
 #include "common/log.h"
 #include "common/tile.h"
@@ -118,8 +119,31 @@ void print_status(const v1::JobStatus& s, bool tty) {
   std::fflush(stderr);
 }
 
+// `epr render --single-process --trace-path X,Y,N`: one path traced and printed, nothing written.
+int run_trace_path(const RenderOptions& o, bool single_process, const std::string& ref_text) {
+  std::string why;
+  const std::optional<PathRef> ref = parse_path_ref(ref_text, &why);
+  if (!ref) {
+    std::fprintf(stderr, "epr render: --trace-path: %s\n", why.c_str());
+    return 2;
+  }
+  if (!single_process) {
+    std::fprintf(stderr,
+                 "epr render: --trace-path replays a path of the single-process render: add --single-process\n");
+    return 2;
+  }
+  try {
+    trace_path(o, *ref, stdout);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "epr render: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}
+
 int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra, bool single_process, int workers,
-               const std::string& http, double timeout_seconds, const std::string& memory_budget) {
+               const std::string& http, double timeout_seconds, const std::string& memory_budget,
+               const std::string& trace_path_ref) {
   finish_options(o, extra);
   if (auto err = output_prefix_error(o.out)) {
     std::fprintf(stderr, "epr render: --out: %s\n", err->c_str());
@@ -135,6 +159,7 @@ int run_render(RenderOptions& o, const std::map<std::string, std::string>& extra
     std::fprintf(stderr, "epr render: %s\n", err->c_str());
     return 2;
   }
+  if (!trace_path_ref.empty()) return run_trace_path(o, single_process, trace_path_ref);
   // A frame this machine cannot hold is refused before anything starts, with what it would need.
   const uint64_t budget = memory_budget.empty()  ? default_memory_budget()
                           : memory_budget == "0" ? 0
@@ -254,6 +279,10 @@ int main(int argc, char** argv) {
       ->check([](const std::string& v) -> std::string {
         return v == "0" || parse_byte_size(v) ? "" : "expected bytes like 8G, 512M or 0, got '" + v + "'";
       });
+  std::string trace_path_ref;
+  render->add_option("--trace-path", trace_path_ref,
+                     "with --single-process: trace only path SAMPLE of pixel X,Y (X,Y,SAMPLE, as a worker's log of a "
+                     "dropped non-finite sample gives it, with its --seed) and print its vertices; writes no file");
   RemoteCommands remote(app);  // submit, watch, get, list, cancel
 
   try {
@@ -266,7 +295,7 @@ int main(int argc, char** argv) {
   try {
     if (render->parsed())
       return run_render(render_opts, render_extra, single_process, local_workers, render_http, render_timeout,
-                        render_memory_budget);
+                        render_memory_budget, trace_path_ref);
   } catch (const CLI::ValidationError& e) {
     std::fprintf(stderr, "epr: %s\n", e.what());
     return 2;

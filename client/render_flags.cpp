@@ -101,9 +101,13 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
   cmd->add_flag_callback(
       "--no-joint-test", [&o] { o.joint_test = false; },
       "plane test without its normal and crease tests: thin walls leak at their joints (failure-mode study)");
-  cmd->add_option("--rr", extra["rr"], "Russian roulette: paper (after 8 bounces, p=0.1), albedo, or off")
-      ->check(CLI::IsMember({"paper", "albedo", "off"}))
-      ->default_str("paper");
+  std::vector<std::string> rr_names;
+  for (const NamedRoulette& n : named_roulettes()) rr_names.emplace_back(n.name);
+  cmd->add_option("--rr", extra["rr"],
+                  "Russian roulette (docs/DESIGN.md \"Russian roulette\"): reuse (throughput since the latest "
+                  "vertex reprojection can show), throughput, albedo, paper (after 8 vertices, p=0.1) or off")
+      ->check(CLI::IsMember(rr_names))
+      ->default_str(std::string(roulette_name(RussianRoulette::standard().mode)));
   cmd->add_option("--max-depth", extra["max-depth"],
                   "hard cap on path vertices (default 1024; with --rr off the fixed depth, default 8)");
   cmd->add_flag("--mis,!--no-mis", o.mis,
@@ -224,10 +228,8 @@ void finish_options(RenderOptions& o, const std::map<std::string, std::string>& 
   }
   const auto rr = extra.find("rr");
   const auto depth = extra.find("max-depth");
-  const std::string mode = rr == extra.end() || rr->second.empty() ? "paper" : rr->second;
-  o.rr = mode == "albedo" ? RussianRoulette::albedo()
-         : mode == "off"  ? RussianRoulette::off(8)
-                          : RussianRoulette::paper();
+  o.rr = rr == extra.end() || rr->second.empty() ? RussianRoulette::standard()
+                                                 : roulette_named(rr->second).value_or(RussianRoulette::standard());
   if (depth != extra.end() && !depth->second.empty()) {
     try {
       o.rr.max_depth = std::stoi(depth->second);

@@ -8,25 +8,10 @@
 
 #include "common/camera.h"
 #include "common/lighting.h"
+#include "common/roulette.h"
 #include "common/sampler.h"
 
 namespace epr {
-
-struct RussianRoulette {
-  enum class Mode {
-    kPaper,   // survive with 1 - termination once depth > start_depth (paper: 8 and 0.1)
-    kAlbedo,  // survive with the surface's largest albedo (clamped to [0.05, 1]) once depth > start_depth
-    kOff,     // no roulette: every path stops at max_depth (biased: reprojected samples get darker)
-  };
-  Mode mode = Mode::kPaper;
-  int start_depth = 8;       // vertices traced before roulette starts
-  float termination = 0.1f;  // kPaper's termination probability
-  int max_depth = 1024;      // hard cap on path vertices
-
-  static RussianRoulette paper() { return {}; }
-  static RussianRoulette albedo() { return {Mode::kAlbedo, 3, 0.f, 1024}; }
-  static RussianRoulette off(int max_depth) { return {Mode::kOff, 0, 0.f, max_depth}; }
-};
 
 enum class RenderMode { kPathTrace, kReproject, kSkip };
 enum class ReprojectMethod { kGl, kCpu, kExact };
@@ -60,7 +45,7 @@ struct RenderOptions {
   CombineRule combine = CombineRule::kFixed;
   bool reproject_glossy = false;  // failure-mode study only
   bool joint_test = true;         // the plane test's normal and crease tests (off: failure-mode study)
-  RussianRoulette rr = RussianRoulette::paper();
+  RussianRoulette rr = RussianRoulette::standard();
   // Eye paths' random numbers (common/sampler.h).
   SamplerKind sampler = SamplerKind::kSobolBurley;
   bool mis = true;                    // direct light by MIS of light and BSDF samples; false: NEE only

@@ -17,6 +17,8 @@
 //  - build_deep_framebuffer_gl: rasterises with OpenGL (OSMesa/llvmpipe), reversed-Z float depth.
 //  - build_deep_framebuffer_cpu: casts the texel-centre ray against every triangle whose screen
 //    bounding box contains the texel (TBB over row bands). Fallback for machines without OSMesa.
+//    A FrameState uses the GL builder for either reprojection back-end where OSMesa is available, so
+//    that the back-ends decide alike (the builders differ as said next).
 // Both agree on which triangle covers a texel except where a triangle edge passes (nearly) through
 // the texel centre (GL uses the top-left fill rule, the CPU an inclusive barycentric test) and for
 // geometry closer to the eye than the near plane (GL clips at kNearPlane * scene diagonal).

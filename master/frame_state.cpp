@@ -7,6 +7,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "common/check.h"
+#include "common/log.h"
 #include "master/combine_rule.h"
 #include "master/deep_framebuffer.h"
 #include "master/gl_context.h"
@@ -168,13 +170,24 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     rs.joint_test = opts.joint_test;
     // Exact mode decides visibility with rays on the workers; the accumulation is the same, so the
     // CPU back-end (no GL needed) holds it.
-    // The deep framebuffer is built band by band straight into the compact plane grid.
+    // The deep framebuffer is built band by band straight into the compact plane grid, by the same
+    // builder whatever the back-end: the GL rasteriser where OSMesa is there (on `gl`, else on a
+    // private context), the CPU builder only without it. The two builders pick different triangles
+    // where an edge passes through a texel centre (deep_framebuffer.h); with one builder the GL and
+    // CPU back-ends, whose kernels agree bit for bit, decide every vertex alike.
     const bool use_gl = opts.reproject == ReprojectMethod::kGl;
     const float tolerance = rs.epsilon * detail::kCreaseToleranceFraction;
-    detail::PlaneGrid grid =
-        use_gl && gl ? detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, gl)
-        : use_gl     ? detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test)
-                     : detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
+    detail::PlaneGrid grid;
+    try {
+      grid = gl ? detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, gl)
+                : detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test);
+    } catch (const std::runtime_error& e) {
+      // What this GL cannot rasterise (more triangles than its buffer textures hold) the CPU builder
+      // can; only the GL back-end needs GL.
+      if (use_gl) throw;
+      logger("master")->info("deep framebuffer built on the CPU: {}", e.what());
+      grid = detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
+    }
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
@@ -315,6 +328,7 @@ double FrameState::pixel_samples(size_t p) const {
 int FrameState::next_paths_per_pixel() const { return round_paths(opts_, paths_done_); }
 
 bool FrameState::finish_round() {
+  EPR_DCHECK(!done_);
   paths_done_ += next_paths_per_pixel();
   ++progress_.round;
   const bool skipping = opts_.mode == RenderMode::kSkip;
@@ -331,6 +345,7 @@ bool FrameState::finish_round() {
   uint64_t active = 0, skipped = 0;
   for (size_t p = 0; p < skip_.size(); ++p) {
     const uint64_t m = path_count_[p];
+    EPR_DCHECK_LE(m, uint64_t(paths_done_));  // no pixel traces more paths than the rounds asked for
     if (!skip_[p]) {
       if (m >= target || (skipping && pixel_samples(p) >= double(target) && m >= uint64_t(opts_.min_paths))) {
         skip_[p] = 1;
@@ -356,6 +371,7 @@ void FrameState::update_sample_progress() {
     sum_m += double(m);
     sum_mp += double(mp);
     const double spp = pixel_samples(p);
+    EPR_DCHECK_GE(spp, double(m));  // reprojected samples add to the traced ones, never subtract
     sum_spp += spp;
     min_spp = std::min(min_spp, spp);
   }
@@ -366,6 +382,7 @@ void FrameState::update_sample_progress() {
   progress_.mean_spp = sum_spp / n;
   progress_.min_spp = min_spp;
   // Paths a skipped pixel did not trace, against plain path tracing at P.
+  if (done_) EPR_CHECK_LE(traced, uint64_t(opts_.spp) * uint64_t(skip_.size()));
   progress_.paths_skipped = done_ ? uint64_t(opts_.spp) * uint64_t(skip_.size()) - traced : 0;
 }
 

@@ -140,7 +140,8 @@ double eta_seconds(const FrameProgress& p, int spp, double seconds);
 class FrameState {
  public:
   /// `scene` supplies the triangles of the deep framebuffer (rp / skip modes only). `gl` is the
-  /// context for the "gl" reprojector; when null, "gl" uses a context of its own.
+  /// context for the "gl" reprojector and for rasterising the deep framebuffer of either back-end;
+  /// when null, both use a context of their own (the deep framebuffer: the CPU builder without OSMesa).
   FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl = nullptr);
   ~FrameState();
 

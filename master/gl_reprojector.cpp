@@ -87,7 +87,23 @@ void GlReprojector::init(const Camera& camera, detail::PlaneGrid grid) {
   if (!ctx_->has_extension("GL_NV_shader_atomic_float"))
     throw GlUnavailable(
         "the GL reprojector needs GL_NV_shader_atomic_float (Mesa llvmpipe has it); use the cpu back-end");
-  const auto& gl = ctx_->gl();
+  size_grid(camera, grid);
+  plan_bands();
+  // 16-bit plane indices when there are few enough planes (halves the largest randomly accessed
+  // array after the accumulation).
+  const bool narrow = grid.planes.size() / 4 < 0xffff;
+  compile_programs(narrow);
+  create_upload_ring();
+  upload_plane_index(&grid, narrow);  // frees the grid's plane index
+  create_accumulation();
+  upload_plane_tables(grid);
+  create_counters();
+  set_fixed_uniforms(grid.first_creased);
+  reset();
+  ctx_->check_error("GlReprojector setup");
+}
+
+void GlReprojector::size_grid(const Camera& camera, const detail::PlaneGrid& grid) {
   params_ = detail::make_kernel_params(camera, grid.subpixels, settings_.epsilon, settings_.joint_test);
   map_downsample_ = settings_.gl_map_downsample;
   subpixels_ = grid.subpixels;
@@ -101,8 +117,11 @@ void GlReprojector::init(const Camera& camera, detail::PlaneGrid grid) {
   if (cells > size_t(UINT32_MAX))
     throw std::runtime_error(
         fmt::format("subpixel grid {}x{}: more subpixels than 32-bit indices address", grid_w_, grid_h_));
+}
 
+void GlReprojector::plan_bands() {
   // Bands of whole pixel rows, each within the largest SSBO and buffer texture this GL allows.
+  const auto& gl = ctx_->gl();
   GLint max_ssbo = 0, max_tbo = 0;
   gl.GetIntegerv(GL_MAX_SHADER_STORAGE_BLOCK_SIZE, &max_ssbo);
   gl.GetIntegerv(GL_MAX_TEXTURE_BUFFER_SIZE, &max_tbo);
@@ -139,37 +158,44 @@ void GlReprojector::init(const Camera& camera, detail::PlaneGrid grid) {
     bin_count_.resize(bands_.size());
     bin_offset_.resize(bands_.size());
   }
+}
 
-  // Compact deep framebuffer; 16-bit plane indices when there are few enough planes (halves the
-  // largest randomly accessed array after the accumulation).
-  const bool narrow = grid.planes.size() / 4 < 0xffff;
+void GlReprojector::compile_programs(bool narrow) {
   reproject_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kReprojectShader, settings_, narrow));
   packed_prog_ =
       std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kReprojectShader, settings_, narrow, true));
   exact_prog_ = std::make_unique<GlProgram>(*ctx_, shader_source(gl_shaders::kExactShader, settings_, narrow));
+}
 
-  // Upload ring, persistently mapped.
+void GlReprojector::create_upload_ring() {
+  // Persistently mapped; read by the kernels through two buffer-texture views.
+  const auto& gl = ctx_->gl();
   const GLbitfield map_flags = GL_MAP_WRITE_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
   ring_ = std::make_unique<GlBuffer>(*ctx_);
   gl.NamedBufferStorage(ring_->id(), GLsizeiptr(kSlots * slot_bytes_), nullptr, map_flags);
   ring_map_ =
       static_cast<unsigned char*>(gl.MapNamedBufferRange(ring_->id(), 0, GLsizeiptr(kSlots * slot_bytes_), map_flags));
   if (!ring_map_) throw std::runtime_error("could not map the reprojection upload buffer");
-  records_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-  gl.TextureBuffer(records_tex_->id(), GL_RGB32F, ring_->id());
-  samples_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-  gl.TextureBuffer(samples_tex_->id(), GL_RGBA32UI, ring_->id());
+  records_tex_ = texture_view(*ring_, GL_RGB32F);
+  samples_tex_ = texture_view(*ring_, GL_RGBA32UI);
+}
 
+std::unique_ptr<GlTexture> GlReprojector::texture_view(const GlBuffer& buffer, GLenum format) {
+  auto tex = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
+  ctx_->gl().TextureBuffer(tex->id(), format, buffer.id());
+  return tex;
+}
+
+void GlReprojector::upload_plane_index(detail::PlaneGrid* grid, bool narrow) {
   // Per band: the plane index of its texels (narrow: converted and uploaded a chunk at a time, so the
-  // CPU side never holds more than a chunk of it) and, once every band's index is uploaded and the
-  // grid's 4-byte index freed (so that it is never held beside the accumulation), the accumulation,
-  // mappable for reading (the round's downsample reads the cells in place, see downsample_pixels_into).
+  // CPU side never holds more than a chunk of it). The grid's 4-byte index is then freed, so that it
+  // is never held beside the accumulation.
+  const auto& gl = ctx_->gl();
   constexpr size_t kChunk = size_t(1) << 20;
   std::vector<uint16_t> staging;
   for (Band& b : bands_) {
     b.texel_plane = std::make_unique<GlBuffer>(*ctx_);
-    b.texel_plane_tex = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-    const uint32_t* src = grid.texel_plane.data() + b.first_cell;
+    const uint32_t* src = grid->texel_plane.data() + b.first_cell;
     if (narrow) {
       gl.NamedBufferStorage(b.texel_plane->id(), GLsizeiptr(b.cells * 2), nullptr, GL_DYNAMIC_STORAGE_BIT);
       for (size_t off = 0; off < b.cells; off += kChunk) {
@@ -178,50 +204,59 @@ void GlReprojector::init(const Camera& camera, detail::PlaneGrid grid) {
         for (size_t i = 0; i < m; ++i) staging[i] = uint16_t(src[off + i]);  // kUncovered -> 0xffff
         gl.NamedBufferSubData(b.texel_plane->id(), GLintptr(off * 2), GLsizeiptr(m * 2), staging.data());
       }
-      gl.TextureBuffer(b.texel_plane_tex->id(), GL_R16UI, b.texel_plane->id());
     } else {
       gl.NamedBufferStorage(b.texel_plane->id(), GLsizeiptr(b.cells * 4), src, 0);
-      gl.TextureBuffer(b.texel_plane_tex->id(), GL_R32UI, b.texel_plane->id());
     }
+    b.texel_plane_tex = texture_view(*b.texel_plane, narrow ? GL_R16UI : GL_R32UI);
     ctx_->check_error("GlReprojector setup (plane index)");
   }
-  staging = {};
-  std::vector<uint32_t>().swap(grid.texel_plane);
+  std::vector<uint32_t>().swap(grid->texel_plane);
+}
+
+void GlReprojector::create_accumulation() {
+  // Per band, mappable for reading (the round's downsample reads the cells in place, see
+  // downsample_pixels_into).
   for (Band& b : bands_) {
     b.acc = std::make_unique<GlBuffer>(*ctx_);
-    gl.NamedBufferStorage(b.acc->id(), GLsizeiptr(b.cells * 16), nullptr, GL_DYNAMIC_STORAGE_BIT | GL_MAP_READ_BIT);
-    b.acc_view = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-    gl.TextureBuffer(b.acc_view->id(), GL_RGBA32UI, b.acc->id());
+    ctx_->gl().NamedBufferStorage(b.acc->id(), GLsizeiptr(b.cells * 16), nullptr,
+                                  GL_DYNAMIC_STORAGE_BIT | GL_MAP_READ_BIT);
+    b.acc_view = texture_view(*b.acc, GL_RGBA32UI);
     ctx_->check_error("GlReprojector setup (band buffers)");
   }
-  std::vector<float> planes = grid.planes;
-  if (planes.empty()) planes.assign(4, 0.f);  // GL wants a non-empty buffer
-  planes_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  gl.NamedBufferStorage(planes_buf_->id(), GLsizeiptr(planes.size() * 4), planes.data(), 0);
-  planes_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-  gl.TextureBuffer(planes_tex_->id(), GL_RGBA32F, planes_buf_->id());
-  std::vector<uint32_t> crease_range = grid.crease_range;
-  if (crease_range.empty()) crease_range.assign(2, 0u);
-  crease_range_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  gl.NamedBufferStorage(crease_range_buf_->id(), GLsizeiptr(crease_range.size() * 4), crease_range.data(), 0);
-  crease_range_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-  gl.TextureBuffer(crease_range_tex_->id(), GL_RG32UI, crease_range_buf_->id());
-  std::vector<float> creases = grid.creases;
-  if (creases.empty()) creases.assign(4, 0.f);
-  creases_buf_ = std::make_unique<GlBuffer>(*ctx_);
-  gl.NamedBufferStorage(creases_buf_->id(), GLsizeiptr(creases.size() * 4), creases.data(), 0);
-  creases_tex_ = std::make_unique<GlTexture>(*ctx_, GL_TEXTURE_BUFFER);
-  gl.TextureBuffer(creases_tex_->id(), GL_RGBA32F, creases_buf_->id());
+}
 
-  // Counters.
+void GlReprojector::upload_table(const void* data, size_t bytes, GLenum format, size_t texel_bytes,
+                                 std::unique_ptr<GlBuffer>* buffer, std::unique_ptr<GlTexture>* texture) {
+  const std::array<uint32_t, 4> zero{};  // GL wants a non-empty buffer
+  if (bytes == 0) {
+    data = zero.data();
+    bytes = texel_bytes;
+  }
+  *buffer = std::make_unique<GlBuffer>(*ctx_);
+  ctx_->gl().NamedBufferStorage((*buffer)->id(), GLsizeiptr(bytes), data, 0);
+  *texture = texture_view(**buffer, format);
+}
+
+void GlReprojector::upload_plane_tables(const detail::PlaneGrid& grid) {
+  upload_table(grid.planes.data(), grid.planes.size() * 4, GL_RGBA32F, 16, &planes_buf_, &planes_tex_);
+  upload_table(grid.crease_range.data(), grid.crease_range.size() * 4, GL_RG32UI, 8, &crease_range_buf_,
+               &crease_range_tex_);
+  upload_table(grid.creases.data(), grid.creases.size() * 4, GL_RGBA32F, 16, &creases_buf_, &creases_tex_);
+}
+
+void GlReprojector::create_counters() {
+  const auto& gl = ctx_->gl();
   counter_buf_ = std::make_unique<GlBuffer>(*ctx_);
   gl.NamedBufferStorage(counter_buf_->id(), GLsizeiptr(invocations_ * kCounters * 4), nullptr, GL_DYNAMIC_STORAGE_BIT);
   // The packed kernels' codec parameters (lo_q, cell as doubles), set per call when they change.
   codec_buf_ = std::make_unique<GlBuffer>(*ctx_);
   gl.NamedBufferStorage(codec_buf_->id(), GLsizeiptr(sizeof(codec_params_)), codec_params_.data(),
                         GL_DYNAMIC_STORAGE_BIT);
+}
 
+void GlReprojector::set_fixed_uniforms(uint32_t first_creased) {
   // Uniforms that never change (the same in the record and the packed kernel).
+  const auto& gl = ctx_->gl();
   const auto& k = params_;
   for (const GlProgram* rp : {reproject_prog_.get(), packed_prog_.get()}) {
     const GLuint p = rp->id();
@@ -230,7 +265,7 @@ void GlReprojector::init(const Camera& camera, detail::PlaneGrid grid) {
     gl.ProgramUniform1i(p, rp->uniform("planes"), 2);
     gl.ProgramUniform1i(p, rp->uniform("crease_range"), 5);
     gl.ProgramUniform1i(p, rp->uniform("creases"), 6);
-    gl.ProgramUniform1ui(p, rp->uniform("first_creased"), grid.first_creased);
+    gl.ProgramUniform1ui(p, rp->uniform("first_creased"), first_creased);
     gl.ProgramUniform1f(p, rp->uniform("crease_tolerance"), k.crease_tolerance);
     gl.ProgramUniform1f(p, rp->uniform("min_normal_cosine"), k.min_normal_cosine);
     if (settings_.prefetch) gl.ProgramUniform1i(p, rp->uniform("cell_view"), 3);
@@ -259,10 +294,7 @@ void GlReprojector::init(const Camera& camera, detail::PlaneGrid grid) {
   loc_base_ = reproject_prog_->uniform("band_base");
   loc_packed_base_ = packed_prog_->uniform("band_base");
   loc_exact_base_ = exact_prog_->uniform("band_base");
-
   static_assert(kCounters == kGpuCounters);
-  reset();
-  ctx_->check_error("GlReprojector setup");
 }
 
 unsigned char* GlReprojector::acquire_slot(int slot) {
@@ -347,16 +379,15 @@ void GlReprojector::dispatch_bands(int slot, Kernel kernel) {
   if (any) fence(slot);
 }
 
-namespace {
-size_t record_bytes(bool records) { return records ? kRecordBytes : kPackedBytes; }
-}  // namespace
+size_t GlReprojector::record_bytes(Kernel kernel) {
+  return kernel == Kernel::kRecords ? kRecordBytes : kPackedBytes;  // packed records and exact samples: 16
+}
 
-unsigned char* GlReprojector::pending_record(Kernel kernel) {
+unsigned char* GlReprojector::pending_slot(Kernel kernel) {
   if (pending_n_ && pending_kernel_ != kernel) flush_pending();
-  const size_t bytes = record_bytes(kernel == Kernel::kRecords);
-  if ((pending_n_ + 1) * bytes > slot_bytes_) flush_pending();
+  if ((pending_n_ + 1) * record_bytes(kernel) > slot_bytes_) flush_pending();
   pending_kernel_ = kernel;
-  return pending_.data() + (pending_n_++) * bytes;
+  return pending_.data() + pending_n_ * record_bytes(kernel);
 }
 
 void GlReprojector::flush_pending() {
@@ -364,74 +395,84 @@ void GlReprojector::flush_pending() {
   const int slot = next_slot_;
   next_slot_ = (next_slot_ + 1) % kSlots;
   unsigned char* out = acquire_slot(slot);
-  const size_t bytes = record_bytes(pending_kernel_ == Kernel::kRecords), n = pending_n_;
+  const size_t bytes = record_bytes(pending_kernel_), n = pending_n_;
   pending_n_ = 0;
   bin_offsets(n);
   for (size_t j = 0; j < n; ++j) std::memcpy(out + (bin_offset_[bin_band_[j]]++) * bytes, &pending_[j * bytes], bytes);
   dispatch_bands(slot, pending_kernel_);
-  if (pending_kernel_ != Kernel::kExact) {
-    points_since_fold_ += n;
-    if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
+  uploaded(pending_kernel_, n);
+}
+
+void GlReprojector::uploaded(Kernel kernel, size_t n) {
+  if (kernel == Kernel::kExact) return;
+  points_since_fold_ += n;
+  if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
+}
+
+uint32_t GlReprojector::band_of(const Vec3& position, const Vec3& normal) {
+  uint32_t texel = 0;
+  switch (detail::project_and_face(params_, position, normal, &texel)) {
+    case detail::Decision::kCulled:
+      ++cpu_counts_.culled;
+      return kNoBand;
+    case detail::Decision::kBackfacing:
+      ++cpu_counts_.backfacing;
+      ++cpu_counts_.occluded;
+      return kNoBand;
+    default:
+      return uint32_t(texel / band_cells_);
+  }
+}
+
+// One band: the records go straight into ring slots, each slot dispatched when full. Several bands:
+// they wait in pending_ with their band (flush_pending() groups them by band).
+template <class Put>
+void GlReprojector::stream(Kernel kernel, size_t n, Put&& put) {
+  const size_t bytes = record_bytes(kernel);
+  if (bands_.size() > 1) {
+    for (size_t i = 0; i < n; ++i) {
+      unsigned char* dst = pending_slot(kernel);
+      const uint32_t band = put(i, dst, true);
+      if (band != kNoBand) bin_band_[pending_n_++] = band;
+    }
+    return;
+  }
+  const size_t per_slot = slot_bytes_ / bytes;
+  for (size_t i = 0; i < n;) {
+    const int slot = next_slot_;
+    next_slot_ = (next_slot_ + 1) % kSlots;
+    unsigned char* out = acquire_slot(slot);
+    size_t m = 0;
+    for (; i < n && m < per_slot; ++i)
+      if (put(i, out + m * bytes, false) != kNoBand) ++m;
+    if (m) {
+      bind_band(bands_[0], kernel);
+      dispatch(slot, 0, m, kernel);
+      fence(slot);
+    }
+    uploaded(kernel, m);
   }
 }
 
 void GlReprojector::reproject(std::span<const VertexRecord> records) {
   ctx_->check_thread();
   static_assert(sizeof(VertexRecord) == 40 && offsetof(VertexRecord, radiance) == 24);
-  if (bands_.size() > 1) {
-    // Steps 1-4 on the CPU as far as the band (the shader repeats 3-4 with the same arithmetic and
-    // reaches the same texel); the candidates wait in pending_.
-    for (const VertexRecord& r : records) {
-      uint32_t texel = 0;
-      if (!r.diffuse() && !settings_.reproject_glossy) {
-        ++cpu_counts_.not_diffuse;
-      } else if (!detail::record_is_finite(r)) {
-        ++cpu_counts_.invalid;
-      } else {
-        switch (detail::project_and_face(params_, r.position, r.normal, &texel)) {
-          case detail::Decision::kCulled:
-            ++cpu_counts_.culled;
-            break;
-          case detail::Decision::kBackfacing:
-            ++cpu_counts_.backfacing;
-            ++cpu_counts_.occluded;
-            break;
-          default:
-            std::memcpy(pending_record(Kernel::kRecords), &r, kRecordBytes);
-            bin_band_[pending_n_ - 1] = uint32_t(texel / band_cells_);
-        }
-      }
+  // Steps 1-2 on the CPU; with several bands also 3-4 as far as the band (the shader repeats them
+  // with the same arithmetic and reaches the same texel). The 36 bytes of float data are uploaded.
+  stream(Kernel::kRecords, records.size(), [&](size_t i, unsigned char* dst, bool binned) {
+    const VertexRecord& r = records[i];
+    if (!r.diffuse() && !settings_.reproject_glossy) {
+      ++cpu_counts_.not_diffuse;
+      return kNoBand;
     }
-    return;
-  }
-  size_t i = 0;
-  while (i < records.size()) {
-    const int slot = next_slot_;
-    next_slot_ = (next_slot_ + 1) % kSlots;
-    unsigned char* out = acquire_slot(slot);
-    size_t n = 0;
-    // Filter (steps 1-2 of the semantics) and copy the 36 bytes of float data of each record.
-    for (; i < records.size() && n < settings_.batch_points; ++i) {
-      const VertexRecord& r = records[i];
-      if (!r.diffuse() && !settings_.reproject_glossy) {
-        ++cpu_counts_.not_diffuse;
-        continue;
-      }
-      if (!detail::record_is_finite(r)) {
-        ++cpu_counts_.invalid;
-        continue;
-      }
-      std::memcpy(out + n * kRecordBytes, &r, kRecordBytes);
-      ++n;
+    if (!detail::record_is_finite(r)) {
+      ++cpu_counts_.invalid;
+      return kNoBand;
     }
-    if (n) {
-      bind_band(bands_[0], Kernel::kRecords);
-      dispatch(slot, 0, n, Kernel::kRecords);
-      fence(slot);
-    }
-    points_since_fold_ += n;
-    if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
-  }
+    const uint32_t band = binned ? band_of(r.position, r.normal) : 0u;
+    if (band != kNoBand) std::memcpy(dst, &r, kRecordBytes);
+    return band;
+  });
 }
 
 void GlReprojector::set_codec(const VertexCodec& codec) {
@@ -474,43 +515,20 @@ void GlReprojector::reproject_packed_part(std::string_view packed, const VertexC
   if (total == 0) return;
   set_codec(codec);
   const auto* src = reinterpret_cast<const unsigned char*>(packed.data());
-  const size_t per_slot = slot_bytes_ / kPackedBytes;
-  if (bands_.size() > 1) {
-    for (size_t i = 0; i < total; ++i) {
-      const PackedVertex v = VertexCodec::load(src + i * kPackedBytes);
-      uint32_t texel = 0;
+  stream(Kernel::kPacked, total, [&](size_t i, unsigned char* dst, bool binned) {
+    const unsigned char* record = src + i * kPackedBytes;
+    uint32_t band = 0;
+    if (binned) {
+      const PackedVertex v = VertexCodec::load(record);
       if (!settings_.reproject_glossy && !VertexCodec::decode_diffuse(v.position_bits)) {
         ++cpu_counts_.not_diffuse;
-        continue;
+        return kNoBand;
       }
-      switch (detail::project_and_face(params_, codec.decode_position(v.position_bits),
-                                       VertexCodec::decode_normal(v.normal_bits), &texel)) {
-        case detail::Decision::kCulled:
-          ++cpu_counts_.culled;
-          break;
-        case detail::Decision::kBackfacing:
-          ++cpu_counts_.backfacing;
-          ++cpu_counts_.occluded;
-          break;
-        default:
-          copy_packed(src + i * kPackedBytes, 1, pending_record(Kernel::kPacked));
-          bin_band_[pending_n_ - 1] = uint32_t(texel / band_cells_);
-      }
+      band = band_of(codec.decode_position(v.position_bits), VertexCodec::decode_normal(v.normal_bits));
     }
-    return;
-  }
-  for (size_t i = 0; i < total;) {
-    const int slot = next_slot_;
-    next_slot_ = (next_slot_ + 1) % kSlots;
-    const size_t n = std::min(total - i, per_slot);
-    copy_packed(src + i * kPackedBytes, n, acquire_slot(slot));
-    bind_band(bands_[0], Kernel::kPacked);
-    dispatch(slot, 0, n, Kernel::kPacked);
-    fence(slot);
-    i += n;
-    points_since_fold_ += n;
-    if (points_since_fold_ >= settings_.counter_fold_points) fold_counters();
-  }
+    if (band != kNoBand) copy_packed(record, 1, dst);
+    return band;
+  });
 }
 
 std::vector<VertexRecord> GlReprojector::decode_packed(std::string_view packed, const VertexCodec& codec) {
@@ -565,46 +583,18 @@ std::vector<VertexRecord> GlReprojector::decode_packed(std::string_view packed, 
 
 void GlReprojector::add_exact(std::span<const ExactSample> samples) {
   ctx_->check_thread();
-  const size_t per_slot = slot_bytes_ / sizeof(ExactSample);
   const size_t cells = size_t(grid_w_) * size_t(grid_h_);
-  const auto valid = [&](const ExactSample& s) {
-    return s.subpixel < cells && detail::finite_bits(s.radiance.x) && detail::finite_bits(s.radiance.y) &&
-           detail::finite_bits(s.radiance.z);
-  };
-  if (bands_.size() > 1) {
-    for (const ExactSample& s : samples) {
-      if (!valid(s)) {
-        ++cpu_counts_.invalid;
-        continue;
-      }
-      std::memcpy(pending_record(Kernel::kExact), &s, sizeof(ExactSample));
-      bin_band_[pending_n_ - 1] = s.subpixel / uint32_t(band_cells_);
-      ++cpu_counts_.exact;
+  stream(Kernel::kExact, samples.size(), [&](size_t i, unsigned char* dst, bool binned) {
+    const ExactSample& s = samples[i];
+    if (!(s.subpixel < cells && detail::finite_bits(s.radiance.x) && detail::finite_bits(s.radiance.y) &&
+          detail::finite_bits(s.radiance.z))) {
+      ++cpu_counts_.invalid;
+      return kNoBand;
     }
-    return;
-  }
-  size_t i = 0;
-  while (i < samples.size()) {
-    const int slot = next_slot_;
-    next_slot_ = (next_slot_ + 1) % kSlots;
-    unsigned char* out = acquire_slot(slot);
-    size_t n = 0;
-    for (; i < samples.size() && n < per_slot; ++i) {
-      const ExactSample& s = samples[i];
-      if (!valid(s)) {
-        ++cpu_counts_.invalid;
-        continue;
-      }
-      std::memcpy(out + n * sizeof(ExactSample), &s, sizeof(ExactSample));
-      ++n;
-    }
-    if (n) {
-      bind_band(bands_[0], Kernel::kExact);
-      dispatch(slot, 0, n, Kernel::kExact);
-      fence(slot);
-    }
-    cpu_counts_.exact += n;
-  }
+    std::memcpy(dst, &s, sizeof(ExactSample));
+    ++cpu_counts_.exact;
+    return binned ? s.subpixel / uint32_t(band_cells_) : 0u;
+  });
 }
 
 }  // namespace epr

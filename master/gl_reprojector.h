@@ -108,7 +108,23 @@ class GlReprojector final : public Reprojector {
   std::vector<VertexRecord> decode_packed(std::string_view packed, const VertexCodec& codec);
 
  private:
+  // Construction, stage by stage (init runs them in this order).
   void init(const Camera& camera, detail::PlaneGrid grid);
+  void size_grid(const Camera& camera, const detail::PlaneGrid& grid);  // kernel parameters, grid and slot sizes
+  void plan_bands();                                                    // bands_ within this GL's limits
+  void compile_programs(bool narrow_planes);
+  void create_upload_ring();
+  void upload_plane_index(detail::PlaneGrid* grid, bool narrow_planes);  // per band; frees grid->texel_plane
+  void create_accumulation();                                            // per band
+  void upload_plane_tables(const detail::PlaneGrid& grid);               // planes, crease ranges, creases
+  void create_counters();                                                // and the codec's parameters
+  void set_fixed_uniforms(uint32_t first_creased);
+  /// A buffer-texture view of `buffer` as `format` texels.
+  std::unique_ptr<GlTexture> texture_view(const GlBuffer& buffer, GLenum format);
+  /// An immutable buffer of `bytes` from `data` (one zero texel of `texel_bytes` if empty: GL wants a
+  /// non-empty buffer) and its view as `format` texels.
+  void upload_table(const void* data, size_t bytes, GLenum format, size_t texel_bytes,
+                    std::unique_ptr<GlBuffer>* buffer, std::unique_ptr<GlTexture>* texture);
   /// The #version line and the #defines of `s` before a shader body.
   static std::string shader_source(const char* body, const ReprojectorSettings& s, bool narrow_planes,
                                    bool packed = false);
@@ -160,10 +176,21 @@ class GlReprojector final : public Reprojector {
   size_t pending_n_ = 0;
   Kernel pending_kernel_ = Kernel::kRecords;
   std::vector<size_t> bin_count_, bin_offset_;  // per band: records in the slot, next free record
+  static size_t record_bytes(Kernel kernel);
   /// Makes room for a record of `kernel` in pending_ (flushing it if full or of another kernel) and
-  /// returns where its bytes go; the caller sets bin_band_[pending_n_ - 1].
-  unsigned char* pending_record(Kernel kernel);
+  /// returns where its bytes go; the caller keeps it by setting bin_band_[pending_n_++].
+  unsigned char* pending_slot(Kernel kernel);
   void flush_pending();
+  /// Streams records [0, n) to `kernel`'s dispatches, through ring slots (one band) or pending_
+  /// (several). `put(i, dst, binned)` takes record i: it counts a record decided on the CPU and
+  /// returns kNoBand, else writes the record's bytes at dst and returns its band (any value unless
+  /// `binned`).
+  template <class Put>
+  void stream(Kernel kernel, size_t n, Put&& put);
+  /// Counts `n` records uploaded to `kernel` towards the next fold of the GPU counters.
+  void uploaded(Kernel kernel, size_t n);
+  /// Steps 3-4 on the CPU: counts a culled or back-facing point and returns kNoBand, else its band.
+  uint32_t band_of(const Vec3& position, const Vec3& normal);
   /// Counts the records of bin_band_[0, n) per band and turns them into offsets in the slot.
   void bin_offsets(size_t n);
   /// Dispatches `kernel` over the slot's records grouped by band (bin_count_), then fences the slot.

@@ -134,7 +134,9 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
     pixels_buf_ = std::make_unique<GlBuffer>(*ctx_);
     gl.NamedBufferStorage(pixels_buf_->id(), GLsizeiptr(band_pixels * 16), nullptr, GL_DYNAMIC_STORAGE_BIT);
   }
-  PixelReprojection out{Image(W, H, 3), std::vector<uint32_t>(size_t(W) * size_t(H), 0)};
+  PixelReprojection out;
+  out.radiance = Image(W, H, 3);
+  out.count.assign(size_t(W) * size_t(H), 0);
   std::vector<float> raw(4 * band_pixels);
   const GLuint p = downsample_prog_->id();
   for (const Band& b : bands_) {

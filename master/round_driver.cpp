@@ -4,6 +4,7 @@
 #include <bit>
 #include <optional>
 
+#include "common/check.h"
 #include "wire/tile_result_stream.h"
 
 namespace epr {
@@ -39,6 +40,8 @@ RoundPlan RoundDriver::open(const std::vector<TileRect>& tiles) const {
     std::vector<uint32_t>& first = plan.first_sample[t];
     const std::vector<uint8_t>& skip = plan.skip[t];
     frame_.tile_inputs(r.x0, r.y0, r.x1, r.y1, &plan.skip[t], &first);
+    EPR_CHECK_EQ(skip.size(), size_t(r.x1 - r.x0) * size_t(r.y1 - r.y0));
+    EPR_CHECK_EQ(first.size(), skip.size());
     active[t] = size_t(std::count(skip.begin(), skip.end(), uint8_t(0)));
     // One entry (none for 0) when every tracing pixel starts at the same sample (the usual case: active
     // pixels have all traced the same paths); skipped pixels' entries are never read.
@@ -52,6 +55,7 @@ RoundPlan RoundDriver::open(const std::vector<TileRect>& tiles) const {
     if (uniform) first = common.value_or(0) == 0 ? std::vector<uint32_t>() : std::vector<uint32_t>{*common};
   }
   plan.order = busiest_first(active);
+  EPR_DCHECK_GT(plan.paths_per_pixel, 0);  // a round is opened only while the frame is not done
   return plan;
 }
 
@@ -59,6 +63,7 @@ RoundPlan RoundDriver::first_plan(const RenderOptions& opts, const std::vector<T
   RoundPlan plan;
   plan.round = 0;
   plan.paths_per_pixel = round_paths(opts, 0);
+  EPR_CHECK_GT(plan.paths_per_pixel, 0);  // RenderOptions::validate refuses spp < 1
   plan.skip.resize(tiles.size());
   plan.first_sample.resize(tiles.size());
   std::vector<size_t> active(tiles.size(), 0);

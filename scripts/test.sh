@@ -3,7 +3,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release
+# -Werror for the project's own code (CMakeLists.txt: EPR_WERROR; generated code and system headers excluded).
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DEPR_WERROR=ON
 cmake --build build -j "$(nproc)"
 
 # The tree's shape: every C++ file formatted by .clang-format, layers that point one way without

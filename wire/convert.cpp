@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <cctype>
 #include <cmath>
 
 namespace epr {
@@ -55,28 +56,24 @@ void to_proto(const Bounds3& b, v1::Bounds3* out) {
   to_proto(b.hi, out->mutable_hi());
 }
 
+// A mode's policy is common/roulette.h's of the same name (tests/wire checks that every mode has one).
 RussianRoulette from_proto(const v1::RussianRouletteSettings& rr) {
-  RussianRoulette r;
-  switch (rr.mode()) {
-    case v1::RUSSIAN_ROULETTE_MODE_ALBEDO:
-      r = RussianRoulette::albedo();
-      break;
-    case v1::RUSSIAN_ROULETTE_MODE_OFF:
-      r = RussianRoulette::off(8);
-      break;
-    default:
-      r = RussianRoulette::paper();
-      break;
-  }
+  const std::string name =
+      rr.mode() == v1::RUSSIAN_ROULETTE_MODE_UNSPECIFIED || !v1::RussianRouletteMode_IsValid(rr.mode())
+          ? std::string()
+          : v1::RussianRouletteMode_Name(rr.mode()).substr(sizeof "RUSSIAN_ROULETTE_MODE_" - 1);
+  RussianRoulette r = roulette_named(name).value_or(RussianRoulette::standard());
   if (rr.has_start_depth()) r.start_depth = int(rr.start_depth());
   if (rr.has_termination_probability()) r.termination = rr.termination_probability();
   if (rr.has_max_depth()) r.max_depth = int(std::min<uint32_t>(rr.max_depth(), 1u << 30));
   return r;
 }
 void to_proto(const RussianRoulette& r, v1::RussianRouletteSettings* out) {
-  out->set_mode(r.mode == RussianRoulette::Mode::kAlbedo ? v1::RUSSIAN_ROULETTE_MODE_ALBEDO
-                : r.mode == RussianRoulette::Mode::kOff  ? v1::RUSSIAN_ROULETTE_MODE_OFF
-                                                         : v1::RUSSIAN_ROULETTE_MODE_PAPER);
+  std::string name(roulette_name(r.mode));
+  for (char& c : name) c = char(std::toupper(static_cast<unsigned char>(c)));
+  v1::RussianRouletteMode mode = v1::RUSSIAN_ROULETTE_MODE_UNSPECIFIED;
+  v1::RussianRouletteMode_Parse("RUSSIAN_ROULETTE_MODE_" + name, &mode);
+  out->set_mode(mode);
   out->set_start_depth(uint32_t(std::max(0, r.start_depth)));
   out->set_termination_probability(r.termination);
   out->set_max_depth(uint32_t(std::max(0, r.max_depth)));
@@ -250,7 +247,7 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
   if (r.has_joint_test()) o.joint_test = r.joint_test();
   if (spec.has_russian_roulette()) {
     const auto& rr = spec.russian_roulette();
-    if (rr.mode() < 0 || rr.mode() > v1::RUSSIAN_ROULETTE_MODE_OFF) return "unknown Russian roulette mode";
+    if (!v1::RussianRouletteMode_IsValid(rr.mode())) return "unknown Russian roulette mode";
     o.rr = from_proto(rr);
     if (!std::isfinite(o.rr.termination) || o.rr.termination < 0 || o.rr.termination >= 1)
       return "Russian roulette termination probability must be in [0, 1)";

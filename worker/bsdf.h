@@ -10,6 +10,7 @@
 // importance transport, light paths).
 #pragma once
 
+#include "common/check.h"
 #include "common/math.h"
 #include "common/sampling.h"
 #include "common/scene.h"
@@ -31,6 +32,7 @@ class Bsdf {
     if (m.type == MaterialType::kGlossy) {
       const float ld = luminance(kd_), ls = luminance(ks_);
       p_glossy_ = (ld + ls) > 0 ? ls / (ld + ls) : 0.f;
+      EPR_DCHECK(p_glossy_ >= 0 && p_glossy_ <= 1);
     }
   }
 

@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "common/check.h"
 #include "common/sampling.h"
 #include "common/spherical_triangle.h"
 #include "worker/embree_scene.h"
@@ -51,6 +52,8 @@ inline float triangle_area(const Vec3& v0, const Vec3& v1, const Vec3& v2) {
 /// and cosine `cos_y` (> 0) on the triangle (v0, v1, v2) from p; pdf_area = pmf / area.
 inline float emitter_direction_pdf(const Vec3& p, const Vec3& v0, const Vec3& v1, const Vec3& v2, const Vec3& n,
                                    float pdf_area, float dist2, float cos_y) {
+  EPR_DCHECK_GT(cos_y, 0.f);
+  EPR_DCHECK_GT(pdf_area, 0.f);
   const float omega = emitter_solid_angle(p, v0, v1, v2, n);
   if (omega > 0) return pdf_area * triangle_area(v0, v1, v2) / omega;
   return pdf_area * dist2 / cos_y;

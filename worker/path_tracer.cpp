@@ -4,10 +4,12 @@
 #include <cstdlib>
 #include <limits>
 
+#include "common/check.h"
 #include "common/sampler.h"
 #include "common/shading_normal.h"
 #include "worker/bsdf.h"
 #include "worker/emitter_sampling.h"
+#include "worker/roulette.h"
 #include "worker/surface_inputs.h"
 
 namespace epr {
@@ -39,6 +41,7 @@ constexpr float kOnlyBsdf = std::numeric_limits<float>::infinity();
 // as 1 / (1 + (p_other / p_this)^2) so that a huge density (a grazing emitter) cannot overflow to
 // inf / inf. p_this > 0.
 inline float power_heuristic(float p_this, float p_other) {
+  EPR_DCHECK_GT(p_this, 0.f);
   const float r = p_other / p_this;
   return 1 / (1 + r * r);
 }
@@ -74,6 +77,18 @@ Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) c
 
 Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats,
                        Vec3* glossy) const {
+  const size_t first_record = records ? records->size() : 0;
+  const Vec3 pixel = trace_unfiltered(x, y, sample, records, stats, glossy);
+  if (is_finite(pixel)) return pixel;
+  // Never let a NaN reach the image; drop this path's sample and its vertices.
+  if (stats) stats->nonfinite_dropped += 1;
+  if (records) records->resize(first_record);
+  if (glossy) *glossy = Vec3(0.f);
+  return Vec3(0.f);
+}
+
+Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats,
+                                  Vec3* glossy) const {
   thread_local std::vector<PathVertex> path;
   path.clear();
   const Scene& s = scene_.scene();
@@ -84,6 +99,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
   Ray ray = camera_.generate_ray(float(x) + film.x, float(y) + film.y);
   uint64_t rays = 0;
   Vec3 background(0.f);  // the sky seen by a camera ray that escapes
+  PathRoulette roulette(rr_, camera_);
 
   // ---- trace forwards: NEE and continuation at every vertex ----------------------------------------
   for (int depth = 1;; ++depth) {
@@ -153,18 +169,14 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     // Russian roulette (q is the probability of continuing from this vertex) and the continuation,
     // chosen before the shadow ray is cast: the two dependency chains then overlap, and the next
     // ray is ready when the shadow query returns.
-    float q = 1;
-    if (depth >= rr_.max_depth) {
-      q = 0;
-    } else if (rr_.mode == RussianRoulette::Mode::kPaper && depth > rr_.start_depth) {
-      q = 1 - rr_.termination;
-    } else if (rr_.mode == RussianRoulette::Mode::kAlbedo && depth > rr_.start_depth) {
-      q = std::clamp(bsdf.albedo(), 0.05f, 1.f);
-    }
+    const float q = roulette.survival(depth, bsdf.albedo(), v.position, v.normal, v.diffuse);
+    EPR_DCHECK_LE(q, 1.f);
     if (u_rr < q) {
       const BsdfSample bs = bsdf.sample(u_lobe, u_dir);
       if (bs.valid && !is_black(bs.weight)) {
         v.weight = bs.weight / q;
+        roulette.continued(v.weight);
+        EPR_DCHECK_GT(bs.pdf, 0.f);
         if (v.split && !bs.delta) v.weight_diffuse = bsdf.eval_diffuse(bs.wi) * (bsdf.cosine(bs.wi) / bs.pdf / q);
         const bool below = dot(bs.wi, v.normal) <= 0;  // transmitted: leaves from the other side
         v.continuation_pdf = bs.delta || below ? kOnlyBsdf : bs.pdf;
@@ -209,6 +221,7 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
             const float pdf_light =
                 lp.solid_angle > 0 ? light_pdf_area * triangle_area(light->p0, light->p1, light->p2) / lp.solid_angle
                                    : light_pdf_area * dist2 / cos_y;
+            EPR_DCHECK_GT(pdf_light, 0.f);
             float w_light = 1;
             if (mis_ && q > 0) w_light = power_heuristic(pdf_light, bsdf.pdf(to_light));
             Vec3 le_light = light->le;  // Ke, times the emission texture at the point if it has one
@@ -263,13 +276,6 @@ Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>*
     stats->paths += 1;
     stats->vertices += path.size();
     stats->rays += rays;
-  }
-  if (!is_finite(pixel)) {
-    // Never let a NaN reach the image; drop this path's sample and its vertices.
-    if (stats) stats->nonfinite_dropped += 1;
-    if (records) records->resize(first_record);
-    pixel = Vec3(0.f);
-    own_glossy = Vec3(0.f);
   }
   if (glossy) *glossy = own_glossy;
   return pixel;

@@ -19,11 +19,10 @@
 // picks the sky or the triangles, and a continuation ray that escapes adds the sky's MIS-weighted
 // radiance to D_n like an emitter it hits; a camera ray that escapes sees the sky (no record).
 //
-// Parameters: RussianRoulette (common/render_options.h); `mis`; the seed and the sampler of the path's
-// random numbers (common/sampler.h: Sobol-Burley by default, or independent per dimension).
-// Determinism: a path depends only on (seed, pixel, sample index): same inputs, same bits.
-// Caveat: a hard depth cap (`max_depth`, default 1024) stops pathological paths; its bias is below
-// float precision for albedos < 0.95 with the paper's roulette.
+// Parameters: RussianRoulette (common/roulette.h, applied by worker/roulette.h); `mis`; the seed and the sampler of the
+// path's random numbers (common/sampler.h: Sobol-Burley by default, or independent per dimension). Determinism: a path
+// depends only on (seed, pixel, sample index): same inputs, same bits. Caveat: a hard depth cap (`max_depth`, default
+// 1024) stops pathological paths; its bias is below float precision for albedos < 0.95 with the paper's roulette.
 #pragma once
 
 #include <cstdint>
@@ -51,10 +50,17 @@ class PathTracer {
   /// With `glossy` (may be null), also the part of the sample the master must not combine with
   /// reprojected samples: at a first vertex with glossy lobes beside a diffuse base, what the glossy
   /// lobes reflect (the sample minus Le(x_1) + R_1^d, clamped to >= 0 against rounding); else 0.
+  /// A sample that comes out NaN or infinite is dropped: counted in stats->nonfinite_dropped, its
+  /// records removed, 0 returned (and 0 in *glossy).
   Vec3 trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats,
              Vec3* glossy = nullptr) const;
+  /// trace() keeping a NaN or infinite sample as it came out, with its records and not counted as
+  /// dropped: the replay of a dropped sample (`epr render --single-process --trace-path`).
+  Vec3 trace_unfiltered(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats,
+                        Vec3* glossy = nullptr) const;
 
   const Camera& camera() const { return camera_; }
+  uint64_t seed() const { return seed_; }
   const EmbreeScene& scene() const { return scene_; }
   bool mis() const { return mis_; }
   SamplerKind sampler() const { return sampler_; }

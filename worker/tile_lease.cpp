@@ -71,7 +71,7 @@ std::optional<std::string> check_render_settings(const v1::RenderSettings& s) {
   }
   if (auto err = from_proto(s.camera()).validate()) return fmt::format("camera: {}", *err);
   const auto& rr = s.russian_roulette();
-  if (rr.mode() < v1::RUSSIAN_ROULETTE_MODE_UNSPECIFIED || rr.mode() > v1::RUSSIAN_ROULETTE_MODE_OFF)
+  if (!v1::RussianRouletteMode_IsValid(rr.mode()))
     return fmt::format("unknown Russian roulette mode {}", int(rr.mode()));
   const RussianRoulette rrs = from_proto(rr);
   if (!std::isfinite(rrs.termination) || rrs.termination < 0 || rrs.termination >= 1)

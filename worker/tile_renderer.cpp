@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "common/denormals.h"
+#include "worker/nonfinite_log.h"
 
 namespace epr {
 
@@ -79,6 +80,7 @@ void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
   std::vector<VertexRecord>& recs = filter_.mode == VertexFilter::Mode::kExact || encode ? scratch : out.vertices;
   if (encode) out.packed_bounds = codec_bounds_;
 
+  NonFiniteTileLog nonfinite;
   size_t i = 0;
   for (int y = req.rect.y0; y < req.rect.y1; ++y) {
     for (int x = req.rect.x0; x < req.rect.x1; ++x, ++i) {
@@ -89,9 +91,11 @@ void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
       Vec3 sum(0.f), glossy_sum(0.f);
       for (int k = 0; k < req.paths_per_pixel; ++k) {
         const size_t before = recs.size();
+        const uint64_t dropped = out.stats.paths.nonfinite_dropped;
         Vec3 glossy;
         sum += tracer_.trace(x, y, first + uint32_t(k), record ? &recs : nullptr, &out.stats.paths, &glossy);
         glossy_sum += glossy;
+        if (out.stats.paths.nonfinite_dropped != dropped) nonfinite.add(x, y, first + uint32_t(k));
         out.stats.vertices_recorded += recs.size() - before;
         if (filter_.mode == VertexFilter::Mode::kCull || filter_.mode == VertexFilter::Mode::kExact)
           filter_vertices(recs, before, out);
@@ -107,6 +111,7 @@ void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
     }
   }
   if (encode) codec_->encode_batch(recs, &out.packed_vertices, &out.encode_counts);
+  nonfinite.report(req.rect, tracer_.seed());
   out.stats.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 

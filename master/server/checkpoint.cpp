@@ -342,7 +342,7 @@ JobProgressRecord progress_record(const Job& job) {
   r.started_ms = job.started_ms;
   r.finished_ms = job.finished_ms;
   r.budget_exhausted = job.budget_exhausted;
-  if (job.state == JobState::kDone) r.previews = job.previews;
+  if (job.state == JobState::kDone) r.previews = job.preview.pngs;
   return r;
 }
 

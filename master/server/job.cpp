@@ -8,8 +8,8 @@ bool Job::end(JobState final_state, std::string why, int64_t now_ms) {
   error = std::move(why);
   finished_ms = now_ms;
   round_open = false;
-  partial_pending = (final_state == JobState::kCancelled || final_state == JobState::kFailed) && !preview_images &&
-                    progress.round > 0;
+  preview.partial_pending = (final_state == JobState::kCancelled || final_state == JobState::kFailed) &&
+                            !preview.images && progress.round > 0;
   ++version;
   return true;
 }
@@ -31,6 +31,7 @@ JobSnapshot Job::snapshot(int64_t now_ms) const {
   s.progress = progress;
   s.counts = counts;
   s.counters = counters;
+  s.drops = drops;
   s.rounds_planned = rounds_planned(request.options);
   s.workers_blocked = leases ? uint32_t(leases->blocked_count()) : 0;
   s.submitted_ms = submitted_ms;

@@ -20,6 +20,8 @@
 #include "master/round_driver.h"
 #include "master/server/job_counters.h"
 #include "master/server/lease_table.h"
+#include "master/server/preview_state.h"
+#include "master/server/tile_outcomes.h"
 #include "wire/scene_bundle.h"
 
 namespace epr {
@@ -58,6 +60,7 @@ struct JobSnapshot {
   FrameProgress progress;
   ReprojectionCounts counts;
   JobCounters counters;
+  TileDrops drops;
   int rounds_planned = 0;
   uint32_t workers_active = 0;
   uint32_t workers_blocked = 0;  // workers given no more tiles of this job
@@ -91,6 +94,7 @@ struct Job {
   FrameProgress progress;
   ReprojectionCounts counts;
   JobCounters counters;
+  TileDrops drops;  // counters.tiles_dropped by reason, in this master's run
   bool budget_exhausted = false;
   uint64_t version = 0;
 
@@ -116,23 +120,7 @@ struct Job {
   // Set when the job was running when the master stopped: it continues from this record.
   std::shared_ptr<const JobProgressRecord> resume;
 
-  // Previews: a copy of the images and statistics, and the PNGs encoded from it on demand by whoever
-  // asks (never on the reprojection thread). The copy exists only while someone asks for previews or
-  // partial results: the first ask has the reprojection thread take one between batches; while asks
-  // keep coming (MasterOptions::preview_interest_ms) it is renewed as rounds close, at most once a second; then it is
-  // dropped. A running job's partial results are encoded from it too. A cancelled or failed job's copy,
-  // or else its frame as it stands, is written to its folder as its (partial) results. A finished job's
-  // previews come from its result files; a cancelled or failed one keeps its last PNGs.
-  std::shared_ptr<const FrameImages> preview_images;
-  std::shared_ptr<const nlohmann::json> preview_stats;  // the statistics file as of the copy
-  int preview_round = 0;                                // the closed round the copy reflects
-  bool preview_copying = false;  // the copy is being replaced (the old one is dropped first, to bound memory)
-  bool preview_reprojects = false;
-  std::map<std::string, std::vector<unsigned char>> previews;  // layer -> PNG
-  int64_t last_preview_ms = 0;
-  int64_t preview_asked_ms = -1;   // when a preview or partial result was last asked for (-1: never)
-  bool preview_requested = false;  // asked for while there was no copy: the reprojection thread takes one
-  bool partial_pending = false;    // ended without a copy: drop_job stores partial results from the frame
+  PreviewState preview;
 
   // Reprojection thread.
   int64_t counts_ms = 0;  // when `counts` was last refreshed from the reprojector

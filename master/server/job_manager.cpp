@@ -433,36 +433,31 @@ void JobManager::fail_if_stuck(const std::shared_ptr<Job>& job, std::vector<std:
 
 // ---- results --------------------------------------------------------------------------------------
 
-std::variant<TileExpectation, std::string> JobManager::expect(const v1::TileResultHeader& h, bool* stale) const {
-  *stale = false;
+TileCheck JobManager::expect(const TileResultIdentity& h) const {
+  auto verdict = [](TileVerdict v, std::string why) { return TileCheck{v, {}, std::move(why)}; };
   MutexLock lock(mu_);
-  if (h.lease_id() == 0 || h.lease_id() >= next_lease_) return std::string("unknown lease id");
-  if ((h.lease_id() >> kLeaseEpochShift) != epoch_) {
-    *stale = true;  // leased by an earlier run of the master: its round is traced again
-    return std::string("the lease is from before the master restarted");
-  }
-  auto found = jobs_.find(h.job_id());
-  if (!found) {
-    *stale = true;
-    return std::string("no such job (finished and forgotten, or never existed)");
-  }
+  if (h.lease_id == 0 || h.lease_id >= next_lease_) return verdict(TileVerdict::kInvalid, "unknown lease id");
+  if ((h.lease_id >> kLeaseEpochShift) != epoch_)
+    return verdict(TileVerdict::kEarlierEpoch, "the lease is from before the master restarted");
+  auto found = jobs_.find(h.job_id);
+  if (!found) return verdict(TileVerdict::kUnknownJob, "no such job (finished and forgotten, or never existed)");
   const Job& job = *found;
-  if (job.state != JobState::kRunning || h.round() != job.round || !job.round_open) {
-    *stale = true;
-    return fmt::format("job {} is {} in round {}, the result is for round {}", job.id, to_string(job.state), job.round,
-                       h.round());
-  }
-  if (h.tile_index() >= job.tiles.size())
-    return fmt::format("tile index {} is outside the job's {} tiles", h.tile_index(), job.tiles.size());
-  if (!job.leases->issued(h.tile_index(), h.lease_id()))
-    return fmt::format("lease {} was not issued for tile {} of job {} round {}", h.lease_id(), h.tile_index(), job.id,
-                       job.round);
-  const TileRect& r = job.tiles[h.tile_index()];
+  if (job.state != JobState::kRunning || h.round != job.round || !job.round_open)
+    return verdict(TileVerdict::kStaleRound, fmt::format("job {} is {} in round {}, the result is for round {}", job.id,
+                                                         to_string(job.state), job.round, h.round));
+  if (h.tile_index >= job.tiles.size())
+    return verdict(TileVerdict::kInvalid,
+                   fmt::format("tile index {} is outside the job's {} tiles", h.tile_index, job.tiles.size()));
+  if (!job.leases->issued(h.tile_index, h.lease_id))
+    return verdict(TileVerdict::kInvalid, fmt::format("lease {} was not issued for tile {} of job {} round {}",
+                                                      h.lease_id, h.tile_index, job.id, job.round));
+  const TileRect& r = job.tiles[h.tile_index];
   const RenderOptions& o = job.request.options;
-  TileExpectation e;
+  TileCheck check{TileVerdict::kExpected, {}, {}};
+  TileExpectation& e = check.expectation;
   e.job_id = job.id;
   e.round = job.round;
-  e.tile_index = h.tile_index();
+  e.tile_index = h.tile_index;
   e.x0 = uint32_t(r.x0);
   e.y0 = uint32_t(r.y0);
   e.x1 = uint32_t(r.x1);
@@ -475,16 +470,17 @@ std::variant<TileExpectation, std::string> JobManager::expect(const v1::TileResu
               : o.reproject == ReprojectMethod::kExact ? TileExpectation::Payload::kExactSamples
                                                        : TileExpectation::Payload::kVertices;
   e.paths_per_pixel = uint32_t(job.plan.paths_per_pixel);
-  e.skip = job.plan.skip[h.tile_index()];
+  e.skip = job.plan.skip[h.tile_index];
   e.max_vertices_per_tile = std::max<uint64_t>(options_.max_queued_vertices, 1u << 20);
   e.keep_packed = true;  // decoded by the reprojector, in place
-  return e;
+  return check;
 }
 
-void JobManager::count_stale(const std::string& job_id) {
+void JobManager::count_dropped(const std::string& job_id, DropReason reason) {
   MutexLock lock(mu_);
   if (auto job = jobs_.find(job_id)) {
     ++job->counters.tiles_dropped;
+    ++job->drops[reason];
     ++job->version;
   }
 }
@@ -496,12 +492,16 @@ CommitOutcome JobManager::commit(const std::string& job_id, uint32_t round, uint
     WorkerRegistry::Worker* w = workers_.find(tile.worker_id);
     if (w) w->leases.erase(tile.lease_id);
     if (!job || job->state != JobState::kRunning || job->round != round || tile_index >= job->tiles.size()) {
-      if (job) ++job->counters.tiles_dropped;
+      if (job) {
+        ++job->counters.tiles_dropped;
+        ++job->drops[DropReason::kStaleRound];
+      }
       return CommitOutcome::kStale;
     }
     std::vector<uint64_t> losers;
     if (job->leases->commit(tile_index, tile.lease_id, &losers) == LeaseTable::CommitOutcome::kDuplicate) {
       ++job->counters.tiles_dropped;
+      ++job->drops[DropReason::kDuplicate];
       return CommitOutcome::kDuplicate;
     }
     // The other leases of the tile lost: their heartbeat now answers "not wanted", and a result they
@@ -582,7 +582,7 @@ void JobManager::load_state() {
         job->error = r.error;
         job->finished_ms = r.finished_ms;
         job->budget_exhausted = r.budget_exhausted;
-        job->previews = std::move(r.previews);
+        job->preview.pngs = std::move(r.previews);
       }
     } else if (job->state == JobState::kQueued) {
       ++restarted;

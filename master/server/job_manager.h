@@ -58,6 +58,7 @@
 #include "master/server/job_registry.h"
 #include "master/server/lease_parking.h"
 #include "master/server/lease_table.h"
+#include "master/server/tile_outcomes.h"
 #include "master/server/worker_registry.h"
 #include "wire/scene_bundle.h"
 #include "wire/tile_result_stream.h"
@@ -111,7 +112,7 @@ struct MasterOptions {
   int max_worker_failures = 3;
   int max_tile_losses = 3;
   // A running job holds a copy of its images (32 bytes per pixel) only while someone asks for its
-  // previews or partial results: for this long after the last ask (Job::preview_images).
+  // previews or partial results: for this long after the last ask (Job::preview.images).
   int preview_interest_ms = 10000;
 
   // Called on the reprojection thread just before a job's frame is built (a fresh job's round 0 is
@@ -127,8 +128,6 @@ struct MasterOptions {
             speculative_floor_ms, max_worker_failures,   max_tile_losses};
   }
 };
-
-enum class CommitOutcome { kCommitted, kDuplicate, kStale };
 
 class JobManager {
  public:
@@ -170,7 +169,7 @@ class JobManager {
   /// about a second after the one before, or on this ask, waiting up to kPartialWaitMs for it),
   /// encoded on the calling thread.
   ResultFile result_file(const std::string& id, ResultKind kind, bool allow_partial) const EPR_EXCLUDES(mu_);
-  /// Bytes of the running jobs' preview copies (Job::preview_images).
+  /// Bytes of the running jobs' preview copies (Job::preview.images).
   size_t preview_copy_bytes() const EPR_EXCLUDES(mu_);
   /// PNG of a preview layer (previews.h) of the job's preview copy (encoded on demand, on the calling
   /// thread; a first ask waits up to kPreviewWaitMs for the copy), or of the finished job's results.
@@ -179,6 +178,12 @@ class JobManager {
   /// The size and shape checks of a job request (dimensions, sample counts, camera, scene bundle)
   /// against the MasterOptions limits; the reason if it is invalid. submit() applies them too.
   std::optional<std::string> validate(const JobRequest& request) const;
+  /// Every check of a request before submit(), the reason (for INVALID_ARGUMENT) if it is refused:
+  /// the name, the batch fields, validate(), the memory budget, and check_scene() (a refusal from then
+  /// on discards the checked scene again). Without `has_camera` the request takes the scene's own
+  /// camera (at each of `frames`, if any: its animation's; each must be valid).
+  std::optional<std::string> admit(JobRequest* request, bool has_camera, const std::vector<uint32_t>& frames = {})
+      EPR_EXCLUDES(mu_);
   /// Stores an uploaded scene under its content hash.
   std::string add_scene(SceneBundleData bundle) EPR_EXCLUDES(mu_);
   /// Loads the scene to check it; the reason (naming file and line inside the bundle) if it is bad.
@@ -229,12 +234,11 @@ class JobManager {
                    const std::string& reason) EPR_EXCLUDES(mu_);
   std::vector<WorkerSnapshot> workers() const EPR_EXCLUDES(mu_);
 
-  /// What a SubmitTile stream with this header must contain, or why it cannot be accepted
-  /// (`stale` is set when the job or round moved on: the stream is drained and acknowledged as stale).
-  std::variant<TileExpectation, std::string> expect(const v1::TileResultHeader& header, bool* stale) const
-      EPR_EXCLUDES(mu_);
-  /// Counts a complete result that arrived for a closed round of a still-known job as dropped.
-  void count_stale(const std::string& job_id) EPR_EXCLUDES(mu_);
+  /// The verdict on a SubmitTile stream whose header names this lease, job, round and tile: what it must contain, or
+  /// why it is refused or drained as stale.
+  TileCheck expect(const TileResultIdentity& result) const EPR_EXCLUDES(mu_);
+  /// Counts a complete result of a still-known job as dropped for `reason` (a stale verdict of expect()).
+  void count_dropped(const std::string& job_id, DropReason reason) EPR_EXCLUDES(mu_);
   /// Commits a complete, checked tile result (never blocks on reprojection).
   CommitOutcome commit(const std::string& job_id, uint32_t round, uint32_t tile_index, AssembledTile tile)
       EPR_EXCLUDES(mu_);
@@ -290,7 +294,29 @@ class JobManager {
 
   // The reprojection thread.
   void reprojection_loop() EPR_EXCLUDES(mu_);
+  /// One step of the reprojection thread: decided under the mutex (next_work, which also takes what
+  /// it decides on: a dropped job out of running_, a started one into it, a batch out of the commit
+  /// queue), then done without it (do_work).
+  struct RenderWork {
+    // The first that applies: stop; drop a cancelled or failed job; start a queued one; take an
+    // asked-for preview copy; apply a batch of queued commits. kWait: nothing to do yet.
+    enum class Kind { kWait, kStop, kDrop, kStart, kCopy, kApply };
+    Kind kind = Kind::kWait;
+    std::shared_ptr<Job> job;
+    JobCounters counters;                      // kCopy: the copy's statistics as of the decision
+    std::vector<std::unique_ptr<Task>> batch;  // kApply: one job and round, in commit order
+  };
+  RenderWork next_work() EPR_REQUIRES(mu_);
+  void do_work(RenderWork& work, GlContext* gl) EPR_EXCLUDES(mu_);
+  std::shared_ptr<Job> ended_job() const EPR_REQUIRES(mu_);
+  std::shared_ptr<Job> startable_job() const EPR_REQUIRES(mu_);
+  std::shared_ptr<Job> copy_asked_job() const EPR_REQUIRES(mu_);
   void start_job(const std::shared_ptr<Job>& job, GlContext* gl) EPR_EXCLUDES(mu_);
+  /// A starting job runs (unless it was cancelled meanwhile): its leases and its first round in this
+  /// master open (round 0 of a fresh job, before its frame exists; the next round of a resumed one,
+  /// from its restored frame and `resume`, its checkpoint or null), and parked workers hear of it.
+  /// False if it was cancelled meanwhile.
+  bool begin_running(const std::shared_ptr<Job>& job, const JobProgressRecord* resume) EPR_EXCLUDES(mu_);
   /// Opens job.round with `plan` (RoundDriver::open, or first_plan before a fresh job's frame exists).
   void open_round(Job& job, RoundPlan plan) EPR_REQUIRES(mu_);
   /// Applies queued commits of one job and round, in commit order (RoundDriver::apply of a span).

@@ -38,17 +38,17 @@ int stored_round(const fs::path& dir) {
 
 // The copy asked for is there, or will not come.
 bool copy_settled(const Job& job) {
-  return job.preview_images || (!job.preview_requested && !job.preview_copying) || job.state != JobState::kRunning;
+  return job.preview.images || job.preview.copy == PreviewState::Copy::kIdle || job.state != JobState::kRunning;
 }
 
 }  // namespace
 
 bool JobManager::ask_for_copy(Job& job) const {
   if (job.state != JobState::kRunning) return false;
-  job.preview_asked_ms = clock_();
-  if (job.preview_copying) return true;
-  if (job.preview_images || job.progress.round == 0) return false;
-  job.preview_requested = true;
+  job.preview.asked_ms = clock_();
+  if (job.preview.copy == PreviewState::Copy::kTaking) return true;
+  if (job.preview.images || job.progress.round == 0) return false;
+  job.preview.copy = PreviewState::Copy::kRequested;
   work_cv_.notify_all();
   return true;
 }
@@ -57,7 +57,7 @@ size_t JobManager::preview_copy_bytes() const {
   MutexLock lock(mu_);
   size_t bytes = 0;
   for (const auto& job : running_)
-    if (const auto& c = job->preview_images)
+    if (const auto& c = job->preview.images)
       for (const Image* i : {&c->combined, &c->pathtrace, &c->path_sum, &c->glossy_sum, &c->reprojection,
                              &c->path_count, &c->reprojected})
         bytes += i->data.size() * sizeof(float);
@@ -87,11 +87,10 @@ std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::str
     auto job = jobs_.find(id);
     if (!job) return std::nullopt;
     if (ask_for_copy(*job))
-      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPreviewWaitMs),
-                        [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return copy_settled(*job); });
-    if (auto p = job->previews.find(layer); p != job->previews.end()) return p->second;
-    images = job->preview_images;
-    reprojects = job->preview_reprojects;
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPreviewWaitMs), [&] { return copy_settled(*job); });
+    if (auto p = job->preview.pngs.find(layer); p != job->preview.pngs.end()) return p->second;
+    images = job->preview.images;
+    reprojects = job->preview.reprojects;
     done = job->state == JobState::kDone;
     dir = job_dir(*job);
   }
@@ -100,7 +99,8 @@ std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::str
   if (!png) return std::nullopt;
   MutexLock lock(mu_);
   auto job = jobs_.find(id);
-  if (job && job->preview_images == images && (images || job->state == JobState::kDone)) job->previews[layer] = *png;
+  if (job && job->preview.images == images && (images || job->state == JobState::kDone))
+    job->preview.pngs[layer] = *png;
   return png;
 }
 
@@ -125,18 +125,16 @@ JobManager::ResultFile JobManager::result_file(const std::string& id, ResultKind
     if (!job) return fail(Error::kNoJob, fmt::format("no job '{}'", id));
     // A running job's copy is taken on this ask; a cancelled or failed one's is being stored.
     if (allow_partial && ask_for_copy(*job))
-      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs),
-                        [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return copy_settled(*job); });
-    if (job->partial_pending)
-      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs),
-                        [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return !job->partial_pending; });
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs), [&] { return copy_settled(*job); });
+    if (job->preview.partial_pending)
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs), [&] { return !job->preview.partial_pending; });
     state = job->state;
-    copying = job->preview_copying;
+    copying = job->preview.copy == PreviewState::Copy::kTaking;
     rounds_done = job->progress.round;
-    round = state == JobState::kDone ? rounds_done : job->preview_round;
-    images = job->preview_images;
-    stats = job->preview_stats;
-    reprojects = job->preview_reprojects;
+    round = state == JobState::kDone ? rounds_done : job->preview.round;
+    images = job->preview.images;
+    stats = job->preview.stats;
+    reprojects = job->preview.reprojects;
     dir = job_dir(*job);
   }
   out.partial = state != JobState::kDone;

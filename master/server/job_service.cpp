@@ -8,11 +8,8 @@
 #include <random>
 #include <string>
 
-#include "common/camera_animation.h"
 #include "common/check.h"
-#include "common/limits.h"
 #include "common/log.h"
-#include "master/memory_estimate.h"
 #include "master/reprojection_outcomes.h"
 #include "master/server/reactors.h"
 #include "wire/convert.h"
@@ -20,24 +17,6 @@
 
 namespace epr {
 namespace {
-
-// The batch fields of a spec: an id of [A-Za-z0-9_-]{1,64}, a name of at most limits::kMaxNameBytes, and no frame
-// or count without an id.
-std::optional<std::string> batch_error(const v1::JobSpec& spec) {
-  const std::string& id = spec.batch_id();
-  if (id.empty()) {
-    if (spec.has_frame() || spec.batch_frames() || !spec.batch_name().empty())
-      return std::string("frame, batch_frames and batch_name need a batch_id");
-    return std::nullopt;
-  }
-  const bool ok = id.size() <= 64 && std::all_of(id.begin(), id.end(), [](unsigned char c) {
-                    return std::isalnum(c) || c == '_' || c == '-';
-                  });
-  if (!ok) return fmt::format("batch_id '{}' is not 1 to 64 of [A-Za-z0-9_-]", id.substr(0, 80));
-  if (spec.batch_name().size() > limits::kMaxNameBytes)
-    return fmt::format("batch names are limited to {} bytes", limits::kMaxNameBytes);
-  return std::nullopt;
-}
 
 grpc::Status no_job(const std::string& id) { return {grpc::StatusCode::NOT_FOUND, fmt::format("no job '{}'", id)}; }
 
@@ -254,48 +233,13 @@ grpc::Status JobServiceImpl::checked_request(const v1::JobSpec& req, const std::
     default:
       return invalid("the job has no scene");
   }
-  if (req.name().size() > limits::kMaxNameBytes)
-    return invalid(fmt::format("job names are limited to {} bytes", limits::kMaxNameBytes));
   jr->name = req.name();
   jr->priority = req.priority();
   jr->request_id = req.request_id();
   if (req.has_time_budget_seconds()) jr->time_budget_seconds = req.time_budget_seconds();
-  if (auto err = batch_error(req)) return invalid(*err);
   jr->batch = {req.batch_id(), req.batch_name(), req.has_frame() ? std::optional<uint32_t>(req.frame()) : std::nullopt,
                req.batch_frames()};
-  // The limits first (cheap, and a huge bundle is not parsed), then the scene itself, so that a
-  // malformed file is an INVALID_ARGUMENT naming file and line, not a job that fails later. Without a
-  // camera in the spec the job takes the scene's own.
-  if (auto err = jobs_.validate(*jr)) return invalid(*err);
-  // A frame this master cannot hold is refused now, with what it would need, not after the setup.
-  // INVALID_ARGUMENT rather than RESOURCE_EXHAUSTED: clients retry the latter, and the same request
-  // never fits this master.
-  const MasterOptions& mo = jobs_.options();
-  if (auto err = memory_budget_error(jr->options, mo.checkpoints && !mo.state_dir.empty(), mo.memory_budget_bytes))
-    return invalid(*err);
-  CameraSpec scene_camera;
-  CameraAnimation animation;  // frames without a camera: the scene's camera at each frame
-  const bool frame_camera = !req.has_camera() && !frames.empty();
-  // From here on the scene is in the master's cache: a refusal removes it again.
-  auto refuse = [&](const std::string& why) {
-    jobs_.discard_checked_scene(content_hash(jr->bundle));
-    return invalid(why);
-  };
-  if (auto err =
-          jobs_.check_scene(jr->bundle, &scene_camera, frame_camera ? &animation : nullptr, jr->options.lighting))
-    return refuse(*err);
-  if (req.has_camera()) return grpc::Status::OK;
-  const CameraSpec own = scene_camera;
-  for (uint32_t frame : frames.empty() ? std::vector<uint32_t>{0} : frames) {
-    if (frame_camera) {
-      if (auto err = animation.frame_problem(frame, own)) return refuse(*err);
-      scene_camera = animation.at(frame, own);
-    }
-    if (auto err = scene_camera.validate())
-      return refuse(frame_camera ? fmt::format("frame {}: the scene's camera: {}", frame, *err)
-                                 : "the scene's own camera: " + *err);
-  }
-  jr->camera = scene_camera;
+  if (auto err = jobs_.admit(jr, req.has_camera(), frames)) return invalid(*err);
   return grpc::Status::OK;
 }
 

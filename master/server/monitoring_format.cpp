@@ -32,6 +32,12 @@ std::array<std::pair<const char*, uint64_t>, 5> outcomes(const ReprojectionCount
            {"invalid", o.invalid}}};
 }
 
+json dropped_by_reason(const TileDrops& d) {
+  json out = json::object();
+  for (const auto& [reason, name] : kDropReasons) out[name] = d.at(reason);
+  return out;
+}
+
 }  // namespace
 
 // ---- JSON -----------------------------------------------------------------------------------------
@@ -111,6 +117,7 @@ json to_json(const JobSnapshot& s) {
         {"committed", n.tiles_committed},
         {"re_leased", n.tiles_re_leased},
         {"dropped", n.tiles_dropped},
+        {"dropped_by_reason", dropped_by_reason(s.drops)},
         {"speculative", n.tiles_speculative}}},
       {"workers_active", s.workers_active},
       {"worker_failures", n.worker_failures},
@@ -139,6 +146,7 @@ FarmTotals FarmTotals::of(const JobSnapshot& s) {
   t.paths_traced = s.progress.paths_traced;
   t.paths_skipped = s.progress.paths_skipped;
   t.counters = s.counters;
+  t.drops = s.drops;
   t.counts = s.counts;
   return t;
 }
@@ -149,6 +157,7 @@ FarmTotals& FarmTotals::operator+=(const FarmTotals& o) {
   paths_traced += o.paths_traced;
   paths_skipped += o.paths_skipped;
   counters += o.counters;
+  drops += o.drops;
   counts += o.counts;
   return *this;
 }
@@ -292,6 +301,10 @@ void write_farm(Exposition& e, const MetricsInput& in) {
   e.single("epr_tiles_re_leased_total", "counter", "Leases granted for tiles whose earlier lease expired.",
            n.tiles_re_leased);
   e.single("epr_tiles_dropped_total", "counter", "Tile results dropped as duplicate or stale.", n.tiles_dropped);
+  e.family("epr_tiles_dropped_by_reason_total", "counter",
+           "Tile results dropped in this master's run, by reason (stale round, duplicate, lease of an earlier run).");
+  for (const auto& [reason, name] : kDropReasons)
+    e.sample("epr_tiles_dropped_by_reason_total", {{"reason", name}}, t.drops.at(reason));
   e.single("epr_tracing_seconds_total", "counter", "Worker thread time spent tracing committed tiles.",
            n.seconds_tracing);
   e.single("epr_reprojection_seconds_total", "counter",

@@ -31,6 +31,7 @@ nlohmann::json to_json(const WorkerSnapshot& w);
 struct FarmTotals {
   uint64_t jobs = 0, rounds = 0, paths_traced = 0, paths_skipped = 0;
   JobCounters counters;
+  TileDrops drops;
   ReprojectionCounts counts;
 
   static FarmTotals of(const JobSnapshot& s);

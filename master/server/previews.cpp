@@ -77,7 +77,10 @@ std::optional<int> parse_preview_bound(std::string_view text) {
 
 std::string preview_key(std::string_view layer, int max_side) {
   std::string key(layer);
-  if (max_side != kPreviewMaxSide) key += "@" + std::to_string(max_side);
+  if (max_side != kPreviewMaxSide) {
+    key += '@';
+    key += std::to_string(max_side);
+  }
   return key;
 }
 

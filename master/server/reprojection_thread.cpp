@@ -50,99 +50,121 @@ void JobManager::reprojection_loop() {
     MutexLock lock(mu_);
     gl_ready_ = gl != nullptr;
   }
-  std::vector<std::unique_ptr<Task>> batch;
   for (;;) {
-    batch.clear();
-    std::shared_ptr<Job> to_start, to_drop, to_copy;
-    JobCounters copy_counters;
+    RenderWork work;
     {
       MutexLock lock(mu_);
-      auto ended = [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
-        for (const auto& job : running_)
-          if (job->state == JobState::kCancelled || job->state == JobState::kFailed) return job;
-        return std::shared_ptr<Job>();
-      };
-      auto startable = [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
-        // drain_and_checkpoint(): nothing new starts.
-        if (draining_) return std::shared_ptr<Job>();
-        auto next = jobs_.next_queued(running_);
-        return next && admits(*next) ? next : nullptr;
-      };
-      auto copy_asked = [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
-        for (const auto& job : running_)
-          if (job->preview_requested && job->state == JobState::kRunning) return job;
-        return std::shared_ptr<Job>();
-      };
-      work_cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
-        return stopping_ || !tasks_.empty() || ended() || startable() || copy_asked();
-      });
-      if (stopping_) break;
-      if ((to_drop = ended())) {
-        running_.erase(std::find(running_.begin(), running_.end(), to_drop));
-      } else if ((to_start = startable())) {
-        // Before the queued commits: a fresh job's round 0 opens at once, so that workers have its
-        // tiles while its frame is built.
-        running_.push_back(to_start);
-      } else if ((to_copy = copy_asked())) {
-        // Between batches: the frame as it stands (its closed rounds and the tiles of the open one
-        // applied so far).
-        to_copy->preview_requested = false;
-        to_copy->preview_copying = true;  // for those waiting on copy_cv_
-        copy_counters = to_copy->counters;
-      } else if (!tasks_.empty()) {
-        // The queued commits of the front one's job and round, in commit order, up to
-        // reproject_batch_records records: one reprojector call for all of them (parallel where
-        // one tile's call would stay serial), the same sums as one call per tile.
-        size_t records = 0;
-        while (!tasks_.empty()) {
-          Task& next = *tasks_.front();
-          const size_t n = next.tile.vertex_count() + next.tile.exact_samples.size();
-          if (!batch.empty() && (next.job != batch.front()->job || next.round != batch.front()->round ||
-                                 records + n > options_.reproject_batch_records))
-            break;
-          records += n;
-          queued_vertices_ -= n;
-          batch.push_back(std::move(tasks_.front()));
-          tasks_.pop_front();
-        }
-      }
+      while ((work = next_work()).kind == RenderWork::Kind::kWait) work_cv_.wait(lock);
     }
-    if (to_drop) {
-      drop_job(to_drop);
-    } else if (to_copy) {
-      try {
-        if (to_copy->driver) take_preview_copy(to_copy, copy_counters);
-      } catch (const std::exception& e) {
-        log->error("job {}: cannot take a preview copy: {}", to_copy->id, e.what());
-      }
-      {
-        MutexLock lock(mu_);
-        to_copy->preview_copying = false;
-      }
-      copy_cv_.notify_all();
-    } else if (to_start) {
-      try {
-        start_job(to_start, gl.get());
-      } catch (const std::exception& e) {
-        // A fresh job's round 0 may be open by now: ending the job closes it (its leases are no
-        // longer wanted, its queued commits are dropped unapplied).
-        log->error("job {} failed to start: {}", to_start->id, e.what());
-        stop_running(to_start);
-        end_job(to_start, JobState::kFailed, e.what());
-        to_start->driver.reset();
-        to_start->scene.reset();
-      }
-    } else if (!batch.empty()) {
-      try {
-        apply_commits(batch);
-      } catch (const std::exception& e) {
-        log->error("job {}: commit failed: {}", batch.front()->job->id, e.what());
-        end_job(batch.front()->job, JobState::kFailed, e.what());
-      }
-    }
+    if (work.kind == RenderWork::Kind::kStop) break;
+    do_work(work, gl.get());
   }
   MutexLock lock(mu_);
   for (const auto& [id, job] : jobs_.all()) job->driver.reset();
+}
+
+std::shared_ptr<Job> JobManager::ended_job() const {
+  for (const auto& job : running_)
+    if (job->state == JobState::kCancelled || job->state == JobState::kFailed) return job;
+  return nullptr;
+}
+
+std::shared_ptr<Job> JobManager::startable_job() const {
+  if (draining_) return nullptr;  // drain_and_checkpoint(): nothing new starts
+  auto next = jobs_.next_queued(running_);
+  return next && admits(*next) ? next : nullptr;
+}
+
+std::shared_ptr<Job> JobManager::copy_asked_job() const {
+  for (const auto& job : running_)
+    if (job->preview.copy == PreviewState::Copy::kRequested && job->state == JobState::kRunning) return job;
+  return nullptr;
+}
+
+JobManager::RenderWork JobManager::next_work() {
+  using Kind = RenderWork::Kind;
+  RenderWork work;
+  if (stopping_) {
+    work.kind = Kind::kStop;
+  } else if ((work.job = ended_job())) {
+    work.kind = Kind::kDrop;
+    running_.erase(std::find(running_.begin(), running_.end(), work.job));
+  } else if ((work.job = startable_job())) {
+    // Before the queued commits: a fresh job's round 0 opens at once, so that workers have its
+    // tiles while its frame is built.
+    work.kind = Kind::kStart;
+    running_.push_back(work.job);
+  } else if ((work.job = copy_asked_job())) {
+    // Between batches: the frame as it stands (its closed rounds and the tiles of the open one
+    // applied so far).
+    work.kind = Kind::kCopy;
+    work.job->preview.copy = PreviewState::Copy::kTaking;  // for those waiting on copy_cv_
+    work.counters = work.job->counters;
+  } else if (!tasks_.empty()) {
+    // The queued commits of the front one's job and round, in commit order, up to
+    // reproject_batch_records records: one reprojector call for all of them (parallel where
+    // one tile's call would stay serial), the same sums as one call per tile.
+    work.kind = Kind::kApply;
+    size_t records = 0;
+    while (!tasks_.empty()) {
+      Task& next = *tasks_.front();
+      const size_t n = next.tile.vertex_count() + next.tile.exact_samples.size();
+      if (!work.batch.empty() && (next.job != work.batch.front()->job || next.round != work.batch.front()->round ||
+                                  records + n > options_.reproject_batch_records))
+        break;
+      records += n;
+      queued_vertices_ -= n;
+      work.batch.push_back(std::move(tasks_.front()));
+      tasks_.pop_front();
+    }
+    work.job = work.batch.front()->job;
+  }
+  return work;
+}
+
+void JobManager::do_work(RenderWork& work, GlContext* gl) {
+  auto log = logger("master");
+  const std::shared_ptr<Job>& job = work.job;
+  switch (work.kind) {
+    case RenderWork::Kind::kWait:
+    case RenderWork::Kind::kStop:
+      return;
+    case RenderWork::Kind::kDrop:
+      return drop_job(job);
+    case RenderWork::Kind::kCopy:
+      try {
+        if (job->driver) take_preview_copy(job, work.counters);
+      } catch (const std::exception& e) {
+        log->error("job {}: cannot take a preview copy: {}", job->id, e.what());
+      }
+      {
+        MutexLock lock(mu_);
+        job->preview.copy = PreviewState::Copy::kIdle;
+      }
+      copy_cv_.notify_all();
+      return;
+    case RenderWork::Kind::kStart:
+      try {
+        start_job(job, gl);
+      } catch (const std::exception& e) {
+        // A fresh job's round 0 may be open by now: ending the job closes it (its leases are no
+        // longer wanted, its queued commits are dropped unapplied).
+        log->error("job {} failed to start: {}", job->id, e.what());
+        stop_running(job);
+        end_job(job, JobState::kFailed, e.what());
+        job->driver.reset();
+        job->scene.reset();
+      }
+      return;
+    case RenderWork::Kind::kApply:
+      try {
+        apply_commits(work.batch);
+      } catch (const std::exception& e) {
+        log->error("job {}: commit failed: {}", job->id, e.what());
+        end_job(job, JobState::kFailed, e.what());
+      }
+      return;
+  }
 }
 
 void JobManager::end_job(const std::shared_ptr<Job>& job, JobState state, const std::string& error) {
@@ -167,8 +189,8 @@ void JobManager::drop_job(const std::shared_ptr<Job>& job) {
   JobCounters counters;
   {
     MutexLock lock(mu_);
-    images = job->preview_images;
-    from_frame = job->partial_pending && !images && job->driver;
+    images = job->preview.images;
+    from_frame = job->preview.partial_pending && !images && job->driver;
     counters = job->counters;
     dir = job_dir(*job);
   }
@@ -179,31 +201,32 @@ void JobManager::drop_job(const std::shared_ptr<Job>& job) {
       logger("master")->error("job {}: cannot copy its frame for its partial results: {}", job->id, e.what());
     }
   }
+  bool reprojects;
   {
     MutexLock lock(mu_);
-    images = job->preview_images;
-    if (job->preview_stats) stats = *job->preview_stats;
+    images = job->preview.images;
+    reprojects = job->preview.reprojects;  // written with the copy, under the mutex
+    if (job->preview.stats) stats = *job->preview.stats;
     stats.update({{"partial", true}, {"state", to_string(job->state)}});
   }
   if (images) {
     try {
       fs::create_directories(dir);
-      write_results(*images, job->preview_reprojects, stats,
+      write_results(*images, reprojects, stats,
                     [&](const ResultKindInfo& k) { return (fs::path(dir) / k.stored_as).string(); });
     } catch (const std::exception& e) {
       logger("master")->error("job {}: cannot store its partial results: {}", job->id, e.what());
     }
     std::map<std::string, std::vector<unsigned char>> pngs;
     for (std::string_view layer : kPreviewLayers)
-      if (auto png = encode_preview(*images, job->preview_reprojects, layer))
-        pngs[std::string(layer)] = std::move(*png);
+      if (auto png = encode_preview(*images, reprojects, layer)) pngs[std::string(layer)] = std::move(*png);
     MutexLock lock(mu_);
-    job->previews = std::move(pngs);
-    job->preview_images.reset();
+    job->preview.pngs = std::move(pngs);
+    job->preview.images.reset();
   }
   {
     MutexLock lock(mu_);
-    job->partial_pending = false;
+    job->preview.partial_pending = false;
   }
   copy_cv_.notify_all();
   job->driver.reset();
@@ -233,23 +256,7 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
   // now, and the frame (deep framebuffer, accumulation) is built while workers trace them. Their
   // commits wait in the commit queue (bounded as ever) and are applied once the frame exists. A
   // resumed job's round has skip masks: its frame is restored before the round opens.
-  if (!had_checkpoint) {
-    {
-      MutexLock lock(mu_);
-      if (job->state != JobState::kQueued) return;  // cancelled meanwhile
-      job->state = JobState::kRunning;
-      job->started_ms = clock_();
-      job->round = 0;
-      job->leases =
-          std::make_unique<LeaseTable>(job->id, job->tiles.size(), options_.lease_policy(), clock_, &job->counters);
-      open_round(*job, RoundDriver::first_plan(job->request.options, job->tiles));
-      wake_parked(/*all=*/false);
-    }
-    answer_due();
-    logger("master")->info("job {} running: {} triangles, {} tiles; round 0 is traced while its frame is built",
-                           job->id, job->scene->triangle_count(), job->tiles.size());
-    notify(job);
-  }
+  if (!had_checkpoint && !begin_running(job, nullptr)) return;  // cancelled meanwhile
   if (options_.before_frame_build) options_.before_frame_build(job->id);
   const auto build = std::chrono::steady_clock::now();
   job->driver = std::make_unique<RoundDriver>(opts, *job->camera, *job->scene, gl);
@@ -276,27 +283,41 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
                             e.what());
     resume.reset();
   }
+  begin_running(job, resume.get());
+}
+
+bool JobManager::begin_running(const std::shared_ptr<Job>& job, const JobProgressRecord* resume) {
+  // A fresh job has no frame yet (its round 0 is traced while the frame is built); a resumed one's
+  // frame is restored (`resume`: its checkpoint, null if the checkpoint did not fit).
+  FrameState* frame = job->driver ? &job->driver->frame() : nullptr;
   {
     MutexLock lock(mu_);
-    if (job->state != JobState::kQueued) return;  // cancelled meanwhile
+    if (job->state != JobState::kQueued) return false;  // cancelled meanwhile
     job->state = JobState::kRunning;
-    job->started_ms = clock_();
-    // The counters go on from the checkpoint's; a checkpoint that did not fit starts them again.
-    job->counters = resume ? resume->counters : JobCounters{};
-    if (resume) job->started_ms = resume->started_ms;
-    job->progress = frame.progress();
-    job->counts = frame.counts();
-    job->round = uint32_t(frame.round());
-    job->counters.seconds_reprojecting = frame.seconds_reprojecting();
+    job->started_ms = resume ? resume->started_ms : clock_();
+    job->round = 0;
+    if (frame) {
+      // The counters go on from the checkpoint's; a checkpoint that did not fit starts them again.
+      job->counters = resume ? resume->counters : JobCounters{};
+      job->progress = frame->progress();
+      job->counts = frame->counts();
+      job->round = uint32_t(frame->round());
+      job->counters.seconds_reprojecting = frame->seconds_reprojecting();
+    }
     job->leases =
         std::make_unique<LeaseTable>(job->id, job->tiles.size(), options_.lease_policy(), clock_, &job->counters);
-    open_round(*job, job->driver->open(job->tiles));
+    open_round(*job, frame ? job->driver->open(job->tiles) : RoundDriver::first_plan(job->request.options, job->tiles));
     wake_parked(/*all=*/false);
   }
   answer_due();
-  logger("master")->info("job {} running from round {}: {} triangles, {} tiles", job->id, frame.round(),
-                         job->scene->triangle_count(), job->tiles.size());
+  if (frame)
+    logger("master")->info("job {} running from round {}: {} triangles, {} tiles", job->id, frame->round(),
+                           job->scene->triangle_count(), job->tiles.size());
+  else
+    logger("master")->info("job {} running: {} triangles, {} tiles; round 0 is traced while its frame is built",
+                           job->id, job->scene->triangle_count(), job->tiles.size());
   notify(job);
+  return true;
 }
 
 void JobManager::open_round(Job& job, RoundPlan plan) {
@@ -367,9 +388,9 @@ void JobManager::close_round(const std::shared_ptr<Job>& job) {
     if (job->request.time_budget_seconds)
       budget_over = double(now - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
     // Renewed while someone asks (at most once a second); dropped once nobody has for a while.
-    const bool watched = job->preview_asked_ms >= 0 && now - job->preview_asked_ms <= options_.preview_interest_ms;
-    want_preview = watched && now - job->last_preview_ms >= 1000;
-    if (!watched) job->preview_images.reset();
+    const bool watched = job->preview.asked_ms >= 0 && now - job->preview.asked_ms <= options_.preview_interest_ms;
+    want_preview = watched && now - job->preview.last_ms >= 1000;
+    if (!watched) job->preview.images.reset();
     checkpoint = progress_record(*job);  // the counters as of the round's end
     at_close = job->counters;
   }
@@ -406,21 +427,21 @@ void JobManager::take_preview_copy(const std::shared_ptr<Job>& job, const JobCou
     // The old copy goes first, so that the job never holds two (32 bytes per pixel each); the PNGs
     // encoded from it keep serving previews meanwhile.
     MutexLock lock(mu_);
-    job->preview_images.reset();
-    job->preview_copying = true;
+    job->preview.images.reset();
+    job->preview.copy = PreviewState::Copy::kTaking;
   }
   auto images = std::make_shared<const FrameImages>(frame.images(/*preview=*/true));
   nlohmann::json stats = frame.statistics(job->request.options, counters.worker_culled);
   MutexLock lock(mu_);
   job->add_statistics(&stats, counters, clock_());
-  job->preview_images = std::move(images);
-  job->preview_copying = false;
-  job->preview_stats = std::make_shared<const nlohmann::json>(std::move(stats));
-  job->preview_round = frame.round();
-  job->preview_reprojects = frame.reprojects();
-  job->previews.clear();
+  job->preview.images = std::move(images);
+  job->preview.copy = PreviewState::Copy::kIdle;
+  job->preview.stats = std::make_shared<const nlohmann::json>(std::move(stats));
+  job->preview.round = frame.round();
+  job->preview.reprojects = frame.reprojects();
+  job->preview.pngs.clear();
   const int64_t now = clock_();
-  job->last_preview_ms = now + std::max<int64_t>(0, 10 * (now - copy_started) - 1000);
+  job->preview.last_ms = now + std::max<int64_t>(0, 10 * (now - copy_started) - 1000);
   copy_cv_.notify_all();
 }
 
@@ -435,8 +456,8 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     // The result files replace the preview copy: it goes before the final images are made, so that
     // the job's peak holds one set of images. Its PNGs serve previews until the files exist.
     MutexLock lock(mu_);
-    job->preview_images.reset();
-    job->preview_copying = true;
+    job->preview.images.reset();
+    job->preview.copy = PreviewState::Copy::kTaking;
   }
   {
     FrameState& frame = job->driver->frame();
@@ -475,8 +496,8 @@ void JobManager::finish_job(const std::shared_ptr<Job>& job, bool budget_exhaust
     // Done once every file is in place.
     MutexLock lock(mu_);
     job->seconds_writing_results = seconds_since(start);
-    job->previews.clear();  // from now on made from the result files
-    job->preview_copying = false;
+    job->preview.pngs.clear();  // from now on made from the result files
+    job->preview.copy = PreviewState::Copy::kIdle;
   }
   // The finished state is on disk before anyone hears of it (after the results: it promises them),
   // so that a master killed after a client saw DONE comes back with the job done.

@@ -11,6 +11,10 @@
 namespace epr {
 namespace {
 
+TileResultIdentity identity_of(const v1::TileResultHeader& h) {
+  return {h.lease_id(), h.job_id(), h.round(), h.tile_index(), h.worker_id().id()};
+}
+
 grpc::Status unknown_worker(const std::string& id) {
   return {grpc::StatusCode::NOT_FOUND, fmt::format("unknown worker id '{}': register again", id)};
 }
@@ -26,17 +30,17 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
     if (!assembler_) {
       if (chunk_.part_case() != v1::TileResultChunk::kHeader)
         return Finish(invalid("the first chunk must be the header"));
-      bool stale = false;
-      auto e = jobs_.expect(chunk_.header(), &stale);
-      if (auto* why = std::get_if<std::string>(&e)) {
-        if (!stale) return refuse(chunk_.header(), *why);
+      TileCheck check = jobs_.expect(identity_of(chunk_.header()));
+      if (check.verdict != TileVerdict::kExpected) {
+        if (!check.stale()) return refuse(chunk_.header(), check.why);
         draining_ = true;
-        reason_ = *why;
+        drained_ = check.verdict;
+        reason_ = std::move(check.why);
         stale_job_ = chunk_.header().job_id();
         return StartRead(&chunk_);
       }
       header_ = chunk_.header();
-      assembler_ = std::make_unique<TileResultAssembler>(std::get<TileExpectation>(std::move(e)));
+      assembler_ = std::make_unique<TileResultAssembler>(std::move(check.expectation));
     }
     if (auto err = assembler_->add(&chunk_)) return refuse(header_, *err);
     StartRead(&chunk_);
@@ -55,7 +59,10 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
 
   void end_of_stream() {
     if (draining_) {
-      jobs_.count_stale(stale_job_);  // e.g. the losing copy of a speculatively re-leased tile
+      // e.g. the losing copy of a speculatively re-leased tile; an unknown job has nothing to count
+      if (drained_ != TileVerdict::kUnknownJob)
+        jobs_.count_dropped(
+            stale_job_, drained_ == TileVerdict::kEarlierEpoch ? DropReason::kEarlierEpoch : DropReason::kStaleRound);
       ack_->set_accepted(false);
       ack_->set_outcome(v1::SUBMIT_OUTCOME_STALE);
       ack_->set_reason(reason_);
@@ -79,6 +86,7 @@ class SubmitTileReader final : public grpc::ServerReadReactor<v1::TileResultChun
   v1::TileResultHeader header_;
   std::unique_ptr<TileResultAssembler> assembler_;
   bool draining_ = false;
+  TileVerdict drained_ = TileVerdict::kStaleRound;  // with draining_: the stale verdict
   std::string reason_, stale_job_;
 };
 

@@ -57,8 +57,15 @@ TEST(LocalRender, RussianRouletteKeepsReprojectionUnbiased) {
   EXPECT_NEAR(pt_fixed, 1.875, 0.02);
   EXPECT_LT(rp_fixed, 0.95 * pt_fixed) << "without roulette the reprojection image must be darker";
 
-  const RenderOutputs rr = render_local(furnace_options(RenderMode::kReproject, RussianRoulette::paper()));
-  EXPECT_NEAR(channel_mean(rr.reprojection), channel_mean(rr.pathtrace), 0.01 * channel_mean(rr.pathtrace));
+  // Every unbiased policy, the ones whose survival follows the path's throughput included: the
+  // records (Le + R_n of vertices other pixels see) and the pixels both show the analytic 2.
+  for (const char* name : {"paper", "throughput", "reuse"}) {
+    SCOPED_TRACE(name);
+    const RenderOutputs rr = render_local(furnace_options(RenderMode::kReproject, roulette_named(name).value()));
+    EXPECT_NEAR(channel_mean(rr.reprojection), channel_mean(rr.pathtrace), 0.01 * channel_mean(rr.pathtrace));
+    EXPECT_NEAR(channel_mean(rr.reprojection), 2.0, 0.02);
+    EXPECT_NEAR(channel_mean(rr.pathtrace), 2.0, 0.02);
+  }
 }
 
 TEST(LocalRender, SkippingTracesFewerPathsAndEveryPixelReachesTarget) {

@@ -14,6 +14,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <thread>
 
 #include "common/image.h"
@@ -22,6 +23,7 @@
 #include "master/make_reprojector.h"
 #include "master/reprojector.h"
 #include "master/server/job_manager.h"
+#include "tests/master/traced_vertices.h"
 #include "tests/server/job_images.h"
 #include "wire/tile_result_stream.h"
 #include "worker/embree_scene.h"
@@ -287,15 +289,7 @@ TEST(CheckpointStore, ScenesAreStoredOnceByHashAndChecked) {
 
 // ---- reprojector accumulation export / import -------------------------------------------------------
 
-std::vector<VertexRecord> traced_vertices(const Scene& scene, const Camera& camera, uint64_t seed, int subpixels) {
-  EmbreeScene es(scene);
-  PathTracer tracer(es, camera, seed, RussianRoulette::paper());
-  VertexFilter f;
-  f.mode = VertexFilter::Mode::kAll;
-  f.subpixels = subpixels;
-  TileRenderer tr(tracer, f);
-  return tr.render({{0, 0, camera.width(), camera.height()}, {}, {}, 2}).vertices;
-}
+using test::traced_vertices;
 
 TEST(CheckpointReprojector, AccumulationMovesBetweenCpuAndGlAndContinuesIdentically) {
   const Scene scene = load_bundle(bundle_scene("builtin:cornell"), default_cache_root());
@@ -434,6 +428,7 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
   const Camera camera(CameraSpec{}, 24, 16);
   const auto first = traced_vertices(scene, camera, 1, 2), second = traced_vertices(scene, camera, 2, 2);
   GlContext gl;
+  std::map<CombineRule, FrameSnapshot> cpu_after;  // per rule: the CPU frame's state after both rounds
   for (const auto& [method, rule] :
        {std::pair{ReprojectMethod::kCpu, CombineRule::kFixed}, std::pair{ReprojectMethod::kGl, CombineRule::kFixed},
         std::pair{ReprojectMethod::kCpu, CombineRule::kVariance},
@@ -515,6 +510,17 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
     EXPECT_EQ(after_b.skip, after_a.skip);
     EXPECT_EQ(after_b.path_m2, after_a.path_m2);
     EXPECT_EQ(after_b.reprojected_effective, after_a.reprojected_effective);
+    // ... and the GL frame decided every vertex as the CPU frame did (backend_decisions_test.cpp).
+    if (method == ReprojectMethod::kCpu)
+      cpu_after[rule] = after_a;
+    else {
+      const FrameSnapshot& cpu = cpu_after.at(rule);
+      EXPECT_EQ(after_a.counts, cpu.counts);
+      EXPECT_EQ(after_a.accumulation.count, cpu.accumulation.count);
+      EXPECT_EQ(after_a.mprime, cpu.mprime);
+      EXPECT_EQ(after_a.skip, cpu.skip);
+      EXPECT_EQ(after_a.reprojected_effective, cpu.reprojected_effective);
+    }
     fs::remove_all(dir);
   }
 }
@@ -580,15 +586,15 @@ class InProcessWorker {
     f.mode = l.options.mode == RenderMode::kPathTrace ? VertexFilter::Mode::kNone : VertexFilter::Mode::kCull;
     f.subpixels = l.options.subpixels;
     const TileResult r = TileRenderer(*tracer_, f).render({l.rect, l.skip, l.first_sample, int(l.paths_per_pixel)});
-    const auto chunks = split_tile_result(r, {l.lease_id, l.job_id, l.round, l.tile_index, id_}, l.codec_bounds, {});
-    bool stale = false;
-    auto e = jobs_.expect(chunks.at(0).header(), &stale);
-    if (auto* s = std::get_if<std::string>(&e)) {
-      EXPECT_TRUE(stale) << *s;
-      if (why) *why = *s;
+    const TileResultIdentity identity{l.lease_id, l.job_id, l.round, l.tile_index, id_};
+    const auto chunks = split_tile_result(r, identity, l.codec_bounds, {});
+    TileCheck e = jobs_.expect(identity);
+    if (e.verdict != TileVerdict::kExpected) {
+      EXPECT_TRUE(e.stale()) << e.why;
+      if (why) *why = e.why;
       return std::nullopt;
     }
-    TileResultAssembler a(std::get<TileExpectation>(std::move(e)));
+    TileResultAssembler a(std::move(e.expectation));
     for (const auto& c : chunks) EXPECT_FALSE(a.add(c));
     EXPECT_TRUE(a.complete());
     return jobs_.commit(l.job_id, l.round, l.tile_index, a.take());

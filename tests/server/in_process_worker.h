@@ -40,14 +40,14 @@ class JobsWorker {
     f.mode = l.options.mode == RenderMode::kPathTrace ? VertexFilter::Mode::kNone : VertexFilter::Mode::kCull;
     f.subpixels = l.options.subpixels;
     const TileResult r = TileRenderer(*t.tracer, f).render({l.rect, l.skip, l.first_sample, int(l.paths_per_pixel)});
-    const auto chunks = split_tile_result(r, {l.lease_id, l.job_id, l.round, l.tile_index, id_}, l.codec_bounds, {});
-    bool stale = false;
-    auto e = jobs_.expect(chunks.at(0).header(), &stale);
-    if (auto* s = std::get_if<std::string>(&e)) {
-      EXPECT_TRUE(stale) << *s;
+    const TileResultIdentity identity{l.lease_id, l.job_id, l.round, l.tile_index, id_};
+    const auto chunks = split_tile_result(r, identity, l.codec_bounds, {});
+    TileCheck e = jobs_.expect(identity);
+    if (e.verdict != TileVerdict::kExpected) {
+      EXPECT_TRUE(e.stale()) << e.why;
       return std::nullopt;
     }
-    TileResultAssembler a(std::get<TileExpectation>(std::move(e)));
+    TileResultAssembler a(std::move(e.expectation));
     for (const auto& c : chunks) EXPECT_FALSE(a.add(c));
     EXPECT_TRUE(a.complete());
     return jobs_.commit(l.job_id, l.round, l.tile_index, a.take());

@@ -53,11 +53,12 @@ ImageMeans render_furnace(float albedo, RussianRoulette rr, int spp, bool mis = 
   return render_image_means(tracer, size, spp);
 }
 
-class FurnaceTest : public ::testing::TestWithParam<std::tuple<float, int, bool>> {};
+// Every unbiased roulette of common/roulette.h (all but off) by name.
+class FurnaceTest : public ::testing::TestWithParam<std::tuple<float, std::string, bool>> {};
 
 TEST_P(FurnaceTest, PixelsAndVerticesMatchAnalyticRadiance) {
   const auto [albedo, rr_mode, mis] = GetParam();
-  const RussianRoulette rr = rr_mode == 0 ? RussianRoulette::paper() : RussianRoulette::albedo();
+  const RussianRoulette rr = roulette_named(rr_mode).value();
   const double expected = 1.0 / (1.0 - albedo);
   const ImageMeans r = render_furnace(albedo, rr, 256, mis);  // 1M paths
   EXPECT_NEAR(r.pixel, expected, 0.01 * expected) << "albedo " << albedo << " rr " << rr_mode << " mis " << mis;
@@ -66,7 +67,9 @@ TEST_P(FurnaceTest, PixelsAndVerticesMatchAnalyticRadiance) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AlbedoRouletteAndMis, FurnaceTest,
-                         ::testing::Combine(::testing::Values(0.5f, 0.8f), ::testing::Values(0, 1), ::testing::Bool()));
+                         ::testing::Combine(::testing::Values(0.5f, 0.8f),
+                                            ::testing::Values("paper", "albedo", "throughput", "reuse"),
+                                            ::testing::Bool()));
 
 // One-sided emitters: the furnace's faces emit from their front side only. Facing inwards the box
 // is the furnace again (Le / (1 - a) everywhere); turned outwards (corners 1 and 2 swapped) the

@@ -103,6 +103,23 @@ TEST(TileLease, UnpacksAValidLease) {
   EXPECT_EQ(strip.first_sample[0], 48u);
 }
 
+// Every roulette the wire names (common/roulette.h) is traced, the default (unspecified) too; an
+// unnamed number is refused.
+TEST(TileLease, TakesEveryRouletteMode) {
+  const auto* modes = v1::RussianRouletteMode_descriptor();
+  ASSERT_GE(modes->value_count(), 6);
+  for (int i = 0; i < modes->value_count(); ++i) {
+    v1::TileLease lease = make_lease();
+    lease.mutable_settings()->mutable_russian_roulette()->set_mode(v1::RussianRouletteMode(modes->value(i)->number()));
+    LeasedTile t;
+    EXPECT_FALSE(unpack_tile_lease(lease, &t)) << modes->value(i)->name();
+  }
+  v1::TileLease lease = make_lease();
+  lease.mutable_settings()->mutable_russian_roulette()->set_mode(v1::RussianRouletteMode(modes->value_count() + 7));
+  LeasedTile t;
+  EXPECT_TRUE(unpack_tile_lease(lease, &t));
+}
+
 TEST(TileLease, VertexFilterFollowsTheMode) {
   EXPECT_EQ(vertex_filter_for(make_lease(RenderMode::kPathTrace).settings()).mode, VertexFilter::Mode::kNone);
   EXPECT_EQ(vertex_filter_for(make_lease(RenderMode::kReproject, ReprojectMethod::kGl).settings()).mode,

@@ -194,7 +194,7 @@ class MasterClient:
         reprojected_weight: float = 0.5,
         reproject_glossy: bool = False,
         joint_test: bool = True,
-        rr: str = "paper",
+        rr: Optional[str] = None,
         max_depth: Optional[int] = None,
         mis: bool = True,
         tile: int = 64,
@@ -221,10 +221,9 @@ class MasterClient:
         method = S.METHODS.get(reproject.lower())
         if method is None:
             raise ArgumentError(f"reproject '{reproject}' is not one of gl, cpu, exact")
-        roulette = S.ROULETTE.get(rr.lower())
-        if roulette is None:
-            raise ArgumentError(f"rr '{rr}' is not one of paper, albedo, off")
-        rr_mode, start_depth, termination, default_depth = roulette
+        rr_mode = rs_pb.RUSSIAN_ROULETTE_MODE_UNSPECIFIED if rr is None else S.ROULETTE.get(str(rr).lower())
+        if rr_mode is None:
+            raise ArgumentError(f"rr '{rr}' is not one of {', '.join(S.ROULETTE)}")
         sampler_value = S.SAMPLERS.get(sampler.lower())
         if sampler_value is None:
             raise ArgumentError(f"sampler '{sampler}' is not one of sobol-burley, independent")
@@ -284,14 +283,7 @@ class MasterClient:
                 joint_test=joint_test,
             )
         )
-        spec.russian_roulette.CopyFrom(
-            rs_pb.RussianRouletteSettings(
-                mode=rr_mode,
-                start_depth=start_depth,
-                termination_probability=termination,
-                max_depth=default_depth if max_depth is None else max_depth,
-            )
-        )
+        spec.russian_roulette.CopyFrom(rs_pb.RussianRouletteSettings(mode=rr_mode, max_depth=max_depth))
         # Without a camera the master takes the scene's own (a built-in's view, a scene JSON's
         # "camera", the default camera for an OBJ).
         if given:
@@ -337,7 +329,8 @@ class MasterClient:
             subpixels (4), epsilon (3e-4), min_paths (1), reproject_glossy (False), joint_test (True).
             reprojected_weight: W in (0, 1], what a reprojected sample counts for against a traced
                 path (0.5, as `epr`; `--reprojected-weight`).
-            rr: Russian roulette "paper" (default), "albedo" or "off"; max_depth overrides its cap.
+            rr: Russian roulette "reuse", "throughput", "albedo", "paper" or "off" (job_settings.ROULETTE);
+                None (default): the master's default, reuse, as `epr`. max_depth overrides its cap.
             mis: MIS for direct light (True); False: next event estimation only.
             tile: tile edge, pixels (64); taper_tiles (False).
             eye, look, up (x, y, z each) and fov (degrees): a camera, all four or none (the scene's own).

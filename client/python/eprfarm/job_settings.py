@@ -18,11 +18,15 @@ SAMPLERS = {
     "sobol-burley": rs_pb.SAMPLER_SOBOL_BURLEY,
     "independent": rs_pb.SAMPLER_INDEPENDENT,
 }
-# Russian roulette: (mode, start depth, termination probability, max depth), as common/render_options.h.
+# Russian roulette by name: the proto's RussianRouletteMode values, named by the rest of their
+# names in lower case ("paper", "albedo", "off", "throughput", "reuse"). Only the mode is sent: the
+# master fills in each mode's start depth, termination probability and depth cap from its own table
+# (common/roulette.h), and a job that names none gets the master's default.
+_RR_PREFIX = "RUSSIAN_ROULETTE_MODE_"
 ROULETTE = {
-    "paper": (rs_pb.RUSSIAN_ROULETTE_MODE_PAPER, 8, 0.1, 1024),
-    "albedo": (rs_pb.RUSSIAN_ROULETTE_MODE_ALBEDO, 3, 0.0, 1024),
-    "off": (rs_pb.RUSSIAN_ROULETTE_MODE_OFF, 0, 0.0, 8),
+    name[len(_RR_PREFIX) :].lower(): value
+    for name, value in rs_pb.RussianRouletteMode.items()
+    if value != rs_pb.RUSSIAN_ROULETTE_MODE_UNSPECIFIED
 }
 
 

@@ -100,6 +100,27 @@ class ArgumentTest(unittest.TestCase):
         self.assertIsNotNone(name_bytes, "no kMaxNameBytes in common/limits.h")
         self.assertEqual(limits.MAX_NAME_BYTES, int(name_bytes.group(1)))
 
+    def test_roulette_is_the_masters(self):
+        """The client's roulette names are common/roulette.cpp's table (both read the proto's modes), and
+        a job sends only the mode: each mode's numbers and the default are the master's."""
+        from eprfarm import job_settings
+        from eprfarm.proto import render_settings_pb2 as rs_pb
+
+        with open(os.path.join(base.SOURCE_DIR, "common", "roulette.cpp")) as f:
+            table = re.findall(r'\{"(\w+)", RussianRoulette::\w+\(', f.read())
+        self.assertEqual(table, ["paper", "albedo", "off", "throughput", "reuse"])
+        self.assertEqual(list(job_settings.ROULETTE), table)
+        spec = self.client.job_spec("builtin:cornell")
+        self.assertEqual(spec.russian_roulette.mode, rs_pb.RUSSIAN_ROULETTE_MODE_UNSPECIFIED)
+        for field in ("start_depth", "termination_probability", "max_depth"):
+            self.assertFalse(spec.russian_roulette.HasField(field), field)
+        spec = self.client.job_spec("builtin:cornell", rr="Paper", max_depth=12)
+        self.assertEqual(spec.russian_roulette.mode, rs_pb.RUSSIAN_ROULETTE_MODE_PAPER)
+        self.assertFalse(spec.russian_roulette.HasField("start_depth"))
+        self.assertEqual(spec.russian_roulette.max_depth, 12)
+        self.assert_refused(lambda: self.client.job_spec("builtin:cornell", rr="russian"),
+                            "rr 'russian' is not one of paper, albedo, off, throughput, reuse")  # fmt: skip
+
     def test_list_and_watch_arguments(self):
         self.assert_refused(lambda: self.client.list(limit=-1), "limit -1 must be 0 (all jobs) or more")
         self.assert_refused(lambda: self.client.list(limit=2.5), "limit must be a whole number, not 2.5")

@@ -57,6 +57,7 @@ struct Job {
   uint64_t seed = 7;
   bool mis = true;  // false: --no-mis (next event estimation only)
   float reprojected_weight = RenderOptions{}.reprojected_weight;
+  std::string rr;  // --rr; empty: the default roulette
 
   // The flags shared by `epr render` and `epr submit`. The reprojector is the default (the OSMesa
   // deep framebuffer) on both sides: the cluster runs what a user runs.
@@ -81,6 +82,10 @@ struct Job {
            "--seed",
            std::to_string(seed)};
     if (!mis) a.push_back("--no-mis");
+    if (!rr.empty()) {
+      a.push_back("--rr");
+      a.push_back(rr);
+    }
     if (reprojected_weight != RenderOptions{}.reprojected_weight) {
       a.push_back("--reprojected-weight");
       a.push_back(fmt::format("{}", reprojected_weight));
@@ -453,6 +458,10 @@ TEST_F(ClusterTest, JobEndsWhenReprojectionSkipsEveryPixel) {
   // k paths in every round: with growing rounds (the default), a straggler still active when the
   // last, larger round opens traces it whole and may end at P paths.
   job.round_growth = 0;
+  // Long paths (the paper's roulette: none before 8 bounces) give each pixel enough reprojected
+  // samples to reach P at min-paths; the default roulette ends paths in this box after about two
+  // vertices, and most pixels then trace on towards P.
+  job.rr = "paper";
   ASSERT_NO_FATAL_FAILURE(start_master());
   start_worker("w1");
   start_worker("w2");
