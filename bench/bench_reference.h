@@ -135,7 +135,7 @@ struct Reference {
   double cpu = 0;    // seconds spent rendering it in this run (0 when cached)
 };
 
-constexpr const char* kRendererTag = "pt-v2";  // bump when the path tracer's converged image changes
+constexpr const char* kRendererTag = "pt-v3";  // bump when the path tracer's converged image changes
 
 inline uint64_t fnv1a(const std::string& s) {
   uint64_t h = 1469598103934665603ull;

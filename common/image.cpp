@@ -12,12 +12,13 @@
 #include "common/checked_file.h"
 
 namespace epr {
-namespace {
 
 float linear_to_srgb(float c) {
   c = std::clamp(c, 0.f, 1.f);
   return c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1 / 2.4f) - 0.055f;
 }
+
+namespace {
 
 std::vector<unsigned char> to_srgb8(const Image& img) {
   std::vector<unsigned char> out(img.data.size());

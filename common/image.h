@@ -35,6 +35,8 @@ struct Image {
 /// Throws std::runtime_error naming the file on failure (std::system_error naming the errno when a
 /// write fails: a full disk leaves a short file, never a reported success).
 void write_exr(const std::string& path, const Image& img, const char* compression = "zip");
+/// The sRGB transfer curve of a linear value, clamped to [0, 1].
+float linear_to_srgb(float c);
 /// 8-bit PNG; colour is clamped to [0,1] and encoded with the sRGB transfer curve. Written and
 /// reported like write_exr().
 void write_png_srgb(const std::string& path, const Image& img);

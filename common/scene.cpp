@@ -121,11 +121,17 @@ void Scene::validate() const {
   for (const Material& m : materials) {
     if (!is_finite(m.kd) || !is_finite(m.ke) || !is_finite(m.ks) || !std::isfinite(m.exponent))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' has non-finite values", name, m.name));
-    if (m.kd_texture >= int(textures.size()) ||
-        (m.kd_texture >= 0 &&
-         textures[size_t(m.kd_texture)].rgb.size() !=
-             3 * size_t(textures[size_t(m.kd_texture)].width) * size_t(textures[size_t(m.kd_texture)].height)))
+    const auto missing_rgb = [&](int t) {
+      return t >= int(textures.size()) ||
+             (t >= 0 && textures[size_t(t)].rgb.size() !=
+                            3 * size_t(textures[size_t(t)].width) * size_t(textures[size_t(t)].height));
+    };
+    if (missing_rgb(m.kd_texture) || missing_rgb(m.metallic_roughness_texture) || missing_rgb(m.ke_texture))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' names a missing texture", name, m.name));
+    if (!std::isfinite(m.metallic) || !std::isfinite(m.roughness) || !std::isfinite(m.transmission) ||
+        !(m.ior >= 1 && m.ior <= 10))
+      throw std::runtime_error(
+          fmt::format("scene '{}': material '{}' has a non-finite factor or an ior outside [1, 10]", name, m.name));
     if (m.alpha_texture >= int(textures.size()) ||
         (m.alpha_texture >= 0 &&
          textures[size_t(m.alpha_texture)].alpha.size() !=

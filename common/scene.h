@@ -5,8 +5,10 @@
 // (constant Kd or a Kd texture), optionally emissive (a diffuse area light of radiance Ke, emitting
 // from both sides as Cycles' mesh lights do, or from the front side only, as a real light panel and
 // pbrt's and Mitsuba's area lights do), or the one glossy material that exists only to test
-// the method's failure mode. A material may be cut out by an alpha mask: where the mask's texel is
-// below the cut-off the surface is not there (rays pass through). No scene graph, no instancing.
+// the method's failure mode, or glTF's metallic-roughness material on a GGX microfacet model (metals,
+// dielectrics with a specular layer, glass: worker/bsdf_ggx.h). A material may be cut out by an alpha
+// mask: where the mask's texel is below the cut-off the surface is not there (rays pass through). No
+// scene graph, no instancing.
 #pragma once
 
 #include <array>
@@ -22,8 +24,9 @@
 namespace epr {
 
 enum class MaterialType : uint8_t {
-  kDiffuse,  // Lambertian: f = Kd / pi
-  kGlossy,   // Kd / pi + normalised Phong lobe: Ks (n + 2) / (2 pi) cos^n(alpha)
+  kDiffuse,     // Lambertian: f = Kd / pi
+  kGlossy,      // Kd / pi + normalised Phong lobe: Ks (n + 2) / (2 pi) cos^n(alpha)
+  kMicrofacet,  // glTF metallic-roughness on GGX (worker/bsdf_ggx.h); Kd is the base colour
 };
 
 struct Material {
@@ -39,6 +42,13 @@ struct Material {
   float alpha_cutoff = 0.5f;      // where the mask's alpha is below this the surface is a hole
   int normal_texture = -1;        // index into Scene::textures: a tangent-space normal map (linear data) when >= 0
   float normal_scale = 1.f;       // multiplies the map's x and y (glTF normalTexture.scale)
+  // kMicrofacet only: glTF's factors (alpha = roughness^2), linear. With a texture (>= 0) they
+  // multiply its G (roughness) and B (metallic) channels, which hold data: the texture is the image
+  // as decoded for colour, and the sRGB curve is re-applied per lookup (exact for 8- and 16-bit
+  // images up to float rounding).
+  float metallic = 0, roughness = 1, transmission = 0, ior = 1.5f;
+  int metallic_roughness_texture = -1;
+  int ke_texture = -1;  // multiplies Ke per texel when >= 0 (its mean is 1 per channel: Ke stays the mean)
 
   bool emissive() const { return !is_black(ke); }
   /// The radiance Ke leaving a surface of this material along a direction on the side of `side` (a

@@ -77,6 +77,7 @@ struct VisibleSample {
 struct TileResult {
   TileRect rect;
   std::vector<Vec3> path_sum;          // per tile pixel, linear RGB, sum over this tile's paths
+  std::vector<Vec3> glossy_sum;        // per tile pixel, the sums' glossy parts (PathTracer::trace)
   std::vector<uint32_t> path_count;    // per tile pixel
   std::vector<VertexRecord> vertices;  // kAll / kCull without codec bounds
   std::vector<VisibleSample> visible;  // kExact

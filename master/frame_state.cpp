@@ -35,7 +35,67 @@ class ScopedTimer {
   Clock::time_point start_;
 };
 
+// Copies one field: a vector or a span into a span (a view of it) or into a vector (a copy), or a value.
+template <class To, class From>
+void copy_field(To& to, const From& from) {
+  if constexpr (requires { to = std::span(from); }) {
+    to = std::span(from);
+  } else if constexpr (requires { to.assign(from.begin(), from.end()); }) {
+    to.assign(from.begin(), from.end());
+  } else {
+    to = from;
+  }
+}
+
 }  // namespace
+
+// The per-pixel arrays and scalars of a frame, one list for save(), view(), view_of() and restore():
+// to.f = from.f for each (FrameSnapshot, FrameView or FrameState::Fields on either side).
+template <class To, class From>
+void frame_fields(To& to, const From& from) {
+  copy_field(to.path_sum, from.path_sum);
+  copy_field(to.glossy_sum, from.glossy_sum);
+  copy_field(to.path_count, from.path_count);
+  copy_field(to.mprime, from.mprime);
+  copy_field(to.skip, from.skip);
+  copy_field(to.path_m2, from.path_m2);
+  copy_field(to.reprojected_effective, from.reprojected_effective);
+  copy_field(to.paths_done, from.paths_done);
+  copy_field(to.done, from.done);
+  copy_field(to.progress, from.progress);
+  copy_field(to.seconds_reprojecting, from.seconds_reprojecting);
+  copy_field(to.seconds_downsampling, from.seconds_downsampling);
+}
+
+struct FrameState::Fields {
+  std::vector<float>& path_sum;
+  std::vector<float>& glossy_sum;
+  std::vector<uint32_t>& path_count;
+  std::vector<uint32_t>& mprime;
+  std::vector<uint8_t>& skip;
+  std::vector<float>& path_m2;
+  std::vector<float>& reprojected_effective;
+  int& paths_done;
+  bool& done;
+  FrameProgress& progress;
+  double& seconds_reprojecting;
+  double& seconds_downsampling;
+};
+
+FrameState::Fields FrameState::fields() {
+  return {path_sum_,
+          glossy_sum_,
+          path_count_,
+          mprime_,
+          skip_,
+          path_m2_,
+          reprojected_effective_,
+          paths_done_,
+          done_,
+          progress_,
+          seconds_reprojecting_,
+          seconds_downsampling_};
+}
 
 double eta_seconds(const FrameProgress& p, int spp, double seconds) {
   if (p.paths_traced == 0 || p.pixels_active == 0) return 0;
@@ -64,19 +124,19 @@ Image combined_image(const FrameImages& images) {
   const Image& s = images.path_sum;
   Image out(s.width, s.height, 3);
   const bool worth = !images.reprojected_worth.data.empty();
+  const bool glossy = !images.glossy_sum.data.empty();
   tbb::parallel_for(0, s.height, [&](int y) {
     for (int x = 0; x < s.width; ++x) {
       const float* ps = s.at(x, y);
-      if (worth) {
-        out.set_rgb(x, y,
-                    combine_weighted(Vec3(ps[0], ps[1], ps[2]), uint32_t(images.path_count.at(x, y)[0]),
-                                     images.reprojected_worth.at(x, y)[0], images.reprojection.rgb(x, y)));
-        continue;
-      }
-      out.set_rgb(x, y,
-                  combine_pixel(Vec3(ps[0], ps[1], ps[2]), uint32_t(images.path_count.at(x, y)[0]),
-                                uint32_t(images.reprojected.at(x, y)[0]), images.reprojection.rgb(x, y),
-                                images.reprojected_weight));
+      const uint32_t m = uint32_t(images.path_count.at(x, y)[0]);
+      // The glossy part is not combined: it comes back as its own mean (0 without one).
+      const Vec3 g = glossy ? images.glossy_sum.rgb(x, y) : Vec3(0.f);
+      const Vec3 diffuse_sum = glossy ? Vec3(ps[0], ps[1], ps[2]) - g : Vec3(ps[0], ps[1], ps[2]);
+      const Vec3 combined =
+          worth ? combine_weighted(diffuse_sum, m, images.reprojected_worth.at(x, y)[0], images.reprojection.rgb(x, y))
+                : combine_pixel(diffuse_sum, m, uint32_t(images.reprojected.at(x, y)[0]), images.reprojection.rgb(x, y),
+                                images.reprojected_weight);
+      out.set_rgb(x, y, glossy && m > 0 ? combined + g * (1.f / float(m)) : combined);
     }
   });
   return out;
@@ -151,11 +211,14 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
 
 FrameState::~FrameState() = default;
 
-void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums,
-                           std::span<const uint32_t> counts) {
+void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums, std::span<const uint32_t> counts,
+                           std::span<const Vec3> glossy) {
   const size_t n = size_t(x1 - x0) * size_t(y1 - y0);
-  if (x0 < 0 || y0 < 0 || x1 > width_ || y1 > height_ || x0 >= x1 || y0 >= y1 || sums.size() != n || counts.size() != n)
+  if (x0 < 0 || y0 < 0 || x1 > width_ || y1 > height_ || x0 >= x1 || y0 >= y1 || sums.size() != n ||
+      counts.size() != n || (!glossy.empty() && glossy.size() != n))
     throw std::invalid_argument("tile outside the frame or with the wrong number of pixels");
+  if (glossy_sum_.empty() && std::any_of(glossy.begin(), glossy.end(), [](const Vec3& g) { return !is_black(g); }))
+    glossy_sum_.assign(path_sum_.size(), 0.f);
   size_t i = 0;
   for (int y = y0; y < y1; ++y)
     for (int x = x0; x < x1; ++x, ++i) {
@@ -168,6 +231,11 @@ void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3>
       path_sum_[3 * p + 1] += sums[i].y;
       path_sum_[3 * p + 2] += sums[i].z;
       path_count_[p] += counts[i];
+      if (!glossy_sum_.empty() && !glossy.empty()) {
+        glossy_sum_[3 * p + 0] += glossy[i].x;
+        glossy_sum_[3 * p + 1] += glossy[i].y;
+        glossy_sum_[3 * p + 2] += glossy[i].z;
+      }
     }
 }
 
@@ -241,10 +309,20 @@ Image FrameState::worth_image(const PixelReprojection& rp) const {
   return out;
 }
 
+double FrameState::diffuse_share(size_t p) const {
+  if (glossy_sum_.empty()) return 1;
+  const double all = luminance_of(path_sum_[3 * p], path_sum_[3 * p + 1], path_sum_[3 * p + 2]);
+  const double glossy = luminance_of(glossy_sum_[3 * p], glossy_sum_[3 * p + 1], glossy_sum_[3 * p + 2]);
+  return all > 0 ? std::clamp(1 - glossy / all, 0.0, 1.0) : 1.0;
+}
+
 double FrameState::pixel_samples(size_t p) const {
-  return variance_rule() && !reprojected_effective_.empty()
-             ? effective_samples(path_count_[p], reprojected_effective_[p], opts_.reprojected_weight)
-             : weighted_samples(path_count_[p], mprime_[p], opts_.reprojected_weight);
+  // Reprojected samples improve only the diffuse part of the pixel: they count by its share d.
+  const double d = diffuse_share(p);
+  if (variance_rule() && !reprojected_effective_.empty())
+    return effective_samples(path_count_[p], d * reprojected_effective_[p], opts_.reprojected_weight);
+  return d == 1 ? weighted_samples(path_count_[p], mprime_[p], opts_.reprojected_weight)
+                : double(path_count_[p]) + d * double(opts_.reprojected_weight) * double(mprime_[p]);
 }
 
 int FrameState::next_paths_per_pixel() const { return round_paths(opts_, paths_done_); }
@@ -336,17 +414,7 @@ FrameSnapshot FrameState::save() {
   FrameSnapshot s;
   s.width = width_;
   s.height = height_;
-  s.path_sum = path_sum_;
-  s.path_count = path_count_;
-  s.mprime = mprime_;
-  s.skip = skip_;
-  s.path_m2 = path_m2_;
-  s.reprojected_effective = reprojected_effective_;
-  s.paths_done = paths_done_;
-  s.done = done_;
-  s.progress = progress_;
-  s.seconds_reprojecting = seconds_reprojecting_;
-  s.seconds_downsampling = seconds_downsampling_;
+  frame_fields(s, fields());
   if (reprojector_) {
     s.has_accumulation = true;
     s.accumulation = reprojector_->read();
@@ -359,17 +427,7 @@ FrameView FrameState::view() {
   FrameView v;
   v.width = width_;
   v.height = height_;
-  v.path_sum = path_sum_;
-  v.path_count = path_count_;
-  v.mprime = mprime_;
-  v.skip = skip_;
-  v.path_m2 = path_m2_;
-  v.reprojected_effective = reprojected_effective_;
-  v.paths_done = paths_done_;
-  v.done = done_;
-  v.progress = progress_;
-  v.seconds_reprojecting = seconds_reprojecting_;
-  v.seconds_downsampling = seconds_downsampling_;
+  frame_fields(v, fields());
   if (reprojector_) {
     v.has_accumulation = true;
     v.grid_width = opts_.subpixels * width_;
@@ -388,18 +446,8 @@ FrameView view_of(const FrameSnapshot& s) {
   FrameView v;
   v.width = s.width;
   v.height = s.height;
-  v.path_sum = s.path_sum;
-  v.path_count = s.path_count;
-  v.mprime = s.mprime;
+  frame_fields(v, s);
   v.reprojected = s.reprojected;
-  v.skip = s.skip;
-  v.path_m2 = s.path_m2;
-  v.reprojected_effective = s.reprojected_effective;
-  v.paths_done = s.paths_done;
-  v.done = s.done;
-  v.progress = s.progress;
-  v.seconds_reprojecting = s.seconds_reprojecting;
-  v.seconds_downsampling = s.seconds_downsampling;
   v.has_accumulation = s.has_accumulation;
   if (s.has_accumulation) {
     const SubpixelAccumulation* a = &s.accumulation;
@@ -435,8 +483,9 @@ void FrameState::restore(const FrameSnapshot& s) {
   if (s.width != width_ || s.height != height_)
     throw std::invalid_argument("the snapshot is of a " + std::to_string(s.width) + "x" + std::to_string(s.height) +
                                 " frame, this frame is " + std::to_string(width_) + "x" + std::to_string(height_));
-  if (s.path_sum.size() != 3 * n || s.path_count.size() != n || s.mprime.size() != n ||
-      (!s.reprojected.empty() && s.reprojected.size() != 3 * n) || s.skip.size() != n)
+  if (s.path_sum.size() != 3 * n || (!s.glossy_sum.empty() && s.glossy_sum.size() != 3 * n) ||
+      s.path_count.size() != n || s.mprime.size() != n || (!s.reprojected.empty() && s.reprojected.size() != 3 * n) ||
+      s.skip.size() != n)
     throw std::invalid_argument("the snapshot's per-pixel arrays do not match the frame size");
   if (s.path_m2.size() != path_m2_.size() || s.reprojected_effective.size() != reprojected_effective_.size())
     throw std::invalid_argument(path_m2_.empty() ? "the snapshot has the variance combination's moments, this frame "
@@ -467,18 +516,15 @@ void FrameState::restore(const FrameSnapshot& s) {
   } else if (reprojector_) {
     reprojector_->restore(s.accumulation, s.counts);  // checks the grid; throws before any change below
   }
-  path_sum_ = s.path_sum;
-  path_count_ = s.path_count;
-  mprime_ = s.mprime;
-  skip_ = s.skip;
-  path_m2_ = s.path_m2;
-  reprojected_effective_ = s.reprojected_effective;
-  paths_done_ = s.paths_done;
-  done_ = s.done;
-  progress_ = s.progress;
-  seconds_reprojecting_ = s.seconds_reprojecting;
-  seconds_downsampling_ = s.seconds_downsampling;
+  Fields f = fields();
+  frame_fields(f, s);
   reprojection_partial_ = reprojector_ != nullptr;  // the snapshot may hold a partial refresh
+}
+
+void FrameState::glossy_images(FrameImages* out) const {
+  if (glossy_sum_.empty()) return;
+  out->glossy_sum = Image(width_, height_, 3);
+  out->glossy_sum.data = glossy_sum_;
 }
 
 void FrameState::count_images(FrameImages* out) const {
@@ -508,6 +554,8 @@ FrameImages FrameState::release_images() {
   out.path_sum.height = height_;
   out.path_sum.data = std::move(path_sum_);
   path_sum_.clear();
+  glossy_images(&out);
+  glossy_sum_.clear();
   return out;
 }
 
@@ -529,6 +577,7 @@ FrameImages FrameState::images(bool preview) {
   out.path_sum.width = width_;
   out.path_sum.height = height_;
   out.path_sum.data = path_sum_;
+  glossy_images(&out);
   count_images(&out);
   return out;
 }

@@ -51,9 +51,12 @@ struct FrameProgress {
 /// bit as from the frame's arrays while M' < 2^24 (the count images are floats). A set filled the
 /// other way (combined and pathtrace given, path_sum empty) serves them as they are.
 struct FrameImages {
-  Image combined;                  // (path_sum + W M' L_rp) / (M + W M'), or empty
-  Image pathtrace;                 // path_sum / M, or empty
-  Image path_sum;                  // the RGB sum of each pixel's M path samples, or empty
+  Image combined;   // (path_sum + W M' L_rp) / (M + W M'), or empty
+  Image pathtrace;  // path_sum / M, or empty
+  Image path_sum;   // the RGB sum of each pixel's M path samples, or empty
+  // The part of path_sum that is not combined with reprojected samples (PathTracer::trace's `glossy`:
+  // glossy lobes at the first vertex), added as glossy_sum / M; empty where nothing is glossy.
+  Image glossy_sum;
   Image reprojection;              // L_rp (empty without reprojection)
   Image path_count;                // M, one channel
   Image reprojected;               // M', one channel
@@ -65,8 +68,9 @@ struct FrameImages {
 
 /// path_sum / M per pixel (0 where M = 0), or the stored image.
 Image pathtrace_image(const FrameImages& images);
-/// (path_sum + W M' L_rp) / (M + W M') per pixel (combine_pixel), or with M'_eq in place of W M'
-/// where reprojected_worth is given; the path-traced image without reprojection, or the stored image.
+/// (path_sum - G + W M' L_rp) / (M + W M') + G / M per pixel (combine_pixel; G the glossy_sum, 0
+/// without one), or with M'_eq in place of W M' where reprojected_worth is given; the path-traced
+/// image without reprojection, or the stored image.
 Image combined_image(const FrameImages& images);
 
 /// Everything a FrameState holds after a finished round, for checkpoints: restoring it into a
@@ -75,6 +79,7 @@ Image combined_image(const FrameImages& images);
 struct FrameSnapshot {
   int width = 0, height = 0;
   std::vector<float> path_sum;       // 3 per pixel (checkpoint files hold them as doubles)
+  std::vector<float> glossy_sum;     // 3 per pixel, the glossy part of path_sum (FrameImages::glossy_sum)
   std::vector<uint32_t> path_count;  // M
   std::vector<uint32_t> mprime;      // M' as of the last downsample (checkpoint files hold 64 bits)
   std::vector<float>
@@ -102,6 +107,7 @@ struct FrameSnapshot {
 struct FrameView {
   int width = 0, height = 0;
   std::span<const float> path_sum;
+  std::span<const float> glossy_sum;
   std::span<const uint32_t> path_count;
   std::span<const uint32_t> mprime;
   std::span<const float> reprojected;  // empty (FrameSnapshot::reprojected)
@@ -139,8 +145,10 @@ class FrameState {
   FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl = nullptr);
   ~FrameState();
 
-  /// The path samples of one tile: sums and counts row-major over [x0, x1) x [y0, y1).
-  void add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums, std::span<const uint32_t> counts);
+  /// The path samples of one tile: sums and counts row-major over [x0, x1) x [y0, y1); `glossy` the
+  /// sums' glossy parts (PathTracer::trace), the same size, or empty (0).
+  void add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3> sums, std::span<const uint32_t> counts,
+                 std::span<const Vec3> glossy = {});
   void reproject(std::span<const VertexRecord> vertices);
   /// Vertices in their 16-byte wire form, quantised with the scene's bounds (VertexCodec): the same
   /// as reproject() of their decoded records.
@@ -203,11 +211,21 @@ class FrameState {
   PixelReprojection reprojected_radiance(bool counts_too);
   // The variance combination's M'_eq per pixel from the state and `rp`'s v_rp.
   Image worth_image(const PixelReprojection& rp) const;
-  // The samples the skip rule counts for pixel p: M + W M' (fixed) or N_eff (variance).
+  // The samples the skip rule counts for pixel p: M + d W M' (fixed) or N_eff with d M'_eff
+  // (variance), d = diffuse_share(p).
   double pixel_samples(size_t p) const;
+  // The share of pixel p's own estimate that reprojected samples improve: luminance of (path_sum -
+  // glossy_sum) / path_sum in [0, 1]; 1 without a glossy part (DESIGN.md "Diffuse-share reprojection").
+  double diffuse_share(size_t p) const;
+  // References to the per-pixel arrays and scalars a snapshot holds, under the snapshot's names
+  // (frame_state.cpp: frame_fields copies them between state, snapshot and view).
+  struct Fields;
+  Fields fields();
   bool variance_rule() const { return opts_.combine == CombineRule::kVariance; }
   // M and M' of every pixel as float images.
   void count_images(FrameImages* out) const;
+  // The glossy sums as an image, when there are any.
+  void glossy_images(FrameImages* out) const;
   // progress_'s path and sample counts (paths traced, mean M, M', M + M', min M + M') from the arrays.
   void update_sample_progress();
   size_t pixel(int x, int y) const { return size_t(y) * size_t(width_) + size_t(x); }
@@ -219,6 +237,7 @@ class FrameState {
   ReprojectionCounts released_counts_;  // the reprojector's counts when release_images() let it go
   std::unique_ptr<VertexCodec> codec_;  // the wire's quantisation (scene bounds), when reprojecting
   std::vector<float> path_sum_;         // 3 per pixel
+  std::vector<float> glossy_sum_;       // 3 per pixel, or empty while every pixel's is 0
   std::vector<uint32_t> path_count_;    // M
   std::vector<uint32_t> mprime_;        // M' as of the last downsample (L_rp is made when asked for)
   bool reprojection_partial_ = false;   // the last downsample left skipped pixels' M' as they were

@@ -78,7 +78,7 @@ RoundPlan RoundDriver::first_plan(const RenderOptions& opts, const std::vector<T
 }
 
 void RoundDriver::apply(const TileResult& r) {
-  frame_.add_paths(r.rect.x0, r.rect.y0, r.rect.x1, r.rect.y1, r.path_sum, r.path_count);
+  frame_.add_paths(r.rect.x0, r.rect.y0, r.rect.x1, r.rect.y1, r.path_sum, r.path_count, r.glossy_sum);
   frame_.reproject(r.vertices);
   frame_.reproject_packed(r.packed_vertices);
   if (r.visible.empty()) return;
@@ -88,7 +88,7 @@ void RoundDriver::apply(const TileResult& r) {
 }
 
 void RoundDriver::apply(const AssembledTile& t) {
-  frame_.add_paths(int(t.x0), int(t.y0), int(t.x1), int(t.y1), t.path_sum, t.path_counts());
+  frame_.add_paths(int(t.x0), int(t.y0), int(t.x1), int(t.y1), t.path_sum, t.path_counts(), t.glossy_sum);
   frame_.reproject(t.vertices);
   frame_.reproject_packed(t.packed_vertices);
   if (t.exact_samples.empty()) return;
@@ -131,7 +131,7 @@ void RoundDriver::apply(std::span<const AssembledTile* const> tiles) {
     size_t records = 0;
     for (size_t j = i; j < end; ++j) {
       const AssembledTile& t = *tiles[j];
-      frame_.add_paths(int(t.x0), int(t.y0), int(t.x1), int(t.y1), t.path_sum, t.path_counts());
+      frame_.add_paths(int(t.x0), int(t.y0), int(t.x1), int(t.y1), t.path_sum, t.path_counts(), t.glossy_sum);
       records += t.vertices.size() + t.packed_vertices.size() + t.exact_samples.size();
     }
     if (kinds == 1) {

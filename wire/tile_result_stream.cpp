@@ -125,12 +125,24 @@ bool TileResultWriter::next(v1::TileResultChunk* chunk) {
         p->set_first_pixel(uint32_t(cursor_));
         p->mutable_radiance_sum()->Reserve(int(3 * count));
         p->mutable_path_count()->Reserve(int(count));
+        bool glossy = false;
         for (size_t i = cursor_; i < cursor_ + count; ++i) {
           const Vec3 s = finite_non_negative(result_.path_sum[i]) ? result_.path_sum[i] : Vec3(0.f);
           p->add_radiance_sum(s.x);
           p->add_radiance_sum(s.y);
           p->add_radiance_sum(s.z);
           p->add_path_count(result_.path_count[i]);
+          glossy = glossy || (i < result_.glossy_sum.size() && !is_black(result_.glossy_sum[i]));
+        }
+        if (glossy) {
+          p->mutable_glossy_sum()->Reserve(int(3 * count));
+          for (size_t i = cursor_; i < cursor_ + count; ++i) {
+            const Vec3 s = finite_non_negative(result_.path_sum[i]) ? result_.path_sum[i] : Vec3(0.f);
+            const Vec3 g = finite_non_negative(result_.glossy_sum[i]) ? min(result_.glossy_sum[i], s) : Vec3(0.f);
+            p->add_glossy_sum(g.x);
+            p->add_glossy_sum(g.y);
+            p->add_glossy_sum(g.z);
+          }
         }
         cursor_ += count;
         return true;
@@ -300,6 +312,8 @@ std::optional<std::string> TileResultAssembler::add_pixels(const v1::PixelPaths&
     return fail(fmt::format("PixelPaths of {} pixels exceeds {}", count, TileResultLimits::kMaxPixelsPerChunk));
   if (uint64_t(p.radiance_sum_size()) != 3 * count)
     return fail(fmt::format("PixelPaths has {} radiance values for {} pixels", p.radiance_sum_size(), count));
+  if (p.glossy_sum_size() != 0 && uint64_t(p.glossy_sum_size()) != 3 * count)
+    return fail(fmt::format("PixelPaths has {} glossy values for {} pixels", p.glossy_sum_size(), count));
   if (first >= pixel_count_ || first + count > pixel_count_)
     return fail(fmt::format("PixelPaths [{}, {}) outside the tile's {} pixels", first, first + count, pixel_count_));
   const auto& e = expected_;
@@ -321,6 +335,12 @@ std::optional<std::string> TileResultAssembler::add_pixels(const v1::PixelPaths&
     const Vec3 s(p.radiance_sum(int(3 * k)), p.radiance_sum(int(3 * k + 1)), p.radiance_sum(int(3 * k + 2)));
     if (finite_non_negative(s)) {
       tile_.path_sum[i] = s;
+      if (p.glossy_sum_size() != 0) {
+        // Glossy parts outside [0, the sum] (only a faulty worker sends them) are clamped into it.
+        const Vec3 g(p.glossy_sum(int(3 * k)), p.glossy_sum(int(3 * k + 1)), p.glossy_sum(int(3 * k + 2)));
+        if (tile_.glossy_sum.empty()) tile_.glossy_sum.assign(pixel_count_, Vec3(0.f));
+        tile_.glossy_sum[i] = finite_non_negative(g) ? min(g, s) : Vec3(0.f);
+      }
     } else {
       tile_.path_sum[i] = Vec3(0.f);  // dropped; the paths still count (their sample indices are used)
       ++tile_.dropped_pixel_sums;

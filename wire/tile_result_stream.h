@@ -161,6 +161,7 @@ struct AssembledTile {
   std::string worker_id;
   uint32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // raster space, pixels, upper bounds exclusive
   std::vector<Vec3> path_sum;               // per tile pixel, row-major; linear RGB, finite, >= 0
+  std::vector<Vec3> glossy_sum;             // per tile pixel, in [0, path_sum]; empty: all 0
   // Paths per pixel. With the lease's count (paths_per_pixel > 0, what the master always checks) every
   // pixel traced that many, or none where `skip` (per tile pixel; empty: none skipped) is set, and
   // path_count stays empty; without it, path_count holds each pixel's count.

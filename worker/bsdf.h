@@ -1,26 +1,23 @@
-// The two reflection models a scene may use (common/scene.h): Lambertian, and Lambertian plus a
-// normalised Phong lobe (the glossy material, only there to exercise the method's failure mode).
+// The reflection models a scene may use (common/scene.h): Lambertian, Lambertian plus a normalised
+// Phong lobe (the glossy material, only there to exercise the method's failure mode), and glTF's
+// metallic-roughness material on GGX (worker/bsdf_ggx.h), to which this class hands over.
 // Directions are in world space and unit length; `wo` points back along the incoming ray. `n` is the
 // shading normal (common/shading_normal.h: oriented_shading_normal) and `ng` the geometric normal,
 // both turned to the side the path arrived from: the lobes and cosines follow n, and no direction
-// below the geometric surface is reflected into (f, pdf and samples there are zero: no light leaks
-// through a smooth-shaded surface). For the radiance a camera path carries nothing else corrects
-// for shading normals (pbrt's CorrectShadingNormal is for importance transport, light paths).
+// on the other side of the geometric surface than of the shading one is scattered into (f, pdf and
+// samples there are zero: no light leaks through a smooth-shaded surface). For the radiance a camera
+// path carries nothing else corrects for shading normals (pbrt's CorrectShadingNormal is for
+// importance transport, light paths).
 #pragma once
 
 #include "common/check.h"
 #include "common/math.h"
 #include "common/sampling.h"
 #include "common/scene.h"
+#include "worker/bsdf_ggx.h"
+#include "worker/bsdf_sample.h"
 
 namespace epr {
-
-struct BsdfSample {
-  Vec3 wi;
-  Vec3 weight;    // f * cos / pdf
-  float pdf = 0;  // solid-angle density of wi (the mixture of both lobes for the glossy material), 1/sr
-  bool valid = false;
-};
 
 class Bsdf {
  public:
@@ -39,11 +36,16 @@ class Bsdf {
     }
   }
 
+  /// A metallic-roughness (MaterialType::kMicrofacet) surface point.
+  Bsdf(const MicrofacetInputs& in, Vec3 ng, Vec3 n, Vec3 wo)
+      : n_(n), ng_(ng), wo_(wo), ggx_(in, n, wo), microfacet_(true) {}
+
   /// The cosine a reflection towards wi is weighted with: dot(n, wi), 0 below either surface.
   float cosine(const Vec3& wi) const { return dot(wi, ng_) > 0 ? std::max(0.f, dot(wi, n_)) : 0.f; }
 
   /// f(wo, wi), 1/sr.
   Vec3 eval(const Vec3& wi) const {
+    if (microfacet_) return same_side(wi) ? ggx_.eval(wi) : Vec3(0.f);
     if (dot(wi, n_) <= 0 || dot(wi, ng_) <= 0) return Vec3(0.f);
     Vec3 f = kd_ * kInvPi;
     if (p_glossy_ > 0) {
@@ -53,7 +55,16 @@ class Bsdf {
     return f;
   }
 
+  /// The diffuse lobe's share of eval(wi): Kd / pi for the Lambertian and glossy materials, the
+  /// diffuse base for the microfacet one; 0 where eval() is 0.
+  Vec3 eval_diffuse(const Vec3& wi) const {
+    if (microfacet_) return same_side(wi) ? ggx_.eval_diffuse(wi) : Vec3(0.f);
+    if (dot(wi, n_) <= 0 || dot(wi, ng_) <= 0) return Vec3(0.f);
+    return kd_ * kInvPi;
+  }
+
   float pdf(const Vec3& wi) const {
+    if (microfacet_) return same_side(wi) ? ggx_.pdf(wi) : 0.f;
     const float cos_n = dot(wi, n_);
     if (cos_n <= 0 || dot(wi, ng_) <= 0) return 0;
     float p = (1 - p_glossy_) * cosine_hemisphere_pdf(cos_n);
@@ -63,6 +74,11 @@ class Bsdf {
 
   /// u_lobe picks the lobe, u the direction inside it.
   BsdfSample sample(float u_lobe, Vec2 u) const {
+    if (microfacet_) {
+      BsdfSample s = ggx_.sample(u_lobe, u);
+      if (s.valid && !same_side(s.wi)) s.valid = false;
+      return s;
+    }
     BsdfSample s;
     if (p_glossy_ == 0) {
       // Pure Lambertian: f cos / pdf = kd exactly.
@@ -84,19 +100,28 @@ class Bsdf {
     return s;
   }
 
-  bool glossy() const { return p_glossy_ > 0; }
+  bool glossy() const { return microfacet_ || p_glossy_ > 0; }
+  /// Has a diffuse lobe that reflects something (eval_diffuse() is not 0 everywhere).
+  bool has_diffuse() const { return microfacet_ ? ggx_.has_diffuse() : !is_black(kd_); }
   /// Reflects nothing (f = 0 everywhere): no estimate at this vertex can be non-zero.
-  bool black() const { return is_black(kd_) && is_black(ks_); }
+  bool black() const { return !microfacet_ && is_black(kd_) && is_black(ks_); }  // Fresnel reflects at grazing
+  /// Only delta lobes: next event estimation cannot find a direction the BSDF reflects.
+  bool delta_only() const { return microfacet_ && ggx_.delta_only(); }
   /// Largest total reflectance, the albedo-based Russian roulette's survival probability.
-  float albedo() const { return max_component(kd_ + ks_); }
+  float albedo() const { return microfacet_ ? ggx_.albedo() : max_component(kd_ + ks_); }
 
  private:
   Vec3 reflect(const Vec3& w) const { return n_ * (2 * dot(w, n_)) - w; }
+  /// wi lies on the same side of the geometric surface as of the shading one (reflected above
+  /// both, or transmitted below both).
+  bool same_side(const Vec3& wi) const { return (dot(wi, n_) > 0) == (dot(wi, ng_) > 0); }
 
-  Vec3 kd_, ks_;
-  float exponent_;
+  Vec3 kd_{0.f}, ks_{0.f};
+  float exponent_ = 1;
   Vec3 n_, ng_, wo_;
   float p_glossy_ = 0;
+  MicrofacetBsdf ggx_;
+  bool microfacet_ = false;
 };
 
 }  // namespace epr

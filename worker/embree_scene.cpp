@@ -100,7 +100,7 @@ void EmbreeScene::build_emitter_table() {
     if (!(w > 0)) continue;
     const auto& t = scene_.triangles[i];
     emitters_.push_back({scene_.positions[t[0]], scene_.positions[t[1]], scene_.positions[t[2]],
-                         scene_.geometric_normal(i), m.ke, 0.f, m.emits_front_only});
+                         scene_.geometric_normal(i), m.ke, 0.f, m.emits_front_only, uint32_t(i)});
     weights.push_back(w);
     areas.push_back(area);
   }

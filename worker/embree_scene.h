@@ -34,6 +34,7 @@ struct Emitter {
   Vec3 le;          // emitted radiance Ke, W / (m^2 sr)
   float pdf_area;   // probability of choosing this triangle / its area, 1/m^2
   bool front_only;  // emits on the normal's side only (else on both sides)
+  uint32_t tri;     // the scene's triangle (for its emission texture)
 
   /// |cos| at the light of a direction `to_light` from a shading point, or 0 where the emitter shows
   /// that point its dark back.

@@ -10,6 +10,7 @@
 #include "worker/bsdf.h"
 #include "worker/emitter_sampling.h"
 #include "worker/roulette.h"
+#include "worker/surface_inputs.h"
 
 namespace epr {
 namespace {
@@ -21,9 +22,20 @@ struct PathVertex {
   Vec3 le;                     // emitted radiance at the vertex
   Vec3 direct;                 // D_n, the direct-light estimate (MIS-weighted, or NEE only)
   Vec3 weight;                 // f cos / pdf / q for the continuation (0 if the path ended here)
-  float continuation_pdf = 0;  // solid-angle pdf of the continuation direction (BSDF sampling), 1/sr
+  float continuation_pdf = 0;  // solid-angle pdf of the continuation direction (BSDF sampling), 1/sr;
+                               // kOnlyBsdf where next event estimation cannot pick it
   bool diffuse = true;
+  // A microfacet vertex with a diffuse base beside its glossy lobes: its record carries the diffuse
+  // base's share of its reflected light, from direct_diffuse and weight_diffuse (the same estimates
+  // through that lobe alone, Bsdf::eval_diffuse). Otherwise the whole is diffuse or nothing is.
+  bool split = false;
+  Vec3 direct_diffuse, weight_diffuse;
 };
+
+// The continuation_pdf of a direction next event estimation never picks: a delta lobe's, or one
+// below the surface (transmission; light samples lie above it). BSDF sampling is then the only
+// technique (MIS weight power_heuristic(inf, p) = 1, also with MIS off).
+constexpr float kOnlyBsdf = std::numeric_limits<float>::infinity();
 
 // Power heuristic (beta = 2) weight of the technique with density p_this against p_other, written
 // as 1 / (1 + (p_other / p_this)^2) so that a huge density (a grazing emitter) cannot overflow to
@@ -60,23 +72,23 @@ PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t 
 Vec3 PathTracer::albedo_at(const Material& m, uint32_t prim, float u, float v) const {
   const Scene& s = scene_.scene();
   if (m.kd_texture < 0 || s.uvs.empty()) return m.kd;
-  const auto& uv = s.uvs[prim];
-  const Vec2 st{uv[0].x * (1 - u - v) + uv[1].x * u + uv[2].x * v, uv[0].y * (1 - u - v) + uv[1].y * u + uv[2].y * v};
-  return s.textures[size_t(m.kd_texture)].lookup(st);
+  return s.textures[size_t(m.kd_texture)].lookup(texcoord_at(s, prim, u, v));
 }
 
-Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats) const {
+Vec3 PathTracer::trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats,
+                       Vec3* glossy) const {
   const size_t first_record = records ? records->size() : 0;
-  const Vec3 pixel = trace_unfiltered(x, y, sample, records, stats);
+  const Vec3 pixel = trace_unfiltered(x, y, sample, records, stats, glossy);
   if (is_finite(pixel)) return pixel;
   // Never let a NaN reach the image; drop this path's sample and its vertices.
   if (stats) stats->nonfinite_dropped += 1;
   if (records) records->resize(first_record);
+  if (glossy) *glossy = Vec3(0.f);
   return Vec3(0.f);
 }
 
-Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<VertexRecord>* records,
-                                  PathStats* stats) const {
+Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<VertexRecord>* records, PathStats* stats,
+                                  Vec3* glossy) const {
   thread_local std::vector<PathVertex> path;
   path.clear();
   const Scene& s = scene_.scene();
@@ -97,9 +109,11 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
       // The ray escapes: a camera ray shows the sky; a continuation ray's sky radiance is light
       // reflected at x_{n-1}, MIS-weighted into D_{n-1} as an emitter hit is below.
       if (sky_ && path.empty()) background = sky_->radiance(ray.dir);
-      if (sky_ && mis_ && !path.empty()) {
+      if (sky_ && !path.empty() && (mis_ || path.back().continuation_pdf == kOnlyBsdf)) {
         PathVertex& prev = path.back();
-        prev.direct += prev.weight * sky_->escaped(ray.dir, prev.shading, prev.continuation_pdf);
+        const Vec3 sky = sky_->escaped(ray.dir, prev.shading, prev.continuation_pdf);
+        prev.direct += prev.weight * sky;
+        if (prev.split) prev.direct_diffuse += prev.weight_diffuse * sky;
       }
       break;
     }
@@ -109,8 +123,8 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
     // continuation weight f cos / pdf / q. (Le(x_n) itself stays in the vertex below unweighted:
     // see the back-propagation.) |cos| at the light; a one-sided emitter's back emits nothing.
     const float side = -dot(hit.ng, ray.dir);  // > 0: the ray arrives at the front
-    const Vec3 le = mat.emitted(side);
-    if (mis_ && !path.empty() && !is_black(le)) {
+    const Vec3 le = emission_at(s, mat, mat.emitted(side), hit.prim, hit.u, hit.v);
+    if (!path.empty() && !is_black(le) && (mis_ || path.back().continuation_pdf == kOnlyBsdf)) {
       PathVertex& prev = path.back();
       float w_bsdf = 1;  // an emitter next event estimation cannot pick: BSDF sampling is the only technique
       const float pdf_area = scene_.emitter_pdf_area(mat) * triangle_share_;
@@ -129,6 +143,7 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
                      : 0.f;
       }
       prev.direct += prev.weight * le * w_bsdf;
+      if (prev.split) prev.direct_diffuse += prev.weight_diffuse * le * w_bsdf;
     }
     // Filled in place: building the vertex on the stack and copying it costs more than its shading.
     PathVertex& v = path.emplace_back();
@@ -136,9 +151,14 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
     const Vec3 ng = hit.ng * (1 / length(hit.ng));
     v.normal = dot(ng, ray.dir) < 0 ? ng : -ng;
     v.le = le;  // diffuse emitter
-    v.diffuse = mat.diffuse();
     v.shading = shading_normal_towards(s, hit.prim, hit.u, hit.v, v.normal, -ray.dir);
-    const Bsdf bsdf(mat, albedo_at(mat, hit.prim, hit.u, hit.v), v.normal, v.shading, -ray.dir);
+    const Vec3 base = albedo_at(mat, hit.prim, hit.u, hit.v);
+    const Bsdf bsdf =
+        mat.type == MaterialType::kMicrofacet
+            ? Bsdf(microfacet_inputs(s, mat, base, hit.prim, hit.u, hit.v, side > 0), v.normal, v.shading, -ray.dir)
+            : Bsdf(mat, base, v.normal, v.shading, -ray.dir);
+    v.split = mat.type == MaterialType::kMicrofacet && bsdf.has_diffuse();
+    v.diffuse = mat.diffuse() || v.split;
     const Vec3 origin = v.position + v.normal * eps;
 
     // This vertex's random numbers, in the fixed dimension layout of common/sampler.h.
@@ -157,8 +177,10 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
         v.weight = bs.weight / q;
         roulette.continued(v.weight);
         EPR_DCHECK_GT(bs.pdf, 0.f);
-        v.continuation_pdf = bs.pdf;
-        ray = {origin, bs.wi};
+        if (v.split && !bs.delta) v.weight_diffuse = bsdf.eval_diffuse(bs.wi) * (bsdf.cosine(bs.wi) / bs.pdf / q);
+        const bool below = dot(bs.wi, v.normal) <= 0;  // transmitted: leaves from the other side
+        v.continuation_pdf = bs.delta || below ? kOnlyBsdf : bs.pdf;
+        ray = {below ? v.position - v.normal * eps : origin, bs.wi};
       }
     }
 
@@ -166,10 +188,11 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
     // can be non-zero (the surface reflects, the point is in front of it and it faces the point).
     // The sky (when there is one) takes its share of the selection number first.
     const Emitter* light = nullptr;
-    if (!bsdf.black()) {
+    if (!bsdf.black() && !bsdf.delta_only()) {
       float u_pick = u_light;
       if (sky_ && sky_->picks_sky(u_light, &u_pick))
-        v.direct = sky_next_event(*sky_, scene_, bsdf, v.shading, origin, u_pick, u_point, mis_ && q > 0, &rays);
+        v.direct = sky_next_event(*sky_, scene_, bsdf, v.shading, origin, u_pick, u_point, mis_ && q > 0, &rays,
+                                  v.split ? &v.direct_diffuse : nullptr);
       else
         light = scene_.sample_emitter(u_pick);
     }
@@ -201,7 +224,13 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
             EPR_DCHECK_GT(pdf_light, 0.f);
             float w_light = 1;
             if (mis_ && q > 0) w_light = power_heuristic(pdf_light, bsdf.pdf(to_light));
-            v.direct = bsdf.eval(to_light) * light->le * (w_light * cos_x / pdf_light);
+            Vec3 le_light = light->le;  // Ke, times the emission texture at the point if it has one
+            if (const Material& lm = s.materials[s.material_of[light->tri]]; lm.ke_texture >= 0) {
+              const Vec2 b = barycentrics_of(s, light->tri, light_pos);
+              le_light = emission_at(s, lm, light->le, light->tri, b.x, b.y);
+            }
+            v.direct = bsdf.eval(to_light) * le_light * (w_light * cos_x / pdf_light);
+            if (v.split) v.direct_diffuse = bsdf.eval_diffuse(to_light) * le_light * (w_light * cos_x / pdf_light);
           }
         }
       }
@@ -218,21 +247,28 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
   // share of Le(x_n) went into D_{n-1} (the estimate of x_{n-1}'s reflected light, part of its own
   // record) and is a different quantity. Reprojection then shows x_n with Le + R_n from any other
   // pixel, exactly as a path-traced sample of x_n would: Le(x_1) + R_1.
-  Vec3 r(0.f);
+  // A split vertex's record holds Le + R_n^d instead, R_n^d = D_n^d + w_n^d R_{n+1} the light its
+  // diffuse base reflects (the view-independent part), and the pixel's own sample is split the same
+  // way at x_1: *glossy gets Le(x_1) + R_1 - (Le(x_1) + R_1^d), the part the master adds unchanged
+  // rather than combining it with reprojected samples (DESIGN.md "Diffuse-share reprojection").
+  Vec3 r(0.f), r_diffuse(0.f);
   const size_t first_record = records ? records->size() : 0;
   if (records && path.size() > 1) records->resize(first_record + path.size() - 1);
   for (size_t i = path.size(); i-- > 0;) {
     const PathVertex& v = path[i];
+    if (v.split) r_diffuse = v.direct_diffuse + v.weight_diffuse * r;
     r = v.direct + v.weight * r;
     if (i >= 1 && records) {
       VertexRecord& rec = (*records)[first_record + i - 1];
       rec.position = v.position;
       rec.normal = v.normal;
-      rec.radiance = v.le + r;
+      rec.radiance = v.le + (v.split ? r_diffuse : r);
       rec.flags = v.diffuse ? VertexRecord::kDiffuse : 0;
     }
   }
   Vec3 pixel = path.empty() ? background : path[0].le + r;
+  Vec3 own_glossy(0.f);
+  if (!path.empty() && path[0].split) own_glossy = max(pixel - (path[0].le + r_diffuse), Vec3(0.f));
   if (const uint32_t every = test_nonfinite_every(); every && (sample + 1) % every == 0)
     pixel = Vec3(std::numeric_limits<float>::quiet_NaN());
 
@@ -241,6 +277,7 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
     stats->vertices += path.size();
     stats->rays += rays;
   }
+  if (glossy) *glossy = own_glossy;
   return pixel;
 }
 

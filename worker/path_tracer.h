@@ -13,7 +13,8 @@
 //   * next event estimation only (DESIGN.md section 1; `mis` false): emission found by a
 //     BSDF-sampled ray after the first vertex is not added (NEE counts it). Bit-identical to the
 //     tracer before MIS.
-// Either way every x_n with n >= 2 is recorded with radiance Le(x_n) + R_n (see trace()).
+// Either way every x_n with n >= 2 is recorded with radiance Le(x_n) + R_n (see trace()), except that
+// a microfacet vertex with a diffuse base records only that base's share, Le(x_n) + R_n^d.
 // Light from outside (worker/sky_light.h) is one more pair of techniques: next event estimation
 // picks the sky or the triangles, and a continuation ray that escapes adds the sky's MIS-weighted
 // radiance to D_n like an emitter it hits; a camera ray that escapes sees the sky (no record).
@@ -46,12 +47,17 @@ class PathTracer {
 
   /// Traces path number `sample` of pixel (x, y); returns the pixel sample Le(x_1) + R_1. When
   /// `vertices` is not null, appends one record per vertex x_n, n >= 2.
+  /// With `glossy` (may be null), also the part of the sample the master must not combine with
+  /// reprojected samples: at a first vertex with glossy lobes beside a diffuse base, what the glossy
+  /// lobes reflect (the sample minus Le(x_1) + R_1^d, clamped to >= 0 against rounding); else 0.
   /// A sample that comes out NaN or infinite is dropped: counted in stats->nonfinite_dropped, its
-  /// records removed, 0 returned.
-  Vec3 trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats) const;
+  /// records removed, 0 returned (and 0 in *glossy).
+  Vec3 trace(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats,
+             Vec3* glossy = nullptr) const;
   /// trace() keeping a NaN or infinite sample as it came out, with its records and not counted as
   /// dropped: the replay of a dropped sample (`epr render --single-process --trace-path`).
-  Vec3 trace_unfiltered(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats) const;
+  Vec3 trace_unfiltered(int x, int y, uint32_t sample, std::vector<VertexRecord>* vertices, PathStats* stats,
+                        Vec3* glossy = nullptr) const;
 
   const Camera& camera() const { return camera_; }
   uint64_t seed() const { return seed_; }

@@ -224,7 +224,7 @@ float SkyLight::pdf_sun(const Vec3& d) const {
 }
 
 Vec3 sky_next_event(const SkyLight& sky, const EmbreeScene& scene, const Bsdf& bsdf, const Vec3& n, const Vec3& origin,
-                    float u, Vec2 u_dir, bool mis, uint64_t* rays) {
+                    float u, Vec2 u_dir, bool mis, uint64_t* rays, Vec3* diffuse) {
   const SkyLight::Sample s = sky.sample(u, u_dir, n, origin);
   if (!(s.pdf > 0) || is_black(s.radiance)) return Vec3(0.f);
   const float cos_x = dot(n, s.wi);
@@ -237,7 +237,9 @@ Vec3 sky_next_event(const SkyLight& sky, const EmbreeScene& scene, const Bsdf& b
   if (scene.occluded(origin, s.wi, 0.f, far)) return Vec3(0.f);
   // A delta light has no BSDF-sampling technique: next event estimation's weight is 1.
   const float w = mis && !s.delta ? power_heuristic(s.pdf, bsdf.pdf(s.wi)) : 1.f;
-  return f * s.radiance * (w * cos_x / s.pdf);
+  const float k = w * cos_x / s.pdf;
+  if (diffuse) *diffuse = bsdf.eval_diffuse(s.wi) * s.radiance * k;
+  return f * s.radiance * k;
 }
 
 }  // namespace epr

@@ -136,8 +136,9 @@ class SkyLight {
 /// shadow-ray origin `origin`): the light sample sky.sample(u, u_dir, n, origin), a shadow ray
 /// (unbounded towards the sky, ending at a point light), and f cos L / pdf, weighted by the power
 /// heuristic against the BSDF's density when `mis` and the light is not a delta light. Counts the
-/// ray in *rays.
+/// ray in *rays. With `diffuse` (may be null) also the same estimate through the BSDF's diffuse lobe
+/// alone (Bsdf::eval_diffuse).
 Vec3 sky_next_event(const SkyLight& sky, const EmbreeScene& scene, const Bsdf& bsdf, const Vec3& n, const Vec3& origin,
-                    float u, Vec2 u_dir, bool mis, uint64_t* rays);
+                    float u, Vec2 u_dir, bool mis, uint64_t* rays, Vec3* diffuse = nullptr);
 
 }  // namespace epr

@@ -138,6 +138,7 @@ std::optional<TileResult> render_leased_tile(const TileRenderer& renderer, const
   TileResult out;
   out.rect = tile.rect;
   out.path_sum.reserve(size_t(tile.rect.pixel_count()));
+  out.glossy_sum.reserve(size_t(tile.rect.pixel_count()));
   out.path_count.reserve(size_t(tile.rect.pixel_count()));
   for (int y = tile.rect.y0; y < tile.rect.y1; y += rows) {
     if (cancelled && cancelled()) return std::nullopt;

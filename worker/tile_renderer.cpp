@@ -66,6 +66,7 @@ void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
   const auto start = std::chrono::steady_clock::now();
   const size_t n = size_t(req.rect.pixel_count()), at = out.path_sum.size();
   out.path_sum.resize(at + n, Vec3(0.f));
+  out.glossy_sum.resize(at + n, Vec3(0.f));
   out.path_count.resize(at + n, 0);
   const bool record = filter_.mode != VertexFilter::Mode::kNone;
   const bool encode = codec_.has_value();
@@ -83,11 +84,13 @@ void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
       const uint32_t first = req.first_sample.empty()       ? 0
                              : req.first_sample.size() == 1 ? req.first_sample[0]
                                                             : req.first_sample[i];
-      Vec3 sum(0.f);
+      Vec3 sum(0.f), glossy_sum(0.f);
       for (int k = 0; k < req.paths_per_pixel; ++k) {
         const size_t before = recs.size();
         const uint64_t dropped = out.stats.paths.nonfinite_dropped;
-        sum += tracer_.trace(x, y, first + uint32_t(k), record ? &recs : nullptr, &out.stats.paths);
+        Vec3 glossy;
+        sum += tracer_.trace(x, y, first + uint32_t(k), record ? &recs : nullptr, &out.stats.paths, &glossy);
+        glossy_sum += glossy;
         if (out.stats.paths.nonfinite_dropped != dropped) nonfinite.add(x, y, first + uint32_t(k));
         out.stats.vertices_recorded += recs.size() - before;
         if (filter_.mode == VertexFilter::Mode::kCull || filter_.mode == VertexFilter::Mode::kExact)
@@ -99,6 +102,7 @@ void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
         }
       }
       out.path_sum[at + i] = sum;
+      out.glossy_sum[at + i] = glossy_sum;
       out.path_count[at + i] = uint32_t(req.paths_per_pixel);
     }
   }

@@ -20,6 +20,7 @@
 #include "common/scene_loader/gltf_accessor.h"
 #include "common/scene_loader/gltf_files.h"
 #include "common/scene_loader/gltf_lights.h"
+#include "common/scene_loader/gltf_materials.h"
 #include "common/scene_loader/gltf_normals.h"
 #include "common/scene_loader/obj_context.h"
 #include "common/scene_loader/text.h"
@@ -392,6 +393,8 @@ class GltfReader {
   void apply_sampler(int index, int texture);
   /// A normalTexture's image as stored (linear data), one scene texture per image.
   int normal_texture(int index, int texcoord, const std::string& where);
+  /// Appends a texture made here (a copy with a factor, a derived one), within the pixel limit.
+  int add_texture(Texture t, const std::string& what);
 
   const FileRef& f_;
   fs::path root_;
@@ -429,65 +432,18 @@ std::pair<uint32_t, int> GltfReader::convert_material(int gi) {
   if (!std::isfinite(pbr.metallicFactor) || !std::isfinite(pbr.roughnessFactor) || !std::isfinite(gm.alphaCutoff))
     error(where + ": metallicFactor, roughnessFactor and alphaCutoff must be finite");
   std::vector<std::string> notes;
-  const auto clamp01 = [](double v) { return float(std::clamp(v, 0.0, 1.0)); };
-  const Vec3 base{clamp01(pbr.baseColorFactor[0]), clamp01(pbr.baseColorFactor[1]), clamp01(pbr.baseColorFactor[2])};
-  const float metal = clamp01(pbr.metallicFactor), rough = clamp01(pbr.roughnessFactor);
-
   Material out;
   out.name = gm.name.empty() ? where : gm.name;
-  Vec3 kd = base;
-  if (rough < 0.5f) {
-    // Smooth: the glossy lobe, its exponent from the roughness (alpha = r^2, n = 2 / alpha^2 - 2).
-    out.type = MaterialType::kGlossy;
-    kd = base * (1.f - metal);
-    out.ks = Vec3(0.04f) * (1.f - metal) + base * metal;
-    for (int k = 0; k < 3; ++k) out.ks[k] = std::min(out.ks[k], 1.f - kd[k]);
-    const double alpha = double(rough) * double(rough);
-    out.exponent = float(alpha > 0 ? std::clamp(2.0 / (alpha * alpha) - 2.0, 1.0, 1e4) : 1e4);
-    notes.push_back(
-        fmt::format("metallic {:g}, roughness {:g} approximated by the Phong glossy lobe (ks {:.3g} "
-                    "{:.3g} {:.3g}, exponent {:.4g}), which reprojection does not reuse",
-                    metal, rough, out.ks.x, out.ks.y, out.ks.z, out.exponent));
-  } else if (metal > 0.f) {
-    notes.push_back(
-        fmt::format("metallic {:g}, roughness {:g} rendered as a diffuse surface of its base colour", metal, rough));
-  }
-  int texcoord = -1;
-  if (pbr.baseColorTexture.index >= 0) {
-    out.kd_texture = texture_for(pbr.baseColorTexture, kd, where + ".pbrMetallicRoughness.baseColorTexture");
-    texcoord = pbr.baseColorTexture.texCoord;
-    if (!pbr.baseColorTexture.extensions.empty()) notes.push_back("texture extensions (texture transforms) ignored");
-    if (out.type == MaterialType::kGlossy && metal > 0.f)
-      notes.push_back("the glossy colour comes from baseColorFactor only, not from the texture");
-  } else {
-    out.kd = kd;
-  }
-
-  Vec3 ke{float(gm.emissiveFactor[0]), float(gm.emissiveFactor[1]), float(gm.emissiveFactor[2])};
-  if (auto it = gm.extensions.find("KHR_materials_emissive_strength"); it != gm.extensions.end()) {
-    const tinygltf::Value& strength = it->second.Get("emissiveStrength");
-    if (strength.IsNumber()) {
-      const double v = strength.GetNumberAsDouble();
-      if (!(v >= 0 && v <= 1e9)) error(where + ": emissiveStrength must be a number in [0, 1e9]");
-      ke = ke * float(v);
-    }
-  }
-  for (int k = 0; k < 3; ++k)
-    if (!(ke[k] >= 0.f)) error(where + ": emissiveFactor must not be negative");
-  if (gm.emissiveTexture.index >= 0 && !is_black(ke)) {
-    const int t = texture_for(gm.emissiveTexture, Vec3(1.f), where + ".emissiveTexture");
-    const Texture& tex = textures_.textures[size_t(t)];
-    double sum[3] = {0, 0, 0};
-    for (size_t i = 0; i < tex.rgb.size(); ++i) sum[i % 3] += tex.rgb[i];
-    const double n = std::max<double>(1, double(tex.rgb.size() / 3));
-    ke = Vec3(float(sum[0] / n), float(sum[1] / n), float(sum[2] / n)) * ke;
-    notes.push_back(fmt::format("emissiveTexture approximated by its mean colour (emission {:.3g} {:.3g} {:.3g})", ke.x,
-                                ke.y, ke.z));
-  }
-  out.ke = ke;
+  const GltfMaterialContext context{f_.display,
+                                    [this](const tinygltf::TextureInfo& info, Vec3 factor, const std::string& w) {
+                                      return texture_for(info, factor, w);
+                                    },
+                                    [this](int i) -> const Texture& { return textures_.textures[size_t(i)]; },
+                                    [this](Texture t, const std::string& w) { return add_texture(std::move(t), w); }};
+  int texcoord = set_metallic_roughness(gm, where, context, &out, &notes);
+  set_emission(gm, where, context, &out, &notes, &texcoord);
 
   const bool hidden = set_cut_out(gm, where, &out, &notes);
-  if (pbr.metallicRoughnessTexture.index >= 0) notes.push_back("metallicRoughnessTexture ignored (factors used)");
   if (gm.normalTexture.index >= 0) {
     const tinygltf::NormalTextureInfo& nt = gm.normalTexture;
     const std::string nw = where + ".normalTexture";
@@ -501,8 +457,7 @@ std::pair<uint32_t, int> GltfReader::convert_material(int gi) {
   }
   if (gm.occlusionTexture.index >= 0) notes.push_back("occlusionTexture ignored");
   for (const auto& [name, value] : gm.extensions)
-    if (name != "KHR_materials_emissive_strength")
-      notes.push_back(fmt::format("extension {} ignored", quote_token(name)));
+    if (!read_material_extension(name)) notes.push_back(fmt::format("extension {} ignored", quote_token(name)));
   if (!notes.empty())
     warn(report_,
          fmt::format("{}: material {} ({}): {}", f_.display, quote_token(out.name), where, fmt::join(notes, "; ")));
@@ -595,18 +550,19 @@ int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, cons
   if (auto it = baked_.find(key); it != baked_.end()) return it->second;
   Texture t = textures_.textures[size_t(plain)];
   t.alpha.clear();  // a colour copy: the mask, if any, stays with the plain texture
-  const size_t pixels = size_t(t.width) * size_t(t.height);
-  if (pixels + textures_.texture_pixels > opts_.max_texture_pixels)
-    error(
-        fmt::format("{}: the base colour factor's copy of image {} takes the scene's textures over the limit of {} "
-                    "pixels",
-                    where, image, opts_.max_texture_pixels));
-  textures_.texture_pixels += pixels;
   for (size_t i = 0; i < t.rgb.size(); ++i) t.rgb[i] = std::clamp(t.rgb[i] * factor[int(i % 3)], 0.f, 1.f);
-  textures_.textures.push_back(std::move(t));
-  const int index = int(textures_.textures.size() - 1);
+  const int index = add_texture(std::move(t), fmt::format("{}: the factor's copy of image {}", where, image));
   baked_.emplace(key, index);
   return index;
+}
+
+int GltfReader::add_texture(Texture t, const std::string& what) {
+  const size_t pixels = size_t(t.width) * size_t(t.height);
+  if (pixels + textures_.texture_pixels > opts_.max_texture_pixels)
+    error(fmt::format("{} takes the scene's textures over the limit of {} pixels", what, opts_.max_texture_pixels));
+  textures_.texture_pixels += pixels;
+  textures_.textures.push_back(std::move(t));
+  return int(textures_.textures.size() - 1);
 }
 
 int GltfReader::image_texture(int image, bool alpha) {

@@ -24,7 +24,8 @@ namespace epr::loader {
 constexpr size_t kMaxGltfDataUriBytes = size_t(16) << 20;
 
 /// The extensions a glTF file may require (extensionsRequired): any other is refused, naming it.
-inline constexpr const char* kSupportedGltfExtensions[] = {"KHR_materials_emissive_strength", "KHR_lights_punctual"};
+inline constexpr const char* kSupportedGltfExtensions[] = {"KHR_materials_emissive_strength", "KHR_lights_punctual",
+                                                           "KHR_materials_transmission", "KHR_materials_ior"};
 
 /// A glTF file as tinygltf parsed it, with what the loader needs to read its images.
 struct GltfInput {

@@ -564,32 +564,33 @@ class JsonSceneReader {
         if (o.contains("type")) {
           const auto& t = o["type"];
           if (t == "glossy") {
-            if (m.diffuse()) {  // start from the MTL's Ks and Ns
+            if (m.type != MaterialType::kGlossy) {  // start from the MTL's Ks and Ns
               m.type = MaterialType::kGlossy;
               m.ks = i < glossy.size() ? glossy[i].ks : Vec3(0.f);
               m.exponent = i < glossy.size() ? glossy[i].exponent : Material{}.exponent;
             }
-          } else if (t == "diffuse") {
+          } else if (t == "diffuse") {  // also makes a glTF material Lambertian (and reprojectable)
             m.type = MaterialType::kDiffuse;
             m.ks = Vec3(0.f);
+            m.metallic_roughness_texture = -1;
           } else {
             error(p + "/type", "material type must be \"diffuse\" or \"glossy\"");
           }
         }
         if (o.contains("ks") || o.contains("exponent")) {
-          if (m.diffuse())
+          if (m.type != MaterialType::kGlossy)
             error(p + (o.contains("ks") ? "/ks" : "/exponent"),
-                  fmt::format("material '{}' is diffuse: add \"type\": \"glossy\" to use ks and exponent", name));
+                  fmt::format("material '{}' is not glossy: add \"type\": \"glossy\" to use ks and exponent", name));
           if (o.contains("ks")) m.ks = colour_at(o["ks"], p + "/ks", "ks", 1.f);
           if (o.contains("exponent")) {
             m.exponent = number_at(o["exponent"], p + "/exponent", "exponent");
             if (!(m.exponent > 0.f && m.exponent <= 1e6f)) error(p + "/exponent", "exponent must lie in (0, 1e6]");
           }
         }
-        if (!m.diffuse() && is_black(m.ks))
+        if (m.type == MaterialType::kGlossy && is_black(m.ks))
           warn(report_,
                fmt::format("{}:{}: glossy material '{}' has ks 0 and renders as diffuse", path_, line(p), name));
-        if (max_component(m.kd + m.ks) > 1.f)
+        if (m.type != MaterialType::kMicrofacet && max_component(m.kd + m.ks) > 1.f)
           warn(report_,
                fmt::format("{}:{}: material '{}' reflects more than it receives (kd + ks > 1)", path_, line(p), name));
       }

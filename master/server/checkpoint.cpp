@@ -150,10 +150,10 @@ SealHeader check_header(RecordKind kind, std::string_view bytes) {
 // A frame is read from format version kOldestFrameVersion on.
 void check_progress_version(uint32_t version) {
   if (version < kOldestFrameVersion)
-    throw CheckpointError(fmt::format(
-        "its frame is of format version {}: this master reads frames of version {} or newer (the accumulation's "
-        "layout changed), so the job starts again from round 0",
-        version, kOldestFrameVersion));
+    throw CheckpointError(
+        fmt::format("its frame is of format version {}: this master reads frames of version {} or newer (the frame's "
+                    "layout or meaning changed), so the job starts again from round 0",
+                    version, kOldestFrameVersion));
 }
 }  // namespace
 
@@ -556,7 +556,7 @@ JobProgressRecord CheckpointStore::read_progress(const fs::path& path, std::vect
       if (problems)
         problems->push_back(
             fmt::format("'{}': its frame is of format version {}: this master reads frames of version "
-                        "{} or newer (the accumulation's layout changed); starting from round 0",
+                        "{} or newer (the frame's layout or meaning changed); starting from round 0",
                         path.string(), h.version, kOldestFrameVersion));
       return r;
     }

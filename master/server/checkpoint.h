@@ -44,10 +44,14 @@ enum class RecordKind : uint32_t { kEpoch = 1, kScene = 2, kJobSpec = 3, kJobPro
 // frame of an older progress record is refused (the record's other fields are read; the job starts
 // again from round 0, the reason logged). Version 4 adds the variance combination's per-pixel
 // arrays to a frame, after the skip mask (empty for the fixed rule); a version 3 frame has none, so
-// it restores into a fixed-rule job as before. Other records did not change.
-inline constexpr uint32_t kCheckpointVersion = 4;
+// it restores into a fixed-rule job as before. Version 5 adds the glossy sums (FrameSnapshot::
+// glossy_sum) after those, and its vertex records of microfacet materials carry their diffuse share
+// only (DESIGN.md "Diffuse-share reprojection"): an older frame's accumulation holds whole radiance
+// and its path sums no glossy parts, so frames older than version 5 are refused as version 3 refused
+// older layouts (the job starts again from round 0, the reason logged). Other records did not change.
+inline constexpr uint32_t kCheckpointVersion = 5;
 inline constexpr uint32_t kOldestCheckpointVersion = 1;
-inline constexpr uint32_t kOldestFrameVersion = 3;
+inline constexpr uint32_t kOldestFrameVersion = 5;
 inline constexpr size_t kSealHeaderBytes = 32;
 
 /// Header + payload (see the file comment).

@@ -96,6 +96,7 @@ void put(ByteWriter& w, const FrameView& f) {
   w.put_vector(f.skip);
   w.put_vector(f.path_m2);  // version 4
   w.put_vector(f.reprojected_effective);
+  put_widened<double>(w, f.glossy_sum);  // version 5
   w.put<int32_t>(f.paths_done);
   w.put<uint8_t>(f.done);
   put(w, f.progress);
@@ -132,6 +133,7 @@ uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f, uint32_t version) {
     f->path_m2 = r.get_vector<float>();
     f->reprojected_effective = r.get_vector<float>();
   }
+  if (version >= 5) f->glossy_sum = get_narrowed<double, float>(r);
   f->paths_done = r.get<int32_t>();
   f->done = r.get_bool();
   f->progress = get_progress(r);

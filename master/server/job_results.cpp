@@ -58,8 +58,8 @@ size_t JobManager::preview_copy_bytes() const {
   size_t bytes = 0;
   for (const auto& job : running_)
     if (const auto& c = job->preview.images)
-      for (const Image* i :
-           {&c->combined, &c->pathtrace, &c->path_sum, &c->reprojection, &c->path_count, &c->reprojected})
+      for (const Image* i : {&c->combined, &c->pathtrace, &c->path_sum, &c->glossy_sum, &c->reprojection,
+                             &c->path_count, &c->reprojected})
         bytes += i->data.size() * sizeof(float);
   return bytes;
 }
