@@ -368,7 +368,8 @@ def build_camera(scene, a):
     return cam
 
 
-def configure_render(scene, a):
+def configure_render(scene, a, keep_world=False):
+    """Cycles as eprfarm renders (see the top) into a.out; keep_world keeps the scene's World."""
     scene.render.engine = "CYCLES"
     cy = scene.cycles
     cy.device = "CPU"
@@ -431,18 +432,19 @@ def configure_render(scene, a):
     scene.sequencer_colorspace_settings.name = "Linear"
 
     # black world, no light from the background at all, unless --env gives a sky
-    world = scene.world or bpy.data.worlds.new("world")
-    scene.world = world
-    world.use_nodes = True
-    nt = world.node_tree
-    for n in list(nt.nodes):
-        nt.nodes.remove(n)
-    bg = nt.nodes.new("ShaderNodeBackground")
-    bg.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
-    bg.inputs["Strength"].default_value = 0.0
-    wout = nt.nodes.new("ShaderNodeOutputWorld")
-    nt.links.new(bg.outputs["Background"], wout.inputs["Surface"])
-    build_sky(scene, nt, bg, a)
+    world = None if keep_world else scene.world or bpy.data.worlds.new("world")
+    if world is not None:
+        scene.world = world
+        world.use_nodes = True
+        nt = world.node_tree
+        for n in list(nt.nodes):
+            nt.nodes.remove(n)
+        bg = nt.nodes.new("ShaderNodeBackground")
+        bg.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+        bg.inputs["Strength"].default_value = 0.0
+        wout = nt.nodes.new("ShaderNodeOutputWorld")
+        nt.links.new(bg.outputs["Background"], wout.inputs["Surface"])
+        build_sky(scene, nt, bg, a)
 
     # single-layer float EXR with the combined pass only
     vl = scene.view_layers[0]

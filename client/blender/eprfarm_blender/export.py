@@ -10,6 +10,8 @@ from typing import Dict, List, NamedTuple, Optional, Tuple
 
 import bpy
 
+from . import materials
+
 
 class ExportError(Exception):
     """A scene the farm cannot render as it is (the message says why and what to change)."""
@@ -68,16 +70,16 @@ def farm_camera(scene, depsgraph) -> Tuple[FarmCamera, List[str]]:
 
 
 def scene_warnings(scene, depsgraph) -> List[str]:
-    """What the export leaves out that the scene may rely on (lamps and worlds: farm_lighting)."""
+    """What the export leaves out of the materials the scene renders, one warning per material
+    (materials.material_warnings; lamps and worlds: farm_lighting)."""
+    used = {}
+    for inst in depsgraph.object_instances:  # (an instance lives only during its iteration step)
+        for slot in getattr(inst.object, "material_slots", ()):
+            if slot.material is not None:
+                used[slot.material.name] = slot.material.original
     warnings = []
-    for material in bpy.data.materials:
-        if material.users == 0 or not material.use_nodes or material.node_tree is None:
-            continue
-        kinds = {n.type for n in material.node_tree.nodes}
-        if "BSDF_PRINCIPLED" not in kinds and "EMISSION" not in kinds:
-            warnings.append(
-                f"material '{material.name}' has no Principled BSDF: the glTF exporter writes a default material"
-            )
+    for name in sorted(used):
+        warnings += materials.material_warnings(used[name])
     return warnings
 
 
@@ -95,6 +97,11 @@ def farm_lighting(scene, depsgraph, folder: str) -> Tuple[Dict, List[str]]:
     lamps.sort(key=lambda lamp: lamp[0])  # by name: the same order on every frame and machine
     lights = []
     for name, data, matrix in lamps:
+        cycles = getattr(data, "cycles", None)  # (Cycles' lamp settings; absent when Cycles is disabled)
+        if data.type == "AREA" and getattr(cycles, "is_portal", False):
+            continue  # a light portal emits nothing: it only guides Cycles' sampling of the sky
+        if not getattr(cycles, "cast_shadow", True):
+            warnings.append(f"{data.type.title()} lamp '{name}': Cast Shadow off is ignored (the farm's lamps cast shadows)")
         if data.use_nodes:
             unit = "strength" if data.type == "SUN" else "power"
             warnings.append(f"{data.type.title()} lamp '{name}': its shader nodes are ignored (colour x {unit})")
@@ -277,7 +284,7 @@ def export_gltf(scene, view_layer, folder: str, name: str = "scene") -> str:
     if windows:  # the exporter reads the context's active object, a member of a window's context
         override["window"] = windows[0]
     with bpy.context.temp_override(**override):
-        result = _export(path)
+        result = _export(path, _normal_mapped(scene))
     if "FINISHED" not in result or not os.path.exists(path):
         raise ExportError(f"the glTF export to {path} did not finish ({', '.join(result)})")
     return path
@@ -295,7 +302,18 @@ def scene_file(gltf: str, lighting: Dict) -> str:
     return path
 
 
-def _export(path: str):
+def _normal_mapped(scene) -> bool:
+    """Whether a material of the scene's objects has a Normal Map node: then the export carries
+    Blender's own (MikkTSpace) tangents, which the farm uses instead of generating its own."""
+    for obj in scene.objects:
+        for slot in getattr(obj, "material_slots", ()):
+            tree = slot.material.node_tree if slot.material is not None and slot.material.use_nodes else None
+            if tree is not None and any(n.type == "NORMAL_MAP" for n in tree.nodes):
+                return True
+    return False
+
+
+def _export(path: str, tangents: bool):
     return bpy.ops.export_scene.gltf(
         filepath=path,
         check_existing=False,
@@ -304,6 +322,7 @@ def _export(path: str):
         export_materials="EXPORT",
         export_texcoords=True,
         export_normals=True,
+        export_tangents=tangents,
         export_colors=False,
         export_cameras=False,
         export_lights=False,
