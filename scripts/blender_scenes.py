@@ -157,7 +157,7 @@ def world(colour, strength=1.0):
 
 
 def build_principled(folder):
-    checker = image("checker", folder, 64, lambda u, v: (0.8, 0.35, 0.2) if (int(u * 8) + int(v * 8)) % 2 else (0.2, 0.45, 0.7))
+    checker = image("checker", folder, 256, lambda u, v: (0.8, 0.35, 0.2) if (int(u * 8) + int(v * 8)) % 2 else (0.2, 0.45, 0.7))
     bumps = image("bumps", folder, 64, bump_normals(8, 0.8), non_color=True)
     floor = principled("Floor", roughness=0.6, base_image=checker, normal_image=bumps)
     add(bpy.ops.mesh.primitive_plane_add, floor, size=6, location=(0, 0, 0))
@@ -167,7 +167,7 @@ def build_principled(folder):
     add(bpy.ops.mesh.primitive_uv_sphere_add, copper, smooth=True, radius=0.5, location=(-0.75, 0.3, 0.5))
     glass = principled("Glass", base=(1, 1, 1), roughness=0.0, transmission=1.0, ior=1.45)
     add(bpy.ops.mesh.primitive_uv_sphere_add, glass, smooth=True, radius=0.45, location=(0.7, -0.3, 0.45))
-    lamp("AREA", "Area", (0, -0.5, 3.2), target=(0, -0.5, 0), energy=250, size=1.0)
+    lamp("AREA", "Area", (0, -0.5, 3.2), target=(0, -0.5, 0), energy=300, size=2.0)
     lamp("POINT", "Point", (-2.2, -1.5, 1.8), energy=150, color=(1.0, 0.85, 0.7), shadow_soft_size=0)
     lamp("SPOT", "Spot", (2.4, -1.8, 2.6), target=(0.4, 0.2, 0.2), energy=400, spot_size=math.radians(45),
          spot_blend=0.2, shadow_soft_size=0)
