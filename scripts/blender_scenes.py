@@ -78,7 +78,7 @@ def bump_normals(tiles, slope):
 def principled(name, base=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5, transmission=0.0, ior=1.45,
                base_image=None, normal_image=None, normal_strength=1.0, mr_image=None):
     """A material of one Principled BSDF; images feed its base colour, its normal (a Normal Map node
-    in tangent space) and its metallic (B) and roughness (G) through a Separate RGB node."""
+    in tangent space) and its metallic (B) and roughness (G) through a Separate Color node."""
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nt = mat.node_tree
@@ -102,10 +102,10 @@ def principled(name, base=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5, transmis
     if mr_image is not None:
         tex = nt.nodes.new("ShaderNodeTexImage")
         tex.image = mr_image
-        sep = nt.nodes.new("ShaderNodeSeparateRGB")
-        nt.links.new(tex.outputs["Color"], sep.inputs["Image"])
-        nt.links.new(sep.outputs["B"], p.inputs["Metallic"])
-        nt.links.new(sep.outputs["G"], p.inputs["Roughness"])
+        sep = nt.nodes.new("ShaderNodeSeparateColor")
+        nt.links.new(tex.outputs["Color"], sep.inputs["Color"])
+        nt.links.new(sep.outputs["Blue"], p.inputs["Metallic"])
+        nt.links.new(sep.outputs["Green"], p.inputs["Roughness"])
     return mat
 
 

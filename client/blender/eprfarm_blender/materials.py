@@ -18,7 +18,7 @@ IGNORED_INPUTS = (
 # Inputs the exporter writes only as numbers.
 NUMBER_ONLY = ("IOR", "Emission Strength", "Transmission")
 IMAGE_NODES = ("TEX_IMAGE",)
-SEPARATE_NODES = ("SEPRGB", "SEPXYZ", "SEPARATE_COLOR")
+LEGACY_SEPARATE = ("SEPRGB", "SEPXYZ")  # Blender's exporter reads their every output as the red channel
 
 
 def _source(socket):
@@ -47,12 +47,19 @@ def _image(node, what: str, problems: List[str]) -> None:
 
 
 def _texture_input(principled, name: str, problems: List[str], through_separate: bool = False) -> None:
-    """An input the exporter writes as a value or an image (through a Separate node for metallic and
-    roughness)."""
+    """An input the exporter writes as a value or an image (through a Separate Color node for metallic
+    and roughness)."""
     node = _source(principled.inputs[name])
     if node is None:
         return
-    if through_separate and node.type in SEPARATE_NODES:
+    if through_separate and node.type in LEGACY_SEPARATE:
+        problems.append(
+            f"{_label(node)} feeding {name} is exported as the image's red channel (use a Separate Color node)"
+        )
+        return
+    if through_separate and node.type == "SEPARATE_COLOR":
+        if node.mode != "RGB":
+            problems.append(f"{_label(node)} feeding {name} separates {node.mode}; the export reads RGB channels")
         node = _source(node.inputs[0])
         if node is None:
             return

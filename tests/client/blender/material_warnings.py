@@ -4,9 +4,9 @@
     blender -b --factory-startup --python tests/client/blender/material_warnings.py
 
 Objects with a plain Principled BSDF, one with an image texture, a normal map and metallic-roughness
-through Separate RGB (all exported: no warning), and materials whose nodes the farm does not render
-(subsurface and clearcoat, a Bump node, a procedural base colour, a Glossy BSDF on the output, a
-world-space normal map, a material no object uses) must give one warning for each material at fault,
+through Separate Color (all exported: no warning), and materials whose nodes the farm does not render
+(subsurface and clearcoat, a Bump node, a procedural base colour, a legacy Separate RGB node, a
+Glossy BSDF on the output, a world-space normal map, a material no object uses) must give one warning for each material at fault,
 naming the material and each node or input, and none for the rest. Exits 1 on a failure."""
 
 import os
@@ -58,10 +58,10 @@ class MaterialWarningsTest(unittest.TestCase):
         nmap = tree.nodes.new("ShaderNodeNormalMap")
         tree.links.new(image_node(tree, "normals", folder).outputs["Color"], nmap.inputs["Color"])
         tree.links.new(nmap.outputs["Normal"], p.inputs["Normal"])
-        sep = tree.nodes.new("ShaderNodeSeparateRGB")
-        tree.links.new(image_node(tree, "mr", folder).outputs["Color"], sep.inputs["Image"])
-        tree.links.new(sep.outputs["B"], p.inputs["Metallic"])
-        tree.links.new(sep.outputs["G"], p.inputs["Roughness"])
+        sep = tree.nodes.new("ShaderNodeSeparateColor")
+        tree.links.new(image_node(tree, "mr", folder).outputs["Color"], sep.inputs["Color"])
+        tree.links.new(sep.outputs["Blue"], p.inputs["Metallic"])
+        tree.links.new(sep.outputs["Green"], p.inputs["Roughness"])
         skin, _, p = material("Skin")
         p.inputs["Subsurface"].default_value = 0.3
         p.inputs["Clearcoat"].default_value = 1.0
@@ -72,6 +72,12 @@ class MaterialWarningsTest(unittest.TestCase):
         noise = tree.nodes.new("ShaderNodeTexNoise")
         noise.name = "MyNoise"
         tree.links.new(noise.outputs["Color"], p.inputs["Base Color"])
+        # Blender's exporter reads a legacy Separate RGB node's outputs as the red channel.
+        legacy, tree, p = material("Legacy")
+        sep = tree.nodes.new("ShaderNodeSeparateRGB")
+        sep.name = "MySeparate"
+        tree.links.new(image_node(tree, "mr2", folder).outputs["Color"], sep.inputs["Image"])
+        tree.links.new(sep.outputs["B"], p.inputs["Metallic"])
         glossy, tree, p = material("Shiny")
         out = tree.nodes["Material Output"]
         g = tree.nodes.new("ShaderNodeBsdfGlossy")
@@ -85,7 +91,7 @@ class MaterialWarningsTest(unittest.TestCase):
         tree.links.new(nmap.outputs["Normal"], p.inputs["Normal"])
         unused, _, p = material("Unused")
         p.inputs["Sheen"].default_value = 1.0
-        for i, mat in enumerate((plain, textured, skin, bumpy, glossy, world_normals)):
+        for i, mat in enumerate((plain, textured, skin, bumpy, legacy, glossy, world_normals)):
             cube(mat.name + "Cube", mat, i)
         bpy.context.view_layer.update()
         cls.warnings = export.scene_warnings(bpy.context.scene, bpy.context.evaluated_depsgraph_get())
@@ -95,7 +101,7 @@ class MaterialWarningsTest(unittest.TestCase):
             cls.by_material.setdefault(name, []).append(w)
 
     def test_one_warning_per_material_at_fault(self):
-        self.assertEqual(sorted(self.by_material), ["Bumpy", "Shiny", "Skin", "WorldNormals"], self.warnings)
+        self.assertEqual(sorted(self.by_material), ["Bumpy", "Legacy", "Shiny", "Skin", "WorldNormals"], self.warnings)
         for name, warnings in self.by_material.items():
             self.assertEqual(len(warnings), 1, warnings)
             self.assertTrue(warnings[0].startswith(f"material '{name}': "), warnings[0])
@@ -109,6 +115,10 @@ class MaterialWarningsTest(unittest.TestCase):
         self.assertIn("node 'MyBump' (Bump) feeding Normal is ignored", self.by_material["Bumpy"][0])
         self.assertIn("node 'MyNoise' (Noise Texture) feeding Base Color is not exported", self.by_material["Bumpy"][0])
         self.assertIn("node 'MyGlossy' (Glossy BSDF) feeds the surface", self.by_material["Shiny"][0])
+        self.assertIn(
+            "node 'MySeparate' (Separate RGB (Legacy)) feeding Metallic is exported as the image's red channel",
+            self.by_material["Legacy"][0],
+        )
         self.assertIn("node 'MyNormalMap' (Normal Map): world space is ignored", self.by_material["WorldNormals"][0])
 
 
