@@ -46,13 +46,14 @@ def run(cmd, what: str) -> str:
     return p.stdout
 
 
-def blender_scene(blender: str, scene: str, folder: str, width: int, height: int, spp: int, seeds) -> dict:
+def blender_scene(blender: str, scene: str, folder: str, width: int, height: int, spp: int, seeds,
+                  lambertian: bool = False) -> dict:
     """Builds SCENE in Blender, renders it with Cycles per seed and exports it with the add-on; the
     add-on's farm.json (scene file, camera, warnings)."""
     run(
         [blender, "-b", "--factory-startup", "-noaudio", "-P", os.path.join(HERE, "blender_scenes.py"), "--",
          "--scene", scene, "--folder", folder, "--width", str(width), "--height", str(height), "--spp", str(spp),
-         "--seeds", ",".join(str(s) for s in seeds)],
+         "--seeds", ",".join(str(s) for s in seeds)] + (["--lambertian"] if lambertian else []),
         f"Blender building and rendering '{scene}'",
     )
     with open(os.path.join(folder, "farm.json"), encoding="utf-8") as f:
@@ -119,7 +120,8 @@ def compare_scene(args, scene: str) -> dict:
     folder = os.path.join(os.path.abspath(args.out), scene)
     os.makedirs(folder, exist_ok=True)
     seeds = (1, 2)
-    farm = blender_scene(args.blender, scene, folder, args.width, args.height, args.cycles_spp or args.spp, seeds)
+    farm = blender_scene(args.blender, scene, folder, args.width, args.height, args.cycles_spp or args.spp, seeds,
+                         args.lambertian)
     images = [farm_render(args.epr, farm, folder, args.width, args.height, args.spp, s, args.mode) for s in seeds]
     result = compare(*[read_exr(p) for p in images],
                      *[read_exr(os.path.join(folder, f"cycles_{s}.exr")) for s in seeds], args.relative)
@@ -151,6 +153,7 @@ def main() -> int:
     ap.add_argument("--cycles-spp", type=int, default=0, help="Cycles' (default: --spp)")
     ap.add_argument("--mode", default="skip", help="the farm's mode (the add-on's default: skip)")
     ap.add_argument("--relative", type=float, default=0.0, help="block tolerance beyond 5 se, a share of the mean")
+    ap.add_argument("--lambertian", action="store_true", help="every material Lambertian in both renderers")
     ap.add_argument("--out", required=True, help="a folder for the scenes and renders")
     args = ap.parse_args()
     for scene in args.scenes.split(","):

@@ -8,6 +8,7 @@ Run with Blender (scripts/addon_cycles_compare.py runs it and compares with the 
 Writes OUT/SCENE.blend, OUT/cycles_SEED.exr per seed (Cycles as scripts/cycles_reference.py sets it
 up: box filter, no denoising, no clamping, bounce caps of 1024; the scene's own World and lamps), the
 add-on's export in OUT/farm/ and OUT/farm.json: the job's scene file, camera and the add-on's warnings.
+--lambertian makes every material Lambertian in both (light transport without the materials).
 
 Scenes (Blender's Z-up coordinates, metres):
   principled  a textured, normal-mapped floor (both images generated here), a copper sphere
@@ -247,7 +248,24 @@ def parse_args():
     ap.add_argument("--spp", type=int, default=128)
     ap.add_argument("--seeds", default="1,2", help="one Cycles render per seed")
     ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--lambertian", action="store_true",
+                    help="both renderers Lambertian: Cycles' materials as cycles_reference.py --gltf makes them, the "
+                         "farm's by \"type\": \"diffuse\" overrides (separates light transport from the materials)")
     return ap.parse_args(argv)
+
+
+def lambertian(job):
+    """Every material Lambertian of its base colour, in Cycles and in the farm's scene JSON."""
+    names = []
+    for mat in bpy.data.materials:
+        if mat.users and mat.use_nodes:
+            cycles_reference.lambertian_material(mat)
+            names.append(mat.name)
+    with open(job, encoding="utf-8") as f:
+        spec = json.load(f)
+    spec["materials"] = {name: {"type": "diffuse"} for name in names}
+    with open(job, "w", encoding="utf-8") as f:
+        json.dump(spec, f, indent=1)
 
 
 def export_for_farm(folder):
@@ -267,6 +285,7 @@ def export_for_farm(folder):
         json.dump({"scene": job, "camera": cam._asdict(), "warnings": warnings}, f, indent=1)
     for w in warnings:
         print("blender_scenes: add-on warning: " + w, flush=True)
+    return job
 
 
 def main():
@@ -277,6 +296,9 @@ def main():
     SCENES[a.scene](folder)
     scene = bpy.context.scene
     bpy.ops.wm.save_as_mainfile(filepath=os.path.join(folder, a.scene + ".blend"))
+    job = export_for_farm(folder)
+    if a.lambertian:
+        lambertian(job)
     for seed in [int(s) for s in a.seeds.split(",")]:
         out = os.path.join(folder, "cycles_%d.exr" % seed)
         settings = SimpleNamespace(width=a.width, height=a.height, spp=a.spp, seed=seed, threads=a.threads,
@@ -287,7 +309,6 @@ def main():
         if not os.path.isfile(out):
             raise SystemExit("Cycles did not write " + out)
         print("blender_scenes: %s: Cycles seed %d: %.2f s" % (a.scene, seed, time.perf_counter() - t), flush=True)
-    export_for_farm(folder)
 
 
 if __name__ == "__main__":

@@ -42,6 +42,8 @@ SOURCE_DIR = os.path.abspath(os.path.join(HERE, "..", "..", ".."))
 sys.path.insert(0, os.path.join(HERE, "..", "python"))
 sys.dont_write_bytecode = True  # no __pycache__ in the source tree
 import test_client as harness  # noqa: E402  (Farm: a master and a worker on loopback)
+sys.path.insert(0, os.path.join(SOURCE_DIR, "scripts"))
+from addon_cycles_compare import read_exr  # noqa: E402  (an EXR's RGB as a height x width x 3 array)
 
 ARGS = argparse.Namespace()
 GLTF = os.path.join(SOURCE_DIR, "scenes", "cornell-box.gltf")
@@ -49,19 +51,6 @@ GARDEN = os.path.join(SOURCE_DIR, "scenes", "garden")  # a glTF with a sky and a
 SUN = (-0.6, 0.9, -1.0)  # garden.json's sun, towards it, y up
 WIDTH, HEIGHT, SPP, SEED = 64, 48, 16, 3
 BLOCK = 8  # pixels per side of the blocks whose means are compared
-
-
-def read_exr(path: str):
-    import numpy as np
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(path)
-    if inp is None:
-        raise AssertionError(f"cannot read {path}: {oiio.geterror()}")
-    spec = inp.spec()
-    pixels = inp.read_image(format="float")
-    inp.close()
-    return np.asarray(pixels).reshape(spec.height, spec.width, spec.nchannels)[:, :, :3]
 
 
 def block_means(image):
