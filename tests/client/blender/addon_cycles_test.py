@@ -19,7 +19,8 @@ Checked (scripts/addon_cycles_compare.py, compare()):
   - each 8 x 8 block's mean per channel within 5 standard errors (from the per-pixel difference of
     the two seeds, both renderers) + 3 % of the block mean + 1e-4 (blocks of the plain sky have no
     noise); at most 3 % of the 288 block and channel comparisons beyond. Measured: 4, the two blocks
-    where the floor's far corners meet the wall, the farm 9-10 % darker.
+    where the floor's far corners meet the wall, the farm 9-10 % darker, from the material models
+    (with every material Lambertian they agree: docs/RESULTS.md, "Blender scenes against Cycles").
 A lamp left out of the export (the point lamp) moves the mean to 0.84 with 189 blocks beyond.
 Run with Debian's /usr/bin/python3 (numpy, OpenImageIO).
 """
