@@ -98,7 +98,7 @@ def _principled(material, principled, problems: List[str]) -> None:
     for name in NUMBER_ONLY:
         node = _source(principled.inputs[name])
         if node is not None:
-            problems.append(f"{_label(node)} feeding {name} is not exported (the farm reads a number)")
+            problems.append(f"{_label(node)} feeding {name} is ignored (the farm reads a number)")
     for name in ("Clearcoat Normal", "Tangent"):
         if principled.inputs[name].is_linked:
             problems.append(f"{_label(principled)}: {name} is linked and ignored")
@@ -110,8 +110,11 @@ def _principled(material, principled, problems: List[str]) -> None:
     _texture_input(principled, "Roughness", problems, through_separate=True)
     _normal(principled, problems)
     alpha = principled.inputs["Alpha"]
-    if material.blend_method in ("BLEND", "HASHED") and (alpha.is_linked or alpha.default_value < 1.0):
-        problems.append(f"blend mode {material.blend_method.lower()} is rendered as a cut-out at alpha 0.5")
+    if alpha.is_linked or alpha.default_value < 1.0:
+        if material.blend_method in ("BLEND", "HASHED"):
+            problems.append(f"blend mode {material.blend_method.lower()} is rendered as a cut-out at alpha 0.5")
+        elif material.blend_method == "OPAQUE":
+            problems.append("Alpha is ignored in blend mode opaque (Cycles renders it; the farm an opaque surface)")
 
 
 def material_warnings(material) -> List[str]:

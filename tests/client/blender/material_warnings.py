@@ -5,9 +5,10 @@
 
 Objects with a plain Principled BSDF, one with an image texture, a normal map and metallic-roughness
 through Separate Color (all exported: no warning), and materials whose nodes the farm does not render
-(subsurface and clearcoat, a Bump node, a procedural base colour, a legacy Separate RGB node, a
-Glossy BSDF on the output, a world-space normal map, a material no object uses) must give one warning for each material at fault,
-naming the material and each node or input, and none for the rest. Exits 1 on a failure."""
+(subsurface, clearcoat and an alpha in blend mode Opaque, a Bump node, a procedural base colour, a
+legacy Separate RGB node, a Glossy BSDF on the output, a world-space normal map; and a material no
+object uses) must give one warning for each rendered material at fault, naming the material and each
+node or input, and none for the rest. Exits 1 on a failure."""
 
 import os
 import sys
@@ -65,6 +66,7 @@ class MaterialWarningsTest(unittest.TestCase):
         skin, _, p = material("Skin")
         p.inputs["Subsurface"].default_value = 0.3
         p.inputs["Clearcoat"].default_value = 1.0
+        p.inputs["Alpha"].default_value = 0.5  # blend mode opaque: Cycles renders it, the farm cannot
         bumpy, tree, p = material("Bumpy")
         bump = tree.nodes.new("ShaderNodeBump")
         bump.name = "MyBump"
@@ -110,6 +112,7 @@ class MaterialWarningsTest(unittest.TestCase):
         w = self.by_material["Skin"][0]
         self.assertIn("Subsurface 0.3 ignored", w)
         self.assertIn("Clearcoat 1 ignored", w)
+        self.assertIn("Alpha is ignored in blend mode opaque", w)
 
     def test_nodes_are_named(self):
         self.assertIn("node 'MyBump' (Bump) feeding Normal is ignored", self.by_material["Bumpy"][0])
