@@ -223,6 +223,35 @@ TEST(SmoothShading, BsdfReflectsNothingBelowTheGeometricSurface) {
   EXPECT_EQ(glossy.pdf(below), 0.f);
 }
 
+// With a shading normal tilted from the smooth one, a sampled direction's weight is eval() cos / pdf
+// (the bump shadowing term in both), the term lowers the diffuse value towards the tilt and only
+// there, and the densities are those of the untilted lobes.
+TEST(SmoothShading, BumpShadowingTermWeighsSamplesAsItWeighsEval) {
+  const Vec3 n{0, 0, 1}, ns = normalize({std::sin(0.5f), 0, std::cos(0.5f)}), wo = normalize({-0.3f, 0.1f, 1});
+  Material m;
+  m.kd = Vec3(0.6f);
+  const Bsdf lambert(m, m.kd, n, ns, wo, n), lambert_plain(m, m.kd, n, ns, wo);
+  const Bsdf ggx(MicrofacetInputs{Vec3(0.6f), 0, 0.5f, 0, 1.5f, true}, n, ns, wo, n);
+  const Bsdf ggx_plain(MicrofacetInputs{Vec3(0.6f), 0, 0.5f, 0, 1.5f, true}, n, ns, wo);
+  int lowered = 0, checked = 0;
+  for (int i = 0; i < 1024; ++i) {
+    const Vec2 u{(float(i % 32) + 0.5f) / 32, (float(i / 32) + 0.5f) / 32};
+    for (const auto& [b, plain] : {std::pair{&lambert, &lambert_plain}, std::pair{&ggx, &ggx_plain}}) {
+      const BsdfSample s = b->sample(float(i % 7) / 7, u);
+      if (!s.valid || s.delta) continue;
+      ++checked;
+      const float c = b->cosine(s.wi);
+      EXPECT_NEAR(s.weight.x, b->eval(s.wi).x * c / s.pdf, 1e-4f * (1 + s.weight.x));
+      EXPECT_NEAR(s.pdf, plain->pdf(s.wi), 1e-5f * s.pdf);
+      const float g = bump_shadowing_term(n, ns, s.wi);
+      EXPECT_NEAR(b->eval_diffuse(s.wi).x, plain->eval_diffuse(s.wi).x * g, 1e-6f);
+      lowered += g < 0.99f;
+    }
+  }
+  EXPECT_GT(checked, 1500);
+  EXPECT_GT(lowered, 100);  // the tilt (towards +x) shadows the directions on its side
+}
+
 // A UV sphere of radius 1 (`rings` x 2 `rings` facets) with its exact vertex normals, albedo 1.
 Scene smooth_sphere(int rings) {
   Scene s;
