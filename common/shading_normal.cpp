@@ -15,8 +15,9 @@ Vec3 interpolated_normal(const Scene& s, size_t tri, float u, float v) {
   return l > 0 && std::isfinite(l) ? n / l : s.geometric_normal(tri);
 }
 
-Vec3 shading_normal(const Scene& s, size_t tri, float u, float v) {
-  const Vec3 n = interpolated_normal(s, tri, u, v);
+namespace {
+
+Vec3 mapped_normal(const Scene& s, size_t tri, float u, float v, Vec3 n) {
   const Material& m = s.materials[s.material_of[tri]];
   if (m.normal_texture < 0 || s.tangents.empty() || s.uvs.empty()) return n;
   const float w = 1 - u - v;
@@ -25,6 +26,12 @@ Vec3 shading_normal(const Scene& s, size_t tri, float u, float v) {
   const Tangent t{c[0].t * w + c[1].t * u + c[2].t * v, c[0].w};
   const Vec2 st{uv[0].x * w + uv[1].x * u + uv[2].x * v, uv[0].y * w + uv[1].y * u + uv[2].y * v};
   return apply_normal_map(n, t, s.textures[size_t(m.normal_texture)].lookup(st), m.normal_scale);
+}
+
+}  // namespace
+
+Vec3 shading_normal(const Scene& s, size_t tri, float u, float v) {
+  return mapped_normal(s, tri, u, v, interpolated_normal(s, tri, u, v));
 }
 
 Vec3 oriented_shading_normal(Vec3 n, Vec3 ng, Vec3 wo) {
@@ -51,8 +58,13 @@ Vec3 oriented_shading_normal(Vec3 n, Vec3 ng, Vec3 wo) {
 }
 
 Vec3 shading_normal_towards(const Scene& s, size_t tri, float u, float v, Vec3 ng, Vec3 wo) {
-  if (s.normals.empty() && s.materials[s.material_of[tri]].normal_texture < 0) return ng;
-  return oriented_shading_normal(shading_normal(s, tri, u, v), ng, wo);
+  return hit_normals_towards(s, tri, u, v, ng, wo).shading;
+}
+
+HitNormals hit_normals_towards(const Scene& s, size_t tri, float u, float v, Vec3 ng, Vec3 wo) {
+  if (s.normals.empty() && s.materials[s.material_of[tri]].normal_texture < 0) return {ng, ng};
+  const Vec3 n = interpolated_normal(s, tri, u, v);
+  return {dot(n, ng) < 0 ? -n : n, oriented_shading_normal(mapped_normal(s, tri, u, v, n), ng, wo)};
 }
 
 }  // namespace epr

@@ -28,4 +28,13 @@ Vec3 oriented_shading_normal(Vec3 n, Vec3 ng, Vec3 wo);
 /// that flat scenes render as they did) where the triangle has neither corner normals nor a normal map.
 Vec3 shading_normal_towards(const Scene& s, size_t tri, float u, float v, Vec3 ng, Vec3 wo);
 
+/// The two normals a BSDF at a hit takes (worker/bsdf.h): `shading` as shading_normal_towards()
+/// gives it, and `smooth`, the interpolated normal (before the normal map and the bend) turned to
+/// ng's side, which the diffuse lobes' bump shadowing term compares it with. Both ng (bit for bit)
+/// where the triangle has neither corner normals nor a normal map.
+struct HitNormals {
+  Vec3 smooth, shading;
+};
+HitNormals hit_normals_towards(const Scene& s, size_t tri, float u, float v, Vec3 ng, Vec3 wo);
+
 }  // namespace epr

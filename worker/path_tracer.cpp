@@ -151,12 +151,13 @@ Vec3 PathTracer::trace_unfiltered(int x, int y, uint32_t sample, std::vector<Ver
     const Vec3 ng = hit.ng * (1 / length(hit.ng));
     v.normal = dot(ng, ray.dir) < 0 ? ng : -ng;
     v.le = le;  // diffuse emitter
-    v.shading = shading_normal_towards(s, hit.prim, hit.u, hit.v, v.normal, -ray.dir);
+    const HitNormals normals = hit_normals_towards(s, hit.prim, hit.u, hit.v, v.normal, -ray.dir);
+    v.shading = normals.shading;
     const Vec3 base = albedo_at(mat, hit.prim, hit.u, hit.v);
-    const Bsdf bsdf =
-        mat.type == MaterialType::kMicrofacet
-            ? Bsdf(microfacet_inputs(s, mat, base, hit.prim, hit.u, hit.v, side > 0), v.normal, v.shading, -ray.dir)
-            : Bsdf(mat, base, v.normal, v.shading, -ray.dir);
+    const Bsdf bsdf = mat.type == MaterialType::kMicrofacet
+                          ? Bsdf(microfacet_inputs(s, mat, base, hit.prim, hit.u, hit.v, side > 0), v.normal, v.shading,
+                                 -ray.dir, normals.smooth)
+                          : Bsdf(mat, base, v.normal, v.shading, -ray.dir, normals.smooth);
     v.split = mat.type == MaterialType::kMicrofacet && bsdf.has_diffuse();
     v.diffuse = mat.diffuse() || v.split;
     const Vec3 origin = v.position + v.normal * eps;

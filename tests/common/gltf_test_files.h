@@ -2,6 +2,9 @@
 // that writes a .gltf with its .bin, or a .glb.
 #pragma once
 
+#include <OpenImageIO/imageio.h>
+#include <gtest/gtest.h>
+
 #include <cstdint>
 #include <cstring>
 #include <nlohmann/json.hpp>
@@ -99,5 +102,15 @@ class GltfBuilder {
   nlohmann::json doc;
   std::string bin;
 };
+
+/// An 8-bit RGB PNG written as stored (no transfer curve): data such as a normal map.
+inline void write_rgb8_png(const std::string& path, int w, int h, const std::vector<float>& rgb) {
+  auto out = OIIO::ImageOutput::create(path);
+  ASSERT_TRUE(out);
+  OIIO::ImageSpec spec(w, h, 3, OIIO::TypeDesc::UINT8);
+  ASSERT_TRUE(out->open(path, spec));
+  ASSERT_TRUE(out->write_image(OIIO::TypeDesc::FLOAT, rgb.data()));
+  out->close();
+}
 
 }  // namespace epr::test

@@ -20,6 +20,7 @@ namespace {
 
 using test::GltfBuilder;
 using test::TempDir;
+using test::write_rgb8_png;
 
 void expect_vec_near(Vec3 a, Vec3 b, float tol = 1e-5f) {
   EXPECT_NEAR(a.x, b.x, tol) << "(" << a.x << ", " << a.y << ", " << a.z << ")";
@@ -250,16 +251,6 @@ TEST(SceneGltfNormals, BadNormalsAreRefusedNamingTheAccessorAndElement) {
   g.node({{"mesh", mesh}});
   const std::string err = test::load_error(g.write_gltf(dir, "short"));
   EXPECT_NE(err.find("NORMAL accessors[2] must be float VEC3 with one entry per POSITION"), std::string::npos) << err;
-}
-
-/// An 8-bit RGB PNG written as stored (no transfer curve).
-void write_rgb8_png(const std::string& path, int w, int h, const std::vector<float>& rgb) {
-  auto out = OIIO::ImageOutput::create(path);
-  ASSERT_TRUE(out);
-  OIIO::ImageSpec spec(w, h, 3, OIIO::TypeDesc::UINT8);
-  ASSERT_TRUE(out->open(path, spec));
-  ASSERT_TRUE(out->write_image(OIIO::TypeDesc::FLOAT, rgb.data()));
-  out->close();
 }
 
 TEST(SceneGltfNormals, NormalTextureIsReadAsDataWithItsScaleAndTangents) {

@@ -138,10 +138,58 @@ TEST(SmoothShading, NormalMapTiltsNextEventEstimationByTheExpectedCosine) {
   };
   const float a = 0.35f;  // 20 degrees
   const double flat = mean(0.f), towards = mean(a), away = mean(-a);
-  // Direct light only (the floor sees nothing else): kd / pi E cos, the cosine to the shading normal.
+  // Direct light only (the floor sees nothing else): kd / pi E cos, the cosine to the shading normal,
+  // times Cycles' bump shadowing term G(g), g = cos(sun, n) / (cos(sun, ns) cos(n, ns)) with n the
+  // smooth normal +z: towards the sun g = 0.83, G = 0.947; away from it g > 1, G = 1.
   EXPECT_NEAR(flat, 0.5 / kPi * 3 * std::cos(kPi / 4), 1e-3);
-  EXPECT_NEAR(towards / flat, std::cos(kPi / 4 - a) / std::cos(kPi / 4), 5e-3);
+  const double g = std::cos(kPi / 4) / (std::cos(kPi / 4 - a) * std::cos(a));
+  ASSERT_LT(g, 1);
+  EXPECT_NEAR(towards / flat, std::cos(kPi / 4 - a) / std::cos(kPi / 4) * (-g * g * g + g * g + g), 5e-3);
   EXPECT_NEAR(away / flat, std::cos(kPi / 4 + a) / std::cos(kPi / 4), 5e-3);
+}
+
+// The glTF file of a 2 x 2 m floor at y = 0 (u along +x, glTF v along +z, so the bitangent is -z)
+// with NORMAL and a 4 x 4 normal map tilting the normal by `tilt` radians towards +x, a grey
+// Lambertian, seen from above: the scene Cycles 3.4 rendered (cycles_reference.py --gltf, a sun of
+// irradiance 3 at 40 degrees from the zenith towards +x, 32 x 32, fov 30) as 0.16419 for tilt -30
+// degrees, 0.36694 for the flat map (texel 128/255: 0.2 degrees towards +x), 0.40586 for +10 degrees
+// and 0.46066 for +30 degrees: kd / pi E cos(sun, ns) G, the 8-bit texel's exact normal.
+std::string write_mapped_floor(const test::TempDir& dir, float tilt) {
+  test::GltfBuilder g;
+  const std::vector<float> xyz{-1, 0, -1, 1, 0, -1, 1, 0, 1, -1, 0, 1}, nrm{0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1, 0},
+      uv{0, 0, 1, 0, 1, 1, 0, 1};
+  const int mesh = g.mesh(xyz, {0, 2, 1, 0, 3, 2});
+  auto& attributes = g.doc["meshes"][mesh]["primitives"][0]["attributes"];
+  attributes["NORMAL"] = g.accessor(test::bytes_of(nrm), 5126, 4, "VEC3");
+  attributes["TEXCOORD_0"] = g.accessor(test::bytes_of(uv), 5126, 4, "VEC2");
+  g.node({{"mesh", mesh}});
+  std::vector<float> texels;
+  for (int i = 0; i < 16; ++i)
+    texels.insert(texels.end(), {0.5f + 0.5f * std::sin(tilt), 0.5f, 0.5f + 0.5f * std::cos(tilt)});
+  test::write_rgb8_png(dir.path("tilt.png"), 4, 4, texels);
+  g.doc["images"] = {{{"uri", "tilt.png"}}};
+  g.doc["textures"] = {{{"source", 0}}};
+  g.doc["materials"] = {{{"name", "grey"}, {"normalTexture", {{"index", 0}}}}};
+  g.doc["meshes"][mesh]["primitives"][0]["material"] = 0;
+  return g.write_gltf(dir, "floor");
+}
+
+TEST(SmoothShading, NormalMappedGltfFloorRendersAsCycles) {
+  test::TempDir dir;
+  const Lighting sun = sun_only({std::sin(0.6981317f), std::cos(0.6981317f), 0});  // 40 degrees
+  const auto mean = [&](float tilt_deg) {
+    Scene s = load_scene(write_mapped_floor(dir, tilt_deg * kPi / 180));
+    s.materials[0] = Material{.name = "grey", .kd = Vec3(0.5f), .normal_texture = s.materials[0].normal_texture};
+    s.camera = {Vec3(0, 3, 0), Vec3(0, 0, 0), Vec3(0, 0, -1), 30.f};
+    const std::vector<float> img = render_pixels(s, sun, 16, 16, 4);
+    double sum = 0;
+    for (float v : img) sum += v;
+    return sum / double(img.size());
+  };
+  EXPECT_NEAR(mean(-30), 0.16419, 2e-4);
+  EXPECT_NEAR(mean(0), 0.36694, 2e-4);
+  EXPECT_NEAR(mean(10), 0.40586, 2e-4);  // without the bump shadowing term 0.41417
+  EXPECT_NEAR(mean(30), 0.46066, 2e-4);  // without it 0.47004
 }
 
 // A direction above the shading hemisphere but below the geometric surface carries nothing: no
@@ -173,6 +221,35 @@ TEST(SmoothShading, BsdfReflectsNothingBelowTheGeometricSurface) {
   const Bsdf glossy(m, m.kd, ng, ns, normalize({0.2f, 0.1f, 1}));
   EXPECT_TRUE(is_black(glossy.eval(below)));
   EXPECT_EQ(glossy.pdf(below), 0.f);
+}
+
+// With a shading normal tilted from the smooth one, a sampled direction's weight is eval() cos / pdf
+// (the bump shadowing term in both), the term lowers the diffuse value towards the tilt and only
+// there, and the densities are those of the untilted lobes.
+TEST(SmoothShading, BumpShadowingTermWeighsSamplesAsItWeighsEval) {
+  const Vec3 n{0, 0, 1}, ns = normalize({std::sin(0.5f), 0, std::cos(0.5f)}), wo = normalize({-0.3f, 0.1f, 1});
+  Material m;
+  m.kd = Vec3(0.6f);
+  const Bsdf lambert(m, m.kd, n, ns, wo, n), lambert_plain(m, m.kd, n, ns, wo);
+  const Bsdf ggx(MicrofacetInputs{Vec3(0.6f), 0, 0.5f, 0, 1.5f, true}, n, ns, wo, n);
+  const Bsdf ggx_plain(MicrofacetInputs{Vec3(0.6f), 0, 0.5f, 0, 1.5f, true}, n, ns, wo);
+  int lowered = 0, checked = 0;
+  for (int i = 0; i < 1024; ++i) {
+    const Vec2 u{(float(i % 32) + 0.5f) / 32, (float(i / 32) + 0.5f) / 32};
+    for (const auto& [b, plain] : {std::pair{&lambert, &lambert_plain}, std::pair{&ggx, &ggx_plain}}) {
+      const BsdfSample s = b->sample(float(i % 7) / 7, u);
+      if (!s.valid || s.delta) continue;
+      ++checked;
+      const float c = b->cosine(s.wi);
+      EXPECT_NEAR(s.weight.x, b->eval(s.wi).x * c / s.pdf, 1e-4f * (1 + s.weight.x));
+      EXPECT_NEAR(s.pdf, plain->pdf(s.wi), 1e-5f * s.pdf);
+      const float g = bump_shadowing_term(n, ns, s.wi);
+      EXPECT_NEAR(b->eval_diffuse(s.wi).x, plain->eval_diffuse(s.wi).x * g, 1e-6f);
+      lowered += g < 0.99f;
+    }
+  }
+  EXPECT_GT(checked, 1500);
+  EXPECT_GT(lowered, 100);  // the tilt (towards +x) shadows the directions on its side
 }
 
 // A UV sphere of radius 1 (`rings` x 2 `rings` facets) with its exact vertex normals, albedo 1.
