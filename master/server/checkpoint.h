@@ -104,7 +104,7 @@ JobProgressRecord decode_job_progress(std::string_view payload,
 /// The spec record of a job as submitted.
 JobSpecRecord spec_record(const Job& job);
 /// A job's progress record as of now (a finished job's with its preview PNGs; no frame).
-JobProgressRecord progress_record(const Job& job);
+JobProgressRecord progress_record(const Job& job) EPR_REQUIRES(job_fields);
 
 /// The state directory: the layout above, the keep-two rotation of progress checkpoints and the
 /// fallback to the previous one. Thread-safe: the writes and load_jobs() run one at a time.

@@ -50,7 +50,7 @@ void Checkpointer::queue_and_wait(const std::string& job_id,
   std::optional<JobProgressRecord> record = make();
   if (!record) return;
   push(job_id, {std::make_shared<const JobProgressRecord>(std::move(*record)), {}});
-  cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS {  // with mu_ held
+  cv_.wait(lock, [&]() EPR_REQUIRES(mu_) {  // with mu_ held
     if (stopped_) return true;
     if (writing_ == job_id) return false;
     return std::none_of(queue_.begin(), queue_.end(), [&](const auto& q) { return q.first == job_id; });
@@ -72,8 +72,8 @@ void Checkpointer::loop() {
   set_thread_name("epr-checkpoint");
   MutexLock lock(mu_);
   for (;;) {
-    cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return stopping_ || !queue_.empty(); });  // with mu_ held
-    if (queue_.empty()) {  // stopping, everything written
+    cv_.wait(lock, [&]() EPR_REQUIRES(mu_) { return stopping_ || !queue_.empty(); });  // with mu_ held
+    if (queue_.empty()) {                                                              // stopping, everything written
       stopped_ = true;
       cv_.notify_all();
       return;

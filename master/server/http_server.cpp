@@ -164,7 +164,7 @@ class Connections {
     MutexLock lock(mu_);
     stopping_ = true;
     for (int s : socks_) ::shutdown(s, SHUT_RDWR);
-    cv_.wait(lock, [&]() EPR_NO_THREAD_SAFETY_ANALYSIS { return threads_ == 0; });
+    cv_.wait(lock, [&]() EPR_REQUIRES(mu_) { return threads_ == 0; });
   }
 
  private:

@@ -1,6 +1,7 @@
 // A job as the master holds it, and the copy of it that status calls, watchers and the monitoring
-// endpoint see (JobSnapshot). The JobManager guards every Job field with its mutex except those
-// marked "reprojection thread", which only that thread touches.
+// endpoint see (JobSnapshot). A Job holds what more than one thread touches, each field guarded by
+// its JobManager's mutex (job_lock.h) or set before the job is published; what only the reprojection
+// thread touches (the job's scene, camera and RoundDriver) is that thread's (reprojection_worker.h).
 #pragma once
 
 #include <chrono>
@@ -12,6 +13,7 @@
 #include <vector>
 
 #include "common/camera.h"
+#include "common/check.h"
 #include "common/job_state.h"
 #include "common/render_options.h"
 #include "common/scene.h"
@@ -19,6 +21,7 @@
 #include "master/frame_state.h"
 #include "master/round_driver.h"
 #include "master/server/job_counters.h"
+#include "master/server/job_lock.h"
 #include "master/server/lease_table.h"
 #include "master/server/preview_state.h"
 #include "master/server/tile_outcomes.h"
@@ -78,63 +81,65 @@ struct JobSnapshot {
 };
 
 struct Job {
+  // Set before the job is published (JobRegistry::add) and never changed after: read freely.
   std::string id;
   uint64_t seq = 0;  // submission order
   JobRequest request;
-  JobState state = JobState::kQueued;
-  std::string error;
   std::string scene_hash;
   std::shared_ptr<const SceneBundleData> bundle;
-  uint64_t triangles = 0;
-  Bounds3 codec_bounds;
   std::vector<TileRect> tiles;
+  int64_t submitted_ms = 0;
+
+  // Everything else is its manager's (job_lock.h): the analysis rejects a touch without its mutex.
+  JobState state EPR_GUARDED_BY(job_fields) = JobState::kQueued;
+  std::string error EPR_GUARDED_BY(job_fields);
+  uint64_t triangles EPR_GUARDED_BY(job_fields) = 0;
+  Bounds3 codec_bounds EPR_GUARDED_BY(job_fields);
   // Started: its first round opened in this master (a fresh job's round 0 before its frame is built,
   // so a job's seconds include that build); a resumed job keeps its first start.
-  int64_t submitted_ms = 0, started_ms = 0, finished_ms = 0;
-  FrameProgress progress;
-  ReprojectionCounts counts;
-  JobCounters counters;
-  TileDrops drops;  // counters.tiles_dropped by reason, in this master's run
-  bool budget_exhausted = false;
-  uint64_t version = 0;
+  int64_t started_ms EPR_GUARDED_BY(job_fields) = 0;
+  int64_t finished_ms EPR_GUARDED_BY(job_fields) = 0;
+  FrameProgress progress EPR_GUARDED_BY(job_fields);
+  ReprojectionCounts counts EPR_GUARDED_BY(job_fields);
+  JobCounters counters EPR_GUARDED_BY(job_fields);
+  TileDrops drops EPR_GUARDED_BY(job_fields);  // counters.tiles_dropped by reason, in this master's run
+  bool budget_exhausted EPR_GUARDED_BY(job_fields) = false;
+  uint64_t version EPR_GUARDED_BY(job_fields) = 0;
 
   // The current round, while running.
-  std::unique_ptr<LeaseTable> leases;
-  RoundPlan plan;
-  uint32_t round = 0;
-  uint32_t remaining = 0;  // tiles of the round not yet applied by the reprojection thread
-  bool round_open = false;
-  int64_t round_opened_ms = 0;            // for the round duration histogram
-  double reprojecting_at_round_open = 0;  // seconds_reprojecting when the round opened
-  std::chrono::steady_clock::time_point last_commit_at;
-  double seconds_round_backlog = 0, seconds_round_closing = 0, seconds_writing_results = 0;
+  std::unique_ptr<LeaseTable> leases EPR_GUARDED_BY(job_fields);
+  RoundPlan plan EPR_GUARDED_BY(job_fields);
+  uint32_t round EPR_GUARDED_BY(job_fields) = 0;
+  uint32_t remaining EPR_GUARDED_BY(job_fields) = 0;  // tiles of the round not yet applied by the reprojection thread
+  bool round_open EPR_GUARDED_BY(job_fields) = false;
+  int64_t round_opened_ms EPR_GUARDED_BY(job_fields) = 0;            // for the round duration histogram
+  double reprojecting_at_round_open EPR_GUARDED_BY(job_fields) = 0;  // seconds_reprojecting when the round opened
+  std::chrono::steady_clock::time_point last_commit_at EPR_GUARDED_BY(job_fields);
+  double seconds_round_backlog EPR_GUARDED_BY(job_fields) = 0;
+  double seconds_round_closing EPR_GUARDED_BY(job_fields) = 0;
+  double seconds_writing_results EPR_GUARDED_BY(job_fields) = 0;
   // This master's start of the job: loading its scene (before the job runs), and building its frame
   // (a fresh job's round 0 is traced meanwhile; a resumed job's frame is built before it runs).
-  double seconds_scene_load = 0, seconds_frame_build = 0;
+  double seconds_scene_load EPR_GUARDED_BY(job_fields) = 0;
+  double seconds_frame_build EPR_GUARDED_BY(job_fields) = 0;
 
   // Round checkpoints (MasterOptions::checkpoint_interval_s): when the last was taken (0: none yet in
   // this master's run) and what it cost, copy + write, seconds.
-  int64_t last_checkpoint_ms = 0;
-  double checkpoint_cost_s = 0;
-  uint32_t round_checkpoints = 0;
+  int64_t last_checkpoint_ms EPR_GUARDED_BY(job_fields) = 0;
+  double checkpoint_cost_s EPR_GUARDED_BY(job_fields) = 0;
+  uint32_t round_checkpoints EPR_GUARDED_BY(job_fields) = 0;
   // Set when the job was running when the master stopped: it continues from this record.
-  std::shared_ptr<const JobProgressRecord> resume;
+  std::shared_ptr<const JobProgressRecord> resume EPR_GUARDED_BY(job_fields);
 
-  PreviewState preview;
-
-  // Reprojection thread.
-  int64_t counts_ms = 0;  // when `counts` was last refreshed from the reprojector
-  std::unique_ptr<Scene> scene;
-  std::unique_ptr<Camera> camera;
-  std::unique_ptr<RoundDriver> driver;
+  PreviewState preview EPR_GUARDED_BY(job_fields);
 
   /// The terminal transition, made once: false (and nothing changes) if the job had ended already.
-  bool end(JobState final_state, std::string why, int64_t now_ms);
+  bool end(JobState final_state, std::string why, int64_t now_ms) EPR_REQUIRES(job_fields);
   /// The job's state as a snapshot; `workers_active` is the caller's to fill in.
-  JobSnapshot snapshot(int64_t now_ms) const;
+  JobSnapshot snapshot(int64_t now_ms) const EPR_REQUIRES(job_fields);
   /// Adds the job's settings and counters (`c`: as of the round the statistics describe) to the
   /// statistics file that FrameState::statistics() began.
-  void add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t now_ms) const;
+  void add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t now_ms) const EPR_REQUIRES(job_fields);
 };
 
 }  // namespace epr

@@ -10,6 +10,7 @@
 #include "master/server/checkpoint.h"
 #include "master/server/checkpointer.h"
 #include "master/server/job_manager.h"
+#include "master/server/reprojection_worker.h"
 
 namespace epr {
 
@@ -24,7 +25,7 @@ bool JobManager::drain_and_checkpoint(std::chrono::milliseconds timeout, const s
   std::vector<std::string> waiting;
   std::string why;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     draining_ = true;
     for (bool first = true;; first = false) {
       waiting.clear();
@@ -59,21 +60,21 @@ bool JobManager::drain_and_checkpoint(std::chrono::milliseconds timeout, const s
   return false;
 }
 
-bool JobManager::checkpoint_for_drain(const std::shared_ptr<Job>& job, JobProgressRecord* record) {
+bool ReprojectionWorker::checkpoint_for_drain(const std::shared_ptr<Job>& job, JobProgressRecord* record) {
   uint32_t round;  // the round that closed; a restart resumes with the next one
   {
-    MutexLock lock(mu_);
-    if (!draining_) return false;
+    JobLock lock(m_.mu_);
+    if (!m_.draining_) return false;
     job->last_checkpoint_ms = 0;  // taken whatever the interval: the state a restart resumes from
     round = job->round;
   }
   save_round_checkpoint(job, std::move(*record));
   {
-    MutexLock lock(mu_);
-    drained_.push_back(job->id);
+    JobLock lock(m_.mu_);
+    m_.drained_.push_back(job->id);
   }
   logger("master")->info("job {}: draining: round {} closed and checkpointed; no further round opens", job->id, round);
-  work_cv_.notify_all();
+  m_.work_cv_.notify_all();
   return true;
 }
 

@@ -35,17 +35,16 @@ JobManager::JobManager(MasterOptions options, MillisClock clock)
   // Lease ids are never reused, not even across restarts: the run number is their top bits.
   epoch_ = store_->next_epoch();
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     next_lease_ = (epoch_ << kLeaseEpochShift) + 1;
   }
   load_state();
   if (options_.checkpoints && !options_.state_dir.empty())
     checkpointer_ = std::make_unique<Checkpointer>(*store_, [this](const std::string& id, double write_s) {
-      MutexLock lock(mu_);
+      JobLock lock(mu_);
       if (auto job = jobs_.find(id)) job->checkpoint_cost_s += write_s;
     });
-  reprojection_thread_ = std::thread([this] { reprojection_loop(); });
-  reaper_thread_ = std::thread([this] { reaper_loop(); });
+  start_threads();
 }
 
 JobManager::~JobManager() {
@@ -58,7 +57,7 @@ JobManager::~JobManager() {
 
 void JobManager::shutdown() {
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     if (stopping_) return;
     stopping_ = true;
     parking_.stop();
@@ -71,12 +70,12 @@ void JobManager::shutdown() {
 }
 
 bool JobManager::gl_ready() const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   return gl_ready_;
 }
 
 DurationHistograms JobManager::histograms() const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   return histograms_;
 }
 
@@ -130,7 +129,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
   }
   auto job = std::make_shared<Job>();
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     if (auto earlier = jobs_.find_request(req.request_id)) return {earlier->id, "", hash};
     job->seq = jobs_.next_seq();
     job->submitted_ms = clock_();
@@ -150,7 +149,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
   std::vector<std::string> forgotten;
   std::string earlier_id;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     if (auto earlier = jobs_.find_request(job->request.request_id)) earlier_id = earlier->id;  // submitted meanwhile
     auto& cached = scenes_[hash];
     if (!cached) cached = std::make_shared<const SceneBundleData>(std::move(bundle));
@@ -177,14 +176,14 @@ JobSnapshot JobManager::snapshot(const Job& job) const {
 }
 
 std::optional<JobSnapshot> JobManager::get(const std::string& id) const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   auto job = jobs_.find(id);
   if (!job) return std::nullopt;
   return snapshot(*job);
 }
 
 std::vector<JobSnapshot> JobManager::list() const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   std::vector<JobSnapshot> out;
   for (const auto& [id, job] : jobs_.all()) out.push_back(snapshot(*job));
   return out;
@@ -194,7 +193,7 @@ bool JobManager::cancel(const std::string& id) {
   std::shared_ptr<Job> job;
   bool cancelled = false;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     job = jobs_.find(id);
     if (!job) return false;
     cancelled = job->end(JobState::kCancelled, "", clock_());
@@ -206,12 +205,12 @@ bool JobManager::cancel(const std::string& id) {
 }
 
 uint64_t JobManager::watch(const std::string& id, std::function<void(const JobSnapshot&)> listener) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   return jobs_.watch(id, std::move(listener));
 }
 
 void JobManager::unwatch(uint64_t handle) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   jobs_.unwatch(handle);
 }
 
@@ -219,7 +218,7 @@ void JobManager::notify(const std::shared_ptr<Job>& job) {
   std::vector<JobRegistry::Listener> listeners;
   JobSnapshot snap;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     snap = snapshot(*job);
     listeners = jobs_.listeners(job->id);
   }
@@ -228,7 +227,7 @@ void JobManager::notify(const std::shared_ptr<Job>& job) {
 
 std::string JobManager::add_scene(SceneBundleData bundle) {
   const std::string hash = content_hash(bundle);
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   auto& slot = scenes_[hash];
   if (!slot) slot = std::make_shared<const SceneBundleData>(std::move(bundle));
   return hash;
@@ -239,7 +238,7 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
   const std::string cache = cache_dir();
   const std::string hash = content_hash(bundle);
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     ++scene_checks_[hash];  // discard_checked_scene() leaves the cached files alone meanwhile
   }
   std::optional<std::string> error;
@@ -258,7 +257,7 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
     for (size_t p; (p = msg.find(prefix)) != std::string::npos;) msg.erase(p, prefix.size());
     error = std::move(msg);
   }
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   if (--scene_checks_[hash] == 0) scene_checks_.erase(hash);
   return error;
 }
@@ -266,7 +265,7 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
 void JobManager::discard_checked_scene(const std::string& hash) {
   if (hash.empty()) return;
   // Under the mutex: a job that is added later loads the scene (and caches it again) only after this.
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   if (scene_checks_.count(hash)) return;
   for (const auto& [id, job] : jobs_.all())
     if (job->scene_hash == hash) return;
@@ -279,7 +278,7 @@ void JobManager::discard_checked_scene(const std::string& hash) {
 }
 
 std::shared_ptr<const SceneBundleData> JobManager::scene(const std::string& hash) const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   auto it = scenes_.find(hash);
   return it == scenes_.end() ? nullptr : it->second;
 }
@@ -288,23 +287,23 @@ std::shared_ptr<const SceneBundleData> JobManager::scene(const std::string& hash
 
 std::string JobManager::register_worker(const std::string& name, uint32_t threads,
                                         std::vector<std::string> cached_scenes) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   return workers_.add(name, threads, {cached_scenes.begin(), cached_scenes.end()}, clock_());
 }
 
 void JobManager::unregister_worker(const std::string& worker) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   workers_.remove(worker);
 }
 
 std::vector<WorkerSnapshot> JobManager::workers() const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   return workers_.snapshot(clock_());
 }
 
 std::optional<std::vector<std::pair<bool, int64_t>>> JobManager::heartbeat(const std::string& worker,
                                                                            const std::vector<uint64_t>& leases) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   WorkerRegistry::Worker* w = workers_.touch(worker, clock_());
   if (!w) return std::nullopt;
   std::vector<std::pair<bool, int64_t>> out;
@@ -319,7 +318,7 @@ std::optional<std::vector<std::pair<bool, int64_t>>> JobManager::heartbeat(const
 }
 
 LeaseDecision JobManager::lease_tile(const std::string& worker) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   bool parkable = false;
   return decide_lease(worker, &parkable);
 }
@@ -327,7 +326,7 @@ LeaseDecision JobManager::lease_tile(const std::string& worker) {
 std::optional<LeaseDecision> JobManager::lease_tile_or_park(const std::string& worker, int max_wait_ms,
                                                             std::function<void(LeaseDecision)> answer,
                                                             uint64_t* handle) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   bool parkable = false;
   LeaseDecision d = decide_lease(worker, &parkable);
   if (!parkable || max_wait_ms <= 0 || parking_.stopped()) return d;
@@ -336,18 +335,18 @@ std::optional<LeaseDecision> JobManager::lease_tile_or_park(const std::string& w
 }
 
 bool JobManager::cancel_parked(uint64_t handle) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   return parking_.cancel(handle);
 }
 
 size_t JobManager::parked_requests() const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   return parking_.size();
 }
 
 void JobManager::stop_parking() {
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     parking_.stop();
   }
   answer_due();
@@ -356,7 +355,7 @@ void JobManager::stop_parking() {
 void JobManager::answer_due() {
   std::vector<std::pair<LeaseParking::Answer, LeaseDecision>> due;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     due = parking_.take_due();
   }
   for (auto& [answer, decision] : due) answer(std::move(decision));
@@ -393,7 +392,7 @@ void JobManager::fail_leases(const std::string& worker, const std::vector<uint64
                              const std::string& reason) {
   std::vector<std::shared_ptr<Job>> failed;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     WorkerRegistry::Worker* w = workers_.find(worker);
     for (uint64_t lease : leases) {
       if (w) w->leases.erase(lease);
@@ -435,7 +434,7 @@ void JobManager::fail_if_stuck(const std::shared_ptr<Job>& job, std::vector<std:
 
 TileCheck JobManager::expect(const TileResultIdentity& h) const {
   auto verdict = [](TileVerdict v, std::string why) { return TileCheck{v, {}, std::move(why)}; };
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   if (h.lease_id == 0 || h.lease_id >= next_lease_) return verdict(TileVerdict::kInvalid, "unknown lease id");
   if ((h.lease_id >> kLeaseEpochShift) != epoch_)
     return verdict(TileVerdict::kEarlierEpoch, "the lease is from before the master restarted");
@@ -477,7 +476,7 @@ TileCheck JobManager::expect(const TileResultIdentity& h) const {
 }
 
 void JobManager::count_dropped(const std::string& job_id, DropReason reason) {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   if (auto job = jobs_.find(job_id)) {
     ++job->counters.tiles_dropped;
     ++job->drops[reason];
@@ -487,7 +486,7 @@ void JobManager::count_dropped(const std::string& job_id, DropReason reason) {
 
 CommitOutcome JobManager::commit(const std::string& job_id, uint32_t round, uint32_t tile_index, AssembledTile tile) {
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     auto job = jobs_.find(job_id);
     WorkerRegistry::Worker* w = workers_.find(tile.worker_id);
     if (w) w->leases.erase(tile.lease_id);
@@ -534,7 +533,7 @@ void JobManager::load_state() {
   std::vector<CheckpointStore::LoadedJob> loaded = store_->load_jobs(&problems);
   for (const auto& p : problems) log->warn("state directory: {}", p);
   size_t resumed = 0, restarted = 0;
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   for (auto& l : loaded) {
     const JobSpecRecord& spec = l.spec;
     for (const auto& p : l.problems) log->warn("job {}: checkpoint rejected: {}", spec.id, p);
@@ -591,40 +590,6 @@ void JobManager::load_state() {
   }
   log->info("state directory {}: run {}, {} jobs loaded, {} resume from their checkpoint, {} start from round 0",
             state_dir_, epoch_, loaded.size(), resumed, restarted);
-}
-
-// ---- the reaper -----------------------------------------------------------------------------------
-
-void JobManager::reaper_loop() {
-  set_thread_name("epr-reaper");
-  MutexLock lock(mu_);
-  while (!stopping_) {
-    work_cv_.wait_for(lock, std::chrono::milliseconds(200));
-    if (stopping_) break;
-    std::vector<std::shared_ptr<Job>> failed;
-    for (const auto& job : running_) {
-      if (job->state != JobState::kRunning) continue;
-      const auto expired = job->leases->expire();
-      for (const auto& e : expired) {
-        if (WorkerRegistry::Worker* w = workers_.find(e.worker)) w->leases.erase(e.lease);
-        ++job->version;
-      }
-      if (!expired.empty()) fail_if_stuck(job, &failed);
-    }
-    workers_.forget_silent(clock_(), options_.worker_timeout_ms);
-    // The workers that were not blocked may have left.
-    for (const auto& job : running_) fail_if_stuck(job, &failed);
-    // Parked lease requests: tiles that came back, speculative copies, and the ones out of time.
-    wake_parked(/*all=*/false);
-    lock.unlock();
-    answer_due();
-    if (!failed.empty()) work_cv_.notify_all();
-    for (const auto& job : failed) {
-      save_final_checkpoint(job);  // a restart must not run it again
-      notify(job);
-    }
-    lock.lock();
-  }
 }
 
 }  // namespace epr

@@ -7,17 +7,22 @@
 //   round_driver.h    the round loop around FrameState (shared with the single-process render)
 //   checkpointer.h    the thread that writes checkpoints (checkpoint.h: their format and folder)
 //   previews.h        preview PNGs; result_files.h the finished job's files (job_results.cpp serves both)
+//   job_lock.h        what the analysis checks Job fields against: this manager's mutex (JobLock)
+//   reprojection_worker.h, reaper.h: the two threads' own objects (below)
 // gRPC services (job_service.h, worker_service.h) only translate between the wire and this class.
 //
 // Threads:
 //  - gRPC handlers call the public methods; each takes the manager's mutex briefly and never waits
 //    for tracing or reprojection work.
-//  - One reprojection thread owns the OSMesa context and every job's RoundDriver (each with its own
-//    reprojector and GL buffers in that one context): it starts jobs (a fresh job's round 0 opens
-//    before its deep framebuffer is built, a resumed job's round after its frame is restored),
-//    applies committed tiles per (job, round) in commit order, closes rounds (M', skip mask), opens
-//    the next round and writes results.
-//  - A reaper thread expires leases past their deadline and forgets silent workers.
+//  - One reprojection thread, a ReprojectionWorker on its stack, owns the OSMesa context and every
+//    running job's scene, camera and RoundDriver (each with its own reprojector and GL buffers in
+//    that one context): it starts jobs (a fresh job's round 0 opens before its deep framebuffer is
+//    built, a resumed job's round after its frame is restored), applies committed tiles per (job,
+//    round) in commit order, closes rounds (M', skip mask), opens the next round and writes results.
+//  - A reaper thread (Reaper) expires leases past their deadline and forgets silent workers.
+// What more than one thread touches -- the registries, parking, the commit queue and every shared Job
+// field -- is EPR_GUARDED_BY the manager's mutex (Job's fields by job_fields, job_lock.h), so clang's
+// analysis (scripts/check_thread_safety.py) rejects a touch without it.
 //  - The checkpointer's thread writes checkpoints.
 // Several jobs at once: queued jobs start, in next_queued() order (resumed ones first, then priority,
 // then submission), while the memory estimates (master/memory_estimate.h) of the running jobs and
@@ -275,28 +280,32 @@ class JobManager {
     AssembledTile tile;
   };
 
-  LeaseDecision decide_lease(const std::string& worker, bool* parkable) EPR_REQUIRES(mu_);
+  LeaseDecision decide_lease(const std::string& worker, bool* parkable) EPR_REQUIRES(mu_, job_fields);
   /// Whether `next` may start beside the running jobs (memory budget, max_running_jobs).
-  bool admits(const Job& next) const EPR_REQUIRES(mu_);
+  bool admits(const Job& next) const EPR_REQUIRES(mu_, job_fields);
   /// Removes `job` from running_ (it finished, failed or was cancelled).
   void stop_running(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
   TileLeaseInfo grant(Job& job, const std::string& worker, const LeaseTable::Grant& g, uint64_t lease)
-      EPR_REQUIRES(mu_);
-  void wake_parked(bool all) EPR_REQUIRES(mu_);
+      EPR_REQUIRES(mu_, job_fields);
+  void wake_parked(bool all) EPR_REQUIRES(mu_, job_fields);
   void answer_due() EPR_EXCLUDES(mu_);
-  JobSnapshot snapshot(const Job& job) const EPR_REQUIRES(mu_);
+  JobSnapshot snapshot(const Job& job) const EPR_REQUIRES(mu_, job_fields);
   void notify(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
   /// Fails the running job if one of its tiles was given up (its leases expired max_tile_losses
   /// times: lease_table.h) or every registered worker is blocked for it.
-  void fail_if_stuck(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed) EPR_REQUIRES(mu_);
+  void fail_if_stuck(const std::shared_ptr<Job>& job, std::vector<std::shared_ptr<Job>>* failed)
+      EPR_REQUIRES(mu_, job_fields);
   std::string job_dir(const Job& job) const;
   std::string cache_dir() const;
 
-  // The reprojection thread.
-  void reprojection_loop() EPR_EXCLUDES(mu_);
+  // The reprojection thread (reprojection_worker.h) and the reaper (reaper.h): each thread's own
+  // object, which reaches the manager's shared state under mu_.
+  friend class ReprojectionWorker;
+  friend class Reaper;
+  void start_threads();  // job_threads.cpp
   /// One step of the reprojection thread: decided under the mutex (next_work, which also takes what
   /// it decides on: a dropped job out of running_, a started one into it, a batch out of the commit
-  /// queue), then done without it (do_work).
+  /// queue), then done without it (ReprojectionWorker::do_work).
   struct RenderWork {
     // The first that applies: stop; drop a cancelled or failed job; start a queued one; take an
     // asked-for preview copy; apply a batch of queued commits. kWait: nothing to do yet.
@@ -306,40 +315,22 @@ class JobManager {
     JobCounters counters;                      // kCopy: the copy's statistics as of the decision
     std::vector<std::unique_ptr<Task>> batch;  // kApply: one job and round, in commit order
   };
-  RenderWork next_work() EPR_REQUIRES(mu_);
-  void do_work(RenderWork& work, GlContext* gl) EPR_EXCLUDES(mu_);
-  std::shared_ptr<Job> ended_job() const EPR_REQUIRES(mu_);
-  std::shared_ptr<Job> startable_job() const EPR_REQUIRES(mu_);
-  std::shared_ptr<Job> copy_asked_job() const EPR_REQUIRES(mu_);
-  void start_job(const std::shared_ptr<Job>& job, GlContext* gl) EPR_EXCLUDES(mu_);
-  /// A starting job runs (unless it was cancelled meanwhile): its leases and its first round in this
-  /// master open (round 0 of a fresh job, before its frame exists; the next round of a resumed one,
-  /// from its restored frame and `resume`, its checkpoint or null), and parked workers hear of it.
-  /// False if it was cancelled meanwhile.
-  bool begin_running(const std::shared_ptr<Job>& job, const JobProgressRecord* resume) EPR_EXCLUDES(mu_);
-  /// Opens job.round with `plan` (RoundDriver::open, or first_plan before a fresh job's frame exists).
-  void open_round(Job& job, RoundPlan plan) EPR_REQUIRES(mu_);
-  /// Applies queued commits of one job and round, in commit order (RoundDriver::apply of a span).
-  void apply_commits(const std::vector<std::unique_ptr<Task>>& batch) EPR_EXCLUDES(mu_);
-  void close_round(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
-  void finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) EPR_EXCLUDES(mu_);
+  RenderWork next_work() EPR_REQUIRES(mu_, job_fields);
+  std::shared_ptr<Job> ended_job() const EPR_REQUIRES(mu_, job_fields);
+  std::shared_ptr<Job> startable_job() const EPR_REQUIRES(mu_, job_fields);
+  std::shared_ptr<Job> copy_asked_job() const EPR_REQUIRES(mu_, job_fields);
+  /// Opens job.round with `plan` (RoundDriver::open, or first_plan before a fresh job's frame exists);
+  /// `reprojecting`: the job's seconds_reprojecting as the round opens (0 without a frame yet).
+  void open_round(Job& job, RoundPlan plan, double reprojecting) EPR_REQUIRES(mu_, job_fields);
   void end_job(const std::shared_ptr<Job>& job, JobState state, const std::string& error) EPR_EXCLUDES(mu_);
-  void drop_job(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
-  /// Replaces the job's preview copy with one of its frame as it stands, with `counters`' statistics.
-  void take_preview_copy(const std::shared_ptr<Job>& job, const JobCounters& counters) EPR_EXCLUDES(mu_);
   /// Notes an ask for a preview or partial results of a running job; true if a copy is coming (being
   /// taken, or requested now: the job has a closed round and no copy) and the caller may wait for it
   /// on copy_cv_.
-  bool ask_for_copy(Job& job) const EPR_REQUIRES(mu_);
-  void reaper_loop() EPR_EXCLUDES(mu_);
+  bool ask_for_copy(Job& job) const EPR_REQUIRES(mu_, job_fields);
 
   // Checkpoints: the state directory at start, and the records written after rounds and at the end.
   void load_state() EPR_EXCLUDES(mu_);
-  void save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) EPR_EXCLUDES(mu_);
   void save_final_checkpoint(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
-  /// close_round() of a job whose round closed while draining: checkpoints it (true) instead of
-  /// letting the next round open (false: not draining).
-  bool checkpoint_for_drain(const std::shared_ptr<Job>& job, JobProgressRecord* record) EPR_EXCLUDES(mu_);
 
   MasterOptions options_;
   MillisClock clock_;
@@ -366,8 +357,6 @@ class JobManager {
   std::unique_ptr<Checkpointer> checkpointer_;  // with options_.checkpoints and an explicit state_dir
   uint64_t epoch_ = 0;
   std::thread reprojection_thread_, reaper_thread_;
-  // Reprojection thread only: apply_commits() calls and the tiles they applied (for the log).
-  uint64_t batches_applied_ = 0, tiles_applied_ = 0;
 };
 
 }  // namespace epr

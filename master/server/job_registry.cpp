@@ -10,8 +10,8 @@ std::vector<std::string> JobRegistry::add(std::shared_ptr<Job> job, size_t max_j
   jobs_[job->id] = std::move(job);
   std::vector<std::string> forgotten;
   while (jobs_.size() > max_jobs) {
-    auto oldest =
-        std::find_if(jobs_.begin(), jobs_.end(), [](const auto& kv) { return is_terminal(kv.second->state); });
+    auto oldest = std::find_if(jobs_.begin(), jobs_.end(),
+                               [](const auto& kv) EPR_REQUIRES(job_fields) { return is_terminal(kv.second->state); });
     if (oldest == jobs_.end()) break;
     forgotten.push_back(oldest->first);
     jobs_.erase(oldest);

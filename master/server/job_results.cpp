@@ -37,7 +37,7 @@ int stored_round(const fs::path& dir) {
 }
 
 // The copy asked for is there, or will not come.
-bool copy_settled(const Job& job) {
+bool copy_settled(const Job& job) EPR_REQUIRES(job_fields) {
   return job.preview.images || job.preview.copy == PreviewState::Copy::kIdle || job.state != JobState::kRunning;
 }
 
@@ -54,7 +54,7 @@ bool JobManager::ask_for_copy(Job& job) const {
 }
 
 size_t JobManager::preview_copy_bytes() const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   size_t bytes = 0;
   for (const auto& job : running_)
     if (const auto& c = job->preview.images)
@@ -67,7 +67,7 @@ size_t JobManager::preview_copy_bytes() const {
 std::optional<std::string> JobManager::result_path(const std::string& id, ResultKind kind) const {
   std::string dir;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     auto job = jobs_.find(id);
     if (!job || job->state != JobState::kDone) return std::nullopt;
     dir = job_dir(*job);
@@ -83,11 +83,12 @@ std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::str
   bool reprojects = false, done = false;
   std::string dir;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     auto job = jobs_.find(id);
     if (!job) return std::nullopt;
     if (ask_for_copy(*job))
-      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPreviewWaitMs), [&] { return copy_settled(*job); });
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPreviewWaitMs),
+                        [&]() EPR_REQUIRES(job_fields) { return copy_settled(*job); });
     if (auto p = job->preview.pngs.find(layer); p != job->preview.pngs.end()) return p->second;
     images = job->preview.images;
     reprojects = job->preview.reprojects;
@@ -97,7 +98,7 @@ std::optional<std::vector<unsigned char>> JobManager::preview_png(const std::str
   // Encoded here, on the caller's thread, without the mutex: the rounds go on meanwhile.
   auto png = images ? encode_preview(*images, reprojects, layer) : done ? result_preview(dir, layer) : std::nullopt;
   if (!png) return std::nullopt;
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   auto job = jobs_.find(id);
   if (job && job->preview.images == images && (images || job->state == JobState::kDone))
     job->preview.pngs[layer] = *png;
@@ -120,14 +121,16 @@ JobManager::ResultFile JobManager::result_file(const std::string& id, ResultKind
   bool reprojects, copying;
   fs::path dir;
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     auto job = jobs_.find(id);
     if (!job) return fail(Error::kNoJob, fmt::format("no job '{}'", id));
     // A running job's copy is taken on this ask; a cancelled or failed one's is being stored.
     if (allow_partial && ask_for_copy(*job))
-      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs), [&] { return copy_settled(*job); });
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs),
+                        [&]() EPR_REQUIRES(job_fields) { return copy_settled(*job); });
     if (job->preview.partial_pending)
-      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs), [&] { return !job->preview.partial_pending; });
+      copy_cv_.wait_for(lock, std::chrono::milliseconds(kPartialWaitMs),
+                        [&]() EPR_REQUIRES(job_fields) { return !job->preview.partial_pending; });
     state = job->state;
     copying = job->preview.copy == PreviewState::Copy::kTaking;
     rounds_done = job->progress.round;

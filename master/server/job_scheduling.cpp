@@ -11,7 +11,7 @@
 namespace epr {
 
 uint64_t JobManager::tiles_waiting() const {
-  MutexLock lock(mu_);
+  JobLock lock(mu_);
   uint64_t n = 0;
   for (const auto& [id, job] : jobs_.all()) {
     if (job->state == JobState::kQueued)
@@ -39,7 +39,7 @@ bool JobManager::admits(const Job& next) const {
 
 void JobManager::stop_running(const std::shared_ptr<Job>& job) {
   {
-    MutexLock lock(mu_);
+    JobLock lock(mu_);
     running_.erase(std::remove(running_.begin(), running_.end(), job), running_.end());
   }
   work_cv_.notify_all();  // a queued job may fit now
@@ -70,7 +70,7 @@ LeaseDecision JobManager::decide_lease(const std::string& worker, bool* parkable
     }
     offer.push_back(job.get());
   }
-  std::sort(offer.begin(), offer.end(), [](const Job* a, const Job* b) {
+  std::sort(offer.begin(), offer.end(), [](const Job* a, const Job* b) EPR_REQUIRES(job_fields) {
     if (a->request.priority != b->request.priority) return a->request.priority > b->request.priority;
     if (a->leases->out() != b->leases->out()) return a->leases->out() < b->leases->out();
     return a->leases->last_lease() < b->leases->last_lease();
@@ -99,10 +99,10 @@ void JobManager::wake_parked(bool all) {
     if (job->state == JobState::kRunning && job->round_open) scenes.insert(job->scene_hash);
   parking_.wake(
       all, clock_(),
-      [this](const std::string& worker, bool* parkable) EPR_NO_THREAD_SAFETY_ANALYSIS {
-        return decide_lease(worker, parkable);  // called by wake(), with mu_ held
-      },
-      [this, &scenes](const std::string& worker) EPR_NO_THREAD_SAFETY_ANALYSIS {
+      // Both called by wake(), with mu_ held.
+      [this](const std::string& worker, bool* parkable)
+          EPR_REQUIRES(mu_, job_fields) { return decide_lease(worker, parkable); },
+      [this, &scenes](const std::string& worker) EPR_REQUIRES(mu_) {
         const WorkerRegistry::Worker* w = workers_.find(worker);
         if (!w) return false;
         for (const auto& scene : scenes)
