@@ -5,40 +5,61 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <cmath>
 
 namespace epr::detail {
 
 namespace {
 
-// Whether two plane-table entries hold the same plane (a creased entry copies its own plane; the
-// opposite winding of one plane is the same plane).
-bool same_plane(const PlaneGrid& g, uint32_t a, uint32_t b) {
+// Whether two plane-table entries hold the same plane (a creased entry copies its own plane).
+bool same_entry_plane(const PlaneGrid& g, uint32_t a, uint32_t b) {
   if (a == b) return true;
   if (a == PlaneGrid::kUncovered || b == PlaneGrid::kUncovered) return false;
-  const float* x = &g.planes[4 * size_t(a)];
-  const float* y = &g.planes[4 * size_t(b)];
-  const bool same = x[0] == y[0] && x[1] == y[1] && x[2] == y[2] && x[3] == y[3];
-  const bool opposite = x[0] == -y[0] && x[1] == -y[1] && x[2] == -y[2] && x[3] == -y[3];
-  return same || opposite;
+  return same_plane(&g.planes[4 * size_t(a)], &g.planes[4 * size_t(b)]);
 }
 
 }  // namespace
 
-EdgePixels::EdgePixels(const PlaneGrid& g) {
+EdgePixels::EdgePixels(const PlaneGrid& g, const Camera& camera, float epsilon) {
   const int S = g.subpixels;
   width_ = S > 0 ? g.width / S : 0;
   height_ = S > 0 ? g.height / S : 0;
   const size_t pixels = size_t(width_) * size_t(height_);
   bits_.assign((pixels + 63) / 64, 0);
+  // The point of entry e's plane on the ray through texel (gx, gy)'s centre, false if parallel.
+  const auto point_on = [&](uint32_t e, int gx, int gy, Vec3* x) {
+    const float* q = &g.planes[4 * size_t(e)];
+    const Ray r = camera.generate_ray((float(gx) + 0.5f) / float(S), (float(gy) + 0.5f) / float(S));
+    const Vec3 n{q[0], q[1], q[2]};
+    const float along = dot(n, r.dir);
+    if (!(std::fabs(along) > 0)) return false;
+    *x = r.origin + r.dir * ((q[3] - dot(n, r.origin)) / along);
+    return true;
+  };
+  const auto within = [&](uint32_t e, const Vec3& x) {
+    const float* q = &g.planes[4 * size_t(e)];
+    return std::fabs(q[0] * x.x + q[1] * x.y + q[2] * x.z - q[3]) <= epsilon;
+  };
   // Is pixel p an edge pixel? A pixel that sees no surface at all is not (it gets no samples anyway).
   const auto edge = [&](size_t p) {
     const int x = int(p % size_t(width_)), y = int(p / size_t(width_));
     const int gx0 = std::max(0, x * S - 1), gx1 = std::min(g.width, (x + 1) * S + 1);
     const int gy0 = std::max(0, y * S - 1), gy1 = std::min(g.height, (y + 1) * S + 1);
     const uint32_t first = g.texel_plane[size_t(gy0) * size_t(g.width) + size_t(gx0)];
+    Vec3 first_point;
+    bool have_first_point = false;
     for (int gy = gy0; gy < gy1; ++gy)
-      for (int gx = gx0; gx < gx1; ++gx)
-        if (!same_plane(g, first, g.texel_plane[size_t(gy) * size_t(g.width) + size_t(gx)])) return true;
+      for (int gx = gx0; gx < gx1; ++gx) {
+        const uint32_t e = g.texel_plane[size_t(gy) * size_t(g.width) + size_t(gx)];
+        if (same_entry_plane(g, first, e)) continue;
+        if (first == PlaneGrid::kUncovered || e == PlaneGrid::kUncovered) return true;
+        // Another plane: one surface only if each texel's point lies within epsilon of the other's
+        // plane (facets of one flat or gently curved surface), as the plane test would accept it.
+        if (!have_first_point && !point_on(first, gx0, gy0, &first_point)) return true;
+        have_first_point = true;
+        Vec3 point;
+        if (!point_on(e, gx, gy, &point) || !within(first, point) || !within(e, first_point)) return true;
+      }
     return false;
   };
   // One task per run of 64-pixel words: each word is written by one task only.

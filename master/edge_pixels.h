@@ -8,7 +8,9 @@
 // radiance differs that is a bias (the Cornell light's edge pixels were 2.5-4 % too dark). A pixel
 // is an edge pixel when the texels of its footprint and the ring of texels around it (a surface
 // boundary within half a texel outside the pixel's outer texel centres is seen by that ring) do not
-// all hold the same plane, or some see no surface at all; an edge pixel keeps M' = 0 and L_rp = 0,
+// all see one surface -- another plane counts as the same surface only where the two texels' points
+// (their centre rays on their planes) each lie within epsilon of the other's plane, as for the
+// facets of a flat or gently curved mesh -- or some see none; an edge pixel keeps M' = 0 and L_rp = 0,
 // so it traces its own P paths and its value is the path tracer's. Its vertices still reproject
 // into the other pixels.
 //
@@ -29,8 +31,9 @@ namespace epr::detail {
 class EdgePixels {
  public:
   EdgePixels() = default;
-  /// The edge pixels of `grid` (S x S texels per pixel).
-  explicit EdgePixels(const PlaneGrid& grid);
+  /// The edge pixels of `grid` (S x S texels per pixel) seen by `camera`, with the plane test's
+  /// `epsilon` (metres).
+  EdgePixels(const PlaneGrid& grid, const Camera& camera, float epsilon);
   bool empty() const { return count_ == 0; }
   size_t count() const { return count_; }
   bool operator[](size_t pixel) const { return (bits_[pixel >> 6] >> (pixel & 63)) & 1u; }

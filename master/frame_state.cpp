@@ -191,7 +191,7 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     }
     // Exact mode's visibility rays have no discretisation: its edge pixels keep their samples.
     if (opts.reproject != ReprojectMethod::kExact && opts.edge_pixels)
-      edge_pixels_ = std::make_unique<detail::EdgePixels>(grid);
+      edge_pixels_ = std::make_unique<detail::EdgePixels>(grid, camera, rs.epsilon);
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
