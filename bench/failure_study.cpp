@@ -420,6 +420,7 @@ int main(int argc, char** argv) {
   base.paths_per_round = 1;
   base.seed = 1;
   base.threads = threads;
+  base.edge_pixels = false;  // the study measures the deep framebuffer's discretisation at edges
 
   std::vector<Row> rows;
   for (const Case& c : make_cases(base)) {

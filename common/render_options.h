@@ -45,6 +45,9 @@ struct RenderOptions {
   CombineRule combine = CombineRule::kFixed;
   bool reproject_glossy = false;  // failure-mode study only
   bool joint_test = true;         // the plane test's normal and crease tests (off: failure-mode study)
+  // Edge pixels take no reprojected samples (master/edge_pixels.h). Off only for the failure-mode
+  // study, which measures the deep framebuffer's discretisation at edges; not carried by the wire.
+  bool edge_pixels = true;
   RussianRoulette rr = RussianRoulette::standard();
   // Eye paths' random numbers (common/sampler.h).
   SamplerKind sampler = SamplerKind::kSobolBurley;

@@ -11,6 +11,7 @@
 #include "common/log.h"
 #include "master/combine_rule.h"
 #include "master/deep_framebuffer.h"
+#include "master/edge_pixels.h"
 #include "master/gl_context.h"
 #include "master/make_reprojector.h"
 #include "master/plane_grid_builder.h"
@@ -188,6 +189,9 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
       logger("master")->info("deep framebuffer built on the CPU: {}", e.what());
       grid = detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
     }
+    // Exact mode's visibility rays have no discretisation: its edge pixels keep their samples.
+    if (opts.reproject != ReprojectMethod::kExact && opts.edge_pixels)
+      edge_pixels_ = std::make_unique<detail::EdgePixels>(grid, camera, rs.epsilon);
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
@@ -272,6 +276,7 @@ void FrameState::refresh_counts(bool active_only) {
   pr.effective = std::move(reprojected_effective_);
   reprojector_->downsample_pixels_into(&pr, active_only ? std::span<const uint8_t>(skip_) : std::span<const uint8_t>(),
                                        DownsampleParts::kCounts);
+  if (edge_pixels_) edge_pixels_->drop(&pr);
   mprime_ = std::move(pr.count);
   if (variance_rule()) reprojected_effective_ = std::move(pr.effective);
   reprojection_partial_ = active_only;
@@ -287,6 +292,7 @@ PixelReprojection FrameState::reprojected_radiance(bool counts_too) {
     pr.effective = std::move(reprojected_effective_);
   }
   reprojector_->downsample_pixels_into(&pr, {}, counts_too ? DownsampleParts::kBoth : DownsampleParts::kRadiance);
+  if (edge_pixels_) edge_pixels_->drop(&pr);
   if (counts_too) {
     mprime_ = std::move(pr.count);
     if (variance_rule()) reprojected_effective_ = std::move(pr.effective);
@@ -600,6 +606,7 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts, uint64_t worker
       {"paths_traced", p.paths_traced},
       {"paths_skipped", p.paths_skipped},
       {"pixels_skipped", p.pixels_skipped},
+      {"edge_pixels", edge_pixels_ ? edge_pixels_->count() : 0},
       {"mean_paths_per_pixel", p.mean_paths},
       {"mean_reprojected_per_pixel", p.mean_reprojected},
       {"mean_spp", p.mean_spp},

@@ -32,6 +32,9 @@
 namespace epr {
 
 class GlContext;
+namespace detail {
+class EdgePixels;
+}
 
 struct FrameProgress {
   int round = 0;                // rounds finished
@@ -233,6 +236,8 @@ class FrameState {
   RenderOptions opts_;
   int width_, height_;
   std::unique_ptr<Reprojector> reprojector_;
+  // The pixels that take no reprojected samples (edge_pixels.h); null for exact mode and pt.
+  std::unique_ptr<detail::EdgePixels> edge_pixels_;
   bool reprojects_ = false;
   ReprojectionCounts released_counts_;  // the reprojector's counts when release_images() let it go
   std::unique_ptr<VertexCodec> codec_;  // the wire's quantisation (scene bounds), when reprojecting

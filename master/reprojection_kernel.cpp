@@ -87,12 +87,8 @@ void PlaneGridBuilder::add_band(const DeepFramebuffer& band, int row0, int row1)
   const std::vector<float>& planes = g_.planes;
   // Another entry of the same plane (a zero of the other sign, or the opposite winding): not a crease;
   // oriented by the eye it would cut the far half of the texel's own epsilon band.
-  auto same_plane = [&](uint32_t a, uint32_t b) {
-    const float* x = &planes[4 * size_t(a)];
-    const float* y = &planes[4 * size_t(b)];
-    const bool same = x[0] == y[0] && x[1] == y[1] && x[2] == y[2] && x[3] == y[3];
-    const bool opposite = x[0] == -y[0] && x[1] == -y[1] && x[2] == -y[2] && x[3] == -y[3];
-    return same || opposite;
+  auto same_entry_plane = [&](uint32_t a, uint32_t b) {
+    return same_plane(&planes[4 * size_t(a)], &planes[4 * size_t(b)]);
   };
   auto oriented = [&](uint32_t q, const Vec3& point, double* side) {
     const float* pl = &planes[4 * size_t(q)];
@@ -115,7 +111,7 @@ void PlaneGridBuilder::add_band(const DeepFramebuffer& band, int row0, int row1)
           const int nx = x + dx, ny = y + dy;
           if ((dx == 0 && dy == 0) || nx < 0 || ny < 0 || nx >= W || ny >= H) continue;
           const uint32_t q = band_plain_[band.index(nx, ny - b0)];
-          if (q == PlaneGrid::kUncovered || q == own || same_plane(own, q)) continue;
+          if (q == PlaneGrid::kUncovered || q == own || same_entry_plane(own, q)) continue;
           double side = 0;
           if (!oriented(q, band.position_at(t), &side) && !oriented(q, eye_, &side)) continue;
           const uint32_t code = 2 * q + (side < 0 ? 1u : 0u);

@@ -61,6 +61,13 @@ inline constexpr float kCreaseToleranceFraction = 1.f / 1024.f;
 /// leaves tessellated curved surfaces alone (neighbouring facets differ by far less).
 inline constexpr float kMinNormalCosine = 0.5f;
 
+/// Whether two plane-table rows (N.x, N.y, N.z, d) are one plane: equal, or the opposite winding.
+inline bool same_plane(const float* x, const float* y) {
+  const bool same = x[0] == y[0] && x[1] == y[1] && x[2] == y[2] && x[3] == y[3];
+  const bool opposite = x[0] == -y[0] && x[1] == -y[1] && x[2] == -y[2] && x[3] == -y[3];
+  return same || opposite;
+}
+
 /// `eye` orients creases the texel's own point cannot (see the file comment); `crease_tolerance` in
 /// metres. Without `creases` every entry is plain (first_creased = number of entries).
 PlaneGrid make_plane_grid(const DeepFramebuffer& dfb, const Vec3& eye, float crease_tolerance, bool creases = true);

@@ -82,7 +82,8 @@ TEST(DiffuseShareRender, SkipOnGlossyOverDiffuseSurfacesMatchesPathTracing) {
 
   // Reprojection reaches these surfaces and saves paths (no diffuse records: no gain at all).
   EXPECT_GT(skip.stats.at("mean_reprojected_per_pixel").get<double>(), 4.0);
-  EXPECT_LT(skip.stats.at("paths_traced").get<uint64_t>(), uint64_t(0.8 * 32 * 48 * 48));
+  // (Edge pixels, 20 % of this image, trace all their paths: master/edge_pixels.h.)
+  EXPECT_LT(skip.stats.at("paths_traced").get<uint64_t>(), uint64_t(0.85 * 32 * 48 * 48));
 
   // skip's error on the glossy box is the method's error on the Lambertian one, within noise (path
   // tracing's own error at 32 spp, at least 0.5 %): the diffuse base is the same for every viewer
@@ -97,7 +98,8 @@ TEST(DiffuseShareRender, SkipOnGlossyOverDiffuseSurfacesMatchesPathTracing) {
       << "skip against pt: glossy " << glossy.skip << ", Lambertian " << lambertian.skip << "; pt " << glossy.pt;
 
   // Without the split at the pixel (the whole own estimate combined with reprojected diffuse shares)
-  // the same outputs give a clearly darker image: what the test above guards.
+  // the same outputs give a clearly darker image: what the test above guards. (Edge pixels take no
+  // reprojected samples and are the same either way, which halves the difference: 2 x noise.)
   const RenderOptions so = job(scenes.glossy, RenderMode::kSkip, 32, 7);
   Image whole(so.width, so.height, 3);
   for (int y = 0; y < so.height; ++y)
@@ -106,7 +108,7 @@ TEST(DiffuseShareRender, SkipOnGlossyOverDiffuseSurfacesMatchesPathTracing) {
       const Vec3 pt_px = skip.pathtrace.rgb(x, y), rp = skip.reprojection.rgb(x, y);
       whole.set_rgb(x, y, m + wmp > 0 ? (pt_px * float(m) + rp * float(wmp)) * float(1 / (m + wmp)) : Vec3(0.f));
     }
-  EXPECT_LT(mean(whole) / glossy.reference - 1, glossy.skip - 3 * noise) << "the glossy parts must matter here";
+  EXPECT_LT(mean(whole) / glossy.reference - 1, glossy.skip - 2 * noise) << "the glossy parts must matter here";
 }
 
 }  // namespace

@@ -28,6 +28,19 @@ RenderOptions square_job(const std::string& scene, int size, int spp) {
   return o;
 }
 
+// The mean of L_rp over the pixels that have reprojected samples (edge pixels have none:
+// master/edge_pixels.h).
+double reprojected_mean(const RenderOutputs& out) {
+  double s = 0;
+  size_t n = 0;
+  for (size_t p = 0; p < out.mprime.data.size(); ++p)
+    if (out.mprime.data[p] > 0) {
+      for (int c = 0; c < 3; ++c) s += out.reprojection.data[3 * p + size_t(c)];
+      n += 3;
+    }
+  return n ? s / double(n) : 0;
+}
+
 RenderOptions furnace_options(RenderMode mode, RussianRoulette rr) {
   RenderOptions o = square_job("builtin:furnace?albedo=0.5&emission=1", 64, 256);
   o.paths_per_round = 64;
@@ -43,7 +56,7 @@ TEST(LocalRender, FurnaceReprojectionAndCombinedMatchAnalyticRadiance) {
   const RenderOutputs out = render_local(furnace_options(RenderMode::kReproject, RussianRoulette::paper()));
   const double expected = 2.0;
   EXPECT_NEAR(channel_mean(out.pathtrace), expected, 0.01 * expected);
-  EXPECT_NEAR(channel_mean(out.reprojection), expected, 0.01 * expected);
+  EXPECT_NEAR(reprojected_mean(out), expected, 0.01 * expected);
   EXPECT_NEAR(channel_mean(out.combined), expected, 0.01 * expected);
   EXPECT_GT(channel_mean(out.mprime), 100.0);  // most vertices of a closed box are visible
 }
@@ -52,7 +65,7 @@ TEST(LocalRender, FurnaceReprojectionAndCombinedMatchAnalyticRadiance) {
 // paths) darker than path samples; with Russian roulette they agree.
 TEST(LocalRender, RussianRouletteKeepsReprojectionUnbiased) {
   const RenderOutputs fixed = render_local(furnace_options(RenderMode::kReproject, RussianRoulette::off(3)));
-  const double pt_fixed = channel_mean(fixed.pathtrace), rp_fixed = channel_mean(fixed.reprojection);
+  const double pt_fixed = channel_mean(fixed.pathtrace), rp_fixed = reprojected_mean(fixed);
   // Depth 3: path samples 1 + a + a^2 + a^3 = 1.875; vertices at depth 2 and 3 carry 1.75 and 1.5.
   EXPECT_NEAR(pt_fixed, 1.875, 0.02);
   EXPECT_LT(rp_fixed, 0.95 * pt_fixed) << "without roulette the reprojection image must be darker";
@@ -62,8 +75,8 @@ TEST(LocalRender, RussianRouletteKeepsReprojectionUnbiased) {
   for (const char* name : {"paper", "throughput", "reuse"}) {
     SCOPED_TRACE(name);
     const RenderOutputs rr = render_local(furnace_options(RenderMode::kReproject, roulette_named(name).value()));
-    EXPECT_NEAR(channel_mean(rr.reprojection), channel_mean(rr.pathtrace), 0.01 * channel_mean(rr.pathtrace));
-    EXPECT_NEAR(channel_mean(rr.reprojection), 2.0, 0.02);
+    EXPECT_NEAR(reprojected_mean(rr), channel_mean(rr.pathtrace), 0.01 * channel_mean(rr.pathtrace));
+    EXPECT_NEAR(reprojected_mean(rr), 2.0, 0.02);
     EXPECT_NEAR(channel_mean(rr.pathtrace), 2.0, 0.02);
   }
 }
@@ -81,7 +94,8 @@ TEST(LocalRender, SkippingTracesFewerPathsAndEveryPixelReachesTarget) {
       traced += uint64_t(m);
     }
   const uint64_t full = uint64_t(o.spp) * o.width * o.height;
-  EXPECT_LT(traced, full * 3 / 4) << "skipping must save paths on the Cornell box";
+  // Edge pixels (21 % of the image here, master/edge_pixels.h) trace all their paths.
+  EXPECT_LT(traced, full * 17 / 20) << "skipping must save paths on the Cornell box";
   EXPECT_EQ(out.stats.at("paths_traced").get<uint64_t>(), traced);
   EXPECT_EQ(out.stats.at("paths_skipped").get<uint64_t>(), full - traced);
 }
@@ -190,10 +204,11 @@ EdgeSplit split_difference(const Image& a, const Image& ref, const std::vector<u
   return s;
 }
 
-// Paper Fig. 9: reprojection's error is a discretisation error concentrated at edges; exact mode
-// has none. GL and exact renders with the same seed share every path and every vertex, so their
-// difference is exactly the deep-framebuffer discretisation (subpixel snapping, the epsilon plane
-// test at silhouettes), free of path noise. Path tracing with another seed is the unbiased reference
+// Paper Fig. 9: the deep framebuffer and exact visibility part at edges only. GL and exact renders
+// with the same seed share every path and every vertex, so their difference is free of path noise:
+// inside surfaces it is the deep framebuffer's discretisation (the epsilon plane test), tiny; at edges
+// the GL render's edge pixels take no reprojected samples (master/edge_pixels.h, their bias is
+// EdgeBias.*'s) while exact's keep theirs. Path tracing with another seed is the unbiased reference
 // for the exact mode's bias check.
 TEST(LocalRender, ConvergedCornellBiasIsConcentratedAtEdgesAndExactModeHasNone) {
   RenderOptions o = square_job("builtin:cornell", 96, 256);
@@ -215,9 +230,9 @@ TEST(LocalRender, ConvergedCornellBiasIsConcentratedAtEdgesAndExactModeHasNone) 
               disc.edge_abs);
   std::printf("exact vs pt: interior signed %.5f |.| %.5f  edge |.| %.5f\n", bias.interior_signed, bias.interior_abs,
               bias.edge_abs);
-  // Discretisation: tiny inside surfaces, far larger at edges. Measured at 96x96, 256 spp, S = 4:
-  // interior mean |gl - exact| = 0.026 % of the image mean, edges 7.3 % (280x). Bounds leave ~8x
-  // room for other seeds and machines; an epsilon or projection bug breaks both.
+  // Tiny inside surfaces, far larger at edges. Measured at 96x96, 256 spp, S = 4: interior mean
+  // |gl - exact| = 0.056 % of the image mean, edges 2.5 % (44x; 7.3 % before edge pixels took no
+  // reprojected samples). An epsilon or projection bug breaks the interior bound.
   EXPECT_LT(disc.interior_abs, 0.002);
   EXPECT_GT(disc.edge_abs, 20 * disc.interior_abs);
   // Exact mode: no bias beyond noise against independent path tracing (interior mean within 2 %).

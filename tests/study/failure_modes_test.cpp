@@ -68,6 +68,7 @@ RenderOptions options(const std::string& scene, RenderMode mode, uint64_t seed =
   o.reproject = ReprojectMethod::kCpu;
   o.seed = seed;
   o.mis = study_mis();
+  o.edge_pixels = false;  // the study measures the deep framebuffer's discretisation at edges
   return o;
 }
 
