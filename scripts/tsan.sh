@@ -6,20 +6,22 @@
 # and assert() run too. The two binaries run side by side; TSan writes its reports to
 # build/tsan/reports/, and any report, or any failed test, fails the run. scripts/tsan.supp names what
 # is suppressed and why (Debian's gRPC, TBB, Embree and Mesa are not instrumented).
-# Arguments go to both test binaries (e.g. --gtest_filter=LeaseTable*).
+# Arguments go to both test binaries (e.g. --gtest_filter=LeaseTable*); EPR_TSAN_BUILD names another
+# build folder.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cmake -S . -B build/tsan -G Ninja -DCMAKE_BUILD_TYPE=Release -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
+build=${EPR_TSAN_BUILD:-build/tsan}
+cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
       -DCMAKE_C_FLAGS_RELEASE=-O1 -DCMAKE_CXX_FLAGS_RELEASE=-O1 -DEPR_SANITIZE=thread -DEPR_BUILD_BENCH=OFF \
       -DCMAKE_UNITY_BUILD=ON -DCMAKE_UNITY_BUILD_BATCH_SIZE=16
-cmake --build build/tsan -j "$(nproc)" --target server_test worker_node_test
+cmake --build "$build" -j "$(nproc)" --target server_test worker_node_test
 
-reports=$PWD/build/tsan/reports
+reports=$PWD/$build/reports
 rm -rf "$reports" && mkdir -p "$reports"
 export TSAN_OPTIONS="suppressions=$PWD/scripts/tsan.supp second_deadlock_stack=1 log_path=$reports/tsan ${TSAN_OPTIONS:-}"
 pids=()
 for t in server_test worker_node_test; do
-  build/tsan/tests/$t "$@" > "$reports/$t.out" 2>&1 &
+  "$build/tests/$t" "$@" > "$reports/$t.out" 2>&1 &
   pids+=($!)
 done
 failed=0
