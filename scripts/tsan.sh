@@ -3,7 +3,8 @@
 # worker node (tests/worker_node), whose threads (gRPC handlers, the reprojection thread, the reaper,
 # tracing threads, couriers) share data, built with clang and -fsanitize=thread in build/tsan -- only
 # what those two binaries need, a unity build (CMakeLists.txt) -- at -O1 without NDEBUG, so EPR_DCHECK
-# and assert() run too. The two binaries run side by side; TSan writes its reports to
+# and assert() run too, with TBB's loops on the calling thread (tests/tsan_serial_tbb.cpp). The two
+# binaries run side by side; TSan writes its reports to
 # build/tsan/reports/, and any report, or any failed test, fails the run. scripts/tsan.supp names what
 # is suppressed and why (Debian's gRPC, TBB, Embree and Mesa are not instrumented).
 # Arguments go to both test binaries (e.g. --gtest_filter=LeaseTable*); EPR_TSAN_BUILD names another
