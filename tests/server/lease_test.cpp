@@ -136,7 +136,11 @@ TEST_F(LeaseTest, DeadHoldersTileComesBackByExpiryNotByACopy) {
 }
 
 TEST_F(LeaseTest, FailingWorkerIsBlockedAfterThreeFailuresAndAGoodWorkerFinishes) {
-  start();  // max_worker_failures = 3
+  MasterOptions mo;  // max_worker_failures = 3
+  // The bad worker never heartbeats and must still be registered when the next job is submitted,
+  // however long the first job takes (a minute under ThreadSanitizer on a loaded machine).
+  mo.worker_timeout_ms = 600000;
+  start(mo);
   const RenderOptions o = cornell(RenderMode::kSkip, 64, 4, 2);
   const std::string id = submit(o, bundle_scene(o.scene));
   WireWorker bad(channel_, "bad");
