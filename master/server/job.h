@@ -123,8 +123,8 @@ struct Job {
   PreviewState preview;
 
   // Reprojection thread.
-  int64_t counts_ms = 0;  // when `counts` was last refreshed from the reprojector
-  std::unique_ptr<Scene> scene;
+  int64_t counts_ms = 0;               // when `counts` was last refreshed from the reprojector
+  std::shared_ptr<const Scene> scene;  // shared with the process's other users (wire/scene_shelf.h)
   std::unique_ptr<Camera> camera;
   std::unique_ptr<RoundDriver> driver;
 

@@ -240,7 +240,7 @@ void JobManager::start_job(const std::shared_ptr<Job>& job, GlContext* gl) {
     if (opts.reproject == ReprojectMethod::kGl) opts.reproject = ReprojectMethod::kCpu;
   job->driver.reset();
   const auto setup = std::chrono::steady_clock::now();
-  job->scene = std::make_unique<Scene>(load_bundle(*job->bundle, cache_dir(), job->request.options.lighting));
+  job->scene = share_bundle_scene(*job->bundle, job->scene_hash, cache_dir(), job->request.options.lighting);
   const double scene_s = seconds_since(setup);
   job->camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
   std::shared_ptr<const JobProgressRecord> resume;
