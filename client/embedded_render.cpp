@@ -165,6 +165,7 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
     wo.in_process = [&master](const grpc::ChannelArguments& args) { return master.in_process_channel(args); };
     wo.threads = threads;
     wo.name = "local-" + std::to_string(i);
+    wo.shared_scenes = true;  // the scene this function loaded (store_scene below)
     nodes.push_back(std::make_unique<WorkerNode>(wo));
     runners.emplace_back([&, node = nodes.back().get()] {
       if (auto why = node->run()) {
