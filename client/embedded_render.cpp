@@ -18,6 +18,7 @@
 #include "common/result_kinds.h"
 #include "master/server/master_server.h"
 #include "wire/convert.h"
+#include "wire/scene_shelf.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -164,6 +165,7 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
     wo.in_process = [&master](const grpc::ChannelArguments& args) { return master.in_process_channel(args); };
     wo.threads = threads;
     wo.name = "local-" + std::to_string(i);
+    wo.shared_scenes = true;  // the scene this function loaded (store_scene below)
     nodes.push_back(std::make_unique<WorkerNode>(wo));
     runners.emplace_back([&, node = nodes.back().get()] {
       if (auto why = node->run()) {
@@ -183,6 +185,16 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
 
   JobClientOptions co;
   co.upload_progress = embedded.upload_progress;
+  // The master is in this process: it takes the bundle as it is (no upload), and the scene loaded
+  // above goes on the shelf (wire/scene_shelf.h) under its hash, so that the master and the workers
+  // use it rather than load it again; held here until the render ends.
+  std::shared_ptr<const Scene> shared_scene;
+  co.store_scene = [&](SceneBundleData b) {
+    std::shared_ptr<const Scene> loaded = std::move(b.loaded);
+    const std::string hash = master.jobs().add_scene(std::move(b));
+    if (loaded) shared_scene = shelve_scene(hash, std::move(loaded));
+    return hash;
+  };
   if (embedded.timeout_seconds > 0)
     co.end_by = std::chrono::system_clock::now() +
                 std::chrono::milliseconds(int64_t(std::min(embedded.timeout_seconds, 1e9) * 1000));
@@ -190,9 +202,15 @@ EmbeddedResult render_embedded(const RenderOptions& opts, const EmbeddedOptions&
     JobClient client(result.master_target, co);
     const std::string id = client.submit(client.make_job_spec(opts, std::move(bundle)));
     std::vector<WorkerNodeStats> at_start;
+    bool first_round_logged = false;
     result.status = client.watch(
         id,
         [&](const v1::JobStatus& s) {
+          // The progress line (and the dashboard's preview) of the first committed round.
+          if (s.round() >= 1 && !first_round_logged) {
+            first_round_logged = true;
+            logger("client")->info("first round on screen: {:.2f} s since the render began", since_start());
+          }
           if (at_start.empty() && s.state() != v1::JOB_STATE_QUEUED)
             for (auto& node : nodes) at_start.push_back(node->stats());
           if (s.state() == v1::JOB_STATE_DONE && result.workers.empty())

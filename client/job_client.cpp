@@ -197,13 +197,15 @@ v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, SceneBundleData 
   const bool full_camera = opts.eye && opts.look && opts.up && opts.fov;
   const std::string ext = lower(fs::path(opts.scene).extension().string());
   CameraSpec scene_camera;
-  if (!full_camera && (ext != ".obj" || !bundle.builtin.empty())) scene_camera = load_scene(opts.scene).camera;
+  if (!full_camera && (ext != ".obj" || !bundle.builtin.empty()))
+    scene_camera = bundle.loaded ? bundle.loaded->camera : load_scene(opts.scene).camera;
   if (auto err = opts.camera_for(scene_camera).validate()) throw std::invalid_argument("camera: " + *err);
 
-  const bool upload = bundle.builtin.empty() && bundle.total_bytes() > options_.inline_scene_limit;
+  const bool upload =
+      bundle.builtin.empty() && (options_.store_scene || bundle.total_bytes() > options_.inline_scene_limit);
   v1::JobSpec spec;
   if (upload) {
-    const std::string hash = upload_scene(bundle);
+    const std::string hash = options_.store_scene ? options_.store_scene(std::move(bundle)) : upload_scene(bundle);
     spec = to_job_spec(opts, SceneBundleData{}, scene_camera);
     spec.mutable_scene()->Clear();
     spec.mutable_scene()->set_uploaded_hash(hash);

@@ -89,6 +89,9 @@ struct JobClientOptions {
   // File scenes up to this size travel inline in the JobSpec (the master's message limit is 4 MiB for
   // the whole spec); larger ones are streamed with UploadScene first.
   size_t inline_scene_limit = 3u << 20;
+  // Set: file scenes go to this instead, whatever their size (a master in this process taking the
+  // bundle as it is, the embedded render); returns the content hash the job names.
+  std::function<std::string(SceneBundleData)> store_scene;
 };
 
 /// What a job is besides its RenderOptions.

@@ -113,7 +113,23 @@ Image read_image(const std::string& path, bool colour) {
     throw std::runtime_error(fmt::format("cannot read image '{}': {}", path, in->geterror()));
   // 8-bit files hold sRGB-encoded colour: linearise so textures are in the renderer's space.
   if (colour && (spec.format == OIIO::TypeDesc::UINT8 || spec.format == OIIO::TypeDesc::UINT16)) {
-    for (float& v : img.data) v = v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
+    // Such a file has at most 2^bits values, v = code / (2^bits - 1): each one is linearised once, the
+    // result kept by its code with the v it came from (a v that is not the code's own is computed).
+    auto linear = [](float v) { return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f); };
+    const float top = spec.format == OIIO::TypeDesc::UINT8 ? 255.f : 65535.f;
+    std::vector<float> from(size_t(top) + 1, -1.f), to(size_t(top) + 1);
+    for (float& v : img.data) {
+      if (!(v >= 0.f && v <= 1.f)) {
+        v = linear(v);
+        continue;
+      }
+      const size_t code = size_t(v * top + 0.5f);
+      if (from[code] != v) {
+        from[code] = v;
+        to[code] = linear(v);
+      }
+      v = to[code];
+    }
   }
   return img;
 }

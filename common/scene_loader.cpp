@@ -8,6 +8,7 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cctype>
 #include <vector>
 
@@ -20,6 +21,8 @@
 
 namespace epr {
 namespace {
+
+std::atomic<uint64_t> file_loads{0};  // scene_file_loads()
 
 bool ends_with_json(const std::string& s) {
   if (s.size() < 5) return false;
@@ -48,24 +51,31 @@ Scene load_gltf(const std::string& gltf_path, const LoadOptions& opts, LoadRepor
   return scene;
 }
 
+uint64_t scene_file_loads() { return file_loads.load(); }
+
 Scene load_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report) {
   if (spec.find('\0') != std::string::npos)
     throw SceneError(fmt::format("scene path {} contains a NUL byte", loader::quote_token(spec)));
   if (spec.rfind("builtin:", 0) == 0) return make_builtin_scene(parse_builtin_spec(spec.substr(8)), opts.max_triangles);
+  ++file_loads;
   if (ends_with_json(spec)) return load_scene_json(spec, opts, report);
   if (loader::is_gltf_path(spec)) return load_gltf(spec, opts, report);
   return load_obj(spec, opts, report);
 }
 
 Scene load_job_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report, const Lighting& job,
-                     const std::string& env_folder) {
+                     const std::string& env_folder, Lighting* job_lit) {
   LoadReport local;
   LoadReport& r = report ? *report : local;
   const size_t first = r.warnings.size();
   Scene scene = load_scene(spec, opts, &r);
-  scene.lighting = job_lighting(scene, job, &r, env_folder);
+  Lighting lit = job_lighting(scene, job, &r, env_folder);
   for (size_t i = first; i < r.warnings.size(); ++i) loader::scene_log()->warn("{}", r.warnings[i]);
-  if (auto reason = unlit_reason(scene)) throw SceneError(*reason);
+  if (auto reason = unlit_reason(scene, lit)) throw SceneError(*reason);
+  if (job_lit)
+    *job_lit = std::move(lit);
+  else
+    scene.lighting = std::move(lit);
   return scene;
 }
 
@@ -81,8 +91,10 @@ Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* repor
   return out;
 }
 
-std::optional<std::string> unlit_reason(const Scene& scene) {
-  if (scene.lighting.lights()) return std::nullopt;
+std::optional<std::string> unlit_reason(const Scene& scene) { return unlit_reason(scene, scene.lighting); }
+
+std::optional<std::string> unlit_reason(const Scene& scene, const Lighting& lighting) {
+  if (lighting.lights()) return std::nullopt;
   for (const PunctualLight& l : scene.lights)
     if (!is_black(l.intensity)) return std::nullopt;
   std::vector<bool> used(scene.materials.size(), false);

@@ -47,9 +47,14 @@ Scene load_scene_json(const std::string& json_path, const LoadOptions& = {}, Loa
 
 /// load_scene for a render the user asked for: applies the job's lighting (job_lighting), logs the
 /// warnings (at warn level, once) and refuses a scene without light (unlit_reason) with SceneError.
-/// `env_folder`: as for job_lighting.
+/// `env_folder`: as for job_lighting. With `job_lit`, the scene keeps its own lighting and the job's
+/// goes there instead.
 Scene load_job_scene(const std::string& spec, const LoadOptions& = {}, LoadReport* = nullptr, const Lighting& job = {},
-                     const std::string& env_folder = "");
+                     const std::string& env_folder = "", Lighting* job_lit = nullptr);
+
+/// How many times this process has loaded a scene from files (load_scene of anything but a built-in):
+/// each load parses the files and decodes the textures.
+uint64_t scene_file_loads();
 
 /// The lighting a job renders `scene` with: the job's environment and sun where it sets them, else the
 /// scene's. An environment image the job names is read inside scene.folder, or inside `env_folder`
@@ -61,6 +66,8 @@ Lighting job_lighting(const Scene& scene, const Lighting& job, LoadReport* repor
 /// Nullopt if some triangle emits light (its material has a Ke other than 0 0 0) or the environment or
 /// the sun gives light; else why the image would be black and how to light the scene, naming scene.name.
 std::optional<std::string> unlit_reason(const Scene& scene);
+/// The same with `lighting` in place of the scene's.
+std::optional<std::string> unlit_reason(const Scene& scene, const Lighting& lighting);
 
 /// The bytes of a scene file, read as the loader reads them: a regular file of at most max_bytes,
 /// checked before anything is read; failures raise SceneError naming f.display.

@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "common/scene_loader.h"
+#include "wire/scene_shelf.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -78,7 +79,8 @@ SceneBundleData bundle_scene(const std::string& spec, const Lighting& job, const
   // its warnings are shown once, on the user's side, and a broken or unlit scene fails before upload.
   const LoadOptions opts;
   LoadReport report;
-  load_job_scene(spec, opts, &report, job);
+  Lighting job_lit;
+  b.loaded = std::make_shared<const Scene>(load_job_scene(spec, opts, &report, job, "", &job_lit));
   if (report.files.empty()) throw SceneError(fmt::format("{}: the scene reads no file", spec));
   const fs::path root = report.files.front().real.parent_path();
   for (const FileRef& f : report.files) {
@@ -118,15 +120,21 @@ std::string default_cache_root() {
   return (fs::temp_directory_path() / "eprfarm-cache").string();
 }
 
-Scene load_bundle(const SceneBundleData& b, const std::string& cache_root, const Lighting& job) {
-  if (!b.builtin.empty()) {
-    Scene s = load_scene(b.builtin);
-    s.lighting = job_lighting(s, job);
-    return s;
-  }
+namespace {
+
+// The bundle's scene with its own lighting: a built-in generated, files written below the cache
+// (once) and loaded from there.
+Scene load_bundle_files(const SceneBundleData& b, const std::string& hash, const std::string& cache_root) {
+  if (!b.builtin.empty()) return load_scene(b.builtin);
+  // The client showed the warnings; here they stay at debug level.
+  return load_scene(write_bundle_files(b, hash, cache_root));
+}
+
+}  // namespace
+
+std::string write_bundle_files(const SceneBundleData& b, const std::string& hash, const std::string& cache_root) {
   if (!is_safe_relative_path(b.entry_path))
     throw SceneError(fmt::format("scene entry path '{}' is not a safe relative path", b.entry_path));
-  const std::string hash = content_hash(b);
   const fs::path dir = fs::path(cache_root) / "scenes" / hash;
   const fs::path done = dir / ".complete";
   if (!fs::exists(done)) {
@@ -146,11 +154,24 @@ Scene load_bundle(const SceneBundleData& b, const std::string& cache_root, const
     fs::rename(tmp, dir, ec);
     if (ec) fs::remove_all(tmp);  // another process won the race: its copy is identical
   }
-  // The client showed the warnings; here they stay at debug level. A scene without light is refused
-  // (the check of raw submissions, which no client loaded first).
-  Scene s = load_scene((dir / b.entry_path).string());
+  return (dir / b.entry_path).string();
+}
+
+Scene load_bundle(const SceneBundleData& b, const std::string& cache_root, const Lighting& job) {
+  Scene s = load_bundle_files(b, content_hash(b), cache_root);
   s.lighting = job_lighting(s, job);
-  if (auto reason = unlit_reason(s)) throw SceneError(*reason);
+  // A file scene without light is refused (the check of raw submissions, which no client loaded first).
+  if (b.builtin.empty())
+    if (auto reason = unlit_reason(s)) throw SceneError(*reason);
+  return s;
+}
+
+std::shared_ptr<const Scene> share_bundle_scene(const SceneBundleData& b, const std::string& hash,
+                                                const std::string& cache_root, const Lighting& job) {
+  std::shared_ptr<const Scene> s = shelved_scene(hash);
+  if (!s) s = shelve_scene(hash, std::make_shared<const Scene>(load_bundle_files(b, hash, cache_root)));
+  if (b.builtin.empty())
+    if (auto reason = unlit_reason(*s, job_lighting(*s, job))) throw SceneError(*reason);
   return s;
 }
 

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -21,6 +22,9 @@ struct SceneBundleData {
   // The files the scene's load read on this machine (canonical paths), for the client's checks
   // (an output prefix must not replace one); not part of the bundle's content.
   std::vector<std::filesystem::path> sources;
+  // The scene bundle_scene loaded (its own lighting, not the job's), for this process's other users of
+  // it (wire/scene_shelf.h); not part of the bundle's content. Null for built-ins and received bundles.
+  std::shared_ptr<const Scene> loaded;
 
   size_t total_bytes() const;
 };
@@ -32,6 +36,7 @@ struct SceneBundleData {
 /// With a built-in scene, that image is read inside `env_folder` (RenderOptions::env_folder) and the
 /// bundle is a scene JSON {"builtin": NAME} beside it (builtin stays empty); without `env_folder` it is
 /// refused with the reason.
+/// The scene that load gave stays in `loaded`.
 SceneBundleData bundle_scene(const std::string& spec, const Lighting& job = {}, const std::string& env_folder = "");
 
 /// Lowercase hex SHA-256 over the canonical serialisation (files) or "epr-builtin-v1\n" + builtin.
@@ -45,6 +50,17 @@ bool is_safe_relative_path(const std::string& path);
 /// and loads the scene, its warnings at debug level only, with `job`'s lighting applied (job_lighting);
 /// a scene without light (unlit_reason) is refused with SceneError. Built-ins are generated directly.
 Scene load_bundle(const SceneBundleData& bundle, const std::string& cache_root, const Lighting& job = {});
+
+/// The same scene shared in this process: the one on the scene shelf (wire/scene_shelf.h) under the
+/// bundle's content hash (`hash`, content_hash(bundle), which the caller has) if a user holds one, else
+/// loaded as load_bundle loads it and shelved. The scene keeps its own lighting; like load_bundle, it
+/// is refused with SceneError if unlit under `job`'s lighting.
+std::shared_ptr<const Scene> share_bundle_scene(const SceneBundleData& bundle, const std::string& hash,
+                                                const std::string& cache_root, const Lighting& job = {});
+
+/// Writes the bundle's files below `cache_root`/HASH/ as load_bundle does (`hash`: content_hash(bundle))
+/// and returns the entry file's path there. Throws SceneError for an unsafe path or a failed write.
+std::string write_bundle_files(const SceneBundleData& bundle, const std::string& hash, const std::string& cache_root);
 
 /// The folder scenes are cached in: $EPR_CACHE_DIR, else $XDG_CACHE_HOME/eprfarm, else ~/.cache/eprfarm.
 std::string default_cache_root();

@@ -26,13 +26,16 @@
 
 namespace epr {
 
-/// A scene and its BVH; not movable (the BVH refers to the scene).
+/// A scene and its BVH; not movable (the BVH refers to the scene). The scene may be shared with the
+/// process's other users (wire/scene_shelf.h).
 struct LoadedScene {
-  explicit LoadedScene(Scene s) : scene(std::move(s)), embree(scene) {}
+  explicit LoadedScene(std::shared_ptr<const Scene> s) : owner(std::move(s)), scene(*owner), embree(scene) {}
+  explicit LoadedScene(Scene s) : LoadedScene(std::make_shared<const Scene>(std::move(s))) {}
   LoadedScene(const LoadedScene&) = delete;
   LoadedScene& operator=(const LoadedScene&) = delete;
 
-  Scene scene;
+  std::shared_ptr<const Scene> owner;
+  const Scene& scene;
   EmbreeScene embree;
 };
 
@@ -57,7 +60,7 @@ class JobCache {
   /// Loads the scene a lease names (generate a built-in, or fetch and load a file scene from
   /// `master`, the master that granted the lease). May throw; the message ends up in the worker's log
   /// and the ReturnLease reason.
-  using SceneLoader = std::function<Scene(const v1::SceneRef&, const std::string& master)>;
+  using SceneLoader = std::function<std::shared_ptr<const Scene>(const v1::SceneRef&, const std::string& master)>;
 
   JobCache(size_t max_jobs, SceneLoader loader);
 

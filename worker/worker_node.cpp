@@ -27,6 +27,7 @@
 #include "common/thread_name.h"
 #include "wire/rpc/status.h"
 #include "wire/rpc/token.h"
+#include "wire/scene_shelf.h"
 #include "worker/backoff.h"
 #include "worker/courier.h"
 #include "worker/job_cache.h"
@@ -131,18 +132,22 @@ struct WorkerNode::Impl {
 
   // A lease's scene: built-ins are generated; file scenes come from the disk cache (shared by every
   // master: entries are named by their content hash) or are fetched from `master`, which granted it.
-  Scene load_scene_for(const v1::SceneRef& ref, const std::string& master) {
+  // With opts.shared_scenes, a scene another user in this process holds (the embedded render's client
+  // and master) is taken from the shelf (wire/scene_shelf.h): neither fetched nor loaded again.
+  std::shared_ptr<const Scene> load_scene_for(const v1::SceneRef& ref, const std::string& master) {
     if (!ref.builtin().empty()) {
       SceneBundleData b;
       b.builtin = ref.builtin();
       if (content_hash(b) != ref.content_hash())
         throw std::runtime_error(
             fmt::format("built-in scene '{}' does not have content hash {}", ref.builtin(), ref.content_hash()));
-      return load_scene(ref.builtin());
+      return std::make_shared<const Scene>(load_scene(ref.builtin()));
     }
     if (!is_content_hash(ref.content_hash()))
       throw std::runtime_error(
           fmt::format("scene reference '{}' is neither a built-in nor a content hash", ref.content_hash()));
+    if (opts.shared_scenes)
+      if (auto shelved = shelved_scene(ref.content_hash())) return shelved;
     std::string root = cache.path();
     std::optional<std::string> entry = cached_scene_entry(root, ref.content_hash());
     if (!entry && !cache.fallback_if_made().empty()) {  // fetched into the fallback folder before
@@ -167,7 +172,8 @@ struct WorkerNode::Impl {
       for (const std::string& gone : trim_scene_cache(root, opts.cache_max_bytes, ref.content_hash()))
         log->info("scene cache over {} MiB: removed scene {} (least recently used)", opts.cache_max_bytes >> 20, gone);
     }
-    return load_scene(*entry);
+    auto loaded = std::make_shared<const Scene>(load_scene(*entry));
+    return opts.shared_scenes ? shelve_scene(ref.content_hash(), std::move(loaded)) : loaded;
   }
 
   // Delay before leasing again after a job could not be prepared; grows with repeated failures.

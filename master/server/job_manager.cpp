@@ -243,11 +243,12 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
   }
   std::optional<std::string> error;
   try {
-    const Scene s = load_bundle(bundle, cache, lighting);
-    if (s.triangle_count() == 0) error = "the scene has no triangles";
-    if (scene_camera) *scene_camera = s.camera;
+    // The shared copy: in the embedded render, the one the client loaded.
+    const std::shared_ptr<const Scene> s = share_bundle_scene(bundle, hash, cache, lighting);
+    if (s->triangle_count() == 0) error = "the scene has no triangles";
+    if (scene_camera) *scene_camera = s->camera;
     if (animation && bundle.builtin.empty()) {
-      *animation = load_camera_animation((fs::path(cache) / "scenes" / hash / bundle.entry_path).string());
+      *animation = load_camera_animation(write_bundle_files(bundle, hash, cache));
       animation->file = bundle.entry_path;
     }
   } catch (const std::exception& e) {

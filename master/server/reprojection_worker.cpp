@@ -171,7 +171,7 @@ void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
   Render& render = renders_[job->id];
   render = Render{};
   const auto setup = std::chrono::steady_clock::now();
-  render.scene = std::make_unique<Scene>(load_bundle(*job->bundle, m_.cache_dir(), job->request.options.lighting));
+  render.scene = share_bundle_scene(*job->bundle, job->scene_hash, m_.cache_dir(), job->request.options.lighting);
   const double scene_s = seconds_since(setup);
   render.camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
   std::shared_ptr<const JobProgressRecord> resume;

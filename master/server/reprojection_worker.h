@@ -41,7 +41,7 @@ class ReprojectionWorker {
   using Task = JobManager::Task;
   /// What only this thread touches of a running job.
   struct Render {
-    std::unique_ptr<Scene> scene;
+    std::shared_ptr<const Scene> scene;  // shared with the process's other users (wire/scene_shelf.h)
     std::unique_ptr<Camera> camera;
     std::unique_ptr<RoundDriver> driver;  // null until the job's frame is built
     int64_t counts_ms = 0;                // when the job's `counts` were last refreshed from the reprojector

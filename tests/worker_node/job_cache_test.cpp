@@ -60,7 +60,7 @@ struct CountingLoader {
         if (!cv.wait_for(lock, std::chrono::seconds(60), [&] { return arrived >= gate; })) gate_timed_out = true;
       }
       if (fail) throw std::runtime_error("scene unavailable");
-      return make_builtin_scene(ref.builtin().substr(8));
+      return std::make_shared<const Scene>(make_builtin_scene(ref.builtin().substr(8)));
     };
   }
 
