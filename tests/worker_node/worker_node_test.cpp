@@ -343,7 +343,11 @@ TEST_F(WorkerNodeTest, StopReturnsLeasesAndAnotherWorkerFinishes) {
   const v1::JobStatus st = wait_done(id, 300s);
   ASSERT_EQ(st.state(), v1::JOB_STATE_DONE) << st.error_message();
   second.stop();
-  EXPECT_EQ(s1.tiles_committed + second.stats().tiles_committed, st.tiles_committed());
+  // Each committed tile was counted by the worker that sent it, as COMMITTED -- or as DUPLICATE when the
+  // answer to a commit was lost (a deadline under load) and the retry found it already committed.
+  const WorkerNodeStats s2 = second.stats();
+  EXPECT_GE(st.tiles_committed(), s1.tiles_committed + s2.tiles_committed);
+  EXPECT_LE(st.tiles_committed(), s1.tiles_committed + s2.tiles_committed + s1.tiles_duplicate + s2.tiles_duplicate);
   expect_same_as_local(id, o);
 }
 
