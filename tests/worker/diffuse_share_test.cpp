@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "common/scene.h"
+#include "tests/worker/glowing_box.h"
 #include "worker/bsdf.h"
 #include "worker/path_tracer.h"
 
@@ -19,21 +20,7 @@ namespace {
 // diffuse base plus what its specular layer reflects (F the dielectric Fresnel, 0.04 head-on for
 // ior 1.5).
 Scene share_box(const Material& floor) {
-  Scene s;
-  s.name = "test-share-box";
-  Material wall;
-  wall.kd = Vec3(0.5f);
-  wall.ke = Vec3(1.f);
-  const uint32_t w = add_material(s, wall);
-  const uint32_t f = add_material(s, floor);
-  const Vec3 p[8] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1},
-                     {-1, -1, 1},  {1, -1, 1},  {1, 1, 1},  {-1, 1, 1}};
-  add_quad(s, p[0], p[1], p[2], p[3], w);
-  add_quad(s, p[5], p[4], p[7], p[6], w);
-  add_quad(s, p[4], p[0], p[3], p[7], w);
-  add_quad(s, p[1], p[5], p[6], p[2], w);
-  add_quad(s, p[4], p[5], p[1], p[0], f);  // floor
-  add_quad(s, p[3], p[2], p[6], p[7], w);
+  Scene s = test::glowing_box(floor, "test-share-box");
   s.camera = {Vec3(0.f, 0.6f, 0.9f), Vec3(0, -1, -0.2f), Vec3(0, 1, 0), 50.f};
   return s;
 }

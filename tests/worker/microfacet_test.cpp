@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "common/scene.h"
+#include "tests/worker/glowing_box.h"
 #include "worker/bsdf.h"
 #include "worker/path_tracer.h"
 #include "worker/surface_inputs.h"
@@ -257,26 +258,12 @@ TEST(MicrofacetBsdf, MetallicRoughnessTextureIsReadPerTexel) {
 // vertex on the floor is marked not diffuse (the master does not reproject it), every other one
 // diffuse.
 TEST(MicrofacetBsdf, MetalVerticesProduceNoDiffuseRecords) {
-  Scene s;
-  s.name = "test-metal-floor";
-  Material wall;
-  wall.kd = Vec3(0.5f);
-  wall.ke = Vec3(1.f);
-  const uint32_t w = add_material(s, wall);
   Material metal;
   metal.type = MaterialType::kMicrofacet;
   metal.kd = Vec3(0.9f);
   metal.metallic = 1;
   metal.roughness = 0.4f;
-  const uint32_t m = add_material(s, metal);
-  const Vec3 p[8] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1},
-                     {-1, -1, 1},  {1, -1, 1},  {1, 1, 1},  {-1, 1, 1}};
-  add_quad(s, p[0], p[1], p[2], p[3], w);
-  add_quad(s, p[5], p[4], p[7], p[6], w);
-  add_quad(s, p[4], p[0], p[3], p[7], w);
-  add_quad(s, p[1], p[5], p[6], p[2], w);
-  add_quad(s, p[4], p[5], p[1], p[0], m);  // floor
-  add_quad(s, p[3], p[2], p[6], p[7], w);
+  Scene s = test::glowing_box(metal, "test-metal-floor");
   s.camera = {Vec3(0.2f, 0.1f, 0.5f), Vec3(-1, -0.8f, -1), Vec3(0, 1, 0), 70.f};
   const EmbreeScene es(s);
   const Camera cam(s.camera, 16, 16);

@@ -58,6 +58,7 @@ struct Job {
   bool mis = true;  // false: --no-mis (next event estimation only)
   float reprojected_weight = RenderOptions{}.reprojected_weight;
   std::string rr;  // --rr; empty: the default roulette
+  Args camera;     // camera overrides (--eye, --look, ...); empty: the scene's camera
 
   // The flags shared by `epr render` and `epr submit`. The reprojector is the default (the OSMesa
   // deep framebuffer) on both sides: the cluster runs what a user runs.
@@ -90,6 +91,7 @@ struct Job {
       a.push_back("--reprojected-weight");
       a.push_back(fmt::format("{}", reprojected_weight));
     }
+    a.insert(a.end(), camera.begin(), camera.end());
     return a;
   }
 };
@@ -447,8 +449,10 @@ TEST_F(ClusterTest, JobEndsWhenReprojectionSkipsEveryPixel) {
   // pixel reprojected samples. With P = 32, k = 4, min-paths 12 and reprojected samples counted in
   // full (W = 1), reprojection brings most pixels to P by the time they have traced min-paths; the
   // rest follow within a few rounds. The job must end as soon as no pixel is left (no empty rounds,
-  // no hang), before P / k rounds.
+  // no hang), before P / k rounds. The camera sees one wall and none of the box's edges: a pixel
+  // over an edge takes no reprojected samples (DESIGN.md "Edge pixels") and traces all P paths.
   Job job;
+  job.camera = {"--eye", "0,0,0.95", "--look", "0,0,-1", "--up", "0,1,0", "--fov", "52"};
   job.reprojected_weight = 1.f;
   job.scene = "builtin:furnace";
   job.size = 48;
