@@ -81,14 +81,24 @@ struct JobSnapshot {
 };
 
 struct Job {
-  // Set before the job is published (JobRegistry::add) and never changed after: read freely.
-  std::string id;
-  uint64_t seq = 0;  // submission order
-  JobRequest request;
-  std::string scene_hash;
-  std::shared_ptr<const SceneBundleData> bundle;
-  std::vector<TileRect> tiles;
-  int64_t submitted_ms = 0;
+  Job(std::string id_, uint64_t seq_, JobRequest request_, std::string scene_hash_,
+      std::shared_ptr<const SceneBundleData> bundle_, int64_t submitted_ms_)
+      : id(std::move(id_)),
+        seq(seq_),
+        request(std::move(request_)),
+        scene_hash(std::move(scene_hash_)),
+        bundle(std::move(bundle_)),
+        tiles(make_tiles(request.options)),
+        submitted_ms(submitted_ms_) {}
+
+  // The job's identity: fixed at construction, read by any thread without the lock.
+  const std::string id;
+  const uint64_t seq;  // submission order
+  const JobRequest request;
+  const std::string scene_hash;
+  const std::shared_ptr<const SceneBundleData> bundle;
+  const std::vector<TileRect> tiles;
+  const int64_t submitted_ms;
 
   // Everything else is its manager's (job_lock.h): the analysis rejects a touch without its mutex.
   JobState state EPR_GUARDED_BY(job_fields) = JobState::kQueued;

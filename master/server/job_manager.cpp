@@ -127,19 +127,21 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
   } catch (const std::exception& e) {
     return unstored("the job's scene", "", e);
   }
-  auto job = std::make_shared<Job>();
+  uint64_t seq = 0;
+  int64_t submitted_ms = 0;
+  std::shared_ptr<const SceneBundleData> bundle;
   {
     JobLock lock(mu_);
     if (auto earlier = jobs_.find_request(req.request_id)) return {earlier->id, "", hash};
-    job->seq = jobs_.next_seq();
-    job->submitted_ms = clock_();
+    seq = jobs_.next_seq();
+    submitted_ms = clock_();
+    if (auto cached = scenes_.find(hash); cached != scenes_.end()) bundle = cached->second;
   }
-  job->id = fmt::format("{}{}j{:06d}-{:04x}", options_.name, options_.name.empty() ? "" : ".", job->seq,
-                        uint32_t(job->submitted_ms) & 0xffff);
-  job->scene_hash = hash;
-  job->tiles = make_tiles(req.options);
-  SceneBundleData bundle = std::move(req.bundle);
-  job->request = std::move(req);
+  SceneBundleData sent = std::move(req.bundle);
+  if (!bundle) bundle = std::make_shared<const SceneBundleData>(std::move(sent));
+  std::string id = fmt::format("{}{}j{:06d}-{:04x}", options_.name, options_.name.empty() ? "" : ".", seq,
+                               uint32_t(submitted_ms) & 0xffff);
+  auto job = std::make_shared<Job>(std::move(id), seq, std::move(req), hash, std::move(bundle), submitted_ms);
   try {
     if (checkpointer_) store_->save_spec(spec_record(*job));
   } catch (const std::exception& e) {
@@ -152,8 +154,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
     JobLock lock(mu_);
     if (auto earlier = jobs_.find_request(job->request.request_id)) earlier_id = earlier->id;  // submitted meanwhile
     auto& cached = scenes_[hash];
-    if (!cached) cached = std::make_shared<const SceneBundleData>(std::move(bundle));
-    job->bundle = cached;
+    if (!cached) cached = job->bundle;
     if (earlier_id.empty()) forgotten = jobs_.add(job, size_t(options_.max_jobs));
   }
   if (!earlier_id.empty()) {
@@ -538,14 +539,6 @@ void JobManager::load_state() {
   for (auto& l : loaded) {
     const JobSpecRecord& spec = l.spec;
     for (const auto& p : l.problems) log->warn("job {}: checkpoint rejected: {}", spec.id, p);
-    auto job = std::make_shared<Job>();
-    job->id = spec.id;
-    job->seq = spec.seq;
-    job->submitted_ms = spec.submitted_ms;
-    job->scene_hash = spec.scene_hash;
-    job->request = {spec.options,    spec.camera, {}, spec.name, spec.priority, spec.time_budget_seconds,
-                    spec.request_id, spec.batch};
-    job->tiles = make_tiles(spec.options);
     auto& cached = scenes_[spec.scene_hash];
     if (!cached) {
       try {
@@ -554,11 +547,20 @@ void JobManager::load_state() {
         log->error("job {}: its scene is lost: {}", spec.id, e.what());
       }
     }
-    if (cached) {
-      job->bundle = cached;
-    } else {
-      scenes_.erase(spec.scene_hash);
-      job->bundle = std::make_shared<const SceneBundleData>();
+    const bool lost = !cached;
+    const std::shared_ptr<const SceneBundleData> bundle = lost ? std::make_shared<const SceneBundleData>() : cached;
+    if (lost) scenes_.erase(spec.scene_hash);
+    auto job = std::make_shared<Job>(spec.id, spec.seq,
+                                     JobRequest{spec.options,
+                                                spec.camera,
+                                                {},
+                                                spec.name,
+                                                spec.priority,
+                                                spec.time_budget_seconds,
+                                                spec.request_id,
+                                                spec.batch},
+                                     spec.scene_hash, bundle, spec.submitted_ms);
+    if (lost) {
       job->state = JobState::kFailed;
       job->error = "the scene was lost from the master's state directory";
     }
