@@ -137,6 +137,7 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
     submitted_ms = clock_();
     if (auto cached = scenes_.find(hash); cached != scenes_.end()) bundle = cached->second;
   }
+  // Out of the request in any case: the job keeps one copy of the bytes, the shared one.
   SceneBundleData sent = std::move(req.bundle);
   if (!bundle) bundle = std::make_shared<const SceneBundleData>(std::move(sent));
   std::string id = fmt::format("{}{}j{:06d}-{:04x}", options_.name, options_.name.empty() ? "" : ".", seq,
