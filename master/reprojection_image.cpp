@@ -29,7 +29,7 @@ struct PixelValue {
 // An area-weighted pixel (AreaWeights): `codes` are its S * S subpixels' class and area.
 template <class CellAt>
 PixelValue weighted_pixel(const CellAt& cell, int x, int y, int S, const uint16_t* codes) {
-  double sum[kMaxSubpixelsPerPixel][3] = {}, inverse[kMaxSubpixelsPerPixel] = {};
+  double sum[kMaxSubpixelsPerPixel][3] = {}, inverse[kMaxSubpixelsPerPixel] = {}, samples[kMaxSubpixelsPerPixel] = {};
   int area[kMaxSubpixelsPerPixel] = {}, with_samples[kMaxSubpixelsPerPixel] = {};
   int classes = 0;
   for (int j = 0; j < S; ++j)
@@ -44,6 +44,7 @@ PixelValue weighted_pixel(const CellAt& cell, int x, int y, int S, const uint16_
       sum[k][1] += double(c.g) / double(c.n);
       sum[k][2] += double(c.b) / double(c.n);
       inverse[k] += 1.0 / double(c.n);
+      samples[k] += double(c.n);
       ++with_samples[k];
     }
   double rgb[3] = {0, 0, 0}, covered = 0, all = 0;
@@ -60,16 +61,17 @@ PixelValue weighted_pixel(const CellAt& cell, int x, int y, int S, const uint16_
   PixelValue v;
   if (covered > 0) v.radiance = Vec3(float(rgb[0] / covered), float(rgb[1] / covered), float(rgb[2] / covered));
   if (complete && all > 0) {
-    double spread = 0;  // the variance of L_rp per unit variance of one sample
+    // Per unit variance of one sample: the variance of L_rp (M'_eff), and that of a stratified mean
+    // of the classes' samples pooled (M': it grows with every sample).
+    double spread = 0, pooled = 0;
     for (int k = 0; k < classes; ++k)
       if (with_samples[k] > 0) {
         const double a = area[k] / all;
         spread += a * a * inverse[k] / (double(with_samples[k]) * double(with_samples[k]));
+        pooled += a * a / samples[k];
       }
-    if (spread > 0) {
-      v.effective = float(1.0 / spread);
-      v.total = uint64_t(std::floor(1.0 / spread));
-    }
+    if (spread > 0) v.effective = float(1.0 / spread);
+    if (pooled > 0) v.total = uint64_t(std::floor(1.0 / pooled + 1e-9));
   }
   return v;
 }

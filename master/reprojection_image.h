@@ -36,9 +36,10 @@ struct SubpixelAccumulation {
 /// Area-weighted pixels (DESIGN.md "Edge pixels"; made by detail::EdgePixels): per listed pixel and
 /// per subpixel, the surface class its centre sees and the area that class covers in the pixel, in
 /// fine samples (at most 511). Such a pixel's L_rp is sum_k A_k R_k / sum_k A_k over its classes k
-/// with samples, R_k the mean of the subpixel means of class k; its M' (and M'_eff) is the effective
-/// count 1 / sum_k a_k^2 sum_{s in k} 1 / (n_k^2 c(s)) (a_k = A_k / sum A, n_k of k's subpixels with
-/// samples, c(s) their counts), and 0 until every class of non-zero area has samples.
+/// with samples, R_k the mean of the subpixel means of class k; its M' is the count of a stratified
+/// mean, 1 / sum_k a_k^2 / C_k (a_k = A_k / sum A, C_k the samples of k's subpixels), its M'_eff
+/// 1 / sum_k a_k^2 sum_{s in k} 1 / (n_k^2 c(s)) (n_k of k's subpixels with samples, c(s) their
+/// counts), both 0 until every class of non-zero area has samples.
 struct AreaWeights {
   static constexpr int kAreaBits = 10;
   std::vector<uint32_t> pixels;  // ascending pixel indices
