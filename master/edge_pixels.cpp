@@ -140,14 +140,16 @@ void EdgePixels::resolve(const PlaneGrid& g, const Camera& camera, float epsilon
     std::vector<uint32_t>& among = candidates.local();
     rays.candidates(x * S, y * S, x * S + S - 1, y * S + S - 1, &among);
     int area[kMaxClasses] = {};
+    bool emitter = false;
     for (int gy = y * S; gy < (y + 1) * S; ++gy)
       for (int gx = x * S; gx < (x + 1) * S; ++gx)
         for (int fy = 0; fy < k; ++fy)
           for (int fx = 0; fx < k; ++fx) {
             Vec3 hit;
-            if (rays.nearest_at(gx, gy, (float(fx) + 0.5f) / float(k), (float(fy) + 0.5f) / float(k), among, &hit) ==
-                DeepFramebuffer::kNoTriangle)
-              return;
+            const uint32_t t =
+                rays.nearest_at(gx, gy, (float(fx) + 0.5f) / float(k), (float(fy) + 0.5f) / float(k), among, &hit);
+            if (t == DeepFramebuffer::kNoTriangle) return;
+            emitter = emitter || scene.materials[scene.material_of[t]].emissive();
             const int own = (gy - y * S) * S + (gx - x * S);
             int best = -1;
             if (surf.within(surf.entry(gx, gy), hit)) {
@@ -162,6 +164,9 @@ void EdgePixels::resolve(const PlaneGrid& g, const Camera& camera, float epsilon
             if (best < 0) return;
             ++area[best];
           }
+    // An emitter beside another surface: the contrast magnifies what the weights leave (the
+    // unsampled strip along the boundary), so such a pixel keeps tracing its own paths.
+    if (classes > 1 && emitter) return;
     if (classes == 1) {
       resolved[i] = Resolved::kOneSurface;
       return;

@@ -20,7 +20,9 @@
 // epsilon. With
 // every ray assigned the pixel is area-weighted (AreaWeights: each class's area is its share of the
 // rays); if one class takes them all it is no edge pixel after all. A ray that hits nothing or a
-// surface no centre sees, or a texel that sees nothing, leaves the pixel an edge pixel that takes no
+// surface no centre sees, a texel that sees nothing, or an emitter beside another surface (the
+// contrast magnifies what the weights leave: the strip of a surface inside subpixels whose centres
+// see another is not sampled), leaves the pixel an edge pixel that takes no
 // reprojected samples: M' = 0 and L_rp = 0, so it traces its own P paths and its value is the path
 // tracer's. Without the scene every edge pixel is of that kind. Edge pixels' vertices still
 // reproject into the other pixels.
