@@ -98,7 +98,7 @@ FrameBatch plan_batch(const RenderOptions& opts, const SubmitOptions& submit, co
   if (batch.name.size() + 9 > kMaxNameBytes)
     throw std::invalid_argument(
         fmt::format("batch name is {} bytes long, at most {}", batch.name.size(), kMaxNameBytes - 9));
-  batch.bundle = bundle_scene(opts.scene, opts.lighting, opts.env_folder);
+  batch.bundle = bundle_scene(opts.scene, opts.lighting, opts.env_folder, BundleLoad::kUpload);
   CameraSpec still;
   const CameraAnimation animation = load_camera_animation(opts.scene, {}, &still);
   if (!animation.animated())

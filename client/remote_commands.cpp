@@ -338,7 +338,7 @@ int RemoteCommands::State::run_submit() {
   auto farm = make_farm(submit_conn);
   // --frames '' is an empty frame list (parse_frame_list refuses it), not a plain job.
   if (frames_flag->count()) return submit_frames(*farm, render, submit_opts, frames, wait, render.out);
-  SceneBundleData bundle = bundle_scene(render.scene, render.lighting, render.env_folder);
+  SceneBundleData bundle = bundle_scene(render.scene, render.lighting, render.env_folder, BundleLoad::kUpload);
   if (wait)  // the results are fetched into render.out
     if (auto err = output_replaces_input(render.out, bundle.sources)) throw OutputError("--out " + *err);
   auto client = take_client(*farm);

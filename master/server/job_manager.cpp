@@ -246,8 +246,14 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
   std::optional<std::string> error;
   try {
     // The shared copy: in the embedded render, the one the client loaded.
-    const std::shared_ptr<const Scene> s = share_bundle_scene(bundle, hash, cache, lighting);
+    std::shared_ptr<const Scene> s = share_bundle_scene(bundle, hash, cache, lighting);
     if (s->triangle_count() == 0) error = "the scene has no triangles";
+    if (!error) {
+      // Kept for the job's start (release_checked_scene); the one kept before goes, outside the lock.
+      std::pair<std::string, std::shared_ptr<const Scene>> earlier(hash, s);
+      JobLock lock(mu_);
+      std::swap(checked_scene_, earlier);
+    }
     if (scene_camera) *scene_camera = s->camera;
     if (animation && bundle.builtin.empty()) {
       *animation = load_camera_animation(write_bundle_files(bundle, hash, cache));
@@ -265,13 +271,30 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
   return error;
 }
 
+void JobManager::release_checked_scene(const std::string& hash) {
+  std::shared_ptr<const Scene> released;  // freed outside the lock
+  JobLock lock(mu_);
+  if (checked_scene_.first != hash) return;
+  for (const auto& [id, job] : jobs_.all())  // a job being started is in running_, still kQueued
+    if (job->scene_hash == hash && job->state == JobState::kQueued &&
+        std::find(running_.begin(), running_.end(), job) == running_.end())
+      return;
+  released = std::move(checked_scene_.second);
+  checked_scene_.first.clear();
+}
+
 void JobManager::discard_checked_scene(const std::string& hash) {
   if (hash.empty()) return;
+  std::shared_ptr<const Scene> released;  // freed outside the lock
   // Under the mutex: a job that is added later loads the scene (and caches it again) only after this.
   JobLock lock(mu_);
   if (scene_checks_.count(hash)) return;
   for (const auto& [id, job] : jobs_.all())
     if (job->scene_hash == hash) return;
+  if (checked_scene_.first == hash) {
+    released = std::move(checked_scene_.second);
+    checked_scene_.first.clear();
+  }
   const fs::path scenes = fs::path(cache_dir()) / "scenes";
   std::error_code ec;
   fs::remove_all(scenes / hash, ec);

@@ -196,6 +196,10 @@ class JobManager {
   std::optional<std::string> check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera = nullptr,
                                          CameraAnimation* animation = nullptr, const Lighting& lighting = {}) const
       EPR_EXCLUDES(mu_);
+  /// The scene check_scene() loaded last stays loaded for the job's start (one load per submission):
+  /// kept until a scene is checked after it, its check is discarded, or a job of it starts with no
+  /// other job of it queued. Lets go of it here if `content_hash` is that scene and none is queued.
+  void release_checked_scene(const std::string& content_hash) EPR_EXCLUDES(mu_);
   /// Removes what check_scene() left in the scene cache (scenes/HASH) for a submission that was
   /// refused, unless a job or another check still uses it. Built-in scenes are never cached.
   void discard_checked_scene(const std::string& content_hash) EPR_EXCLUDES(mu_);
@@ -342,6 +346,8 @@ class JobManager {
   LeaseParking parking_ EPR_GUARDED_BY(mu_);
   std::map<std::string, std::shared_ptr<const SceneBundleData>> scenes_ EPR_GUARDED_BY(mu_);
   mutable std::map<std::string, int> scene_checks_ EPR_GUARDED_BY(mu_);  // check_scene() calls under way, by hash
+  // The scene check_scene() loaded last and its hash (release_checked_scene).
+  mutable std::pair<std::string, std::shared_ptr<const Scene>> checked_scene_ EPR_GUARDED_BY(mu_);
   std::deque<std::unique_ptr<Task>> tasks_ EPR_GUARDED_BY(mu_);
   uint64_t queued_vertices_ EPR_GUARDED_BY(mu_) = 0;
   uint64_t next_lease_ EPR_GUARDED_BY(mu_) = 1;

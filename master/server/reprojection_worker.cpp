@@ -172,6 +172,7 @@ void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
   render = Render{};
   const auto setup = std::chrono::steady_clock::now();
   render.scene = share_bundle_scene(*job->bundle, job->scene_hash, m_.cache_dir(), job->request.options.lighting);
+  m_.release_checked_scene(job->scene_hash);  // the admission's load, taken from the shelf just now
   const double scene_s = seconds_since(setup);
   render.camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
   std::shared_ptr<const JobProgressRecord> resume;
