@@ -132,6 +132,52 @@ TEST(FrameBatchPlan, OneSpecPerFrameWithItsCameraAndBatchFields) {
   fs::remove_all(dir);
 }
 
+TEST(FrameBatchPlan, AFrameWindowSplitsTheFramesIntoRunsOfConsecutiveFrames) {
+  RenderOptions o;
+  o.scene = "builtin:cornell";
+  o.width = o.height = 16;
+  o.mode = RenderMode::kSkip;
+  o.seed = 5;
+  WindowOptions w;
+  w.frame_window = 1;
+  w.run = 3;
+  const FrameBatch b = plan_batch(o, SubmitOptions{}, {1, 2, 3, 4, 5, 7, 8, 10}, "b-win", w);
+  // Runs: at most 3 frames, a gap ends one.
+  const std::vector<std::pair<uint32_t, uint32_t>> runs{{1, 3}, {1, 3}, {1, 3}, {4, 5},
+                                                        {4, 5}, {7, 8}, {7, 8}, {10, 10}};
+  ASSERT_EQ(b.specs.size(), runs.size());
+  for (size_t i = 0; i < runs.size(); ++i) {
+    const v1::JobSpec& s = b.specs[i];
+    SCOPED_TRACE("frame " + std::to_string(s.frame()));
+    EXPECT_EQ(s.frame_window(), 1u);
+    EXPECT_EQ(s.window_first(), runs[i].first);
+    EXPECT_EQ(s.window_last(), runs[i].second);
+    EXPECT_EQ(s.seed(), 5u + s.frame()) << "each frame traces paths of its own";
+  }
+  // Without a window: no window fields, the one seed.
+  for (const auto& s : plan_batch(o, SubmitOptions{}, {1, 2}, "b-plain").specs) {
+    EXPECT_EQ(s.frame_window(), 0u);
+    EXPECT_EQ(s.window_last(), 0u);
+    EXPECT_EQ(s.seed(), 5u);
+  }
+  auto refused = [&](RenderOptions opts, WindowOptions window, const std::string& words) {
+    try {
+      plan_batch(opts, SubmitOptions{}, {1, 2, 3}, "b-bad", window);
+      ADD_FAILURE() << "planned: " << words;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+    }
+  };
+  refused(o, {17, 3}, "--frame-window 17 must be between 0 and 16");
+  refused(o, {1, 0}, "--window-run 0 must be between 1 and 64");
+  RenderOptions pt = o;
+  pt.mode = RenderMode::kPathTrace;
+  refused(pt, w, "--frame-window needs reprojection");
+  RenderOptions exact = o;
+  exact.reproject = ReprojectMethod::kExact;
+  refused(exact, w, "--reproject gl or cpu");
+}
+
 TEST(FrameBatchPlan, SummaryCountsFramesByState) {
   std::vector<v1::JobStatus> jobs(4);
   const v1::JobState states[] = {v1::JOB_STATE_DONE, v1::JOB_STATE_RUNNING, v1::JOB_STATE_QUEUED, v1::JOB_STATE_FAILED};
