@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <regex>
@@ -380,6 +381,47 @@ TEST_F(BatchCluster, BadFramesAndBrokenKeysAreRefusedBeforeAnythingIsSubmitted) 
   // An id that is neither a job nor a batch.
   r = epr({"watch", "b-000000000000"});
   EXPECT_EQ(r.code, 4) << r.err;
+}
+
+// A frame window through the real programs: the batch's frames' counts and path sums are the same bit
+// for bit whether one worker process traced them or three.
+TEST_F(BatchCluster, AFrameWindowBatchHasTheSameCountsForOneAndThreeWorkers) {
+  const std::string scene = write_animated_scene(dir_ / "scene");
+  std::vector<std::unique_ptr<Process>> workers;
+  auto start_workers = [&](int n) {
+    workers.clear();
+    for (int i = 0; i < n; ++i)
+      workers.push_back(std::make_unique<Process>(
+          std::vector<std::string>{binary("worker", "epr-worker"), "--master", target_, "--threads", "1", "--cache-dir",
+                                   (dir_ / ("cache" + std::to_string(i))).string()},
+          dir_ / ("worker-" + std::to_string(n) + "-" + std::to_string(i))));
+  };
+  auto render_batch = [&](const std::string& out) {
+    std::vector<std::string> submit{"submit"};
+    for (const auto& f : job_flags(scene)) submit.push_back(f);
+    *(std::find(submit.begin(), submit.end(), "--spp") + 1) = "16";  // rounds enough for the window to act
+    submit.insert(submit.end(), {"--frames", "1-3", "--frame-window", "1", "--window-run", "3"});
+    const RunResult sub = epr(submit);
+    ASSERT_EQ(sub.code, 0) << sub.err;
+    const std::string batch = sub.out.substr(0, sub.out.find('\n'));
+    const RunResult get = epr({"get", batch, "--out", (dir_ / out / "f").string()}, 300s);
+    ASSERT_EQ(get.code, 0) << get.err;
+  };
+  start_workers(1);
+  ASSERT_NO_FATAL_FAILURE(render_batch("one"));
+  start_workers(3);
+  ASSERT_NO_FATAL_FAILURE(render_batch("three"));
+  for (uint32_t frame = 1; frame <= 3; ++frame) {
+    const std::string a = frame_file_name((dir_ / "one" / "f").string(), frame),
+                      b = frame_file_name((dir_ / "three" / "f").string(), frame);
+    EXPECT_EQ(testing::exact_difference(read_image(a + ".counts.exr"), read_image(b + ".counts.exr")), "")
+        << "frame " << frame;
+    EXPECT_EQ(testing::exact_difference(read_image(a + ".pathtrace.exr"), read_image(b + ".pathtrace.exr")), "")
+        << "frame " << frame;
+    EXPECT_EQ(testing::close_difference(read_image(a + ".exr"), read_image(b + ".exr")), "") << "frame " << frame;
+  }
+  // The window ran: the master logged the run.
+  EXPECT_NE(master_->err().find("window run 1..3 of batch"), std::string::npos);
 }
 
 }  // namespace
