@@ -17,8 +17,8 @@ git ls-files -- '*.cpp' '*.h' | xargs clang-format --dry-run --Werror
 # they pass with both cores busy (tests with RUN_SERIAL still run alone).
 (cd build && ctest --output-on-failure -j 2 "$@")
 
-# ThreadSanitizer (scripts/tsan.sh): the master's and the worker node's tests and two cluster tests
-# (their programs TSan builds too) built with clang and -fsanitize=thread in build/tsan; any report
+# ThreadSanitizer (scripts/tsan.sh): the master's and the worker node's tests and a cluster test
+# (its programs TSan builds too) built with clang and -fsanitize=thread in build/tsan; any report
 # fails the run.
 bash scripts/tsan.sh
 
