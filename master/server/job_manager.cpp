@@ -324,6 +324,14 @@ std::string JobManager::register_worker(const std::string& name, uint32_t thread
 }
 
 void JobManager::unregister_worker(const std::string& worker) {
+  // Leases it still holds go back at once: one granted to a LeaseTile call that the worker cancelled
+  // as it stopped, after this master had answered, is held here but unknown to the worker.
+  std::vector<uint64_t> held;
+  {
+    JobLock lock(mu_);
+    if (const WorkerRegistry::Worker* w = workers_.find(worker)) held.assign(w->leases.begin(), w->leases.end());
+  }
+  if (!held.empty()) return_leases(worker, held);
   JobLock lock(mu_);
   workers_.remove(worker);
 }
