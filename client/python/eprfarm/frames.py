@@ -5,14 +5,18 @@ from __future__ import annotations
 
 import re
 import secrets
-from typing import Iterable, List, Optional, Union
+from typing import Iterable, List, Optional, Tuple, Union
 
+from . import limits as L
 from .errors import ArgumentError
 from .limits import MAX_NAME_BYTES
 from .proto import job_service_pb2 as pb
+from .proto import render_settings_pb2 as rs_pb
 
 MAX_FRAME = 9_999_999  # common/camera_animation.h kMaxFrame
 MAX_BATCH_FRAMES = 100_000  # client/batch.h kMaxBatchFrames
+MAX_FRAME_WINDOW = 16  # frames on each side a vertex is reprojected into (JobSpec.frame_window)
+DEFAULT_WINDOW_RUN = 16  # frames one master renders together, at least 2 K + 1 (window_runs)
 
 
 def parse_frames(frames: Union[str, Iterable[int]]) -> List[int]:
@@ -57,13 +61,54 @@ def checked_batch_id(batch_id: Optional[str]) -> str:
     return batch_id
 
 
-def frame_specs(spec: pb.JobSpec, batch_id: str, name: str, frames: List[int]) -> List[pb.JobSpec]:
+def checked_window(frame_window, window_run: Optional[int], spec: pb.JobSpec) -> Tuple[int, int]:
+    """The frame window K and the run length N of a batch, ArgumentError unless K is 0 to MAX_FRAME_WINDOW
+    and N 1 to MAX_BATCH_FRAMES; a window needs reprojection (mode skip or rp) by the deep framebuffer
+    (reproject gl or cpu). N defaults to max(DEFAULT_WINDOW_RUN, 2 K + 1); without a window it is 1."""
+    k = L.whole("frame_window", frame_window, 0, MAX_FRAME_WINDOW)
+    if k == 0:
+        if window_run is not None:
+            raise ArgumentError("window_run needs a frame_window above 0")
+        return 0, 1
+    if spec.mode == rs_pb.RENDER_MODE_PT:
+        raise ArgumentError("frame_window needs reprojection: mode pt traces every frame alone (use skip or rp)")
+    if spec.reprojection.method == rs_pb.REPROJECTION_METHOD_EXACT:
+        raise ArgumentError("frame_window needs reproject gl or cpu: exact samples are decided for one camera")
+    n = max(DEFAULT_WINDOW_RUN, 2 * k + 1) if window_run is None else window_run
+    return k, L.whole("window_run", n, 1, MAX_BATCH_FRAMES)
+
+
+def window_runs(count: int, window_run: int) -> List[Tuple[int, int]]:
+    """The runs of a batch of `count` frames: [first, last] indices into its frame list, each run
+    `window_run` frames long but the last, which takes the rest when it would be shorter than half a
+    run (so no run is a lone frame at the batch's end)."""
+    runs = [(a, min(a + window_run, count) - 1) for a in range(0, count, window_run)]
+    if len(runs) > 1 and runs[-1][1] - runs[-1][0] + 1 < (window_run + 1) // 2:
+        runs[-2:] = [(runs[-2][0], runs[-1][1])]
+    return runs
+
+
+def run_frames(frames: List[int], window_run: int) -> List[Tuple[int, int]]:
+    """For each of `frames` (a batch's list) the first and last frame numbers of its run (window_runs):
+    a window job's window_first and window_last."""
+    out = []
+    for first, last in window_runs(len(frames), window_run):
+        out += [(frames[first], frames[last])] * (last - first + 1)
+    return out
+
+
+def frame_specs(
+    spec: pb.JobSpec, batch_id: str, name: str, frames: List[int], frame_window: int = 0, window_run: int = 1
+) -> List[pb.JobSpec]:
     """One copy of `spec` per frame, with the batch fields, the job name NAME.0007 and the request id
-    BATCH-FRAME (a retried submission does not queue a frame twice), as `epr submit --frames` makes them."""
+    BATCH-FRAME (a retried submission does not queue a frame twice), as `epr submit --frames` makes them.
+    With a frame window (checked_window) each frame also names its run: frame_window, and window_first
+    and window_last, the frame numbers of the run's first and last frame (window_runs)."""
     if len(name.encode()) + 9 > MAX_NAME_BYTES:
         raise ArgumentError(f"batch name is {len(name.encode())} bytes long, at most {MAX_NAME_BYTES - 9}")
+    run_of = run_frames(frames, window_run)
     out = []
-    for frame in frames:
+    for i, frame in enumerate(frames):
         one = pb.JobSpec()
         one.CopyFrom(spec)
         one.name = f"{name}.{frame:04d}"
@@ -72,5 +117,8 @@ def frame_specs(spec: pb.JobSpec, batch_id: str, name: str, frames: List[int]) -
         one.batch_name = name
         one.frame = frame
         one.batch_frames = len(frames)
+        if frame_window:
+            one.frame_window = frame_window
+            one.window_first, one.window_last = run_of[i]
         out.append(one)
     return out
