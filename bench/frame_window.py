@@ -80,7 +80,8 @@ class Farm:
     def __init__(self, a, folder):
         self.folder, self.seconds = folder, 0.0
         os.makedirs(folder, exist_ok=True)
-        self.master = self._start([a.master, "--listen", "127.0.0.1:0", "--state-dir", os.path.join(folder, "state")],
+        self.master = self._start([a.master, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--state-dir",
+                                  os.path.join(folder, "state")],
                                   "master.log")  # fmt: skip
         end = time.monotonic() + 120
         while not (m := re.search(r"listening on port ([0-9]+)", self._log("master.log"))):
