@@ -45,15 +45,12 @@ import time
 import numpy as np
 import OpenImageIO as oiio
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TRIM = 0.01
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.dont_write_bytecode = True
+import garden_error_time as garden  # noqa: E402  (read: an EXR's RGB; errors: relMSE full and trimmed 1 %)
 
-
-def read(path):
-    buf = oiio.ImageBuf(path)
-    if buf.has_error:
-        raise SystemExit(f"cannot read {path}: {buf.geterror()}")
-    return buf.get_pixels(oiio.FLOAT)[:, :, :3].astype(np.float64)
+ROOT = garden.ROOT
+read = garden.read
 
 
 def parse_frames(text):
@@ -178,10 +175,9 @@ def errors(prefix, frames, refs):
     """Mean over frames of relMSE (full, trimmed), and the worst frame's trimmed one."""
     full, trim = [], []
     for frame, (ref, floor) in zip(frames, refs):
-        x = read(f"{prefix}.{frame:04d}.exr")
-        t = ((x - ref) ** 2 / (ref**2 + 0.01)).mean(axis=2).ravel() - floor
-        full.append(float(t.mean()))
-        trim.append(float(np.sort(t)[: int(len(t) * (1 - TRIM))].mean()))
+        e = garden.errors(read(f"{prefix}.{frame:04d}.exr"), ref, floor)
+        full.append(e[0])
+        trim.append(e[1])
     return float(np.mean(full)), float(np.mean(trim)), float(np.max(trim))
 
 
