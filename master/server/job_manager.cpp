@@ -16,6 +16,7 @@
 #include "common/thread_name.h"
 #include "master/server/checkpoint.h"
 #include "master/server/checkpointer.h"
+#include "master/server/window_run.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -110,7 +111,7 @@ std::optional<std::string> JobManager::validate(const JobRequest& req) const {
     return invalid(fmt::format("image sides are limited to {} pixels", options_.max_image_side));
   if (req.options.spp > options_.max_spp)
     return invalid(fmt::format("spp {} is over this master's limit of {}", req.options.spp, options_.max_spp));
-  return std::nullopt;
+  return window_error(req);
 }
 
 JobManager::SubmitResult JobManager::submit(JobRequest req) {
@@ -133,6 +134,11 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
   {
     JobLock lock(mu_);
     if (auto earlier = jobs_.find_request(req.request_id)) return {earlier->id, "", hash};
+    // A window job joins the run of the frames of it already here: they must agree.
+    if (windowed(req.batch))
+      for (const auto& [id, other] : jobs_.all())
+        if (!is_terminal(other->state) && same_run(other->request.batch, req.batch))
+          if (auto err = run_mismatch(req, hash, *other)) return {"", *err, hash};
     seq = jobs_.next_seq();
     submitted_ms = clock_();
     if (auto cached = scenes_.find(hash); cached != scenes_.end()) bundle = cached->second;
