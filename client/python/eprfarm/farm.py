@@ -223,11 +223,11 @@ class Client(MasterClient):
         ids, in frame order.
 
         `frame_window` K (0 to 16; 0, the default: every frame alone) renders the frames in runs of
-        `window_run` consecutive frames of the list (default max(16, 2 K + 1); a last run shorter
-        than half a run joins the one before), each run on one master with its rounds in step, a
-        vertex traced for one frame also reprojected into the run's frames at most K frames away
-        (frames.window_runs). With several masters whole runs are spread, each to the master with
-        the least work. A window needs mode skip or rp and reproject gl or cpu.
+        `window_run` (1 to 64, default max(16, 2 K + 1)) consecutive frame numbers (frames.window_runs),
+        each run on one master with its rounds in step, a vertex traced for one frame also
+        reprojected into the run's frames at most K frame numbers away. With several masters whole
+        runs are spread, each to the master with the least work. A window needs mode skip or rp and
+        reproject gl or cpu.
 
         Every argument is checked before anything is sent, and every frame before any is queued: each
         master that gets frames uploads the scene and checks the scene's camera animation at all of
@@ -249,7 +249,7 @@ class Client(MasterClient):
         template.ClearField("scene")
         frame_window, window_run = _frames.checked_window(frame_window, window_run, template)
         specs = _frames.frame_specs(template, batch_id, name, frame_list, frame_window, window_run)
-        where, masters = self._spread(specs, _frames.window_runs(len(specs), window_run))
+        where, masters = self._spread(specs, _frames.window_runs(frame_list, window_run))
         ids: List[str] = [""] * len(specs)
         placed = []
         queued: List[Tuple[_OneMaster, int]] = []  # (master, index) of every frame queued so far
@@ -266,7 +266,8 @@ class Client(MasterClient):
                     refs[index] = scene_pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
                 check = pb.JobSpec()
                 check.CopyFrom(specs[mine[index][0]])
-                check.ClearField("frame")
+                for field in ("frame", "frame_window", "window_first", "window_last"):  # the frames' cameras alone
+                    check.ClearField(field)
                 check.scene.CopyFrom(refs[index])
                 try:
                     master.check_frames(check, [frame_list[i] for i in mine[index]])

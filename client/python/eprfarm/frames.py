@@ -15,7 +15,6 @@ from .proto import render_settings_pb2 as rs_pb
 
 MAX_FRAME = 9_999_999  # common/camera_animation.h kMaxFrame
 MAX_BATCH_FRAMES = 100_000  # client/batch.h kMaxBatchFrames
-MAX_FRAME_WINDOW = 16  # frames on each side a vertex is reprojected into (JobSpec.frame_window)
 DEFAULT_WINDOW_RUN = 16  # frames one master renders together, at least 2 K + 1 (window_runs)
 
 
@@ -62,10 +61,11 @@ def checked_batch_id(batch_id: Optional[str]) -> str:
 
 
 def checked_window(frame_window, window_run: Optional[int], spec: pb.JobSpec) -> Tuple[int, int]:
-    """The frame window K and the run length N of a batch, ArgumentError unless K is 0 to MAX_FRAME_WINDOW
-    and N 1 to MAX_BATCH_FRAMES; a window needs reprojection (mode skip or rp) by the deep framebuffer
-    (reproject gl or cpu). N defaults to max(DEFAULT_WINDOW_RUN, 2 K + 1); without a window it is 1."""
-    k = L.whole("frame_window", frame_window, 0, MAX_FRAME_WINDOW)
+    """The frame window K and the run length N of a batch, ArgumentError unless K and N are in
+    common/limits.h's ranges (0 to 16, 1 to 64); a window needs reprojection (mode skip or rp) by the
+    deep framebuffer (reproject gl or cpu). N defaults to max(DEFAULT_WINDOW_RUN, 2 K + 1); without a
+    window it is 1."""
+    k = L.job_whole("frame_window", frame_window, L.FRAME_WINDOW)
     if k == 0:
         if window_run is not None:
             raise ArgumentError("window_run needs a frame_window above 0")
@@ -75,16 +75,27 @@ def checked_window(frame_window, window_run: Optional[int], spec: pb.JobSpec) ->
     if spec.reprojection.method == rs_pb.REPROJECTION_METHOD_EXACT:
         raise ArgumentError("frame_window needs reproject gl or cpu: exact samples are decided for one camera")
     n = max(DEFAULT_WINDOW_RUN, 2 * k + 1) if window_run is None else window_run
-    return k, L.whole("window_run", n, 1, MAX_BATCH_FRAMES)
+    return k, L.job_whole("window_run", n, L.WINDOW_RUN)
 
 
-def window_runs(count: int, window_run: int) -> List[Tuple[int, int]]:
-    """The runs of a batch of `count` frames: [first, last] indices into its frame list, each run
-    `window_run` frames long but the last, which takes the rest when it would be shorter than half a
-    run (so no run is a lone frame at the batch's end)."""
-    runs = [(a, min(a + window_run, count) - 1) for a in range(0, count, window_run)]
-    if len(runs) > 1 and runs[-1][1] - runs[-1][0] + 1 < (window_run + 1) // 2:
-        runs[-2:] = [(runs[-2][0], runs[-1][1])]
+def window_runs(frames: List[int], window_run: int) -> List[Tuple[int, int]]:
+    """The runs of a batch's frames (sorted, unique): [first, last] indices into the list. A run holds
+    consecutive frame numbers only (the master renders a run's frames window_first..window_last, and a
+    window reaches the frames at most K numbers away): the list splits where a number is skipped, and
+    each stretch into runs of `window_run` frames, but the last, which joins the one before when it
+    would be shorter than half a run and the two together fit WINDOW_RUN (no lone frame at the end)."""
+    runs: List[Tuple[int, int]] = []
+    start = 0
+    for i in range(1, len(frames) + 1):
+        if i < len(frames) and frames[i] == frames[i - 1] + 1:
+            continue
+        stretch = [(a, min(a + window_run, i) - 1) for a in range(start, i, window_run)]
+        if len(stretch) > 1:
+            (a, _), (b, c) = stretch[-2:]
+            if c - b + 1 < (window_run + 1) // 2 and c - a + 1 <= L.WINDOW_RUN.hi:
+                stretch[-2:] = [(a, c)]
+        runs += stretch
+        start = i
     return runs
 
 
@@ -92,7 +103,7 @@ def run_frames(frames: List[int], window_run: int) -> List[Tuple[int, int]]:
     """For each of `frames` (a batch's list) the first and last frame numbers of its run (window_runs):
     a window job's window_first and window_last."""
     out = []
-    for first, last in window_runs(len(frames), window_run):
+    for first, last in window_runs(frames, window_run):
         out += [(frames[first], frames[last])] * (last - first + 1)
     return out
 

@@ -6,9 +6,10 @@ epr-master and epr-worker processes on loopback.
 
 Checks: K and N of the wrong type or out of range, a window with mode pt or reproject exact, and
 window_run without a window are refused naming the argument before anything is sent; the runs
-(frames.window_runs: N frames each, a short last run joined to the one before) and each frame's
-window_first / window_last (frame numbers, also for a list with a step); every job a master queues
-carries frame_window and its run (the specs sent to the master, recorded on their way); with two
+(frames.window_runs: N consecutive frame numbers each, a short last run joined to the one before)
+and each frame's window_first / window_last; every job a master queues
+carries frame_window and its run (the specs sent to the master, recorded on their way), and a
+window batch renders as one run on the master; with two
 masters each run goes whole to one master; K = 0 sends no window. Run with Debian's /usr/bin/python3.
 """
 
@@ -66,18 +67,21 @@ class WindowArgumentTest(unittest.TestCase):
         self.assert_refused("frame_window needs reprojection: mode pt", frame_window=1, mode="pt")
         self.assert_refused("frame_window needs reproject gl or cpu", frame_window=1, reproject="exact")
         self.assert_refused("window_run needs a frame_window above 0", window_run=4)
-        self.assert_refused("window_run 0 must be between 1 and 100000", frame_window=1, window_run=0)
+        self.assert_refused("window_run 0 must be between 1 and 64", frame_window=1, window_run=0)
+        self.assert_refused("window_run 65 must be between 1 and 64", frame_window=1, window_run=65)
 
     def test_runs(self):
         frames = eprfarm.frames
-        self.assertEqual(frames.window_runs(48, 16), [(0, 15), (16, 31), (32, 47)])
-        self.assertEqual(frames.window_runs(24, 16), [(0, 15), (16, 23)])  # 8 frames: half a run, kept
-        self.assertEqual(frames.window_runs(12, 5), [(0, 4), (5, 11)])  # 2 frames left: joined
-        self.assertEqual(frames.window_runs(3, 16), [(0, 2)])
-        self.assertEqual(frames.window_runs(3, 1), [(0, 0), (1, 1), (2, 2)])  # no window: a frame a run
-        # Frame numbers, not indices: every second frame 1, 3, ..., 13 in runs of three.
-        self.assertEqual(frames.run_frames(frames.parse_frames("1-13x2"), 3),
-                         [(1, 5)] * 3 + [(7, 13)] * 4)  # fmt: skip
+        runs = lambda count, n: frames.window_runs(list(range(1, count + 1)), n)  # noqa: E731
+        self.assertEqual(runs(48, 16), [(0, 15), (16, 31), (32, 47)])
+        self.assertEqual(runs(24, 16), [(0, 15), (16, 23)])  # 8 frames: half a run, kept
+        self.assertEqual(runs(12, 5), [(0, 4), (5, 11)])  # 2 frames left: joined
+        self.assertEqual(runs(3, 16), [(0, 2)])
+        self.assertEqual(runs(3, 1), [(0, 0), (1, 1), (2, 2)])  # no window: a frame a run
+        self.assertEqual(runs(90, 64), [(0, 63), (64, 89)])  # joined they would be over 64 frames
+        # A run holds consecutive frame numbers: the list splits where a number is skipped.
+        self.assertEqual(frames.run_frames([1, 2, 3, 4, 10, 11, 12], 3), [(1, 4)] * 4 + [(10, 12)] * 3)
+        self.assertEqual(frames.run_frames(frames.parse_frames("1-7x2"), 3), [(1, 1), (3, 3), (5, 5), (7, 7)])
         spec = eprfarm.MasterClient("127.0.0.1:1").job_spec("builtin:cornell", **LONG)
         self.assertEqual(frames.checked_window(2, None, spec), (2, 16))
         self.assertEqual(frames.checked_window(8, None, spec), (8, 17))  # at least 2 K + 1
@@ -109,6 +113,12 @@ class WindowFarmTest(unittest.TestCase):
         self.assertEqual([(s.id, s.frame, s.proto.batch_frames) for s in jobs],
                          [(ids[f - 1], f, 7) for f in range(1, 8)])  # fmt: skip
         self.assertEqual(len(self.client.cancel_batch(batch)), 7)
+
+    def test_window_batch_renders_as_one_run(self):
+        batch, ids = self.client.submit_frames(self.scene, "1-3", frame_window=1,
+                                               **{**LONG, "spp": 8, "width": 24, "height": 24})  # fmt: skip
+        self.assertEqual([self.client.wait(j).state for j in ids], ["DONE"] * 3, self.farm.logs())
+        self.assertIn(f"window run 1..3 of batch {batch} (K = 1) starting", self.farm.logs())
 
     def test_no_window_sends_none(self):
         specs = SentSpecs(self)
