@@ -8,13 +8,14 @@ local farm, for independent frames (skip, K = 0), the plain path tracer and fram
         [--spp 4,8,16,32 --ref-spp 1024 --windows 1,2,4,8 --rr albedo]
         [--variants scenes/conference-cut.json:19-30,scenes/conference-fast.json:1-12] [--strip docs/x.png]
 
-Every render is one batch, `epr submit SCENE --frames F --wait --out` on a fresh local farm: an
-epr-master (loopback, its own --state-dir) and one epr-worker (--threads, default 2); its CPU
-seconds are those of the three processes while the batch runs (user + system: the client's from
-wait4, the master's and worker's from /proc from once their start-up has settled, as on a farm whose
-processes outlive the batch; loading the batch's scene is counted). Configurations: `pt` (--mode pt --rr RR, the best plain path tracer), `skip`
-(--mode skip, the master's default roulette, every frame alone) and `kN` (skip with --frame-window
-N; only when `epr submit --help` offers --frame-window, else left out with a note).
+Every render is one batch on a fresh local farm, an epr-master (loopback, its own --state-dir) and
+one epr-worker (--threads, default 2), submitted by the eprfarm Python client of the build
+(BUILD/client/python: submit_frames, then each frame's files); its CPU seconds are those of the three
+processes while the batch runs (user + system: the client's from wait4, the master's and worker's
+from /proc from once their start-up has settled, as on a farm whose processes outlive the batch;
+loading the batch's scene is counted). Configurations: `pt` (mode pt, roulette --rr, the best plain
+path tracer), `skip` (mode skip, the master's default roulette, every frame alone) and `kN` (skip
+with frame_window=N: runs of max(16, 2N + 1) consecutive frames, here the whole batch).
 
 References: per frame, --ref-spp paths per pixel of --mode pt as two batches of half as many (seeds
 1000001 and 1000002), cached in REFS/STEM_WxH_FRAMES_REFSPP/ (made once, reused while the scene file
@@ -33,6 +34,7 @@ Writes OUT/csv/TAG_CONFIG.csv (spp, cpu_s, rel_mse, rel_mse_trim, worst frame), 
 
 import argparse
 import hashlib
+import json
 import os
 import re
 import shutil
@@ -129,19 +131,32 @@ class Farm:
         return batch
 
 
+# The client: the eprfarm package's submit_frames (frame windows included), then every frame's files.
+SUBMIT = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import eprfarm
+a = json.loads(sys.argv[2])
+with eprfarm.Client(a.pop("master")) as c:
+    prefix, frames = a.pop("prefix"), a.pop("frames")
+    batch, ids = c.submit_frames(a.pop("scene"), frames, **a)
+    for frame, job in zip(eprfarm.frames.parse_frames(frames), ids):
+        if c.wait(job).state != "DONE":
+            sys.exit(f"frame {frame}: job {job} ended {c.status(job).state}")
+        c.get(job, out=f"{prefix}.{frame:04d}")
+"""
+
+
 def render(a, scene, frames, mode, spp, seed, prefix, window=0, rr=None):
     """One batch on a fresh farm: the frames' images as PREFIX.NNNN.exr, and the farm's CPU seconds."""
     folder = tempfile.mkdtemp(prefix="epr-frame-window-", dir=a.tmp)
     farm = Farm(a, folder)
     try:
-        argv = [a.epr, "submit", scene, "--frames", frames, "--mode", mode, "--spp", str(spp), "--seed", str(seed),
-                "--width", str(a.width), "--height", str(a.height), "--master", farm.address, "--wait", "--out",
-                prefix]  # fmt: skip
-        if rr:
-            argv += ["--rr", rr]
+        job = {"master": farm.address, "prefix": prefix, "frames": frames, "scene": scene, "mode": mode, "spp": spp,
+               "seed": seed, "width": a.width, "height": a.height, "rr": rr}  # fmt: skip
         if window:
-            argv += ["--frame-window", str(window)]
-        farm.run(argv, "submit.log")
+            job["frame_window"] = window
+        farm.run([sys.executable, "-c", SUBMIT, a.package_dir, json.dumps(job)], "submit.log")
     finally:
         cpu = farm.stop()
     shutil.rmtree(folder, ignore_errors=True)
@@ -271,7 +286,8 @@ def strip(a, tag, frames, config, spp, ref_folder, path, count=6):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--build", required=True, help="the build folder (client/epr, master/epr-master, worker/epr-worker)")
+    ap.add_argument("--build", required=True,
+                    help="the build folder (client/python, master/epr-master, worker/epr-worker)")  # fmt: skip
     ap.add_argument("--out", required=True)
     ap.add_argument("--refs", required=True, help="folder caching the per-frame references")
     ap.add_argument("--scene", default=os.path.join(ROOT, "scenes", "conference-flythrough.json"))
@@ -289,19 +305,16 @@ def main():
     ap.add_argument("--strip", help="PNG: six frames, reference above and the widest window (else skip) at the "
                                     "middle spp below")  # fmt: skip
     a = ap.parse_args()
-    a.epr, a.master, a.worker = (os.path.join(a.build, p) for p in ("client/epr", "master/epr-master",
-                                                                    "worker/epr-worker"))  # fmt: skip
+    a.package_dir, a.master, a.worker = (os.path.join(a.build, p) for p in ("client/python", "master/epr-master",
+                                                                            "worker/epr-worker"))  # fmt: skip
     a.spp = [int(s) for s in a.spp.split(",")]
     for d in ("csv", "img"):
         os.makedirs(os.path.join(a.out, d), exist_ok=True)
     os.makedirs(a.refs, exist_ok=True)
     a.tmp = tempfile.mkdtemp(prefix="epr-frame-window-")
-    help_text = subprocess.run([a.epr, "submit", "--help"], capture_output=True, text=True)
-    has_window = "--frame-window" in help_text.stdout + help_text.stderr
-    windows = [int(k) for k in a.windows.split(",") if k] if has_window else []
+    windows = [int(k) for k in a.windows.split(",") if k]
     configs = [("pt", "pt", 0, a.rr), ("skip", "skip", 0, None)] + [(f"k{k}", "skip", k, None) for k in windows]
     load = [os.getloadavg()[0]]
-    notes = [] if has_window else ["`epr submit` has no --frame-window: only pt and skip (K = 0) measured"]
     tag = f"{os.path.splitext(os.path.basename(a.scene))[0]}_{a.width}x{a.height}"
     results, ref_folder = sweep(a, a.scene, a.frames, configs, tag)
     text = [table(results, tag, a.frames)]
@@ -322,7 +335,7 @@ def main():
     with open(os.path.join(a.out, "summary.md"), "w") as f:
         f.write(f"{a.scene} frames {a.frames}, {a.width} x {a.height}, worker --threads {a.threads}; references "
                 f"{a.ref_spp} spp pt in {ref_folder}; load average {load[0]:.1f} at the start, {load[1]:.1f} at the end"
-                + "".join(f"; {n}" for n in notes) + "\n\n" + "\n".join(text) + "\n")  # fmt: skip
+                + "\n\n" + "\n".join(text) + "\n")  # fmt: skip
     print(open(os.path.join(a.out, "summary.md")).read())
     if a.charts:
         charts(a, tag, [c[0] for c in configs])
