@@ -15,7 +15,7 @@ processes while the batch runs (user + system: the client's from wait4, the mast
 from /proc from once their start-up has settled, as on a farm whose processes outlive the batch;
 loading the batch's scene is counted). Configurations: `pt` (mode pt, roulette --rr, the best plain
 path tracer), `skip` (mode skip, the master's default roulette, every frame alone) and `kN` (skip
-with frame_window=N: runs of max(16, 2N + 1) consecutive frames, here the whole batch).
+with frame_window=N: runs of at most 16 consecutive frames, each frame's seed 1 plus its number).
 
 References: per frame, --ref-spp paths per pixel of --mode pt as two batches of half as many (seeds
 1000001 and 1000002), cached in REFS/STEM_WxH_FRAMES_REFSPP/ (made once, reused while the scene file

@@ -93,6 +93,7 @@ class FarmBatch:
                         )
                     spec.frame_window = window
                     spec.window_first, spec.window_last = runs[index]
+                    spec.seed = s.seed + frame  # the frames of a run trace paths of their own
                 scene_bytes = sum(len(f.data) for f in spec.scene.files.files)
                 if scene_bytes > limit:
                     content_hash = spec.scene.content_hash

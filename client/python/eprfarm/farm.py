@@ -223,11 +223,12 @@ class Client(MasterClient):
         ids, in frame order.
 
         `frame_window` K (0 to 16; 0, the default: every frame alone) renders the frames in runs of
-        `window_run` (1 to 64, default max(16, 2 K + 1)) consecutive frame numbers (frames.window_runs),
-        each run on one master with its rounds in step, a vertex traced for one frame also
-        reprojected into the run's frames at most K frame numbers away. With several masters whole
-        runs are spread, each to the master with the least work. A window needs mode skip or rp and
-        reproject gl or cpu.
+        at most `window_run` (1 to 64, default 16) consecutive frame numbers (frames.window_runs, as
+        `epr submit --frame-window K --window-run N` plans them), each run on one master with its
+        rounds in step, a vertex traced for one frame also reprojected into the run's frames at most
+        K frame numbers away; each frame's seed is then `seed` plus its number. With several masters
+        whole runs are spread, each to the master with the least work. A window needs mode skip or
+        rp and reproject gl or cpu.
 
         Every argument is checked before anything is sent, and every frame before any is queued: each
         master that gets frames uploads the scene and checks the scene's camera animation at all of

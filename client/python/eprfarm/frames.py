@@ -15,7 +15,7 @@ from .proto import render_settings_pb2 as rs_pb
 
 MAX_FRAME = 9_999_999  # common/camera_animation.h kMaxFrame
 MAX_BATCH_FRAMES = 100_000  # client/batch.h kMaxBatchFrames
-DEFAULT_WINDOW_RUN = 16  # frames one master renders together, at least 2 K + 1 (window_runs)
+DEFAULT_WINDOW_RUN = 16  # frames one master renders together (client/batch.h kDefaultWindowRun)
 
 
 def parse_frames(frames: Union[str, Iterable[int]]) -> List[int]:
@@ -63,8 +63,7 @@ def checked_batch_id(batch_id: Optional[str]) -> str:
 def checked_window(frame_window, window_run: Optional[int], spec: pb.JobSpec) -> Tuple[int, int]:
     """The frame window K and the run length N of a batch, ArgumentError unless K and N are in
     common/limits.h's ranges (0 to 16, 1 to 64); a window needs reprojection (mode skip or rp) by the
-    deep framebuffer (reproject gl or cpu). N defaults to max(DEFAULT_WINDOW_RUN, 2 K + 1); without a
-    window it is 1."""
+    deep framebuffer (reproject gl or cpu). N defaults to DEFAULT_WINDOW_RUN; without a window it is 1."""
     k = L.job_whole("frame_window", frame_window, L.FRAME_WINDOW)
     if k == 0:
         if window_run is not None:
@@ -74,28 +73,21 @@ def checked_window(frame_window, window_run: Optional[int], spec: pb.JobSpec) ->
         raise ArgumentError("frame_window needs reprojection: mode pt traces every frame alone (use skip or rp)")
     if spec.reprojection.method == rs_pb.REPROJECTION_METHOD_EXACT:
         raise ArgumentError("frame_window needs reproject gl or cpu: exact samples are decided for one camera")
-    n = max(DEFAULT_WINDOW_RUN, 2 * k + 1) if window_run is None else window_run
+    n = DEFAULT_WINDOW_RUN if window_run is None else window_run
     return k, L.job_whole("window_run", n, L.WINDOW_RUN)
 
 
 def window_runs(frames: List[int], window_run: int) -> List[Tuple[int, int]]:
-    """The runs of a batch's frames (sorted, unique): [first, last] indices into the list. A run holds
-    consecutive frame numbers only (the master renders a run's frames window_first..window_last, and a
-    window reaches the frames at most K numbers away): the list splits where a number is skipped, and
-    each stretch into runs of `window_run` frames, but the last, which joins the one before when it
-    would be shorter than half a run and the two together fit WINDOW_RUN (no lone frame at the end)."""
+    """The runs of a batch's frames (sorted, unique) as `epr submit --frame-window` plans them
+    (client/batch.cpp): [first, last] indices into the list, each run at most `window_run` consecutive
+    frame numbers (the master renders a run's frames window_first..window_last together and reaches
+    the frames at most K numbers away), a skipped number ending a run."""
     runs: List[Tuple[int, int]] = []
     start = 0
     for i in range(1, len(frames) + 1):
-        if i < len(frames) and frames[i] == frames[i - 1] + 1:
-            continue
-        stretch = [(a, min(a + window_run, i) - 1) for a in range(start, i, window_run)]
-        if len(stretch) > 1:
-            (a, _), (b, c) = stretch[-2:]
-            if c - b + 1 < (window_run + 1) // 2 and c - a + 1 <= L.WINDOW_RUN.hi:
-                stretch[-2:] = [(a, c)]
-        runs += stretch
-        start = i
+        if i == len(frames) or frames[i] != frames[i - 1] + 1 or i - start == window_run:
+            runs.append((start, i - 1))
+            start = i
     return runs
 
 
@@ -114,7 +106,8 @@ def frame_specs(
     """One copy of `spec` per frame, with the batch fields, the job name NAME.0007 and the request id
     BATCH-FRAME (a retried submission does not queue a frame twice), as `epr submit --frames` makes them.
     With a frame window (checked_window) each frame also names its run: frame_window, and window_first
-    and window_last, the frame numbers of the run's first and last frame (window_runs)."""
+    and window_last, the frame numbers of the run's first and last frame (window_runs); and its seed
+    is the batch's plus the frame number, so that the frames of a run trace paths of their own."""
     if len(name.encode()) + 9 > MAX_NAME_BYTES:
         raise ArgumentError(f"batch name is {len(name.encode())} bytes long, at most {MAX_NAME_BYTES - 9}")
     run_of = run_frames(frames, window_run)
@@ -131,5 +124,6 @@ def frame_specs(
         if frame_window:
             one.frame_window = frame_window
             one.window_first, one.window_last = run_of[i]
+            one.seed = (spec.seed + frame) % (1 << 64)
         out.append(one)
     return out

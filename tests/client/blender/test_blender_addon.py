@@ -442,8 +442,8 @@ class BlenderAddonTest(BlenderCase):
             self.assertLessEqual({j.state for j in client.list(batch=batch)}, {"DONE", "CANCELLED"}, log)
 
     def test_batch_operator_frame_window(self):
-        # Frame Window 1: every frame's job names the window and its run (frames 1-2, one run), as the
-        # specs sent show; the batch ends. Refused, with the reason and nothing left running: Mode pt
+        # Frame Window 1: every frame's job names the window and its run (frames 1-2, one run) and has
+        # the seed plus its frame, as the specs sent show; the batch ends. Refused, with the reason and nothing left running: Mode pt
         # (nothing to reproject), and a mesh that moves between the frames (not a still scene).
         out = os.path.join(self.tmp, "window", "box_####")
         r = self.render_blend(
@@ -453,7 +453,7 @@ class BlenderAddonTest(BlenderCase):
                 "eprfarm = settings.import_client()\n"
                 "submit = eprfarm.Client.submit_spec\n"
                 "def recorded(client, spec):\n"
-                "    print('sent:', spec.frame, spec.frame_window, spec.window_first, spec.window_last, flush=True)\n"
+                "    print('sent:', spec.frame, spec.frame_window, spec.window_first, spec.window_last, spec.seed, flush=True)\n"
                 "    return submit(client, spec)\n"
                 "eprfarm.Client.submit_spec = recorded\n"
                 "s = bpy.context.scene.eprfarm\n"
@@ -478,7 +478,7 @@ class BlenderAddonTest(BlenderCase):
         log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
         self.assertIn("operator: ['FINISHED']", r.stdout, log)
         self.assertRegex(r.stdout, r"eprfarm: batch \S+: 2/2 frames done, 100%", log)
-        self.assertEqual(re.findall(r"sent: (.*)", r.stdout)[:2], ["1 1 1 2", "2 1 1 2"], log)
+        self.assertEqual(re.findall(r"sent: (.*)", r.stdout)[:2], [f"1 1 1 2 {SEED + 1}", f"2 1 1 2 {SEED + 2}"], log)
         self.assertEqual(len(re.findall(r"sent: ", r.stdout)), 3, log)  # the moving scene's frame 1, then refused
         self.assertIn("pt: raised: Error: eprfarm: frame_window needs reprojection: mode pt", r.stdout, log)
         self.assertRegex(

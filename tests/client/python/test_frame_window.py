@@ -6,8 +6,8 @@ epr-master and epr-worker processes on loopback.
 
 Checks: K and N of the wrong type or out of range, a window with mode pt or reproject exact, and
 window_run without a window are refused naming the argument before anything is sent; the runs
-(frames.window_runs: N consecutive frame numbers each, a short last run joined to the one before)
-and each frame's window_first / window_last; every job a master queues
+(frames.window_runs: at most N consecutive frame numbers each, as `epr submit --frame-window` plans
+them) and each frame's window_first / window_last and seed (the batch's plus the frame); every job a master queues
 carries frame_window and its run (the specs sent to the master, recorded on their way), and a
 window batch renders as one run on the master; with two
 masters each run goes whole to one master; K = 0 sends no window. Run with Debian's /usr/bin/python3.
@@ -29,18 +29,18 @@ import test_multi_master as multi  # noqa: E402  (TwoMasters, ANIMATION)
 eprfarm = grpc = None  # imported from --package-dir by base.main()
 
 # Long enough that no frame ends during a test; skip, as a window needs reprojection.
-LONG = {"width": 32, "height": 32, "spp": 100000, "mode": "skip"}
+LONG = {"width": 32, "height": 32, "spp": 100000, "mode": "skip", "seed": 7}
 
 
 class SentSpecs:
-    """Records every JobSpec a MasterClient submits (the real call goes on), as (frame, K, first, last)."""
+    """Records every JobSpec a MasterClient submits (the real call goes on), as (frame, K, first, last, seed)."""
 
     def __init__(self, case: unittest.TestCase):
         self.sent = []
         submit = eprfarm.MasterClient.submit_spec
 
         def recorded(client, spec):
-            self.sent.append((spec.frame, spec.frame_window, spec.window_first, spec.window_last))
+            self.sent.append((spec.frame, spec.frame_window, spec.window_first, spec.window_last, spec.seed))
             return submit(client, spec)
 
         eprfarm.MasterClient.submit_spec = recorded
@@ -74,17 +74,15 @@ class WindowArgumentTest(unittest.TestCase):
         frames = eprfarm.frames
         runs = lambda count, n: frames.window_runs(list(range(1, count + 1)), n)  # noqa: E731
         self.assertEqual(runs(48, 16), [(0, 15), (16, 31), (32, 47)])
-        self.assertEqual(runs(24, 16), [(0, 15), (16, 23)])  # 8 frames: half a run, kept
-        self.assertEqual(runs(12, 5), [(0, 4), (5, 11)])  # 2 frames left: joined
+        self.assertEqual(runs(5, 3), [(0, 2), (3, 4)])  # as client_test FrameBatchPlan plans them
         self.assertEqual(runs(3, 16), [(0, 2)])
         self.assertEqual(runs(3, 1), [(0, 0), (1, 1), (2, 2)])  # no window: a frame a run
-        self.assertEqual(runs(90, 64), [(0, 63), (64, 89)])  # joined they would be over 64 frames
-        # A run holds consecutive frame numbers: the list splits where a number is skipped.
-        self.assertEqual(frames.run_frames([1, 2, 3, 4, 10, 11, 12], 3), [(1, 4)] * 4 + [(10, 12)] * 3)
+        # A run holds consecutive frame numbers: a skipped number ends it.
+        self.assertEqual(frames.run_frames([1, 2, 3, 4, 10, 11, 12], 3), [(1, 3)] * 3 + [(4, 4)] + [(10, 12)] * 3)
         self.assertEqual(frames.run_frames(frames.parse_frames("1-7x2"), 3), [(1, 1), (3, 3), (5, 5), (7, 7)])
         spec = eprfarm.MasterClient("127.0.0.1:1").job_spec("builtin:cornell", **LONG)
         self.assertEqual(frames.checked_window(2, None, spec), (2, 16))
-        self.assertEqual(frames.checked_window(8, None, spec), (8, 17))  # at least 2 K + 1
+        self.assertEqual(frames.checked_window(8, 4, spec), (8, 4))
         self.assertEqual(frames.checked_window(0, None, spec), (0, 1))
 
 
@@ -107,8 +105,9 @@ class WindowFarmTest(unittest.TestCase):
     def test_every_frame_names_its_run(self):
         specs = SentSpecs(self)
         batch, ids = self.client.submit_frames(self.scene, "1-7", frame_window=2, window_run=3, **LONG)
-        # Runs of three: 1-3, then 4-7 (frame 7 alone would be less than half a run).
-        self.assertEqual(specs.sent, [(1, 2, 1, 3), (2, 2, 1, 3), (3, 2, 1, 3)] + [(f, 2, 4, 7) for f in (4, 5, 6, 7)])
+        # Runs of three: 1-3, 4-6, 7; each frame's seed the batch's (7) plus its number.
+        runs = [(1, 3)] * 3 + [(4, 6)] * 3 + [(7, 7)]
+        self.assertEqual(specs.sent, [(f, 2, *runs[f - 1], 7 + f) for f in range(1, 8)])
         jobs = sorted(self.client.list(batch=batch), key=lambda s: s.frame)
         self.assertEqual([(s.id, s.frame, s.proto.batch_frames) for s in jobs],
                          [(ids[f - 1], f, 7) for f in range(1, 8)])  # fmt: skip
@@ -123,7 +122,7 @@ class WindowFarmTest(unittest.TestCase):
     def test_no_window_sends_none(self):
         specs = SentSpecs(self)
         batch, _ = self.client.submit_frames(self.scene, "1-3", **LONG)
-        self.assertEqual(specs.sent, [(f, 0, 0, 0) for f in (1, 2, 3)])
+        self.assertEqual(specs.sent, [(f, 0, 0, 0, 7) for f in (1, 2, 3)])
         self.client.cancel_batch(batch)
 
 
