@@ -206,11 +206,12 @@ def interp(xs, ys, x):
     return None
 
 
-def ratios(rows, base):
-    """Median over rows' points of (error at equal CPU, CPU at equal error) against `base`; trimmed error."""
-    cpu_b, err_b = [r[1] for r in base], [r[3] for r in base]
-    at_cpu = [r[3] / e for r in rows if (e := interp(cpu_b, err_b, r[1]))]
-    at_err = [r[1] / c for r in rows if (c := interp(err_b, cpu_b, r[3]))]
+def ratios(rows, base, col=3):
+    """Median over rows' points of (error at equal CPU, CPU at equal error) against `base`; the error
+    in column `col` (2: relMSE, 3: trimmed)."""
+    cpu_b, err_b = [r[1] for r in base], [r[col] for r in base]
+    at_cpu = [r[col] / e for r in rows if (e := interp(cpu_b, err_b, r[1]))]
+    at_err = [r[1] / c for r in rows if (c := interp(err_b, cpu_b, r[col]))]
     med = lambda v: float(np.median(v)) if v else None  # noqa: E731
     return med(at_cpu), med(at_err)
 
@@ -221,8 +222,13 @@ def fmt(x):
 
 def sweep(a, scene, frames_text, configs, tag):
     frames = parse_frames(frames_text)
-    refs, ref_folder = references(a, scene, frames_text, frames)
     out = {}
+    if a.from_csv:
+        for name, *_ in configs:
+            with open(os.path.join(a.out, "csv", f"{tag}_{name}.csv")) as f:
+                out[name] = [(int(r[0]), *map(float, r[1:])) for r in (line.split(",") for line in f.readlines()[1:])]
+        return out, "(as measured)"
+    refs, ref_folder = references(a, scene, frames_text, frames)
     for name, mode, window, rr in configs:
         rows = []
         for spp in a.spp:
@@ -247,11 +253,15 @@ def table(results, tag, frames_text):
              "|---|" + "---|" * len(next(iter(results.values())))]
     for name, rows in results.items():
         lines.append(f"| {name} | " + " | ".join(f"{r[1]:.1f} / {r[2]:.4g} / {r[3]:.4g}" for r in rows) + " |")
-    lines += ["", "| config | error at equal CPU vs skip | CPU at equal error vs skip | error at equal CPU vs pt "
+    lines += ["", "Ratios (median over the sample counts; relMSE, then trimmed):", "",
+              "| config | error at equal CPU vs skip | CPU at equal error vs skip | error at equal CPU vs pt "
               "| CPU at equal error vs pt |", "|---|---|---|---|---|"]  # fmt: skip
     for name, rows in results.items():
-        s, p = ratios(rows, results["skip"]), ratios(rows, results["pt"]) if "pt" in results else (None, None)
-        lines.append(f"| {name} | {fmt(s[0])} | {fmt(s[1])} | {fmt(p[0])} | {fmt(p[1])} |")
+        cells = []
+        for base in ("skip", "pt"):
+            both = [ratios(rows, results[base], col) if base in results else (None, None) for col in (2, 3)]
+            cells += [f"{fmt(both[0][i])} / {fmt(both[1][i])}" for i in (0, 1)]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -301,6 +311,7 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--variants", default=",".join(os.path.join(ROOT, "scenes", v) for v in
                                                    ("conference-cut.json:19-30", "conference-fast.json:1-12")))  # fmt: skip
+    ap.add_argument("--from-csv", action="store_true", help="render nothing: the tables and charts of OUT/csv")
     ap.add_argument("--charts", help="folder for the charts (gnuplot): frame_window_TAG.png and _full.png")
     ap.add_argument("--strip", help="PNG: six frames, reference above and the widest window (else skip) at the "
                                     "middle spp below")  # fmt: skip
