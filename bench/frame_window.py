@@ -337,11 +337,11 @@ def main():
         text.append(table(vres, vtag, frames))
         for name in vres:
             if name != "skip":
-                main_gain, var_gain = ratios(results[name], results["skip"])[0], ratios(vres[name], vres["skip"])[0]
-                gains[(vtag, name)] = (main_gain, var_gain)
+                gains[(vtag, name)] = [ratios(r[name], r["skip"], col)[0] for r in (results, vres) for col in (2, 3)]
     if gains:
-        text.append("| variant | config | error vs skip at equal CPU: main scene | variant |\n|---|---|---|---|")
-        text += [f"| {v} | {n} | {fmt(g[0])} | {fmt(g[1])} |" for (v, n), g in gains.items()]
+        text.append("Error at equal CPU against skip, relMSE / trimmed:\n\n"
+                    "| variant | config | main scene | variant |\n|---|---|---|---|")  # fmt: skip
+        text += [f"| {v} | {n} | {fmt(g[0])} / {fmt(g[1])} | {fmt(g[2])} / {fmt(g[3])} |" for (v, n), g in gains.items()]
     load.append(os.getloadavg()[0])
     with open(os.path.join(a.out, "summary.md"), "w") as f:
         f.write(f"{a.scene} frames {a.frames}, {a.width} x {a.height}, worker --threads {a.threads}; references "
