@@ -384,6 +384,9 @@ TileLeaseInfo JobManager::grant(Job& job, const std::string& worker, const Lease
   info.seed = job.request.options.seed;
   info.options = job.request.options;
   info.camera = job.request.camera;
+  if (job.run)
+    for (const auto& g : job.run->neighbours(job.request.batch.frame.value_or(0)))
+      if (g->state == JobState::kRunning) info.window_cameras.push_back(g->request.camera);
   info.codec_bounds = job.codec_bounds;
   info.scene_hash = job.scene_hash;
   info.scene_builtin = job.bundle->builtin;

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -200,6 +201,54 @@ TEST(WindowRun, CountsAreTheSameForOneAndThreeWorkers) {
     EXPECT_EQ(one[f].counts.data, three[f].counts.data) << "M and M'";
     EXPECT_EQ(one[f].pathtrace.data, three[f].pathtrace.data) << "path sums";
   }
+}
+
+TEST(WindowRun, ARunResumesAsARunAfterARestartWithTheSameCounts) {
+  std::vector<JobRequest> run;
+  for (uint32_t f = 1; f <= 3; ++f) {
+    run.push_back(frame_request(f, RenderMode::kSkip, 24, 1, 0.1f * float(f)));
+    run.back().options.paths_per_round = 2;  // rounds of 2 paths: mid-way at round 2
+    run.back().options.round_growth = 0;
+  }
+  const std::vector<JobImages> whole = render(run);
+  const fs::path dir = fresh_dir("restart");
+  MasterOptions o;
+  o.state_dir = dir.string();
+  o.checkpoint_interval_s = 0;  // after every round
+  o.memory_budget_bytes = uint64_t(1) << 40;
+  std::vector<std::string> ids;
+  {
+    JobManager jobs(o);
+    for (const auto& r : run) ids.push_back(jobs.submit(r).id);
+    JobsWorker w(jobs);
+    for (auto end = std::chrono::steady_clock::now() + 120s; std::chrono::steady_clock::now() < end;) {
+      if (jobs.get(ids[0])->progress.round >= 2) break;
+      if (auto l = w.lease())
+        w.submit(*l);
+      else
+        std::this_thread::sleep_for(1ms);
+    }
+    for (const auto& id : ids) ASSERT_EQ(jobs.get(id)->state, JobState::kRunning);
+  }  // destroyed mid-run
+  {
+    JobManager jobs(o);
+    ASSERT_TRUE(poll([&] {
+      return std::all_of(ids.begin(), ids.end(),
+                         [&](const std::string& id) { return jobs.get(id)->state == JobState::kRunning; });
+    }));
+    const int round = jobs.get(ids[0])->progress.round;
+    EXPECT_GE(round, 1) << "from the checkpoints, not round 0";
+    for (const auto& id : ids) EXPECT_EQ(jobs.get(id)->progress.round, round) << "every frame at one round";
+    JobsWorker w(jobs);
+    trace_until_done(jobs, {&w}, ids);
+    for (size_t f = 0; f < ids.size(); ++f) {
+      SCOPED_TRACE("frame " + std::to_string(f + 1));
+      const JobImages r = results_of(jobs, ids[f]);
+      EXPECT_EQ(r.counts.data, whole[f].counts.data) << "M and M'";
+      EXPECT_EQ(r.pathtrace.data, whole[f].pathtrace.data) << "path sums";
+    }
+  }
+  fs::remove_all(dir);
 }
 
 TEST(WindowRun, ARunStartsOnceAllItsFramesAreQueued) {
