@@ -24,15 +24,11 @@ namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 using test::JobImages;
 using test::JobsWorker;
+using test::poll_until;
 using test::results_of;
+using test::trace_until;
 
-fs::path fresh_dir(const std::string& name) {
-  static int n = 0;
-  const fs::path d = fs::temp_directory_path() /
-                     ("epr-window-test-" + std::to_string(::getpid()) + "-" + name + "-" + std::to_string(++n));
-  fs::remove_all(d);
-  return d;
-}
+fs::path fresh_dir(const std::string& name) { return test::fresh_dir("epr-window-test", name); }
 
 // Frame `frame` of batch "win" (frames 1..3), its camera's eye `dx` to the side of the Cornell view.
 JobRequest frame_request(uint32_t frame, RenderMode mode, int spp, uint32_t window, float dx = 0) {
@@ -60,35 +56,6 @@ JobRequest frame_request(uint32_t frame, RenderMode mode, int spp, uint32_t wind
   return req;
 }
 
-bool poll(const std::function<bool()>& done, std::chrono::milliseconds timeout = 60000ms) {
-  for (auto end = std::chrono::steady_clock::now() + timeout; std::chrono::steady_clock::now() < end;) {
-    if (done()) return true;
-    std::this_thread::sleep_for(2ms);
-  }
-  return done();
-}
-
-/// Traces whatever the manager hands out until every one of `ids` is done.
-void trace_until_done(JobManager& jobs, std::vector<JobsWorker*> workers, const std::vector<std::string>& ids) {
-  size_t turn = 0;
-  for (auto end = std::chrono::steady_clock::now() + 300s; std::chrono::steady_clock::now() < end;) {
-    bool all = true;
-    for (const auto& id : ids) {
-      const auto s = jobs.get(id);
-      ASSERT_TRUE(s);
-      ASSERT_NE(s->state, JobState::kFailed) << s->error;
-      all &= s->state == JobState::kDone;
-    }
-    if (all) return;
-    JobsWorker& w = *workers[turn++ % workers.size()];
-    if (auto l = w.lease())
-      w.submit(*l);
-    else
-      std::this_thread::sleep_for(1ms);
-  }
-  FAIL() << "the jobs did not end within 300 s";
-}
-
 /// Renders the requests on one master (budget for all of them at once) and returns their images.
 std::vector<JobImages> render(const std::vector<JobRequest>& reqs, int workers = 1) {
   const fs::path dir = fresh_dir("render");
@@ -111,7 +78,7 @@ std::vector<JobImages> render(const std::vector<JobRequest>& reqs, int workers =
       ws.push_back(std::make_unique<JobsWorker>(jobs, "w" + std::to_string(i)));
       raw.push_back(ws.back().get());
     }
-    trace_until_done(jobs, raw, ids);
+    trace_until(jobs, raw, ids);
     for (const auto& id : ids) out.push_back(results_of(jobs, id));
   }
   fs::remove_all(dir);
@@ -232,7 +199,7 @@ TEST(WindowRun, ARunResumesAsARunAfterARestartWithTheSameCounts) {
   }  // destroyed mid-run
   {
     JobManager jobs(o);
-    ASSERT_TRUE(poll([&] {
+    ASSERT_TRUE(poll_until([&] {
       return std::all_of(ids.begin(), ids.end(),
                          [&](const std::string& id) { return jobs.get(id)->state == JobState::kRunning; });
     }));
@@ -240,7 +207,7 @@ TEST(WindowRun, ARunResumesAsARunAfterARestartWithTheSameCounts) {
     EXPECT_GE(round, 1) << "from the checkpoints, not round 0";
     for (const auto& id : ids) EXPECT_EQ(jobs.get(id)->progress.round, round) << "every frame at one round";
     JobsWorker w(jobs);
-    trace_until_done(jobs, {&w}, ids);
+    trace_until(jobs, {&w}, ids);
     for (size_t f = 0; f < ids.size(); ++f) {
       SCOPED_TRACE("frame " + std::to_string(f + 1));
       const JobImages r = results_of(jobs, ids[f]);
@@ -266,11 +233,11 @@ TEST(WindowRun, ARunStartsOnceAllItsFramesAreQueued) {
     other.batch = {};
     other.request_id = "other";
     const std::string io = jobs.submit(other).id;
-    EXPECT_TRUE(poll([&] { return jobs.get(io)->state == JobState::kRunning; })) << "a job behind the run starts";
+    EXPECT_TRUE(poll_until([&] { return jobs.get(io)->state == JobState::kRunning; })) << "a job behind the run starts";
     EXPECT_EQ(jobs.get(f1)->state, JobState::kQueued) << "frame 3 is missing";
     EXPECT_EQ(jobs.get(f2)->state, JobState::kQueued);
     const std::string f3 = jobs.submit(frame_request(3, RenderMode::kSkip, 8, 1)).id;
-    EXPECT_TRUE(poll([&] {
+    EXPECT_TRUE(poll_until([&] {
       return jobs.get(f1)->state == JobState::kRunning && jobs.get(f2)->state == JobState::kRunning &&
              jobs.get(f3)->state == JobState::kRunning;
     })) << "the whole run starts";
@@ -291,8 +258,8 @@ TEST(WindowRun, AnIncompleteRunStartsAfterTheWaitAndACancelledFrameLeavesIt) {
     const std::string f1 = jobs.submit(frame_request(1, RenderMode::kSkip, 8, 1)).id;
     const std::string f2 = jobs.submit(frame_request(2, RenderMode::kSkip, 8, 1)).id;
     // Frame 3 never comes: the run starts after the wait, with frames 1 and 2.
-    EXPECT_TRUE(
-        poll([&] { return jobs.get(f1)->state == JobState::kRunning && jobs.get(f2)->state == JobState::kRunning; }));
+    EXPECT_TRUE(poll_until(
+        [&] { return jobs.get(f1)->state == JobState::kRunning && jobs.get(f2)->state == JobState::kRunning; }));
     // Frame 1's tiles of round 0 are applied while frame 2's are out (leased, never sent): frame 1's
     // round cannot close until frame 2 leaves the run by its cancellation; then frame 1 goes on alone.
     JobsWorker w(jobs);
@@ -303,9 +270,9 @@ TEST(WindowRun, AnIncompleteRunStartsAfterTheWaitAndACancelledFrameLeavesIt) {
       if (!l) std::this_thread::sleep_for(1ms);
     }
     ASSERT_EQ(jobs.get(f1)->counters.tiles_committed, 4u);
-    EXPECT_FALSE(poll([&] { return jobs.get(f1)->progress.round > 0; }, 500ms)) << "round 0 waits for frame 2";
+    EXPECT_FALSE(poll_until([&] { return jobs.get(f1)->progress.round > 0; }, 500ms)) << "round 0 waits for frame 2";
     ASSERT_TRUE(jobs.cancel(f2));
-    trace_until_done(jobs, {&w}, {f1});
+    trace_until(jobs, {&w}, {f1});
   }
   fs::remove_all(dir);
 }
