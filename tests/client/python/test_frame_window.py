@@ -126,23 +126,13 @@ class WindowFarmTest(unittest.TestCase):
         self.client.cancel_batch(batch)
 
 
-class WindowTwoMastersTest(unittest.TestCase):
+class WindowTwoMastersTest(multi.TwoMastersCase):
     """Two masters: each run goes whole to one of them."""
 
-    def setUp(self):
-        self.tmp = tempfile.mkdtemp(prefix="epr-python-window-multi-")
-        self.masters = multi.TwoMasters(self.tmp)
-        self.client = eprfarm.Client(self.masters.list)
-
-    def tearDown(self):
-        self.client.close()
-        self.masters.stop()
-        shutil.rmtree(self.tmp, ignore_errors=True)
+    PREFIX = "epr-python-window-multi-"
 
     def test_runs_go_whole_to_a_master(self):
-        scene = os.path.join(self.tmp, "walk.json")
-        with open(scene, "w") as f:
-            f.write(multi.ANIMATION)
+        scene = self.animation_scene()
         batch, ids = self.client.submit_frames(scene, "1-8", frame_window=1, window_run=4, **LONG)
         # Equal loads: the first run to m1, the second to the master with less work, m2 (without a
         # window the frames would alternate, m1 m2 m1 m2 ...).
