@@ -8,7 +8,9 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <functional>
+#include <nlohmann/json.hpp>
 #include <thread>
 
 #include "common/image.h"
@@ -79,7 +81,22 @@ std::vector<JobImages> render(const std::vector<JobRequest>& reqs, int workers =
       raw.push_back(ws.back().get());
     }
     trace_until(jobs, raw, ids);
-    for (const auto& id : ids) out.push_back(results_of(jobs, id));
+    for (size_t i = 0; i < ids.size(); ++i) {
+      out.push_back(results_of(jobs, ids[i]));
+      // The statistics file names the frame's window and run (absent without one).
+      const auto path = jobs.result_path(ids[i], ResultKind::kJson);
+      EXPECT_TRUE(path);
+      if (!path) continue;
+      std::ifstream in(*path);
+      const nlohmann::json stats = nlohmann::json::parse(in);
+      const BatchMembership& b = reqs[i].batch;
+      EXPECT_EQ(stats.contains("frame_window"), b.window > 0) << *path;
+      if (b.window > 0 && stats.contains("frame_window")) {
+        EXPECT_EQ(stats["frame_window"].at("k").get<uint32_t>(), b.window);
+        EXPECT_EQ(stats["frame_window"].at("window_first").get<uint32_t>(), b.window_first);
+        EXPECT_EQ(stats["frame_window"].at("window_last").get<uint32_t>(), b.window_last);
+      }
+    }
   }
   fs::remove_all(dir);
   return out;
