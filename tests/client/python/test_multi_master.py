@@ -77,17 +77,16 @@ class TwoMastersCase(unittest.TestCase):
     CLIENT_TIMEOUT = None  # seconds; None: the client's default
 
     def setUp(self):
+        # Cleanups, not tearDown: they also run when setUp fails half-way (no process outlives the test).
         self.tmp = tempfile.mkdtemp(prefix=self.PREFIX)
+        self.addCleanup(shutil.rmtree, self.tmp, ignore_errors=True)
         self.masters = TwoMasters(self.tmp)
+        self.addCleanup(self.masters.stop)
         extra = {} if self.CLIENT_TIMEOUT is None else {"timeout": self.CLIENT_TIMEOUT}
         import eprfarm as package  # the package of the test that runs (base.main() put it on the path)
 
         self.client = package.Client(self.masters.list, **extra)
-
-    def tearDown(self):
-        self.client.close()
-        self.masters.stop()
-        shutil.rmtree(self.tmp, ignore_errors=True)
+        self.addCleanup(self.client.close)
 
     def animation_scene(self) -> str:
         """ANIMATION written to the test's folder: its path."""
