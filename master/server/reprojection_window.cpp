@@ -41,9 +41,8 @@ void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& fram
   }
   if (frames.size() < run_length(b))
     log->warn(
-        "window run {}..{} of batch {} starts with {} of its {} frames ({}): the others ended or did not come within "
-        "{} "
-        "s",
+        "window run {}..{} of batch {} starts with {} of its {} frames ({}): the others ended or did not "
+        "come within {} s",
         b.window_first, b.window_last, b.id, frames.size(), run_length(b), frame_list,
         m_.options_.window_run_wait_ms / 1000.0);
   if (rounds.size() > 1)
