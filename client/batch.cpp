@@ -10,6 +10,7 @@
 #include <stdexcept>
 
 #include "common/camera_animation.h"
+#include "common/limits.h"
 #include "common/log.h"
 #include "wire/convert.h"
 
@@ -85,8 +86,35 @@ std::string frame_file_name(const std::string& prefix, uint32_t frame) {
   return fmt::format("{}.{:04d}", prefix, frame);
 }
 
+namespace {
+
+// The window's checks, and the first and last frame of each frame's run (frames ascending).
+std::vector<std::pair<uint32_t, uint32_t>> window_runs(const RenderOptions& opts, const std::vector<uint32_t>& frames,
+                                                       const WindowOptions& w) {
+  std::vector<std::pair<uint32_t, uint32_t>> runs(frames.size());
+  if (w.frame_window == 0) return runs;
+  if (auto err = limits::kFrameWindow.check(int(std::min<uint32_t>(w.frame_window, 1u << 30))))
+    throw std::invalid_argument(*err);
+  if (auto err = limits::kWindowRunFrames.check(int(std::min<uint32_t>(w.run, 1u << 30))))
+    throw std::invalid_argument(*err);
+  if (opts.mode == RenderMode::kPathTrace)
+    throw std::invalid_argument("--frame-window needs reprojection (--mode skip or rp): pt traces no vertices");
+  if (opts.reproject == ReprojectMethod::kExact)
+    throw std::invalid_argument(
+        "--frame-window needs --reproject gl or cpu: exact mode's samples are found visible from one camera only");
+  for (size_t i = 0, start = 0; i < frames.size(); ++i) {
+    if (i > start && (frames[i] != frames[i - 1] + 1 || i - start == w.run)) start = i;
+    runs[i].first = frames[start];
+    // Extended to each frame of the run as it grows.
+    for (size_t j = start; j <= i; ++j) runs[j].second = frames[i];
+  }
+  return runs;
+}
+
+}  // namespace
+
 FrameBatch plan_batch(const RenderOptions& opts, const SubmitOptions& submit, const std::vector<uint32_t>& frames,
-                      std::string batch_id) {
+                      std::string batch_id, const WindowOptions& window) {
   if (frames.empty()) throw std::invalid_argument("a batch needs at least one frame");
   if (frames.size() > kMaxBatchFrames)
     throw std::invalid_argument(fmt::format("a batch has at most {} frames", kMaxBatchFrames));
@@ -98,7 +126,7 @@ FrameBatch plan_batch(const RenderOptions& opts, const SubmitOptions& submit, co
   if (batch.name.size() + 9 > kMaxNameBytes)
     throw std::invalid_argument(
         fmt::format("batch name is {} bytes long, at most {}", batch.name.size(), kMaxNameBytes - 9));
-  batch.bundle = bundle_scene(opts.scene, opts.lighting, opts.env_folder);
+  batch.bundle = bundle_scene(opts.scene, opts.lighting, opts.env_folder, BundleLoad::kUpload);
   CameraSpec still;
   const CameraAnimation animation = load_camera_animation(opts.scene, {}, &still);
   if (!animation.animated())
@@ -113,7 +141,9 @@ FrameBatch plan_batch(const RenderOptions& opts, const SubmitOptions& submit, co
   batch.frames = frames;
   std::sort(batch.frames.begin(), batch.frames.end());
   batch.frames.erase(std::unique(batch.frames.begin(), batch.frames.end()), batch.frames.end());
-  for (const uint32_t frame : batch.frames) {
+  const auto runs = window_runs(opts, batch.frames, window);
+  for (size_t i = 0; i < batch.frames.size(); ++i) {
+    const uint32_t frame = batch.frames[i];
     if (auto problem = animation.frame_problem(frame, still)) throw SceneError(*problem);
     const CameraSpec camera = opts.camera_for(animation.at(frame, still));
     if (auto err = camera.validate())
@@ -128,6 +158,12 @@ FrameBatch plan_batch(const RenderOptions& opts, const SubmitOptions& submit, co
     spec.set_batch_name(batch.name);
     spec.set_frame(frame);
     spec.set_batch_frames(uint32_t(batch.frames.size()));
+    if (window.frame_window) {
+      spec.set_frame_window(window.frame_window);
+      spec.set_window_first(runs[i].first);
+      spec.set_window_last(runs[i].second);
+      spec.set_seed(opts.seed + frame);
+    }
     batch.specs.push_back(std::move(spec));
   }
   return batch;

@@ -41,15 +41,26 @@ struct FrameBatch {
   std::vector<v1::JobSpec> specs;  // specs[i] renders frames[i]; scene not set
 };
 
+/// A frame window (DESIGN.md "Frame windows"): each frame's vertices also feed the frames at most
+/// `frame_window` (K) away that its master renders with it, in runs of at most `run` consecutive
+/// frame numbers (a gap in the frame list ends a run). 0: every frame alone.
+struct WindowOptions {
+  uint32_t frame_window = 0;
+  uint32_t run = kDefaultWindowRun;
+  static constexpr uint32_t kDefaultWindowRun = 16;
+};
+
 /// Plans `frames` of opts.scene: each frame's camera is the scene's camera animation at that frame
 /// with opts' camera overrides applied (--fov keeps every frame's field of view, for example).
 /// request_id of each frame: "<batch id>-<frame>", so a retried submission does not queue a frame
 /// twice. batch_id empty: new_batch_id(). Job names are frame_file_name(name, frame); the batch's
 /// name is submit.name, else the scene's file or built-in name. Throws SceneError for a broken scene
 /// or an unusable frame camera (naming the file, key line and frame), std::invalid_argument for bad
-/// frames or names.
+/// frames or names. With a window, each frame's spec carries it (frame_window, window_first, window_last:
+/// its run) and the seed opts.seed + frame, so that the frames of a run trace paths of their own; a
+/// window is refused (std::invalid_argument) out of range or with --mode pt or --reproject exact.
 FrameBatch plan_batch(const RenderOptions& opts, const SubmitOptions& submit, const std::vector<uint32_t>& frames,
-                      std::string batch_id = "");
+                      std::string batch_id = "", const WindowOptions& window = {});
 
 /// The scene as a job names it on `client`'s master: a built-in by name, a file scene uploaded
 /// there and named by its content hash (a master that has the scene already answers at once).

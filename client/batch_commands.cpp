@@ -48,7 +48,8 @@ std::string event_line(const v1::JobStatus& s) {
 }
 
 // For each frame of `batch`, the index in farm.masters() of the master it goes to: the one with the
-// least work, counting its samples left at the probe and the frames given to it so far.
+// least work, counting its samples left at the probe and the frames given to it so far. A window
+// run's frames go together, to where its first goes.
 std::vector<size_t> spread_frames(Farm& farm, const FrameBatch& batch) {
   std::vector<size_t> where(batch.specs.size(), 0);
   if (!farm.several()) return where;
@@ -59,11 +60,13 @@ std::vector<size_t> spread_frames(Farm& farm, const FrameBatch& batch) {
   if (std::none_of(load.begin(), load.end(), [](const auto& l) { return l.has_value(); }))
     throw *farm.masters()[0].error;
   for (size_t i = 0; i < batch.specs.size(); ++i) {
+    const v1::JobSpec& spec = batch.specs[i];
     size_t best = load.size();
-    for (size_t m = 0; m < load.size(); ++m)
+    const bool same_run = i > 0 && spec.frame_window() > 0 && spec.window_first() == batch.specs[i - 1].window_first();
+    if (same_run) best = where[i - 1];
+    for (size_t m = 0; m < load.size() && !same_run; ++m)
       if (load[m] && (best == load.size() || *load[m] < *load[best])) best = m;
     where[i] = best;
-    const v1::JobSpec& spec = batch.specs[i];
     *load[best] += double(spec.width()) * spec.height() * spec.target_spp();
   }
   return where;
@@ -72,8 +75,8 @@ std::vector<size_t> spread_frames(Farm& farm, const FrameBatch& batch) {
 }  // namespace
 
 int submit_frames(Farm& farm, const RenderOptions& opts, const SubmitOptions& submit, const std::string& frames,
-                  bool wait, const std::string& out_prefix) {
-  const FrameBatch batch = plan_batch(opts, submit, parse_frame_list(frames));
+                  bool wait, const std::string& out_prefix, const WindowOptions& window) {
+  const FrameBatch batch = plan_batch(opts, submit, parse_frame_list(frames), "", window);
   if (wait)  // the frames are fetched into out_prefix
     if (auto err = output_replaces_input(out_prefix, batch.bundle.sources)) throw OutputError("--out " + *err);
   const std::vector<size_t> where = spread_frames(farm, batch);

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <string>
 
+#include "client/batch.h"
 #include "client/farm.h"
 #include "client/job_client.h"
 #include "common/render_options.h"
@@ -22,9 +23,10 @@
 namespace epr {
 
 /// Plans and submits the batch; prints its id alone on stdout. With `wait`, follows it and fetches
-/// every frame to frame_file_name(out_prefix, frame). Returns an ExitCode.
+/// every frame to frame_file_name(out_prefix, frame). With a frame window, each run of frames goes to
+/// one master. Returns an ExitCode.
 int submit_frames(Farm& farm, const RenderOptions& opts, const SubmitOptions& submit, const std::string& frames,
-                  bool wait, const std::string& out_prefix);
+                  bool wait, const std::string& out_prefix, const WindowOptions& window = {});
 
 /// True when some master holds jobs of batch `id`.
 bool is_batch(Farm& farm, const std::string& id);

@@ -185,7 +185,7 @@ void JobClient::check_reachable() {
 // ---- submitting ---------------------------------------------------------------------------------
 
 v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, const SubmitOptions& submit) {
-  return make_job_spec(opts, bundle_scene(opts.scene, opts.lighting, opts.env_folder), submit);
+  return make_job_spec(opts, bundle_scene(opts.scene, opts.lighting, opts.env_folder, BundleLoad::kUpload), submit);
 }
 
 v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, SceneBundleData bundle, const SubmitOptions& submit) {
@@ -198,7 +198,7 @@ v1::JobSpec JobClient::make_job_spec(const RenderOptions& opts, SceneBundleData 
   const std::string ext = lower(fs::path(opts.scene).extension().string());
   CameraSpec scene_camera;
   if (!full_camera && (ext != ".obj" || !bundle.builtin.empty()))
-    scene_camera = bundle.loaded ? bundle.loaded->camera : load_scene(opts.scene).camera;
+    scene_camera = bundle.camera ? *bundle.camera : load_scene(opts.scene).camera;
   if (auto err = opts.camera_for(scene_camera).validate()) throw std::invalid_argument("camera: " + *err);
 
   const bool upload =

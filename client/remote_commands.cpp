@@ -249,6 +249,8 @@ struct RemoteCommands::State {
   bool wait = false;
   std::string frames;  // --frames: a batch (client/batch_commands.h)
   CLI::Option* frames_flag = nullptr;
+  WindowOptions window;  // --frame-window, --window-run
+  CLI::Option* window_flag = nullptr;
   // watch / get / cancel
   CLI::App* watch = nullptr;
   CLI::App* get = nullptr;
@@ -288,6 +290,14 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
       s.submit->add_option("--frames", s.frames,
                            "submit a batch of frames of the scene's camera animation: 1-240, 1-240x2 (step), 1,5,9; "
                            "prints the batch id (results: --out PREFIX gives PREFIX.0001.exr, ...)");
+  s.window_flag = s.submit->add_option(
+      "--frame-window", s.window.frame_window,
+      "with --frames: each frame's vertices also feed the frames up to K away that its master renders with it "
+      "(0: none; at most 16; modes skip and rp)");
+  s.submit
+      ->add_option("--window-run", s.window.run,
+                   "with --frame-window: frames a master renders together (consecutive frame numbers; 1 to 64)")
+      ->capture_default_str();
   add_connection_flags(s.submit, s.submit_conn, /*whole_job=*/true);
 
   s.watch = app.add_subcommand("watch", "follow a job's progress until it ends (exit 0 DONE, 1 FAILED/CANCELLED)");
@@ -336,9 +346,10 @@ int RemoteCommands::State::run_submit() {
   if (auto err = render.validate()) throw UsageError(*err);
   submit_opts.time_budget_seconds = time_budget;
   auto farm = make_farm(submit_conn);
+  if (window_flag->count() && !frames_flag->count()) throw UsageError("--frame-window needs --frames");
   // --frames '' is an empty frame list (parse_frame_list refuses it), not a plain job.
-  if (frames_flag->count()) return submit_frames(*farm, render, submit_opts, frames, wait, render.out);
-  SceneBundleData bundle = bundle_scene(render.scene, render.lighting, render.env_folder);
+  if (frames_flag->count()) return submit_frames(*farm, render, submit_opts, frames, wait, render.out, window);
+  SceneBundleData bundle = bundle_scene(render.scene, render.lighting, render.env_folder, BundleLoad::kUpload);
   if (wait)  // the results are fetched into render.out
     if (auto err = output_replaces_input(render.out, bundle.sources)) throw OutputError("--out " + *err);
   auto client = take_client(*farm);

@@ -32,6 +32,10 @@ inline constexpr Range<int> kTileSize{"--tile", 4, 1024};
 inline constexpr Range<int> kMaxDepth{"--max-depth", 1, 100000};
 inline constexpr Range<double> kRoundGrowth{"--round-growth", 0, 16};
 inline constexpr Range<double> kEpsilon{"--epsilon", 0, 1};
+/// Frame windows (DESIGN.md "Frame windows"): K frames on each side, and the frames of one run (the
+/// frames a master renders together, window_first..window_last).
+inline constexpr Range<int> kFrameWindow{"--frame-window", 0, 16};
+inline constexpr Range<int> kWindowRunFrames{"--window-run", 1, 64};
 /// Job, batch and worker names are at most this many bytes (UTF-8).
 inline constexpr size_t kMaxNameBytes = 256;
 /// The deep framebuffer's subpixels (width x height x S^2) at most, and its texels per axis

@@ -121,10 +121,11 @@ void Scene::validate() const {
   for (const Material& m : materials) {
     if (!is_finite(m.kd) || !is_finite(m.ke) || !is_finite(m.ks) || !std::isfinite(m.exponent))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' has non-finite values", name, m.name));
+    // A header-only texture (LoadOptions::decode_textures) has its size but not its texels.
     const auto missing_rgb = [&](int t) {
-      return t >= int(textures.size()) ||
-             (t >= 0 && textures[size_t(t)].rgb.size() !=
-                            3 * size_t(textures[size_t(t)].width) * size_t(textures[size_t(t)].height));
+      return t >= int(textures.size()) || (t >= 0 && !textures[size_t(t)].header_only &&
+                                           textures[size_t(t)].rgb.size() != 3 * size_t(textures[size_t(t)].width) *
+                                                                                 size_t(textures[size_t(t)].height));
     };
     if (missing_rgb(m.kd_texture) || missing_rgb(m.metallic_roughness_texture) || missing_rgb(m.ke_texture))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' names a missing texture", name, m.name));
@@ -133,15 +134,11 @@ void Scene::validate() const {
       throw std::runtime_error(
           fmt::format("scene '{}': material '{}' has a non-finite factor or an ior outside [1, 10]", name, m.name));
     if (m.alpha_texture >= int(textures.size()) ||
-        (m.alpha_texture >= 0 &&
+        (m.alpha_texture >= 0 && !textures[size_t(m.alpha_texture)].header_only &&
          textures[size_t(m.alpha_texture)].alpha.size() !=
              size_t(textures[size_t(m.alpha_texture)].width) * size_t(textures[size_t(m.alpha_texture)].height)))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' names a missing alpha mask", name, m.name));
-    if (m.normal_texture >= int(textures.size()) ||
-        (m.normal_texture >= 0 &&
-         textures[size_t(m.normal_texture)].rgb.size() != 3 * size_t(textures[size_t(m.normal_texture)].width) *
-                                                              size_t(textures[size_t(m.normal_texture)].height)) ||
-        !std::isfinite(m.normal_scale))
+    if (missing_rgb(m.normal_texture) || !std::isfinite(m.normal_scale))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' names a missing normal map", name, m.name));
     if (m.cut_out() && !std::isfinite(m.alpha_cutoff))
       throw std::runtime_error(fmt::format("scene '{}': material '{}' has a non-finite alpha cut-off", name, m.name));

@@ -66,6 +66,7 @@ struct Texture {
   bool nearest = false;      // colour lookups take the nearest texel (a glTF sampler's NEAREST)
   std::vector<float> rgb;    // width * height * 3, row 0 is the top (v = 1); empty if only a mask
   std::vector<float> alpha;  // width * height, the same layout; empty unless a material's mask
+  bool header_only = false;  // only its header was read (LoadOptions::decode_textures): no texels to render
 
   /// The texel (nearest, wrapping) uv falls in, as an index into the width x height texels.
   size_t texel(Vec2 uv) const;

@@ -23,6 +23,9 @@ struct LoadOptions {
   size_t max_triangles = 10'000'000;
   size_t max_file_bytes = 1ull << 30;
   size_t max_texture_pixels = 1ull << 26;  // all textures of a scene together: 64 Mpixel, ~800 MB as float RGB
+  // False: texture files are checked (file, header, limits) but not decoded, except where the load
+  // itself needs their texels (scene_loader.h, load_scene: a scene to check, not to render).
+  bool decode_textures = true;
 };
 
 /// A file of a scene: where it is read from and how messages name it.

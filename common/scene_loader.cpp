@@ -22,7 +22,7 @@
 namespace epr {
 namespace {
 
-std::atomic<uint64_t> file_loads{0};  // scene_file_loads()
+std::atomic<uint64_t> file_loads{0}, file_checks{0};  // scene_file_loads(), scene_file_checks()
 
 bool ends_with_json(const std::string& s) {
   if (s.size() < 5) return false;
@@ -52,12 +52,13 @@ Scene load_gltf(const std::string& gltf_path, const LoadOptions& opts, LoadRepor
 }
 
 uint64_t scene_file_loads() { return file_loads.load(); }
+uint64_t scene_file_checks() { return file_checks.load(); }
 
 Scene load_scene(const std::string& spec, const LoadOptions& opts, LoadReport* report) {
   if (spec.find('\0') != std::string::npos)
     throw SceneError(fmt::format("scene path {} contains a NUL byte", loader::quote_token(spec)));
   if (spec.rfind("builtin:", 0) == 0) return make_builtin_scene(parse_builtin_spec(spec.substr(8)), opts.max_triangles);
-  ++file_loads;
+  ++(opts.decode_textures ? file_loads : file_checks);
   if (ends_with_json(spec)) return load_scene_json(spec, opts, report);
   if (loader::is_gltf_path(spec)) return load_gltf(spec, opts, report);
   return load_obj(spec, opts, report);

@@ -55,6 +55,9 @@ Scene load_job_scene(const std::string& spec, const LoadOptions& = {}, LoadRepor
 /// How many times this process has loaded a scene from files (load_scene of anything but a built-in):
 /// each load parses the files and decodes the textures.
 uint64_t scene_file_loads();
+/// How many times it has checked one (load_scene with LoadOptions::decode_textures false): parsed the
+/// files and read the textures' headers, not their texels.
+uint64_t scene_file_checks();
 
 /// The lighting a job renders `scene` with: the job's environment and sun where it sets them, else the
 /// scene's. An environment image the job names is read inside scene.folder, or inside `env_folder`

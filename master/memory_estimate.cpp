@@ -92,13 +92,21 @@ std::string format_byte_size(uint64_t bytes) {
   return fmt::format("{:.2f} {}", v, kUnits[u]);
 }
 
-std::optional<std::string> memory_budget_error(const RenderOptions& opts, bool checkpoints, uint64_t budget) {
+uint64_t frames_memory(const RenderOptions& opts, bool checkpoints, uint32_t frames) {
+  const MemoryEstimate e = estimate_job_memory(opts, checkpoints);
+  return uint64_t(frames) * (e.total() - e.queue_bytes) + e.queue_bytes;
+}
+
+std::optional<std::string> memory_budget_error(const RenderOptions& opts, bool checkpoints, uint64_t budget,
+                                               uint32_t frames) {
   if (budget == 0) return std::nullopt;
-  const uint64_t need = estimate_job_memory(opts, checkpoints).total();
+  const uint64_t need = frames_memory(opts, checkpoints, std::max<uint32_t>(frames, 1));
   if (need <= budget) return std::nullopt;
-  return fmt::format("a {}x{} frame at S={} needs {} of master memory; the budget is {}", opts.width, opts.height,
+  const std::string what = frames > 1 ? fmt::format("a window run of {} {}x{} frames", frames, opts.width, opts.height)
+                                      : fmt::format("a {}x{} frame", opts.width, opts.height);
+  return fmt::format("{} at S={} needs {} of master memory; the budget is {}{}", what,
                      opts.mode == RenderMode::kPathTrace ? 1 : opts.subpixels, format_byte_size(need),
-                     format_byte_size(budget));
+                     format_byte_size(budget), frames > 1 ? " (submit shorter runs: epr submit --window-run)" : "");
 }
 
 }  // namespace epr

@@ -71,6 +71,10 @@ std::string format_byte_size(uint64_t bytes);
 
 /// Why a job with these options does not fit `budget` bytes ("a 7680x4320 frame at S=4 needs 9.12 GiB
 /// of master memory; the budget is 6.20 GiB"), or nullopt when it fits (or budget is 0: no limit).
-std::optional<std::string> memory_budget_error(const RenderOptions& opts, bool checkpoints, uint64_t budget);
+/// `frames` > 1: a window run of that many such frames held at once, one commit queue between them.
+std::optional<std::string> memory_budget_error(const RenderOptions& opts, bool checkpoints, uint64_t budget,
+                                               uint32_t frames = 1);
+/// What `frames` jobs with these options held at once need, one commit queue between them.
+uint64_t frames_memory(const RenderOptions& opts, bool checkpoints, uint32_t frames);
 
 }  // namespace epr

@@ -106,6 +106,18 @@ unsigned kinds_of(const AssembledTile& t) {
 
 }  // namespace
 
+void RoundDriver::reproject(std::span<const AssembledTile* const> tiles) {
+  packed_parts_.clear();
+  vertex_batch_.clear();
+  for (const AssembledTile* t : tiles) {
+    if (!t->packed_vertices.empty()) packed_parts_.push_back(t->packed_vertices);
+    vertex_batch_.insert(vertex_batch_.end(), t->vertices.begin(), t->vertices.end());
+  }
+  if (!packed_parts_.empty()) frame_.reproject_packed(packed_parts_);
+  if (!vertex_batch_.empty()) frame_.reproject(vertex_batch_);
+  if (vertex_batch_.capacity() > 4 * kBatchRecords) std::vector<VertexRecord>().swap(vertex_batch_);
+}
+
 void RoundDriver::apply(std::span<const AssembledTile* const> tiles) {
   size_t i = 0;
   while (i < tiles.size()) {

@@ -60,6 +60,10 @@ class RoundDriver {
   /// Records per apply(span) call the master aims for (its reprojection thread drains the commit
   /// queue up to this many): large enough for the parallel CPU path, small enough to copy cheaply.
   static constexpr size_t kBatchRecords = size_t(1) << 20;
+  /// Only the vertices of `tiles` (decoded and packed; traced for another frame of the same scene,
+  /// DESIGN.md "Frame windows"), reprojected into this frame in the order given: no path sums, no
+  /// exact samples.
+  void reproject(std::span<const AssembledTile* const> tiles);
   /// Ends the round; true if another is needed.
   bool close() { return frame_.finish_round(); }
 

@@ -17,8 +17,9 @@ git ls-files -- '*.cpp' '*.h' | xargs clang-format --dry-run --Werror
 # they pass with both cores busy (tests with RUN_SERIAL still run alone).
 (cd build && ctest --output-on-failure -j 2 "$@")
 
-# ThreadSanitizer (scripts/tsan.sh): the master's and the worker node's tests built with clang and
-# -fsanitize=thread in build/tsan; any report fails the run.
+# ThreadSanitizer (scripts/tsan.sh): the master's and the worker node's tests and a cluster test
+# (its programs TSan builds too) built with clang and -fsanitize=thread in build/tsan; any report
+# fails the run.
 bash scripts/tsan.sh
 
 # Fuzzing (tests/fuzz/): the libFuzzer targets, built with clang and the sanitizers in build/fuzz, each

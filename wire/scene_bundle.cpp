@@ -16,14 +16,6 @@
 
 namespace epr {
 namespace fs = std::filesystem;
-namespace {
-
-void put_u64(std::string& s, uint64_t v) {
-  for (int i = 0; i < 8; ++i) s.push_back(char((v >> (8 * i)) & 0xff));
-}
-
-}  // namespace
-
 size_t SceneBundleData::total_bytes() const {
   size_t n = 0;
   for (const auto& f : files) n += f.second.size();
@@ -68,7 +60,8 @@ SceneBundleData bundle_builtin_with_image(const std::string& spec, const Lightin
 
 }  // namespace
 
-SceneBundleData bundle_scene(const std::string& spec, const Lighting& job, const std::string& env_folder) {
+SceneBundleData bundle_scene(const std::string& spec, const Lighting& job, const std::string& env_folder,
+                             BundleLoad load) {
   SceneBundleData b;
   if (spec.rfind("builtin:", 0) == 0 && spec.find('\0') == std::string::npos) {
     if (job.environment && !job.environment->image.empty()) return bundle_builtin_with_image(spec, job, env_folder);
@@ -77,10 +70,13 @@ SceneBundleData bundle_scene(const std::string& spec, const Lighting& job, const
   }
   // The scene is loaded here, so that its files are the ones the loader reads (one parser for both),
   // its warnings are shown once, on the user's side, and a broken or unlit scene fails before upload.
-  const LoadOptions opts;
+  LoadOptions opts;
+  opts.decode_textures = load == BundleLoad::kShare;
   LoadReport report;
   Lighting job_lit;
-  b.loaded = std::make_shared<const Scene>(load_job_scene(spec, opts, &report, job, "", &job_lit));
+  auto scene = std::make_shared<const Scene>(load_job_scene(spec, opts, &report, job, "", &job_lit));
+  b.camera = scene->camera;
+  if (load == BundleLoad::kShare) b.loaded = std::move(scene);
   if (report.files.empty()) throw SceneError(fmt::format("{}: the scene reads no file", spec));
   const fs::path root = report.files.front().real.parent_path();
   for (const FileRef& f : report.files) {
@@ -100,17 +96,19 @@ std::string content_hash(const SceneBundleData& b) {
   std::vector<const std::pair<std::string, std::string>*> sorted;
   for (const auto& f : b.files) sorted.push_back(&f);
   std::sort(sorted.begin(), sorted.end(), [](auto* x, auto* y) { return x->first < y->first; });
-  std::string s = "epr-scene-v1\n";
-  put_u64(s, b.entry_path.size());
-  s += b.entry_path;
-  put_u64(s, sorted.size());
+  // The canonical serialisation, hashed as it is framed (not copied: a bundle may be large).
+  Sha256 h;
+  h.update(std::string("epr-scene-v1\n"));
+  h.update_u64le(b.entry_path.size());
+  h.update(b.entry_path);
+  h.update_u64le(sorted.size());
   for (const auto* f : sorted) {
-    put_u64(s, f->first.size());
-    s += f->first;
-    put_u64(s, f->second.size());
-    s += f->second;
+    h.update_u64le(f->first.size());
+    h.update(f->first);
+    h.update_u64le(f->second.size());
+    h.update(f->second);
   }
-  return sha256_hex(s);
+  return h.hex();
 }
 
 std::string default_cache_root() {

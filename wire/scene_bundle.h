@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -25,6 +26,8 @@ struct SceneBundleData {
   // The scene bundle_scene loaded (its own lighting, not the job's), for this process's other users of
   // it (wire/scene_shelf.h); not part of the bundle's content. Null for built-ins and received bundles.
   std::shared_ptr<const Scene> loaded;
+  // The scene's own camera, from bundle_scene's load (either kind); not part of the bundle's content.
+  std::optional<CameraSpec> camera;
 
   size_t total_bytes() const;
 };
@@ -36,8 +39,14 @@ struct SceneBundleData {
 /// With a built-in scene, that image is read inside `env_folder` (RenderOptions::env_folder) and the
 /// bundle is a scene JSON {"builtin": NAME} beside it (builtin stays empty); without `env_folder` it is
 /// refused with the reason.
-/// The scene that load gave stays in `loaded`.
-SceneBundleData bundle_scene(const std::string& spec, const Lighting& job = {}, const std::string& env_folder = "");
+/// With kShare the scene that load gave stays in `loaded`; with kUpload its texture files are checked
+/// (file, header, the size limits) but not decoded, and `loaded` stays null.
+enum class BundleLoad : uint8_t {
+  kShare,   // the scene is rendered in this process too (the embedded render)
+  kUpload,  // the scene is only sent: a master and its workers load it
+};
+SceneBundleData bundle_scene(const std::string& spec, const Lighting& job = {}, const std::string& env_folder = "",
+                             BundleLoad load = BundleLoad::kShare);
 
 /// Lowercase hex SHA-256 over the canonical serialisation (files) or "epr-builtin-v1\n" + builtin.
 std::string content_hash(const SceneBundleData& bundle);

@@ -2,9 +2,11 @@
 
 #include <google/protobuf/util/message_differencer.h>
 
+#include <chrono>
 #include <future>
 #include <stdexcept>
 
+#include "common/log.h"
 #include "common/scene_loader.h"
 #include "wire/convert.h"
 #include "worker/tile_lease.h"
@@ -99,7 +101,15 @@ std::shared_ptr<const LoadedScene> JobCache::scene_for(const v1::SceneRef& ref, 
   }
   // Loading and the BVH build happen outside the lock; two jobs loading the same new scene at the
   // same moment both load it (rare, and correct).
-  auto loaded = std::make_shared<const LoadedScene>(loader_(ref, master));
+  using Clock = std::chrono::steady_clock;
+  const auto since = [](Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); };
+  const auto start = Clock::now();
+  std::shared_ptr<const Scene> scene = loader_(ref, master);
+  const double load_s = since(start);
+  const auto build = Clock::now();
+  auto loaded = std::make_shared<const LoadedScene>(std::move(scene));
+  logger("worker")->debug("scene {}: fetched and loaded (or shared) in {:.2f} s, its BVH built in {:.2f} s",
+                          ref.content_hash().substr(0, 12), load_s, since(build));
   MutexLock lock(mu_);
   for (auto it = scenes_.begin(); it != scenes_.end();)  // forget scenes nobody holds any more
     it = it->second.expired() ? scenes_.erase(it) : std::next(it);

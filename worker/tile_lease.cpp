@@ -6,16 +6,18 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "common/limits.h"
 #include "common/vertex_codec.h"
 #include "wire/convert.h"
 
 namespace epr {
 namespace {
 
-constexpr uint32_t kMaxSide = 16384;              // JobSpec width / height range
-constexpr uint32_t kMaxPathsPerPixel = 1u << 20;  // JobSpec target_spp range
-constexpr int kMaxDepth = 100000;                 // RenderOptions::validate's --max-depth range
-constexpr uint32_t kMaxSubpixels = 16;            // ReprojectionSettings.subpixels range
+constexpr uint32_t kMaxSide = 16384;                            // JobSpec width / height range
+constexpr uint32_t kMaxPathsPerPixel = 1u << 20;                // JobSpec target_spp range
+constexpr int kMaxWindowCameras = 2 * limits::kFrameWindow.hi;  // K frames on each side
+constexpr int kMaxDepth = 100000;                               // RenderOptions::validate's --max-depth range
+constexpr uint32_t kMaxSubpixels = 16;                          // ReprojectionSettings.subpixels range
 
 }  // namespace
 
@@ -127,6 +129,13 @@ std::optional<std::string> unpack_tile_lease(const v1::TileLease& lease, LeasedT
   out->first_sample = std::move(first);
   out->paths_per_pixel = int(lease.paths_per_pixel());
   out->filter = vertex_filter_for(s);
+  if (lease.window_cameras_size() > kMaxWindowCameras)
+    return fmt::format("{} window cameras, at most {}", lease.window_cameras_size(), kMaxWindowCameras);
+  for (int i = 0; i < lease.window_cameras_size(); ++i) {
+    const CameraSpec c = from_proto(lease.window_cameras(i));
+    if (auto err = c.validate()) return fmt::format("window camera {}: {}", i, *err);
+    out->filter.window_cameras.emplace_back(c, int(s.width()), int(s.height()));
+  }
   return std::nullopt;
 }
 

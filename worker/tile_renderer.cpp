@@ -26,8 +26,16 @@ void TileRenderer::filter_vertices(std::vector<VertexRecord>& recs, size_t first
       ++out.stats.culled_glossy;
       continue;
     }
-    float sx, sy;
-    const ViewTest view = view_test(cam, r.position, r.normal, S, &sx, &sy);
+    float sx = 0, sy = 0;
+    ViewTest view = view_test(cam, r.position, r.normal, S, &sx, &sy);
+    if (view != ViewTest::kVisible && filter_.mode == VertexFilter::Mode::kCull)
+      for (const Camera& other : filter_.window_cameras) {
+        float ox, oy;
+        if (view_test(other, r.position, r.normal, S, &ox, &oy) == ViewTest::kVisible) {
+          view = ViewTest::kVisible;
+          break;
+        }
+      }
     if (view == ViewTest::kOutsideImage) {
       ++out.stats.culled_frustum;
       continue;

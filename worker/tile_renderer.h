@@ -35,6 +35,9 @@ struct VertexFilter {
   Mode mode = Mode::kNone;
   int subpixels = 4;              // S, for subpixel indices in exact mode
   bool reproject_glossy = false;  // keep non-diffuse vertices (failure-mode study only)
+  // kCull: a vertex the tracer's camera culls is kept if one of these shows it (the other frames of
+  // a frame window, TileLease.window_cameras).
+  std::vector<Camera> window_cameras = {};
 };
 
 class TileRenderer {

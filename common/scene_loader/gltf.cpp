@@ -109,6 +109,7 @@ class GltfReader {
       scene_.tangents = std::move(tangents_);
       generate_tangents(scene_, tangent_needed_);
     }
+    decode_textures(textures_);
     scene_.textures = std::move(textures_.textures);
     scene_.name = f_.display;
     return std::move(scene_);
@@ -438,7 +439,7 @@ std::pair<uint32_t, int> GltfReader::convert_material(int gi) {
                                     [this](const tinygltf::TextureInfo& info, Vec3 factor, const std::string& w) {
                                       return texture_for(info, factor, w);
                                     },
-                                    [this](int i) -> const Texture& { return textures_.textures[size_t(i)]; },
+                                    [this](int i) -> const Texture& { return texels(textures_, i); },
                                     [this](Texture t, const std::string& w) { return add_texture(std::move(t), w); }};
   int texcoord = set_metallic_roughness(gm, where, context, &out, &notes);
   set_emission(gm, where, context, &out, &notes, &texcoord);
@@ -548,7 +549,7 @@ int GltfReader::texture_for(const tinygltf::TextureInfo& info, Vec3 factor, cons
   // A colour factor other than white is baked into a copy of the texture.
   const auto key = std::make_tuple(image, factor.x, factor.y, factor.z);
   if (auto it = baked_.find(key); it != baked_.end()) return it->second;
-  Texture t = textures_.textures[size_t(plain)];
+  Texture t = texels(textures_, plain);
   t.alpha.clear();  // a colour copy: the mask, if any, stays with the plain texture
   for (size_t i = 0; i < t.rgb.size(); ++i) t.rgb[i] = std::clamp(t.rgb[i] * factor[int(i % 3)], 0.f, 1.f);
   const int index = add_texture(std::move(t), fmt::format("{}: the factor's copy of image {}", where, image));

@@ -229,6 +229,7 @@ Scene build_scene(ObjContext& ctx, ObjMesh& mesh, const std::string& file, std::
       glossy->push_back({clamped_colour(ctx.report, m.ks, 1.f, file, m.name, "Ks"),
                          m.ns > 0 && std::isfinite(m.ns) ? m.ns : Material{}.exponent});
   }
+  decode_textures(ctx);
   scene.textures = std::move(ctx.textures);
 
   int default_material = -1;

@@ -52,6 +52,24 @@ struct MaterialTable {
   std::unordered_map<std::string, int> first_of_name;
 };
 
+/// What a texture file is read for: its colour (Texture::rgb), or its alpha as a cut-out mask
+/// (Texture::alpha): the alpha channel, or where the image has none its first channel (kMask: MTL
+/// map_d, which may name a grey image) or full opacity (kAlpha: glTF base colour), or its RGB as
+/// stored, not sRGB-decoded (kData: a normal map; a Texture of its own, not shared with the others).
+enum class TextureUse : uint8_t { kColour, kMask, kAlpha, kData };
+
+/// What a texture's uses need decoded (load_texture notes it; decode_textures or texels() decodes it),
+/// and the reference that named it first, for messages.
+struct PendingTexels {
+  FileRef ref;
+  std::string name, file;  // the texture as named, the file (and line) naming it
+  size_t line = 0;
+  bool colour = false;                    // Texture::rgb, sRGB-decoded
+  bool data = false;                      // Texture::rgb as stored (a normal map)
+  TextureUse mask = TextureUse::kColour;  // kMask or kAlpha: Texture::alpha read so; kColour: no mask
+  bool done = false;                      // decoded as asked
+};
+
 struct ObjContext {
   ObjContext(const LoadOptions& o, std::filesystem::path r, LoadReport& rep)
       : opts(o), root(std::move(r)), report(rep) {}
@@ -61,6 +79,7 @@ struct ObjContext {
   LoadReport& report;          // the files read and the warnings
   std::vector<Texture> textures;
   std::map<std::filesystem::path, int> texture_of_path;
+  std::map<int, PendingTexels> pending;                    // by index into textures: the files load_texture read
   size_t texture_pixels = 0;                               // total of all textures
   std::map<std::filesystem::path, MtlFile> mtl_files;      // each MTL file read once
   std::set<std::vector<std::filesystem::path>> mtl_lists;  // the mtllib file lists already applied
@@ -69,17 +88,21 @@ struct ObjContext {
   MaterialTable table;
 };
 
-/// What a texture file is read for: its colour (Texture::rgb), or its alpha as a cut-out mask
-/// (Texture::alpha): the alpha channel, or where the image has none its first channel (kMask: MTL
-/// map_d, which may name a grey image) or full opacity (kAlpha: glTF base colour), or its RGB as
-/// stored, not sRGB-decoded (kData: a normal map; a Texture of its own, not shared with the others).
-enum class TextureUse : uint8_t { kColour, kMask, kAlpha, kData };
-
-/// Loads the texture `name` (from map_Kd or map_d in `file` at `line`, relative to `dir`), one
-/// Texture per file, holding what the uses asked for so far; returns its index in ctx.textures.
+/// Adds the texture `name` (from map_Kd or map_d in `file` at `line`, relative to `dir`), one Texture
+/// per file: checks the file and its header (size, channels, the scene's pixel limit) and notes what
+/// this use needs decoded; returns its index in ctx.textures. Its texels come with decode_textures.
 int load_texture(ObjContext& ctx, const std::string& name, const std::filesystem::path& dir,
                  const std::string& display_dir, const std::string& file, size_t line,
                  TextureUse use = TextureUse::kColour);
+
+/// Texture `index` with its texels decoded as its uses so far ask (now, if load_texture left them),
+/// for a load that reads them (a colour factor's copy, an emission's mean).
+const Texture& texels(ObjContext& ctx, int index);
+
+/// Decodes the texels every load_texture left, in parallel, at the end of a load; errors and warnings
+/// as a decode in the textures' order gives them. With LoadOptions::decode_textures false, marks
+/// those textures header_only instead.
+void decode_textures(ObjContext& ctx);
 
 /// The mtllib statement at `file`:`line` naming `mtls`: reads and validates the files (each once per
 /// OBJ, with their textures) and, the first time the OBJ names this list of files, appends their

@@ -22,6 +22,7 @@
 #include "common/log.h"
 #include "epr/v1/job_service.pb.h"
 #include "master/server/checkpoint_payload.h"
+#include "master/server/window_run.h"
 #include "wire/convert.h"
 
 namespace epr {
@@ -208,10 +209,7 @@ std::string encode(const JobSpecRecord& r) {
   spec.set_priority(r.priority);
   spec.set_request_id(r.request_id);
   if (r.time_budget_seconds) spec.set_time_budget_seconds(*r.time_budget_seconds);
-  spec.set_batch_id(r.batch.id);
-  spec.set_batch_name(r.batch.name);
-  if (r.batch.frame) spec.set_frame(*r.batch.frame);
-  spec.set_batch_frames(r.batch.frames);
+  batch_to_spec(r.batch, &spec);
   ByteWriter w;
   w.put_string(r.id);
   w.put(r.seq);
@@ -239,8 +237,7 @@ JobSpecRecord decode_job_spec(std::string_view payload) {
   r.priority = spec.priority();
   r.request_id = spec.request_id();
   if (spec.has_time_budget_seconds()) r.time_budget_seconds = spec.time_budget_seconds();
-  r.batch = {spec.batch_id(), spec.batch_name(),
-             spec.has_frame() ? std::optional<uint32_t>(spec.frame()) : std::nullopt, spec.batch_frames()};
+  r.batch = batch_from_spec(spec);
   return r;
 }
 

@@ -31,13 +31,17 @@ namespace epr {
 
 struct JobProgressRecord;
 
-/// The frame sequence a job belongs to (JobSpec.batch_id, client/batch.h): the master stores and
-/// shows it, nothing else. An empty id: the job is not part of a batch.
+/// The frame sequence a job belongs to (JobSpec.batch_id, client/batch.h). An empty id: the job is
+/// not part of a batch. With a frame window (window > 0) the master renders the frames numbered
+/// window_first..window_last of the batch together (window_run.h, DESIGN.md "Frame windows").
 struct BatchMembership {
   std::string id, name;
   std::optional<uint32_t> frame;
   uint32_t frames = 0;  // of the whole batch
+  uint32_t window = 0, window_first = 0, window_last = 0;
 };
+
+struct WindowRun;
 
 struct JobRequest {
   RenderOptions options;  // scene field unused: the bundle is the scene
@@ -142,6 +146,8 @@ struct Job {
   std::shared_ptr<const JobProgressRecord> resume EPR_GUARDED_BY(job_fields);
 
   PreviewState preview EPR_GUARDED_BY(job_fields);
+  // A window job's run (window_run.h), from its start on: the frames started with it, itself included.
+  std::shared_ptr<const WindowRun> run EPR_GUARDED_BY(job_fields);
 
   /// The terminal transition, made once: false (and nothing changes) if the job had ended already.
   bool end(JobState final_state, std::string why, int64_t now_ms) EPR_REQUIRES(job_fields);

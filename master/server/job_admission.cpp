@@ -9,6 +9,7 @@
 #include "common/limits.h"
 #include "master/memory_estimate.h"
 #include "master/server/job_manager.h"
+#include "master/server/window_run.h"
 #include "wire/scene_bundle.h"
 
 namespace epr {
@@ -44,8 +45,8 @@ std::optional<std::string> JobManager::admit(JobRequest* req, bool has_camera, c
   // A frame this master cannot hold is refused now, with what it would need, not after the setup
   // (the service answers INVALID_ARGUMENT, not RESOURCE_EXHAUSTED: the same request never fits).
   if (auto err = memory_budget_error(req->options, options_.checkpoints && !options_.state_dir.empty(),
-                                     options_.memory_budget_bytes))
-    return err;
+                                     options_.memory_budget_bytes, windowed(req->batch) ? run_length(req->batch) : 1))
+    return windowed(req->batch) ? fmt::format("frame {}: {}", *req->batch.frame, *err) : err;
   CameraSpec scene_camera;
   CameraAnimation animation;  // frames without a camera: the scene's camera at each frame
   const bool frame_camera = !has_camera && !frames.empty();

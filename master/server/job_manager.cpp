@@ -16,6 +16,7 @@
 #include "common/thread_name.h"
 #include "master/server/checkpoint.h"
 #include "master/server/checkpointer.h"
+#include "master/server/window_run.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -110,7 +111,7 @@ std::optional<std::string> JobManager::validate(const JobRequest& req) const {
     return invalid(fmt::format("image sides are limited to {} pixels", options_.max_image_side));
   if (req.options.spp > options_.max_spp)
     return invalid(fmt::format("spp {} is over this master's limit of {}", req.options.spp, options_.max_spp));
-  return std::nullopt;
+  return window_error(req);
 }
 
 JobManager::SubmitResult JobManager::submit(JobRequest req) {
@@ -133,6 +134,11 @@ JobManager::SubmitResult JobManager::submit(JobRequest req) {
   {
     JobLock lock(mu_);
     if (auto earlier = jobs_.find_request(req.request_id)) return {earlier->id, "", hash};
+    // A window job joins the run of the frames of it already here: they must agree.
+    if (windowed(req.batch))
+      for (const auto& [id, other] : jobs_.all())
+        if (!is_terminal(other->state) && same_run(other->request.batch, req.batch))
+          if (auto err = run_mismatch(req, hash, *other)) return {"", *err, hash};
     seq = jobs_.next_seq();
     submitted_ms = clock_();
     if (auto cached = scenes_.find(hash); cached != scenes_.end()) bundle = cached->second;
@@ -246,8 +252,14 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
   std::optional<std::string> error;
   try {
     // The shared copy: in the embedded render, the one the client loaded.
-    const std::shared_ptr<const Scene> s = share_bundle_scene(bundle, hash, cache, lighting);
+    std::shared_ptr<const Scene> s = share_bundle_scene(bundle, hash, cache, lighting);
     if (s->triangle_count() == 0) error = "the scene has no triangles";
+    if (!error) {
+      // Kept for the job's start (release_checked_scene); the one kept before goes, outside the lock.
+      std::pair<std::string, std::shared_ptr<const Scene>> earlier(hash, s);
+      JobLock lock(mu_);
+      std::swap(checked_scene_, earlier);
+    }
     if (scene_camera) *scene_camera = s->camera;
     if (animation && bundle.builtin.empty()) {
       *animation = load_camera_animation(write_bundle_files(bundle, hash, cache));
@@ -265,13 +277,30 @@ std::optional<std::string> JobManager::check_scene(const SceneBundleData& bundle
   return error;
 }
 
+void JobManager::release_checked_scene(const std::string& hash) {
+  std::shared_ptr<const Scene> released;  // freed outside the lock
+  JobLock lock(mu_);
+  if (checked_scene_.first != hash) return;
+  for (const auto& [id, job] : jobs_.all())  // a job being started is in running_, still kQueued
+    if (job->scene_hash == hash && job->state == JobState::kQueued &&
+        std::find(running_.begin(), running_.end(), job) == running_.end())
+      return;
+  released = std::move(checked_scene_.second);
+  checked_scene_.first.clear();
+}
+
 void JobManager::discard_checked_scene(const std::string& hash) {
   if (hash.empty()) return;
+  std::shared_ptr<const Scene> released;  // freed outside the lock
   // Under the mutex: a job that is added later loads the scene (and caches it again) only after this.
   JobLock lock(mu_);
   if (scene_checks_.count(hash)) return;
   for (const auto& [id, job] : jobs_.all())
     if (job->scene_hash == hash) return;
+  if (checked_scene_.first == hash) {
+    released = std::move(checked_scene_.second);
+    checked_scene_.first.clear();
+  }
   const fs::path scenes = fs::path(cache_dir()) / "scenes";
   std::error_code ec;
   fs::remove_all(scenes / hash, ec);
@@ -295,6 +324,14 @@ std::string JobManager::register_worker(const std::string& name, uint32_t thread
 }
 
 void JobManager::unregister_worker(const std::string& worker) {
+  // Leases it still holds go back at once: one granted to a LeaseTile call that the worker cancelled
+  // as it stopped, after this master had answered, is held here but unknown to the worker.
+  std::vector<uint64_t> held;
+  {
+    JobLock lock(mu_);
+    if (const WorkerRegistry::Worker* w = workers_.find(worker)) held.assign(w->leases.begin(), w->leases.end());
+  }
+  if (!held.empty()) return_leases(worker, held);
   JobLock lock(mu_);
   workers_.remove(worker);
 }
@@ -378,6 +415,9 @@ TileLeaseInfo JobManager::grant(Job& job, const std::string& worker, const Lease
   info.seed = job.request.options.seed;
   info.options = job.request.options;
   info.camera = job.request.camera;
+  if (job.run)
+    for (const auto& g : job.run->neighbours(job.request.batch.frame.value_or(0)))
+      if (g->state == JobState::kRunning) info.window_cameras.push_back(g->request.camera);
   info.codec_bounds = job.codec_bounds;
   info.scene_hash = job.scene_hash;
   info.scene_builtin = job.bundle->builtin;

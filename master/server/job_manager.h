@@ -119,6 +119,9 @@ struct MasterOptions {
   // A running job holds a copy of its images (32 bytes per pixel) only while someone asks for its
   // previews or partial results: for this long after the last ask (Job::preview.images).
   int preview_interest_ms = 10000;
+  // A window run (window_run.h) starts once all its frames are queued, or once its oldest queued
+  // frame has waited this long: then with the frames that are here (the log says which are missing).
+  int window_run_wait_ms = 60000;
 
   // Called on the reprojection thread just before a job's frame is built (a fresh job's round 0 is
   // open by then, a resumed job's not yet), with the job's id; what it throws fails the job as a
@@ -196,6 +199,10 @@ class JobManager {
   std::optional<std::string> check_scene(const SceneBundleData& bundle, CameraSpec* scene_camera = nullptr,
                                          CameraAnimation* animation = nullptr, const Lighting& lighting = {}) const
       EPR_EXCLUDES(mu_);
+  /// The scene check_scene() loaded last stays loaded for the job's start (one load per submission):
+  /// kept until a scene is checked after it, its check is discarded, or a job of it starts with no
+  /// other job of it queued. Lets go of it here if `content_hash` is that scene and none is queued.
+  void release_checked_scene(const std::string& content_hash) EPR_EXCLUDES(mu_);
   /// Removes what check_scene() left in the scene cache (scenes/HASH) for a submission that was
   /// refused, unless a job or another check still uses it. Built-in scenes are never cached.
   void discard_checked_scene(const std::string& content_hash) EPR_EXCLUDES(mu_);
@@ -281,8 +288,13 @@ class JobManager {
   };
 
   LeaseDecision decide_lease(const std::string& worker, bool* parkable) EPR_REQUIRES(mu_, job_fields);
-  /// Whether `next` may start beside the running jobs (memory budget, max_running_jobs).
-  bool admits(const Job& next) const EPR_REQUIRES(mu_, job_fields);
+  /// Whether `next` (one job, or a window run's frames as one unit) may start beside the running jobs
+  /// (memory budget, max_running_jobs).
+  bool admits(const std::vector<std::shared_ptr<Job>>& next) const EPR_REQUIRES(mu_, job_fields);
+  /// The queued frames of `job`'s window run (window_run.h) if the run may start now: all its frames
+  /// are here (or have ended), or its oldest queued frame has waited window_run_wait_ms; `job` alone if
+  /// its run started already (a late frame). Empty while the run waits for frames.
+  std::vector<std::shared_ptr<Job>> startable_run(const std::shared_ptr<Job>& job) const EPR_REQUIRES(mu_, job_fields);
   /// Removes `job` from running_ (it finished, failed or was cancelled).
   void stop_running(const std::shared_ptr<Job>& job) EPR_EXCLUDES(mu_);
   TileLeaseInfo grant(Job& job, const std::string& worker, const LeaseTable::Grant& g, uint64_t lease)
@@ -314,10 +326,11 @@ class JobManager {
     std::shared_ptr<Job> job;
     JobCounters counters;                      // kCopy: the copy's statistics as of the decision
     std::vector<std::unique_ptr<Task>> batch;  // kApply: one job and round, in commit order
+    std::vector<std::shared_ptr<Job>> start;   // kStart: the job, or a window run's frames (job: the first)
   };
   RenderWork next_work() EPR_REQUIRES(mu_, job_fields);
   std::shared_ptr<Job> ended_job() const EPR_REQUIRES(mu_, job_fields);
-  std::shared_ptr<Job> startable_job() const EPR_REQUIRES(mu_, job_fields);
+  std::vector<std::shared_ptr<Job>> startable_jobs() const EPR_REQUIRES(mu_, job_fields);
   std::shared_ptr<Job> copy_asked_job() const EPR_REQUIRES(mu_, job_fields);
   /// Opens job.round with `plan` (RoundDriver::open, or first_plan before a fresh job's frame exists);
   /// `reprojecting`: the job's seconds_reprojecting as the round opens (0 without a frame yet).
@@ -342,6 +355,8 @@ class JobManager {
   LeaseParking parking_ EPR_GUARDED_BY(mu_);
   std::map<std::string, std::shared_ptr<const SceneBundleData>> scenes_ EPR_GUARDED_BY(mu_);
   mutable std::map<std::string, int> scene_checks_ EPR_GUARDED_BY(mu_);  // check_scene() calls under way, by hash
+  // The scene check_scene() loaded last and its hash (release_checked_scene).
+  mutable std::pair<std::string, std::shared_ptr<const Scene>> checked_scene_ EPR_GUARDED_BY(mu_);
   std::deque<std::unique_ptr<Task>> tasks_ EPR_GUARDED_BY(mu_);
   uint64_t queued_vertices_ EPR_GUARDED_BY(mu_) = 0;
   uint64_t next_lease_ EPR_GUARDED_BY(mu_) = 1;

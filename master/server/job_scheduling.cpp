@@ -22,9 +22,10 @@ uint64_t JobManager::tiles_waiting() const {
   return n;
 }
 
-bool JobManager::admits(const Job& next) const {
+bool JobManager::admits(const std::vector<std::shared_ptr<Job>>& next) const {
   if (running_.empty()) return true;
-  if (options_.memory_budget_bytes == 0 || running_.size() >= size_t(std::max(1, options_.max_running_jobs)))
+  if (options_.memory_budget_bytes == 0 ||
+      running_.size() + next.size() > size_t(std::max(1, options_.max_running_jobs)))
     return false;
   // The commit queue is one for every job: counted once.
   const bool checkpoints = options_.checkpoints && !options_.state_dir.empty();
@@ -32,7 +33,8 @@ bool JobManager::admits(const Job& next) const {
     const MemoryEstimate e = estimate_job_memory(j.request.options, checkpoints);
     return e.total() - e.queue_bytes;
   };
-  uint64_t need = kCommitQueueBytes + own(next);
+  uint64_t need = kCommitQueueBytes;
+  for (const auto& j : next) need += own(*j);
   for (const auto& j : running_) need += own(*j);
   return need <= options_.memory_budget_bytes;
 }

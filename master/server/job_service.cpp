@@ -12,6 +12,7 @@
 #include "common/log.h"
 #include "master/reprojection_outcomes.h"
 #include "master/server/reactors.h"
+#include "master/server/window_run.h"
 #include "wire/convert.h"
 #include "wire/rpc/chunked.h"
 
@@ -237,8 +238,7 @@ grpc::Status JobServiceImpl::checked_request(const v1::JobSpec& req, const std::
   jr->priority = req.priority();
   jr->request_id = req.request_id();
   if (req.has_time_budget_seconds()) jr->time_budget_seconds = req.time_budget_seconds();
-  jr->batch = {req.batch_id(), req.batch_name(), req.has_frame() ? std::optional<uint32_t>(req.frame()) : std::nullopt,
-               req.batch_frames()};
+  jr->batch = batch_from_spec(req);
   if (auto err = jobs_.admit(jr, req.has_camera(), frames)) return invalid(*err);
   return grpc::Status::OK;
 }

@@ -31,6 +31,7 @@ struct TileLeaseInfo {
   uint64_t seed = 0;
   RenderOptions options;
   CameraSpec camera;
+  std::vector<CameraSpec> window_cameras;  // TileLease.window_cameras
   Bounds3 codec_bounds;
   std::string scene_hash, scene_builtin;
   uint64_t scene_bytes = 0, triangles = 0;

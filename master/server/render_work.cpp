@@ -1,10 +1,12 @@
 // What the reprojection thread (reprojection_worker.h) does next, decided under the manager's mutex,
 // and the manager's side of what it does: opening a round, ending a job, its final checkpoint.
 #include <algorithm>
+#include <set>
 
 #include "master/server/checkpoint.h"
 #include "master/server/checkpointer.h"
 #include "master/server/job_manager.h"
+#include "master/server/window_run.h"
 
 namespace epr {
 
@@ -14,10 +16,44 @@ std::shared_ptr<Job> JobManager::ended_job() const {
   return nullptr;
 }
 
-std::shared_ptr<Job> JobManager::startable_job() const {
-  if (draining_) return nullptr;  // drain_and_checkpoint(): nothing new starts
-  auto next = jobs_.next_queued(running_);
-  return next && admits(*next) ? next : nullptr;
+std::vector<std::shared_ptr<Job>> JobManager::startable_jobs() const {
+  if (draining_) return {};  // drain_and_checkpoint(): nothing new starts
+  // Window runs still waiting for frames are passed over: the jobs behind them may start.
+  std::vector<std::shared_ptr<Job>> passed = running_;
+  while (auto next = jobs_.next_queued(passed)) {
+    std::vector<std::shared_ptr<Job>> start{next};
+    if (windowed(next->request.batch)) {
+      start = startable_run(next);
+      if (start.empty()) {
+        for (const auto& [id, j] : jobs_.all())
+          if (j->state == JobState::kQueued && same_run(j->request.batch, next->request.batch)) passed.push_back(j);
+        continue;
+      }
+    }
+    return admits(start) ? start : std::vector<std::shared_ptr<Job>>{};
+  }
+  return {};
+}
+
+std::vector<std::shared_ptr<Job>> JobManager::startable_run(const std::shared_ptr<Job>& job) const {
+  const BatchMembership& b = job->request.batch;
+  std::vector<std::shared_ptr<Job>> queued;
+  std::set<uint32_t> here;  // frames of the run on this master, ended ones included (they left it)
+  int64_t oldest = job->submitted_ms;
+  for (const auto& [id, j] : jobs_.all()) {
+    if (!same_run(j->request.batch, b)) continue;
+    if (j->state == JobState::kRunning || std::find(running_.begin(), running_.end(), j) != running_.end())
+      return {job};  // the run has started: a frame that comes late runs alone
+    here.insert(j->request.batch.frame.value_or(0));
+    if (j->state != JobState::kQueued) continue;
+    queued.push_back(j);
+    oldest = std::min(oldest, j->submitted_ms);
+  }
+  if (here.size() < run_length(b) && clock_() - oldest < options_.window_run_wait_ms) return {};
+  std::sort(queued.begin(), queued.end(), [](const std::shared_ptr<Job>& x, const std::shared_ptr<Job>& y) {
+    return x->request.batch.frame < y->request.batch.frame;
+  });
+  return queued;
 }
 
 std::shared_ptr<Job> JobManager::copy_asked_job() const {
@@ -34,11 +70,12 @@ JobManager::RenderWork JobManager::next_work() {
   } else if ((work.job = ended_job())) {
     work.kind = Kind::kDrop;
     running_.erase(std::find(running_.begin(), running_.end(), work.job));
-  } else if ((work.job = startable_job())) {
+  } else if (!(work.start = startable_jobs()).empty()) {
     // Before the queued commits: a fresh job's round 0 opens at once, so that workers have its
-    // tiles while its frame is built.
+    // tiles while its frame is built. A window run's frames start together.
     work.kind = Kind::kStart;
-    running_.push_back(work.job);
+    work.job = work.start.front();
+    running_.insert(running_.end(), work.start.begin(), work.start.end());
   } else if ((work.job = copy_asked_job())) {
     // Between batches: the frame as it stands (its closed rounds and the tiles of the open one
     // applied so far).

@@ -51,7 +51,9 @@ void ReprojectionWorker::run() {
     RenderWork work;
     {
       JobLock lock(m_.mu_);
-      while ((work = m_.next_work()).kind == RenderWork::Kind::kWait) m_.work_cv_.wait(lock);
+      // Woken at least every second: a window run waiting for its frames may start after a time.
+      while ((work = m_.next_work()).kind == RenderWork::Kind::kWait)
+        m_.work_cv_.wait_for(lock, std::chrono::seconds(1));
     }
     if (work.kind == RenderWork::Kind::kStop) break;
     do_work(work);
@@ -87,17 +89,8 @@ void ReprojectionWorker::do_work(RenderWork& work) {
       m_.copy_cv_.notify_all();
       return;
     case RenderWork::Kind::kStart:
-      try {
-        start_job(job);
-      } catch (const std::exception& e) {
-        // A fresh job's round 0 may be open by now: ending the job closes it (its leases are no
-        // longer wanted, its queued commits are dropped unapplied).
-        log->error("job {} failed to start: {}", job->id, e.what());
-        m_.stop_running(job);
-        m_.end_job(job, JobState::kFailed, e.what());
-        renders_.erase(job->id);
-      }
-      return;
+      if (windowed(job->request.batch)) return start_run(work.start);
+      return start_or_fail(job);
     case RenderWork::Kind::kApply:
       try {
         apply_commits(work.batch);
@@ -106,6 +99,19 @@ void ReprojectionWorker::do_work(RenderWork& work) {
         m_.end_job(job, JobState::kFailed, e.what());
       }
       return;
+  }
+}
+
+void ReprojectionWorker::start_or_fail(const std::shared_ptr<Job>& job) {
+  try {
+    start_job(job);
+  } catch (const std::exception& e) {
+    // A fresh job's round 0 may be open by now: ending the job closes it (its leases are no
+    // longer wanted, its queued commits are dropped unapplied).
+    logger("master")->error("job {} failed to start: {}", job->id, e.what());
+    m_.stop_running(job);
+    m_.end_job(job, JobState::kFailed, e.what());
+    renders_.erase(job->id);
   }
 }
 
@@ -162,6 +168,16 @@ void ReprojectionWorker::drop_job(const std::shared_ptr<Job>& job) {
   m_.copy_cv_.notify_all();
   renders_.erase(job->id);
   m_.notify(job);
+  // A frame that leaves its window run may be the one the others' round waited for.
+  std::shared_ptr<const WindowRun> run;
+  uint32_t round = 0;
+  {
+    JobLock lock(m_.mu_);
+    run = job->run;
+    for (const auto& g : run ? run->frames : std::vector<std::shared_ptr<Job>>{})
+      if (g->state == JobState::kRunning) round = std::max(round, g->round);
+  }
+  if (run) close_in_step(*run, round);
 }
 
 void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
@@ -172,6 +188,7 @@ void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
   render = Render{};
   const auto setup = std::chrono::steady_clock::now();
   render.scene = share_bundle_scene(*job->bundle, job->scene_hash, m_.cache_dir(), job->request.options.lighting);
+  m_.release_checked_scene(job->scene_hash);  // the admission's load, taken from the shelf just now
   const double scene_s = seconds_since(setup);
   render.camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
   std::shared_ptr<const JobProgressRecord> resume;
@@ -267,6 +284,7 @@ void ReprojectionWorker::apply_commits(const std::vector<std::unique_ptr<Task>>&
   tiles.reserve(batch.size());
   for (const auto& t : batch) tiles.push_back(&t->tile);
   render.driver->apply(tiles);
+  reproject_into_neighbours(job, tiles);
   ++batches_applied_;
   tiles_applied_ += tiles.size();
   // The counts at most every 100 ms (and at the round's close): GL's counters are read back, which
@@ -279,8 +297,10 @@ void ReprojectionWorker::apply_commits(const std::vector<std::unique_ptr<Task>>&
     render.counts_ms = now;
   }
   bool round_done;
+  std::shared_ptr<const WindowRun> run;
   {
     JobLock lock(m_.mu_);
+    run = job.run;
     if (refresh) job.counts = counts;
     job.counters.seconds_reprojecting = render.driver->frame().seconds_reprojecting();
     EPR_CHECK(batch.size() <= job.remaining);
@@ -288,11 +308,12 @@ void ReprojectionWorker::apply_commits(const std::vector<std::unique_ptr<Task>>&
     round_done = job.remaining == 0;
   }
   if (!round_done) return;
+  if (run) return close_in_step(*run, batch.front()->round);  // with the other frames of its run
   if (m_.options_.before_round_close) m_.options_.before_round_close(job.id, batch.front()->round);
   close_round(batch.front()->job);
 }
 
-void ReprojectionWorker::close_round(const std::shared_ptr<Job>& job) {
+void ReprojectionWorker::close_round(const std::shared_ptr<Job>& job, std::optional<bool> checkpoint_due) {
   const auto closing = std::chrono::steady_clock::now();
   RoundDriver& driver = *renders_.at(job->id).driver;
   FrameState& frame = driver.frame();
@@ -342,7 +363,7 @@ void ReprojectionWorker::close_round(const std::shared_ptr<Job>& job) {
   // previews (downscaled, previews.h) and `epr get --partial` serve the latest copy; they say which
   // round it reflects.
   if (want_preview) take_preview_copy(job, at_close);
-  save_round_checkpoint(job, std::move(checkpoint));  // the next round's tiles are being traced meanwhile
+  save_round_checkpoint(job, std::move(checkpoint), checkpoint_due);  // the next round's tiles are traced meanwhile
 }
 
 void ReprojectionWorker::take_preview_copy(const std::shared_ptr<Job>& job, const JobCounters& counters) {
@@ -458,15 +479,20 @@ void ReprojectionWorker::finish_job(const std::shared_ptr<Job>& job, bool budget
 
 // ---- round checkpoints ---------------------------------------------------------------------------
 
-void ReprojectionWorker::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) {
+bool ReprojectionWorker::checkpoint_due(const Job& job) const {
+  // Not every round: a 512 x 512 frame is ~80 MB to write (see checkpoint_interval_s).
+  const double gap = m_.options_.checkpoint_interval_s >= 0
+                         ? m_.options_.checkpoint_interval_s
+                         : MasterOptions::kAutoCheckpointFactor * job.checkpoint_cost_s;
+  return !job.last_checkpoint_ms || double(m_.clock_() - job.last_checkpoint_ms) >= 1000 * gap;
+}
+
+void ReprojectionWorker::save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record,
+                                               std::optional<bool> due) {
   if (!m_.checkpointer_) return;
   {
-    // Not every round: a 512 x 512 frame is ~80 MB to write (see checkpoint_interval_s).
     JobLock lock(m_.mu_);
-    const double gap = m_.options_.checkpoint_interval_s >= 0
-                           ? m_.options_.checkpoint_interval_s
-                           : MasterOptions::kAutoCheckpointFactor * job->checkpoint_cost_s;
-    if (job->last_checkpoint_ms && double(m_.clock_() - job->last_checkpoint_ms) < 1000 * gap) return;
+    if (!due.value_or(checkpoint_due(*job))) return;
     job->last_checkpoint_ms = m_.clock_();
   }
   // Written here, straight from the live frame -- the state after the closed round: nothing of the next

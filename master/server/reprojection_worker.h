@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -22,6 +23,7 @@
 #include "common/scene.h"
 #include "master/round_driver.h"
 #include "master/server/job_manager.h"
+#include "master/server/window_run.h"
 
 namespace epr {
 
@@ -50,6 +52,8 @@ class ReprojectionWorker {
   void do_work(RenderWork& work) EPR_EXCLUDES(m_.mu_);
   /// The job's driver, null if its frame is not built (or the job is not this thread's any more).
   RoundDriver* driver(const Job& job);
+  /// start_job(), failing the job if it throws.
+  void start_or_fail(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
   void start_job(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
   /// A starting job runs (unless it was cancelled meanwhile): its leases and its first round in this
   /// master open (round 0 of a fresh job, before its frame exists; the next round of a resumed one,
@@ -58,12 +62,27 @@ class ReprojectionWorker {
   bool begin_running(const std::shared_ptr<Job>& job, const JobProgressRecord* resume) EPR_EXCLUDES(m_.mu_);
   /// Applies queued commits of one job and round, in commit order (RoundDriver::apply of a span).
   void apply_commits(const std::vector<std::unique_ptr<Task>>& batch) EPR_EXCLUDES(m_.mu_);
-  void close_round(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
+  /// `checkpoint`: whether the round's checkpoint is due (decided for a whole window run); unset: the
+  /// job's own checkpoint interval decides.
+  void close_round(const std::shared_ptr<Job>& job, std::optional<bool> checkpoint = {}) EPR_EXCLUDES(m_.mu_);
   void finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) EPR_EXCLUDES(m_.mu_);
   void drop_job(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
   /// Replaces the job's preview copy with one of its frame as it stands, with `counters`' statistics.
   void take_preview_copy(const std::shared_ptr<Job>& job, const JobCounters& counters) EPR_EXCLUDES(m_.mu_);
-  void save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record) EPR_EXCLUDES(m_.mu_);
+  void save_round_checkpoint(const std::shared_ptr<Job>& job, JobProgressRecord record, std::optional<bool> due = {})
+      EPR_EXCLUDES(m_.mu_);
+  /// Whether the job's checkpoint interval has passed since its last round checkpoint.
+  bool checkpoint_due(const Job& job) const EPR_REQUIRES(job_fields);
+
+  // Frame windows (window_run.h), in reprojection_window.cpp.
+  /// Starts a window run's frames (`frames`, in frame order) together: they continue from one round
+  /// (their checkpoints agree) or all start again from round 0.
+  void start_run(const std::vector<std::shared_ptr<Job>>& frames) EPR_EXCLUDES(m_.mu_);
+  /// Reprojects the vertices of `tiles`, committed for `job`'s current round, into the frames of its
+  /// run within its window that are in the same round.
+  void reproject_into_neighbours(const Job& job, const std::vector<const AssembledTile*>& tiles) EPR_EXCLUDES(m_.mu_);
+  /// Closes `round` of every running frame of `run` at once, if each has all its tiles of it applied.
+  void close_in_step(const WindowRun& run, uint32_t round) EPR_EXCLUDES(m_.mu_);
   /// close_round() of a job whose round closed while draining: checkpoints it (true) instead of
   /// letting the next round open (false: not draining). In job_drain.cpp.
   bool checkpoint_for_drain(const std::shared_ptr<Job>& job, JobProgressRecord* record) EPR_EXCLUDES(m_.mu_);

@@ -170,6 +170,7 @@ grpc::Status lease_answer(const std::string& worker, const LeaseDecision& d, v1:
   l->set_paths_per_pixel(t.paths_per_pixel);
   l->set_seed(t.seed);
   to_render_settings(t.options, t.camera, t.codec_bounds, l->mutable_settings());
+  for (const CameraSpec& c : t.window_cameras) to_proto(c, l->add_window_cameras());
   l->mutable_scene()->set_content_hash(t.scene_hash);
   l->mutable_scene()->set_builtin(t.scene_builtin);
   l->mutable_scene()->set_total_bytes(t.scene_bytes);

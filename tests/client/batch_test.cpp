@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <regex>
@@ -130,6 +131,52 @@ TEST(FrameBatchPlan, OneSpecPerFrameWithItsCameraAndBatchFields) {
   EXPECT_THROW(plan_batch(tiny_job(scene), submit, {}), std::invalid_argument);
   EXPECT_THROW(plan_batch(tiny_job(scene), submit, {1}, "bad id"), std::invalid_argument);
   fs::remove_all(dir);
+}
+
+TEST(FrameBatchPlan, AFrameWindowSplitsTheFramesIntoRunsOfConsecutiveFrames) {
+  RenderOptions o;
+  o.scene = "builtin:cornell";
+  o.width = o.height = 16;
+  o.mode = RenderMode::kSkip;
+  o.seed = 5;
+  WindowOptions w;
+  w.frame_window = 1;
+  w.run = 3;
+  const FrameBatch b = plan_batch(o, SubmitOptions{}, {1, 2, 3, 4, 5, 7, 8, 10}, "b-win", w);
+  // Runs: at most 3 frames, a gap ends one.
+  const std::vector<std::pair<uint32_t, uint32_t>> runs{{1, 3}, {1, 3}, {1, 3}, {4, 5},
+                                                        {4, 5}, {7, 8}, {7, 8}, {10, 10}};
+  ASSERT_EQ(b.specs.size(), runs.size());
+  for (size_t i = 0; i < runs.size(); ++i) {
+    const v1::JobSpec& s = b.specs[i];
+    SCOPED_TRACE("frame " + std::to_string(s.frame()));
+    EXPECT_EQ(s.frame_window(), 1u);
+    EXPECT_EQ(s.window_first(), runs[i].first);
+    EXPECT_EQ(s.window_last(), runs[i].second);
+    EXPECT_EQ(s.seed(), 5u + s.frame()) << "each frame traces paths of its own";
+  }
+  // Without a window: no window fields, the one seed.
+  for (const auto& s : plan_batch(o, SubmitOptions{}, {1, 2}, "b-plain").specs) {
+    EXPECT_EQ(s.frame_window(), 0u);
+    EXPECT_EQ(s.window_last(), 0u);
+    EXPECT_EQ(s.seed(), 5u);
+  }
+  auto refused = [&](RenderOptions opts, WindowOptions window, const std::string& words) {
+    try {
+      plan_batch(opts, SubmitOptions{}, {1, 2, 3}, "b-bad", window);
+      ADD_FAILURE() << "planned: " << words;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+    }
+  };
+  refused(o, {17, 3}, "--frame-window 17 must be between 0 and 16");
+  refused(o, {1, 0}, "--window-run 0 must be between 1 and 64");
+  RenderOptions pt = o;
+  pt.mode = RenderMode::kPathTrace;
+  refused(pt, w, "--frame-window needs reprojection");
+  RenderOptions exact = o;
+  exact.reproject = ReprojectMethod::kExact;
+  refused(exact, w, "--reproject gl or cpu");
 }
 
 TEST(FrameBatchPlan, SummaryCountsFramesByState) {
@@ -334,6 +381,47 @@ TEST_F(BatchCluster, BadFramesAndBrokenKeysAreRefusedBeforeAnythingIsSubmitted) 
   // An id that is neither a job nor a batch.
   r = epr({"watch", "b-000000000000"});
   EXPECT_EQ(r.code, 4) << r.err;
+}
+
+// A frame window through the real programs: the batch's frames' counts and path sums are the same bit
+// for bit whether one worker process traced them or three.
+TEST_F(BatchCluster, AFrameWindowBatchHasTheSameCountsForOneAndThreeWorkers) {
+  const std::string scene = write_animated_scene(dir_ / "scene");
+  std::vector<std::unique_ptr<Process>> workers;
+  auto start_workers = [&](int n) {
+    workers.clear();
+    for (int i = 0; i < n; ++i)
+      workers.push_back(std::make_unique<Process>(
+          std::vector<std::string>{binary("worker", "epr-worker"), "--master", target_, "--threads", "1", "--cache-dir",
+                                   (dir_ / ("cache" + std::to_string(i))).string()},
+          dir_ / ("worker-" + std::to_string(n) + "-" + std::to_string(i))));
+  };
+  auto render_batch = [&](const std::string& out) {
+    std::vector<std::string> submit{"submit"};
+    for (const auto& f : job_flags(scene)) submit.push_back(f);
+    *(std::find(submit.begin(), submit.end(), "--spp") + 1) = "16";  // rounds enough for the window to act
+    submit.insert(submit.end(), {"--frames", "1-3", "--frame-window", "1", "--window-run", "3"});
+    const RunResult sub = epr(submit);
+    ASSERT_EQ(sub.code, 0) << sub.err;
+    const std::string batch = sub.out.substr(0, sub.out.find('\n'));
+    const RunResult get = epr({"get", batch, "--out", (dir_ / out / "f").string()}, 300s);
+    ASSERT_EQ(get.code, 0) << get.err;
+  };
+  start_workers(1);
+  ASSERT_NO_FATAL_FAILURE(render_batch("one"));
+  start_workers(3);
+  ASSERT_NO_FATAL_FAILURE(render_batch("three"));
+  for (uint32_t frame = 1; frame <= 3; ++frame) {
+    const std::string a = frame_file_name((dir_ / "one" / "f").string(), frame),
+                      b = frame_file_name((dir_ / "three" / "f").string(), frame);
+    EXPECT_EQ(testing::exact_difference(read_image(a + ".counts.exr"), read_image(b + ".counts.exr")), "")
+        << "frame " << frame;
+    EXPECT_EQ(testing::exact_difference(read_image(a + ".pathtrace.exr"), read_image(b + ".pathtrace.exr")), "")
+        << "frame " << frame;
+    EXPECT_EQ(testing::close_difference(read_image(a + ".exr"), read_image(b + ".exr")), "") << "frame " << frame;
+  }
+  // The window ran: the master logged the run.
+  EXPECT_NE(master_->err().find("window run 1..3 of batch"), std::string::npos);
 }
 
 }  // namespace

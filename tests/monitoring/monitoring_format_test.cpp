@@ -137,5 +137,23 @@ TEST(JobJson, UnknownEtaIsNullAndPercentagesUseAllDecisions) {
   EXPECT_EQ(j["state"], "running");
 }
 
+TEST(JobJson, ABatchFrameNamesItsBatchAndWindow) {
+  JobSnapshot s = job("j", JobState::kRunning, 0);
+  EXPECT_TRUE(to_json(s)["batch"].is_null()) << "not part of a batch";
+  s.batch.id = "b-1";
+  s.batch.frame = 7;
+  s.batch.frames = 48;
+  s.batch.window = 2;
+  s.batch.window_first = 1;
+  s.batch.window_last = 16;
+  const json b = to_json(s)["batch"];
+  EXPECT_EQ(b["id"], "b-1");
+  EXPECT_EQ(b["frame"], 7);
+  EXPECT_EQ(b["frames"], 48);
+  EXPECT_EQ(b["frame_window"], 2);
+  EXPECT_EQ(b["window_first"], 1);
+  EXPECT_EQ(b["window_last"], 16);
+}
+
 }  // namespace
 }  // namespace epr::monitoring_test

@@ -24,6 +24,7 @@
 #include "master/reprojector.h"
 #include "master/server/job_manager.h"
 #include "tests/master/traced_vertices.h"
+#include "tests/server/in_process_worker.h"
 #include "tests/server/job_images.h"
 #include "wire/tile_result_stream.h"
 #include "worker/embree_scene.h"
@@ -35,13 +36,7 @@ namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
-fs::path fresh_dir(const std::string& name) {
-  static int n = 0;
-  const fs::path d = fs::temp_directory_path() /
-                     ("epr-checkpoint-test-" + std::to_string(::getpid()) + "-" + name + "-" + std::to_string(++n));
-  fs::remove_all(d);
-  return d;
-}
+fs::path fresh_dir(const std::string& name) { return test::fresh_dir("epr-checkpoint-test", name); }
 
 std::string read_bytes(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);

@@ -4,12 +4,19 @@
 #pragma once
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <chrono>
+#include <climits>
+#include <filesystem>
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
 #include <string>
+#include <thread>
 #include <variant>
+#include <vector>
 
 #include "common/scene_loader.h"
 #include "master/server/job_manager.h"
@@ -75,5 +82,49 @@ class JobsWorker {
   std::string id_;
   std::map<std::string, Tracer> tracers_;
 };
+
+/// A folder for one test's master state: PREFIX-PID-NAME-N under the temporary directory, removed if
+/// it is there (N counts the calls, so every call gets its own).
+inline std::filesystem::path fresh_dir(const std::string& prefix, const std::string& name) {
+  static int n = 0;
+  const std::filesystem::path d = std::filesystem::temp_directory_path() /
+                                  (prefix + "-" + std::to_string(::getpid()) + "-" + name + "-" + std::to_string(++n));
+  std::filesystem::remove_all(d);
+  return d;
+}
+
+/// Asks `done` every 2 ms until it is true or `timeout` has passed; its last answer.
+inline bool poll_until(const std::function<bool()>& done,
+                       std::chrono::milliseconds timeout = std::chrono::milliseconds(60000)) {
+  for (auto end = std::chrono::steady_clock::now() + timeout; std::chrono::steady_clock::now() < end;) {
+    if (done()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  return done();
+}
+
+/// Leases, traces and commits tiles of whatever job the manager hands out, the workers taking turns,
+/// until every one of `ids` is done or has closed `until_round` rounds; fails the test when one fails
+/// or after `limit`.
+inline void trace_until(JobManager& jobs, const std::vector<JobsWorker*>& workers, const std::vector<std::string>& ids,
+                        int until_round = INT_MAX, std::chrono::seconds limit = std::chrono::seconds(300)) {
+  size_t turn = 0;
+  for (auto end = std::chrono::steady_clock::now() + limit; std::chrono::steady_clock::now() < end;) {
+    bool all = true;
+    for (const auto& id : ids) {
+      const auto s = jobs.get(id);
+      ASSERT_TRUE(s);
+      ASSERT_NE(s->state, JobState::kFailed) << s->error;
+      all &= s->state == JobState::kDone || (s->state == JobState::kRunning && int(s->progress.round) >= until_round);
+    }
+    if (all) return;
+    JobsWorker& w = *workers[turn++ % workers.size()];
+    if (auto l = w.lease())
+      w.submit(*l);
+    else
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  FAIL() << "the jobs did not get there within " << limit.count() << " s";
+}
 
 }  // namespace epr::test

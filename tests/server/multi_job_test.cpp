@@ -31,13 +31,7 @@ using test::JobImages;
 using test::JobsWorker;
 using test::results_of;
 
-fs::path fresh_dir(const std::string& name) {
-  static int n = 0;
-  const fs::path d = fs::temp_directory_path() /
-                     ("epr-multi-job-test-" + std::to_string(::getpid()) + "-" + name + "-" + std::to_string(++n));
-  fs::remove_all(d);
-  return d;
-}
+fs::path fresh_dir(const std::string& name) { return test::fresh_dir("epr-multi-job-test", name); }
 
 constexpr uint64_t kLargeBudget = uint64_t(1) << 40;
 
@@ -59,34 +53,11 @@ JobRequest request(const std::string& key, RenderMode mode, int width, int heigh
   return req;
 }
 
-bool until(const std::function<bool()>& done, std::chrono::milliseconds timeout = 60000ms) {
-  for (auto end = std::chrono::steady_clock::now() + timeout; std::chrono::steady_clock::now() < end;) {
-    if (done()) return true;
-    std::this_thread::sleep_for(2ms);
-  }
-  return done();
-}
-
 JobState state(const JobManager& jobs, const std::string& id) { return jobs.get(id).value().state; }
 
-/// Leases, traces and commits tiles of whatever job the manager gives until every one of `ids` is
-/// done or has closed `until_round` rounds.
+/// Traces until every one of `ids` is done or has closed `until_round` rounds (test::trace_until).
 void work(JobManager& jobs, JobsWorker& w, const std::vector<std::string>& ids, int until_round = 1 << 30) {
-  for (auto end = std::chrono::steady_clock::now() + 180s; std::chrono::steady_clock::now() < end;) {
-    bool all = true;
-    for (const auto& id : ids) {
-      const auto s = jobs.get(id);
-      ASSERT_TRUE(s);
-      ASSERT_NE(s->state, JobState::kFailed) << s->error;
-      all &= s->state == JobState::kDone || (s->state == JobState::kRunning && s->progress.round >= until_round);
-    }
-    if (all) return;
-    if (auto l = w.lease())
-      w.submit(*l);
-    else
-      std::this_thread::sleep_for(1ms);
-  }
-  FAIL() << "the jobs did not get there within 180 s";
+  test::trace_until(jobs, {&w}, ids, until_round, 180s);
 }
 
 /// M, M' and the path-traced sums bit for bit; the combined image within float rounding.
@@ -153,14 +124,15 @@ TEST(MultiJob, TheMemoryBudgetAdmitsTwoJobsAndTheThirdStartsWhenOneEnds) {
   {
     JobManager jobs(o);
     const std::string ia = jobs.submit(a).id, ib = jobs.submit(b).id, ic = jobs.submit(c).id;
-    ASSERT_TRUE(until([&] { return state(jobs, ia) == JobState::kRunning && state(jobs, ib) == JobState::kRunning; }));
+    ASSERT_TRUE(test::poll_until(
+        [&] { return state(jobs, ia) == JobState::kRunning && state(jobs, ib) == JobState::kRunning; }));
     // The third stays queued while both run (no worker: they never end).
-    EXPECT_FALSE(until([&] { return state(jobs, ic) != JobState::kQueued; }, 300ms));
+    EXPECT_FALSE(test::poll_until([&] { return state(jobs, ic) != JobState::kQueued; }, 300ms));
     // epr_tiles_waiting: round 0 of both running jobs, none committed, and the queued job's first round.
     const uint64_t tiles = 16;
     EXPECT_EQ(jobs.tiles_waiting(), 3 * tiles);
     ASSERT_TRUE(jobs.cancel(ia));
-    EXPECT_TRUE(until([&] { return state(jobs, ic) == JobState::kRunning; })) << "the third job starts";
+    EXPECT_TRUE(test::poll_until([&] { return state(jobs, ic) == JobState::kRunning; })) << "the third job starts";
     EXPECT_EQ(state(jobs, ib), JobState::kRunning);
     EXPECT_EQ(jobs.tiles_waiting(), 2 * tiles);
     // And it completes beside the other.
@@ -179,8 +151,8 @@ TEST(MultiJob, NoBudgetRunsOneJobAtATime) {
   JobManager jobs(o);
   const std::string ia = jobs.submit(request("a", RenderMode::kSkip, 32, 32)).id;
   const std::string ib = jobs.submit(request("b", RenderMode::kSkip, 32, 32)).id;
-  ASSERT_TRUE(until([&] { return state(jobs, ia) == JobState::kRunning; }));
-  EXPECT_FALSE(until([&] { return state(jobs, ib) != JobState::kQueued; }, 300ms));
+  ASSERT_TRUE(test::poll_until([&] { return state(jobs, ia) == JobState::kRunning; }));
+  EXPECT_FALSE(test::poll_until([&] { return state(jobs, ib) != JobState::kQueued; }, 300ms));
   jobs.shutdown();
   fs::remove_all(dir);
 }
@@ -194,7 +166,8 @@ TEST(MultiJob, EqualPriorityJobsShareTheWorkers) {
   JobManager jobs(o);
   const std::string ia = jobs.submit(request("a", RenderMode::kSkip, 64, 64)).id;
   const std::string ib = jobs.submit(request("b", RenderMode::kSkip, 64, 64)).id;
-  ASSERT_TRUE(until([&] { return state(jobs, ia) == JobState::kRunning && state(jobs, ib) == JobState::kRunning; }));
+  ASSERT_TRUE(
+      test::poll_until([&] { return state(jobs, ia) == JobState::kRunning && state(jobs, ib) == JobState::kRunning; }));
   JobsWorker w(jobs);
   std::map<std::string, int> leased;
   for (int i = 0; i < 10; ++i) {
@@ -221,7 +194,8 @@ TEST(MultiJob, HigherPriorityIsLeasedFirst) {
   JobRequest h = request("high", RenderMode::kSkip, 64, 64);
   h.priority = 5;
   const std::string high = jobs.submit(h).id;
-  ASSERT_TRUE(until([&] { return state(jobs, low) == JobState::kRunning && state(jobs, high) == JobState::kRunning; }));
+  ASSERT_TRUE(test::poll_until(
+      [&] { return state(jobs, low) == JobState::kRunning && state(jobs, high) == JobState::kRunning; }));
   JobsWorker w(jobs);
   for (int i = 0; i < 16; ++i) {  // every tile of the high job's round 0
     const auto l = w.lease();
@@ -262,14 +236,15 @@ TEST(MultiJob, AWorkerTracesAnotherJobWhileOneJobsRoundCloses) {
     held_job = is;
   }
   const std::string ib = jobs.submit(request("big", RenderMode::kSkip, 64, 64)).id;
-  ASSERT_TRUE(until([&] { return state(jobs, is) == JobState::kRunning && state(jobs, ib) == JobState::kRunning; }));
+  ASSERT_TRUE(
+      test::poll_until([&] { return state(jobs, is) == JobState::kRunning && state(jobs, ib) == JobState::kRunning; }));
   JobsWorker w(jobs);
   const auto first = w.lease();
   ASSERT_TRUE(first);
   ASSERT_EQ(first->job_id, is);
   ASSERT_EQ(w.submit(*first), CommitOutcome::kCommitted);
   // The small job's round 0 is applied and its close held: it has no tile to hand out.
-  ASSERT_TRUE(until([&] { return gate.waiting.load(); }));
+  ASSERT_TRUE(test::poll_until([&] { return gate.waiting.load(); }));
   EXPECT_EQ(jobs.get(is)->progress.round, 0);
   const auto next = w.lease();
   ASSERT_TRUE(next) << "the worker is told to wait although another job has tiles";
@@ -301,7 +276,7 @@ TEST(MultiJob, JobsRenderedTogetherEqualEachRenderedAlone) {
     JobManager jobs(o);
     std::vector<std::string> ids;
     for (const auto& r : reqs) ids.push_back(jobs.submit(r).id);
-    ASSERT_TRUE(until([&] {
+    ASSERT_TRUE(test::poll_until([&] {
       return std::all_of(ids.begin(), ids.end(), [&](const auto& id) { return state(jobs, id) != JobState::kQueued; });
     })) << "every job runs at once";
     // Two workers taking turns, so that the jobs' tiles interleave.
@@ -350,8 +325,9 @@ TEST(MultiJob, TwoRunningJobsResumeFromTheirCheckpointsAfterARestart) {
   }  // destroyed with both jobs mid-way
   {
     JobManager jobs(o);
-    ASSERT_TRUE(until([&] { return state(jobs, ia) == JobState::kRunning && state(jobs, ib) == JobState::kRunning; }))
-        << "both resume at once";
+    ASSERT_TRUE(test::poll_until([&] {
+      return state(jobs, ia) == JobState::kRunning && state(jobs, ib) == JobState::kRunning;
+    })) << "both resume at once";
     EXPECT_GE(jobs.get(ia)->progress.round, 1) << "from its checkpoint, not round 0";
     EXPECT_GE(jobs.get(ib)->progress.round, 1) << "from its checkpoint, not round 0";
     JobsWorker w(jobs);

@@ -202,7 +202,7 @@ TEST(SceneBundle, ABuiltInSceneTakesAJobsImageAlong) {
   EXPECT_EQ(bundled.lighting.environment->pixels->rgb(1, 1), Vec3(0.75f));
   // Without the folder: refused with the reason, on the client's side and the master's.
   for (auto attempt : {std::function<void()>([&] { bundle_scene("builtin:cornell", job); }), std::function<void()>([&] {
-                         load_bundle(SceneBundleData{"builtin:cornell", "", {}, {}, {}}, dir.path("cache"), job);
+                         load_bundle(SceneBundleData{"builtin:cornell", "", {}, {}, {}, {}}, dir.path("cache"), job);
                        })}) {
     try {
       attempt();

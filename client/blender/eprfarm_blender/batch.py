@@ -55,6 +55,8 @@ class FarmBatch:
         current = scene.frame_current
         uploaded = {}  # content hash of a large scene -> its uploaded hash
         limit = self.client.inline_scene_limit
+        frames_module = self.eprfarm.frames
+        window, runs, still = 0, [], None  # still: the first frame's scene content hash
         try:
             for index, frame in enumerate(self.frames):
                 scene.frame_set(frame)
@@ -76,6 +78,22 @@ class FarmBatch:
                     )  # fmt: skip
                 finally:
                     self.client.inline_scene_limit = limit
+                if index == 0:
+                    try:
+                        window, run = frames_module.checked_window(s.frame_window, None, spec)
+                    except ValueError as e:
+                        raise BatchError(str(e)) from None
+                    runs = frames_module.run_frames(self.frames, run)
+                    still = spec.scene.content_hash
+                if window:
+                    if spec.scene.content_hash != still:
+                        raise BatchError(
+                            f"frame {frame}: the scene is not the same as at frame {self.frames[0]} (objects, "
+                            "materials or lights move): a frame window needs a still scene; set Frame Window to 0"
+                        )
+                    spec.frame_window = window
+                    spec.window_first, spec.window_last = runs[index]
+                    spec.seed = s.seed + frame  # the frames of a run trace paths of their own
                 scene_bytes = sum(len(f.data) for f in spec.scene.files.files)
                 if scene_bytes > limit:
                     content_hash = spec.scene.content_hash

@@ -237,6 +237,7 @@ class RENDER_PT_eprfarm(bpy.types.Panel):
         layout.prop(s, "seed")
         layout.prop(s, "show_rounds")
         layout.separator()
+        layout.prop(s, "frame_window")
         row = layout.row(align=True)
         row.operator("eprfarm.render_frames", icon="RENDER_ANIMATION")
         row.operator("eprfarm.cancel_frames", text="", icon="CANCEL")

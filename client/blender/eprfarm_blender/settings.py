@@ -110,6 +110,16 @@ class EprfarmSettings(bpy.types.PropertyGroup):
         default="skip",
     )
     seed: bpy.props.IntProperty(name="Seed", description="Random seed of the job", default=1, min=0)
+    frame_window: bpy.props.IntProperty(
+        name="Frame Window",
+        description=(
+            "Render Frames on Farm: reproject each frame's paths into the frames up to this many frames away "
+            "(the camera may move; the scene must stand still). 0: every frame alone"
+        ),
+        default=0,
+        min=0,
+        max=16,
+    )
     show_rounds: bpy.props.BoolProperty(
         name="Show Rounds",
         description="Load the job's latest round into the render result while it runs",

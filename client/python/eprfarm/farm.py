@@ -206,7 +206,13 @@ class Client(MasterClient):
         return self.least_loaded(among).submit_spec(spec)
 
     def submit_frames(
-        self, scene: str, frames: Union[str, Iterable[int]], batch_id: Optional[str] = None, **options
+        self,
+        scene: str,
+        frames: Union[str, Iterable[int]],
+        batch_id: Optional[str] = None,
+        frame_window: int = 0,
+        window_run: Optional[int] = None,
+        **options,
     ) -> Tuple[str, List[str]]:
         """Queues a batch of frames of the scene's camera animation as `epr submit --frames` does: one
         job per frame (without a camera: the master takes the scene's camera at the frame), the scene
@@ -215,6 +221,14 @@ class Client(MasterClient):
         camera. With several masters the frames are spread one by one, each to the master with the
         least work (samples left at the start, plus the frames given to it). The batch id and the job
         ids, in frame order.
+
+        `frame_window` K (0 to 16; 0, the default: every frame alone) renders the frames in runs of
+        at most `window_run` (1 to 64, default 16) consecutive frame numbers (frames.window_runs, as
+        `epr submit --frame-window K --window-run N` plans them), each run on one master with its
+        rounds in step, a vertex traced for one frame also reprojected into the run's frames at most
+        K frame numbers away; each frame's seed is then `seed` plus its number. With several masters
+        whole runs are spread, each to the master with the least work. A window needs mode skip or
+        rp and reproject gl or cpu.
 
         Every argument is checked before anything is sent, and every frame before any is queued: each
         master that gets frames uploads the scene and checks the scene's camera animation at all of
@@ -234,8 +248,9 @@ class Client(MasterClient):
         scene_ref = scene_pb.SceneBundle()
         scene_ref.CopyFrom(template.scene)
         template.ClearField("scene")
-        specs = _frames.frame_specs(template, batch_id, name, frame_list)
-        where, masters = self._spread(specs)
+        frame_window, window_run = _frames.checked_window(frame_window, window_run, template)
+        specs = _frames.frame_specs(template, batch_id, name, frame_list, frame_window, window_run)
+        where, masters = self._spread(specs, _frames.window_runs(frame_list, window_run))
         ids: List[str] = [""] * len(specs)
         placed = []
         queued: List[Tuple[_OneMaster, int]] = []  # (master, index) of every frame queued so far
@@ -252,7 +267,8 @@ class Client(MasterClient):
                     refs[index] = scene_pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
                 check = pb.JobSpec()
                 check.CopyFrom(specs[mine[index][0]])
-                check.ClearField("frame")
+                for field in ("frame", "frame_window", "window_first", "window_last"):  # the frames' cameras alone
+                    check.ClearField(field)
                 check.scene.CopyFrom(refs[index])
                 try:
                     master.check_frames(check, [frame_list[i] for i in mine[index]])
@@ -311,8 +327,11 @@ class Client(MasterClient):
         out.batch_id = batch_id
         return out
 
-    def _spread(self, specs: List[pb.JobSpec]) -> Tuple[List[int], List[_OneMaster]]:
-        """For each spec the index of the master it goes to, and the masters."""
+    def _spread(
+        self, specs: List[pb.JobSpec], runs: List[Tuple[int, int]]
+    ) -> Tuple[List[int], List[_OneMaster]]:
+        """For each spec the index of the master it goes to, and the masters: each run of specs
+        ([first, last] indices; one spec a run without a frame window) to one master."""
         masters = self.masters()
         if not self.several:
             return [0] * len(specs), masters
@@ -324,10 +343,11 @@ class Client(MasterClient):
         if all(x is None for x in load):
             raise probes[0].error
         where = []
-        for spec in specs:
+        for first, last in runs:
             best = min((i for i, x in enumerate(load) if x is not None), key=lambda i: load[i])
-            where.append(best)
-            load[best] += float(spec.width) * spec.height * spec.target_spp
+            for spec in specs[first : last + 1]:
+                where.append(best)
+                load[best] += float(spec.width) * spec.height * spec.target_spp
         return where, masters
 
     # ---- one job: the master holding it ---------------------------------------------------------

@@ -31,7 +31,9 @@ TILE_SIZE = Range("--tile", 4, 1024)
 MAX_DEPTH = Range("--max-depth", 1, 100000)
 ROUND_GROWTH = Range("--round-growth", 0, 16)
 EPSILON = Range("--epsilon", 0, 1)
-JOB_RANGES = (IMAGE_SIDE, SPP, SUBPIXELS, TILE_SIZE, MAX_DEPTH, ROUND_GROWTH, EPSILON)
+FRAME_WINDOW = Range("--frame-window", 0, 16)  # K, frames on each side
+WINDOW_RUN = Range("--window-run", 1, 64)  # the frames of one run, window_first..window_last
+JOB_RANGES = (IMAGE_SIDE, SPP, SUBPIXELS, TILE_SIZE, MAX_DEPTH, ROUND_GROWTH, EPSILON, FRAME_WINDOW, WINDOW_RUN)
 MAX_NAME_BYTES = 256  # kMaxNameBytes: job, batch and worker names, UTF-8
 
 UINT32_MAX = (1 << 32) - 1

@@ -12,7 +12,8 @@ folder set the way Preferences keep them.
 
 BlenderAddonTest (ctest blender_addon), in `blender -b`: `-f 1`, a textured material (against `epr
 render` of Blender's own glTF export), `-a` for two frames, the operator Render Frames on Farm (both
-frames as one batch) and a master that wants a token (none given: its refusal; the panel's token
+frames as one batch; with a Frame Window, the run each frame names, and Mode pt and a moving object
+refused) and a master that wants a token (none given: its refusal; the panel's token
 file: the frame); an unreachable master, a job the master refuses and a package folder without the
 package must end the render with the reason in Blender's output, no traceback and no image.
 BlenderUiTest (ctest blender_addon_ui): Blender with its UI under xvfb-run, F12 and Render Animation
@@ -438,6 +439,58 @@ class BlenderAddonTest(BlenderCase):
 
         with eprfarm.Client(self.farm.address) as client:
             batch = re.search(r"eprfarm: batch (\S+): frame 1: cannot save", r.stdout).group(1)
+            self.assertLessEqual({j.state for j in client.list(batch=batch)}, {"DONE", "CANCELLED"}, log)
+
+    def test_batch_operator_frame_window(self):
+        # Frame Window 1: every frame's job names the window and its run (frames 1-2, one run) and has
+        # the seed plus its frame, as the specs sent show; the batch ends. Refused, with the reason and nothing left running: Mode pt
+        # (nothing to reproject), and a mesh that moves between the frames (not a still scene).
+        out = os.path.join(self.tmp, "window", "box_####")
+        r = self.render_blend(
+            out,
+            python=(
+                "from eprfarm_blender import settings\n"
+                "eprfarm = settings.import_client()\n"
+                "submit = eprfarm.Client.submit_spec\n"
+                "def recorded(client, spec):\n"
+                "    print('sent:', spec.frame, spec.frame_window, spec.window_first, spec.window_last, spec.seed, flush=True)\n"
+                "    return submit(client, spec)\n"
+                "eprfarm.Client.submit_spec = recorded\n"
+                "s = bpy.context.scene.eprfarm\n"
+                "s.frame_window, s.mode = 1, 'skip'\n"
+                "print('operator:', sorted(bpy.ops.eprfarm.render_frames()), flush=True)\n"
+                "def refused(what):\n"
+                "    try:\n"
+                "        print(what, sorted(bpy.ops.eprfarm.render_frames()), flush=True)\n"
+                "    except RuntimeError as e:\n"
+                "        print(what, 'raised:', e, flush=True)\n"
+                "s.mode = 'pt'\n"
+                "refused('pt:')\n"
+                "s.mode = 'skip'\n"
+                "bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0, 0.5, 0.5))\n"
+                "cube = bpy.context.active_object\n"
+                "cube.keyframe_insert('location', frame=1)\n"
+                "cube.location.x += 0.3\n"
+                "cube.keyframe_insert('location', frame=2)\n"
+                "refused('moving:')\n"
+            ),
+        )
+        log = f"{r.stdout[-6000:]}\n{r.stderr[-2000:]}"
+        self.assertIn("operator: ['FINISHED']", r.stdout, log)
+        self.assertRegex(r.stdout, r"eprfarm: batch \S+: 2/2 frames done, 100%", log)
+        self.assertEqual(re.findall(r"sent: (.*)", r.stdout)[:2], [f"1 1 1 2 {SEED + 1}", f"2 1 1 2 {SEED + 2}"], log)
+        self.assertEqual(len(re.findall(r"sent: ", r.stdout)), 3, log)  # the moving scene's frame 1, then refused
+        self.assertIn("pt: raised: Error: eprfarm: frame_window needs reprojection: mode pt", r.stdout, log)
+        self.assertRegex(
+            r.stdout, r"moving: raised: Error: eprfarm: batch (\S+): frame 2: the scene is not the same as at frame 1 "
+            r"\(objects, materials or lights move\): a frame window needs a still scene; set Frame Window to 0; "
+            r"its frames that had not ended were cancelled", log
+        )  # fmt: skip
+        self.assertNotIn("Traceback", r.stdout + r.stderr)
+        import eprfarm
+
+        with eprfarm.Client(self.farm.address) as client:
+            batch = re.search(r"moving: raised: Error: eprfarm: batch (\S+):", r.stdout).group(1)
             self.assertLessEqual({j.state for j in client.list(batch=batch)}, {"DONE", "CANCELLED"}, log)
 
     def test_errors(self):

@@ -232,21 +232,11 @@ class OneMasterTest(base.FarmClientTest):
             self.client.cancel_batch("not a batch id")
 
 
-class TwoMastersTest(unittest.TestCase):
-    def setUp(self):
-        self.tmp = tempfile.mkdtemp(prefix="epr-python-checks-multi-")
-        self.masters = multi.TwoMasters(self.tmp)
-        self.client = eprfarm.Client(self.masters.list)
-
-    def tearDown(self):
-        self.client.close()
-        self.masters.stop()
-        shutil.rmtree(self.tmp, ignore_errors=True)
+class TwoMastersTest(multi.TwoMastersCase):
+    PREFIX = "epr-python-checks-multi-"
 
     def test_cancel_batch_on_every_master(self):
-        scene = os.path.join(self.tmp, "walk.json")
-        with open(scene, "w") as f:
-            f.write(multi.ANIMATION)
+        scene = self.animation_scene()
         batch, ids = self.client.submit_frames(scene, "1-4", **LONG)
         per_master = [eprfarm.Client(a) for a in self.masters.addresses]
         self.assertTrue(all(len(c.list(batch=batch)) > 0 for c in per_master), "the frames went to one master")

@@ -70,6 +70,32 @@ class TwoMasters:
             f.stop()
 
 
+class TwoMastersCase(unittest.TestCase):
+    """A test with its own TwoMasters in a fresh folder (PREFIX) and a client of both."""
+
+    PREFIX = "epr-python-multi-"
+    CLIENT_TIMEOUT = None  # seconds; None: the client's default
+
+    def setUp(self):
+        # Cleanups, not tearDown: they also run when setUp fails half-way (no process outlives the test).
+        self.tmp = tempfile.mkdtemp(prefix=self.PREFIX)
+        self.addCleanup(shutil.rmtree, self.tmp, ignore_errors=True)
+        self.masters = TwoMasters(self.tmp)
+        self.addCleanup(self.masters.stop)
+        extra = {} if self.CLIENT_TIMEOUT is None else {"timeout": self.CLIENT_TIMEOUT}
+        import eprfarm as package  # the package of the test that runs (base.main() put it on the path)
+
+        self.client = package.Client(self.masters.list, **extra)
+        self.addCleanup(self.client.close)
+
+    def animation_scene(self) -> str:
+        """ANIMATION written to the test's folder: its path."""
+        scene = os.path.join(self.tmp, "walk.json")
+        with open(scene, "w") as f:
+            f.write(ANIMATION)
+        return scene
+
+
 class FarmCase(unittest.TestCase):
     def run(self, result=None):
         failures = len(result.failures) + len(result.errors) if result else 0
@@ -238,18 +264,11 @@ class MultiMasterTest(FarmCase):
         self.assertAlmostEqual(jobs[3].proto.effective.camera.fov_y_degrees, 44, places=4)
 
 
-class MasterDownTest(FarmCase):
+class MasterDownTest(TwoMastersCase, FarmCase):
     """One master stopped: list reports it and lists the other's jobs, which still work."""
 
-    def setUp(self):
-        self.tmp = tempfile.mkdtemp(prefix="epr-python-multi-down-")
-        self.masters = TwoMasters(self.tmp)
-        self.client = eprfarm.Client(self.masters.list, timeout=5)
-
-    def tearDown(self):
-        self.client.close()
-        self.masters.stop()
-        shutil.rmtree(self.tmp, ignore_errors=True)
+    PREFIX = "epr-python-multi-down-"
+    CLIENT_TIMEOUT = 5
 
     def test_one_master_down(self):
         small = {"width": 16, "height": 16, "spp": 2, "mode": "pt"}

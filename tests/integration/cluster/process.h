@@ -102,7 +102,10 @@ size_t count_of(const std::string& haystack, const std::string& needle);
 template <class... A>
 void print_note(std::chrono::steady_clock::time_point start, const char* format, A... args) {
   std::printf("  [%6.2f s] ", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
-  std::printf(format, args...);
+  if constexpr (sizeof...(A) == 0)
+    std::fputs(format, stdout);  // a format without arguments is printed as it is
+  else
+    std::printf(format, args...);
   std::printf("\n");
   std::fflush(stdout);
 }

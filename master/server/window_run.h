@@ -1,0 +1,53 @@
+// Frame windows (DESIGN.md "Frame windows"): the frames window_first..window_last of a batch that
+// one master renders together, a "run". A run starts once all its frames are queued (or after
+// MasterOptions::window_run_wait_ms with those that are: the reason is logged), as one unit of the
+// memory budget; its rounds go in step (a round closes for every frame once every frame's tiles of
+// it are applied), and every vertex traced for frame f is also reprojected into the run's frames g
+// with |g - f| <= K. A frame that ends (done, cancelled, failed) leaves its run; the others go on.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "master/server/job.h"
+
+namespace epr {
+namespace v1 {
+class JobSpec;
+}
+
+/// The frames of one run as started together, in frame order (their Job::run).
+struct WindowRun {
+  std::vector<std::shared_ptr<Job>> frames;
+  uint32_t window = 0;  // K
+  /// The frames of the run within K frames of `frame` (number), other than it.
+  std::vector<std::shared_ptr<Job>> neighbours(uint32_t frame) const;
+};
+
+/// The batch fields of a JobSpec (batch_id, batch_name, frame, batch_frames, frame_window,
+/// window_first, window_last) and back.
+BatchMembership batch_from_spec(const v1::JobSpec& spec);
+void batch_to_spec(const BatchMembership& batch, v1::JobSpec* spec);
+
+/// True if the job asks for a frame window.
+inline bool windowed(const BatchMembership& b) { return b.window > 0; }
+/// Frames in the run of a window job: window_last - window_first + 1.
+inline uint32_t run_length(const BatchMembership& b) { return b.window_last - b.window_first + 1; }
+/// True if both are window jobs of the same run (batch id, K, first and last frame).
+bool same_run(const BatchMembership& a, const BatchMembership& b);
+
+/// The checks of a request's window fields by themselves (the reason, or nullopt): a window needs a
+/// batch frame inside window_first..window_last, K within limits::kFrameWindow, a run of at most
+/// limits::kWindowRunFrames frames, and a mode that reprojects by the deep framebuffer (not pt, not
+/// exact). Without a window, the window fields must be 0.
+std::optional<std::string> window_error(const JobRequest& request);
+
+/// Why `request` (scene `scene_hash`) cannot join the run of `member`, already on this master: the
+/// first field in which their settings differ (everything but the camera must agree), or the same
+/// frame twice. Nullopt if it can.
+std::optional<std::string> run_mismatch(const JobRequest& request, const std::string& scene_hash, const Job& member);
+
+}  // namespace epr
