@@ -6,7 +6,9 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <memory>
 
 #include "master/deep_framebuffer.h"
 
@@ -63,7 +65,9 @@ enum class Resolved : uint8_t { kEdge, kOneSurface, kWeighted };
 
 }  // namespace
 
-EdgePixels::EdgePixels(const PlaneGrid& g, const Camera& camera, float epsilon, const Scene* scene) {
+EdgePixels::EdgePixels(const PlaneGrid& g, const Camera& camera, float epsilon, const Scene* scene,
+                       const CoherentRays& rays) {
+  const auto start = std::chrono::steady_clock::now();
   const int S = g.subpixels;
   width_ = S > 0 ? g.width / S : 0;
   height_ = S > 0 ? g.height / S : 0;
@@ -95,11 +99,13 @@ EdgePixels::EdgePixels(const PlaneGrid& g, const Camera& camera, float epsilon, 
       for (size_t p = w * 64; p < std::min(pixels, w * 64 + 64); ++p)
         if (edge(p)) bits_[w] |= uint64_t(1) << (p & 63);
   });
-  if (scene && S >= 1 && S * S <= kMaxClasses) resolve(g, camera, epsilon, *scene);
+  if (scene && S >= 1 && S * S <= kMaxClasses) resolve(g, camera, epsilon, *scene, rays);
   for (uint64_t word : bits_) count_ += size_t(__builtin_popcountll(word));
+  seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-void EdgePixels::resolve(const PlaneGrid& g, const Camera& camera, float epsilon, const Scene& scene) {
+void EdgePixels::resolve(const PlaneGrid& g, const Camera& camera, float epsilon, const Scene& scene,
+                         const CoherentRays& trace) {
   const int S = g.subpixels, k = rays_per_texel(S);
   const size_t pixels = size_t(width_) * size_t(height_);
   std::vector<uint32_t> edges;
@@ -107,11 +113,26 @@ void EdgePixels::resolve(const PlaneGrid& g, const Camera& camera, float epsilon
     if ((*this)[p]) edges.push_back(uint32_t(p));
   if (edges.empty()) return;
   const Surfaces surf{g, camera, epsilon};
-  const CutoutResolver rays(scene, camera, S, kNearPlane * scene.bounds().diagonal_length());
-  const size_t per_pixel = size_t(S) * size_t(S);
+  std::unique_ptr<EmbreeBvh> bvh;
+  CoherentRays rays = trace;
+  if (!rays) {
+    bvh = std::make_unique<EmbreeBvh>(scene);
+    rays = [&bvh](std::span<const Ray> r, std::span<const float> tnear, std::span<Hit> hits) {
+      bvh->intersect_coherent(r, tnear, hits);
+    };
+  }
+  // The deep framebuffer's near plane (kNearPlane): a ray sees what lies beyond `near` along the view
+  // direction, from tnear = near / cos(ray, view direction) on.
+  const float near = kNearPlane * scene.bounds().diagonal_length();
+  const size_t per_pixel = size_t(S) * size_t(S), rays_per_pixel = per_pixel * size_t(k) * size_t(k);
   std::vector<Resolved> resolved(edges.size(), Resolved::kEdge);
   std::vector<uint16_t> codes(edges.size() * per_pixel);
-  tbb::enumerable_thread_specific<std::vector<uint32_t>> candidates;
+  struct Batch {
+    std::vector<Ray> rays;
+    std::vector<float> tnear;
+    std::vector<Hit> hits;
+  };
+  tbb::enumerable_thread_specific<Batch> batches;
   tbb::parallel_for(size_t(0), edges.size(), [&](size_t i) {
     const int x = int(edges[i] % uint32_t(width_)), y = int(edges[i] / uint32_t(width_));
     // The surface classes of the texel centres: per class its first texel (entry, position, point).
@@ -134,36 +155,43 @@ void EdgePixels::resolve(const PlaneGrid& g, const Camera& camera, float epsilon
         }
         texel_class[j * S + ii] = c;
       }
-    // The supersampled visibility: k x k rays per texel, each counted for the class of its own
-    // texel if its hit lies within epsilon of that texel's plane (what the plane test accepts there),
-    // else for that of the pixel's texel whose plane is nearest, within epsilon.
-    std::vector<uint32_t>& among = candidates.local();
-    rays.candidates(x * S, y * S, x * S + S - 1, y * S + S - 1, &among);
-    int area[kMaxClasses] = {};
-    bool emitter = false;
+    // The supersampled visibility: k x k rays per texel, traced together (ray r of texel t at index
+    // t * k * k + r, texels row by row), each counted for the class of its own texel if its hit lies
+    // within epsilon of that texel's plane (what the plane test accepts there), else for that of the
+    // pixel's texel whose plane is nearest, within epsilon.
+    Batch& b = batches.local();
+    b.rays.resize(rays_per_pixel), b.tnear.resize(rays_per_pixel), b.hits.resize(rays_per_pixel);
+    size_t n = 0;
     for (int gy = y * S; gy < (y + 1) * S; ++gy)
       for (int gx = x * S; gx < (x + 1) * S; ++gx)
         for (int fy = 0; fy < k; ++fy)
-          for (int fx = 0; fx < k; ++fx) {
-            Vec3 hit;
-            const uint32_t t =
-                rays.nearest_at(gx, gy, (float(fx) + 0.5f) / float(k), (float(fy) + 0.5f) / float(k), among, &hit);
-            if (t == DeepFramebuffer::kNoTriangle) return;
-            emitter = emitter || scene.materials[scene.material_of[t]].emissive();
-            const int own = (gy - y * S) * S + (gx - x * S);
-            int best = -1;
-            if (surf.within(surf.entry(gx, gy), hit)) {
-              best = texel_class[own];
-            } else {
-              float best_distance = INFINITY;
-              for (int t = 0; t < S * S; ++t) {
-                const float d = surf.distance(surf.entry(x * S + t % S, y * S + t / S), hit);
-                if (d <= epsilon && d < best_distance) best = texel_class[t], best_distance = d;
-              }
-            }
-            if (best < 0) return;
-            ++area[best];
+          for (int fx = 0; fx < k; ++fx, ++n) {
+            b.rays[n] = camera.generate_ray((float(gx) + (float(fx) + 0.5f) / float(k)) / float(S),
+                                            (float(gy) + (float(fy) + 0.5f) / float(k)) / float(S));
+            b.tnear[n] = near / dot(b.rays[n].dir, camera.forward());
           }
+    rays(b.rays, b.tnear, b.hits);
+    int area[kMaxClasses] = {};
+    bool emitter = false;
+    for (size_t r = 0; r < rays_per_pixel; ++r) {
+      const Hit& h = b.hits[r];
+      if (h.prim == EmbreeBvh::kMissed) return;
+      emitter = emitter || scene.materials[scene.material_of[h.prim]].emissive();
+      const Vec3 hit = b.rays[r].origin + b.rays[r].dir * h.t;
+      const int own = int(r / (size_t(k) * size_t(k)));
+      int best = -1;
+      if (surf.within(surf.entry(x * S + own % S, y * S + own / S), hit)) {
+        best = texel_class[own];
+      } else {
+        float best_distance = INFINITY;
+        for (int t = 0; t < S * S; ++t) {
+          const float d = surf.distance(surf.entry(x * S + t % S, y * S + t / S), hit);
+          if (d <= epsilon && d < best_distance) best = texel_class[t], best_distance = d;
+        }
+      }
+      if (best < 0) return;
+      ++area[best];
+    }
     // An emitter beside another surface: the contrast magnifies what the weights leave (the
     // unsampled strip along the boundary), so such a pixel keeps tracing its own paths.
     if (classes > 1 && emitter) return;

@@ -13,19 +13,19 @@
 // facets of a flat or gently curved mesh -- or some see none.
 //
 // Given the scene, an edge pixel is resolved by a supersampled visibility: k x k rays per texel
-// (k = max(1, 16 / S): 256 rays per pixel at S = 4), each finding its nearest surface as the CPU
-// deep-framebuffer builder does (CutoutResolver), are assigned to the surface classes of the pixel's
-// texel centres: to their own texel's class if the hit lies within epsilon of its plane (where the
-// plane test accepts a vertex), else to the class of the pixel's texel whose plane is nearest, within
-// epsilon. With
-// every ray assigned the pixel is area-weighted (AreaWeights: each class's area is its share of the
-// rays); if one class takes them all it is no edge pixel after all. A ray that hits nothing or a
-// surface no centre sees, a texel that sees nothing, or an emitter beside another surface (the
-// contrast magnifies what the weights leave: the strip of a surface inside subpixels whose centres
-// see another is not sampled), leaves the pixel an edge pixel that takes no
-// reprojected samples: M' = 0 and L_rp = 0, so it traces its own P paths and its value is the path
-// tracer's. Without the scene every edge pixel is of that kind. Edge pixels' vertices still
-// reproject into the other pixels.
+// (k = max(1, 16 / S): 256 rays per pixel at S = 4), traced as one coherent stream per pixel with an
+// Embree BVH of the scene (common/embree_bvh.h, the workers' BVH: holes of cut-outs skipped by the
+// same filter) from the deep framebuffer's near plane on, are assigned to the surface classes of the
+// pixel's texel centres: to their own texel's class if the hit lies within epsilon of its plane
+// (where the plane test accepts a vertex), else to the class of the pixel's texel whose plane is
+// nearest, within epsilon. With every ray assigned the pixel is area-weighted (AreaWeights: each
+// class's area is its share of the rays); if one class takes them all it is no edge pixel after all.
+// A ray that hits nothing or a surface no centre sees, a texel that sees nothing, or an emitter
+// beside another surface (the contrast magnifies what the weights leave: the strip of a surface
+// inside subpixels whose centres see another is not sampled), leaves the pixel an edge pixel that
+// takes no reprojected samples: M' = 0 and L_rp = 0, so it traces its own P paths and its value is
+// the path tracer's. Without the scene every edge pixel is of that kind. Edge pixels' vertices
+// still reproject into the other pixels.
 //
 // All of it is a function of the plane grid, the camera and the scene, which both back-ends share
 // (FrameState builds one grid with one builder), so the GL and CPU back-ends, and a cluster and one
@@ -35,20 +35,28 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
+#include <span>
 #include <vector>
 
+#include "common/embree_bvh.h"
 #include "common/scene.h"
 #include "master/reprojection_image.h"
 #include "master/reprojection_kernel.h"
 
 namespace epr::detail {
 
+/// Closest hits of camera rays, as EmbreeBvh::intersect_coherent gives them.
+using CoherentRays = std::function<void(std::span<const Ray>, std::span<const float>, std::span<Hit>)>;
+
 class EdgePixels {
  public:
   EdgePixels() = default;
   /// The edge pixels of `grid` (S x S texels per pixel) seen by `camera`, with the plane test's
   /// `epsilon` (metres); with `scene`, those it can resolve become area-weighted pixels.
-  EdgePixels(const PlaneGrid& grid, const Camera& camera, float epsilon, const Scene* scene = nullptr);
+  /// The rays are traced with `rays`, by default with an Embree BVH of `scene` built for the purpose.
+  EdgePixels(const PlaneGrid& grid, const Camera& camera, float epsilon, const Scene* scene = nullptr,
+             const CoherentRays& rays = {});
   /// The edge pixels that take no reprojected samples.
   bool empty() const { return count_ == 0; }
   size_t count() const { return count_; }
@@ -56,6 +64,8 @@ class EdgePixels {
   /// The area-weighted pixels (for PixelReprojection::area_weights).
   const AreaWeights& weights() const { return weights_; }
   size_t weighted() const { return weights_.pixels.size(); }
+  /// Wall seconds the set took to compute (the supersampled visibility's BVH and rays included).
+  double seconds() const { return seconds_; }
   /// Gives the edge pixels no reprojected samples in `out` (a downsample's result, any of its parts
   /// present): M' and M'_eff 0, L_rp 0, v_rp -1 (undefined).
   void drop(PixelReprojection* out) const;
@@ -64,10 +74,12 @@ class EdgePixels {
   static int rays_per_texel(int subpixels) { return subpixels >= 16 ? 1 : 16 / subpixels; }
 
  private:
-  void resolve(const PlaneGrid& grid, const Camera& camera, float epsilon, const Scene& scene);
+  void resolve(const PlaneGrid& grid, const Camera& camera, float epsilon, const Scene& scene,
+               const CoherentRays& rays);
 
   int width_ = 0, height_ = 0;
   size_t count_ = 0;
+  double seconds_ = 0;
   std::vector<uint64_t> bits_;
   AreaWeights weights_;
 };

@@ -610,6 +610,7 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts, uint64_t worker
       {"pixels_skipped", p.pixels_skipped},
       {"edge_pixels", edge_pixels_ ? edge_pixels_->count() : 0},
       {"area_weighted_pixels", edge_pixels_ ? edge_pixels_->weighted() : 0},
+      {"seconds_edge_pixels", edge_pixels_ ? edge_pixels_->seconds() : 0.0},
       {"mean_paths_per_pixel", p.mean_paths},
       {"mean_reprojected_per_pixel", p.mean_reprojected},
       {"mean_spp", p.mean_spp},

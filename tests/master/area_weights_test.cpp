@@ -3,14 +3,20 @@
 // over its subpixel centres; a surface covering area but no centre leaves the pixel an edge pixel.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <span>
 
+#include "common/builtin_scenes.h"
+#include "common/embree_bvh.h"
 #include "common/render_options.h"
 #include "common/scene_loader.h"
+#include "master/deep_framebuffer.h"
 #include "master/edge_pixels.h"
 #include "master/plane_grid_builder.h"
 #include "master/reprojection_image.h"
+#include "tests/common/cutout_scenes.h"
 
 namespace epr {
 namespace {
@@ -116,6 +122,52 @@ TEST(AreaWeights, ASurfaceCoveringAreaButNoCentreLeavesAnEdgePixel) {
   EXPECT_EQ(e.weighted(), 0u);
   ASSERT_EQ(e.count(), 8u);
   for (int y = 0; y < 8; ++y) EXPECT_TRUE(e[size_t(8 * y + 3)]);
+}
+
+// The reference for the edge pixels' rays: every triangle, Moller-Trumbore with inclusive edges,
+// from tnear on, not in a hole, the nearest.
+void brute_force_rays(const Scene& s, std::span<const Ray> rays, std::span<const float> tnear, std::span<Hit> hits) {
+  for (size_t i = 0; i < rays.size(); ++i) {
+    hits[i] = Hit{};
+    hits[i].prim = EmbreeBvh::kMissed;
+    float best = INFINITY;
+    for (uint32_t t = 0; t < uint32_t(s.triangle_count()); ++t) {
+      const Vec3 a = s.positions[s.triangles[t][0]];
+      float u, v, tt;
+      if (!detail::ray_triangle(rays[i], a, s.positions[s.triangles[t][1]] - a, s.positions[s.triangles[t][2]] - a, &u,
+                                &v, &tt))
+        continue;
+      if (!(u >= 0 && v >= 0 && u + v <= 1) || !(tt >= tnear[i]) || !(tt < best)) continue;
+      if (s.materials[s.material_of[t]].cut_out() && s.cut_out_at(t, u, v)) continue;
+      best = tt, hits[i].prim = t, hits[i].t = tt;
+    }
+  }
+}
+
+// The edge pixels of the Cornell box and of a checker-cut screen in front of a wall (its holes
+// outline surfaces too), resolved with the Embree BVH and with the brute-force reference: the same
+// edge pixels, area-weighted pixels and weights.
+TEST(AreaWeights, EmbreeVisibilityGivesTheBruteForceReferencesWeights) {
+  for (const Scene& scene : {make_builtin_scene("cornell"), test::cutout_screen_scene(8)}) {
+    SCOPED_TRACE(scene.name);
+    const Camera cam(scene.camera, 40, 40);
+    const float epsilon = RenderOptions{}.epsilon * scene.bounds().diagonal_length();
+    const detail::PlaneGrid g =
+        detail::build_plane_grid_any(scene, cam, 4, epsilon * detail::kCreaseToleranceFraction, true);
+    const detail::EdgePixels embree(g, cam, epsilon, &scene);
+    const detail::EdgePixels reference(
+        g, cam, epsilon, &scene, [&scene](std::span<const Ray> r, std::span<const float> tnear, std::span<Hit> h) {
+          brute_force_rays(scene, r, tnear, h);
+        });
+    std::printf("%s 40 x 40: %zu edge pixels, %zu area-weighted\n", scene.name.c_str(), reference.count(),
+                reference.weighted());
+    EXPECT_GT(reference.weighted(), 20u);
+    EXPECT_GT(reference.count(), 0u);
+    EXPECT_EQ(embree.count(), reference.count());
+    for (size_t p = 0; p < 40 * 40; ++p) EXPECT_EQ(embree[p], reference[p]) << "pixel " << p;
+    EXPECT_EQ(embree.weights().pixels, reference.weights().pixels);
+    EXPECT_EQ(embree.weights().cells, reference.weights().cells);
+  }
 }
 
 // Crytek Sponza at 64 x 64 (its camera, S = 4, the default epsilon): most of the pixels that took no
