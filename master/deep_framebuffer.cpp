@@ -116,29 +116,11 @@ CutoutResolver::CutoutResolver(const Scene& scene, const Camera& camera, int S, 
 
 uint32_t CutoutResolver::nearest(int x, int y, Vec3* hit) const {
   const size_t tile = size_t(y / kTile) * size_t(tiles_x_) + size_t(x / kTile);
-  return nearest_at(x, y, 0.5f, 0.5f, {tile_tris_.data() + start_[tile], tile_tris_.data() + start_[tile + 1]}, hit);
-}
-
-void CutoutResolver::candidates(int x0, int y0, int x1, int y1, std::vector<uint32_t>* out) const {
-  out->clear();
-  for (int ty = y0 / kTile; ty <= y1 / kTile; ++ty)
-    for (int tx = x0 / kTile; tx <= x1 / kTile; ++tx) {
-      const size_t tile = size_t(ty) * size_t(tiles_x_) + size_t(tx);
-      for (uint32_t i = start_[tile]; i < start_[tile + 1]; ++i) {
-        const ScreenTriangle& st = tris_[tile_tris_[i]];
-        if (st.x1 >= x0 && st.x0 <= x1 && st.y1 >= y0 && st.y0 <= y1) out->push_back(tile_tris_[i]);
-      }
-    }
-  std::sort(out->begin(), out->end());
-  out->erase(std::unique(out->begin(), out->end()), out->end());
-}
-
-uint32_t CutoutResolver::nearest_at(int x, int y, float fx, float fy, std::span<const uint32_t> among,
-                                    Vec3* hit) const {
-  const Ray r = camera_.generate_ray((float(x) + fx) / float(S_), (float(y) + fy) / float(S_));
+  const Ray r = camera_.generate_ray((float(x) + 0.5f) / float(S_), (float(y) + 0.5f) / float(S_));
   float best = INFINITY;
   uint32_t found = DeepFramebuffer::kNoTriangle;
-  for (const uint32_t t : among) {
+  for (uint32_t i = start_[tile]; i < start_[tile + 1]; ++i) {
+    const uint32_t t = tile_tris_[i];
     const ScreenTriangle& st = tris_[t];
     if (x < st.x0 || x > st.x1 || y < st.y0 || y > st.y1) continue;  // the CPU builder's candidates
     if (texel_hit(scene_, cut_, camera_.forward(), near_, st, t, r, &best)) found = t;

@@ -31,7 +31,6 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
-#include <span>
 #include <vector>
 
 #include "common/camera.h"
@@ -172,12 +171,6 @@ class CutoutResolver {
   /// The nearest non-hole triangle on the ray through texel (x, y) of the full grid and its hit
   /// point; DeepFramebuffer::kNoTriangle if there is none.
   uint32_t nearest(int x, int y, Vec3* hit) const;
-  /// The triangles that may cover a point of texels [x0, x1] x [y0, y1] (inclusive), in triangle
-  /// order, into *out (cleared first).
-  void candidates(int x0, int y0, int x1, int y1, std::vector<uint32_t>* out) const;
-  /// nearest() for the ray through raster point (x + fx, y + fy) of the grid, fx and fy in [0, 1),
-  /// among `among` (from candidates() of a range holding texel (x, y)).
-  uint32_t nearest_at(int x, int y, float fx, float fy, std::span<const uint32_t> among, Vec3* hit) const;
 
  private:
   static constexpr int kTile = 16;
