@@ -16,13 +16,14 @@ V_K(N) = min( N / c_K, 1 / (s + s_n (F - 1) + F r / (eta N)) ), c_K = g + s + s_
 with section 6's g, s, r, eta and s_n the serial rest of one neighbour's reprojection (0 .. s).
 
     /usr/bin/python3 bench/frame_window_cost.py [--build build] [--ks 0,2] [--size 128] [--spp 32]
-        [--frames 1-8] [--scenes scenes/cornell-flythrough.json,...]
+        [--frames 1-8] [--scenes scenes/cornell-flythrough.json,...] [--keep]
 """
 import argparse
 import glob
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -174,18 +175,23 @@ def main():
     ap.add_argument("--window-run", type=int, default=8)
     ap.add_argument("--model-ks", type=lambda v: [int(k) for k in v.split(",") if k], default=[],
                     help="also model these K with F = 2K + 1 (every vertex into its whole window)")
+    ap.add_argument("--keep", action="store_true", help="keep each scene's folder of frames and logs (printed)")
     ap.add_argument("--scenes", default=os.path.join(ROOT, "scenes", "cornell-flythrough.json"))
     a = ap.parse_args()
     ks = [int(k) for k in a.ks.split(",")]
     for scene in a.scenes.split(","):
         name = os.path.basename(scene)
-        d = tempfile.mkdtemp(prefix="epr-frame-window-")
+        d = tempfile.mkdtemp(prefix="epr-frame-window-cost-")
         print(f"{name}, frames {a.frames}, {a.size} x {a.size}, {a.spp} spp, load {os.getloadavg()[0]:.1f}")
         farm = Farm(a.build, d)
         try:
             results = [(k, render(farm, scene, k, a, f"{d}/k{k}")) for k in ks]
         finally:
             farm.close()
+            if a.keep:
+                print(f"  kept in {d}")
+            else:
+                shutil.rmtree(d, ignore_errors=True)
         fs = [(k, report(k, m)) for k, m in results]
         print(f"  load {os.getloadavg()[0]:.1f}")
         model(name, fs + [(k, 2 * k + 1) for k in a.model_ks])
