@@ -45,36 +45,14 @@ constexpr int kFrames = 6;
 // The kill comes after this round's checkpoints at the earliest: the frames skip pixels by then.
 constexpr int kKillRound = 6;
 
-// The batch: frames 1-6 of the Cornell fly-through, one window run with K = 2, 64 x 64 pixels in
-// four tiles, 24 rounds of 2 paths (skipping after the first 4), CPU reprojection.
+// The batch: frames 1-6 of the Cornell fly-through, one window run with K = 2, skip_job's settings
+// at 64 x 64 pixels (four tiles): 24 rounds of 2 paths, skipping after the first 4.
 Args batch_flags() {
-  return {std::string(EPR_SOURCE_DIR) + "/scenes/cornell-flythrough.json",
-          "--frames",
-          "1-" + std::to_string(kFrames),
-          "--frame-window",
-          "2",
-          "--window-run",
-          std::to_string(kFrames),
-          "--width",
-          "64",
-          "--height",
-          "64",
-          "--spp",
-          "48",
-          "--paths-per-round",
-          "2",
-          "--round-growth",
-          "0",
-          "--min-paths",
-          "8",
-          "--tile",
-          "32",
-          "--mode",
-          "skip",
-          "--reproject",
-          "cpu",
-          "--seed",
-          "5"};
+  Args flags = skip_job(64, 48, 2, 8, 5);
+  flags.front() = std::string(EPR_SOURCE_DIR) + "/scenes/cornell-flythrough.json";
+  flags.insert(flags.end(), {"--frames", "1-" + std::to_string(kFrames), "--frame-window", "2", "--window-run",
+                             std::to_string(kFrames)});
+  return flags;
 }
 
 // OUT.NNNN, the files `epr get BATCH --out OUT` writes for frame `frame`.
