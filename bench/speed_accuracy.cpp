@@ -88,18 +88,8 @@ using nlohmann::json;
 
 namespace {
 
-using bench::at_spp;
-using bench::cpu_seconds;
-using bench::ErrorMeans;
-using bench::errors;
-using bench::load1;
-using bench::metric;
-using bench::Reach;
-using bench::Reference;
-using bench::reference;
-using bench::reference_file;
-using bench::Sample;
-using bench::scene_name;
+using bench::at_spp, bench::cpu_seconds, bench::ErrorMeans, bench::errors, bench::load1, bench::metric;
+using bench::Reach, bench::Reference, bench::reference, bench::reference_file, bench::Sample, bench::scene_name;
 using bench::time_to;
 
 // ---------------------------------------------------------------------------------------------------
@@ -382,7 +372,7 @@ std::string fmt_ratio(std::optional<double> t, double pt) { return t && pt > 0 ?
 
 int main(int argc, char** argv) {
   CLI::App app{"Error against time for every mode and built-in scene, against a cached path-traced reference"};
-  int size = 128, spp = 256, ref_spp = 1024, threads = 0, subpixels = 4, strip_p = 64;
+  int size = 128, height = 0, spp = 256, ref_spp = 1024, threads = 0, subpixels = 4, strip_p = 64;
   std::vector<std::string> scenes = {"builtin:cornell", "builtin:conference", "builtin:hall", "builtin:wall",
                                      "builtin:glossy"};
   std::vector<std::string> modes = {"pt", "rp", "skip", "exact"};
@@ -391,8 +381,9 @@ int main(int argc, char** argv) {
   std::string cache = bench::default_cache_dir(), out_dir = "bench_out", export_dir, cycles_dir;
   bool no_strip = false, list_references = false;
   bench::add_common_options(app, &size, &ref_spp, &cache, &threads, &bench::g_trim);
+  app.add_option("--height", height, "image height (default: --size, square)");
   app.add_option("--spp", spp, "P: samples per pixel of every run");
-  app.add_option("--scene", scenes, "scene specs (builtin:NAME[?tess=N])");
+  app.add_option("--scene", scenes, "scene specs (builtin:NAME[?tess=N], or a scene file's path)");
   app.add_option("--mode", modes,
                  "modes: pt, rp, skip, exact (pt is always run first); rp, skip and exact may name a variant: "
                  "skip:w=0.5:m=32");
@@ -418,6 +409,7 @@ int main(int argc, char** argv) {
       ->default_str("sobol-burley");
   CLI11_PARSE(app, argc, argv);
   set_log_level("warn");
+  if (height <= 0) height = size;
 
   if (!export_dir.empty()) {
     for (const std::string& s : scenes) export_obj(s, export_dir);
@@ -429,7 +421,7 @@ int main(int argc, char** argv) {
       o.scene = s;
       o.rr = kReferenceRoulette;
       for (uint64_t seed : {1000001u, 1000002u})
-        std::printf("%s\n", (fs::path(cache) / reference_file(o, size, size, std::max(1, ref_spp / 2), seed)).c_str());
+        std::puts((fs::path(cache) / reference_file(o, size, height, std::max(1, ref_spp / 2), seed)).c_str());
     }
     return 0;
   }
@@ -467,8 +459,9 @@ int main(int argc, char** argv) {
                   {"trim", bench::g_trim},  {"load_start", load1()},
                   {"scenes", json::array()}};
   summary["sampler"] = to_string(sampler);
+  summary["height"] = height;
   std::printf("speed_accuracy: %dx%d, P=%d, reference %d spp, %u hardware threads, tracer threads %s, load %.2f\n",
-              size, size, spp, ref_spp, std::thread::hardware_concurrency(),
+              size, height, spp, ref_spp, std::thread::hardware_concurrency(),
               threads > 0 ? std::to_string(threads).c_str() : "all", load1());
   std::fflush(stdout);
 
@@ -485,13 +478,13 @@ int main(int argc, char** argv) {
   for (const std::string& spec : scenes) {
     RenderOptions base;
     base.scene = spec;
-    base.width = base.height = size;
+    base.width = size, base.height = height;
     base.spp = spp;
     base.subpixels = subpixels;
     base.threads = threads;
     base.seed = 1;
     base.sampler = sampler;
-    const std::string tag = fmt::format("{}_{}x{}", scene_name(spec), size, size);
+    const std::string tag = fmt::format("{}_{}x{}", scene_name(spec), size, height);
     std::printf("\n== %s, load %.2f\n", tag.c_str(), load1());
     std::fflush(stdout);
     RenderOptions ref_options = base;
@@ -615,7 +608,7 @@ int main(int argc, char** argv) {
           100 * num(rp, "accepted") / rec, 100 * num(rp, "occluded") / rec,
           100 * (num(rp, "culled_master") + worker) / rec, 100 * reproj / tracing,
           js["modes"].contains("skip")
-              ? fmt::format("{:.1f} %", 100 * num(js["modes"]["skip"], "paths_traced") / (double(spp) * size * size))
+              ? fmt::format("{:.1f} %", 100 * num(js["modes"]["skip"], "paths_traced") / (double(spp) * size * height))
               : "-");
       js["fates"] = {{"accepted", 100 * num(rp, "accepted") / rec},
                      {"occluded", 100 * num(rp, "occluded") / rec},

@@ -191,7 +191,7 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     }
     // Exact mode's visibility rays have no discretisation: its edge pixels keep their samples.
     if (opts.reproject != ReprojectMethod::kExact && opts.edge_pixels)
-      edge_pixels_ = std::make_unique<detail::EdgePixels>(grid, camera, rs.epsilon);
+      edge_pixels_ = std::make_unique<detail::EdgePixels>(grid, camera, rs.epsilon, &scene);
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
@@ -274,6 +274,7 @@ void FrameState::refresh_counts(bool active_only) {
   pr.count = std::move(mprime_);
   pr.statistics = variance_rule();
   pr.effective = std::move(reprojected_effective_);
+  if (edge_pixels_) pr.area_weights = &edge_pixels_->weights();
   reprojector_->downsample_pixels_into(&pr, active_only ? std::span<const uint8_t>(skip_) : std::span<const uint8_t>(),
                                        DownsampleParts::kCounts);
   if (edge_pixels_) edge_pixels_->drop(&pr);
@@ -291,6 +292,7 @@ PixelReprojection FrameState::reprojected_radiance(bool counts_too) {
     pr.count = std::move(mprime_);
     pr.effective = std::move(reprojected_effective_);
   }
+  if (edge_pixels_) pr.area_weights = &edge_pixels_->weights();
   reprojector_->downsample_pixels_into(&pr, {}, counts_too ? DownsampleParts::kBoth : DownsampleParts::kRadiance);
   if (edge_pixels_) edge_pixels_->drop(&pr);
   if (counts_too) {
@@ -607,6 +609,8 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts, uint64_t worker
       {"paths_skipped", p.paths_skipped},
       {"pixels_skipped", p.pixels_skipped},
       {"edge_pixels", edge_pixels_ ? edge_pixels_->count() : 0},
+      {"area_weighted_pixels", edge_pixels_ ? edge_pixels_->weighted() : 0},
+      {"seconds_edge_pixels", edge_pixels_ ? edge_pixels_->seconds() : 0.0},
       {"mean_paths_per_pixel", p.mean_paths},
       {"mean_reprojected_per_pixel", p.mean_reprojected},
       {"mean_spp", p.mean_spp},

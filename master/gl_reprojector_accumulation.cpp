@@ -125,7 +125,9 @@ void GlReprojector::downsample_pixels_into(PixelReprojection* result, std::span<
       return;
     }
   }
-  // The compute pass, band by band; it writes every pixel (no mask).
+  // The compute pass, band by band; it writes every pixel (no mask) and knows no area weights.
+  if (result->area_weights && !result->area_weights->pixels.empty())
+    throw std::runtime_error("GlReprojector: area-weighted pixels need the mapped downsampling");
   const int W = grid_w_ / subpixels_, H = grid_h_ / subpixels_;
   const size_t band_pixels = size_t(W) * size_t(bands_[0].rows / subpixels_);  // the largest band's
   if (!downsample_prog_) {

@@ -5,6 +5,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
 #include "master/combine_rule.h"
@@ -16,6 +17,64 @@ namespace {
 uint32_t saturate_count(uint64_t n) { return uint32_t(std::min<uint64_t>(n, UINT32_MAX)); }
 
 constexpr int kMaxSubpixelsPerPixel = 64;  // S <= 8
+
+// What the downsampling writes for one pixel.
+struct PixelValue {
+  Vec3 radiance{0.f};
+  uint64_t total = 0;   // M' (the effective count for an area-weighted pixel)
+  float effective = 0;  // M'_eff
+  float variance = -1;  // v_rp (undefined for an area-weighted pixel)
+};
+
+// An area-weighted pixel (AreaWeights): `codes` are its S * S subpixels' class and area.
+template <class CellAt>
+PixelValue weighted_pixel(const CellAt& cell, int x, int y, int S, const uint16_t* codes) {
+  double sum[kMaxSubpixelsPerPixel][3] = {}, inverse[kMaxSubpixelsPerPixel] = {}, samples[kMaxSubpixelsPerPixel] = {};
+  int area[kMaxSubpixelsPerPixel] = {}, with_samples[kMaxSubpixelsPerPixel] = {};
+  int classes = 0;
+  for (int j = 0; j < S; ++j)
+    for (int i = 0; i < S; ++i) {
+      const uint16_t code = codes[j * S + i];
+      const int k = AreaWeights::class_of(code);
+      area[k] = AreaWeights::area_of(code);
+      classes = std::max(classes, k + 1);
+      const AccumulationCell c = cell(y * S + j, x * S + i);
+      if (c.n == 0) continue;
+      sum[k][0] += double(c.r) / double(c.n);
+      sum[k][1] += double(c.g) / double(c.n);
+      sum[k][2] += double(c.b) / double(c.n);
+      inverse[k] += 1.0 / double(c.n);
+      samples[k] += double(c.n);
+      ++with_samples[k];
+    }
+  double rgb[3] = {0, 0, 0}, covered = 0, all = 0;
+  bool complete = true;
+  for (int k = 0; k < classes; ++k) {
+    all += area[k];
+    if (with_samples[k] == 0) {
+      complete = complete && area[k] == 0;
+      continue;
+    }
+    covered += area[k];
+    for (int c = 0; c < 3; ++c) rgb[c] += area[k] * sum[k][c] / with_samples[k];
+  }
+  PixelValue v;
+  if (covered > 0) v.radiance = Vec3(float(rgb[0] / covered), float(rgb[1] / covered), float(rgb[2] / covered));
+  if (complete && all > 0) {
+    // Per unit variance of one sample: the variance of L_rp (M'_eff), and that of a stratified mean
+    // of the classes' samples pooled (M': it grows with every sample).
+    double spread = 0, pooled = 0;
+    for (int k = 0; k < classes; ++k)
+      if (with_samples[k] > 0) {
+        const double a = area[k] / all;
+        spread += a * a * inverse[k] / (double(with_samples[k]) * double(with_samples[k]));
+        pooled += a * a / samples[k];
+      }
+    if (spread > 0) v.effective = float(1.0 / spread);
+    if (pooled > 0) v.total = uint64_t(std::floor(1.0 / pooled + 1e-9));
+  }
+  return v;
+}
 
 // The downsampling, for any storage of the cells: `cell(gy, gx)` returns the subpixel of grid row gy
 // and column gx. Only pixels p with skip[p] == 0 (every pixel if `skip` is empty, or if what is
@@ -47,10 +106,29 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
   }
   if (S * S > kMaxSubpixelsPerPixel) throw std::invalid_argument("downsample: more than 8 x 8 subpixels");
   if (!skip.empty() && skip.size() != pixels) throw std::invalid_argument("downsample: skip mask of the wrong size");
+  const AreaWeights* weights = out.area_weights;
+  if (weights && weights->cells.size() != weights->pixels.size() * size_t(S) * size_t(S))
+    throw std::invalid_argument("downsample: area weights of the wrong size");
   tbb::parallel_for(0, H, [&](int y) {
+    // The next area-weighted pixel at or after this row's first.
+    size_t next =
+        weights
+            ? size_t(std::lower_bound(weights->pixels.begin(), weights->pixels.end(), uint32_t(size_t(y) * size_t(W))) -
+                     weights->pixels.begin())
+            : 0;
     for (int x = 0; x < W; ++x) {
-      if (!skip.empty() && skip[size_t(y) * size_t(W) + size_t(x)]) continue;
       const size_t p = size_t(y) * size_t(W) + size_t(x);
+      const bool weighted = weights && next < weights->pixels.size() && weights->pixels[next] == p;
+      if (weighted) ++next;
+      if (!skip.empty() && skip[p]) continue;
+      if (weighted) {
+        const PixelValue v = weighted_pixel(cell, x, y, S, &weights->cells[(next - 1) * size_t(S) * size_t(S)]);
+        if (!counts_only) out.radiance.set_rgb(x, y, v.radiance);
+        if (with_counts) out.count[p] = saturate_count(v.total);
+        if (stats && with_counts) out.effective[p] = v.effective;
+        if (stats && !counts_only) out.variance[p] = v.variance;
+        continue;
+      }
       if (counts_only) {
         uint64_t total = 0;
         double inverse = 0;  // Σ 1 / c_s over the non-empty subpixels (M'_eff)

@@ -33,6 +33,22 @@ struct SubpixelAccumulation {
   size_t size() const { return size_t(width) * size_t(height); }
 };
 
+/// Area-weighted pixels (DESIGN.md "Edge pixels"; made by detail::EdgePixels): per listed pixel and
+/// per subpixel, the surface class its centre sees and the area that class covers in the pixel, in
+/// fine samples (at most 511). Such a pixel's L_rp is sum_k A_k R_k / sum_k A_k over its classes k
+/// with samples, R_k the mean of the subpixel means of class k; its M' is the count of a stratified
+/// mean, 1 / sum_k a_k^2 / C_k (a_k = A_k / sum A, C_k the samples of k's subpixels), its M'_eff
+/// 1 / sum_k a_k^2 sum_{s in k} 1 / (n_k^2 c(s)) (n_k of k's subpixels with samples, c(s) their
+/// counts), both 0 until every class of non-zero area has samples.
+struct AreaWeights {
+  static constexpr int kAreaBits = 10;
+  std::vector<uint32_t> pixels;  // ascending pixel indices
+  std::vector<uint16_t> cells;   // S * S per listed pixel, its subpixels row by row: class << 10 | area
+  static uint16_t pack(int cls, int area) { return uint16_t((cls << kAreaBits) | area); }
+  static int class_of(uint16_t c) { return c >> kAreaBits; }
+  static int area_of(uint16_t c) { return c & ((1 << kAreaBits) - 1); }
+};
+
 struct PixelReprojection {
   Image radiance;               // L_rp, 3 channels, width x height pixels
   std::vector<uint32_t> count;  // M', per pixel (saturating at 2^32 - 1)
@@ -41,6 +57,8 @@ struct PixelReprojection {
   bool statistics = false;
   std::vector<float> effective;
   std::vector<float> variance;
+  // Pixels downsampled by area (null: none); not owned, set by the caller of a downsampling.
+  const AreaWeights* area_weights = nullptr;
 };
 
 /// Downsamples an S*W x S*H subpixel accumulation to W x H pixels.

@@ -1,13 +1,8 @@
-// The scene prepared for tracing: its triangles in an Embree 3 BVH (closest-hit and any-hit queries),
-// plus what a path needs per hit and per light sample, prepared once here rather than per ray: a
-// compact per-triangle material index and the table of emitting triangles. A hit's geometric normal
-// is Embree's (Hit::ng), which costs no memory access.
-//
-// One device per process; errors from Embree are reported through a device error callback (logged
-// on the "worker" logger) rather than by checking every call, as in Embree's tutorials.
+// The scene prepared for tracing: its triangles in an Embree 3 BVH (common/embree_bvh.h: closest-hit
+// and any-hit queries, cut-out holes skipped), plus what a path needs per hit and per light sample,
+// prepared once here rather than per ray: a compact per-triangle material index and the table of
+// emitting triangles. A hit's geometric normal is Embree's (Hit::ng), which costs no memory access.
 #pragma once
-
-#include <embree3/rtcore.h>
 
 #include <algorithm>
 #include <cmath>
@@ -15,17 +10,11 @@
 #include <vector>
 
 #include "common/camera.h"
+#include "common/embree_bvh.h"
 #include "common/sampling.h"
 #include "common/scene.h"
 
 namespace epr {
-
-struct Hit {
-  float t = 0;         // distance along the (unit) ray direction, metres
-  uint32_t prim = 0;   // triangle index into Scene::triangles
-  float u = 0, v = 0;  // barycentrics of corners 1 and 2
-  Vec3 ng;             // Embree's geometric normal: not normalised, right-hand rule on the corner order
-};
 
 /// An emitting triangle as next event estimation samples it.
 struct Emitter {
@@ -48,14 +37,17 @@ class EmbreeScene {
  public:
   /// Builds the BVH. `scene` must outlive this object (materials are read from it while tracing).
   explicit EmbreeScene(const Scene& scene);
-  ~EmbreeScene();
   EmbreeScene(const EmbreeScene&) = delete;
   EmbreeScene& operator=(const EmbreeScene&) = delete;
 
   /// Closest hit along `ray` within (tnear, tfar); false if none.
-  bool intersect(const Ray& ray, float tnear, float tfar, Hit* hit) const;
+  bool intersect(const Ray& ray, float tnear, float tfar, Hit* hit) const {
+    return bvh_.intersect(ray, tnear, tfar, hit);
+  }
   /// True if anything blocks the segment origin + t dir, t in (tnear, tfar); dir need not be unit length.
-  bool occluded(const Vec3& origin, const Vec3& dir, float tnear, float tfar) const;
+  bool occluded(const Vec3& origin, const Vec3& dir, float tnear, float tfar) const {
+    return bvh_.occluded(origin, dir, tnear, tfar);
+  }
 
   const Scene& scene() const { return scene_; }
   /// Scene::material_of[prim], read from a copy of 1 byte per triangle when the scene has at most
@@ -88,12 +80,7 @@ class EmbreeScene {
   void build_emitter_table();
 
   const Scene& scene_;
-  void add_geometry(const std::vector<uint32_t>& tris, bool cut_out);
-  static void cut_out_filter(const RTCFilterFunctionNArguments* args);
-
-  RTCDevice device_ = nullptr;
-  RTCScene rtc_scene_ = nullptr;
-  std::vector<std::vector<uint32_t>> tri_of_;  // with cut-outs: per geometry, its primitives' triangles
+  EmbreeBvh bvh_;
   float ray_epsilon_ = 1e-4f;
   std::vector<uint8_t> material8_;
   std::vector<uint16_t> material16_;
