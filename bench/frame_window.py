@@ -77,7 +77,7 @@ class Farm:
     """An epr-master and an epr-worker on loopback for one batch; cpu() after stop(): their CPU seconds."""
 
     def __init__(self, a, folder):
-        self.folder, self.seconds = folder, 0.0
+        self.folder, self.seconds, self.parts = folder, 0.0, [0.0, 0.0]
         os.makedirs(folder, exist_ok=True)
         self.master = self._start([a.master, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--state-dir",
                                   os.path.join(folder, "state")],
@@ -100,18 +100,20 @@ class Farm:
             return f.read().decode(errors="replace")
 
     def _servers_cpu(self):
-        return sum(process_cpu(p.pid) for p, _ in (self.master, self.worker))
+        return [process_cpu(p.pid) for p, _ in (self.master, self.worker)]
 
     def run(self, argv, log):
         """Runs a client command to its end; its CPU seconds and the master's and worker's meanwhile
         (from once their start-up has settled: a farm's processes outlive its jobs)."""
-        before, end = -1.0, time.monotonic() + 20
+        before, end = None, time.monotonic() + 20
         while (now := self._servers_cpu()) != before and time.monotonic() < end:
             before = now
             time.sleep(0.5)
         p, f = self._start(argv, log)
         status = self._reap(p, f)
-        self.seconds += self._servers_cpu() - before
+        spent = [x - y for x, y in zip(self._servers_cpu(), before)]
+        self.parts = [x + y for x, y in zip(self.parts, spent)]
+        self.seconds += sum(spent)
         if status != 0:
             raise SystemExit(f"{' '.join(argv)} failed ({status}): see {self.folder}/{log}")
 
@@ -123,8 +125,8 @@ class Farm:
         return p.returncode
 
     def stop(self):
-        """Stops the master and the worker; the CPU seconds of the batch run()."""
-        batch = self.seconds
+        """Stops the master and the worker; the CPU seconds of the batch run(): all, the master's, the worker's."""
+        batch = (self.seconds, *self.parts)
         for p, f in (self.worker, self.master):
             p.send_signal(signal.SIGTERM)
             self._reap(p, f)
@@ -147,8 +149,9 @@ with eprfarm.Client(a.pop("master")) as c:
 """
 
 
-def render(a, scene, frames, mode, spp, seed, prefix, window=0, rr=None):
-    """One batch on a fresh farm: the frames' images as PREFIX.NNNN.exr, and the farm's CPU seconds."""
+def render(a, scene, frames, mode, spp, seed, prefix, window=0, rr=None, extra=None):
+    """One batch on a fresh farm: the frames' images as PREFIX.NNNN.exr, and the farm's CPU seconds (all, the
+    master's, the worker's). `extra`: more submit_frames options."""
     folder = tempfile.mkdtemp(prefix="epr-frame-window-", dir=a.tmp)
     farm = Farm(a, folder)
     try:
@@ -156,6 +159,7 @@ def render(a, scene, frames, mode, spp, seed, prefix, window=0, rr=None):
                "seed": seed, "width": a.width, "height": a.height, "rr": rr}  # fmt: skip
         if window:
             job["frame_window"] = window
+        job.update(extra or {})
         farm.run([sys.executable, "-c", SUBMIT, a.package_dir, json.dumps(job)], "submit.log")
     finally:
         cpu = farm.stop()
@@ -172,7 +176,7 @@ def references(a, scene, frames_text, frames):
     if not (os.path.exists(stamp) and open(stamp).read().strip() == digest):
         shutil.rmtree(folder, ignore_errors=True)
         os.makedirs(folder)
-        cpu = sum(render(a, scene, frames_text, "pt", a.ref_spp // 2, s, os.path.join(folder, f"h{s}"), rr=a.rr)
+        cpu = sum(render(a, scene, frames_text, "pt", a.ref_spp // 2, s, os.path.join(folder, f"h{s}"), rr=a.rr)[0]
                   for s in (1000001, 1000002))  # fmt: skip
         with open(os.path.join(folder, "cpu_s"), "w") as f:
             f.write(f"{cpu:.1f}\n")
@@ -216,6 +220,16 @@ def ratios(rows, base, col=3):
     return med(at_cpu), med(at_err)
 
 
+def number(text):
+    """An option's value: an int, a float or the text."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
 def fmt(x):
     return "—" if x is None else f"{x:.2f}"
 
@@ -229,20 +243,20 @@ def sweep(a, scene, frames_text, configs, tag):
                 out[name] = [(int(r[0]), *map(float, r[1:])) for r in (line.split(",") for line in f.readlines()[1:])]
         return out, "(as measured)"
     refs, ref_folder = references(a, scene, frames_text, frames)
-    for name, mode, window, rr in configs:
+    for name, mode, window, rr, *extra in configs:
         rows = []
         for spp in a.spp:
             prefix = os.path.join(a.out, "img", tag, f"{name}_{spp}", "f")
             os.makedirs(os.path.dirname(prefix), exist_ok=True)
-            cpu = render(a, scene, frames_text, mode, spp, 1, prefix, window, rr)
-            rows.append((spp, cpu, *errors(prefix, frames, refs)))
+            cpu, *parts = render(a, scene, frames_text, mode, spp, 1, prefix, window, rr, *extra)
+            rows.append((spp, cpu, *errors(prefix, frames, refs), *parts))
             print(f"{tag} {name} spp {spp}: {cpu:.1f} CPU-s, relMSE {rows[-1][2]:.4g}, trimmed {rows[-1][3]:.4g}",
                   flush=True)  # fmt: skip
         out[name] = rows
         with open(os.path.join(a.out, "csv", f"{tag}_{name}.csv"), "w") as f:
-            f.write("spp,cpu_s,rel_mse,rel_mse_trim,worst_frame_trim\n")
+            f.write("spp,cpu_s,rel_mse,rel_mse_trim,worst_frame_trim,master_cpu_s,worker_cpu_s\n")
             for r in rows:
-                f.write("%d,%.3f,%.6g,%.6g,%.6g\n" % r)
+                f.write("%d,%.3f,%.6g,%.6g,%.6g,%.3f,%.3f\n" % r)
     return out, ref_folder
 
 
@@ -308,6 +322,8 @@ def main():
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--windows", default="1,2,4,8")
     ap.add_argument("--rr", default="albedo", help="the plain path tracer's roulette")
+    ap.add_argument("--extra", default="", help="more configurations, NAME:K:OPTION=VALUE+OPTION=VALUE;... "
+                    "(skip with frame_window K and these submit_frames options, e.g. k4v:4:combine=variance)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--variants", default=",".join(os.path.join(ROOT, "scenes", v) for v in
                                                    ("conference-cut.json:19-30", "conference-fast.json:1-12")))  # fmt: skip
@@ -325,6 +341,10 @@ def main():
     a.tmp = tempfile.mkdtemp(prefix="epr-frame-window-")
     windows = [int(k) for k in a.windows.split(",") if k]
     configs = [("pt", "pt", 0, a.rr), ("skip", "skip", 0, None)] + [(f"k{k}", "skip", k, None) for k in windows]
+    for spec in [e for e in a.extra.split(";") if e]:
+        name, k, opts = spec.split(":", 2)
+        extra = {o: number(v) for o, _, v in (x.partition("=") for x in opts.split("+") if x)}
+        configs.append((name, "skip", int(k), None, extra))
     load = [os.getloadavg()[0]]
     tag = f"{os.path.splitext(os.path.basename(a.scene))[0]}_{a.width}x{a.height}"
     results, ref_folder = sweep(a, a.scene, a.frames, configs, tag)

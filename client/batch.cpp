@@ -92,7 +92,13 @@ namespace {
 std::vector<std::pair<uint32_t, uint32_t>> window_runs(const RenderOptions& opts, const std::vector<uint32_t>& frames,
                                                        const WindowOptions& w) {
   std::vector<std::pair<uint32_t, uint32_t>> runs(frames.size());
-  if (w.frame_window == 0) return runs;
+  if (w.frame_window == 0) {
+    if (w.halving != 0) throw std::invalid_argument("--window-halving needs --frame-window");
+    return runs;
+  }
+  if (!(w.halving >= 0 && w.halving <= float(limits::kFrameWindow.hi)))
+    throw std::invalid_argument(
+        fmt::format("--window-halving {} must be between 0 and {} frames", w.halving, limits::kFrameWindow.hi));
   if (auto err = limits::kFrameWindow.check(int(std::min<uint32_t>(w.frame_window, 1u << 30))))
     throw std::invalid_argument(*err);
   if (auto err = limits::kWindowRunFrames.check(int(std::min<uint32_t>(w.run, 1u << 30))))
@@ -162,6 +168,7 @@ FrameBatch plan_batch(const RenderOptions& opts, const SubmitOptions& submit, co
       spec.set_frame_window(window.frame_window);
       spec.set_window_first(runs[i].first);
       spec.set_window_last(runs[i].second);
+      spec.set_window_halving(window.halving);
       spec.set_seed(opts.seed + frame);
     }
     batch.specs.push_back(std::move(spec));

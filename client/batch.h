@@ -47,6 +47,9 @@ struct FrameBatch {
 struct WindowOptions {
   uint32_t frame_window = 0;
   uint32_t run = kDefaultWindowRun;
+  // The distance in frames at which a neighbour's samples count half of the frame's own (JobSpec
+  // window_halving); 0: all alike.
+  float halving = 0;
   static constexpr uint32_t kDefaultWindowRun = 16;
 };
 

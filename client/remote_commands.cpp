@@ -298,6 +298,9 @@ RemoteCommands::RemoteCommands(CLI::App& app) : s_(std::make_unique<State>()) {
       ->add_option("--window-run", s.window.run,
                    "with --frame-window: frames a master renders together (consecutive frame numbers; 1 to 64)")
       ->capture_default_str();
+  s.submit->add_option("--window-halving", s.window.halving,
+                       "with --frame-window: the distance in frames at which a neighbour's samples count half of the "
+                       "frame's own (0, the default: all alike; at most 16)");
   add_connection_flags(s.submit, s.submit_conn, /*whole_job=*/true);
 
   s.watch = app.add_subcommand("watch", "follow a job's progress until it ends (exit 0 DONE, 1 FAILED/CANCELLED)");

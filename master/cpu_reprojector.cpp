@@ -121,7 +121,8 @@ uint32_t* CpuReprojector::bin_counts(size_t block, const Owners& o) {
 
 // One task per owner: its bins of blocks 0, 1, ... in turn (so its subpixels get their records in
 // input order), cells prefetched kPrefetchDistance records ahead across the bins.
-void CpuReprojector::accumulate_owned(size_t blocks, const Owners& o) {
+void CpuReprojector::accumulate_owned(size_t blocks, const Owners& o, uint32_t weight) {
+  const float w = float(weight);
   tbb::parallel_for(
       tbb::blocked_range<size_t>(0, o.tasks, 1),
       [&](const tbb::blocked_range<size_t>& owners) {
@@ -139,10 +140,10 @@ void CpuReprojector::accumulate_owned(size_t blocks, const Owners& o) {
               prefetch_next();
               const Entry& en = binned_[i];
               Cell& c = cells_[en.target];
-              c.r += en.r;
-              c.g += en.g;
-              c.b += en.b;
-              c.n += 1;
+              c.r += w * en.r;
+              c.g += w * en.g;
+              c.b += w * en.b;
+              c.n += weight;
             }
           }
         }
@@ -151,7 +152,8 @@ void CpuReprojector::accumulate_owned(size_t blocks, const Owners& o) {
 }
 
 template <class Radiance>
-void CpuReprojector::accumulate_serial(size_t n, const Radiance& radiance_of) {
+void CpuReprojector::accumulate_serial(size_t n, const Radiance& radiance_of, uint32_t weight) {
+  const float w = float(weight);
   for (size_t i = 0; i < n; ++i) {
     if (i + kPrefetchDistance < n) {
       const uint32_t ahead = target_[i + kPrefetchDistance];
@@ -161,10 +163,10 @@ void CpuReprojector::accumulate_serial(size_t n, const Radiance& radiance_of) {
     if (t == kNone) continue;
     const Vec3 L = radiance_of(i);
     Cell& c = cells_[t];
-    c.r += L.x;
-    c.g += L.y;
-    c.b += L.z;
-    c.n += 1;
+    c.r += w * L.x;
+    c.g += w * L.y;
+    c.b += w * L.z;
+    c.n += weight;
   }
 }
 
@@ -259,11 +261,11 @@ void CpuReprojector::reproject_packed(std::span<const std::string_view> parts, c
     if (owners.tasks == 1) {
       for (size_t b = 0; b < blocks; ++b) classify(b);
       add_block_counts(block_counts);
-      accumulate_serial(n, radiance_of);
+      accumulate_serial(n, radiance_of, sample_weight_);
     } else {
       tbb::parallel_for(size_t(0), blocks, classify);
       add_block_counts(block_counts);
-      accumulate_owned(blocks, owners);
+      accumulate_owned(blocks, owners, sample_weight_);
     }
   }
 }
@@ -321,9 +323,9 @@ void CpuReprojector::reproject(std::span<const VertexRecord> records) {
     });
     add_block_counts(block_counts);
     if (owners.tasks > 1)
-      accumulate_owned(blocks, owners);
+      accumulate_owned(blocks, owners, sample_weight_);
     else
-      accumulate_serial(n, radiance_of);
+      accumulate_serial(n, radiance_of, sample_weight_);
   }
 }
 
@@ -348,9 +350,9 @@ void CpuReprojector::add_exact(std::span<const ExactSample> samples) {
       tbb::parallel_for(size_t(0), blocks, [&](size_t b) {
         bin_block(b, b * kBlock, std::min(n, (b + 1) * kBlock), owners, radiance_of, false);
       });
-      accumulate_owned(blocks, owners);
+      accumulate_owned(blocks, owners, 1);
     } else {
-      accumulate_serial(n, radiance_of);
+      accumulate_serial(n, radiance_of, 1);
     }
   }
 }

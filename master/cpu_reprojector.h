@@ -86,9 +86,9 @@ class CpuReprojector final : public Reprojector {
   uint32_t* bin_counts(size_t block, const Owners& o);  // the block's zeroed per-owner counts, or null
   template <class Radiance>
   void bin_block(size_t block, size_t begin, size_t end, const Owners& o, const Radiance& radiance_of, bool counted);
-  void accumulate_owned(size_t blocks, const Owners& o);
+  void accumulate_owned(size_t blocks, const Owners& o, uint32_t weight);
   template <class Radiance>
-  void accumulate_serial(size_t n, const Radiance& radiance_of);
+  void accumulate_serial(size_t n, const Radiance& radiance_of, uint32_t weight);
   void add_block_counts(const std::vector<std::array<uint32_t, 6>>& block_counts);
 
   ReprojectorSettings settings_;

@@ -133,10 +133,10 @@ Image combined_image(const FrameImages& images) {
       // The glossy part is not combined: it comes back as its own mean (0 without one).
       const Vec3 g = glossy ? images.glossy_sum.rgb(x, y) : Vec3(0.f);
       const Vec3 diffuse_sum = glossy ? Vec3(ps[0], ps[1], ps[2]) - g : Vec3(ps[0], ps[1], ps[2]);
-      const Vec3 combined =
-          worth ? combine_weighted(diffuse_sum, m, images.reprojected_worth.at(x, y)[0], images.reprojection.rgb(x, y))
-                : combine_pixel(diffuse_sum, m, uint32_t(images.reprojected.at(x, y)[0]), images.reprojection.rgb(x, y),
-                                images.reprojected_weight);
+      // W M' (M' in samples: a multiple of 1 / 16 where a frame window weighs its neighbours'), or M'_eq.
+      const double w = worth ? double(images.reprojected_worth.at(x, y)[0])
+                             : double(images.reprojected_weight) * double(images.reprojected.at(x, y)[0]);
+      const Vec3 combined = combine_weighted(diffuse_sum, m, w, images.reprojection.rgb(x, y));
       out.set_rgb(x, y, glossy && m > 0 ? combined + g * (1.f / float(m)) : combined);
     }
   });
@@ -266,6 +266,15 @@ void FrameState::add_exact(std::span<const ExactSample> samples) {
   reprojector_->add_exact(samples);
 }
 
+void FrameState::set_count_unit(uint32_t units) {
+  count_unit_ = units;
+  set_sample_weight(units);
+}
+
+void FrameState::set_sample_weight(uint32_t units) {
+  if (reprojector_) reprojector_->set_sample_weight(units);
+}
+
 void FrameState::refresh_counts(bool active_only) {
   if (!reprojector_) return;
   ScopedTimer t(&seconds_reprojecting_);
@@ -310,7 +319,7 @@ Image FrameState::worth_image(const PixelReprojection& rp) const {
       const size_t p = pixel(x, y);
       const double variance =
           path_sample_variance(path_m2_[p], rounds_at_[std::min<size_t>(path_count_[p], rounds_at_.size() - 1)]);
-      const double fallback = double(opts_.reprojected_weight) * double(reprojected_effective_[p]);
+      const double fallback = double(unit_weight()) * double(reprojected_effective_[p]);
       out.at(x, y)[0] = float(reprojected_worth(variance, rp.variance[p], fallback, opts_.reprojected_weight));
     }
   });
@@ -328,9 +337,9 @@ double FrameState::pixel_samples(size_t p) const {
   // Reprojected samples improve only the diffuse part of the pixel: they count by its share d.
   const double d = diffuse_share(p);
   if (variance_rule() && !reprojected_effective_.empty())
-    return effective_samples(path_count_[p], d * reprojected_effective_[p], opts_.reprojected_weight);
-  return d == 1 ? weighted_samples(path_count_[p], mprime_[p], opts_.reprojected_weight)
-                : double(path_count_[p]) + d * double(opts_.reprojected_weight) * double(mprime_[p]);
+    return effective_samples(path_count_[p], d * reprojected_effective_[p], unit_weight());
+  return d == 1 ? weighted_samples(path_count_[p], mprime_[p], unit_weight())
+                : double(path_count_[p]) + d * double(unit_weight()) * double(mprime_[p]);
 }
 
 int FrameState::next_paths_per_pixel() const { return round_paths(opts_, paths_done_); }
@@ -377,7 +386,7 @@ void FrameState::update_sample_progress() {
     const uint64_t m = path_count_[p], mp = mprime_[p];
     traced += m;
     sum_m += double(m);
-    sum_mp += double(mp);
+    sum_mp += double(mp) / count_unit_;
     const double spp = pixel_samples(p);
     EPR_DCHECK_GE(spp, double(m));  // reprojected samples add to the traced ones, never subtract
     sum_spp += spp;
@@ -542,7 +551,7 @@ void FrameState::count_images(FrameImages* out) const {
     for (int x = 0; x < width_; ++x) {
       const size_t p = pixel(x, y);
       out->path_count.at(x, y)[0] = float(path_count_[p]);
-      out->reprojected.at(x, y)[0] = float(mprime_[p]);
+      out->reprojected.at(x, y)[0] = float(mprime_[p]) / float(count_unit_);
     }
   });
 }

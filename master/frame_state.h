@@ -159,6 +159,14 @@ class FrameState {
   /// The same for the concatenation of `parts`, without copying them together.
   void reproject_packed(std::span<const std::string_view> parts);
   void add_exact(std::span<const ExactSample> samples);
+  /// Frame windows weigh reprojected samples by the frame they were traced for (DESIGN.md "Frame
+  /// windows"): a sample of this frame's own adds `units` to its subpixel's count, and M' counts in
+  /// these units (the skip rule and the combination take W / units per unit; the counts image is in
+  /// samples). 1 unless set, before any sample arrives; set_sample_weight() sets what the following
+  /// reproject calls' samples add (a neighbour's: fewer units), until set back to count_unit().
+  void set_count_unit(uint32_t units);
+  uint32_t count_unit() const { return count_unit_; }
+  void set_sample_weight(uint32_t units);
   /// Ends the round: M', skip mask and progress. Returns true if another round is needed.
   bool finish_round();
 
@@ -204,7 +212,7 @@ class FrameState {
   int height() const { return height_; }
   const std::vector<uint32_t>& path_counts() const { return path_count_; }
   const std::vector<float>& path_sums() const { return path_sum_; }
-  const std::vector<uint32_t>& reprojected_counts() const { return mprime_; }
+  const std::vector<uint32_t>& reprojected_counts() const { return mprime_; }  // M', in count_unit()s
 
  private:
   // M' from the reprojector: every pixel, or (active_only) the pixels not skipped.
@@ -220,6 +228,8 @@ class FrameState {
   // The share of pixel p's own estimate that reprojected samples improve: luminance of (path_sum -
   // glossy_sum) / path_sum in [0, 1]; 1 without a glossy part (DESIGN.md "Diffuse-share reprojection").
   double diffuse_share(size_t p) const;
+  // W per count unit.
+  float unit_weight() const { return opts_.reprojected_weight / float(count_unit_); }
   // References to the per-pixel arrays and scalars a snapshot holds, under the snapshot's names
   // (frame_state.cpp: frame_fields copies them between state, snapshot and view).
   struct Fields;
@@ -245,6 +255,7 @@ class FrameState {
   std::vector<float> glossy_sum_;       // 3 per pixel, or empty while every pixel's is 0
   std::vector<uint32_t> path_count_;    // M
   std::vector<uint32_t> mprime_;        // M' as of the last downsample (L_rp is made when asked for)
+  uint32_t count_unit_ = 1;             // what one of the frame's own reprojected samples counts
   bool reprojection_partial_ = false;   // the last downsample left skipped pixels' M' as they were
   std::vector<uint8_t> skip_;           // 1 = no more paths for this pixel
   // The variance combination only (else empty): B per pixel, M'_eff as of the last downsample, and

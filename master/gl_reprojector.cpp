@@ -255,7 +255,8 @@ void GlReprojector::create_counters() {
 }
 
 void GlReprojector::set_fixed_uniforms(uint32_t first_creased) {
-  // Uniforms that never change (the same in the record and the packed kernel).
+  // Uniforms that never change (the same in the record and the packed kernel); the sample weight
+  // only by set_sample_weight().
   const auto& gl = ctx_->gl();
   const auto& k = params_;
   for (const GlProgram* rp : {reproject_prog_.get(), packed_prog_.get()}) {
@@ -282,6 +283,7 @@ void GlReprojector::set_fixed_uniforms(uint32_t first_creased) {
     gl.ProgramUniform1f(p, rp->uniform("grid_h"), k.grid_h);
     gl.ProgramUniform1f(p, rp->uniform("epsilon"), k.epsilon);
     gl.ProgramUniform1ui(p, rp->uniform("grid_wi"), k.grid_wi);
+    gl.ProgramUniform1ui(p, rp->uniform("weight"), sample_weight_);
   }
   loc_first_ = reproject_prog_->uniform("first");
   loc_count_ = reproject_prog_->uniform("count");
@@ -486,6 +488,17 @@ void GlReprojector::set_codec(const VertexCodec& codec) {
   codec_params_ = p;
   // Ordered after the dispatches already issued, which read the former parameters.
   ctx_->gl().NamedBufferSubData(codec_buf_->id(), 0, GLsizeiptr(sizeof(p)), p.data());
+}
+
+void GlReprojector::set_sample_weight(uint32_t units) {
+  ctx_->check_thread();
+  if (units == sample_weight_) return;
+  if (pending_n_ && pending_kernel_ != Kernel::kExact) flush_pending();  // accepted at the former weight
+  sample_weight_ = units;
+  // Ordered after the dispatches already issued, which keep the former value.
+  const auto& gl = ctx_->gl();
+  for (const GlProgram* rp : {reproject_prog_.get(), packed_prog_.get()})
+    gl.ProgramUniform1ui(rp->id(), rp->uniform("weight"), units);
 }
 
 void GlReprojector::copy_packed(const unsigned char* src, size_t n, unsigned char* dst) {

@@ -97,6 +97,7 @@ class GlReprojector final : public Reprojector {
                      const ReprojectionCounts& counts) override;
   size_t cell_count() const override { return size_t(grid_w_) * size_t(grid_h_); }
   std::string_view backend() const override { return "gl"; }
+  void set_sample_weight(uint32_t units) override;
 
   GlContext& context() { return *ctx_; }
   /// Bands the subpixel grid is split into (see Limits above), and the subpixels of each but the last.

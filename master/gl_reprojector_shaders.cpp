@@ -82,6 +82,7 @@ uniform vec3 eye, forward_, right_, up_;
 uniform float tan_half_x, tan_half_y, width_, height_, s, grid_w, grid_h, epsilon, crease_tolerance, min_normal_cosine;
 uniform uint grid_wi, first_creased;
 uniform uint band_base;  // the bound band's first subpixel: `cells` and `texel_plane` hold that band
+uniform uint weight;     // what an accepted sample adds to its count, its radiance multiplied by it
 
 void main() {
   uint gid = gl_GlobalInvocationID.x;
@@ -158,10 +159,11 @@ void main() {
 #else
     vec3 L = texelFetch(records, base + 2).xyz;
 #endif
-    atomicAdd(cells[idx].r, L.r);
-    atomicAdd(cells[idx].g, L.g);
-    atomicAdd(cells[idx].b, L.b);
-    atomicAdd(cells[idx].n, 1u);
+    precise vec3 Lw = float(weight) * L;
+    atomicAdd(cells[idx].r, Lw.r);
+    atomicAdd(cells[idx].g, Lw.g);
+    atomicAdd(cells[idx].b, Lw.b);
+    atomicAdd(cells[idx].n, weight);
   }
   counters[COUNTERS * gid + 0u] += n_accepted;
   counters[COUNTERS * gid + 1u] += n_culled;

@@ -179,6 +179,15 @@ class Reprojector {
   /// Subpixels of the grid (S*W x S*H).
   virtual size_t cell_count() const = 0;
   virtual std::string_view backend() const = 0;
+  /// What each sample accepted by the following reproject() / reproject_packed() calls adds to its
+  /// subpixel: `units` (>= 1) to the count and its radiance times `units` to the sum, so that a
+  /// subpixel's mean weighs it by that (frame windows: a neighbouring frame's vertices count for less
+  /// than the frame's own, DESIGN.md "Frame windows"). 1 by default; exact samples always add 1.
+  virtual void set_sample_weight(uint32_t units) { sample_weight_ = units; }
+  uint32_t sample_weight() const { return sample_weight_; }
+
+ protected:
+  uint32_t sample_weight_ = 1;
 };
 
 }  // namespace epr

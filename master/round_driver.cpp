@@ -106,7 +106,8 @@ unsigned kinds_of(const AssembledTile& t) {
 
 }  // namespace
 
-void RoundDriver::reproject(std::span<const AssembledTile* const> tiles) {
+void RoundDriver::reproject(std::span<const AssembledTile* const> tiles, uint32_t sample_weight) {
+  frame_.set_sample_weight(sample_weight);
   packed_parts_.clear();
   vertex_batch_.clear();
   for (const AssembledTile* t : tiles) {
@@ -115,6 +116,7 @@ void RoundDriver::reproject(std::span<const AssembledTile* const> tiles) {
   }
   if (!packed_parts_.empty()) frame_.reproject_packed(packed_parts_);
   if (!vertex_batch_.empty()) frame_.reproject(vertex_batch_);
+  frame_.set_sample_weight(frame_.count_unit());
   if (vertex_batch_.capacity() > 4 * kBatchRecords) std::vector<VertexRecord>().swap(vertex_batch_);
 }
 

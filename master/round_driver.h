@@ -62,8 +62,8 @@ class RoundDriver {
   static constexpr size_t kBatchRecords = size_t(1) << 20;
   /// Only the vertices of `tiles` (decoded and packed; traced for another frame of the same scene,
   /// DESIGN.md "Frame windows"), reprojected into this frame in the order given: no path sums, no
-  /// exact samples.
-  void reproject(std::span<const AssembledTile* const> tiles);
+  /// exact samples; each accepted one adding `sample_weight` count units (FrameState::set_count_unit).
+  void reproject(std::span<const AssembledTile* const> tiles, uint32_t sample_weight);
   /// Ends the round; true if another is needed.
   bool close() { return frame_.finish_round(); }
 

@@ -79,7 +79,10 @@ void Job::add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t no
   // A frame rendered in a window run says so: its window and the run it was rendered with.
   const BatchMembership& b = request.batch;
   if (b.window > 0)
-    (*stats)["frame_window"] = {{"k", b.window}, {"window_first", b.window_first}, {"window_last", b.window_last}};
+    (*stats)["frame_window"] = {{"k", b.window},
+                                {"window_first", b.window_first},
+                                {"window_last", b.window_last},
+                                {"halving", b.window_halving}};
 }
 
 }  // namespace epr

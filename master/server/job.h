@@ -39,6 +39,9 @@ struct BatchMembership {
   std::optional<uint32_t> frame;
   uint32_t frames = 0;  // of the whole batch
   uint32_t window = 0, window_first = 0, window_last = 0;
+  // The distance in frames at which a neighbour's reprojected sample counts half of the frame's own
+  // (window_sample_weight); 0: all count alike.
+  float window_halving = 0;
 };
 
 struct WindowRun;

@@ -55,15 +55,21 @@ void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& fram
 
 void ReprojectionWorker::reproject_into_neighbours(const Job& job, const std::vector<const AssembledTile*>& tiles) {
   std::vector<std::shared_ptr<Job>> into;
+  const uint32_t frame = job.request.batch.frame.value_or(0);
   {
     JobLock lock(m_.mu_);
     if (!job.run) return;
-    for (auto& g : job.run->neighbours(job.request.batch.frame.value_or(0)))
+    for (auto& g : job.run->neighbours(frame))
       if (g->state == JobState::kRunning && g->round == job.round && g->round_open) into.push_back(std::move(g));
   }
   for (const auto& g : into)
     if (RoundDriver* d = driver(*g)) {
-      d->reproject(tiles);
+      const uint32_t other = g->request.batch.frame.value_or(0);
+      const uint32_t units =
+          window_count_unit(g->request.batch) == 1
+              ? 1
+              : window_sample_weight(other > frame ? other - frame : frame - other, g->request.batch.window_halving);
+      d->reproject(tiles, units);
       const double s = d->frame().seconds_reprojecting();
       JobLock lock(m_.mu_);
       g->counters.seconds_reprojecting = s;

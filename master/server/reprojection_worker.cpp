@@ -16,6 +16,7 @@
 #include "master/server/checkpoint.h"
 #include "master/server/checkpointer.h"
 #include "master/server/previews.h"
+#include "master/server/window_run.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -208,6 +209,7 @@ void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
   if (m_.options_.before_frame_build) m_.options_.before_frame_build(job->id);
   const auto build = std::chrono::steady_clock::now();
   render.driver = std::make_unique<RoundDriver>(opts, *render.camera, *render.scene, gl_.get());
+  render.driver->frame().set_count_unit(window_count_unit(job->request.batch));
   const double build_s = seconds_since(build);
   FrameState& frame = render.driver->frame();
   uint64_t committed_meanwhile = 0;

@@ -4,6 +4,8 @@
 #include <fmt/format.h>
 #include <google/protobuf/util/message_differencer.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdlib>
 
 #include "common/limits.h"
@@ -21,12 +23,19 @@ std::vector<std::shared_ptr<Job>> WindowRun::neighbours(uint32_t frame) const {
   return out;
 }
 
+uint32_t window_sample_weight(uint32_t distance, float halving) {
+  if (halving <= 0) return kWindowUnit;
+  const double w = std::round(double(kWindowUnit) * std::exp2(-double(distance) / double(halving)));
+  return uint32_t(std::clamp(w, 1.0, double(kWindowUnit)));
+}
+
 BatchMembership batch_from_spec(const v1::JobSpec& spec) {
   BatchMembership b{spec.batch_id(), spec.batch_name(),
                     spec.has_frame() ? std::optional<uint32_t>(spec.frame()) : std::nullopt, spec.batch_frames()};
   b.window = spec.frame_window();
   b.window_first = spec.window_first();
   b.window_last = spec.window_last();
+  b.window_halving = spec.window_halving();
   return b;
 }
 
@@ -38,21 +47,25 @@ void batch_to_spec(const BatchMembership& b, v1::JobSpec* spec) {
   spec->set_frame_window(b.window);
   spec->set_window_first(b.window_first);
   spec->set_window_last(b.window_last);
+  spec->set_window_halving(b.window_halving);
 }
 
 bool same_run(const BatchMembership& a, const BatchMembership& b) {
   return windowed(a) && windowed(b) && a.id == b.id && a.window == b.window && a.window_first == b.window_first &&
-         a.window_last == b.window_last;
+         a.window_last == b.window_last && a.window_halving == b.window_halving;
 }
 
 std::optional<std::string> window_error(const JobRequest& r) {
   const BatchMembership& b = r.batch;
   if (!windowed(b)) {
-    if (b.window_first || b.window_last) return std::string("window_first and window_last need a frame_window");
+    if (b.window_first || b.window_last || b.window_halving != 0)
+      return std::string("window_first, window_last and window_halving need a frame_window");
     return std::nullopt;
   }
   if (auto err = limits::kFrameWindow.check(int(std::min<uint32_t>(b.window, 1u << 30)))) return err;
   if (b.id.empty() || !b.frame) return std::string("a frame window needs a batch_id and a frame");
+  if (!(b.window_halving >= 0 && b.window_halving <= float(limits::kFrameWindow.hi)))
+    return fmt::format("window_halving {} is not between 0 and {} frames", b.window_halving, limits::kFrameWindow.hi);
   if (b.window_first > b.window_last || *b.frame < b.window_first || *b.frame > b.window_last)
     return fmt::format("frame {} is not inside its window run, frames {} to {}", *b.frame, b.window_first,
                        b.window_last);

@@ -32,6 +32,18 @@ struct WindowRun {
 BatchMembership batch_from_spec(const v1::JobSpec& spec);
 void batch_to_spec(const BatchMembership& batch, v1::JobSpec* spec);
 
+/// A window frame's M' counts its own reprojected samples kWindowUnit each and a sample traced for
+/// the frame `distance` frames away round(kWindowUnit 2^(-distance / halving)), at least 1 (halving
+/// 0: kWindowUnit, all alike): integers, so M' and the skip decisions stay exact whatever the order
+/// samples arrive in (DESIGN.md "Frame windows").
+inline constexpr uint32_t kWindowUnit = 16;
+uint32_t window_sample_weight(uint32_t distance, float halving);
+/// The count unit of a job's frame (FrameState::set_count_unit): kWindowUnit for a window that
+/// weighs its neighbours' samples, else 1.
+inline uint32_t window_count_unit(const BatchMembership& b) {
+  return b.window > 0 && b.window_halving > 0 ? kWindowUnit : 1;
+}
+
 /// True if the job asks for a frame window.
 inline bool windowed(const BatchMembership& b) { return b.window > 0; }
 /// Frames in the run of a window job: window_last - window_first + 1.

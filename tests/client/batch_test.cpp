@@ -177,6 +177,14 @@ TEST(FrameBatchPlan, AFrameWindowSplitsTheFramesIntoRunsOfConsecutiveFrames) {
   RenderOptions exact = o;
   exact.reproject = ReprojectMethod::kExact;
   refused(exact, w, "--reproject gl or cpu");
+  // --window-halving: carried by every frame of a window, refused without one or out of range.
+  WindowOptions halved = w;
+  halved.halving = 2.5f;
+  for (const auto& s : plan_batch(o, SubmitOptions{}, {1, 2}, "b-halved", halved).specs)
+    EXPECT_EQ(s.window_halving(), 2.5f);
+  refused(o, {0, 16, 2.f}, "--window-halving needs --frame-window");
+  refused(o, {1, 3, 17.f}, "--window-halving 17 must be between 0 and 16 frames");
+  refused(o, {1, 3, -1.f}, "--window-halving -1 must be between 0 and 16 frames");
 }
 
 TEST(FrameBatchPlan, SummaryCountsFramesByState) {

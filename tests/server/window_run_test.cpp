@@ -1,6 +1,8 @@
 // Frame windows (master/server/window_run.h): a run's frames start together, their rounds go in step,
 // and each frame's vertices are reprojected into its neighbours within K frames. Driven through a
 // JobManager in the test process with real tracing (JobsWorker).
+#include "master/server/window_run.h"
+
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -33,7 +35,7 @@ using test::trace_until;
 fs::path fresh_dir(const std::string& name) { return test::fresh_dir("epr-window-test", name); }
 
 // Frame `frame` of batch "win" (frames 1..3), its camera's eye `dx` to the side of the Cornell view.
-JobRequest frame_request(uint32_t frame, RenderMode mode, int spp, uint32_t window, float dx = 0) {
+JobRequest frame_request(uint32_t frame, RenderMode mode, int spp, uint32_t window, float dx = 0, float halving = 0) {
   JobRequest req;
   req.options.width = req.options.height = 32;
   req.options.spp = spp;
@@ -46,7 +48,7 @@ JobRequest frame_request(uint32_t frame, RenderMode mode, int spp, uint32_t wind
   req.camera.eye.x += dx;
   req.bundle.builtin = "builtin:cornell";
   req.name = "frame-" + std::to_string(frame);
-  req.request_id = req.name + "-w" + std::to_string(window);
+  req.request_id = req.name + "-w" + std::to_string(window) + "-h" + std::to_string(halving);
   req.batch.id = "win";
   req.batch.frame = frame;
   req.batch.frames = 3;
@@ -54,6 +56,7 @@ JobRequest frame_request(uint32_t frame, RenderMode mode, int spp, uint32_t wind
     req.batch.window = window;
     req.batch.window_first = 1;
     req.batch.window_last = 3;
+    req.batch.window_halving = halving;
   }
   return req;
 }
@@ -95,6 +98,7 @@ std::vector<JobImages> render(const std::vector<JobRequest>& reqs, int workers =
         EXPECT_EQ(stats["frame_window"].at("k").get<uint32_t>(), b.window);
         EXPECT_EQ(stats["frame_window"].at("window_first").get<uint32_t>(), b.window_first);
         EXPECT_EQ(stats["frame_window"].at("window_last").get<uint32_t>(), b.window_last);
+        EXPECT_EQ(stats["frame_window"].at("halving").get<float>(), b.window_halving);
       }
     }
   }
@@ -134,6 +138,39 @@ TEST(WindowRun, AStaticCameraGivesEachFrameTheSamplesOfItsWindow) {
   EXPECT_GT(total_alone, 10 * pixels) << "the frames reproject samples at all";
 }
 
+TEST(WindowRun, AStaticCameraWeighsItsNeighboursSamplesByTheirDistance) {
+  // As above with K = 2 and a halving distance of 1 frame: a sample traced for the next frame counts
+  // 8 / 16 of one of the frame's own, one from two frames away 4 / 16 (window_sample_weight), in M'.
+  EXPECT_EQ(window_sample_weight(0, 1.f), 16u);
+  EXPECT_EQ(window_sample_weight(1, 1.f), 8u);
+  EXPECT_EQ(window_sample_weight(2, 1.f), 4u);
+  EXPECT_EQ(window_sample_weight(9, 1.f), 1u);
+  EXPECT_EQ(window_sample_weight(3, 0.f), 16u);
+  std::vector<JobRequest> alone, windowed;
+  for (uint32_t f = 1; f <= 3; ++f) {
+    alone.push_back(frame_request(f, RenderMode::kReproject, 16, 0));
+    windowed.push_back(frame_request(f, RenderMode::kReproject, 16, /*window=*/2, 0, /*halving=*/1));
+  }
+  const std::vector<JobImages> a = render(alone), w = render(windowed);
+  ASSERT_EQ(a.size(), 3u);
+  ASSERT_EQ(w.size(), 3u);
+  const size_t pixels = size_t(a[0].counts.width) * size_t(a[0].counts.height);
+  const float weight[] = {1.f, 0.5f, 0.25f};
+  for (int f = 0; f < 3; ++f) {
+    SCOPED_TRACE("frame " + std::to_string(f + 1));
+    EXPECT_EQ(w[f].pathtrace.data, a[f].pathtrace.data) << "its own paths";
+    size_t wrong = 0, fractional = 0;
+    for (size_t p = 0; p < pixels; ++p) {
+      float expected = 0;
+      for (int g = 0; g < 3; ++g) expected += weight[std::abs(g - f)] * at(a[g].counts, p, 1);
+      wrong += at(w[f].counts, p, 1) != expected;
+      fractional += expected != std::floor(expected);
+    }
+    EXPECT_EQ(wrong, 0u) << "pixels whose M' is not the weighted sum of its window's";
+    EXPECT_GT(fractional, pixels / 8) << "M' counts in sixteenths";
+  }
+}
+
 // Mean of channel-averaged values over the block [x0, x0 + n) x [y0, y0 + n).
 double block_mean(const Image& im, int x0, int y0, int n) {
   double s = 0;
@@ -147,33 +184,38 @@ TEST(WindowRun, AMovingCameraFrameConvergesToTheSameImageAsWithoutAWindow) {
   // Frames 1..3 with the eye moving sideways; frame 2 with a window of 1 (it takes frames 1 and 3's
   // vertices) against frame 2 path traced at many samples: the image mean and 8 x 8 blocks agree
   // within what frame 2 rendered without a window also reaches.
-  std::vector<JobRequest> run;
-  for (uint32_t f = 1; f <= 3; ++f) run.push_back(frame_request(f, RenderMode::kSkip, 32, 1, 0.15f * (float(f) - 2)));
+  // The same with the neighbours' samples weighed by their distance (a halving distance of 1 frame).
   JobRequest alone = frame_request(2, RenderMode::kSkip, 32, 0);
   JobRequest reference = frame_request(2, RenderMode::kPathTrace, 1024, 0);
   reference.request_id = "reference";
-  const std::vector<JobImages> w = render(run);
   const JobImages a = render({alone})[0], ref = render({reference})[0];
-  const Image& r = ref.combined;
-  ASSERT_EQ(w[1].combined.width, r.width);
-  double worst_window = 0, worst_alone = 0;
-  for (int y = 0; y < r.height; y += 8)
-    for (int x = 0; x < r.width; x += 8) {
-      const double m = block_mean(r, x, y, 8);
-      worst_window = std::max(worst_window, std::fabs(block_mean(w[1].combined, x, y, 8) - m) / (m + 0.02));
-      worst_alone = std::max(worst_alone, std::fabs(block_mean(a.combined, x, y, 8) - m) / (m + 0.02));
+  for (const float halving : {0.f, 1.f}) {
+    SCOPED_TRACE("halving " + std::to_string(halving));
+    std::vector<JobRequest> run;
+    for (uint32_t f = 1; f <= 3; ++f)
+      run.push_back(frame_request(f, RenderMode::kSkip, 32, 1, 0.15f * (float(f) - 2), halving));
+    const std::vector<JobImages> w = render(run);
+    const Image& r = ref.combined;
+    ASSERT_EQ(w[1].combined.width, r.width);
+    double worst_window = 0, worst_alone = 0;
+    for (int y = 0; y < r.height; y += 8)
+      for (int x = 0; x < r.width; x += 8) {
+        const double m = block_mean(r, x, y, 8);
+        worst_window = std::max(worst_window, std::fabs(block_mean(w[1].combined, x, y, 8) - m) / (m + 0.02));
+        worst_alone = std::max(worst_alone, std::fabs(block_mean(a.combined, x, y, 8) - m) / (m + 0.02));
+      }
+    const double mr = block_mean(r, 0, 0, r.width);
+    EXPECT_NEAR(block_mean(w[1].combined, 0, 0, r.width), mr, 0.03 * mr) << "the image mean";
+    EXPECT_LT(worst_window, std::max(0.15, 1.5 * worst_alone))
+        << "the worst 8 x 8 block, relative (alone: " << worst_alone << ")";
+    // The window fed frame 2 more reprojected samples than it got alone.
+    double mp_window = 0, mp_alone = 0;
+    for (size_t p = 0; p < size_t(r.width) * size_t(r.height); ++p) {
+      mp_window += at(w[1].counts, p, 1);
+      mp_alone += at(a.counts, p, 1);
     }
-  const double mr = block_mean(r, 0, 0, r.width);
-  EXPECT_NEAR(block_mean(w[1].combined, 0, 0, r.width), mr, 0.03 * mr) << "the image mean";
-  EXPECT_LT(worst_window, std::max(0.15, 1.5 * worst_alone))
-      << "the worst 8 x 8 block, relative (alone: " << worst_alone << ")";
-  // The window fed frame 2 more reprojected samples than it got alone.
-  double mp_window = 0, mp_alone = 0;
-  for (size_t p = 0; p < size_t(r.width) * size_t(r.height); ++p) {
-    mp_window += at(w[1].counts, p, 1);
-    mp_alone += at(a.counts, p, 1);
+    EXPECT_GT(mp_window, halving > 0 ? 1.2 * mp_alone : 1.5 * mp_alone);
   }
-  EXPECT_GT(mp_window, 1.5 * mp_alone);
 }
 
 TEST(WindowRun, CountsAreTheSameForOneAndThreeWorkers) {

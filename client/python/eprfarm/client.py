@@ -192,6 +192,7 @@ class MasterClient:
         epsilon: float = 3e-4,
         min_paths: int = 1,
         reprojected_weight: float = 0.5,
+        combine: str = "fixed",
         reproject_glossy: bool = False,
         joint_test: bool = True,
         rr: Optional[str] = None,
@@ -224,6 +225,9 @@ class MasterClient:
         rr_mode = rs_pb.RUSSIAN_ROULETTE_MODE_UNSPECIFIED if rr is None else S.ROULETTE.get(str(rr).lower())
         if rr_mode is None:
             raise ArgumentError(f"rr '{rr}' is not one of {', '.join(S.ROULETTE)}")
+        combine_value = S.COMBINE.get(combine.lower())
+        if combine_value is None:
+            raise ArgumentError(f"combine '{combine}' is not one of fixed, variance")
         sampler_value = S.SAMPLERS.get(sampler.lower())
         if sampler_value is None:
             raise ArgumentError(f"sampler '{sampler}' is not one of sobol-burley, independent")
@@ -279,6 +283,7 @@ class MasterClient:
                 epsilon_fraction=epsilon,
                 min_paths=min_paths,
                 reprojected_weight=reprojected_weight,
+                combine=combine_value,
                 reproject_glossy=reproject_glossy,
                 joint_test=joint_test,
             )
@@ -329,6 +334,7 @@ class MasterClient:
             subpixels (4), epsilon (3e-4), min_paths (1), reproject_glossy (False), joint_test (True).
             reprojected_weight: W in (0, 1], what a reprojected sample counts for against a traced
                 path (0.5, as `epr`; `--reprojected-weight`).
+            combine: "fixed" (default, W above) or "variance" (inverse-variance weights; `--combine`).
             rr: Russian roulette "reuse", "throughput", "albedo", "paper" or "off" (job_settings.ROULETTE);
                 None (default): the master's default, reuse, as `epr`. max_depth overrides its cap.
             mis: MIS for direct light (True); False: next event estimation only.

@@ -212,6 +212,7 @@ class Client(MasterClient):
         batch_id: Optional[str] = None,
         frame_window: int = 0,
         window_run: Optional[int] = None,
+        window_halving: float = 0.0,
         **options,
     ) -> Tuple[str, List[str]]:
         """Queues a batch of frames of the scene's camera animation as `epr submit --frames` does: one
@@ -226,7 +227,9 @@ class Client(MasterClient):
         at most `window_run` (1 to 64, default 16) consecutive frame numbers (frames.window_runs, as
         `epr submit --frame-window K --window-run N` plans them), each run on one master with its
         rounds in step, a vertex traced for one frame also reprojected into the run's frames at most
-        K frame numbers away; each frame's seed is then `seed` plus its number. With several masters
+        K frame numbers away; each frame's seed is then `seed` plus its number. `window_halving` H
+        (0 to 16 frames; 0, the default: all alike) weighs a vertex traced d frames away at 2^(-d/H)
+        of the frame's own in M' and the image (`epr submit --window-halving`). With several masters
         whole runs are spread, each to the master with the least work. A window needs mode skip or
         rp and reproject gl or cpu.
 
@@ -250,6 +253,8 @@ class Client(MasterClient):
         template.ClearField("scene")
         frame_window, window_run = _frames.checked_window(frame_window, window_run, template)
         specs = _frames.frame_specs(template, batch_id, name, frame_list, frame_window, window_run)
+        for spec in specs:
+            spec.window_halving = _frames.checked_halving(window_halving, frame_window)
         where, masters = self._spread(specs, _frames.window_runs(frame_list, window_run))
         ids: List[str] = [""] * len(specs)
         placed = []
@@ -267,7 +272,7 @@ class Client(MasterClient):
                     refs[index] = scene_pb.SceneBundle(uploaded_hash=master.upload_scene(bundle))
                 check = pb.JobSpec()
                 check.CopyFrom(specs[mine[index][0]])
-                for field in ("frame", "frame_window", "window_first", "window_last"):  # the frames' cameras alone
+                for field in ("frame", "frame_window", "window_first", "window_last", "window_halving"):  # the frames' cameras alone
                     check.ClearField(field)
                 check.scene.CopyFrom(refs[index])
                 try:

@@ -77,6 +77,15 @@ def checked_window(frame_window, window_run: Optional[int], spec: pb.JobSpec) ->
     return k, L.job_whole("window_run", n, L.WINDOW_RUN)
 
 
+def checked_halving(halving, frame_window: int) -> float:
+    """window_halving (frames, 0 to 16; 0: a neighbour's samples count as the frame's own), ArgumentError
+    if out of range or given without a frame window."""
+    h = L.real("window_halving", halving, 0, L.FRAME_WINDOW.hi, "between 0 and 16 frames")
+    if h and not frame_window:
+        raise ArgumentError("window_halving needs a frame_window above 0")
+    return h
+
+
 def window_runs(frames: List[int], window_run: int) -> List[Tuple[int, int]]:
     """The runs of a batch's frames (sorted, unique) as `epr submit --frame-window` plans them
     (client/batch.cpp): [first, last] indices into the list, each run at most `window_run` consecutive

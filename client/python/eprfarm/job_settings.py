@@ -14,6 +14,7 @@ METHODS = {
     "cpu": rs_pb.REPROJECTION_METHOD_CPU,
     "exact": rs_pb.REPROJECTION_METHOD_EXACT,
 }
+COMBINE = {"fixed": rs_pb.COMBINE_RULE_FIXED, "variance": rs_pb.COMBINE_RULE_VARIANCE}
 SAMPLERS = {
     "sobol-burley": rs_pb.SAMPLER_SOBOL_BURLEY,
     "independent": rs_pb.SAMPLER_INDEPENDENT,
