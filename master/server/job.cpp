@@ -1,5 +1,9 @@
 #include "master/server/job.h"
 
+#include <tuple>
+
+#include "master/server/window_run.h"
+
 namespace epr {
 
 bool Job::end(JobState final_state, std::string why, int64_t now_ms) {
@@ -50,6 +54,7 @@ JobSnapshot Job::snapshot(int64_t now_ms) const {
   s.budget_exhausted = budget_exhausted;
   s.version = version;
   s.batch = request.batch;
+  if (run) std::tie(s.fed_by_first, s.fed_by_last) = run->fed_by(request.batch.frame.value_or(0));
   return s;
 }
 
@@ -78,8 +83,22 @@ void Job::add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t no
                  {"budget_exhausted", budget_exhausted}});
   // A frame rendered in a window run says so: its window and the run it was rendered with.
   const BatchMembership& b = request.batch;
-  if (b.window > 0)
-    (*stats)["frame_window"] = {{"k", b.window}, {"window_first", b.window_first}, {"window_last", b.window_last}};
+  if (b.window > 0) {
+    nlohmann::json& w = (*stats)["frame_window"];
+    w = {{"k", b.window}, {"window_first", b.window_first}, {"window_last", b.window_last}};
+    // The frames that fed it (a cut stops the window) and how much its view shares with the
+    // neighbouring frames' (null at the run's ends or without a measurement).
+    if (run) {
+      const uint32_t f = b.frame.value_or(0);
+      const auto [first, last] = run->fed_by(f);
+      const auto [before, after] = run->shares_of(f);
+      auto share = [](double x) { return x < 0 ? nlohmann::json(nullptr) : nlohmann::json(x); };
+      w.update({{"fed_by_first", first},
+                {"fed_by_last", last},
+                {"view_share_previous", share(before)},
+                {"view_share_next", share(after)}});
+    }
+  }
 }
 
 }  // namespace epr

@@ -82,6 +82,9 @@ struct JobSnapshot {
   bool budget_exhausted = false;
   uint64_t version = 0;  // increases with every change
   BatchMembership batch;
+  // A window job's window as rendered once its run started (WindowRun::fed_by): the first and last
+  // frame whose vertices feed it; 0, 0 before.
+  uint32_t fed_by_first = 0, fed_by_last = 0;
 };
 
 struct Job {
