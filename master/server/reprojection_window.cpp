@@ -87,13 +87,13 @@ std::shared_ptr<const Scene> ReprojectionWorker::measure_cuts(const std::shared_
     run->measured.push_back(cameras[i].first);
     run->share.push_back(mutual_view_share(probes[i], probes[i + 1]));
     run->cut.push_back(run->share.back() < below);
-    shares += fmt::format("{}{}-{} {:.0f} %", i ? ", " : "", cameras[i].first, cameras[i + 1].first,
-                          100 * run->share.back());
+    shares +=
+        fmt::format("{}{}-{} {:.0f} %", i ? ", " : "", cameras[i].first, cameras[i + 1].first, 100 * run->share.back());
   }
   run->measured.push_back(cameras.back().first);
   auto log = logger("master");
-  log->info("window run {}..{} of batch {}: neighbouring frames' views share {} (measured in {:.2f} s)",
-            b.window_first, b.window_last, b.id, shares,
+  log->info("window run {}..{} of batch {}: neighbouring frames' views share {} (measured in {:.2f} s)", b.window_first,
+            b.window_last, b.id, shares,
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   for (size_t i = 0; i < run->cut.size(); ++i)
     if (run->cut[i])

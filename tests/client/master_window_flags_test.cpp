@@ -94,8 +94,7 @@ TEST_F(MasterWindowFlags, AShortRunWaitStartsAnIncompleteRunAfterIt) {
         return true;
       },
       120s));
-  EXPECT_TRUE(testing::wait_until(
-      [&] { return log().find("did not come within 1.5 s") != std::string::npos; }, 60s))
+  EXPECT_TRUE(testing::wait_until([&] { return log().find("did not come within 1.5 s") != std::string::npos; }, 60s))
       << log();
   master.stop();
 }

@@ -6,12 +6,13 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 
 #include "master/server/job_manager.h"
-#include "wire/scene_bundle.h"
 #include "tests/server/in_process_worker.h"
 #include "tests/server/job_images.h"
+#include "wire/scene_bundle.h"
 
 namespace epr {
 namespace window_cut_test {
@@ -144,8 +145,47 @@ TEST(WindowCut, CountsWithACutAreTheSameForOneAndThreeWorkers) {
     SCOPED_TRACE("frame " + std::to_string(f + 1));
     EXPECT_EQ(one[f].images.counts.data, three[f].images.counts.data) << "M and M'";
     EXPECT_EQ(one[f].images.pathtrace.data, three[f].images.pathtrace.data) << "path sums";
-    EXPECT_EQ(one[f].stats.at("frame_window").at("fed_by_last"), three[f].stats.at("frame_window").at("fed_by_last"));
+    EXPECT_EQ(one[f].stats.at("frame_window").at("fed_by_last"), f < 2 ? 2 : 4) << "the cut after frame 2";
+    EXPECT_EQ(three[f].stats.at("frame_window").at("fed_by_last"), f < 2 ? 2 : 4) << "the cut after frame 2";
   }
+}
+
+TEST(WindowCut, ALeaseCarriesTheCamerasOfItsSideOfTheCutOnly) {
+  // TileLease.window_cameras: the worker keeps a vertex one of them shows; across the cut none.
+  const fs::path dir = test::fresh_dir("epr-window-cut-test", "lease");
+  MasterOptions o;
+  o.state_dir = dir.string();
+  o.checkpoints = false;
+  o.memory_budget_bytes = uint64_t(1) << 40;
+  {
+    JobManager jobs(o);
+    const std::vector<JobRequest> reqs = frames(1, 4, 3, 1, 4);
+    std::vector<std::string> ids;
+    for (const auto& r : reqs) ids.push_back(jobs.submit(r).id);
+    // A lease names the neighbours that are running: once all four are.
+    ASSERT_TRUE(test::poll_until([&] {
+      for (const auto& id : ids)
+        if (jobs.get(id)->state != JobState::kRunning) return false;
+      return true;
+    }));
+    JobsWorker w(jobs);
+    std::map<std::string, std::vector<CameraSpec>> seen;
+    EXPECT_TRUE(test::poll_until([&] {
+      if (auto l = w.lease()) {
+        seen[l->job_id] = l->window_cameras;
+        w.submit(*l);
+      }
+      return seen.size() == 4;
+    }));
+    for (size_t f = 0; f < 4 && seen.size() == 4; ++f) {
+      SCOPED_TRACE("frame " + std::to_string(f + 1));
+      const std::vector<CameraSpec>& cams = seen[ids[f]];
+      ASSERT_EQ(cams.size(), 1u) << "K = 3 reaches all three others; the cut leaves one";
+      EXPECT_EQ(cams[0].eye, reqs[f ^ 1].camera.eye) << "the other frame of its side";
+    }
+    jobs.shutdown();
+  }
+  fs::remove_all(dir);
 }
 
 TEST(WindowStillScene, AFrameWithAnotherSceneOrLightIsRefusedNamingIt) {
@@ -170,6 +210,12 @@ TEST(WindowStillScene, AFrameWithAnotherSceneOrLightIsRefusedNamingIt) {
     EXPECT_NE(s.error.find(words), std::string::npos) << "'" << s.error << "' should say '" << words << "'";
   };
   ASSERT_EQ(jobs.submit(frame(1)).error, "");
+  JobRequest sunlit = frame(2);
+  sunlit.options.lighting.sun = SunLight{};
+  refused(sunlit, "sun");
+  JobRequest sky = frame(2);
+  sky.options.lighting.environment = EnvironmentLight{};
+  refused(sky, "environment");
   JobRequest moved = frame(2);
   bool edited = false;
   for (auto& [path, bytes] : moved.bundle.files)
@@ -182,13 +228,7 @@ TEST(WindowStillScene, AFrameWithAnotherSceneOrLightIsRefusedNamingIt) {
   ASSERT_TRUE(edited);
   refused(moved, "its scene (content hash");
   refused(moved, "a window run renders one still scene");
-  JobRequest sunlit = frame(2);
-  sunlit.options.lighting.sun = SunLight{};
-  refused(sunlit, "sun");
-  JobRequest sky = frame(2);
-  sky.options.lighting.environment = EnvironmentLight{};
-  refused(sky, "environment");
-  EXPECT_EQ(jobs.submit(frame(2)).error, "") << "the same scene and lighting, another camera: admitted";
+  EXPECT_EQ(jobs.submit(frame(3)).error, "") << "the same scene and lighting, another camera: admitted";
   jobs.shutdown();
   fs::remove_all(dir);
 }
