@@ -22,9 +22,7 @@ using namespace std::chrono_literals;
 class MasterWindowFlags : public ::testing::Test {
  protected:
   void SetUp() override {
-    // The build tree's epr-master (this test's binary lives in BUILD/tests/client).
-    bin_ = (fs::read_symlink("/proc/self/exe").parent_path().parent_path().parent_path() / "master" / "epr-master")
-               .string();
+    bin_ = testing::binary("master", "epr-master");
     ASSERT_TRUE(fs::exists(bin_)) << bin_ << " not built";
     dir_ = fs::temp_directory_path() / ("epr-window-flags-" + std::to_string(::getpid()) + "-" +
                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
