@@ -6,7 +6,7 @@
 
 namespace epr {
 
-ViewProbe view_probe(const Scene& scene, const CameraSpec& spec, int width, int height) {
+ViewProbe view_probe(const Scene& scene, const CameraSpec& spec, int width, int height, GlContext* gl) {
   const double aspect = double(std::max(width, 1)) / double(std::max(height, 1));
   int w = kViewProbeSide, h = kViewProbeSide;
   if (aspect >= 1)
@@ -14,7 +14,7 @@ ViewProbe view_probe(const Scene& scene, const CameraSpec& spec, int width, int 
   else
     w = std::clamp(int(std::lround(kViewProbeSide * aspect)), 1, kViewProbeSide);
   ViewProbe p{Camera(spec, w, h), {}};
-  p.view = build_deep_framebuffer_cpu(scene, p.camera, 1);
+  p.view = gl ? build_deep_framebuffer_gl(*gl, scene, p.camera, 1) : build_deep_framebuffer_cpu(scene, p.camera, 1);
   return p;
 }
 

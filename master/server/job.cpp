@@ -1,9 +1,5 @@
 #include "master/server/job.h"
 
-#include <tuple>
-
-#include "master/server/window_run.h"
-
 namespace epr {
 
 bool Job::end(JobState final_state, std::string why, int64_t now_ms) {
@@ -54,7 +50,8 @@ JobSnapshot Job::snapshot(int64_t now_ms) const {
   s.budget_exhausted = budget_exhausted;
   s.version = version;
   s.batch = request.batch;
-  if (run) std::tie(s.fed_by_first, s.fed_by_last) = run->fed_by(request.batch.frame.value_or(0));
+  s.fed_by_first = fed_by_first;
+  s.fed_by_last = fed_by_last;
   return s;
 }
 
@@ -89,14 +86,11 @@ void Job::add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t no
     // The frames that fed it (a cut stops the window) and how much its view shares with the
     // neighbouring frames' (null at the run's ends or without a measurement).
     if (run) {
-      const uint32_t f = b.frame.value_or(0);
-      const auto [first, last] = run->fed_by(f);
-      const auto [before, after] = run->shares_of(f);
       auto share = [](double x) { return x < 0 ? nlohmann::json(nullptr) : nlohmann::json(x); };
-      w.update({{"fed_by_first", first},
-                {"fed_by_last", last},
-                {"view_share_previous", share(before)},
-                {"view_share_next", share(after)}});
+      w.update({{"fed_by_first", fed_by_first},
+                {"fed_by_last", fed_by_last},
+                {"view_share_previous", share(view_share_previous)},
+                {"view_share_next", share(view_share_next)}});
     }
   }
 }

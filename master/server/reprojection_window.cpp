@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <chrono>
 #include <set>
+#include <tuple>
 
 #include "common/log.h"
 #include "master/server/checkpoint.h"
@@ -42,7 +43,12 @@ void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& fram
         j->counts = {};
         j->round = 0;
       }
-    for (const auto& j : frames) j->run = run;
+    for (const auto& j : frames) {
+      j->run = run;
+      const uint32_t f = j->request.batch.frame.value_or(0);
+      std::tie(j->fed_by_first, j->fed_by_last) = run->fed_by(f);
+      std::tie(j->view_share_previous, j->view_share_next) = run->shares_of(f);
+    }
   }
   if (frames.size() < run_length(b))
     log->warn(
@@ -81,7 +87,7 @@ std::shared_ptr<const Scene> ReprojectionWorker::measure_cuts(const std::shared_
   const RenderOptions& o = first->request.options;
   const auto start = std::chrono::steady_clock::now();
   std::vector<ViewProbe> probes;
-  for (const auto& c : cameras) probes.push_back(view_probe(*scene, c.second, o.width, o.height));
+  for (const auto& c : cameras) probes.push_back(view_probe(*scene, c.second, o.width, o.height, gl_.get()));
   std::string shares;
   for (size_t i = 0; i + 1 < probes.size(); ++i) {
     run->measured.push_back(cameras[i].first);
