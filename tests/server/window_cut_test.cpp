@@ -57,6 +57,15 @@ JobRequest cut_frame(uint32_t frame, uint32_t window, uint32_t first = 1, uint32
   return req;
 }
 
+// A master without checkpoints whose budget holds every frame at once (the default cut share).
+MasterOptions options(const fs::path& dir) {
+  MasterOptions o;
+  o.state_dir = dir.string();
+  o.checkpoints = false;
+  o.memory_budget_bytes = uint64_t(1) << 40;
+  return o;
+}
+
 struct Rendered {
   JobImages images;
   nlohmann::json stats;  // the statistics file
@@ -65,10 +74,7 @@ struct Rendered {
 /// Renders the requests on one master (budget for all at once, MasterOptions' default cut share).
 std::vector<Rendered> render(const std::vector<JobRequest>& reqs, int workers = 1) {
   const fs::path dir = test::fresh_dir("epr-window-cut-test", "render");
-  MasterOptions o;
-  o.state_dir = dir.string();
-  o.checkpoints = false;
-  o.memory_budget_bytes = uint64_t(1) << 40;
+  const MasterOptions o = options(dir);
   std::vector<Rendered> out;
   {
     JobManager jobs(o);
@@ -153,10 +159,7 @@ TEST(WindowCut, CountsWithACutAreTheSameForOneAndThreeWorkers) {
 TEST(WindowCut, ALeaseCarriesTheCamerasOfItsSideOfTheCutOnly) {
   // TileLease.window_cameras: the worker keeps a vertex one of them shows; across the cut none.
   const fs::path dir = test::fresh_dir("epr-window-cut-test", "lease");
-  MasterOptions o;
-  o.state_dir = dir.string();
-  o.checkpoints = false;
-  o.memory_budget_bytes = uint64_t(1) << 40;
+  const MasterOptions o = options(dir);
   {
     JobManager jobs(o);
     const std::vector<JobRequest> reqs = frames(1, 4, 3, 1, 4);
@@ -192,10 +195,7 @@ TEST(WindowStillScene, AFrameWithAnotherSceneOrLightIsRefusedNamingIt) {
   // A window run renders one still scene: a frame whose scene file differs (an object moved: the
   // exporter wrote another file) or whose job lighting differs is refused, naming what differs.
   const fs::path dir = test::fresh_dir("epr-window-cut-test", "still");
-  MasterOptions o;
-  o.state_dir = dir.string();
-  o.checkpoints = false;
-  o.memory_budget_bytes = uint64_t(1) << 40;
+  const MasterOptions o = options(dir);
   JobManager jobs(o);
   const SceneBundleData box = bundle_scene(std::string(EPR_SOURCE_DIR) + "/scenes/cornell-box/CornellBox-Original.obj",
                                            {}, "", BundleLoad::kUpload);
