@@ -19,6 +19,8 @@ Scenes (Blender's Z-up coordinates, metres):
               metallicRoughnessTexture), under a sky colour and a sun.
   interior    a closed room (4 x 5 x 2.6 m) lit only through a window opening in one wall by a
               sun and a blue sky: a glossy floor, a table with a metal bowl on it.
+  sponza      scenes/crytek-sponza/Sponza.gltf through Blender's glTF importer (its camera and
+              Principled BSDFs), the courtyard HDRI as the World and sponza.json's sun.
 """
 
 import argparse
@@ -232,7 +234,30 @@ def build_interior(folder):
     camera((-1.7, -2.3, 1.5), (0.6, 0.6, 0.9), 60)
 
 
-SCENES = {"principled": build_principled, "objects": build_objects, "interior": build_interior}
+def build_sponza(folder):
+    """The repository's Crytek Sponza as Blender imports its glTF (its camera, Principled BSDFs from the
+    importer), lit as scenes/crytek-sponza/sponza.json lights it: the courtyard HDRI and a sun."""
+    import numpy
+
+    if "bool" not in vars(numpy):  # Debian's numpy lacks numpy.bool, which the importer uses
+        numpy.bool = bool
+    sponza = os.path.join(HERE, "..", "scenes", "crytek-sponza")
+    bpy.ops.import_scene.gltf(filepath=os.path.join(sponza, "Sponza.gltf"))
+    scene = bpy.context.scene
+    scene.camera = next(o for o in scene.objects if o.type == "CAMERA")
+    w = bpy.data.worlds.new("World")
+    w.use_nodes = True
+    env = w.node_tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = bpy.data.images.load(os.path.join(sponza, "courtyard.exr"))
+    w.node_tree.links.new(env.outputs["Color"], w.node_tree.nodes["Background"].inputs["Color"])
+    scene.world = w
+    # sponza.json's sun: towards it (0.25, 1.0, 0.15) in glTF's y-up axes, (x, -z, y) in Blender's
+    towards = Vector((0.25, -0.15, 1.0))
+    lamp("SUN", "Sun", tuple(towards), target=(0, 0, 0), energy=5.0, angle=math.radians(0.53))
+
+
+SCENES = {"principled": build_principled, "objects": build_objects, "interior": build_interior,
+          "sponza": build_sponza}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -415,9 +415,12 @@ TileLeaseInfo JobManager::grant(Job& job, const std::string& worker, const Lease
   info.seed = job.request.options.seed;
   info.options = job.request.options;
   info.camera = job.request.camera;
+  // Every frame of the run within K, whatever its state: which of them have started or ended when a
+  // lease goes out is a matter of timing (a run's frames start one after another, a round's frames
+  // close one after another), and what the worker culls must not be, or M' would be too.
   if (job.run)
     for (const auto& g : job.run->neighbours(job.request.batch.frame.value_or(0)))
-      if (g->state == JobState::kRunning) info.window_cameras.push_back(g->request.camera);
+      info.window_cameras.push_back(g->request.camera);
   info.codec_bounds = job.codec_bounds;
   info.scene_hash = job.scene_hash;
   info.scene_builtin = job.bundle->builtin;

@@ -46,12 +46,40 @@ def _image(node, what: str, problems: List[str]) -> None:
         problems.append(f"{_label(mapping)} in front of {_label(node)} is ignored (texture transforms are)")
 
 
+def _constant(socket) -> bool:
+    """Whether the exporter reads SOCKET as a constant: unlinked, or fed by a Value or RGB node."""
+    node = _source(socket)
+    return node is None or node.type in ("VALUE", "RGB")
+
+
+def _past_factor(node):
+    """The node behind a multiply by a constant, which Blender's glTF exporter writes as the factor
+    (metallicFactor, baseColorFactor, ...) of the texture behind it, as its importer builds them: a
+    Math node (multiply) for values, a Mix node (colour, multiply, factor 1) for colours. NODE itself
+    when it is no such node."""
+    if node.type == "MATH" and node.operation == "MULTIPLY":
+        pair = node.inputs[0], node.inputs[1]
+    elif node.type == "MIX" and node.data_type == "RGBA" and node.blend_type == "MULTIPLY":
+        factor = node.inputs[0]
+        if factor.is_linked or abs(factor.default_value - 1.0) > 1e-6:
+            return node
+        pair = node.inputs[6], node.inputs[7]
+    else:
+        return node
+    linked = [s for s in pair if not _constant(s)]
+    if len(linked) != 1:
+        return node
+    behind = _source(linked[0])
+    return behind if behind is not None else node
+
+
 def _texture_input(principled, name: str, problems: List[str], through_separate: bool = False) -> None:
     """An input the exporter writes as a value or an image (through a Separate Color node for metallic
-    and roughness)."""
+    and roughness), times a constant factor."""
     node = _source(principled.inputs[name])
     if node is None:
         return
+    node = _past_factor(node)
     if through_separate and node.type in LEGACY_SEPARATE:
         problems.append(
             f"{_label(node)} feeding {name} is exported as the image's red channel (use a Separate Color node)"

@@ -4,9 +4,10 @@
     blender -b --factory-startup --python tests/client/blender/material_warnings.py
 
 Objects with a plain Principled BSDF, one with an image texture, a normal map and metallic-roughness
-through Separate Color (all exported: no warning), and materials whose nodes the farm does not render
+through Separate Color, one with the factor nodes Blender's glTF importer adds (all exported: no
+warning), and materials whose nodes the farm does not render
 (subsurface, clearcoat and an alpha in blend mode Opaque, a Bump node, a procedural base colour, a
-legacy Separate RGB node, a Glossy BSDF on the output, a world-space normal map; and a material no
+legacy Separate RGB node, a Glossy BSDF on the output, a world-space normal map, a sum feeding Metallic; and a material no
 object uses) must give one warning for each rendered material at fault, naming the material and each
 node or input, and none for the rest. Exits 1 on a failure."""
 
@@ -91,9 +92,34 @@ class MaterialWarningsTest(unittest.TestCase):
         nmap.space = "WORLD"
         tree.links.new(image_node(tree, "wn", folder).outputs["Color"], nmap.inputs["Color"])
         tree.links.new(nmap.outputs["Normal"], p.inputs["Normal"])
+        # As Blender's glTF importer builds a material with factors: baseColorFactor x the image through
+        # a Mix node (multiply), metallicFactor and roughnessFactor x the channels through Math nodes.
+        imported, tree, p = material("Imported")
+        mix = tree.nodes.new("ShaderNodeMix")
+        mix.data_type, mix.blend_type = "RGBA", "MULTIPLY"
+        mix.inputs["Factor"].default_value = 1.0
+        mix.inputs[7].default_value = (0.8, 0.5, 0.2, 1.0)
+        tree.links.new(image_node(tree, "colour2", folder).outputs["Color"], mix.inputs[6])
+        tree.links.new(mix.outputs[2], p.inputs["Base Color"])
+        sep = tree.nodes.new("ShaderNodeSeparateColor")
+        tree.links.new(image_node(tree, "mr3", folder).outputs["Color"], sep.inputs["Color"])
+        for channel, name, factor in (("Blue", "Metallic", 0.5), ("Green", "Roughness", 0.9)):
+            times = tree.nodes.new("ShaderNodeMath")
+            times.operation = "MULTIPLY"
+            times.inputs[1].default_value = factor
+            tree.links.new(sep.outputs[channel], times.inputs[0])
+            tree.links.new(times.outputs[0], p.inputs[name])
+        # A sum is no factor: the exporter leaves the texture out.
+        offset, tree, p = material("Offset")
+        plus = tree.nodes.new("ShaderNodeMath")
+        plus.name, plus.operation = "MyAdd", "ADD"
+        sep = tree.nodes.new("ShaderNodeSeparateColor")
+        tree.links.new(image_node(tree, "mr4", folder).outputs["Color"], sep.inputs["Color"])
+        tree.links.new(sep.outputs["Blue"], plus.inputs[0])
+        tree.links.new(plus.outputs[0], p.inputs["Metallic"])
         unused, _, p = material("Unused")
         p.inputs["Sheen"].default_value = 1.0
-        for i, mat in enumerate((plain, textured, skin, bumpy, legacy, glossy, world_normals)):
+        for i, mat in enumerate((plain, textured, skin, bumpy, legacy, glossy, world_normals, imported, offset)):
             cube(mat.name + "Cube", mat, i)
         bpy.context.view_layer.update()
         cls.warnings = export.scene_warnings(bpy.context.scene, bpy.context.evaluated_depsgraph_get())
@@ -103,7 +129,7 @@ class MaterialWarningsTest(unittest.TestCase):
             cls.by_material.setdefault(name, []).append(w)
 
     def test_one_warning_per_material_at_fault(self):
-        self.assertEqual(sorted(self.by_material), ["Bumpy", "Legacy", "Shiny", "Skin", "WorldNormals"], self.warnings)
+        self.assertEqual(sorted(self.by_material), ["Bumpy", "Legacy", "Offset", "Shiny", "Skin", "WorldNormals"], self.warnings)
         for name, warnings in self.by_material.items():
             self.assertEqual(len(warnings), 1, warnings)
             self.assertTrue(warnings[0].startswith(f"material '{name}': "), warnings[0])
@@ -123,6 +149,7 @@ class MaterialWarningsTest(unittest.TestCase):
             self.by_material["Legacy"][0],
         )
         self.assertIn("node 'MyNormalMap' (Normal Map): world space is ignored", self.by_material["WorldNormals"][0])
+        self.assertIn("node 'MyAdd' (Math) feeding Metallic is not exported", self.by_material["Offset"][0])
 
 
 if __name__ == "__main__":
