@@ -7,6 +7,7 @@ local farm, for independent frames (skip, K = 0), the plain path tracer and fram
         [--scene scenes/conference-flythrough.json --frames 1-12 --width 160 --height 90]
         [--spp 4,8,16,32 --ref-spp 1024 --windows 1,2,4,8 --rr albedo]
         [--variants scenes/conference-cut.json:19-30,scenes/conference-fast.json:1-12] [--strip docs/x.png]
+        [--master-args '--window-cut-share 0']
 
 Every render is one batch on a fresh local farm, an epr-master (loopback, its own --state-dir) and
 one epr-worker (--threads, default 2), submitted by the eprfarm Python client of the build
@@ -28,7 +29,9 @@ Ratios against a baseline curve (log-log interpolation between its points; none 
 error at equal CPU (x's error / the baseline's error at x's CPU seconds) and CPU at equal error
 (x's CPU / the baseline's CPU at x's error). Variants (a cut between shots, fast motion) repeat the
 skip and window runs; the cost of a variant is its window's gain over skip against the main scene's.
-Writes OUT/csv/TAG_CONFIG.csv (spp, cpu_s, rel_mse, rel_mse_trim, worst frame), OUT/summary.md, with
+Writes OUT/csv/TAG_CONFIG.csv (spp, cpu_s, rel_mse, rel_mse_trim, worst frame), OUT/csv/TAG_CONFIG_frames.csv
+(per spp and frame: its errors, the frames that fed it and its view's share with the next frame's,
+from its statistics file; DESIGN.md "Frame windows"), OUT/summary.md, with
 --charts DIR the error-against-CPU charts and with --strip PNG a strip of frames.
 """
 
@@ -80,7 +83,7 @@ class Farm:
         self.folder, self.seconds, self.parts = folder, 0.0, [0.0, 0.0]
         os.makedirs(folder, exist_ok=True)
         self.master = self._start([a.master, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0", "--state-dir",
-                                  os.path.join(folder, "state")],
+                                  os.path.join(folder, "state")] + a.master_args.split(),
                                   "master.log")  # fmt: skip
         end = time.monotonic() + 120
         while not (m := re.search(r"listening on port ([0-9]+)", self._log("master.log"))):
@@ -190,13 +193,21 @@ def references(a, scene, frames_text, frames):
     return refs, folder
 
 
-def errors(prefix, frames, refs):
-    """Mean over frames of relMSE (full, trimmed), and the worst frame's trimmed one."""
+def errors(prefix, frames, refs, per_frame=None):
+    """Mean over frames of relMSE (full, trimmed), and the worst frame's trimmed one. `per_frame`, a
+    list: gets (frame, relMSE, trimmed, fed_by_first, fed_by_last, view_share_next) of each frame
+    (the window fields from its statistics file, empty without a window)."""
     full, trim = [], []
     for frame, (ref, floor) in zip(frames, refs):
         e = garden.errors(read(f"{prefix}.{frame:04d}.exr"), ref, floor)
         full.append(e[0])
         trim.append(e[1])
+        if per_frame is not None:
+            with open(f"{prefix}.{frame:04d}.json") as f:
+                w = json.load(f).get("frame_window", {})
+            share = w.get("view_share_next")
+            per_frame.append((frame, e[0], e[1], w.get("fed_by_first", ""), w.get("fed_by_last", ""),
+                              "" if share is None else f"{share:.3f}"))  # fmt: skip
     return float(np.mean(full)), float(np.mean(trim)), float(np.max(trim))
 
 
@@ -244,12 +255,14 @@ def sweep(a, scene, frames_text, configs, tag):
         return out, "(as measured)"
     refs, ref_folder = references(a, scene, frames_text, frames)
     for name, mode, window, rr, *extra in configs:
-        rows = []
+        rows, per_frame = [], []
         for spp in a.spp:
             prefix = os.path.join(a.out, "img", tag, f"{name}_{spp}", "f")
             os.makedirs(os.path.dirname(prefix), exist_ok=True)
             cpu, *parts = render(a, scene, frames_text, mode, spp, 1, prefix, window, rr, *extra)
-            rows.append((spp, cpu, *errors(prefix, frames, refs), *parts))
+            frame_rows = []
+            rows.append((spp, cpu, *errors(prefix, frames, refs, frame_rows), *parts))
+            per_frame += [(spp, *r) for r in frame_rows]
             print(f"{tag} {name} spp {spp}: {cpu:.1f} CPU-s, relMSE {rows[-1][2]:.4g}, trimmed {rows[-1][3]:.4g}",
                   flush=True)  # fmt: skip
         out[name] = rows
@@ -257,6 +270,10 @@ def sweep(a, scene, frames_text, configs, tag):
             f.write("spp,cpu_s,rel_mse,rel_mse_trim,worst_frame_trim,master_cpu_s,worker_cpu_s\n")
             for r in rows:
                 f.write("%d,%.3f,%.6g,%.6g,%.6g,%.3f,%.3f\n" % r)
+        with open(os.path.join(a.out, "csv", f"{tag}_{name}_frames.csv"), "w") as f:
+            f.write("spp,frame,rel_mse,rel_mse_trim,fed_by_first,fed_by_last,view_share_next\n")
+            for r in per_frame:
+                f.write("%d,%d,%.6g,%.6g,%s,%s,%s\n" % r)
     return out, ref_folder
 
 
@@ -327,6 +344,7 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--variants", default=",".join(os.path.join(ROOT, "scenes", v) for v in
                                                    ("conference-cut.json:19-30", "conference-fast.json:1-12")))  # fmt: skip
+    ap.add_argument("--master-args", default="", help="more epr-master flags, e.g. '--window-cut-share 0'")
     ap.add_argument("--from-csv", action="store_true", help="render nothing: the tables and charts of OUT/csv")
     ap.add_argument("--charts", help="folder for the charts (gnuplot): frame_window_TAG.png and _full.png")
     ap.add_argument("--strip", help="PNG: six frames, reference above and the widest window (else skip) at the "

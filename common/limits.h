@@ -36,6 +36,10 @@ inline constexpr Range<double> kEpsilon{"--epsilon", 0, 1};
 /// frames a master renders together, window_first..window_last).
 inline constexpr Range<int> kFrameWindow{"--frame-window", 0, 16};
 inline constexpr Range<int> kWindowRunFrames{"--window-run", 1, 64};
+/// epr-master's: seconds a run waits for its frames before it starts with those there, and the share
+/// of neighbouring frames' views below which they are cut apart (0: never).
+inline constexpr Range<double> kWindowRunWaitSeconds{"--window-run-wait", 0, 86400};
+inline constexpr Range<double> kWindowCutShare{"--window-cut-share", 0, 1};
 /// Job, batch and worker names are at most this many bytes (UTF-8).
 inline constexpr size_t kMaxNameBytes = 256;
 /// The deep framebuffer's subpixels (width x height x S^2) at most, and its texels per axis

@@ -1,7 +1,10 @@
 // epr-master: the reprojection master of an eprfarm cluster. SIGTERM or SIGINT drains it (the open
 // rounds finish and are checkpointed, no new one opens; JobManager::drain_and_checkpoint, at most
 // --drain-timeout) and then stops it with exit code 0; a second signal cuts the drain short.
+#include <fmt/format.h>
+
 #include <CLI/CLI.hpp>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <optional>
@@ -9,6 +12,7 @@
 #include <thread>
 
 #include "common/address.h"
+#include "common/limits.h"
 #include "common/log.h"
 #include "master/memory_estimate.h"
 #include "master/server/master_name.h"
@@ -126,6 +130,28 @@ int main(int argc, char** argv) {
                  "worker crashed or vanished), rather than crash worker after worker (0: never)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  // Frame windows (DESIGN.md "Frame windows"), ranges in common/limits.h.
+  auto in_range = [](const epr::Range<double>& r) {
+    return [r](const std::string& v) -> std::string {
+      try {
+        size_t used = 0;
+        const double x = std::stod(v, &used);
+        if (used == v.size()) return r.check(x).value_or("");
+      } catch (const std::exception&) {
+      }
+      return fmt::format("{}: expected a number, got '{}'", r.what, v);
+    };
+  };
+  double window_run_wait_s = o.jobs.window_run_wait_ms / 1000.0;
+  app.add_option("--window-run-wait", window_run_wait_s,
+                 "seconds a window run waits for all its frames to be queued before it starts with those there")
+      ->check(in_range(epr::limits::kWindowRunWaitSeconds))
+      ->capture_default_str();
+  app.add_option("--window-cut-share", o.jobs.window_cut_share,
+                 "a window never spans a cut: neighbouring frames of a run whose views share less than this "
+                 "fraction exchange no vertices, nor do frames on either side of them (0: no cuts)")
+      ->check(in_range(epr::limits::kWindowCutShare))
+      ->capture_default_str();
   std::string token_file;
   app.add_option("--token-file", token_file,
                  "file holding the bearer token clients and workers must send (else $EPR_TOKEN; none: no check)");
@@ -138,6 +164,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   epr::set_log_level(log_level);
   o.jobs.checkpoint_interval_s = *checkpoint_interval_seconds(checkpoint_interval);
+  o.jobs.window_run_wait_ms = int(std::lround(window_run_wait_s * 1000));
   o.jobs.memory_budget_bytes = memory_budget.empty()  ? epr::default_memory_budget()
                                : memory_budget == "0" ? 0
                                                       : *epr::parse_byte_size(memory_budget);
@@ -171,6 +198,8 @@ int main(int argc, char** argv) {
     epr::MasterServer server(o);
     std::fprintf(stderr, "epr-master listening on port %d\n", server.port());
     std::fprintf(stderr, "master name: %s (job ids %s.j...)\n", o.jobs.name.c_str(), o.jobs.name.c_str());
+    std::fprintf(stderr, "window runs: wait %g s for their frames; a cut where neighbouring views share under %g\n",
+                 o.jobs.window_run_wait_ms / 1000.0, o.jobs.window_cut_share);
     if (server.http_port()) std::fprintf(stderr, "dashboard: %s\n", server.dashboard_url().c_str());
     while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
     if (drain_timeout_s > 0)

@@ -50,6 +50,8 @@ JobSnapshot Job::snapshot(int64_t now_ms) const {
   s.budget_exhausted = budget_exhausted;
   s.version = version;
   s.batch = request.batch;
+  s.fed_by_first = fed_by_first;
+  s.fed_by_last = fed_by_last;
   return s;
 }
 
@@ -78,11 +80,22 @@ void Job::add_statistics(nlohmann::json* stats, const JobCounters& c, int64_t no
                  {"budget_exhausted", budget_exhausted}});
   // A frame rendered in a window run says so: its window and the run it was rendered with.
   const BatchMembership& b = request.batch;
-  if (b.window > 0)
-    (*stats)["frame_window"] = {{"k", b.window},
-                                {"window_first", b.window_first},
-                                {"window_last", b.window_last},
-                                {"halving", b.window_halving}};
+  if (b.window > 0) {
+    nlohmann::json& w = (*stats)["frame_window"];
+    w = {{"k", b.window},
+         {"window_first", b.window_first},
+         {"window_last", b.window_last},
+         {"halving", b.window_halving}};
+    // The frames that fed it (a cut stops the window) and how much its view shares with the
+    // neighbouring frames' (null at the run's ends or without a measurement).
+    if (run) {
+      auto share = [](double x) { return x < 0 ? nlohmann::json(nullptr) : nlohmann::json(x); };
+      w.update({{"fed_by_first", fed_by_first},
+                {"fed_by_last", fed_by_last},
+                {"view_share_previous", share(view_share_previous)},
+                {"view_share_next", share(view_share_next)}});
+    }
+  }
 }
 
 }  // namespace epr

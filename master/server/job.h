@@ -85,6 +85,9 @@ struct JobSnapshot {
   bool budget_exhausted = false;
   uint64_t version = 0;  // increases with every change
   BatchMembership batch;
+  // A window job's window as rendered once its run started (WindowRun::fed_by): the first and last
+  // frame whose vertices feed it; 0, 0 before.
+  uint32_t fed_by_first = 0, fed_by_last = 0;
 };
 
 struct Job {
@@ -151,6 +154,11 @@ struct Job {
   PreviewState preview EPR_GUARDED_BY(job_fields);
   // A window job's run (window_run.h), from its start on: the frames started with it, itself included.
   std::shared_ptr<const WindowRun> run EPR_GUARDED_BY(job_fields);
+  // Its window as rendered, set with `run` (WindowRun::fed_by, shares_of): the first and last frame
+  // whose vertices feed it (0, 0 before), and its view's share with the frames before and after it
+  // (-1: none).
+  uint32_t fed_by_first EPR_GUARDED_BY(job_fields) = 0, fed_by_last EPR_GUARDED_BY(job_fields) = 0;
+  double view_share_previous EPR_GUARDED_BY(job_fields) = -1, view_share_next EPR_GUARDED_BY(job_fields) = -1;
 
   /// The terminal transition, made once: false (and nothing changes) if the job had ended already.
   bool end(JobState final_state, std::string why, int64_t now_ms) EPR_REQUIRES(job_fields);

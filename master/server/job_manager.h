@@ -122,6 +122,10 @@ struct MasterOptions {
   // A window run (window_run.h) starts once all its frames are queued, or once its oldest queued
   // frame has waited this long: then with the frames that are here (the log says which are missing).
   int window_run_wait_ms = 60000;
+  // A window never spans a cut (DESIGN.md "Frame windows"): where two neighbouring frames' views
+  // share less than this (view_overlap.h, the smaller of the two fractions), no frame on one side
+  // exchanges vertices with a frame on the other. 0: no cuts.
+  double window_cut_share = 0.1;
 
   // Called on the reprojection thread just before a job's frame is built (a fresh job's round 0 is
   // open by then, a resumed job's not yet), with the job's id; what it throws fails the job as a

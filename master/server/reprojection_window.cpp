@@ -6,11 +6,15 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <chrono>
 #include <set>
+#include <tuple>
 
 #include "common/log.h"
 #include "master/server/checkpoint.h"
 #include "master/server/reprojection_worker.h"
+#include "master/view_overlap.h"
+#include "wire/scene_bundle.h"
 
 namespace epr {
 
@@ -23,6 +27,8 @@ void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& fram
   std::string frame_list;
   for (const auto& j : frames)
     frame_list += fmt::format("{}{}", frame_list.empty() ? "" : ",", *j->request.batch.frame);
+  // Held until the frames have started: they take the same scene from the shelf.
+  const std::shared_ptr<const Scene> scene = measure_cuts(frames.front(), run.get());
   std::set<int> rounds;
   {
     JobLock lock(m_.mu_);
@@ -37,7 +43,12 @@ void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& fram
         j->counts = {};
         j->round = 0;
       }
-    for (const auto& j : frames) j->run = run;
+    for (const auto& j : frames) {
+      j->run = run;
+      const uint32_t f = j->request.batch.frame.value_or(0);
+      std::tie(j->fed_by_first, j->fed_by_last) = run->fed_by(f);
+      std::tie(j->view_share_previous, j->view_share_next) = run->shares_of(f);
+    }
   }
   if (frames.size() < run_length(b))
     log->warn(
@@ -51,6 +62,51 @@ void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& fram
   log->info("window run {}..{} of batch {} (K = {}) starting: frames {}", b.window_first, b.window_last, b.id, b.window,
             frame_list);
   for (const auto& j : frames) start_or_fail(j);
+}
+
+std::shared_ptr<const Scene> ReprojectionWorker::measure_cuts(const std::shared_ptr<Job>& first, WindowRun* run) {
+  const BatchMembership& b = first->request.batch;
+  const double below = m_.options_.window_cut_share;
+  if (below <= 0) return nullptr;
+  // Every frame of the run this master has, ended ones too: a run started again after a restart
+  // measures the same pairs as before, whichever of its frames finished meanwhile.
+  std::vector<std::pair<uint32_t, CameraSpec>> cameras;
+  {
+    JobLock lock(m_.mu_);
+    for (const auto& [id, j] : m_.jobs_.all())
+      if (same_run(j->request.batch, b)) cameras.emplace_back(j->request.batch.frame.value_or(0), j->request.camera);
+  }
+  std::sort(cameras.begin(), cameras.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+  if (cameras.size() < 2) return nullptr;
+  std::shared_ptr<const Scene> scene;
+  try {
+    scene = share_bundle_scene(*first->bundle, first->scene_hash, m_.cache_dir(), first->request.options.lighting);
+  } catch (const std::exception&) {
+    return nullptr;  // the frames fail to start with the reason
+  }
+  const RenderOptions& o = first->request.options;
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<ViewProbe> probes;
+  for (const auto& c : cameras) probes.push_back(view_probe(*scene, c.second, o.width, o.height, gl_.get()));
+  std::string shares;
+  for (size_t i = 0; i + 1 < probes.size(); ++i) {
+    run->measured.push_back(cameras[i].first);
+    run->share.push_back(mutual_view_share(probes[i], probes[i + 1]));
+    run->cut.push_back(run->share.back() < below);
+    shares +=
+        fmt::format("{}{}-{} {:.0f} %", i ? ", " : "", cameras[i].first, cameras[i + 1].first, 100 * run->share.back());
+  }
+  run->measured.push_back(cameras.back().first);
+  auto log = logger("master");
+  log->info("window run {}..{} of batch {}: neighbouring frames' views share {} (measured in {:.2f} s)", b.window_first,
+            b.window_last, b.id, shares,
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  for (size_t i = 0; i < run->cut.size(); ++i)
+    if (run->cut[i])
+      log->info("window run {}..{} of batch {}: a cut between frames {} and {} (views share {:.0f} %, below {:.0f} %)",
+                b.window_first, b.window_last, b.id, run->measured[i], run->measured[i + 1], 100 * run->share[i],
+                100 * below);
+  return scene;
 }
 
 void ReprojectionWorker::reproject_into_neighbours(const Job& job, const std::vector<const AssembledTile*>& tiles) {

@@ -78,6 +78,10 @@ class ReprojectionWorker {
   /// Starts a window run's frames (`frames`, in frame order) together: they continue from one round
   /// (their checkpoints agree) or all start again from round 0.
   void start_run(const std::vector<std::shared_ptr<Job>>& frames) EPR_EXCLUDES(m_.mu_);
+  /// `run`'s cuts (WindowRun::measured, share, cut): the views of each pair of neighbouring frames
+  /// of the run (`first`'s) that this master has, against MasterOptions::window_cut_share. Returns
+  /// the scene it loaded (null if it measured nothing).
+  std::shared_ptr<const Scene> measure_cuts(const std::shared_ptr<Job>& first, WindowRun* run) EPR_EXCLUDES(m_.mu_);
   /// Reprojects the vertices of `tiles`, committed for `job`'s current round, into the frames of its
   /// run within its window that are in the same round.
   void reproject_into_neighbours(const Job& job, const std::vector<const AssembledTile*>& tiles) EPR_EXCLUDES(m_.mu_);

@@ -14,11 +14,36 @@
 
 namespace epr {
 
+bool WindowRun::cut_between(uint32_t a, uint32_t b) const {
+  if (a > b) std::swap(a, b);
+  for (size_t i = 0; i < cut.size(); ++i)
+    if (cut[i] && measured[i] >= a && measured[i + 1] <= b) return true;
+  return false;
+}
+
 std::vector<std::shared_ptr<Job>> WindowRun::neighbours(uint32_t frame) const {
   std::vector<std::shared_ptr<Job>> out;
   for (const auto& j : frames) {
     const uint32_t g = j->request.batch.frame.value_or(0);
-    if (g != frame && (g > frame ? g - frame : frame - g) <= window) out.push_back(j);
+    if (g != frame && (g > frame ? g - frame : frame - g) <= window && !cut_between(frame, g)) out.push_back(j);
+  }
+  return out;
+}
+
+std::pair<uint32_t, uint32_t> WindowRun::fed_by(uint32_t frame) const {
+  std::pair<uint32_t, uint32_t> out{frame, frame};
+  for (const auto& j : neighbours(frame)) {
+    const uint32_t g = j->request.batch.frame.value_or(0);
+    out = {std::min(out.first, g), std::max(out.second, g)};
+  }
+  return out;
+}
+
+std::pair<double, double> WindowRun::shares_of(uint32_t frame) const {
+  std::pair<double, double> out{-1, -1};
+  for (size_t i = 0; i < share.size(); ++i) {
+    if (measured[i + 1] == frame) out.first = share[i];
+    if (measured[i] == frame) out.second = share[i];
   }
   return out;
 }
@@ -88,8 +113,10 @@ std::optional<std::string> run_mismatch(const JobRequest& r, const std::string& 
     return fmt::format("frame {} of window run {}..{} of batch {} is already on this master (job {})", frame,
                        r.batch.window_first, r.batch.window_last, r.batch.id, member.id);
   if (scene_hash != member.scene_hash)
-    return fmt::format("frame {}: its scene differs from frame {}'s (job {}): a window run renders one scene", frame,
-                       other, member.id);
+    return fmt::format(
+        "frame {}: its scene (content hash {:.12}) differs from frame {}'s ({:.12}, job {}): a window run renders one "
+        "still scene (only the camera moves)",
+        frame, scene_hash, other, member.scene_hash, member.id);
   // Every setting but the camera and the seed (frames trace paths of their own): the specs as the
   // wire carries them, without camera, seed and scene.
   auto settings = [](const JobRequest& q) {

@@ -10,6 +10,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "master/server/job.h"
@@ -23,8 +24,21 @@ class JobSpec;
 struct WindowRun {
   std::vector<std::shared_ptr<Job>> frames;
   uint32_t window = 0;  // K
-  /// The frames of the run within K frames of `frame` (number), other than it.
+  // Cuts (DESIGN.md "Frame windows"): the run's frames this master has (ended ones too), in frame
+  // order; per pair of neighbours among them (measured[i], measured[i + 1]) how much their views
+  // share (view_overlap.h) and whether that is a cut. Empty: not measured, no cut.
+  std::vector<uint32_t> measured;
+  std::vector<double> share;
+  std::vector<uint8_t> cut;
+  /// The frames of the run within K frames of `frame` (number), other than it, with no cut between.
   std::vector<std::shared_ptr<Job>> neighbours(uint32_t frame) const;
+  /// The first and last frame number of `frame`'s window as it is rendered: `frame` and its
+  /// neighbours() (frames that ended later included).
+  std::pair<uint32_t, uint32_t> fed_by(uint32_t frame) const;
+  /// True if a cut lies between frames a and b.
+  bool cut_between(uint32_t a, uint32_t b) const;
+  /// The shares of `frame`'s views with the measured frames before and after it; -1 where there is none.
+  std::pair<double, double> shares_of(uint32_t frame) const;
 };
 
 /// The batch fields of a JobSpec (batch_id, batch_name, frame, batch_frames, frame_window,

@@ -153,6 +153,11 @@ TEST(JobJson, ABatchFrameNamesItsBatchAndWindow) {
   EXPECT_EQ(b["frame_window"], 2);
   EXPECT_EQ(b["window_first"], 1);
   EXPECT_EQ(b["window_last"], 16);
+  EXPECT_EQ(b["fed_by_first"], 0) << "before its run starts";
+  s.fed_by_first = 5;
+  s.fed_by_last = 9;  // a cut after frame 9
+  EXPECT_EQ(to_json(s)["batch"]["fed_by_first"], 5);
+  EXPECT_EQ(to_json(s)["batch"]["fed_by_last"], 9);
 }
 
 }  // namespace
