@@ -12,6 +12,7 @@
 #include "master/server/job_manager.h"
 #include "tests/server/in_process_worker.h"
 #include "tests/server/job_images.h"
+#include "tests/server/render_jobs.h"
 #include "wire/scene_bundle.h"
 
 namespace epr {
@@ -66,42 +67,12 @@ MasterOptions options(const fs::path& dir) {
   return o;
 }
 
-struct Rendered {
-  JobImages images;
-  nlohmann::json stats;  // the statistics file
-};
+using Rendered = test::RenderedJob;
 
 /// Renders the requests on one master (budget for all at once, MasterOptions' default cut share).
 std::vector<Rendered> render(const std::vector<JobRequest>& reqs, int workers = 1) {
   const fs::path dir = test::fresh_dir("epr-window-cut-test", "render");
-  const MasterOptions o = options(dir);
-  std::vector<Rendered> out;
-  {
-    JobManager jobs(o);
-    std::vector<std::string> ids;
-    for (const auto& r : reqs) {
-      const auto s = jobs.submit(r);
-      EXPECT_EQ(s.error, "");
-      ids.push_back(s.id);
-    }
-    std::vector<std::unique_ptr<JobsWorker>> ws;
-    std::vector<JobsWorker*> raw;
-    for (int i = 0; i < workers; ++i) {
-      ws.push_back(std::make_unique<JobsWorker>(jobs, "w" + std::to_string(i)));
-      raw.push_back(ws.back().get());
-    }
-    trace_until(jobs, raw, ids);
-    for (const auto& id : ids) {
-      Rendered r{results_of(jobs, id), {}};
-      const auto path = jobs.result_path(id, ResultKind::kJson);
-      EXPECT_TRUE(path);
-      if (path) {
-        std::ifstream in(*path);
-        r.stats = nlohmann::json::parse(in);
-      }
-      out.push_back(std::move(r));
-    }
-  }
+  std::vector<Rendered> out = test::render_jobs(options(dir), reqs, workers);
   fs::remove_all(dir);
   return out;
 }

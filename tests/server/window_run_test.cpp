@@ -20,6 +20,7 @@
 #include "master/server/job_manager.h"
 #include "tests/server/in_process_worker.h"
 #include "tests/server/job_images.h"
+#include "tests/server/render_jobs.h"
 
 namespace epr {
 namespace window_test {
@@ -71,38 +72,20 @@ std::vector<JobImages> render(const std::vector<JobRequest>& reqs, int workers =
   o.checkpoints = false;
   o.memory_budget_bytes = uint64_t(1) << 40;
   std::vector<JobImages> out;
-  {
-    JobManager jobs(o);
-    std::vector<std::string> ids;
-    for (const auto& r : reqs) {
-      const auto s = jobs.submit(r);
-      EXPECT_EQ(s.error, "");
-      ids.push_back(s.id);
-    }
-    std::vector<std::unique_ptr<JobsWorker>> ws;
-    std::vector<JobsWorker*> raw;
-    for (int i = 0; i < workers; ++i) {
-      ws.push_back(std::make_unique<JobsWorker>(jobs, "w" + std::to_string(i)));
-      raw.push_back(ws.back().get());
-    }
-    trace_until(jobs, raw, ids);
-    for (size_t i = 0; i < ids.size(); ++i) {
-      out.push_back(results_of(jobs, ids[i]));
-      // The statistics file names the frame's window and run (absent without one).
-      const auto path = jobs.result_path(ids[i], ResultKind::kJson);
-      EXPECT_TRUE(path);
-      if (!path) continue;
-      std::ifstream in(*path);
-      const nlohmann::json stats = nlohmann::json::parse(in);
-      if (area_weighted) area_weighted->push_back(stats.at("area_weighted_pixels").get<size_t>());
-      const BatchMembership& b = reqs[i].batch;
-      EXPECT_EQ(stats.contains("frame_window"), b.window > 0) << *path;
-      if (b.window > 0 && stats.contains("frame_window")) {
-        EXPECT_EQ(stats["frame_window"].at("k").get<uint32_t>(), b.window);
-        EXPECT_EQ(stats["frame_window"].at("window_first").get<uint32_t>(), b.window_first);
-        EXPECT_EQ(stats["frame_window"].at("window_last").get<uint32_t>(), b.window_last);
-        EXPECT_EQ(stats["frame_window"].at("halving").get<float>(), b.window_halving);
-      }
+  std::vector<test::RenderedJob> rendered = test::render_jobs(o, reqs, workers);
+  for (size_t i = 0; i < rendered.size(); ++i) {
+    const nlohmann::json& stats = rendered[i].stats;
+    out.push_back(std::move(rendered[i].images));
+    if (stats.is_null()) continue;
+    if (area_weighted) area_weighted->push_back(stats.at("area_weighted_pixels").get<size_t>());
+    // The statistics file names the frame's window and run (absent without one).
+    const BatchMembership& b = reqs[i].batch;
+    EXPECT_EQ(stats.contains("frame_window"), b.window > 0) << reqs[i].name;
+    if (b.window > 0 && stats.contains("frame_window")) {
+      EXPECT_EQ(stats["frame_window"].at("k").get<uint32_t>(), b.window);
+      EXPECT_EQ(stats["frame_window"].at("window_first").get<uint32_t>(), b.window_first);
+      EXPECT_EQ(stats["frame_window"].at("window_last").get<uint32_t>(), b.window_last);
+      EXPECT_EQ(stats["frame_window"].at("halving").get<float>(), b.window_halving);
     }
   }
   fs::remove_all(dir);

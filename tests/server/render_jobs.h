@@ -1,0 +1,57 @@
+// Whole renders on a JobManager in the test process: submit jobs, trace them with in-process workers
+// until they end, and read back each job's images and statistics file (window_run_test.cpp,
+// window_cut_test.cpp).
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "master/server/job_manager.h"
+#include "tests/server/in_process_worker.h"
+#include "tests/server/job_images.h"
+
+namespace epr::test {
+
+struct RenderedJob {
+  JobImages images;
+  nlohmann::json stats;  // the job's statistics file (null when it has none)
+};
+
+/// Submits `reqs` to a JobManager with options `o`, traces them with `workers` in-process workers until
+/// every job has ended, and returns each job's images and statistics, in the requests' order.
+inline std::vector<RenderedJob> render_jobs(const MasterOptions& o, const std::vector<JobRequest>& reqs,
+                                            int workers = 1) {
+  JobManager jobs(o);
+  std::vector<std::string> ids;
+  for (const auto& r : reqs) {
+    const auto s = jobs.submit(r);
+    EXPECT_EQ(s.error, "");
+    ids.push_back(s.id);
+  }
+  std::vector<std::unique_ptr<JobsWorker>> ws;
+  std::vector<JobsWorker*> raw;
+  for (int i = 0; i < workers; ++i) {
+    ws.push_back(std::make_unique<JobsWorker>(jobs, "w" + std::to_string(i)));
+    raw.push_back(ws.back().get());
+  }
+  trace_until(jobs, raw, ids);
+  std::vector<RenderedJob> out;
+  for (const auto& id : ids) {
+    RenderedJob r{results_of(jobs, id), {}};
+    const auto path = jobs.result_path(id, ResultKind::kJson);
+    EXPECT_TRUE(path) << "job " << id << " has no statistics file";
+    if (path) {
+      std::ifstream in(*path);
+      r.stats = nlohmann::json::parse(in);
+    }
+    out.push_back(std::move(r));
+  }
+  return out;
+}
+
+}  // namespace epr::test
