@@ -19,11 +19,21 @@ where the best pt is the pt mode with the lowest median error x CPU; the ratio i
 seeds of the per-seed ratios against that pt's run of the same seed (side by side, so load drifts
 cancel). The image mean's offset from the reference (luminance, %) with the standard error of the
 per-pixel differences. OUT/runs.csv holds every run.
+
+With --cycles ARGS (one scene only: scripts/cycles_reference.py's scene flags, e.g. "--gltf FILE
+--env SKY --sun X,Y,Z,ANGLE,E") and --cycles-camera FILE (--eye= --look= --up= --fov=, the scene's
+camera), Blender Cycles is a baseline too: scripts/cycles_sweep.py renders every P once per seed (its
+CPU seconds per render call: scene sync and BVH included, Blender's start and the import not), scored
+against Cycles' own converged image (cycles_reference.py at --ref-spp / 2, seeds 1 and 2, its noise
+subtracted the same way), so each renderer is measured against itself and the two models' small
+differences do not count as error. Its row gives the median error x CPU as a multiple of the best
+pt's, and every mode's ratio to Cycles' is printed below the table.
 """
 
 import argparse
 import csv
 import os
+import shlex
 import statistics
 import sys
 
@@ -31,6 +41,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import garden_error_time as garden  # noqa: E402  (read, run, children_cpu, errors, terms)
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -70,6 +82,39 @@ def reference(a, scene):
     return ref, floor
 
 
+def blender(a, script, args, log):
+    garden.run([a.blender, "-b", "--factory-startup", "-noaudio", "-P", os.path.join(ROOT, "scripts", script), "--",
+                "--width", str(a.width), "--height", str(a.height), "--threads", str(a.threads), *args], log)  # fmt: skip
+
+
+def cycles_runs(a, spps, seeds):
+    """{P: [(seed, cpu, full, trimmed), ...]} for Cycles against its own reference."""
+    folder = os.path.join(a.out, "cycles")
+    os.makedirs(folder, exist_ok=True)
+    scene = shlex.split(a.cycles)
+    with open(a.cycles_camera, encoding="utf-8") as f:
+        camera = shlex.split(f.read())
+    halves = []
+    for s in (1, 2):
+        out = os.path.join(folder, f"ref_{a.width}x{a.height}_{a.ref_spp}_{s}.exr")
+        if not os.path.exists(out):
+            blender(a, "cycles_reference.py", [*scene, *camera, "--spp", str(a.ref_spp // 2), "--seed", str(s),
+                                               "--out", out], out + ".log")  # fmt: skip
+        halves.append(garden.read(out))
+    ref = (halves[0] + halves[1]) / 2
+    floor = ((halves[0] - halves[1]) ** 2 / 4 / (ref**2 + 0.01)).mean(axis=2).ravel()
+    runs = {}
+    for seed in seeds:
+        sweep = os.path.join(folder, f"sweep_{seed}")
+        blender(a, "cycles_sweep.py", [*scene, "--camera", a.cycles_camera, "--spp", ",".join(map(str, spps)),
+                                       "--seed", str(seed), "--outdir", sweep], sweep + ".log")  # fmt: skip
+        with open(os.path.join(sweep, "times.csv"), newline="") as f:
+            for row in csv.DictReader(f):
+                full, trimmed = garden.errors(garden.read(os.path.join(sweep, row["file"])), ref, floor)
+                runs.setdefault(int(row["spp"]), []).append((seed, float(row["cpu_s"]), full, trimmed))
+    return runs
+
+
 def mean_offset(x, ref):
     d = (x - ref) @ LUMA
     r = (ref @ LUMA).mean()
@@ -88,12 +133,18 @@ def main():
     ap.add_argument("--modes", nargs="+", default=["pt:rr=reuse", "pt:rr=albedo", "skip"])
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--cycles", help="Cycles as a baseline too: cycles_reference.py's scene flags (one scene only)")
+    ap.add_argument("--cycles-camera", help="with --cycles: a file of --eye= --look= --up= --fov=")
+    ap.add_argument("--blender", default="blender")
     a = ap.parse_args()
+    if a.cycles and (len(a.scene) != 1 or not a.cycles_camera):
+        raise SystemExit("--cycles needs exactly one --scene and --cycles-camera")
     if not any(m.startswith("pt") for m in a.modes):
         raise SystemExit("--modes needs at least one pt mode: the best pt is the baseline")
     spps = [int(s) for s in a.spp.split(",")]
     seeds = [int(s) for s in a.seeds.split(",")]
     os.makedirs(os.path.join(a.out, "img"), exist_ok=True)
+    cycles = cycles_runs(a, spps, seeds) if a.cycles else {}
     rows = []
     lines = [f"load average at start {os.getloadavg()[0]:.1f}; {a.width} x {a.height}, seeds {a.seeds}, "
              f"reference {a.ref_spp} spp", ""]  # fmt: skip
@@ -122,8 +173,23 @@ def main():
                 lines.append(f"| {mode} | {med(mode, 1):.2f} | {med(mode, 2):.5f} | {med(mode, 3):.5f} | "
                              f"{ratio[0]:.2f} / {ratio[1]:.2f} | {med(mode, 4):+.2f} % (sigma "
                              f"{med(mode, 5):.2f} %) |")  # fmt: skip
+            shown = len(a.modes) + 5
+            if spp in cycles:
+                by_seed = {r[0]: r for r in cycles[spp]}
+                pairs = lambda mode: [(r, by_seed[r[0]]) for r in runs[mode] if r[0] in by_seed]  # noqa: E731
+                c = cycles[spp]
+                lines.append(f"| Cycles | {statistics.median(r[1] for r in c):.2f} | "
+                             f"{statistics.median(r[2] for r in c):.5f} | {statistics.median(r[3] for r in c):.5f} | "
+                             + " / ".join(f"{statistics.median(y[1] * y[i] / (b[1] * b[i]) for b, y in pairs(best)):.2f}"
+                                          for i in (2, 3)) + " | (against its own reference) |")  # fmt: skip
+                lines.append("")
+                lines.append("Each mode's error x CPU as a multiple of Cycles' (full / trimmed): " + "; ".join(
+                    f"{mode} " + " / ".join(f"{statistics.median(r[1] * r[i] / (y[1] * y[i]) for r, y in pairs(mode)):.2f}"
+                                            for i in (2, 3)) for mode in a.modes))  # fmt: skip
+                shown += 3
+                rows += [["cycles", spp, "cycles", r[0], f"{r[1]:.3f}", f"{r[2]:.6g}", f"{r[3]:.6g}", ""] for r in c]
             lines.append("")
-            print("\n".join(lines[-len(a.modes) - 5 :]), flush=True)
+            print("\n".join(lines[-shown:]), flush=True)
     with open(os.path.join(a.out, "runs.csv"), "w", newline="") as f:
         csv.writer(f).writerows([["scene", "spp", "mode", "seed", "cpu_s", "relmse", "trimmed", "offset_pct"], *rows])
     with open(os.path.join(a.out, "summary.md"), "w") as f:
