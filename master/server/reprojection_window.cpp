@@ -209,10 +209,38 @@ bool ReprojectionWorker::drain_stops(const Job& job, uint32_t round) {
   return round >= *rr.drain;
 }
 
+bool ReprojectionWorker::neighbours_through(const WindowRun& run, const Job& g, int64_t round) const {
+  for (const auto& n : run.neighbours(g.request.batch.frame.value_or(0)))
+    // A frame that ended left the run.
+    if (n->state == JobState::kRunning && (n->remaining == 0 ? int64_t(n->round) : int64_t(n->round) - 1) < round)
+      return false;
+  return true;
+}
+
 bool ReprojectionWorker::advance_frame(const std::shared_ptr<const WindowRun>& run, const std::shared_ptr<Job>& g) {
   auto it = renders_.find(g->id);
   if (it == renders_.end() || !it->second.driver) return false;
   Render& render = it->second;
+  if (render.checkpoint) {
+    // The checkpoint after round r: once the neighbours' rounds r are in, the frame holds its own
+    // rounds 0..r and theirs, the state a restart resumes from (with the skip mask of its close of r).
+    {
+      JobLock lock(m_.mu_);
+      if (g->state != JobState::kRunning || !neighbours_through(*run, *g, render.checkpoint_round)) return false;
+    }
+    flush_deferred(render, render.checkpoint_round);
+    JobProgressRecord record = std::move(*render.checkpoint);
+    render.checkpoint.reset();
+    save_round_checkpoint(g, std::move(record), /*due=*/true);
+    std::vector<const AssembledTile*> tiles;
+    for (const auto& batch : render.own) {
+      tiles.clear();
+      for (const auto& t : *batch) tiles.push_back(&t->tile);
+      render.driver->apply(tiles);
+    }
+    render.own.clear();
+    return true;
+  }
   const bool held = render.held.has_value();
   uint32_t round;
   int64_t need;  // the neighbours' rounds that must be in the frame first: up to this one
@@ -222,15 +250,10 @@ bool ReprojectionWorker::advance_frame(const std::shared_ptr<const WindowRun>& r
     if (!held && (!g->round_open || g->remaining > 0)) return false;  // its own tiles are still to come
     round = g->round;
     // Round r closes with the neighbours' rounds up to r - 1; the last round with theirs up to r, and
-    // a round's checkpoint (or drain) waits for them too: what the frame holds then is the state a
-    // restart resumes from.
+    // a drain's stop after r waits for them too.
     const bool last = int64_t(round) + 1 >= rounds_planned(g->request.options);
     need = held || last ? int64_t(round) : int64_t(round) - 1;
-    for (const auto& n : run->neighbours(g->request.batch.frame.value_or(0))) {
-      // A frame that ended left the run.
-      if (n->state == JobState::kRunning && (n->remaining == 0 ? int64_t(n->round) : int64_t(n->round) - 1) < need)
-        return false;
-    }
+    if (!neighbours_through(*run, *g, need)) return false;
   }
   flush_deferred(render, need);
   if (held) {
@@ -241,9 +264,9 @@ bool ReprojectionWorker::advance_frame(const std::shared_ptr<const WindowRun>& r
   }
   if (m_.options_.before_round_close) m_.options_.before_round_close(g->id, round);
   std::optional<ClosedRound> closed = end_round(g);
-  if (!closed) return true;  // it finished
+  if (!closed) return true;       // it finished
   flush_deferred(render, round);  // the neighbours' round r counts from now on
-  bool hold;
+  bool checkpoint, drain;
   {
     JobLock lock(m_.mu_);
     // One checkpoint decision per round of the run, by the first frame to close it, so that the
@@ -253,12 +276,18 @@ bool ReprojectionWorker::advance_frame(const std::shared_ptr<const WindowRun>& r
       rr.closed = round;
       if (m_.checkpointer_ && checkpoint_due(*g)) rr.checkpoint.insert(round);
     }
-    hold = rr.checkpoint.count(round) > 0 || drain_stops(*g, round);
+    checkpoint = rr.checkpoint.count(round) > 0;
+    drain = drain_stops(*g, round);
   }
-  if (hold)
-    render.held = std::move(*closed);
-  else
-    open_next_round(g, std::move(*closed), /*checkpoint=*/false, /*may_drain=*/false);
+  if (drain) {
+    render.held = std::move(*closed);  // no next round: the drain's checkpoint once the neighbours' round is in
+    return true;
+  }
+  if (checkpoint) {
+    render.checkpoint = closed->checkpoint;
+    render.checkpoint_round = round;
+  }
+  open_next_round(g, std::move(*closed), /*checkpoint=*/false, /*may_drain=*/false);
   return true;
 }
 

@@ -283,7 +283,12 @@ void ReprojectionWorker::apply_commits(std::shared_ptr<const Batch> shared) {
   std::vector<const AssembledTile*> tiles;
   tiles.reserve(batch.size());
   for (const auto& t : batch) tiles.push_back(&t->tile);
-  render.driver->apply(tiles);
+  // A window frame whose checkpoint waits for its neighbours' round keeps its own next round's tiles
+  // until it is written (reprojection_window.cpp).
+  if (render.checkpoint)
+    render.own.push_back(shared);
+  else
+    render.driver->apply(tiles);
   reproject_into_neighbours(job, batch.front()->round, shared);
   ++batches_applied_;
   tiles_applied_ += tiles.size();

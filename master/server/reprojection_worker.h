@@ -63,10 +63,15 @@ class ReprojectionWorker {
     std::unique_ptr<Camera> camera;
     std::unique_ptr<RoundDriver> driver;  // null until the job's frame is built
     int64_t counts_ms = 0;                // when the job's `counts` were last refreshed from the reprojector
-    // A window frame: its neighbours' tiles of rounds it has not closed yet; and a closed round whose
-    // next round waits for the run's checkpoint (or the drain) of it (reprojection_window.cpp).
+    // A window frame (reprojection_window.cpp): its neighbours' tiles of rounds it has not closed
+    // yet; a closed round whose next round a drain keeps shut until its neighbours' tiles of it are
+    // in (`held`); and the record of a checkpoint after round `checkpoint_round` waiting for them,
+    // the next round open meanwhile and its own tiles waiting to be applied (`own`).
     std::vector<Deferred> deferred;
     std::optional<ClosedRound> held;
+    std::optional<JobProgressRecord> checkpoint;
+    uint32_t checkpoint_round = 0;
+    std::vector<std::shared_ptr<const Batch>> own;
   };
   /// A window run's decisions that its frames, closing their rounds one by one, share: the rounds
   /// after which they checkpoint, the highest round closed so far, and where a drain stops them.
@@ -126,6 +131,8 @@ class ReprojectionWorker {
   /// Closes every round of `run`'s frames that may close (the rule in reprojection_window.cpp), and
   /// lets the rounds held for a checkpoint go on, until none can.
   void advance_run(const std::shared_ptr<const WindowRun>& run) EPR_EXCLUDES(m_.mu_);
+  /// True if every running neighbour of `g` in `run` has applied its tiles of rounds up to `round`.
+  bool neighbours_through(const WindowRun& run, const Job& g, int64_t round) const EPR_REQUIRES(job_fields);
   /// One step of advance_run() for frame `g`; false if it can take none.
   bool advance_frame(const std::shared_ptr<const WindowRun>& run, const std::shared_ptr<Job>& g) EPR_EXCLUDES(m_.mu_);
   /// True if a draining master stops `job`'s run after `round`: the highest round any running frame of
