@@ -51,10 +51,7 @@ JobRequest frame_request(uint32_t frame) {
 }
 
 MasterOptions options(const fs::path& dir) {
-  MasterOptions o;
-  o.state_dir = dir.string();
-  o.checkpoints = false;
-  o.memory_budget_bytes = uint64_t(1) << 40;
+  MasterOptions o = test::all_frames_at_once(dir);
   o.lease_timeout_ms = 600000;  // the held tiles' leases stay theirs
   return o;
 }
