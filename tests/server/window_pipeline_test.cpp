@@ -58,6 +58,18 @@ MasterOptions options(const fs::path& dir) {
   return o;
 }
 
+// Traces the jobs `ids` to their end and checks each frame's M, M' and path sums against `undisturbed`'s.
+void finish_and_compare(JobManager& jobs, test::JobsWorker* w, const std::vector<std::string>& ids,
+                        const std::vector<test::RenderedJob>& undisturbed) {
+  test::trace_until(jobs, {w}, ids);
+  for (size_t f = 0; f < ids.size(); ++f) {
+    SCOPED_TRACE("frame " + std::to_string(f + 1));
+    const test::JobImages r = test::results_of(jobs, ids[f]);
+    EXPECT_EQ(r.counts.data, undisturbed[f].images.counts.data) << "M and M'";
+    EXPECT_EQ(r.pathtrace.data, undisturbed[f].images.pathtrace.data) << "path sums";
+  }
+}
+
 TEST(WindowPipeline, FramesCloseRoundsWhileANeighboursRoundIsHeldBackAndCountTheSame) {
   std::vector<JobRequest> run;
   for (uint32_t f = 1; f <= kFrames; ++f) run.push_back(frame_request(f));
@@ -97,13 +109,7 @@ TEST(WindowPipeline, FramesCloseRoundsWhileANeighboursRoundIsHeldBackAndCountThe
     // The held tiles go in, and the run ends: every frame's M, M' and path sums are those of the
     // undisturbed render's, whose frames went nearly in step.
     for (const auto& l : held) EXPECT_TRUE(w.submit(l));
-    test::trace_until(jobs, {&w}, ids);
-    for (size_t f = 0; f < ids.size(); ++f) {
-      SCOPED_TRACE("frame " + std::to_string(f + 1));
-      const test::JobImages r = test::results_of(jobs, ids[f]);
-      EXPECT_EQ(r.counts.data, undisturbed[f].images.counts.data) << "M and M'";
-      EXPECT_EQ(r.pathtrace.data, undisturbed[f].images.pathtrace.data) << "path sums";
-    }
+    finish_and_compare(jobs, &w, ids, undisturbed);
   }
   fs::remove_all(dir);
 }
@@ -166,13 +172,7 @@ TEST(WindowPipeline, ADrainStopsARunsFramesAfterOneRoundAndARestartResumesThemWi
     EXPECT_GE(round, 8) << "from the drain's checkpoints after frame 1's open round at least, not round 0";
     for (const auto& id : ids) EXPECT_EQ(jobs.get(id)->progress.round, round) << "every frame at one round";
     test::JobsWorker w(jobs);
-    test::trace_until(jobs, {&w}, ids);
-    for (size_t f = 0; f < ids.size(); ++f) {
-      SCOPED_TRACE("frame " + std::to_string(f + 1));
-      const test::JobImages r = test::results_of(jobs, ids[f]);
-      EXPECT_EQ(r.counts.data, undisturbed[f].images.counts.data) << "M and M'";
-      EXPECT_EQ(r.pathtrace.data, undisturbed[f].images.pathtrace.data) << "path sums";
-    }
+    finish_and_compare(jobs, &w, ids, undisturbed);
   }
   fs::remove_all(dir);
 }
