@@ -601,6 +601,19 @@ std::optional<JobProgressRecord> CheckpointStore::load_progress(const std::strin
   return std::nullopt;
 }
 
+std::optional<JobProgressRecord> CheckpointStore::load_progress_after(const std::string& id, int round) const {
+  for (const char* name : {"progress.ckpt", "progress.prev.ckpt"}) {
+    const fs::path path = job_dir(id) / name;
+    if (!fs::exists(path)) continue;
+    try {
+      JobProgressRecord r = read_progress(path, nullptr);
+      if (r.frame && r.progress.round == round) return r;
+    } catch (const CheckpointError&) {
+    }
+  }
+  return std::nullopt;
+}
+
 std::vector<CheckpointStore::LoadedJob> CheckpointStore::load_jobs(std::vector<std::string>* problems) const {
   MutexLock lock(mu_);
   std::vector<LoadedJob> out;

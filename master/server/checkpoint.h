@@ -153,6 +153,8 @@ class CheckpointStore {
   std::vector<LoadedJob> load_jobs(std::vector<std::string>* problems) const EPR_EXCLUDES(mu_);
   /// A job's newest valid progress checkpoint (falling back to the previous one).
   std::optional<JobProgressRecord> load_progress(const std::string& id, std::vector<std::string>* problems) const;
+  /// A job's valid progress checkpoint after `round` rounds (the newest or the previous one), if it has one.
+  std::optional<JobProgressRecord> load_progress_after(const std::string& id, int round) const;
 
  private:
   const std::filesystem::path dir_;

@@ -65,6 +65,7 @@ bool ReprojectionWorker::checkpoint_for_drain(const std::shared_ptr<Job>& job, J
   {
     JobLock lock(m_.mu_);
     if (!m_.draining_) return false;
+    if (job->run && !drain_stops(*job, job->round)) return false;  // its window run stops at a later round
     job->last_checkpoint_ms = 0;  // taken whatever the interval: the state a restart resumes from
     round = job->round;
   }

@@ -3,10 +3,12 @@
 // lease comes from (priority, then fewest leases out, then round robin), which parked lease calls are
 // answered first, and the tiles waiting that /metrics exports.
 #include <algorithm>
+#include <map>
 #include <set>
 
 #include "master/memory_estimate.h"
 #include "master/server/job_manager.h"
+#include "master/server/window_run.h"
 
 namespace epr {
 
@@ -72,8 +74,23 @@ LeaseDecision JobManager::decide_lease(const std::string& worker, bool* parkable
     }
     offer.push_back(job.get());
   }
-  std::sort(offer.begin(), offer.end(), [](const Job* a, const Job* b) EPR_REQUIRES(job_fields) {
+  // A window frame's rounds behind the furthest of its run's running frames: those behind first, so
+  // that the frames whose rounds the others' closes wait for are traced first.
+  std::map<const Job*, uint32_t> behind;
+  for (const Job* job : offer)
+    if (job->run) {
+      uint32_t top = job->round;
+      for (const auto& g : job->run->frames)
+        if (g->state == JobState::kRunning) top = std::max(top, g->round);
+      behind[job] = top - job->round;
+    }
+  std::sort(offer.begin(), offer.end(), [&behind](const Job* a, const Job* b) EPR_REQUIRES(job_fields) {
     if (a->request.priority != b->request.priority) return a->request.priority > b->request.priority;
+    const auto lag = [&](const Job* j) {
+      auto it = behind.find(j);
+      return it == behind.end() ? 0u : it->second;
+    };
+    if (lag(a) != lag(b)) return lag(a) > lag(b);
     if (a->leases->out() != b->leases->out()) return a->leases->out() < b->leases->out();
     return a->leases->last_lease() < b->leases->last_lease();
   });

@@ -94,7 +94,7 @@ void ReprojectionWorker::do_work(RenderWork& work) {
       return start_or_fail(job);
     case RenderWork::Kind::kApply:
       try {
-        apply_commits(work.batch);
+        apply_commits(std::make_shared<const Batch>(std::move(work.batch)));
       } catch (const std::exception& e) {
         log->error("job {}: commit failed: {}", job->id, e.what());
         m_.end_job(job, JobState::kFailed, e.what());
@@ -169,16 +169,13 @@ void ReprojectionWorker::drop_job(const std::shared_ptr<Job>& job) {
   m_.copy_cv_.notify_all();
   renders_.erase(job->id);
   m_.notify(job);
-  // A frame that leaves its window run may be the one the others' round waited for.
+  // A frame that leaves its window run may be the one the others' rounds waited for.
   std::shared_ptr<const WindowRun> run;
-  uint32_t round = 0;
   {
     JobLock lock(m_.mu_);
     run = job->run;
-    for (const auto& g : run ? run->frames : std::vector<std::shared_ptr<Job>>{})
-      if (g->state == JobState::kRunning) round = std::max(round, g->round);
   }
-  if (run) close_in_step(*run, round);
+  if (run) advance_run(run);
 }
 
 void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
@@ -273,9 +270,10 @@ bool ReprojectionWorker::begin_running(const std::shared_ptr<Job>& job, const Jo
   return true;
 }
 
-void ReprojectionWorker::apply_commits(const std::vector<std::unique_ptr<Task>>& batch) {
+void ReprojectionWorker::apply_commits(std::shared_ptr<const Batch> shared) {
   // One job and round (reprojection_loop), every tile of them still to apply: the round closes after
   // the batch that holds its last tile.
+  const Batch& batch = *shared;
   Job& job = *batch.front()->job;
   {
     JobLock lock(m_.mu_);
@@ -285,8 +283,13 @@ void ReprojectionWorker::apply_commits(const std::vector<std::unique_ptr<Task>>&
   std::vector<const AssembledTile*> tiles;
   tiles.reserve(batch.size());
   for (const auto& t : batch) tiles.push_back(&t->tile);
-  render.driver->apply(tiles);
-  reproject_into_neighbours(job, tiles);
+  // A window frame whose checkpoint waits for its neighbours' round keeps its own next round's tiles
+  // until it is written (reprojection_window.cpp).
+  if (render.checkpoint)
+    render.own.push_back(shared);
+  else
+    render.driver->apply(tiles);
+  reproject_into_neighbours(job, batch.front()->round, shared);
   ++batches_applied_;
   tiles_applied_ += tiles.size();
   // The counts at most every 100 ms (and at the round's close): GL's counters are read back, which
@@ -310,19 +313,22 @@ void ReprojectionWorker::apply_commits(const std::vector<std::unique_ptr<Task>>&
     round_done = job.remaining == 0;
   }
   if (!round_done) return;
-  if (run) return close_in_step(*run, batch.front()->round);  // with the other frames of its run
+  if (run) return advance_run(run);  // by the rule of its run
   if (m_.options_.before_round_close) m_.options_.before_round_close(job.id, batch.front()->round);
   close_round(batch.front()->job);
 }
 
-void ReprojectionWorker::close_round(const std::shared_ptr<Job>& job, std::optional<bool> checkpoint_due) {
+void ReprojectionWorker::close_round(const std::shared_ptr<Job>& job) {
+  if (auto closed = end_round(job)) open_next_round(job, std::move(*closed), std::nullopt);
+}
+
+std::optional<ReprojectionWorker::ClosedRound> ReprojectionWorker::end_round(const std::shared_ptr<Job>& job) {
   const auto closing = std::chrono::steady_clock::now();
   RoundDriver& driver = *renders_.at(job->id).driver;
   FrameState& frame = driver.frame();
   const bool more = driver.close();
-  bool budget_over = false, want_preview;
-  JobProgressRecord checkpoint;
-  JobCounters at_close;
+  bool budget_over = false;
+  ClosedRound closed;
   {
     JobLock lock(m_.mu_);
     job->seconds_round_backlog += std::chrono::duration<double>(closing - job->last_commit_at).count();
@@ -337,22 +343,32 @@ void ReprojectionWorker::close_round(const std::shared_ptr<Job>& job, std::optio
       budget_over = double(now - job->started_ms) / 1000.0 >= *job->request.time_budget_seconds;
     // Renewed while someone asks (at most once a second); dropped once nobody has for a while.
     const bool watched = job->preview.asked_ms >= 0 && now - job->preview.asked_ms <= m_.options_.preview_interest_ms;
-    want_preview = watched && now - job->preview.last_ms >= 1000;
+    closed.want_preview = watched && now - job->preview.last_ms >= 1000;
     if (!watched) job->preview.images.reset();
-    checkpoint = progress_record(*job);  // the counters as of the round's end
-    at_close = job->counters;
+    closed.checkpoint = progress_record(*job);  // the counters as of the round's end
+    closed.at_close = job->counters;
+    job->seconds_round_closing += seconds_since(closing);
   }
   if (!more || budget_over) {
     finish_job(job, budget_over && more);
-    return;
+    return std::nullopt;
   }
-  if (checkpoint_for_drain(job, &checkpoint)) return;  // draining: no further round opens (job_drain.cpp)
+  return closed;
+}
+
+void ReprojectionWorker::open_next_round(const std::shared_ptr<Job>& job, ClosedRound closed,
+                                         std::optional<bool> checkpoint_due, bool may_drain) {
+  // Draining: no further round opens (job_drain.cpp).
+  if (may_drain && checkpoint_for_drain(job, &closed.checkpoint)) return;
+  const auto opening = std::chrono::steady_clock::now();
+  RoundDriver& driver = *renders_.at(job->id).driver;
+  FrameState& frame = driver.frame();
   {
     JobLock lock(m_.mu_);
     if (job->state != JobState::kRunning) return;
     ++job->round;
     m_.open_round(*job, driver.open(job->tiles), frame.seconds_reprojecting());
-    job->seconds_round_closing += seconds_since(closing);
+    job->seconds_round_closing += seconds_since(opening);
     m_.wake_parked(/*all=*/false);
   }
   m_.answer_due();
@@ -364,8 +380,9 @@ void ReprojectionWorker::close_round(const std::shared_ptr<Job>& job, std::optio
   // as long as this one took (at least the second), so copies take at most ~10 % of the thread. The
   // previews (downscaled, previews.h) and `epr get --partial` serve the latest copy; they say which
   // round it reflects.
-  if (want_preview) take_preview_copy(job, at_close);
-  save_round_checkpoint(job, std::move(checkpoint), checkpoint_due);  // the next round's tiles are traced meanwhile
+  if (closed.want_preview) take_preview_copy(job, closed.at_close);
+  save_round_checkpoint(job, std::move(closed.checkpoint),
+                        checkpoint_due);  // the next round's tiles are traced meanwhile
 }
 
 void ReprojectionWorker::take_preview_copy(const std::shared_ptr<Job>& job, const JobCounters& counters) {

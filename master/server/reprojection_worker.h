@@ -15,6 +15,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -22,6 +23,7 @@
 #include "common/check.h"
 #include "common/scene.h"
 #include "master/round_driver.h"
+#include "master/server/checkpoint.h"
 #include "master/server/job_manager.h"
 #include "master/server/window_run.h"
 
@@ -41,12 +43,42 @@ class ReprojectionWorker {
  private:
   using RenderWork = JobManager::RenderWork;
   using Task = JobManager::Task;
+  using Batch = std::vector<std::unique_ptr<Task>>;
+  /// What end_round() leaves for the next round's opening: the round's checkpoint record, the
+  /// counters as of its close, and whether a preview copy is wanted.
+  struct ClosedRound {
+    JobProgressRecord checkpoint;
+    JobCounters at_close;
+    bool want_preview = false;
+  };
+  /// A window neighbour's committed tiles of `round`, to be reprojected into this frame (with
+  /// `units` per sample) once the frame has closed that round (reprojection_window.cpp).
+  struct Deferred {
+    uint32_t round = 0, from_frame = 0, units = 1;
+    std::shared_ptr<const Batch> batch;
+  };
   /// What only this thread touches of a running job.
   struct Render {
     std::shared_ptr<const Scene> scene;  // shared with the process's other users (wire/scene_shelf.h)
     std::unique_ptr<Camera> camera;
     std::unique_ptr<RoundDriver> driver;  // null until the job's frame is built
     int64_t counts_ms = 0;                // when the job's `counts` were last refreshed from the reprojector
+    // A window frame (reprojection_window.cpp): its neighbours' tiles of rounds it has not closed
+    // yet; a closed round whose next round a drain keeps shut until its neighbours' tiles of it are
+    // in (`held`); and the record of a checkpoint after round `checkpoint_round` waiting for them,
+    // the next round open meanwhile and its own tiles waiting to be applied (`own`).
+    std::vector<Deferred> deferred;
+    std::optional<ClosedRound> held;
+    std::optional<JobProgressRecord> checkpoint;
+    uint32_t checkpoint_round = 0;
+    std::vector<std::shared_ptr<const Batch>> own;
+  };
+  /// A window run's decisions that its frames, closing their rounds one by one, share: the rounds
+  /// after which they checkpoint, the highest round closed so far, and where a drain stops them.
+  struct RunRounds {
+    std::set<uint32_t> checkpoint;
+    int64_t closed = -1;
+    std::optional<uint32_t> drain;
   };
 
   void do_work(RenderWork& work) EPR_EXCLUDES(m_.mu_);
@@ -61,10 +93,17 @@ class ReprojectionWorker {
   /// False if it was cancelled meanwhile.
   bool begin_running(const std::shared_ptr<Job>& job, const JobProgressRecord* resume) EPR_EXCLUDES(m_.mu_);
   /// Applies queued commits of one job and round, in commit order (RoundDriver::apply of a span).
-  void apply_commits(const std::vector<std::unique_ptr<Task>>& batch) EPR_EXCLUDES(m_.mu_);
-  /// `checkpoint`: whether the round's checkpoint is due (decided for a whole window run); unset: the
-  /// job's own checkpoint interval decides.
-  void close_round(const std::shared_ptr<Job>& job, std::optional<bool> checkpoint = {}) EPR_EXCLUDES(m_.mu_);
+  void apply_commits(std::shared_ptr<const Batch> batch) EPR_EXCLUDES(m_.mu_);
+  /// end_round(), then open_next_round() with the job's own checkpoint interval.
+  void close_round(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
+  /// Closes the job's round (M', skip mask, progress); finishes the job if no round is left or its
+  /// time budget is over (then nullopt).
+  std::optional<ClosedRound> end_round(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
+  /// After end_round(): a draining master's checkpoint instead (`may_drain`), or the next round opens;
+  /// then the preview copy and the round's checkpoint (`checkpoint`: whether it is due, decided for a
+  /// whole window run; unset: the job's own checkpoint interval decides).
+  void open_next_round(const std::shared_ptr<Job>& job, ClosedRound closed, std::optional<bool> checkpoint,
+                       bool may_drain = true) EPR_EXCLUDES(m_.mu_);
   void finish_job(const std::shared_ptr<Job>& job, bool budget_exhausted) EPR_EXCLUDES(m_.mu_);
   void drop_job(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
   /// Replaces the job's preview copy with one of its frame as it stands, with `counters`' statistics.
@@ -82,18 +121,31 @@ class ReprojectionWorker {
   /// of the run (`first`'s) that this master has, against MasterOptions::window_cut_share. Returns
   /// the scene it loaded (null if it measured nothing).
   std::shared_ptr<const Scene> measure_cuts(const std::shared_ptr<Job>& first, WindowRun* run) EPR_EXCLUDES(m_.mu_);
-  /// Reprojects the vertices of `tiles`, committed for `job`'s current round, into the frames of its
-  /// run within its window that are in the same round.
-  void reproject_into_neighbours(const Job& job, const std::vector<const AssembledTile*>& tiles) EPR_EXCLUDES(m_.mu_);
-  /// Closes `round` of every running frame of `run` at once, if each has all its tiles of it applied.
-  void close_in_step(const WindowRun& run, uint32_t round) EPR_EXCLUDES(m_.mu_);
+  /// Reprojects the vertices of `batch`, committed for `job`'s round `round`, into the frames of its
+  /// run within its window that have closed that round; defers them for the others.
+  void reproject_into_neighbours(const Job& job, uint32_t round, const std::shared_ptr<const Batch>& batch)
+      EPR_EXCLUDES(m_.mu_);
+  /// Reprojects `render`'s deferred tiles of rounds up to `through` into its frame, in (round, frame)
+  /// order, and lets go of them.
+  void flush_deferred(Render& render, int64_t through);
+  /// Closes every round of `run`'s frames that may close (the rule in reprojection_window.cpp), and
+  /// lets the rounds held for a checkpoint go on, until none can.
+  void advance_run(const std::shared_ptr<const WindowRun>& run) EPR_EXCLUDES(m_.mu_);
+  /// True if every running neighbour of `g` in `run` has applied its tiles of rounds up to `round`.
+  bool neighbours_through(const WindowRun& run, const Job& g, int64_t round) const EPR_REQUIRES(job_fields);
+  /// One step of advance_run() for frame `g`; false if it can take none.
+  bool advance_frame(const std::shared_ptr<const WindowRun>& run, const std::shared_ptr<Job>& g) EPR_EXCLUDES(m_.mu_);
+  /// True if a draining master stops `job`'s run after `round`: the highest round any running frame of
+  /// the run had open when the drain began (the first call that finds the master draining sets it).
+  bool drain_stops(const Job& job, uint32_t round) EPR_REQUIRES(m_.mu_, job_fields);
   /// close_round() of a job whose round closed while draining: checkpoints it (true) instead of
   /// letting the next round open (false: not draining). In job_drain.cpp.
   bool checkpoint_for_drain(const std::shared_ptr<Job>& job, JobProgressRecord* record) EPR_EXCLUDES(m_.mu_);
 
   JobManager& m_;
   std::unique_ptr<GlContext> gl_;
-  std::map<std::string, Render> renders_;  // by job id: the jobs this thread started and has not let go
+  std::map<std::string, Render> renders_;       // by job id: the jobs this thread started and has not let go
+  std::map<const WindowRun*, RunRounds> runs_;  // the window runs started, by their WindowRun
   // apply_commits() calls and the tiles they applied (for the log).
   uint64_t batches_applied_ = 0, tiles_applied_ = 0;
 };

@@ -1,9 +1,11 @@
 // Frame windows (DESIGN.md "Frame windows"): the frames window_first..window_last of a batch that
 // one master renders together, a "run". A run starts once all its frames are queued (or after
 // MasterOptions::window_run_wait_ms with those that are: the reason is logged), as one unit of the
-// memory budget; its rounds go in step (a round closes for every frame once every frame's tiles of
-// it are applied), and every vertex traced for frame f is also reprojected into the run's frames g
-// with |g - f| <= K. A frame that ends (done, cancelled, failed) leaves its run; the others go on.
+// memory budget; every vertex traced for frame f is also reprojected into the run's frames g with
+// |g - f| <= K, and each frame closes its own rounds: round r once its own tiles of r and its
+// neighbours' of r - 1 are applied (reprojection_window.cpp), so its M' after round r counts its own
+// rounds 0..r and its neighbours' 0..r-1. A frame that ends (done, cancelled, failed) leaves its run;
+// the others go on.
 #pragma once
 
 #include <cstdint>

@@ -1,10 +1,11 @@
 // Whole renders on a JobManager in the test process: submit jobs, trace them with in-process workers
 // until they end, and read back each job's images and statistics file (window_run_test.cpp,
-// window_cut_test.cpp).
+// window_cut_test.cpp, window_pipeline_test.cpp).
 #pragma once
 
 #include <gtest/gtest.h>
 
+#include <filesystem>
 #include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -21,6 +22,15 @@ struct RenderedJob {
   JobImages images;
   nlohmann::json stats;  // the job's statistics file (null when it has none)
 };
+
+/// A master in `dir` without checkpoints whose budget holds every frame of a window run at once.
+inline MasterOptions all_frames_at_once(const std::filesystem::path& dir) {
+  MasterOptions o;
+  o.state_dir = dir.string();
+  o.checkpoints = false;
+  o.memory_budget_bytes = uint64_t(1) << 40;
+  return o;
+}
 
 /// Submits `reqs` to a JobManager with options `o`, traces them with `workers` in-process workers until
 /// every job has ended, and returns each job's images and statistics, in the requests' order.

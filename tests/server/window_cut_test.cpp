@@ -59,13 +59,7 @@ JobRequest cut_frame(uint32_t frame, uint32_t window, uint32_t first = 1, uint32
 }
 
 // A master without checkpoints whose budget holds every frame at once (the default cut share).
-MasterOptions options(const fs::path& dir) {
-  MasterOptions o;
-  o.state_dir = dir.string();
-  o.checkpoints = false;
-  o.memory_budget_bytes = uint64_t(1) << 40;
-  return o;
-}
+MasterOptions options(const fs::path& dir) { return test::all_frames_at_once(dir); }
 
 using Rendered = test::RenderedJob;
 

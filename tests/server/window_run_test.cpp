@@ -325,17 +325,20 @@ TEST(WindowRun, AnIncompleteRunStartsAfterTheWaitAndACancelledFrameLeavesIt) {
     // Frame 3 never comes: the run starts after the wait, with frames 1 and 2.
     EXPECT_TRUE(poll_until(
         [&] { return jobs.get(f1)->state == JobState::kRunning && jobs.get(f2)->state == JobState::kRunning; }));
-    // Frame 1's tiles of round 0 are applied while frame 2's are out (leased, never sent): frame 1's
-    // round cannot close until frame 2 leaves the run by its cancellation; then frame 1 goes on alone.
+    // Frame 1's tiles of rounds 0 and 1 are applied while frame 2's are out (leased, never sent):
+    // frame 1 closes round 0 (its neighbours' round -1 is nothing), but its round 1 cannot close
+    // without frame 2's round 0, until frame 2 leaves the run by its cancellation; then frame 1 goes
+    // on alone.
     JobsWorker w(jobs);
     for (auto end = std::chrono::steady_clock::now() + 60s;
-         jobs.get(f1)->counters.tiles_committed < 4 && std::chrono::steady_clock::now() < end;) {
+         jobs.get(f1)->counters.tiles_committed < 8 && std::chrono::steady_clock::now() < end;) {
       auto l = w.lease();
       if (l && l->job_id == f1) w.submit(*l);
       if (!l) std::this_thread::sleep_for(1ms);
     }
-    ASSERT_EQ(jobs.get(f1)->counters.tiles_committed, 4u);
-    EXPECT_FALSE(poll_until([&] { return jobs.get(f1)->progress.round > 0; }, 500ms)) << "round 0 waits for frame 2";
+    ASSERT_EQ(jobs.get(f1)->counters.tiles_committed, 8u);
+    EXPECT_EQ(jobs.get(f1)->progress.round, 1) << "round 0 closed without frame 2";
+    EXPECT_FALSE(poll_until([&] { return jobs.get(f1)->progress.round > 1; }, 500ms)) << "round 1 waits for frame 2";
     ASSERT_TRUE(jobs.cancel(f2));
     trace_until(jobs, {&w}, {f1});
   }
