@@ -242,8 +242,8 @@ void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3>
         const CombineHalf half = path_half(p, h);
         const Vec3 batch = glossy.empty() ? sums[i] : sums[i] - glossy[i];
         float& m2 = path_m2_[2 * p + size_t(h)];
-        m2 = float(add_batch(m2, luminance_of(half.path_sum.x, half.path_sum.y, half.path_sum.z),
-                             uint32_t(half.paths), luminance_of(batch.x, batch.y, batch.z), counts[i]));
+        m2 = float(add_batch(m2, luminance_of(half.path_sum.x, half.path_sum.y, half.path_sum.z), uint32_t(half.paths),
+                             luminance_of(batch.x, batch.y, batch.z), counts[i]));
         if (h == 0) {
           path_half_sum_[3 * p + 0] += batch.x;
           path_half_sum_[3 * p + 1] += batch.y;
@@ -359,9 +359,9 @@ Image FrameState::cross_image(const PixelReprojection& rp) const {
       if (rp.half_subpixels[2 * p] + rp.half_subpixels[2 * p + 1] == 0) {
         // Not split (an area-weighted pixel, or no reprojected samples): the count-based combination.
         const Vec3 sum = half[0].path_sum + half[1].path_sum;
-        out.set_rgb(x, y,
-                    combine_weighted(sum, path_count_[p], weight * double(reprojected_effective_[p]),
-                                     rp.radiance.rgb(x, y)));
+        out.set_rgb(
+            x, y,
+            combine_weighted(sum, path_count_[p], weight * double(reprojected_effective_[p]), rp.radiance.rgb(x, y)));
         continue;
       }
       for (int h = 0; h < 2; ++h) {
@@ -557,11 +557,11 @@ void FrameState::restore(const FrameSnapshot& s) {
     throw std::invalid_argument("the snapshot's per-pixel arrays do not match the frame size");
   if (s.path_m2.size() != path_m2_.size() || s.reprojected_effective.size() != reprojected_effective_.size() ||
       s.path_half_sum.size() != path_half_sum_.size())
-    throw std::invalid_argument(path_m2_.empty() ? "the snapshot has the variance combination's moments, this frame "
-                                                   "combines with the fixed rule"
-                                 : s.path_m2.empty() ? "the snapshot has no moments for the variance combination"
-                                                     : "the snapshot's variance combination has no halves (it "
-                                                       "predates the cross-weighted rule)");
+    throw std::invalid_argument(path_m2_.empty()    ? "the snapshot has the variance combination's moments, this frame "
+                                                      "combines with the fixed rule"
+                                : s.path_m2.empty() ? "the snapshot has no moments for the variance combination"
+                                                    : "the snapshot's variance combination has no halves (it "
+                                                      "predates the cross-weighted rule)");
   if (s.has_accumulation != (reprojector_ != nullptr))
     throw std::invalid_argument(s.has_accumulation
                                     ? "the snapshot has a reprojection accumulation, this frame reprojects nothing"

@@ -54,9 +54,12 @@ Estimates estimate(const SyntheticPixel& px, std::mt19937_64& rng) {
   std::exponential_distribution<double> expo(1);
   const auto sample = [&](double sigma) {
     switch (px.skew) {
-      case Skew::kExponential: return px.mu * expo(rng);
-      case Skew::kLognormal: return px.mu * std::exp(normal(rng) - 0.5);
-      default: return px.mu + sigma * normal(rng);
+      case Skew::kExponential:
+        return px.mu * expo(rng);
+      case Skew::kLognormal:
+        return px.mu * std::exp(normal(rng) - 0.5);
+      default:
+        return px.mu + sigma * normal(rng);
     }
   };
   RenderOptions o;
@@ -172,9 +175,11 @@ void expect_unbiased(const SyntheticPixel& px, uint64_t seed) {
   EXPECT_LT(e.same_bias, -4 * e.same_bias_sigma) << "same-sample bias " << e.same_bias << " +- " << e.same_bias_sigma;
   EXPECT_LT(std::abs(e.bias), 3 * e.bias_sigma) << "bias " << e.bias << " +- " << e.bias_sigma;
   EXPECT_LE(e.variance_rule, 1.15 * std::min(e.path, e.rp)) << "path " << e.path << " rp " << e.rp;
-  std::printf("bias %+.3f %% +- %.3f %% (same-sample weights %+.3f %% +- %.3f %%); MSE %.5f (same-sample %.5f), path %.5f, rp %.5f\n",
-              100 * e.bias / px.mu, 100 * e.bias_sigma / px.mu, 100 * e.same_bias / px.mu,
-              100 * e.same_bias_sigma / px.mu, e.variance_rule, e.same_sample, e.path, e.rp);
+  std::printf(
+      "bias %+.3f %% +- %.3f %% (same-sample weights %+.3f %% +- %.3f %%); MSE %.5f (same-sample %.5f), path %.5f, rp "
+      "%.5f\n",
+      100 * e.bias / px.mu, 100 * e.bias_sigma / px.mu, 100 * e.same_bias / px.mu, 100 * e.same_bias_sigma / px.mu,
+      e.variance_rule, e.same_sample, e.path, e.rp);
 }
 
 TEST(VarianceCombination, ExponentialSamplesAreUnbiased) { expect_unbiased({1, 1, 1, 12, Skew::kExponential}, 4); }
