@@ -269,19 +269,23 @@ TEST(VarianceCombination, AHalfsWeightComesFromTheOtherHalf) {
   a.effective = 16;
   a.rp_variance = 0.5;
   b = a;
-  // Q_a = σ̂²_b / v_b = 1 / 0.5 = 2: L_a = (8 + 2 * 2) / (8 + 2) = 1.2, and L_b alike; c_a = c_b.
-  EXPECT_NEAR(combine_halves(a, b, 0.5, 1).x, 1.2, 1e-6);
-  // Half b's variances weigh a's L_rp: σ̂²_b = 4 gives Q_a = 4 / 0.5 = 8, L_a = (8 + 16) / 16 = 1.5,
-  // and leave b's own weight as it was (Q_b = σ̂²_a / v_a = 2, L_b = 1.2).
+  b.path_sum = Vec3(24.f);  // 24 paths of mean 1
+  b.paths = 24;
+  // c_a = 8 + 0.5 * 16 = 16, c_b = 24 + 8 = 32.
+  const auto mix = [](double la, double lb) { return (16 * la + 32 * lb) / 48; };
+  // Q_a = σ̂²_b / v_b = 1 / 0.5 = 2: L_a = (8 + 2 * 2) / (8 + 2) = 1.2; Q_b = 2: L_b = 28 / 26.
+  EXPECT_NEAR(combine_halves(a, b, 0.5, 1).x, mix(1.2, 28.0 / 26.0), 1e-6);
+  // Half b's variances weigh a's L_rp: σ̂²_b = 4 gives Q_a = 8, L_a = (8 + 16) / 16 = 1.5; b's own
+  // weight stays Q_b = σ̂²_a / v_a = 2 (weights from the own half would give L_a = 1.2, L_b = 1.25).
   b.path_variance = 4;
-  EXPECT_NEAR(combine_halves(a, b, 0.5, 1).x, 0.5 * (1.5 + 1.2), 1e-6);
-  // Half a's variances change only L_b: σ̂²_a = 100 gives Q_b = 200, L_b = (8 + 400) / 208; L_a stays 1.5.
+  EXPECT_NEAR(combine_halves(a, b, 0.5, 1).x, mix(1.5, 28.0 / 26.0), 1e-6);
+  // Half a's variances change only L_b: σ̂²_a = 100 gives Q_b = 200, L_b = (24 + 400) / 224; L_a stays 1.5.
   a.path_variance = 100;
-  EXPECT_NEAR(combine_halves(a, b, 0.5, 1).x, 0.5 * (1.5 + 408.0 / 208.0), 1e-6);
-  // Undefined variances: each half falls back to W M'_eff of its own, 8: L_a = L_b = 1.5.
+  EXPECT_NEAR(combine_halves(a, b, 0.5, 1).x, mix(1.5, 424.0 / 224.0), 1e-6);
+  // Undefined variances: each half falls back to W M'_eff of its own, 8: L_a = 1.5, L_b = 40 / 32.
   b.rp_variance = -1;
   a.path_variance = -1;
-  EXPECT_NEAR(combine_halves(a, b, 0.5, 1).x, 0.5 * (1.5 + 1.5), 1e-6);
+  EXPECT_NEAR(combine_halves(a, b, 0.5, 1).x, mix(1.5, 1.25), 1e-6);
 }
 
 }  // namespace
