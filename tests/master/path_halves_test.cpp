@@ -3,10 +3,13 @@
 // counts and batch scatters are those of the batches given, and add up to the frame's totals.
 #include <gtest/gtest.h>
 
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "master/combine_rule.h"
 #include "master/frame_state.h"
+#include "master/memory_estimate.h"
 #include "tests/master/test_scenes.h"
 
 namespace epr {
@@ -63,6 +66,38 @@ TEST(PathHalves, EvenAndOddRoundsAddUpToTheTotals) {
       EXPECT_NEAR((h == 0 ? even : odd).path_variance, want, 1e-3 * want) << p << " half " << h;
     }
   }
+}
+
+// A snapshot of the variance combination without the halves (a checkpoint older than version 6) does
+// not restore, naming why; the memory estimate counts what the halves add.
+TEST(PathHalves, AnOlderSnapshotWithoutHalvesIsRefusedAndTheEstimateCountsThem) {
+  const Scene scene = test::scene_named("cornell");
+  RenderOptions o;
+  o.width = 4;
+  o.height = 2;
+  o.spp = 8;
+  o.mode = RenderMode::kReproject;
+  o.reproject = ReprojectMethod::kCpu;
+  o.combine = CombineRule::kVariance;
+  const Camera camera(scene.camera, o.width, o.height);
+  FrameState frame(o, camera, scene);
+  FrameSnapshot old = frame.save();
+  ASSERT_EQ(old.path_half_sum.size(), 3u * 8u);
+  old.path_half_sum.clear();
+  old.path_m2.resize(8);  // one B per pixel, as version 5 held
+  try {
+    frame.restore(old);
+    ADD_FAILURE() << "a snapshot without halves restored";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("predates"), std::string::npos) << e.what();
+  }
+  RenderOptions fixed = o;
+  fixed.combine = CombineRule::kFixed;
+  o.width = fixed.width = 100;
+  o.height = fixed.height = 10;
+  // FrameState's B per half, M'_eff and the even rounds' sums (24); a downsampling's M'_eff (4) and
+  // halves (42); the combined image (12).
+  EXPECT_EQ(estimate_job_memory(o, false).pixel_bytes - estimate_job_memory(fixed, false).pixel_bytes, 1000u * 82u);
 }
 
 }  // namespace
