@@ -23,7 +23,9 @@
 // mean. W discounts σ̂² for the stratification of the pixel's own paths (W = 1: plain inverse-variance
 // weights), so that a pixel whose v_rp is what M'_eff independent samples give weighs L_rp as the fixed
 // rule does. Where the other half's σ̂² or v_rp is undefined (too few rounds or subpixels: too noisy to
-// weigh by) or both are 0, Q_h falls back to W M'_eff,h; v_rp = 0 < σ̂² gives L_rp,h alone.
+// weigh by) or both are 0, Q_h falls back to W M'_eff,h; v_rp = 0 < σ̂² gives L_rp,h alone. (σ̂² and
+// v_rp above are then those of one half: its rounds, its subpixels.) Unbiased, but weights from half
+// the samples are noisy: measured, it has more error than the fixed rule (BENCHMARKS.md 20).
 // M'_eff = n² / Σ_s (1 / c_s): the samples of equal variance that the average of subpixel means is
 // worth (M' when the counts are even, fewer when they are not). The skip rule counts N_eff =
 // M + W M'_eff, which uses only counts: M and the subpixel counts are integers, the same in a
