@@ -230,7 +230,14 @@ void EdgePixels::drop(PixelReprojection* out) const {
       if (p >= pixels) break;
       if (out->count.size() == pixels) out->count[p] = 0;
       if (out->effective.size() == pixels) out->effective[p] = 0.f;
-      if (out->variance.size() == pixels) out->variance[p] = -1.f;
+      if (out->half_variance.size() == 2 * pixels) {
+        for (size_t k = 0; k < 2; ++k) {
+          for (size_t c = 0; c < 3; ++c) out->half_radiance[6 * p + 3 * k + c] = 0.f;
+          out->half_effective[2 * p + k] = 0.f;
+          out->half_variance[2 * p + k] = -1.f;
+          out->half_subpixels[2 * p + k] = 0;
+        }
+      }
       if (radiance) out->radiance.set_rgb(int(p % size_t(width_)), int(p / size_t(width_)), Vec3(0.f));
     }
   }

@@ -61,6 +61,7 @@ void frame_fields(To& to, const From& from) {
   copy_field(to.skip, from.skip);
   copy_field(to.path_m2, from.path_m2);
   copy_field(to.reprojected_effective, from.reprojected_effective);
+  copy_field(to.path_half_sum, from.path_half_sum);
   copy_field(to.paths_done, from.paths_done);
   copy_field(to.done, from.done);
   copy_field(to.progress, from.progress);
@@ -76,6 +77,7 @@ struct FrameState::Fields {
   std::vector<uint8_t>& skip;
   std::vector<float>& path_m2;
   std::vector<float>& reprojected_effective;
+  std::vector<float>& path_half_sum;
   int& paths_done;
   bool& done;
   FrameProgress& progress;
@@ -91,6 +93,7 @@ FrameState::Fields FrameState::fields() {
           skip_,
           path_m2_,
           reprojected_effective_,
+          path_half_sum_,
           paths_done_,
           done_,
           progress_,
@@ -124,7 +127,7 @@ Image combined_image(const FrameImages& images) {
   if (images.reprojection.data.empty()) return pathtrace_image(images);
   const Image& s = images.path_sum;
   Image out(s.width, s.height, 3);
-  const bool worth = !images.reprojected_worth.data.empty();
+  const bool cross = !images.cross_combined.data.empty();
   const bool glossy = !images.glossy_sum.data.empty();
   tbb::parallel_for(0, s.height, [&](int y) {
     for (int x = 0; x < s.width; ++x) {
@@ -133,10 +136,13 @@ Image combined_image(const FrameImages& images) {
       // The glossy part is not combined: it comes back as its own mean (0 without one).
       const Vec3 g = glossy ? images.glossy_sum.rgb(x, y) : Vec3(0.f);
       const Vec3 diffuse_sum = glossy ? Vec3(ps[0], ps[1], ps[2]) - g : Vec3(ps[0], ps[1], ps[2]);
-      // W M' (M' in samples: a multiple of 1 / 16 where a frame window weighs its neighbours'), or M'_eq.
-      const double w = worth ? double(images.reprojected_worth.at(x, y)[0])
-                             : double(images.reprojected_weight) * double(images.reprojected.at(x, y)[0]);
-      const Vec3 combined = combine_weighted(diffuse_sum, m, w, images.reprojection.rgb(x, y));
+      // W M' (M' in samples: a multiple of 1 / 16 where a frame window weighs its neighbours'), or the
+      // variance combination's estimate.
+      const Vec3 combined =
+          cross ? images.cross_combined.rgb(x, y)
+                : combine_weighted(diffuse_sum, m,
+                                   double(images.reprojected_weight) * double(images.reprojected.at(x, y)[0]),
+                                   images.reprojection.rgb(x, y));
       out.set_rgb(x, y, glossy && m > 0 ? combined + g * (1.f / float(m)) : combined);
     }
   });
@@ -197,15 +203,18 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     codec_ = std::make_unique<VertexCodec>(scene.bounds());
   }
   if (variance_rule() && reprojector_) {
-    path_m2_.assign(path_count_.size(), 0.f);
+    path_m2_.assign(2 * path_count_.size(), 0.f);
     reprojected_effective_.assign(path_count_.size(), 0.f);
+    path_half_sum_.assign(path_sum_.size(), 0.f);
     // rounds_at_[M]: the rounds of the schedule whose paths add up to at most M.
     rounds_at_.assign(size_t(opts.spp) + 1, 0);
+    even_paths_.assign(1, 0);
     int done = 0, rounds = 0;
     while (done < opts.spp) {
       const int k = round_paths(opts, done);
       if (k <= 0) break;
       for (int m = done + 1; m < done + k; ++m) rounds_at_[size_t(m)] = uint16_t(rounds);
+      even_paths_.push_back(even_paths_.back() + (rounds % 2 == 0 ? uint32_t(k) : 0u));
       done += k;
       rounds_at_[size_t(done)] = uint16_t(++rounds);
     }
@@ -227,10 +236,20 @@ void FrameState::add_paths(int x0, int y0, int x1, int y1, std::span<const Vec3>
   for (int y = y0; y < y1; ++y)
     for (int x = x0; x < x1; ++x, ++i) {
       const size_t p = pixel(x, y);
-      if (!path_m2_.empty() && counts[i] > 0)
-        path_m2_[p] =
-            float(add_batch(path_m2_[p], luminance_of(path_sum_[3 * p], path_sum_[3 * p + 1], path_sum_[3 * p + 2]),
-                            path_count_[p], luminance_of(sums[i].x, sums[i].y, sums[i].z), counts[i]));
+      if (!path_m2_.empty() && counts[i] > 0) {
+        // The batch joins the half of its round's parity: its scatter B_h and (even rounds) the half's sum.
+        const int h = rounds_at_[std::min<size_t>(path_count_[p], rounds_at_.size() - 1)] & 1;
+        const CombineHalf half = path_half(p, h);
+        const Vec3 batch = glossy.empty() ? sums[i] : sums[i] - glossy[i];
+        float& m2 = path_m2_[2 * p + size_t(h)];
+        m2 = float(add_batch(m2, luminance_of(half.path_sum.x, half.path_sum.y, half.path_sum.z), uint32_t(half.paths),
+                             luminance_of(batch.x, batch.y, batch.z), counts[i]));
+        if (h == 0) {
+          path_half_sum_[3 * p + 0] += batch.x;
+          path_half_sum_[3 * p + 1] += batch.y;
+          path_half_sum_[3 * p + 2] += batch.z;
+        }
+      }
       path_sum_[3 * p + 0] += sums[i].x;
       path_sum_[3 * p + 1] += sums[i].y;
       path_sum_[3 * p + 2] += sums[i].z;
@@ -312,15 +331,47 @@ PixelReprojection FrameState::reprojected_radiance(bool counts_too) {
   return pr;
 }
 
-Image FrameState::worth_image(const PixelReprojection& rp) const {
-  Image out(width_, height_, 1);
+CombineHalf FrameState::path_half(size_t p, int h) const {
+  const uint32_t rounds = rounds_at_[std::min<size_t>(path_count_[p], rounds_at_.size() - 1)];
+  const uint32_t even = even_paths_[std::min<size_t>(rounds, even_paths_.size() - 1)];
+  CombineHalf half;
+  half.paths = h == 0 ? even : path_count_[p] - even;
+  // Rounds 0, 2, 4, ... are half 0's: (rounds + 1) / 2 of them; the rest half 1's.
+  half.path_variance = path_sample_variance(path_m2_[2 * p + size_t(h)], h == 0 ? (rounds + 1) / 2 : rounds / 2);
+  const Vec3 even_sum(path_half_sum_[3 * p], path_half_sum_[3 * p + 1], path_half_sum_[3 * p + 2]);
+  if (h == 0) {
+    half.path_sum = even_sum;
+  } else {
+    Vec3 all(path_sum_[3 * p], path_sum_[3 * p + 1], path_sum_[3 * p + 2]);
+    if (!glossy_sum_.empty()) all = all - Vec3(glossy_sum_[3 * p], glossy_sum_[3 * p + 1], glossy_sum_[3 * p + 2]);
+    half.path_sum = all - even_sum;
+  }
+  return half;
+}
+
+Image FrameState::cross_image(const PixelReprojection& rp) const {
+  Image out(width_, height_, 3);
+  const double weight = unit_weight(), discount = opts_.reprojected_weight;
   tbb::parallel_for(0, height_, [&](int y) {
     for (int x = 0; x < width_; ++x) {
       const size_t p = pixel(x, y);
-      const double variance =
-          path_sample_variance(path_m2_[p], rounds_at_[std::min<size_t>(path_count_[p], rounds_at_.size() - 1)]);
-      const double fallback = double(unit_weight()) * double(reprojected_effective_[p]);
-      out.at(x, y)[0] = float(reprojected_worth(variance, rp.variance[p], fallback, opts_.reprojected_weight));
+      CombineHalf half[2] = {path_half(p, 0), path_half(p, 1)};
+      if (rp.half_subpixels[2 * p] + rp.half_subpixels[2 * p + 1] == 0) {
+        // Not split (an area-weighted pixel, or no reprojected samples): the count-based combination.
+        const Vec3 sum = half[0].path_sum + half[1].path_sum;
+        out.set_rgb(
+            x, y,
+            combine_weighted(sum, path_count_[p], weight * double(reprojected_effective_[p]), rp.radiance.rgb(x, y)));
+        continue;
+      }
+      for (int h = 0; h < 2; ++h) {
+        const size_t k = 2 * p + size_t(h);
+        half[h].lrp = Vec3(rp.half_radiance[3 * k], rp.half_radiance[3 * k + 1], rp.half_radiance[3 * k + 2]);
+        half[h].subpixels = rp.half_subpixels[k];
+        half[h].effective = rp.half_effective[k];
+        half[h].rp_variance = rp.half_variance[k];
+      }
+      out.set_rgb(x, y, combine_halves(half[0], half[1], weight, discount));
     }
   });
   return out;
@@ -504,10 +555,13 @@ void FrameState::restore(const FrameSnapshot& s) {
       s.path_count.size() != n || s.mprime.size() != n || (!s.reprojected.empty() && s.reprojected.size() != 3 * n) ||
       s.skip.size() != n)
     throw std::invalid_argument("the snapshot's per-pixel arrays do not match the frame size");
-  if (s.path_m2.size() != path_m2_.size() || s.reprojected_effective.size() != reprojected_effective_.size())
-    throw std::invalid_argument(path_m2_.empty() ? "the snapshot has the variance combination's moments, this frame "
-                                                   "combines with the fixed rule"
-                                                 : "the snapshot has no moments for the variance combination");
+  if (s.path_m2.size() != path_m2_.size() || s.reprojected_effective.size() != reprojected_effective_.size() ||
+      s.path_half_sum.size() != path_half_sum_.size())
+    throw std::invalid_argument(path_m2_.empty()    ? "the snapshot has the variance combination's moments, this frame "
+                                                      "combines with the fixed rule"
+                                : s.path_m2.empty() ? "the snapshot has no moments for the variance combination"
+                                                    : "the snapshot's variance combination has no halves (it "
+                                                      "predates the cross-weighted rule)");
   if (s.has_accumulation != (reprojector_ != nullptr))
     throw std::invalid_argument(s.has_accumulation
                                     ? "the snapshot has a reprojection accumulation, this frame reprojects nothing"
@@ -561,7 +615,7 @@ FrameImages FrameState::release_images() {
   out.reprojected_weight = opts_.reprojected_weight;
   if (reprojector_) {
     PixelReprojection rp = reprojected_radiance(true);
-    if (variance_rule()) out.reprojected_worth = worth_image(rp);
+    if (variance_rule()) out.cross_combined = cross_image(rp);
     out.reprojection = std::move(rp.radiance);
     released_counts_ = reprojector_->counts();
     reprojector_.reset();
@@ -586,7 +640,7 @@ FrameImages FrameState::images(bool preview) {
     const bool was_partial = reprojection_partial_;
     const bool keep_counts = preview && opts_.mode == RenderMode::kSkip;
     PixelReprojection rp = reprojected_radiance(!keep_counts);
-    if (variance_rule()) out.reprojected_worth = worth_image(rp);
+    if (variance_rule()) out.cross_combined = cross_image(rp);
     out.reprojection = std::move(rp.radiance);
     if (was_partial && !reprojection_partial_) update_sample_progress();  // M' of the skipped pixels changed
   }

@@ -26,6 +26,7 @@
 #include "common/scene.h"
 #include "common/vertex_codec.h"
 #include "common/vertex_record.h"
+#include "master/combine_rule.h"
 #include "master/reprojection_image.h"
 #include "master/reprojector.h"
 
@@ -64,15 +65,15 @@ struct FrameImages {
   Image path_count;                // M, one channel
   Image reprojected;               // M', one channel
   float reprojected_weight = 1.f;  // W (RenderOptions::reprojected_weight), for combined_image()
-  // The variance combination's M'_eq per pixel (master/combine_rule.h), one channel: the paths L_rp
-  // is worth, in place of W M'; empty for the fixed rule.
-  Image reprojected_worth;
+  // The variance combination's estimate of each pixel's part without glossy_sum (master/combine_rule.h
+  // combine_halves), RGB, in place of the fixed rule's; empty for the fixed rule.
+  Image cross_combined;
 };
 
 /// path_sum / M per pixel (0 where M = 0), or the stored image.
 Image pathtrace_image(const FrameImages& images);
 /// (path_sum - G + W M' L_rp) / (M + W M') + G / M per pixel (combine_pixel; G the glossy_sum, 0
-/// without one), or with M'_eq in place of W M' where reprojected_worth is given; the path-traced
+/// without one), or cross_combined + G / M where that is given; the path-traced
 /// image without reprojection, or the stored image.
 Image combined_image(const FrameImages& images);
 
@@ -89,9 +90,11 @@ struct FrameSnapshot {
       reprojected;  // empty (L_rp is downsampled when needed); older checkpoints' 3 per pixel are ignored
   std::vector<uint8_t> skip;
   // The variance combination's (empty for the fixed rule): B, the scatter of each pixel's batch
-  // means (combine_rule.h), and M'_eff as of the last downsample.
+  // means per half (2 per pixel: rounds of even and odd index, combine_rule.h), M'_eff as of the last
+  // downsample, and the even rounds' part of path_sum - glossy_sum (3 per pixel).
   std::vector<float> path_m2;
   std::vector<float> reprojected_effective;
+  std::vector<float> path_half_sum;
   int paths_done = 0;
   bool done = false;
   FrameProgress progress;
@@ -117,6 +120,7 @@ struct FrameView {
   std::span<const uint8_t> skip;
   std::span<const float> path_m2;
   std::span<const float> reprojected_effective;
+  std::span<const float> path_half_sum;
   int paths_done = 0;
   bool done = false;
   FrameProgress progress;
@@ -213,6 +217,10 @@ class FrameState {
   const std::vector<uint32_t>& path_counts() const { return path_count_; }
   const std::vector<float>& path_sums() const { return path_sum_; }
   const std::vector<uint32_t>& reprojected_counts() const { return mprime_; }  // M', in count_unit()s
+  /// The variance combination's half h of pixel p's path samples (combine_rule.h; h = 0: the rounds
+  /// of even index, 1: odd): their sum without the glossy part, count and variance; the reprojected
+  /// members are left empty. Only with --combine variance when reprojecting.
+  CombineHalf path_half(size_t p, int h) const;
 
  private:
   // M' from the reprojector: every pixel, or (active_only) the pixels not skipped.
@@ -220,8 +228,9 @@ class FrameState {
   // L_rp of every pixel (and v_rp with the variance combination), downsampled from the accumulation
   // (reprojecting frames only); with `counts_too` M' of every pixel is brought up to date on the way.
   PixelReprojection reprojected_radiance(bool counts_too);
-  // The variance combination's M'_eq per pixel from the state and `rp`'s v_rp.
-  Image worth_image(const PixelReprojection& rp) const;
+  // The variance combination's estimate per pixel (FrameImages::cross_combined) from the state and
+  // `rp`'s halves.
+  Image cross_image(const PixelReprojection& rp) const;
   // The samples the skip rule counts for pixel p: M + d W M' (fixed) or N_eff with d M'_eff
   // (variance), d = diffuse_share(p).
   double pixel_samples(size_t p) const;
@@ -258,11 +267,15 @@ class FrameState {
   uint32_t count_unit_ = 1;             // what one of the frame's own reprojected samples counts
   bool reprojection_partial_ = false;   // the last downsample left skipped pixels' M' as they were
   std::vector<uint8_t> skip_;           // 1 = no more paths for this pixel
-  // The variance combination only (else empty): B per pixel, M'_eff as of the last downsample, and
-  // the rounds a pixel with M paths has traced in (rounds_at_[M], from the schedule).
+  // The variance combination only (else empty): B per pixel and half, M'_eff as of the last
+  // downsample, the even rounds' diffuse path sums (FrameSnapshot), the rounds a pixel with M paths
+  // has traced in (rounds_at_[M], from the schedule), and the paths of the first r rounds that were
+  // even rounds (even_paths_[r]).
   std::vector<float> path_m2_;
   std::vector<float> reprojected_effective_;
+  std::vector<float> path_half_sum_;
   std::vector<uint16_t> rounds_at_;
+  std::vector<uint32_t> even_paths_;
   int paths_done_ = 0;  // paths every active pixel has traced
   bool done_ = false;
   FrameProgress progress_;

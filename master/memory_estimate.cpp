@@ -25,6 +25,13 @@ MemoryEstimate estimate_job_memory(const RenderOptions& opts, bool checkpoints) 
   // copy is dropped before the next is made).
   constexpr uint64_t kImagesPerPixel = 12 + 12 + 4 + 4;
   e.pixel_bytes = pixels * (kFrameStatePerPixel + kRoundPerPixel + kImagesPerPixel);
+  if (reprojects && opts.combine == CombineRule::kVariance) {
+    // The variance combination (master/combine_rule.h): FrameState's B per half (2 floats), M'_eff and
+    // the even rounds' path sums (3 floats); a downsampling's M'_eff, L_rp,h (6 floats), M'_eff,h, v_rp,h
+    // (2 floats each) and n_h (2 bytes); the combined estimate (3 floats).
+    constexpr uint64_t kVariancePerPixel = (8 + 4 + 12) + (4 + 24 + 8 + 8 + 2) + 12;
+    e.pixel_bytes += pixels * kVariancePerPixel;
+  }
   if (reprojects) {
     const uint64_t texels = pixels * s * s;
     e.subpixel_bytes = texels * (16 + 2);

@@ -23,7 +23,6 @@ struct PixelValue {
   Vec3 radiance{0.f};
   uint64_t total = 0;   // M' (the effective count for an area-weighted pixel)
   float effective = 0;  // M'_eff
-  float variance = -1;  // v_rp (undefined for an area-weighted pixel)
 };
 
 // An area-weighted pixel (AreaWeights): `codes` are its S * S subpixels' class and area.
@@ -100,8 +99,11 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
     out.effective.assign(pixels, 0.f);
     skip = {};
   }
-  if (stats && !counts_only && out.variance.size() != pixels) {
-    out.variance.assign(pixels, -1.f);
+  if (stats && !counts_only && out.half_variance.size() != 2 * pixels) {
+    out.half_radiance.assign(6 * pixels, 0.f);
+    out.half_effective.assign(2 * pixels, 0.f);
+    out.half_variance.assign(2 * pixels, -1.f);
+    out.half_subpixels.assign(2 * pixels, 0);
     skip = {};
   }
   if (S * S > kMaxSubpixelsPerPixel) throw std::invalid_argument("downsample: more than 8 x 8 subpixels");
@@ -126,7 +128,14 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
         if (!counts_only) out.radiance.set_rgb(x, y, v.radiance);
         if (with_counts) out.count[p] = saturate_count(v.total);
         if (stats && with_counts) out.effective[p] = v.effective;
-        if (stats && !counts_only) out.variance[p] = v.variance;
+        if (stats && !counts_only) {
+          for (int h = 0; h < 2; ++h) {
+            for (int c = 0; c < 3; ++c) out.half_radiance[6 * p + 3 * size_t(h) + size_t(c)] = 0.f;
+            out.half_effective[2 * p + size_t(h)] = 0.f;
+            out.half_variance[2 * p + size_t(h)] = -1.f;
+            out.half_subpixels[2 * p + size_t(h)] = 0;
+          }
+        }
         continue;
       }
       if (counts_only) {
@@ -147,7 +156,10 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
         continue;
       }
       double mean[3] = {0, 0, 0};
-      double lum[kMaxSubpixelsPerPixel];  // the non-empty subpixels' mean luminances
+      // Per half h ((sx + sy) & 1): the non-empty subpixels' mean RGB and luminances, Σ 1 / c_s.
+      double half_mean[2][3] = {}, half_inverse[2] = {};
+      double lum[2][kMaxSubpixelsPerPixel];
+      int half_n[2] = {0, 0};
       double inverse = 0;
       uint64_t total = 0;
       int non_empty = 0;
@@ -159,10 +171,17 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
           mean[0] += r;
           mean[1] += g;
           mean[2] += b;
-          lum[non_empty] = 0.2126 * r + 0.7152 * g + 0.0722 * b;
           inverse += 1.0 / double(c.n);
           total += c.n;
           ++non_empty;
+          if (stats) {
+            const int h = (x * S + i + y * S + j) & 1;
+            half_mean[h][0] += r;
+            half_mean[h][1] += g;
+            half_mean[h][2] += b;
+            half_inverse[h] += 1.0 / double(c.n);
+            lum[h][half_n[h]++] = 0.2126 * r + 0.7152 * g + 0.0722 * b;
+          }
         }
       out.radiance.set_rgb(
           x, y,
@@ -171,15 +190,22 @@ void downsample_impl(int grid_w, int grid_h, int S, const CellAt& cell, std::spa
       if (with_counts) out.count[p] = saturate_count(total);
       if (stats) {
         if (with_counts) out.effective[p] = non_empty ? float(double(non_empty) * double(non_empty) / inverse) : 0.f;
-        double v = -1;
-        if (non_empty >= min_subpixels(S)) {
-          double avg = 0, scatter = 0;
-          for (int k = 0; k < non_empty; ++k) avg += lum[k];
-          avg /= non_empty;
-          for (int k = 0; k < non_empty; ++k) scatter += (lum[k] - avg) * (lum[k] - avg);
-          v = scatter / (double(non_empty) * double(non_empty - 1));
+        for (int h = 0; h < 2; ++h) {
+          const int n = half_n[h];
+          for (int c = 0; c < 3; ++c)
+            out.half_radiance[6 * p + 3 * size_t(h) + size_t(c)] = n ? float(half_mean[h][c] / n) : 0.f;
+          out.half_effective[2 * p + size_t(h)] = n ? float(double(n) * double(n) / half_inverse[h]) : 0.f;
+          out.half_subpixels[2 * p + size_t(h)] = uint8_t(n);
+          double v = -1;
+          if (n >= min_subpixels(S)) {
+            double avg = 0, scatter = 0;
+            for (int k = 0; k < n; ++k) avg += lum[h][k];
+            avg /= n;
+            for (int k = 0; k < n; ++k) scatter += (lum[h][k] - avg) * (lum[h][k] - avg);
+            v = scatter / (double(n) * double(n - 1));
+          }
+          out.half_variance[2 * p + size_t(h)] = float(v);
         }
-        out.variance[p] = float(v);
       }
     }
   });

@@ -52,11 +52,16 @@ struct AreaWeights {
 struct PixelReprojection {
   Image radiance;               // L_rp, 3 channels, width x height pixels
   std::vector<uint32_t> count;  // M', per pixel (saturating at 2^32 - 1)
-  // With `statistics` set, per pixel (master/combine_rule.h): M'_eff, written with the counts, and
-  // v_rp (the variance of L_rp's luminance; -1 where undefined), written with the radiance.
+  // With `statistics` set (master/combine_rule.h): M'_eff per pixel, written with the counts, and
+  // per pixel and half h = 0, 1 (its subpixels with (sx + sy) & 1 == h), written with the radiance:
+  // L_rp,h (RGB), M'_eff,h, v_rp,h (the variance of L_rp,h's luminance; -1 where undefined) and n_h,
+  // the half's non-empty subpixels (0 in both halves of an area-weighted pixel: it is not split).
   bool statistics = false;
   std::vector<float> effective;
-  std::vector<float> variance;
+  std::vector<float> half_radiance;     // 6 per pixel
+  std::vector<float> half_effective;    // 2 per pixel
+  std::vector<float> half_variance;     // 2 per pixel
+  std::vector<uint8_t> half_subpixels;  // 2 per pixel
   // Pixels downsampled by area (null: none); not owned, set by the caller of a downsampling.
   const AreaWeights* area_weights = nullptr;
 };

@@ -48,8 +48,11 @@ enum class RecordKind : uint32_t { kEpoch = 1, kScene = 2, kJobSpec = 3, kJobPro
 // glossy_sum) after those, and its vertex records of microfacet materials carry their diffuse share
 // only (DESIGN.md "Diffuse-share reprojection"): an older frame's accumulation holds whole radiance
 // and its path sums no glossy parts, so frames older than version 5 are refused as version 3 refused
-// older layouts (the job starts again from round 0, the reason logged). Other records did not change.
-inline constexpr uint32_t kCheckpointVersion = 5;
+// older layouts (the job starts again from round 0, the reason logged). Version 6 adds the variance
+// combination's per-half path sums (FrameSnapshot::path_half_sum) after the glossy sums and holds its B
+// per half (2 per pixel): a version 5 frame of the variance combination does not restore (FrameState::
+// restore names why; the job starts again from round 0), a fixed-rule one does. Other records did not change.
+inline constexpr uint32_t kCheckpointVersion = 6;
 inline constexpr uint32_t kOldestCheckpointVersion = 1;
 inline constexpr uint32_t kOldestFrameVersion = 5;
 inline constexpr size_t kSealHeaderBytes = 32;

@@ -97,6 +97,7 @@ void put(ByteWriter& w, const FrameView& f) {
   w.put_vector(f.path_m2);  // version 4
   w.put_vector(f.reprojected_effective);
   put_widened<double>(w, f.glossy_sum);  // version 5
+  w.put_vector(f.path_half_sum);         // version 6
   w.put<int32_t>(f.paths_done);
   w.put<uint8_t>(f.done);
   put(w, f.progress);
@@ -134,6 +135,7 @@ uint64_t get_frame_head(ByteReader& r, FrameSnapshot* f, uint32_t version) {
     f->reprojected_effective = r.get_vector<float>();
   }
   if (version >= 5) f->glossy_sum = get_narrowed<double, float>(r);
+  if (version >= 6) f->path_half_sum = r.get_vector<float>();
   f->paths_done = r.get<int32_t>();
   f->done = r.get_bool();
   f->progress = get_progress(r);

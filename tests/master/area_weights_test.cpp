@@ -46,7 +46,8 @@ TEST(AreaWeights, HalfCoveredPixelGetsTheAreaWeightedMeanNotTheCentreCountMean) 
   EXPECT_EQ(weighted.count[0], 24u);
   const double spread = 0.25 * (4 * 0.5) / 16 + 0.25 * (12 * 0.5) / 144;
   EXPECT_FLOAT_EQ(weighted.effective[0], float(1 / spread));
-  EXPECT_EQ(weighted.variance[0], -1.f);
+  EXPECT_EQ(weighted.half_variance[0], -1.f);  // not split: the count-based combination
+  EXPECT_EQ(weighted.half_subpixels[0] + weighted.half_subpixels[1], 0);
   // The counts alone agree with the full downsampling.
   PixelReprojection counts;
   counts.area_weights = &w;

@@ -74,13 +74,21 @@ TEST(EdgePixels, DropZeroesTheEdgePixelsOfEveryPartPresent) {
   for (float& v : pr.radiance.data) v = 2.f;
   pr.count.assign(12, 7);
   pr.effective.assign(12, 5.f);
-  pr.variance.assign(12, 0.5f);
+  pr.half_radiance.assign(72, 1.f);
+  pr.half_effective.assign(24, 5.f);
+  pr.half_variance.assign(24, 0.5f);
+  pr.half_subpixels.assign(24, 3);
   e.drop(&pr);
   for (size_t p = 0; p < 12; ++p) {
     const bool edge = p == 0 || p == 1 || p == 4 || p == 5;
     EXPECT_EQ(pr.count[p], edge ? 0u : 7u) << p;
     EXPECT_EQ(pr.effective[p], edge ? 0.f : 5.f) << p;
-    EXPECT_EQ(pr.variance[p], edge ? -1.f : 0.5f) << p;
+    for (size_t h = 0; h < 2; ++h) {
+      EXPECT_EQ(pr.half_variance[2 * p + h], edge ? -1.f : 0.5f) << p;
+      EXPECT_EQ(pr.half_subpixels[2 * p + h], edge ? 0 : 3) << p;
+      EXPECT_EQ(pr.half_effective[2 * p + h], edge ? 0.f : 5.f) << p;
+      EXPECT_EQ(pr.half_radiance[6 * p + 3 * h], edge ? 0.f : 1.f) << p;
+    }
     EXPECT_EQ(pr.radiance.data[3 * p + 1], edge ? 0.f : 2.f) << p;
   }
   // A counts-only result (no radiance image) keeps working.

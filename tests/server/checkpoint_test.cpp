@@ -487,7 +487,13 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
     EXPECT_EQ(restored.skip, copy.skip);
     EXPECT_EQ(restored.path_m2, copy.path_m2);
     EXPECT_EQ(restored.reprojected_effective, copy.reprojected_effective);
+    EXPECT_EQ(restored.path_half_sum, copy.path_half_sum);
     EXPECT_EQ(copy.path_m2.empty(), rule == CombineRule::kFixed);
+    // One round so far, round 0: all of its paths are the even half's.
+    if (rule == CombineRule::kVariance) {
+      EXPECT_EQ(copy.path_m2.size(), 2 * copy.path_count.size());
+      EXPECT_EQ(copy.path_half_sum, copy.path_sum);
+    }
     EXPECT_EQ(restored.paths_done, copy.paths_done);
     EXPECT_EQ(restored.accumulation.sum, copy.accumulation.sum);
     EXPECT_EQ(restored.accumulation.count, copy.accumulation.count);
@@ -505,6 +511,9 @@ TEST(CheckpointStreamed, FrameWrittenFromTheLiveStateRestoresBitIdentically) {
     EXPECT_EQ(after_b.skip, after_a.skip);
     EXPECT_EQ(after_b.path_m2, after_a.path_m2);
     EXPECT_EQ(after_b.reprojected_effective, after_a.reprojected_effective);
+    EXPECT_EQ(after_b.path_half_sum, after_a.path_half_sum);
+    // ... and combine alike, bit for bit (the variance combination reads the halves).
+    EXPECT_EQ(combined_image(b.images()).data, combined_image(a.images()).data);
     // ... and the GL frame decided every vertex as the CPU frame did (backend_decisions_test.cpp).
     if (method == ReprojectMethod::kCpu)
       cpu_after[rule] = after_a;

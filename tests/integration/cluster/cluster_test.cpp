@@ -57,8 +57,9 @@ struct Job {
   uint64_t seed = 7;
   bool mis = true;  // false: --no-mis (next event estimation only)
   float reprojected_weight = RenderOptions{}.reprojected_weight;
-  std::string rr;  // --rr; empty: the default roulette
-  Args camera;     // camera overrides (--eye, --look, ...); empty: the scene's camera
+  std::string rr;       // --rr; empty: the default roulette
+  Args camera;          // camera overrides (--eye, --look, ...); empty: the scene's camera
+  std::string combine;  // --combine; empty: the default rule
 
   // The flags shared by `epr render` and `epr submit`. The reprojector is the default (the OSMesa
   // deep framebuffer) on both sides: the cluster runs what a user runs.
@@ -90,6 +91,10 @@ struct Job {
     if (reprojected_weight != RenderOptions{}.reprojected_weight) {
       a.push_back("--reprojected-weight");
       a.push_back(fmt::format("{}", reprojected_weight));
+    }
+    if (!combine.empty()) {
+      a.push_back("--combine");
+      a.push_back(combine);
     }
     a.insert(a.end(), camera.begin(), camera.end());
     return a;
@@ -388,6 +393,25 @@ TEST_F(ClusterTest, TheReprojectedWeightTravelsToTheMaster) {
   EXPECT_GT(summarize(read_image(path("w.counts.exr")), job.spp).m_sum,
             summarize(read_image(path("one_ref.counts.exr")), job.spp).m_sum)
       << "W = 0.25 traced no more paths than W = 1: the weight did nothing";
+}
+
+TEST_F(ClusterTest, TheVarianceCombinationEqualsTheSingleProcessRender) {
+  // --combine variance: the halves of each pixel's samples (by round and by subpixel) are the same
+  // in the master as in one process, so the counts and path sums are bit-identical and the combined
+  // image equal within float rounding; and it differs from the fixed rule's.
+  Job job;
+  job.size = 48;
+  job.spp = 32;
+  job.k = 2;
+  job.min_paths = 2;
+  job.combine = "variance";
+  ASSERT_NO_FATAL_FAILURE(expect_two_workers_equal_single_process(job, "v"));
+  EXPECT_EQ(load_outputs(path("v")).stats.value("combine", std::string()), "variance");
+  job.combine = "fixed";
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("fixed_ref")));
+  EXPECT_NE(close_difference(load_outputs(path("v")).combined, load_outputs(path("fixed_ref")).combined, 1e-4f, 1e-5f),
+            "")
+      << "the variance and fixed combinations gave the same image: the option did nothing";
 }
 
 // ---- 2. the number of workers does not change the result ----------------------------------------------
