@@ -112,7 +112,7 @@ class ArgumentTest(unittest.TestCase):
 
         with open(os.path.join(base.SOURCE_DIR, "common", "roulette.cpp")) as f:
             table = re.findall(r'\{"(\w+)", RussianRoulette::\w+\(', f.read())
-        self.assertEqual(table, ["paper", "albedo", "off", "throughput", "reuse"])
+        self.assertEqual(table, ["paper", "albedo", "off", "throughput", "reuse", "auto"])
         self.assertEqual(list(job_settings.ROULETTE), table)
         spec = self.client.job_spec("builtin:cornell")
         self.assertEqual(spec.russian_roulette.mode, rs_pb.RUSSIAN_ROULETTE_MODE_UNSPECIFIED)
