@@ -7,17 +7,26 @@
 namespace epr {
 namespace {
 
-const std::array<NamedRoulette, 5> kNamed = {{
+const std::array<NamedRoulette, 6> kNamed = {{
     {"paper", RussianRoulette::paper()},
     {"albedo", RussianRoulette::albedo()},
     {"off", RussianRoulette::off(8)},
     {"throughput", RussianRoulette::throughput()},
     {"reuse", RussianRoulette::reuse()},
+    {"auto", RussianRoulette::automatic()},
 }};
 
 }  // namespace
 
 std::span<const NamedRoulette> named_roulettes() { return kNamed; }
+
+RussianRoulette RussianRoulette::resolved(bool light_from_outside) const {
+  if (mode != Mode::kAuto) return *this;
+  RussianRoulette r = light_from_outside ? reuse() : albedo();
+  if (start_depth >= 0) r.start_depth = start_depth;
+  r.max_depth = max_depth;
+  return r;
+}
 
 std::optional<RussianRoulette> roulette_named(std::string_view name) {
   for (const NamedRoulette& n : kNamed)

@@ -19,9 +19,10 @@ struct RussianRoulette {
     kOff,         // no roulette: every path stops at max_depth (biased: reprojected samples get darker)
     kThroughput,  // survive with the path's throughput x albedo (clamped to [0.05, 1]) once depth > start_depth
     kReuse,       // kThroughput, the throughput counted from the latest vertex reprojection can show
+    kAuto,        // kReuse in a scene lit from outside (a sky or a sun), kAlbedo otherwise: resolved()
   };
   Mode mode = Mode::kPaper;
-  int start_depth = 8;       // vertices traced before roulette starts
+  int start_depth = 8;       // vertices traced before roulette starts (kAuto: -1, the resolved mode's own)
   float termination = 0.1f;  // kPaper's termination probability
   int max_depth = 1024;      // hard cap on path vertices
 
@@ -30,9 +31,14 @@ struct RussianRoulette {
   static RussianRoulette off(int max_depth) { return {Mode::kOff, 0, 0.f, max_depth}; }
   static RussianRoulette throughput() { return {Mode::kThroughput, 2, 0.f, 1024}; }
   static RussianRoulette reuse() { return {Mode::kReuse, 2, 0.f, 1024}; }
+  static RussianRoulette automatic() { return {Mode::kAuto, -1, 0.f, 1024}; }
   /// The default of `epr render`, `epr submit`, the Python client and the add-on (a job that names
   /// no roulette: RUSSIAN_ROULETTE_MODE_UNSPECIFIED).
-  static RussianRoulette standard() { return reuse(); }
+  static RussianRoulette standard() { return automatic(); }
+  /// The policy a path follows: kAuto becomes reuse() where light comes from outside the scene (an
+  /// environment or a sun) and albedo() where it does not (DESIGN.md "Russian roulette" says why),
+  /// with this one's max_depth and, if set (>= 0), start_depth; every other mode is itself.
+  RussianRoulette resolved(bool light_from_outside) const;
   bool operator==(const RussianRoulette&) const = default;
 };
 

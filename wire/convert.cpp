@@ -74,7 +74,7 @@ void to_proto(const RussianRoulette& r, v1::RussianRouletteSettings* out) {
   v1::RussianRouletteMode mode = v1::RUSSIAN_ROULETTE_MODE_UNSPECIFIED;
   v1::RussianRouletteMode_Parse("RUSSIAN_ROULETTE_MODE_" + name, &mode);
   out->set_mode(mode);
-  out->set_start_depth(uint32_t(std::max(0, r.start_depth)));
+  if (r.start_depth >= 0) out->set_start_depth(uint32_t(r.start_depth));  // AUTO's -1: unset
   out->set_termination_probability(r.termination);
   out->set_max_depth(uint32_t(std::max(0, r.max_depth)));
 }

@@ -62,7 +62,12 @@ uint32_t test_nonfinite_every() {
 
 PathTracer::PathTracer(const EmbreeScene& scene, const Camera& camera, uint64_t seed, RussianRoulette rr, bool mis,
                        SamplerKind sampler, const SkyLight* sky)
-    : scene_(scene), camera_(camera), seed_(seed), rr_(rr), mis_(mis), sampler_(sampler) {
+    : scene_(scene),
+      camera_(camera),
+      seed_(seed),
+      rr_(rr.resolved(sky && sky->from_outside())),
+      mis_(mis),
+      sampler_(sampler) {
   if (sky && !sky->empty()) {
     sky_ = sky;
     triangle_share_ = sky->triangle_share();

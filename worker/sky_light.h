@@ -63,6 +63,8 @@ class SkyLight {
 
   /// True if no environment, sun, point or spot light gives light.
   bool empty() const { return p_env_ == 0 && p_sun_ == 0 && p_punctual_ == 0; }
+  /// True if light comes from outside the scene: an environment or a sun (lamps are inside).
+  bool from_outside() const { return p_env_ > 0 || p_sun_ > 0; }
   /// Probability that next event estimation picks the emitting triangles.
   float triangle_share() const { return p_tri_; }
   /// The power estimates the share follows (luminance, W): see the file comment.

@@ -66,7 +66,26 @@ TEST(RouletteNames, EveryPolicyByNameAndBack) {
   EXPECT_EQ(roulette_named("REUSE"), RussianRoulette::reuse());
   EXPECT_FALSE(roulette_named("russian"));
   EXPECT_FALSE(roulette_named(""));
-  EXPECT_EQ(roulette_names(), "paper, albedo, off, throughput, reuse");
+  EXPECT_EQ(roulette_names(), "paper, albedo, off, throughput, reuse, auto");
+}
+
+TEST(RouletteAuto, IsReuseUnderASkyOrSunAndAlbedoInsideKeepingTheDepthsGiven) {
+  EXPECT_EQ(RussianRoulette::standard(), RussianRoulette::automatic());
+  EXPECT_EQ(RussianRoulette::automatic().resolved(true), RussianRoulette::reuse());
+  EXPECT_EQ(RussianRoulette::automatic().resolved(false), RussianRoulette::albedo());
+  RussianRoulette capped = RussianRoulette::automatic();
+  capped.max_depth = 12;
+  capped.start_depth = 5;
+  const RussianRoulette inside = capped.resolved(false);
+  EXPECT_EQ(inside.mode, RussianRoulette::Mode::kAlbedo);
+  EXPECT_EQ(inside.max_depth, 12);
+  EXPECT_EQ(inside.start_depth, 5);
+  // Every other policy is itself, wherever the light comes from.
+  for (const NamedRoulette& n : named_roulettes())
+    if (n.rr.mode != RussianRoulette::Mode::kAuto) {
+      EXPECT_EQ(n.rr.resolved(true), n.rr) << n.name;
+      EXPECT_EQ(n.rr.resolved(false), n.rr) << n.name;
+    }
 }
 
 }  // namespace

@@ -328,5 +328,36 @@ TEST(SkyLight, TheSmallestSunIsAsWideAsItsAngle) {
   EXPECT_GT(sky.pdf_sun(at(0.5 * h)), 0.f);
 }
 
+
+// The default roulette (`auto`) follows where the light comes from: under a sky the paths it traces
+// are reuse's, bit for bit; lit by a lamp alone they are albedo's (and the two differ, so the test
+// sees which one ran).
+TEST(SkyLight, AutoRouletteIsReuseUnderASkyAndAlbedoUnderALamp) {
+  const Scene scene = open_box_with_lamp(0.7f, 8.f);
+  EmbreeScene es(scene);
+  const Camera cam(scene.camera, 16, 16);
+  const auto means = [&](const SkyLight& sky, const RussianRoulette& rr) {
+    const PathTracer tracer(es, cam, 5, rr, true, SamplerKind::kSobolBurley, &sky);
+    return render_image_means(tracer, 16, 8);
+  };
+  const auto same = [](const ImageMeans& a, const ImageMeans& b) {
+    return a.pixel == b.pixel && a.vertex == b.vertex && a.vertices == b.vertices;
+  };
+  Lighting outside;
+  outside.environment = EnvironmentLight{};
+  outside.environment->color = Vec3(0.5f);
+  const SkyLight sky(outside, es);
+  ASSERT_TRUE(sky.from_outside());
+  const ImageMeans auto_sky = means(sky, RussianRoulette::standard());
+  EXPECT_TRUE(same(auto_sky, means(sky, RussianRoulette::reuse())));
+  EXPECT_FALSE(same(auto_sky, means(sky, RussianRoulette::albedo())));
+
+  const SkyLight lamp(Lighting{}, es);
+  ASSERT_FALSE(lamp.from_outside());
+  const ImageMeans auto_lamp = means(lamp, RussianRoulette::standard());
+  EXPECT_TRUE(same(auto_lamp, means(lamp, RussianRoulette::albedo())));
+  EXPECT_FALSE(same(auto_lamp, means(lamp, RussianRoulette::reuse())));
+}
+
 }  // namespace
 }  // namespace epr

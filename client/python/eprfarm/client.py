@@ -335,8 +335,8 @@ class MasterClient:
             reprojected_weight: W in (0, 1], what a reprojected sample counts for against a traced
                 path (0.5, as `epr`; `--reprojected-weight`).
             combine: "fixed" (default, W above) or "variance" (inverse-variance weights; `--combine`).
-            rr: Russian roulette "reuse", "throughput", "albedo", "paper" or "off" (job_settings.ROULETTE);
-                None (default): the master's default, reuse, as `epr`. max_depth overrides its cap.
+            rr: Russian roulette "auto", "reuse", "throughput", "albedo", "paper" or "off" (job_settings.ROULETTE);
+                None (default): the master's default, auto, as `epr`. max_depth overrides its cap.
             mis: MIS for direct light (True); False: next event estimation only.
             tile: tile edge, pixels (64); taper_tiles (False).
             eye, look, up (x, y, z each) and fov (degrees): a camera, all four or none (the scene's own).

@@ -20,7 +20,7 @@ SAMPLERS = {
     "independent": rs_pb.SAMPLER_INDEPENDENT,
 }
 # Russian roulette by name: the proto's RussianRouletteMode values, named by the rest of their
-# names in lower case ("paper", "albedo", "off", "throughput", "reuse"). Only the mode is sent: the
+# names in lower case ("paper", "albedo", "off", "throughput", "reuse", "auto"). Only the mode is sent: the
 # master fills in each mode's start depth, termination probability and depth cap from its own table
 # (common/roulette.h), and a job that names none gets the master's default.
 _RR_PREFIX = "RUSSIAN_ROULETTE_MODE_"

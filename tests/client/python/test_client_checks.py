@@ -112,7 +112,7 @@ class ArgumentTest(unittest.TestCase):
 
         with open(os.path.join(base.SOURCE_DIR, "common", "roulette.cpp")) as f:
             table = re.findall(r'\{"(\w+)", RussianRoulette::\w+\(', f.read())
-        self.assertEqual(table, ["paper", "albedo", "off", "throughput", "reuse"])
+        self.assertEqual(table, ["paper", "albedo", "off", "throughput", "reuse", "auto"])
         self.assertEqual(list(job_settings.ROULETTE), table)
         spec = self.client.job_spec("builtin:cornell")
         self.assertEqual(spec.russian_roulette.mode, rs_pb.RUSSIAN_ROULETTE_MODE_UNSPECIFIED)
@@ -123,7 +123,7 @@ class ArgumentTest(unittest.TestCase):
         self.assertFalse(spec.russian_roulette.HasField("start_depth"))
         self.assertEqual(spec.russian_roulette.max_depth, 12)
         self.assert_refused(lambda: self.client.job_spec("builtin:cornell", rr="russian"),
-                            "rr 'russian' is not one of paper, albedo, off, throughput, reuse")  # fmt: skip
+                            "rr 'russian' is not one of paper, albedo, off, throughput, reuse, auto")  # fmt: skip
 
     def test_list_and_watch_arguments(self):
         self.assert_refused(lambda: self.client.list(limit=-1), "limit -1 must be 0 (all jobs) or more")
