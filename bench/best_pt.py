@@ -24,7 +24,7 @@ With --cycles ARGS (one scene only: scripts/cycles_reference.py's scene flags, e
 --env SKY --sun X,Y,Z,ANGLE,E") and --cycles-camera FILE (--eye= --look= --up= --fov=, the scene's
 camera), Blender Cycles is a baseline too: scripts/cycles_sweep.py renders every P once per seed (its
 CPU seconds per render call: scene sync and BVH included, Blender's start and the import not), scored
-against Cycles' own converged image (cycles_reference.py at --ref-spp / 2, seeds 1 and 2, its noise
+against Cycles' own converged image (cycles_reference.py at --ref-spp / 2, seeds 1000001 and 1000002, its noise
 subtracted the same way), so each renderer is measured against itself and the two models' small
 differences do not count as error. Its row gives the median error x CPU as a multiple of the best
 pt's, and every mode's ratio to Cycles' is printed below the table.
@@ -95,7 +95,7 @@ def cycles_runs(a, spps, seeds):
     with open(a.cycles_camera, encoding="utf-8") as f:
         camera = shlex.split(f.read())
     halves = []
-    for s in (1, 2):
+    for s in (1000001, 1000002):  # not a sweep's seed: Cycles' samples of one seed are the same at every count
         out = os.path.join(folder, f"ref_{a.width}x{a.height}_{a.ref_spp}_{s}.exr")
         if not os.path.exists(out):
             blender(a, "cycles_reference.py", [*scene, *camera, "--spp", str(a.ref_spp // 2), "--seed", str(s),
