@@ -12,6 +12,7 @@
 #include "common/builtin_scenes.h"
 #include "common/camera_animation.h"
 #include "common/scene_loader.h"
+#include "tests/common/cutout_scenes.h"
 
 namespace epr {
 namespace view_overlap_test {
@@ -81,6 +82,22 @@ TEST(ViewShare, BackFacesAndPointsBehindTheOtherEyeAreNotShared) {
   EXPECT_EQ(view_share(a, view_probe(bvh, looking({0, 0, -6}, {0, 0, 0}, 60), 32, 32), bvh), 0.0);
   // b between a and the wall, looking at a: the wall is behind b.
   EXPECT_EQ(view_share(a, view_probe(bvh, looking({0, 0, 1}, {0, 0, 3}, 60), 32, 32), bvh), 0.0);
+}
+
+TEST(ViewShare, TheOtherEyeSeesThroughTheHolesOfACutOut) {
+  // a, between the cut-out screen and the wall, sees only the wall; b sees the wall through the
+  // screen, whose checker mask hides about half of it: the share is what b sees through the holes,
+  // as with the holes modelled as geometry; with an opaque screen nothing.
+  const CameraSpec between = looking({0, 0, -0.2f}, {0, 0, -1}, 60), front = looking({0, 0, 2}, {0, 0, -1}, 30);
+  auto share = [&](const Scene& scene) {
+    const SceneBvh bvh(scene);
+    return view_share(view_probe(bvh, between, 32, 32), view_probe(bvh, front, 32, 32), bvh);
+  };
+  const double masked = share(test::cutout_screen_scene(4)), modelled = share(test::cutout_screen_scene(4, true));
+  EXPECT_NEAR(masked, modelled, 0.01);
+  EXPECT_GT(masked, 0.3);
+  EXPECT_LT(masked, 0.7);
+  EXPECT_EQ(share(test::cutout_screen_scene(4, false, true)), 0.0);
 }
 
 double pair_share(const std::string& file, uint32_t f0, uint32_t f1) {
