@@ -62,7 +62,9 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   const Camera camera(opts.camera_for(scene.camera), opts.width, opts.height);
   const double t_load = since(t_start);
   const auto t_bvh = std::chrono::steady_clock::now();
-  EmbreeScene embree(scene);
+  // One BVH for the tracing and the master's edge pixels.
+  const auto bvh = std::make_shared<const SceneBvh>(scene);
+  EmbreeScene embree(bvh);
   const double seconds_bvh = since(t_bvh);
   log->info("scene {}: {} triangles, {} materials; BVH in {:.3f} s", scene.name, scene.triangle_count(),
             scene.materials.size(), seconds_bvh);
@@ -70,7 +72,7 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
   // The master's side, in this process: the GL context lives on this thread.
   std::unique_ptr<GlContext> gl;
   if (opts.mode != RenderMode::kPathTrace && opts.reproject == ReprojectMethod::kGl) gl = std::make_unique<GlContext>();
-  RoundDriver driver(opts, camera, scene, gl.get());
+  RoundDriver driver(opts, camera, scene, gl.get(), bvh.get());
   FrameState& frame = driver.frame();
   // Vertices cross the same 16-byte quantisation as on the wire, so that this render and a cluster's
   // give the same M' (docs/DESIGN.md: determinism).

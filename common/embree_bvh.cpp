@@ -2,6 +2,7 @@
 #include "common/embree_bvh.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <stdexcept>
 
@@ -9,6 +10,8 @@
 
 namespace epr {
 namespace {
+
+std::atomic<uint64_t> builds{0};
 
 void on_embree_error(void*, RTCError code, const char* message) {
   logger("embree")->error("embree error {}: {}", int(code), message ? message : "");
@@ -31,7 +34,10 @@ void set_ray(const Vec3& origin, const Vec3& dir, float tnear, float tfar, RTCRa
 
 }  // namespace
 
+uint64_t embree_bvh_builds() { return builds.load(); }
+
 EmbreeBvh::EmbreeBvh(const Scene& scene) : scene_(scene) {
+  ++builds;
   device_ = rtcNewDevice(nullptr);
   if (!device_) throw std::runtime_error("cannot create Embree device");
   rtcSetDeviceErrorFunction(device_, on_embree_error, nullptr);

@@ -1,7 +1,8 @@
 // A scene's triangles in an Embree 3 BVH: closest-hit and any-hit queries, the holes of cut-out
 // materials (Scene::cut_out_at at the hit's barycentrics) skipped by Embree filter functions, so a
 // ray sees what lies behind a hole. The workers trace their paths with it (worker/embree_scene.h)
-// and the master its edge pixels' supersampled visibility (master/edge_pixels.h).
+// and the master its edge pixels' supersampled visibility (master/edge_pixels.h) and its cut
+// measurement (master/view_overlap.h); one per scene in a process (scene_bvh.h).
 //
 // Each object has its own device; errors from Embree are reported through a device error callback
 // (logged on the "embree" logger) rather than by checking every call, as in Embree's tutorials.
@@ -25,6 +26,9 @@ struct Hit {
   float u = 0, v = 0;  // barycentrics of corners 1 and 2
   Vec3 ng;             // Embree's geometric normal: not normalised, right-hand rule on the corner order
 };
+
+/// BVHs built in this process so far (for tests and statistics: one per scene, scene_bvh.h).
+uint64_t embree_bvh_builds();
 
 class EmbreeBvh {
  public:

@@ -9,6 +9,7 @@
 
 #include "common/check.h"
 #include "common/log.h"
+#include "common/scene_bvh.h"
 #include "master/combine_rule.h"
 #include "master/deep_framebuffer.h"
 #include "master/edge_pixels.h"
@@ -159,7 +160,8 @@ Image counts_image(const FrameImages& images) {
   return out;
 }
 
-FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl)
+FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl,
+                       const SceneBvh* bvh)
     : opts_(opts),
       width_(opts.width),
       height_(opts.height),
@@ -196,8 +198,14 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
       grid = detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
     }
     // Exact mode's visibility rays have no discretisation: its edge pixels keep their samples.
-    if (opts.reproject != ReprojectMethod::kExact && opts.edge_pixels)
-      edge_pixels_ = std::make_unique<detail::EdgePixels>(grid, camera, rs.epsilon, &scene);
+    if (opts.reproject != ReprojectMethod::kExact && opts.edge_pixels) {
+      detail::CoherentRays rays;
+      if (bvh)
+        rays = [b = &bvh->bvh()](std::span<const Ray> r, std::span<const float> tnear, std::span<Hit> hits) {
+          b->intersect_coherent(r, tnear, hits);
+        };
+      edge_pixels_ = std::make_unique<detail::EdgePixels>(grid, camera, rs.epsilon, &scene, rays);
+    }
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());

@@ -33,6 +33,7 @@
 namespace epr {
 
 class GlContext;
+class SceneBvh;
 namespace detail {
 class EdgePixels;
 }
@@ -149,7 +150,10 @@ class FrameState {
   /// `scene` supplies the triangles of the deep framebuffer (rp / skip modes only). `gl` is the
   /// context for the "gl" reprojector and for rasterising the deep framebuffer of either back-end;
   /// when null, both use a context of their own (the deep framebuffer: the CPU builder without OSMesa).
-  FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl = nullptr);
+  /// `bvh`, if given, is `scene`'s BVH shared with its other users (common/scene_bvh.h), which the
+  /// edge pixels' rays use (built now unless it was); else they build one of their own.
+  FrameState(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl = nullptr,
+             const SceneBvh* bvh = nullptr);
   ~FrameState();
 
   /// The path samples of one tile: sums and counts row-major over [x0, x1) x [y0, y1); `glossy` the

@@ -9,8 +9,9 @@
 
 namespace epr {
 
-RoundDriver::RoundDriver(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl)
-    : frame_(opts, camera, scene, gl) {}
+RoundDriver::RoundDriver(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl,
+                         const SceneBvh* bvh)
+    : frame_(opts, camera, scene, gl, bvh) {}
 
 namespace {
 

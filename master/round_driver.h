@@ -41,8 +41,9 @@ struct RoundPlan {
 
 class RoundDriver {
  public:
-  /// `gl`: the context for the "gl" reprojector (see FrameState).
-  RoundDriver(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl);
+  /// `gl`: the context for the "gl" reprojector; `bvh`: the scene's shared BVH, if any (see FrameState).
+  RoundDriver(const RenderOptions& opts, const Camera& camera, const Scene& scene, GlContext* gl,
+              const SceneBvh* bvh = nullptr);
 
   bool done() const { return frame_.done(); }
   RoundPlan open(const std::vector<TileRect>& tiles) const;

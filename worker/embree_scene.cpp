@@ -5,7 +5,11 @@
 
 namespace epr {
 
-EmbreeScene::EmbreeScene(const Scene& scene) : scene_(scene), bvh_(scene) {
+EmbreeScene::EmbreeScene(const Scene& scene) : EmbreeScene(std::make_shared<const SceneBvh>(scene)) {}
+
+EmbreeScene::EmbreeScene(std::shared_ptr<const SceneBvh> shared)
+    : shared_(std::move(shared)), scene_(shared_->scene()), bvh_(shared_->bvh()) {
+  const Scene& scene = scene_;
   // Step-off distance: relative to the scene's extent, so that metre- and kilometre-scale scenes
   // both avoid self-intersection without light leaking through thin geometry.
   const Bounds3 b = scene.bounds();

@@ -1,5 +1,6 @@
 // The scene prepared for tracing: its triangles in an Embree 3 BVH (common/embree_bvh.h: closest-hit
-// and any-hit queries, cut-out holes skipped), plus what a path needs per hit and per light sample,
+// and any-hit queries, cut-out holes skipped; its own, or one shared with the scene's other users in
+// the process, common/scene_bvh.h), plus what a path needs per hit and per light sample,
 // prepared once here rather than per ray: a compact per-triangle material index and the table of
 // emitting triangles. A hit's geometric normal is Embree's (Hit::ng), which costs no memory access.
 #pragma once
@@ -7,12 +8,14 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "common/camera.h"
 #include "common/embree_bvh.h"
 #include "common/sampling.h"
 #include "common/scene.h"
+#include "common/scene_bvh.h"
 
 namespace epr {
 
@@ -37,6 +40,8 @@ class EmbreeScene {
  public:
   /// Builds the BVH. `scene` must outlive this object (materials are read from it while tracing).
   explicit EmbreeScene(const Scene& scene);
+  /// Traces `shared`'s scene with its BVH (built now unless it was).
+  explicit EmbreeScene(std::shared_ptr<const SceneBvh> shared);
   EmbreeScene(const EmbreeScene&) = delete;
   EmbreeScene& operator=(const EmbreeScene&) = delete;
 
@@ -79,8 +84,9 @@ class EmbreeScene {
  private:
   void build_emitter_table();
 
+  const std::shared_ptr<const SceneBvh> shared_;
   const Scene& scene_;
-  EmbreeBvh bvh_;
+  const EmbreeBvh& bvh_;
   float ray_epsilon_ = 1e-4f;
   std::vector<uint8_t> material8_;
   std::vector<uint16_t> material16_;

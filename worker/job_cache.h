@@ -21,15 +21,17 @@
 #include "common/math.h"
 #include "common/scene.h"
 #include "epr/v1/worker_service.pb.h"
+#include "wire/scene_shelf.h"
 #include "worker/embree_scene.h"
 #include "worker/path_tracer.h"
 
 namespace epr {
 
-/// A scene and its BVH; not movable (the BVH refers to the scene). The scene may be shared with the
-/// process's other users (wire/scene_shelf.h).
+/// A scene and its BVH; not movable (the BVH refers to the scene). The scene, and with it its BVH,
+/// may be shared with the process's other users (wire/scene_shelf.h).
 struct LoadedScene {
-  explicit LoadedScene(std::shared_ptr<const Scene> s) : owner(std::move(s)), scene(*owner), embree(scene) {}
+  explicit LoadedScene(std::shared_ptr<const Scene> s)
+      : owner(std::move(s)), scene(*owner), embree(shelved_bvh(owner)) {}
   explicit LoadedScene(Scene s) : LoadedScene(std::make_shared<const Scene>(std::move(s))) {}
   LoadedScene(const LoadedScene&) = delete;
   LoadedScene& operator=(const LoadedScene&) = delete;

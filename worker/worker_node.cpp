@@ -133,7 +133,8 @@ struct WorkerNode::Impl {
   // A lease's scene: built-ins are generated; file scenes come from the disk cache (shared by every
   // master: entries are named by their content hash) or are fetched from `master`, which granted it.
   // With opts.shared_scenes, a scene another user in this process holds (the embedded render's client
-  // and master) is taken from the shelf (wire/scene_shelf.h): neither fetched nor loaded again.
+  // and master) is taken from the shelf (wire/scene_shelf.h), built-ins too: neither fetched nor
+  // loaded again, and traced with the BVH the shelf keeps for it.
   std::shared_ptr<const Scene> load_scene_for(const v1::SceneRef& ref, const std::string& master) {
     if (!ref.builtin().empty()) {
       SceneBundleData b;
@@ -141,7 +142,9 @@ struct WorkerNode::Impl {
       if (content_hash(b) != ref.content_hash())
         throw std::runtime_error(
             fmt::format("built-in scene '{}' does not have content hash {}", ref.builtin(), ref.content_hash()));
-      return std::make_shared<const Scene>(load_scene(ref.builtin()));
+      if (!opts.shared_scenes) return std::make_shared<const Scene>(load_scene(ref.builtin()));
+      if (auto shelved = shelved_scene(ref.content_hash())) return shelved;
+      return shelve_scene(ref.content_hash(), std::make_shared<const Scene>(load_scene(ref.builtin())));
     }
     if (!is_content_hash(ref.content_hash()))
       throw std::runtime_error(

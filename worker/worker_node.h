@@ -92,8 +92,9 @@ struct WorkerNodeOptions {
   int max_backoff_ms = 5000;  // cap of the reconnect backoff
   int min_backoff_ms = 100;   // first reconnect delay (halved or kept, by the jitter)
   int max_cached_jobs = 3;    // per-job tracing state kept (scenes and BVHs of older jobs are dropped)
-  // Take a file scene that another user in this process holds (wire/scene_shelf.h: the embedded
-  // render's client and master) rather than fetch and load it, and shelve the ones this node loads.
+  // Take a scene that another user in this process holds (wire/scene_shelf.h: the embedded render's
+  // client and master) rather than fetch and load it, and shelve the ones this node loads; a shelved
+  // scene's BVH is built once for all of them.
   bool shared_scenes = false;
   // Split the tracing threads' CPU seconds by activity (WorkerNodeStats::cpu). A diagnostic: reading a
   // thread's CPU clock at every change of activity lets the kernel preempt it at the tiles' hand-offs

@@ -16,6 +16,7 @@
 #include "master/server/reprojection_worker.h"
 #include "master/view_overlap.h"
 #include "wire/scene_bundle.h"
+#include "wire/scene_shelf.h"
 
 namespace epr {
 
@@ -123,12 +124,14 @@ std::shared_ptr<const Scene> ReprojectionWorker::measure_cuts(const std::shared_
   }
   const RenderOptions& o = first->request.options;
   const auto start = std::chrono::steady_clock::now();
+  // The rays are traced with the scene's BVH on the shelf, which the frames' edge pixels use next.
+  const std::shared_ptr<const SceneBvh> bvh = shelved_bvh(scene);
   std::vector<ViewProbe> probes;
-  for (const auto& c : cameras) probes.push_back(view_probe(*scene, c.second, o.width, o.height, gl_.get()));
+  for (const auto& c : cameras) probes.push_back(view_probe(*bvh, c.second, o.width, o.height));
   std::string shares;
   for (size_t i = 0; i + 1 < probes.size(); ++i) {
     run->measured.push_back(cameras[i].first);
-    run->share.push_back(mutual_view_share(probes[i], probes[i + 1]));
+    run->share.push_back(mutual_view_share(probes[i], probes[i + 1], *bvh));
     run->cut.push_back(run->share.back() < below);
     shares +=
         fmt::format("{}{}-{} {:.0f} %", i ? ", " : "", cameras[i].first, cameras[i + 1].first, 100 * run->share.back());

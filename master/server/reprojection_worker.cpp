@@ -17,6 +17,7 @@
 #include "master/server/checkpointer.h"
 #include "master/server/previews.h"
 #include "master/server/window_run.h"
+#include "wire/scene_shelf.h"
 
 namespace epr {
 namespace fs = std::filesystem;
@@ -205,7 +206,9 @@ void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
   if (!had_checkpoint && !begin_running(job, nullptr)) return;  // cancelled meanwhile
   if (m_.options_.before_frame_build) m_.options_.before_frame_build(job->id);
   const auto build = std::chrono::steady_clock::now();
-  render.driver = std::make_unique<RoundDriver>(opts, *render.camera, *render.scene, gl_.get());
+  // The edge pixels' rays use the scene's BVH on the shelf: one build for every frame of the scene.
+  render.driver =
+      std::make_unique<RoundDriver>(opts, *render.camera, *render.scene, gl_.get(), shelved_bvh(render.scene).get());
   render.driver->frame().set_count_unit(window_count_unit(job->request.batch));
   const double build_s = seconds_since(build);
   FrameState& frame = render.driver->frame();

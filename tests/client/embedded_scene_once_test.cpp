@@ -9,6 +9,7 @@
 
 #include "client/embedded_render.h"
 #include "client/local_render.h"
+#include "common/embree_bvh.h"
 #include "common/image.h"
 #include "common/scene_loader.h"
 
@@ -36,11 +37,13 @@ TEST(EmbeddedSceneOnce, ClientMasterAndWorkersShareOneLoad) {
   eo.http_listen = "";
   eo.upload_progress = {};
 
-  const uint64_t before = scene_file_loads();
+  const uint64_t before = scene_file_loads(), bvhs_before = embree_bvh_builds();
   const EmbeddedResult r = render_embedded(o, eo);
-  const uint64_t loads = scene_file_loads() - before;
+  const uint64_t loads = scene_file_loads() - before, bvhs = embree_bvh_builds() - bvhs_before;
   ASSERT_EQ(r.status.state(), v1::JOB_STATE_DONE) << r.status.error_message();
   EXPECT_EQ(loads, 1u) << "the embedded render parsed the scene and decoded its textures " << loads << " times";
+  // The workers' tracing and the master's edge pixels share the shelved scene's BVH.
+  EXPECT_EQ(bvhs, 1u) << "the embedded render built " << bvhs << " BVHs of the scene";
   size_t fetched = 0;  // scenes/HASH folders a worker wrote
   for (const auto& e : fs::directory_iterator(dir / "cache" / "scenes"))
     if (e.path().filename().string().front() != '.') ++fetched;

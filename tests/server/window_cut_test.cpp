@@ -9,6 +9,7 @@
 #include <map>
 #include <nlohmann/json.hpp>
 
+#include "common/embree_bvh.h"
 #include "master/server/job_manager.h"
 #include "tests/server/in_process_worker.h"
 #include "tests/server/job_images.h"
@@ -108,6 +109,16 @@ TEST(WindowCut, FramesOnEachSideOfACutGetNothingFromTheOtherSide) {
   EXPECT_GE(run[3].stats.at("frame_window").at("view_share_previous").get<double>(), cut_share);
   // Frames on one side still exchange: frame 1 takes frame 2's vertices.
   EXPECT_GT(double(total_mprime(run[0].images.counts)), 1.3 * double(total_mprime(alone[0].images.counts)));
+}
+
+TEST(WindowCut, TheMasterBuildsOneBvhForTheCutsAndEveryFrame) {
+  // The cut measurement's rays and each frame's edge pixels use the scene's BVH on the shelf; the
+  // test's worker (in_process_worker.h) builds one of its own per frame.
+  const uint64_t before = embree_bvh_builds();
+  const std::vector<Rendered> run = render(frames(1, 4, 3, 1, 4));
+  ASSERT_EQ(run.size(), 4u);
+  for (const Rendered& r : run) ASSERT_GT(r.stats.at("edge_pixels").get<uint64_t>(), 0u) << "no rays to trace";
+  EXPECT_EQ(embree_bvh_builds() - before, 1u + 4u) << "the master built more than one BVH of the scene";
 }
 
 TEST(WindowCut, CountsWithACutAreTheSameForOneAndThreeWorkers) {

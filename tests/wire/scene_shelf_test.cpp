@@ -7,6 +7,7 @@
 
 #include <filesystem>
 
+#include "common/embree_bvh.h"
 #include "common/scene_loader.h"
 #include "wire/scene_bundle.h"
 
@@ -26,6 +27,24 @@ TEST(SceneShelf, HoldsScenesWeaklyAndKeepsTheFirst) {
   first.reset();
   EXPECT_EQ(shelved_scene(hash), nullptr) << "the shelf kept a scene nobody holds";
   EXPECT_EQ(shelve_scene(hash, second), second);
+}
+
+TEST(SceneShelf, AShelvedScenesBvhIsOneObjectBuiltOnceWhileTheSceneIsHeld) {
+  const std::string hash = "shelf-bvh-test-" + std::to_string(::getpid());
+  Scene box;
+  add_quad(box, {-1, -1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 1, 0}, add_material(box, Material{}));
+  std::shared_ptr<const Scene> held = shelve_scene(hash, std::make_shared<const Scene>(box));
+  const uint64_t before = embree_bvh_builds();
+  const EmbreeBvh* first = &shelved_bvh(held)->bvh();  // the holder goes; the scene held keeps it
+  EXPECT_EQ(&shelved_bvh(shelved_scene(hash))->bvh(), first) << "another user of the scene got another BVH";
+  EXPECT_EQ(embree_bvh_builds() - before, 1u);
+  Hit hit;
+  EXPECT_TRUE(first->intersect(Ray{{0, 0, 1}, {0, 0, -1}}, 0, 2, &hit)) << "the BVH is the scene's";
+  // A scene not on the shelf gets a BVH of its own each time.
+  const auto other = std::make_shared<const Scene>(box);
+  EXPECT_NE(shelved_bvh(other), shelved_bvh(other));
+  held.reset();
+  EXPECT_EQ(shelved_scene(hash), nullptr) << "the BVH kept its scene on the shelf after its last user";
 }
 
 TEST(SceneShelf, ShareBundleSceneLoadsOnceWhileHeld) {
