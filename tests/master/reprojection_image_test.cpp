@@ -64,7 +64,10 @@ TEST(Combine, WeightsPathSamplesAndReprojectedSamplesByTheirCounts) {
   EXPECT_FLOAT_EQ(L.rgb(1, 0).x, 2.f);
   EXPECT_FLOAT_EQ(L.rgb(1, 0).y, 1.f);
   // No samples at all: 0, not NaN.
-  const Image Z = combine(Image(2, 1, 3), {0, 0}, PixelReprojection{Image(2, 1, 3), {0, 0}, false, {}, {}});
+  PixelReprojection none;
+  none.radiance = Image(2, 1, 3);
+  none.count = {0, 0};
+  const Image Z = combine(Image(2, 1, 3), {0, 0}, none);
   EXPECT_EQ(Z.rgb(0, 0), Vec3(0.f));
   // Only reprojected samples: L = L_rp.
   const Image R = combine(Image(2, 1, 3), {0, 0}, rp);

@@ -328,7 +328,6 @@ TEST(SkyLight, TheSmallestSunIsAsWideAsItsAngle) {
   EXPECT_GT(sky.pdf_sun(at(0.5 * h)), 0.f);
 }
 
-
 // The default roulette (`auto`) follows where the light comes from: under a sky the paths it traces
 // are reuse's, bit for bit; lit by a lamp alone they are albedo's (and the two differ, so the test
 // sees which one ran).
