@@ -15,15 +15,21 @@
 namespace epr {
 namespace {
 
-TEST(PathHalves, EvenAndOddRoundsAddUpToTheTotals) {
-  const Scene scene = test::scene_named("cornell");
+// A 4 x 2 frame of the Cornell box, reprojected on the CPU, with the variance combination.
+RenderOptions variance_options(int spp) {
   RenderOptions o;
   o.width = 4;
   o.height = 2;
-  o.spp = 32;
+  o.spp = spp;
   o.mode = RenderMode::kReproject;
   o.reproject = ReprojectMethod::kCpu;
   o.combine = CombineRule::kVariance;
+  return o;
+}
+
+TEST(PathHalves, EvenAndOddRoundsAddUpToTheTotals) {
+  const Scene scene = test::scene_named("cornell");
+  const RenderOptions o = variance_options(32);
   const Camera camera(scene.camera, o.width, o.height);
   FrameState frame(o, camera, scene);
   const size_t pixels = size_t(o.width) * size_t(o.height);
@@ -72,13 +78,7 @@ TEST(PathHalves, EvenAndOddRoundsAddUpToTheTotals) {
 // not restore, naming why; the memory estimate counts what the halves add.
 TEST(PathHalves, AnOlderSnapshotWithoutHalvesIsRefusedAndTheEstimateCountsThem) {
   const Scene scene = test::scene_named("cornell");
-  RenderOptions o;
-  o.width = 4;
-  o.height = 2;
-  o.spp = 8;
-  o.mode = RenderMode::kReproject;
-  o.reproject = ReprojectMethod::kCpu;
-  o.combine = CombineRule::kVariance;
+  RenderOptions o = variance_options(8);
   const Camera camera(scene.camera, o.width, o.height);
   FrameState frame(o, camera, scene);
   FrameSnapshot old = frame.save();
