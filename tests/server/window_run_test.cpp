@@ -114,19 +114,28 @@ void expect_window_sum(const Image& windowed, const std::vector<float>& expected
   EXPECT_LT(above, expected.size() / 4) << "most pixels' M' is the plain sum";
 }
 
+// Frames 1-3 of one static camera in rp at 16 spp, alone (*alone) and with a window (*windowed,
+// with each frame's area-weighted pixels).
+void render_static_frames(uint32_t window, float halving, std::vector<JobImages>* alone,
+                          std::vector<JobImages>* windowed, std::vector<size_t>* area_weighted) {
+  std::vector<JobRequest> a, w;
+  for (uint32_t f = 1; f <= 3; ++f) {
+    a.push_back(frame_request(f, RenderMode::kReproject, 16, 0));
+    w.push_back(frame_request(f, RenderMode::kReproject, 16, window, 0, halving));
+  }
+  *alone = render(a);
+  *windowed = render(w, 1, area_weighted);
+  ASSERT_EQ(alone->size(), 3u);
+  ASSERT_EQ(windowed->size(), 3u);
+  ASSERT_EQ(area_weighted->size(), 3u);
+}
+
 TEST(WindowRun, AStaticCameraGivesEachFrameTheSamplesOfItsWindow) {
   // rp traces every path whatever M' says, so a frame's paths do not depend on its window: with one
   // camera for all three frames, frame f's M' is the sum of the M' its window's frames get alone.
-  std::vector<JobRequest> alone, windowed;
-  for (uint32_t f = 1; f <= 3; ++f) {
-    alone.push_back(frame_request(f, RenderMode::kReproject, 16, 0));
-    windowed.push_back(frame_request(f, RenderMode::kReproject, 16, /*window=*/1));
-  }
+  std::vector<JobImages> a, w;
   std::vector<size_t> area_weighted;
-  const std::vector<JobImages> a = render(alone), w = render(windowed, 1, &area_weighted);
-  ASSERT_EQ(a.size(), 3u);
-  ASSERT_EQ(w.size(), 3u);
-  ASSERT_EQ(area_weighted.size(), 3u);
+  ASSERT_NO_FATAL_FAILURE(render_static_frames(/*window=*/1, /*halving=*/0, &a, &w, &area_weighted));
   const size_t pixels = size_t(a[0].counts.width) * size_t(a[0].counts.height);
   uint64_t total_alone = 0;
   for (int f = 0; f < 3; ++f) {
@@ -151,16 +160,9 @@ TEST(WindowRun, AStaticCameraWeighsItsNeighboursSamplesByTheirDistance) {
   EXPECT_EQ(window_sample_weight(2, 1.f), 4u);
   EXPECT_EQ(window_sample_weight(9, 1.f), 1u);
   EXPECT_EQ(window_sample_weight(3, 0.f), 16u);
-  std::vector<JobRequest> alone, windowed;
-  for (uint32_t f = 1; f <= 3; ++f) {
-    alone.push_back(frame_request(f, RenderMode::kReproject, 16, 0));
-    windowed.push_back(frame_request(f, RenderMode::kReproject, 16, /*window=*/2, 0, /*halving=*/1));
-  }
+  std::vector<JobImages> a, w;
   std::vector<size_t> area_weighted;
-  const std::vector<JobImages> a = render(alone), w = render(windowed, 1, &area_weighted);
-  ASSERT_EQ(a.size(), 3u);
-  ASSERT_EQ(w.size(), 3u);
-  ASSERT_EQ(area_weighted.size(), 3u);
+  ASSERT_NO_FATAL_FAILURE(render_static_frames(/*window=*/2, /*halving=*/1, &a, &w, &area_weighted));
   const size_t pixels = size_t(a[0].counts.width) * size_t(a[0].counts.height);
   const float weight[] = {1.f, 0.5f, 0.25f};
   for (int f = 0; f < 3; ++f) {
