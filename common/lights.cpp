@@ -56,4 +56,10 @@ std::optional<std::string> check_light(const PunctualLight& l) {
   return std::nullopt;
 }
 
+bool lit_from_outside(const Lighting& lighting, std::span<const PunctualLight> lights) {
+  return lighting.lights() || std::any_of(lights.begin(), lights.end(), [](const PunctualLight& l) {
+           return l.type == LightType::kDirectional && luminance(l.intensity) > 0;
+         });
+}
+
 }  // namespace epr

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -50,5 +51,10 @@ struct PunctualLight {
 
 /// Checks one light's values; the reason (without the light's name) if unusable.
 std::optional<std::string> check_light(const PunctualLight& l);
+
+/// True if light comes from outside the scene: an environment or a sun that gives light, or a
+/// directional light. `--rr auto` resolves by it (common/roulette.h), on the worker and in the master's
+/// statistics alike.
+bool lit_from_outside(const Lighting& lighting, std::span<const PunctualLight> lights);
 
 }  // namespace epr

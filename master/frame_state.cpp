@@ -117,7 +117,8 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
       path_sum_(size_t(opts.width) * size_t(opts.height) * 3, 0.f),
       path_count_(size_t(opts.width) * size_t(opts.height), 0),
       mprime_(size_t(opts.width) * size_t(opts.height), 0),
-      skip_(size_t(opts.width) * size_t(opts.height), 0) {
+      skip_(size_t(opts.width) * size_t(opts.height), 0),
+      lit_from_outside_(lit_from_outside(scene.lighting, scene.lights)) {
   if (camera.width() != width_ || camera.height() != height_)
     throw std::invalid_argument("camera and frame sizes differ");
   if (opts.mode != RenderMode::kPathTrace) {
@@ -622,6 +623,7 @@ nlohmann::json FrameState::statistics(const RenderOptions& opts, uint64_t worker
       {"epsilon_fraction", opts.epsilon},
       {"reprojected_weight", opts.reprojected_weight},
       {"combine", to_string(opts.combine)},
+      {"roulette", roulette_name(opts.rr.resolved(lit_from_outside_).mode)},
       {"tile_size", opts.tile_size},
       {"taper_tiles", opts.taper_tiles},
       {"rounds", p.round},

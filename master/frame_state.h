@@ -271,6 +271,7 @@ class FrameState {
   uint32_t count_unit_ = 1;             // what one of the frame's own reprojected samples counts
   bool reprojection_partial_ = false;   // the last downsample left skipped pixels' M' as they were
   std::vector<uint8_t> skip_;           // 1 = no more paths for this pixel
+  bool lit_from_outside_ = false;       // the scene's lights, for the roulette `auto` resolves to (statistics)
   // The variance combination only (else empty): B per pixel and half, M'_eff as of the last
   // downsample, the even rounds' diffuse path sums (FrameSnapshot), the rounds a pixel with M paths
   // has traced in (rounds_at_[M], from the schedule), and the paths of the first r rounds that were

@@ -31,6 +31,7 @@ float SkyLight::scene_radius(const Scene& scene) {
 
 SkyLight::SkyLight(const Lighting& lighting, double triangle_power, float scene_radius,
                    std::optional<float> fixed_share, std::span<const PunctualLight> lights) {
+  from_outside_ = lit_from_outside(lighting, lights);
   float e_env = 0;  // irradiance the environment gives a surface facing it (luminance)
   if (lighting.environment && lighting.environment->strength > 0) {
     env_ = lighting.environment;

@@ -63,8 +63,9 @@ class SkyLight {
 
   /// True if no environment, sun, point or spot light gives light.
   bool empty() const { return p_env_ == 0 && p_sun_ == 0 && p_punctual_ == 0; }
-  /// True if light comes from outside the scene: an environment or a sun (lamps are inside).
-  bool from_outside() const { return p_env_ > 0 || p_sun_ > 0; }
+  /// True if light comes from outside the scene (common/lights.h lit_from_outside: an environment, a
+  /// sun or a directional light that gives light; lamps are inside).
+  bool from_outside() const { return from_outside_; }
   /// Probability that next event estimation picks the emitting triangles.
   float triangle_share() const { return p_tri_; }
   /// The power estimates the share follows (luminance, W): see the file comment.
@@ -124,6 +125,7 @@ class SkyLight {
   std::vector<PunctualLight> punctual_;  // point and spot lights
   std::vector<float> p_punctual_each_;   // selection probability of each
   float p_tri_ = 0, p_env_ = 0, p_sun_ = 0, p_punctual_ = 0;
+  bool from_outside_ = false;
   double triangle_power_ = 0, sky_power_ = 0;
   float rotation_ = 0;  // radians
   // Environment image: texel weights (luminance x sin theta), their total, and the 2D distribution.

@@ -239,5 +239,28 @@ TEST(LocalRender, ConvergedCornellBiasIsConcentratedAtEdgesAndExactModeHasNone) 
   EXPECT_NEAR(bias.interior_signed, 0.0, 0.02);
 }
 
+// The statistics name the roulette that ran: `auto` (the default) as what it resolved to from the
+// scene's lights, the same paths as that roulette named outright; any other by its own name.
+TEST(LocalRender, StatisticsNameTheRouletteThatRan) {
+  RenderOptions lamp = square_job("builtin:cornell", 16, 4);
+  RenderOptions sky = lamp;
+  sky.lighting.environment = EnvironmentLight{};
+  sky.lighting.environment->color = Vec3(0.5f);
+  for (const auto& [opts, name] : {std::pair{lamp, "albedo"}, std::pair{sky, "reuse"}}) {
+    const RenderOutputs automatic = render_local(opts);
+    EXPECT_EQ(automatic.stats.at("roulette"), name);
+    RenderOptions named = opts;
+    named.rr = *roulette_named(name);
+    const RenderOutputs outright = render_local(named);
+    EXPECT_EQ(outright.stats.at("roulette"), name);
+    EXPECT_EQ(automatic.pathtrace.data, outright.pathtrace.data) << name;
+  }
+  RenderOptions paper = sky;
+  paper.rr = RussianRoulette::paper();
+  const RenderOutputs out = render_local(paper);
+  EXPECT_EQ(out.stats.at("roulette"), "paper");
+  EXPECT_NE(out.pathtrace.data, render_local(sky).pathtrace.data);
+}
+
 }  // namespace
 }  // namespace epr
