@@ -18,7 +18,8 @@ and trimmed error, and error x CPU (the efficiency: lower is better) as a multip
 where the best pt is the pt mode with the lowest median error x CPU; the ratio is the median over
 seeds of the per-seed ratios against that pt's run of the same seed (side by side, so load drifts
 cancel). The image mean's offset from the reference (luminance, %) with the standard error of the
-per-pixel differences. OUT/runs.csv holds every run.
+per-pixel differences. OUT/runs.csv holds every run, written as each one ends (an interrupted sweep keeps
+what it measured).
 
 With --cycles ARGS (one scene only: scripts/cycles_reference.py's scene flags, e.g. "--gltf FILE
 --env SKY --sun X,Y,Z,ANGLE,E") and --cycles-camera FILE (--eye= --look= --up= --fov=, the scene's
@@ -145,7 +146,14 @@ def main():
     seeds = [int(s) for s in a.seeds.split(",")]
     os.makedirs(os.path.join(a.out, "img"), exist_ok=True)
     cycles = cycles_runs(a, spps, seeds) if a.cycles else {}
-    rows = []
+    runs_csv = open(os.path.join(a.out, "runs.csv"), "w", newline="")
+    table = csv.writer(runs_csv)
+
+    def record(*new_rows):
+        table.writerows(new_rows)
+        runs_csv.flush()
+
+    record(["scene", "spp", "mode", "seed", "cpu_s", "relmse", "trimmed", "offset_pct"])
     lines = [f"load average at start {os.getloadavg()[0]:.1f}; {a.width} x {a.height}, seeds {a.seeds}, "
              f"reference {a.ref_spp} spp", ""]  # fmt: skip
     for scene in a.scene:
@@ -160,7 +168,7 @@ def main():
                     full, trimmed = garden.errors(x, ref, floor)
                     off, sigma = mean_offset(x, ref)
                     runs.setdefault(mode, []).append((seed, cpu, full, trimmed, off, sigma))
-                    rows.append([scene, spp, mode, seed, f"{cpu:.3f}", f"{full:.6g}", f"{trimmed:.6g}", f"{off:.3f}"])
+                    record([scene, spp, mode, seed, f"{cpu:.3f}", f"{full:.6g}", f"{trimmed:.6g}", f"{off:.3f}"])
             med = lambda mode, i: statistics.median(r[i] for r in runs[mode])  # noqa: E731
             pts = [m for m in a.modes if m.startswith("pt")]
             best = min(pts, key=lambda m: med(m, 1) * med(m, 2))
@@ -187,11 +195,10 @@ def main():
                     f"{mode} " + " / ".join(f"{statistics.median(r[1] * r[i] / (y[1] * y[i]) for r, y in pairs(mode)):.2f}"
                                             for i in (2, 3)) for mode in a.modes))  # fmt: skip
                 shown += 3
-                rows += [["cycles", spp, "cycles", r[0], f"{r[1]:.3f}", f"{r[2]:.6g}", f"{r[3]:.6g}", ""] for r in c]
+                record(*[["cycles", spp, "cycles", r[0], f"{r[1]:.3f}", f"{r[2]:.6g}", f"{r[3]:.6g}", ""] for r in c])
             lines.append("")
             print("\n".join(lines[-shown:]), flush=True)
-    with open(os.path.join(a.out, "runs.csv"), "w", newline="") as f:
-        csv.writer(f).writerows([["scene", "spp", "mode", "seed", "cpu_s", "relmse", "trimmed", "offset_pct"], *rows])
+    runs_csv.close()
     with open(os.path.join(a.out, "summary.md"), "w") as f:
         f.write("\n".join(lines) + "\n")
 
