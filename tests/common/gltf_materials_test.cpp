@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
 #include <string>
 
 #include "common/image.h"
@@ -127,6 +128,28 @@ TEST(GltfMaterials, EmissionTextureVariesPerTexel) {
   EXPECT_NEAR(left.z, 0.f, 1e-5f);
   EXPECT_NEAR(right.x, 0.f, 1e-5f);
   EXPECT_NEAR(right.z, 2.f, 1e-5f);
+}
+
+// scenes/crytek-sponza/sponza-lambertian.json (the like-for-like scene of the Cycles comparison): the
+// same model, sky and sun as sponza.json, every material Lambertian with its colour and normal maps.
+TEST(GltfMaterials, TheLambertianSponzaKeepsTheMapsAndMakesEveryMaterialDiffuse) {
+  const std::filesystem::path dir = std::filesystem::path(EPR_SOURCE_DIR) / "scenes" / "crytek-sponza";
+  const Scene pbr = load_scene((dir / "sponza.json").string());
+  const Scene lambertian = load_scene((dir / "sponza-lambertian.json").string());
+  EXPECT_EQ(lambertian.triangle_count(), pbr.triangle_count());
+  EXPECT_TRUE(lambertian.lighting.environment && lambertian.lighting.sun);
+  ASSERT_EQ(lambertian.materials.size(), pbr.materials.size());
+  size_t not_diffuse = 0;
+  for (size_t i = 0; i < pbr.materials.size(); ++i) {
+    const Material &a = pbr.materials[i], &b = lambertian.materials[i];
+    SCOPED_TRACE(a.name);
+    not_diffuse += a.diffuse() ? 0 : 1;
+    EXPECT_TRUE(b.diffuse());
+    EXPECT_EQ(b.kd_texture, a.kd_texture);
+    EXPECT_EQ(b.normal_texture, a.normal_texture);
+    EXPECT_EQ(b.kd, a.kd);
+  }
+  EXPECT_GT(not_diffuse, 0u);  // the PBR scene has lobes the Lambertian one drops
 }
 
 }  // namespace
