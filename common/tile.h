@@ -39,7 +39,7 @@ struct TileRequest {
   std::span<const uint32_t> first_sample;
   int paths_per_pixel = 1;
   // Per tile pixel: its paths this round, at most paths_per_pixel. Empty: paths_per_pixel each.
-  std::span<const uint32_t> paths;
+  std::span<const uint32_t> paths = {};
 };
 
 /// Counts of the path tracer.
