@@ -430,7 +430,8 @@ void FrameState::tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t
 int FrameState::path_budget(int x, int y) const {
   const int k = next_paths_per_pixel();
   const size_t p = pixel(x, y);
-  if (opts_.mode != RenderMode::kSkip || variance_rule() || !reprojects_ || skip_[p] || k <= 1) return k;
+  if (!opts_.path_budget || opts_.mode != RenderMode::kSkip || variance_rule() || !reprojects_ || skip_[p] || k <= 1)
+    return k;
   // The skip test of finish_round() with M + n paths: pixel_samples() grows by one per path.
   const double have = pixel_samples(p), target = double(opts_.spp);
   const int floor_paths = std::max(1, opts_.min_paths - int(path_count_[p]));

@@ -1,7 +1,7 @@
-// The skip rule's path budget (FrameState::path_budget, DESIGN.md "Progressive rounds"): in skip mode
-// with the fixed rule, a pixel whose counts say that n < k_r more paths reach the target
+// The skip rule's path budget (--path-budget, FrameState::path_budget, DESIGN.md "Progressive
+// rounds"): in skip mode with the fixed rule, a pixel whose counts say that n < k_r more paths reach the target
 // (M + n + W M' >= P) is planned n paths in round r, traces exactly n and is skipped after it; the
-// others trace k_r. The variance rule and rp keep k_r for every pixel.
+// others trace k_r. The variance rule, rp and the default (no budget) keep k_r for every pixel.
 #include <gtest/gtest.h>
 
 #include <random>
@@ -33,6 +33,7 @@ struct BudgetFrame {
     opts.reproject = ReprojectMethod::kCpu;
     opts.tile_size = 8;
     opts.min_paths = 1;
+    opts.path_budget = true;
     camera = std::make_unique<Camera>(scene.camera, opts.width, opts.height);
     rects = make_tiles(opts);
   }
@@ -136,6 +137,9 @@ TEST(PathBudget, RpAndTheVarianceRuleTraceEveryRoundsPaths) {
   EXPECT_EQ(a.paths, uint64_t(rp.opts.spp) * uint64_t(rp.opts.width * rp.opts.height));
   BudgetFrame variance(RenderMode::kSkip, CombineRule::kVariance);
   EXPECT_EQ(run_budget(variance, false).fewer, 0u);
+  BudgetFrame off(RenderMode::kSkip);  // the default: whole rounds
+  off.opts.path_budget = false;
+  EXPECT_EQ(run_budget(off, false).fewer, 0u);
 }
 
 }  // namespace
