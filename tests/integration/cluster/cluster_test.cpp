@@ -440,6 +440,15 @@ TEST_F(ClusterTest, ThePathBudgetEqualsTheSingleProcessRender) {
   job.path_budget = false;
   ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("whole_rounds")));
   EXPECT_EQ(budgeted_pixels(read_image(path("whole_rounds.counts.exr")), job), 0u);
+  // The same image within noise: the mean of the per-pixel differences within 4 of its standard errors.
+  const Image a = load_outputs(path("b")).combined, w = load_outputs(path("whole_rounds")).combined;
+  double sum = 0, sum2 = 0;
+  const size_t n = a.data.size();
+  for (size_t i = 0; i < n; ++i)
+    sum += double(a.data[i]) - w.data[i], sum2 += std::pow(double(a.data[i]) - w.data[i], 2);
+  const double mean = sum / double(n), sigma = std::sqrt((sum2 / double(n) - mean * mean) / double(n));
+  EXPECT_GT(sigma, 0) << "the budget changed no pixel";
+  EXPECT_LE(std::abs(mean), 4 * sigma) << "mean difference " << mean;
 }
 
 // ---- 2. the number of workers does not change the result ----------------------------------------------
