@@ -93,7 +93,8 @@ RenderOutputs render_local(const RenderOptions& opts, const ProgressCallback& pr
     const auto t_round = std::chrono::steady_clock::now();
     tbb::parallel_for(size_t(0), plan.order.size(), [&](size_t i) {
       const uint32_t t = plan.order[i];
-      TileResult res = tile_renderer.render({tiles[t], plan.skip[t], plan.first_sample[t], plan.paths_per_pixel});
+      TileResult res =
+          tile_renderer.render({tiles[t], plan.skip[t], plan.first_sample[t], plan.paths_per_pixel, plan.paths[t]});
       // Quantise as the wire does; records the codec refuses are not sent.
       size_t kept = 0;
       for (const VertexRecord& v : res.vertices) {

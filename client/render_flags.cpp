@@ -97,6 +97,9 @@ void add_render_flags(CLI::App* cmd, RenderOptions& o, std::map<std::string, std
                   "pixel's second moments, skip once the effective sample count reaches spp")
       ->transform(CLI::CheckedTransformer(combine_rules, CLI::ignore_case))
       ->capture_default_str();
+  cmd->add_flag("--path-budget", o.path_budget,
+                "skip, fixed rule: a pixel traces only the paths that bring M + W M' to spp in a round, not the "
+                "whole round's");
   cmd->add_flag("--reproject-glossy", o.reproject_glossy, "also reproject glossy vertices (failure-mode study)");
   cmd->add_flag_callback(
       "--no-joint-test", [&o] { o.joint_test = false; },

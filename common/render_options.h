@@ -43,6 +43,9 @@ struct RenderOptions {
   // says why 0.5).
   float reprojected_weight = 0.5f;
   CombineRule combine = CombineRule::kFixed;
+  // Skip mode, fixed rule: a pixel traces only the paths its counts say reach P this round
+  // (FrameState::path_budget; BENCHMARKS.md 22: it does not pay with W = 0.5, so off).
+  bool path_budget = false;
   bool reproject_glossy = false;  // failure-mode study only
   bool joint_test = true;         // the plane test's normal and crease tests (off: failure-mode study)
   // Edge pixels take no reprojected samples (master/edge_pixels.h). Off only for the failure-mode

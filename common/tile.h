@@ -38,6 +38,8 @@ struct TileRequest {
   // Per tile pixel: the sample index of its next path. One entry: every pixel's. Empty: all 0.
   std::span<const uint32_t> first_sample;
   int paths_per_pixel = 1;
+  // Per tile pixel: its paths this round, at most paths_per_pixel. Empty: paths_per_pixel each.
+  std::span<const uint32_t> paths = {};
 };
 
 /// Counts of the path tracer.

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <stdexcept>
 #include <string>
 
@@ -425,6 +426,32 @@ void FrameState::tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t
       skip->push_back(skip_[p]);
       first_sample->push_back(path_count_[p]);
     }
+}
+
+int FrameState::path_budget(int x, int y) const {
+  const int k = next_paths_per_pixel();
+  const size_t p = pixel(x, y);
+  if (!opts_.path_budget || opts_.mode != RenderMode::kSkip || variance_rule() || !reprojects_ || skip_[p] || k <= 1)
+    return k;
+  // The skip test of finish_round() with M + n paths: pixel_samples() grows by one per path.
+  const double have = pixel_samples(p), target = double(opts_.spp);
+  const int floor_paths = std::max(1, opts_.min_paths - int(path_count_[p]));
+  int n = std::clamp(int(std::ceil(target - have)), floor_paths, k);
+  while (n > floor_paths && have + double(n - 1) >= target) --n;
+  while (n < k && have + double(n) < target) ++n;
+  return n;
+}
+
+void FrameState::tile_paths(int x0, int y0, int x1, int y1, std::vector<uint32_t>* paths) const {
+  paths->clear();
+  const int k = next_paths_per_pixel();
+  bool fewer = false;
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x) {
+      paths->push_back(uint32_t(path_budget(x, y)));
+      fewer |= paths->back() < uint32_t(k) && !skip_[pixel(x, y)];
+    }
+  if (!fewer) paths->clear();
 }
 
 bool FrameState::tile_idle(int x0, int y0, int x1, int y1) const {

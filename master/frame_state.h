@@ -186,6 +186,12 @@ class FrameState {
   /// Inputs of a tile for the next round: skip (1 = trace nothing) and the first sample index per pixel.
   void tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t>* skip,
                    std::vector<uint32_t>* first_sample) const;
+  /// Paths of pixel (x, y) in the next round if it traces: k = next_paths_per_pixel(), or, with
+  /// --path-budget in skip mode with the fixed rule, fewer where its counts say fewer reach the skip rule's target: the
+  /// least n with M + n + d W M' >= P (and M + n >= min_paths), as M' only grows (DESIGN.md "Progressive rounds").
+  int path_budget(int x, int y) const;
+  /// path_budget() of every pixel of a tile, row-major; empty when each traces k (skipped ones aside).
+  void tile_paths(int x0, int y0, int x1, int y1, std::vector<uint32_t>* paths) const;
   /// True if no pixel of the tile traces in the next round.
   bool tile_idle(int x0, int y0, int x1, int y1) const;
 

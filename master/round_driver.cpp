@@ -34,10 +34,12 @@ RoundPlan RoundDriver::open(const std::vector<TileRect>& tiles) const {
   plan.paths_per_pixel = frame_.next_paths_per_pixel();
   plan.skip.resize(tiles.size());
   plan.first_sample.resize(tiles.size());
+  plan.paths.resize(tiles.size());
   std::vector<size_t> active(tiles.size(), 0);
   for (uint32_t t = 0; t < tiles.size(); ++t) {
     const TileRect& r = tiles[t];
     if (frame_.tile_idle(r.x0, r.y0, r.x1, r.y1)) continue;
+    frame_.tile_paths(r.x0, r.y0, r.x1, r.y1, &plan.paths[t]);
     std::vector<uint32_t>& first = plan.first_sample[t];
     const std::vector<uint8_t>& skip = plan.skip[t];
     frame_.tile_inputs(r.x0, r.y0, r.x1, r.y1, &plan.skip[t], &first);
@@ -67,6 +69,7 @@ RoundPlan RoundDriver::first_plan(const RenderOptions& opts, const std::vector<T
   EPR_CHECK_GT(plan.paths_per_pixel, 0);  // RenderOptions::validate refuses spp < 1
   plan.skip.resize(tiles.size());
   plan.first_sample.resize(tiles.size());
+  plan.paths.resize(tiles.size());  // empty: every pixel traces paths_per_pixel
   std::vector<size_t> active(tiles.size(), 0);
   for (uint32_t t = 0; t < tiles.size(); ++t) {
     const TileRect& r = tiles[t];

@@ -36,6 +36,8 @@ struct RoundPlan {
   std::vector<std::vector<uint8_t>> skip;  // per tile, per tile pixel (empty: idle tile)
   // Per tile: per tile pixel, one entry for every pixel of the tile, or empty for 0 (TileRequest).
   std::vector<std::vector<uint32_t>> first_sample;
+  // Per tile: per tile pixel, its paths (FrameState::path_budget()), or empty for paths_per_pixel each.
+  std::vector<std::vector<uint32_t>> paths;
   std::vector<uint32_t> order;  // the tiles that trace, most active pixels first
 };
 

@@ -161,6 +161,7 @@ void to_proto_reprojection(const RenderOptions& o, v1::ReprojectionSettings* r) 
   r->set_combine(o.combine == CombineRule::kVariance ? v1::COMBINE_RULE_VARIANCE : v1::COMBINE_RULE_FIXED);
   r->set_reproject_glossy(o.reproject_glossy);
   r->set_joint_test(o.joint_test);
+  r->set_path_budget(o.path_budget);
 }
 }  // namespace
 
@@ -234,6 +235,7 @@ std::optional<std::string> from_job_spec(const v1::JobSpec& spec, RenderOptions*
     if (r.min_paths() > kMax) return "min_paths is absurdly large";
     o.min_paths = int(r.min_paths());
   }
+  o.path_budget = r.path_budget();  // unset: false
   // Unset is 1 whatever RenderOptions' default: a job or checkpoint written before the field existed
   // renders and resumes as it began.
   o.reprojected_weight = r.has_reprojected_weight() ? r.reprojected_weight() : 1.f;

@@ -224,6 +224,8 @@ TileResultAssembler::TileResultAssembler(TileExpectation expected)
   if (n > UINT32_MAX) throw std::invalid_argument("tile too large");
   if (!e.skip.empty() && e.skip.size() != n)
     throw std::invalid_argument(fmt::format("skip has {} entries for a tile of {} pixels", e.skip.size(), n));
+  if (!e.paths.empty() && e.paths.size() != n)
+    throw std::invalid_argument(fmt::format("paths has {} entries for a tile of {} pixels", e.paths.size(), n));
   pixel_count_ = uint32_t(n);
 }
 
@@ -325,7 +327,7 @@ std::optional<std::string> TileResultAssembler::add_pixels(const v1::PixelPaths&
       if (c > kMaxPathCount) return fail(fmt::format("pixel {}: path_count {} is implausible", i, c));
     } else {
       const bool skipped = !e.skip.empty() && e.skip[i];
-      const uint32_t want = skipped ? 0 : e.paths_per_pixel;
+      const uint32_t want = skipped ? 0 : e.paths.empty() ? e.paths_per_pixel : e.paths[i];
       if (c != want) return fail(fmt::format("pixel {}: path_count {} but the lease asks for {}", i, c, want));
     }
   }
@@ -426,7 +428,9 @@ AssembledTile TileResultAssembler::take() {
   if (expected_.paths_per_pixel > 0) {
     out.paths_per_pixel = expected_.paths_per_pixel;
     out.skip = std::move(expected_.skip);  // checked against every pixel's count; not needed here any more
+    out.paths = std::move(expected_.paths);
     expected_.skip.clear();
+    expected_.paths.clear();
   }
   return out;
 }
@@ -434,6 +438,7 @@ AssembledTile TileResultAssembler::take() {
 std::vector<uint32_t> AssembledTile::path_counts() const {
   if (paths_per_pixel == 0) return path_count;
   std::vector<uint32_t> out(path_sum.size(), paths_per_pixel);
+  for (size_t i = 0; i < paths.size() && i < out.size(); ++i) out[i] = paths[i];
   for (size_t i = 0; i < skip.size() && i < out.size(); ++i)
     if (skip[i]) out[i] = 0;
   return out;

@@ -142,10 +142,12 @@ struct TileExpectation {
   Payload payload = Payload::kVertices;
   TileResultLimits limits;
   /// Optional stricter checks of PixelPaths.path_count. 0: a count may be any value <= 2^20.
-  /// Otherwise a pixel's count must be paths_per_pixel, or 0 where `skip` (per tile pixel, row-major,
+  /// Otherwise a pixel's count must be paths_per_pixel (or its entry in `paths`, per tile pixel,
+  /// row-major; empty = paths_per_pixel each), or 0 where `skip` (per tile pixel, row-major,
   /// non-zero = skipped; empty = none skipped) says so.
   uint32_t paths_per_pixel = 0;
   std::vector<uint8_t> skip;
+  std::vector<uint32_t> paths;
   /// Cap on the header's vertex_count (memory bound per tile on the master). 0: no cap.
   uint64_t max_vertices_per_tile = 0;
   /// Keep the vertices in their 16-byte wire form (AssembledTile::packed_vertices) instead of
@@ -163,10 +165,11 @@ struct AssembledTile {
   std::vector<Vec3> path_sum;               // per tile pixel, row-major; linear RGB, finite, >= 0
   std::vector<Vec3> glossy_sum;             // per tile pixel, in [0, path_sum]; empty: all 0
   // Paths per pixel. With the lease's count (paths_per_pixel > 0, what the master always checks) every
-  // pixel traced that many, or none where `skip` (per tile pixel; empty: none skipped) is set, and
-  // path_count stays empty; without it, path_count holds each pixel's count.
+  // pixel traced that many (or its entry in `paths`), or none where `skip` (per tile pixel; empty: none
+  // skipped) is set, and path_count stays empty; without it, path_count holds each pixel's count.
   uint32_t paths_per_pixel = 0;
   std::vector<uint8_t> skip;
+  std::vector<uint32_t> paths;
   std::vector<uint32_t> path_count;
   std::vector<VertexRecord> vertices;                    // decoded with the job's VertexCodec
   std::string packed_vertices;                           // instead, with keep_packed: 16 bytes each

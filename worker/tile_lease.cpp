@@ -94,6 +94,7 @@ TileRequest LeasedTile::strip(int y0, int y1) const {
   if (!skip.empty()) req.skip = std::span<const uint8_t>(skip).subspan(first, n);
   req.first_sample = std::span<const uint32_t>(first_sample).subspan(first, n);
   req.paths_per_pixel = paths_per_pixel;
+  if (!paths.empty()) req.paths = std::span<const uint32_t>(paths).subspan(first, n);
   return req;
 }
 
@@ -118,6 +119,13 @@ std::optional<std::string> unpack_tile_lease(const v1::TileLease& lease, LeasedT
   } else {
     return fmt::format("first_sample_index has {} entries for {} pixels", lease.first_sample_index_size(), n);
   }
+  std::vector<uint32_t> paths(lease.pixel_paths().begin(), lease.pixel_paths().end());
+  if (!paths.empty() && paths.size() != n)
+    return fmt::format("pixel_paths has {} entries for {} pixels", paths.size(), n);
+  for (size_t i = 0; i < paths.size(); ++i)
+    if ((skip->empty() || !(*skip)[i]) && (paths[i] < 1 || paths[i] > lease.paths_per_pixel()))
+      return fmt::format("pixel {}: pixel_paths {} outside [1, paths_per_pixel {}]", i, paths[i],
+                         lease.paths_per_pixel());
   // The last sample index a pixel traces must fit the RNG key's 32 bits.
   const uint64_t last_paths = lease.paths_per_pixel() - 1;
   for (size_t i = 0; i < n; ++i)
@@ -128,6 +136,7 @@ std::optional<std::string> unpack_tile_lease(const v1::TileLease& lease, LeasedT
   out->skip = std::move(*skip);
   out->first_sample = std::move(first);
   out->paths_per_pixel = int(lease.paths_per_pixel());
+  out->paths = std::move(paths);
   out->filter = vertex_filter_for(s);
   if (lease.window_cameras_size() > kMaxWindowCameras)
     return fmt::format("{} window cameras, at most {}", lease.window_cameras_size(), kMaxWindowCameras);

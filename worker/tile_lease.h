@@ -42,6 +42,7 @@ struct LeasedTile {
   std::vector<uint8_t> skip;           // per tile pixel, row-major; empty: none skipped
   std::vector<uint32_t> first_sample;  // per tile pixel, row-major (always n entries)
   int paths_per_pixel = 1;
+  std::vector<uint32_t> paths;  // per tile pixel, row-major, each <= paths_per_pixel; empty: that many each
   VertexFilter filter;
 
   /// A request viewing this tile's arrays (valid while the LeasedTile lives).

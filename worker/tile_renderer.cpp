@@ -92,8 +92,9 @@ void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
       const uint32_t first = req.first_sample.empty()       ? 0
                              : req.first_sample.size() == 1 ? req.first_sample[0]
                                                             : req.first_sample[i];
+      const int paths = req.paths.empty() ? req.paths_per_pixel : int(req.paths[i]);
       Vec3 sum(0.f), glossy_sum(0.f);
-      for (int k = 0; k < req.paths_per_pixel; ++k) {
+      for (int k = 0; k < paths; ++k) {
         const size_t before = recs.size();
         const uint64_t dropped = out.stats.paths.nonfinite_dropped;
         Vec3 glossy;
@@ -111,7 +112,7 @@ void TileRenderer::render_into(const TileRequest& req, TileResult& out) const {
       }
       out.path_sum[at + i] = sum;
       out.glossy_sum[at + i] = glossy_sum;
-      out.path_count[at + i] = uint32_t(req.paths_per_pixel);
+      out.path_count[at + i] = uint32_t(paths);
     }
   }
   if (encode) codec_->encode_batch(recs, &out.packed_vertices, &out.encode_counts);

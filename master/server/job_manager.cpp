@@ -412,6 +412,7 @@ TileLeaseInfo JobManager::grant(Job& job, const std::string& worker, const Lease
   info.skip = job.plan.skip[g.tile];
   info.first_sample = job.plan.first_sample[g.tile];
   info.paths_per_pixel = uint32_t(job.plan.paths_per_pixel);
+  info.paths = job.plan.paths[g.tile];
   info.seed = job.request.options.seed;
   info.options = job.request.options;
   info.camera = job.request.camera;
@@ -516,6 +517,7 @@ TileCheck JobManager::expect(const TileResultIdentity& h) const {
                                                        : TileExpectation::Payload::kVertices;
   e.paths_per_pixel = uint32_t(job.plan.paths_per_pixel);
   e.skip = job.plan.skip[h.tile_index];
+  e.paths = job.plan.paths[h.tile_index];
   e.max_vertices_per_tile = std::max<uint64_t>(options_.max_queued_vertices, 1u << 20);
   e.keep_packed = true;  // decoded by the reprojector, in place
   return check;

@@ -28,6 +28,7 @@ struct TileLeaseInfo {
   std::vector<uint8_t> skip;           // per tile pixel
   std::vector<uint32_t> first_sample;  // per tile pixel, one for every pixel, or empty for 0 (RoundPlan)
   uint32_t paths_per_pixel = 1;
+  std::vector<uint32_t> paths;  // per tile pixel, or empty for paths_per_pixel each (RoundPlan)
   uint64_t seed = 0;
   RenderOptions options;
   CameraSpec camera;

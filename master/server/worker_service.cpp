@@ -168,6 +168,7 @@ grpc::Status lease_answer(const std::string& worker, const LeaseDecision& d, v1:
     *l->mutable_first_sample_index() = {t.first_sample.begin(), t.first_sample.end()};
   }
   l->set_paths_per_pixel(t.paths_per_pixel);
+  *l->mutable_pixel_paths() = {t.paths.begin(), t.paths.end()};
   l->set_seed(t.seed);
   to_render_settings(t.options, t.camera, t.codec_bounds, l->mutable_settings());
   for (const CameraSpec& c : t.window_cameras) to_proto(c, l->add_window_cameras());

@@ -46,7 +46,8 @@ class JobsWorker {
     VertexFilter f;
     f.mode = l.options.mode == RenderMode::kPathTrace ? VertexFilter::Mode::kNone : VertexFilter::Mode::kCull;
     f.subpixels = l.options.subpixels;
-    const TileResult r = TileRenderer(*t.tracer, f).render({l.rect, l.skip, l.first_sample, int(l.paths_per_pixel)});
+    const TileResult r =
+        TileRenderer(*t.tracer, f).render({l.rect, l.skip, l.first_sample, int(l.paths_per_pixel), l.paths});
     const TileResultIdentity identity{l.lease_id, l.job_id, l.round, l.tile_index, id_};
     const auto chunks = split_tile_result(r, identity, l.codec_bounds, {});
     TileCheck e = jobs_.expect(identity);

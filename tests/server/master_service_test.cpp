@@ -97,7 +97,8 @@ class MasterServiceTest : public ::testing::Test {
       skip[i] = (uint8_t(t.skip_bits()[i / 8]) >> (i % 8)) & 1;
     std::vector<uint32_t> first(n, t.uniform_first_sample_index());
     for (int i = 0; i < t.first_sample_index_size(); ++i) first[size_t(i)] = t.first_sample_index(i);
-    const TileResult result = tr.render({rect, skip, first, int(t.paths_per_pixel())});
+    const std::vector<uint32_t> paths(t.pixel_paths().begin(), t.pixel_paths().end());
+    const TileResult result = tr.render({rect, skip, first, int(t.paths_per_pixel()), paths});
     TileResultIdentity id{t.lease_id(), t.job_id(), t.round(), t.tile_index(), worker};
     const auto chunks = split_tile_result(result, id, from_proto(s.codec_bounds()), TileResultLimits{});
     grpc::ClientContext ctx;

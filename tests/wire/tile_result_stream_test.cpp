@@ -462,6 +462,18 @@ struct Violation {
   std::function<void(std::vector<v1::TileResultChunk>&, TileExpectation&)> mutate;
 };
 
+// Per-pixel path counts of the lease (the skip rule's budget): accepted and kept pixel by pixel.
+TEST(TileResultStream, PerPixelPathCountsOfTheLeaseAreCheckedAndKept) {
+  SmallStream s;
+  s.result.path_count = {1, 2, 1, 2, 2, 2, 1, 2};
+  const auto chunks = split_tile_result(s.result, identity(), s.bounds, {});
+  TileExpectation e = s.expected();
+  e.paths_per_pixel = 2;
+  e.paths = s.result.path_count;
+  const AssembledTile t = assemble(chunks, e);
+  EXPECT_EQ(t.path_counts(), s.result.path_count);
+}
+
 TEST(TileResultStream, EveryViolationIsRefusedWithAReason) {
   const std::vector<Violation> violations = {
       {"header not first", "first chunk must be the header", [](auto& c, auto&) { std::swap(c[0], c[1]); }},
@@ -487,6 +499,12 @@ TEST(TileResultStream, EveryViolationIsRefusedWithAReason) {
       {"path count not the lease's", "lease asks for",
        [](auto& c, auto& e) {
          e.paths_per_pixel = 2;  // the stream says 1
+       }},
+      {"path count not the pixel's budget", "lease asks for",
+       [](auto& c, auto& e) {
+         e.paths_per_pixel = 2;
+         e.paths.assign(8, 1);  // the stream says 1 everywhere
+         e.paths[3] = 2;
        }},
       {"skipped pixel with paths", "lease asks for",
        [](auto& c, auto& e) {

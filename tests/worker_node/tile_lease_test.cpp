@@ -101,6 +101,16 @@ TEST(TileLease, UnpacksAValidLease) {
   EXPECT_EQ(strip.rect.y0, 10);
   EXPECT_EQ(strip.first_sample.size(), 48u);
   EXPECT_EQ(strip.first_sample[0], 48u);
+  EXPECT_TRUE(strip.paths.empty());
+
+  // Per-pixel path counts (the skip rule's budget): kept, and a strip views its rows of them.
+  for (int i = 0; i < 24 * 22; ++i) lease.add_pixel_paths(1 + uint32_t(i % 2));
+  ASSERT_FALSE(unpack_tile_lease(lease, &t));
+  EXPECT_EQ(t.paths.size(), skip.size());
+  const TileRequest budget = t.strip(10, 12);
+  ASSERT_EQ(budget.paths.size(), 48u);
+  EXPECT_EQ(budget.paths[0], 1u);
+  EXPECT_EQ(budget.paths[1], 2u);
 }
 
 // Every roulette the wire names (common/roulette.h) is traced, the default (unspecified) too; an
@@ -143,6 +153,15 @@ TEST(TileLease, RefusesLeasesThatCannotBeTraced) {
       {"skip_bits too short", [](auto& l) { l.set_skip_bits("\x01"); }},
       {"first_sample_index count", [](auto& l) { l.add_first_sample_index(1); }},
       {"paths_per_pixel 0", [](auto& l) { l.set_paths_per_pixel(0); }},
+      {"pixel_paths count", [](auto& l) { l.add_pixel_paths(1); }},
+      {"pixel_paths above paths_per_pixel",
+       [](auto& l) {
+         for (int i = 0; i < 24 * 22; ++i) l.add_pixel_paths(i == 7 ? 3 : 2);
+       }},
+      {"pixel_paths 0 for a traced pixel",
+       [](auto& l) {
+         for (int i = 0; i < 24 * 22; ++i) l.add_pixel_paths(i == 7 ? 0 : 1);
+       }},
       {"sample index overflow", [](auto& l) { l.set_uniform_first_sample_index(0xffffffffu); }},
       {"image too large", [](auto& l) { l.mutable_settings()->set_width(100000); }},
       {"unknown mode", [](auto& l) { l.mutable_settings()->set_mode(v1::RenderMode(9)); }},

@@ -60,6 +60,7 @@ struct Job {
   std::string rr;       // --rr; empty: the default roulette
   Args camera;          // camera overrides (--eye, --look, ...); empty: the scene's camera
   std::string combine;  // --combine; empty: the default rule
+  bool path_budget = false;
 
   // The flags shared by `epr render` and `epr submit`. The reprojector is the default (the OSMesa
   // deep framebuffer) on both sides: the cluster runs what a user runs.
@@ -96,6 +97,7 @@ struct Job {
       a.push_back("--combine");
       a.push_back(combine);
     }
+    if (path_budget) a.push_back("--path-budget");
     a.insert(a.end(), camera.begin(), camera.end());
     return a;
   }
@@ -149,6 +151,20 @@ Counts summarize(const Image& counts, int target) {
       c.effective_min = std::min(c.effective_min, m + mp);
     }
   return c;
+}
+
+// Pixels whose M is no sum of whole rounds of the job's schedule: they traced a path budget of fewer
+// than a round's paths (FrameState::path_budget).
+uint64_t budgeted_pixels(const Image& counts, const Job& job) {
+  RenderOptions o;
+  o.spp = job.spp, o.paths_per_round = job.k, o.round_growth = job.round_growth;
+  std::vector<uint64_t> ends{0};
+  while (ends.back() < uint64_t(o.spp)) ends.push_back(ends.back() + uint64_t(round_paths(o, int(ends.back()))));
+  uint64_t n = 0;
+  for (int y = 0; y < counts.height; ++y)
+    for (int x = 0; x < counts.width; ++x)
+      n += !std::binary_search(ends.begin(), ends.end(), uint64_t(counts.at(x, y)[0]));
+  return n;
 }
 
 // ---- the fixture -----------------------------------------------------------------------------------
@@ -412,6 +428,27 @@ TEST_F(ClusterTest, TheVarianceCombinationEqualsTheSingleProcessRender) {
   EXPECT_NE(close_difference(load_outputs(path("v")).combined, load_outputs(path("fixed_ref")).combined, 1e-4f, 1e-5f),
             "")
       << "the variance and fixed combinations gave the same image: the option did nothing";
+}
+
+TEST_F(ClusterTest, ThePathBudgetEqualsTheSingleProcessRender) {
+  // --path-budget: the per-pixel path counts travel in the leases; counts and path sums are the same
+  // as in one process, and pixels traced budgets of fewer than a round's paths (none without it).
+  Job job;
+  job.path_budget = true;
+  ASSERT_NO_FATAL_FAILURE(expect_two_workers_equal_single_process(job, "b"));
+  EXPECT_GT(budgeted_pixels(read_image(path("b.counts.exr")), job), 0u) << "no pixel traced a path budget";
+  job.path_budget = false;
+  ASSERT_NO_FATAL_FAILURE(render_single_process(job, path("whole_rounds")));
+  EXPECT_EQ(budgeted_pixels(read_image(path("whole_rounds.counts.exr")), job), 0u);
+  // The same image within noise: the mean of the per-pixel differences within 4 of its standard errors.
+  const Image a = load_outputs(path("b")).combined, w = load_outputs(path("whole_rounds")).combined;
+  double sum = 0, sum2 = 0;
+  const size_t n = a.data.size();
+  for (size_t i = 0; i < n; ++i)
+    sum += double(a.data[i]) - w.data[i], sum2 += std::pow(double(a.data[i]) - w.data[i], 2);
+  const double mean = sum / double(n), sigma = std::sqrt((sum2 / double(n) - mean * mean) / double(n));
+  EXPECT_GT(sigma, 0) << "the budget changed no pixel";
+  EXPECT_LE(std::abs(mean), 4 * sigma) << "mean difference " << mean;
 }
 
 // ---- 2. the number of workers does not change the result ----------------------------------------------
