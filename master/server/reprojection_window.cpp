@@ -112,8 +112,8 @@ void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& fram
             frame_list);
   // Resumed frames are restored before their rounds open. Fresh ones open their rounds 0 all at once,
   // so that workers trace every frame's first round while the frames are built one by one; a frame
-  // is built when its commits come up to be applied (build_unbuilt), in the order workers return its
-  // tiles, so the first frames' rounds 1 open while the others are built.
+  // is built when its commits come up to be applied (build_unbuilt), in the order workers returned
+  // its tiles, or when the thread has nothing else to do.
   for (const auto& j : frames) {
     bool fresh;
     {

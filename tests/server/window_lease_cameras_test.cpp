@@ -12,32 +12,14 @@
 
 #include "master/server/job_manager.h"
 #include "tests/server/in_process_worker.h"
+#include "tests/server/render_jobs.h"
 
 namespace epr {
 namespace window_lease_cameras {
 namespace {
 
 // Frame `frame` of batch "cams" (frames 1..3, one run, K = 2), its eye moved `frame` tenths sideways.
-JobRequest run_frame(uint32_t frame) {
-  JobRequest req;
-  req.options.width = req.options.height = 32;
-  req.options.spp = 8;
-  req.options.paths_per_round = 4;
-  req.options.mode = RenderMode::kSkip;
-  req.options.reproject = ReprojectMethod::kCpu;
-  req.options.tile_size = 16;
-  req.options.seed = 50 + frame;
-  req.camera.eye.x += 0.1f * float(frame);
-  req.bundle.builtin = "builtin:cornell";
-  req.request_id = "cams-" + std::to_string(frame);
-  req.batch.id = "cams";
-  req.batch.frame = frame;
-  req.batch.frames = 3;
-  req.batch.window = 2;
-  req.batch.window_first = 1;
-  req.batch.window_last = 3;
-  return req;
-}
+JobRequest run_frame(uint32_t frame) { return test::small_run_frame("cams", frame, 2, 50); }
 
 TEST(WindowLeaseCameras, AFramesFirstLeaseCarriesTheCamerasOfNeighboursNotYetBuilt) {
   const auto dir = test::fresh_dir("epr-window-cameras", "first-lease");

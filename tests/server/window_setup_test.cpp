@@ -22,29 +22,6 @@ namespace window_setup_test {
 namespace {
 using namespace std::chrono_literals;
 
-// Frame `frame` of batch "setup" (frames 1..3, one run, K = 1), its eye moved `frame` tenths sideways.
-JobRequest setup_frame(uint32_t frame) {
-  JobRequest req;
-  req.options.width = req.options.height = 32;
-  req.options.spp = 8;
-  req.options.paths_per_round = 4;
-  req.options.min_paths = 4;
-  req.options.mode = RenderMode::kSkip;
-  req.options.reproject = ReprojectMethod::kCpu;
-  req.options.tile_size = 16;
-  req.options.seed = 70 + frame;
-  req.camera.eye.x += 0.1f * float(frame);
-  req.bundle.builtin = "builtin:cornell";
-  req.request_id = "setup-" + std::to_string(frame);
-  req.batch.id = "setup";
-  req.batch.frame = frame;
-  req.batch.frames = 3;
-  req.batch.window = 1;
-  req.batch.window_first = 1;
-  req.batch.window_last = 3;
-  return req;
-}
-
 // Records the frame builds in order and holds the first until released.
 class Builds {
  public:
@@ -79,7 +56,7 @@ class Builds {
 
 TEST(WindowSetup, EveryRoundZeroOpensBeforeAnyBuildAndFramesAreBuiltAsTheirCommitsComeUp) {
   std::vector<JobRequest> reqs;
-  for (uint32_t f = 1; f <= 3; ++f) reqs.push_back(setup_frame(f));
+  for (uint32_t f = 1; f <= 3; ++f) reqs.push_back(test::small_run_frame("setup", f, 1, 70));
   // The same run with its commits in frame order: the images to compare with.
   const auto dir0 = test::fresh_dir("epr-window-setup", "frame-order");
   const std::vector<test::RenderedJob> in_order = test::render_jobs(test::all_frames_at_once(dir0), reqs, 1);
