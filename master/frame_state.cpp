@@ -138,6 +138,7 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
     const bool use_gl = opts.reproject == ReprojectMethod::kGl;
     const float tolerance = rs.epsilon * detail::kCreaseToleranceFraction;
     detail::PlaneGrid grid;
+    const auto grid_start = Clock::now();
     try {
       grid = gl ? detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, gl)
                 : detail::build_plane_grid_any(scene, camera, opts.subpixels, tolerance, rs.joint_test);
@@ -148,6 +149,7 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
       logger("master")->info("deep framebuffer built on the CPU: {}", e.what());
       grid = detail::build_plane_grid(scene, camera, opts.subpixels, tolerance, rs.joint_test, nullptr);
     }
+    build_seconds_.grid = std::chrono::duration<double>(Clock::now() - grid_start).count();
     // Exact mode's visibility rays have no discretisation: its edge pixels keep their samples.
     if (opts.reproject != ReprojectMethod::kExact && opts.edge_pixels) {
       detail::CoherentRays rays;
@@ -155,8 +157,10 @@ FrameState::FrameState(const RenderOptions& opts, const Camera& camera, const Sc
         rays = [b = &bvh->bvh()](std::span<const Ray> r, std::span<const float> tnear, std::span<Hit> hits) {
           b->intersect_coherent(r, tnear, hits);
         };
+      ScopedTimer edge_timer(&build_seconds_.edge_pixels);
       edge_pixels_ = std::make_unique<detail::EdgePixels>(grid, camera, rs.epsilon, &scene, rays);
     }
+    ScopedTimer reprojector_timer(&build_seconds_.reprojector);
     reprojector_ = make_reprojector(use_gl ? "gl" : "cpu", camera, std::move(grid), rs, gl);
     reprojects_ = true;
     codec_ = std::make_unique<VertexCodec>(scene.bounds());

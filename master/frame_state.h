@@ -201,6 +201,12 @@ class FrameState {
   /// Part of seconds_reprojecting(): reading the accumulation back and downsampling it.
   double seconds_downsampling() const { return seconds_downsampling_; }
   bool reprojects() const { return reprojects_; }
+  /// Where the constructor's time went (wall seconds): the deep framebuffer into the plane grid, the
+  /// edge pixels, and the reprojector (its GL buffers and the grid's upload).
+  struct BuildSeconds {
+    double grid = 0, edge_pixels = 0, reprojector = 0;
+  };
+  const BuildSeconds& build_seconds() const { return build_seconds_; }
   /// Counts, percentages and timings as JSON (the statistics file of a render). `worker_culled`: the
   /// vertices the workers culled before sending; the percentages count them (ReprojectionOutcomes).
   nlohmann::json statistics(const RenderOptions& opts, uint64_t worker_culled) const;
@@ -292,6 +298,7 @@ class FrameState {
   FrameProgress progress_;
   double seconds_reprojecting_ = 0;
   double seconds_downsampling_ = 0;
+  BuildSeconds build_seconds_;
 };
 
 }  // namespace epr

@@ -19,6 +19,17 @@
 #include "wire/scene_shelf.h"
 
 namespace epr {
+namespace {
+
+// The count units of a sample traced for frame `from` in frame job `g`'s M'.
+uint32_t window_sample_units(const Job& g, uint32_t from) {
+  const uint32_t to = g.request.batch.frame.value_or(0);
+  return window_count_unit(g.request.batch) == 1
+             ? 1
+             : window_sample_weight(to > from ? to - from : from - to, g.request.batch.window_halving);
+}
+
+}  // namespace
 
 void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& frames) {
   auto log = logger("master");
@@ -99,7 +110,51 @@ void ReprojectionWorker::start_run(const std::vector<std::shared_ptr<Job>>& fram
               b.window_first, b.window_last, b.id);
   log->info("window run {}..{} of batch {} (K = {}) starting: frames {}", b.window_first, b.window_last, b.id, b.window,
             frame_list);
-  for (const auto& j : frames) start_or_fail(j);
+  // Resumed frames are restored before their rounds open. Fresh ones open their rounds 0 all at once,
+  // so that workers trace every frame's first round while the frames are built one by one; a frame
+  // is built when its commits come up to be applied (build_unbuilt), in the order workers returned
+  // its tiles, or when the thread has nothing else to do.
+  for (const auto& j : frames) {
+    bool fresh;
+    {
+      JobLock lock(m_.mu_);
+      fresh = j->resume == nullptr;
+    }
+    if (!fresh) {
+      start_or_fail(j);
+      continue;
+    }
+    try {
+      prepare_job(j);
+      if (begin_running(j, nullptr)) unbuilt_.push_back(j);
+    } catch (const std::exception& e) {
+      fail_start(j, e.what());
+    }
+  }
+}
+
+bool ReprojectionWorker::build_unbuilt(const std::shared_ptr<Job>& job) {
+  for (auto it = unbuilt_.begin(); it != unbuilt_.end();) {
+    const std::shared_ptr<Job> g = *it;
+    if (job && g != job) {
+      ++it;
+      continue;
+    }
+    it = unbuilt_.erase(it);
+    bool running;
+    {
+      JobLock lock(m_.mu_);
+      running = g->state == JobState::kRunning;
+    }
+    if (!running || !renders_.count(g->id)) continue;  // it ended meanwhile
+    try {
+      build_frame(g);
+    } catch (const std::exception& e) {
+      fail_start(g, e.what());
+    }
+    return true;
+  }
+  return false;
 }
 
 std::shared_ptr<const Scene> ReprojectionWorker::measure_cuts(const std::shared_ptr<Job>& first, WindowRun* run) {
@@ -162,23 +217,19 @@ void ReprojectionWorker::reproject_into_neighbours(const Job& job, uint32_t roun
   std::vector<const AssembledTile*> tiles;
   for (const auto& g : into) {
     auto it = renders_.find(g->id);
-    if (it == renders_.end() || !it->second.driver) continue;
-    RoundDriver& d = *it->second.driver;
-    const uint32_t other = g->request.batch.frame.value_or(0);
-    const uint32_t units =
-        window_count_unit(g->request.batch) == 1
-            ? 1
-            : window_sample_weight(other > frame ? other - frame : frame - other, g->request.batch.window_halving);
+    if (it == renders_.end()) continue;
+    RoundDriver* d = it->second.driver.get();
+    const uint32_t units = window_sample_units(*g, frame);
     // g counts a neighbour's round r from its own close of r + 1 on: until g has closed round r, the
-    // tiles wait (flush_deferred at g's close).
-    if (round >= uint32_t(d.frame().round())) {
+    // tiles wait (flush_deferred at g's close); a frame not built yet has closed none.
+    if (!d || round >= uint32_t(d->frame().round())) {
       it->second.deferred.push_back({round, frame, units, batch});
       continue;
     }
     if (tiles.empty())
       for (const auto& t : *batch) tiles.push_back(&t->tile);
-    d.reproject(tiles, units);
-    const double s = d.frame().seconds_reprojecting();
+    d->reproject(tiles, units);
+    const double s = d->frame().seconds_reprojecting();
     JobLock lock(m_.mu_);
     g->counters.seconds_reprojecting = s;
   }

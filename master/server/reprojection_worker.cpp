@@ -54,12 +54,18 @@ void ReprojectionWorker::run() {
     {
       JobLock lock(m_.mu_);
       // Woken at least every second: a window run waiting for its frames may start after a time.
-      while ((work = m_.next_work()).kind == RenderWork::Kind::kWait)
+      // With nothing else to do, a window frame whose round 0 is open is built.
+      while ((work = m_.next_work()).kind == RenderWork::Kind::kWait && unbuilt_.empty())
         m_.work_cv_.wait_for(lock, std::chrono::seconds(1));
     }
     if (work.kind == RenderWork::Kind::kStop) break;
+    if (work.kind == RenderWork::Kind::kWait) {
+      build_unbuilt();
+      continue;
+    }
     do_work(work);
   }
+  unbuilt_.clear();
   renders_.clear();  // the drivers' GL buffers go before the context
   gl_.reset();
 }
@@ -94,6 +100,8 @@ void ReprojectionWorker::do_work(RenderWork& work) {
       if (windowed(job->request.batch)) return start_run(work.start);
       return start_or_fail(job);
     case RenderWork::Kind::kApply:
+      // A window frame's first commits come up before its frame is built: it is built now.
+      if (!driver(*job)) build_unbuilt(job);
       try {
         apply_commits(std::make_shared<const Batch>(std::move(work.batch)));
       } catch (const std::exception& e) {
@@ -108,13 +116,17 @@ void ReprojectionWorker::start_or_fail(const std::shared_ptr<Job>& job) {
   try {
     start_job(job);
   } catch (const std::exception& e) {
-    // A fresh job's round 0 may be open by now: ending the job closes it (its leases are no
-    // longer wanted, its queued commits are dropped unapplied).
-    logger("master")->error("job {} failed to start: {}", job->id, e.what());
-    m_.stop_running(job);
-    m_.end_job(job, JobState::kFailed, e.what());
-    renders_.erase(job->id);
+    fail_start(job, e.what());
   }
+}
+
+void ReprojectionWorker::fail_start(const std::shared_ptr<Job>& job, const std::string& why) {
+  // A fresh job's round 0 may be open by now: ending the job closes it (its leases are no longer
+  // wanted, its queued commits are dropped unapplied).
+  logger("master")->error("job {} failed to start: {}", job->id, why);
+  m_.stop_running(job);
+  m_.end_job(job, JobState::kFailed, why);
+  renders_.erase(job->id);
 }
 
 void ReprojectionWorker::drop_job(const std::shared_ptr<Job>& job) {
@@ -180,30 +192,47 @@ void ReprojectionWorker::drop_job(const std::shared_ptr<Job>& job) {
 }
 
 void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
-  RenderOptions opts = job->request.options;
-  if (m_.options_.reproject_backend_override == "cpu" || !gl_)
-    if (opts.reproject == ReprojectMethod::kGl) opts.reproject = ReprojectMethod::kCpu;
+  std::shared_ptr<const JobProgressRecord> resume = prepare_job(job);
+  // A fresh job's round 0 traces every pixel from sample 0, which needs no frame: its leases open
+  // now, and the frame (deep framebuffer, accumulation) is built while workers trace them. Their
+  // commits wait in the commit queue (bounded as ever) and are applied once the frame exists. A
+  // resumed job's round has skip masks: its frame is restored before the round opens.
+  if (!resume) {
+    if (begin_running(job, nullptr)) build_frame(job);  // else cancelled meanwhile
+    return;  // the commits queued meanwhile are applied next (reprojection_loop)
+  }
+  build_frame(job);
+  try {
+    renders_.at(job->id).driver->frame().restore(*resume->frame);
+  } catch (const std::exception& e) {
+    logger("master")->error("job {}: its checkpoint does not fit ({}); starting it again from round 0", job->id,
+                            e.what());
+    resume.reset();
+  }
+  begin_running(job, resume.get());
+}
+
+std::shared_ptr<const JobProgressRecord> ReprojectionWorker::prepare_job(const std::shared_ptr<Job>& job) {
   Render& render = renders_[job->id];
   render = Render{};
   const auto setup = std::chrono::steady_clock::now();
   render.scene = share_bundle_scene(*job->bundle, job->scene_hash, m_.cache_dir(), job->request.options.lighting);
   m_.release_checked_scene(job->scene_hash);  // the admission's load, taken from the shelf just now
   const double scene_s = seconds_since(setup);
-  render.camera = std::make_unique<Camera>(job->request.camera, opts.width, opts.height);
-  std::shared_ptr<const JobProgressRecord> resume;
-  {
-    JobLock lock(m_.mu_);
-    resume = std::move(job->resume);
-    job->triangles = render.scene->triangle_count();
-    job->codec_bounds = render.scene->bounds();
-    job->seconds_scene_load = scene_s;
-  }
-  const bool had_checkpoint = resume != nullptr;
-  // A fresh job's round 0 traces every pixel from sample 0, which needs no frame: its leases open
-  // now, and the frame (deep framebuffer, accumulation) is built while workers trace them. Their
-  // commits wait in the commit queue (bounded as ever) and are applied once the frame exists. A
-  // resumed job's round has skip masks: its frame is restored before the round opens.
-  if (!had_checkpoint && !begin_running(job, nullptr)) return;  // cancelled meanwhile
+  render.camera =
+      std::make_unique<Camera>(job->request.camera, job->request.options.width, job->request.options.height);
+  JobLock lock(m_.mu_);
+  job->triangles = render.scene->triangle_count();
+  job->codec_bounds = render.scene->bounds();
+  job->seconds_scene_load = scene_s;
+  return std::move(job->resume);
+}
+
+void ReprojectionWorker::build_frame(const std::shared_ptr<Job>& job) {
+  RenderOptions opts = job->request.options;
+  if (m_.options_.reproject_backend_override == "cpu" || !gl_)
+    if (opts.reproject == ReprojectMethod::kGl) opts.reproject = ReprojectMethod::kCpu;
+  Render& render = renders_.at(job->id);
   if (m_.options_.before_frame_build) m_.options_.before_frame_build(job->id);
   const auto build = std::chrono::steady_clock::now();
   // The edge pixels' rays use the scene's BVH on the shelf: one build for every frame of the scene.
@@ -213,27 +242,25 @@ void ReprojectionWorker::start_job(const std::shared_ptr<Job>& job) {
   const double build_s = seconds_since(build);
   FrameState& frame = render.driver->frame();
   uint64_t committed_meanwhile = 0;
+  bool fresh;
+  double scene_s;
   {
     JobLock lock(m_.mu_);
     job->seconds_frame_build = build_s;
-    // The round's reprojection time (its histogram) leaves the build out.
-    job->reprojecting_at_round_open = frame.seconds_reprojecting();
-    committed_meanwhile = job->counters.tiles_committed;
+    scene_s = job->seconds_scene_load;
+    fresh = job->state == JobState::kRunning;  // its round 0 open meanwhile; a resumed job is still queued
+    if (fresh) {
+      // The round's reprojection time (its histogram) leaves the build out.
+      job->reprojecting_at_round_open = frame.seconds_reprojecting();
+      committed_meanwhile = job->counters.tiles_committed;
+    }
   }
+  const FrameState::BuildSeconds& parts = frame.build_seconds();
   logger("master")->info(
-      "job {} set up in {:.2f} s: scene {:.2f} s, frame state (deep framebuffer, accumulation) {:.2f} s{}", job->id,
-      scene_s + build_s, scene_s, build_s,
-      had_checkpoint ? std::string()
-                     : fmt::format(" (round 0 open meanwhile: {} tiles committed)", committed_meanwhile));
-  if (!had_checkpoint) return;  // the commits queued meanwhile are applied next (reprojection_loop)
-  try {
-    frame.restore(*resume->frame);
-  } catch (const std::exception& e) {
-    logger("master")->error("job {}: its checkpoint does not fit ({}); starting it again from round 0", job->id,
-                            e.what());
-    resume.reset();
-  }
-  begin_running(job, resume.get());
+      "job {} set up in {:.2f} s: scene {:.2f} s, frame state {:.2f} s (deep framebuffer into the plane grid {:.2f} s, "
+      "edge pixels {:.2f} s, reprojector {:.2f} s){}",
+      job->id, scene_s + build_s, scene_s, build_s, parts.grid, parts.edge_pixels, parts.reprojector,
+      fresh ? fmt::format(" (round 0 open meanwhile: {} tiles committed)", committed_meanwhile) : std::string());
 }
 
 bool ReprojectionWorker::begin_running(const std::shared_ptr<Job>& job, const JobProgressRecord* resume) {

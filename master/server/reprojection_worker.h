@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <memory>
 #include <optional>
@@ -87,6 +88,13 @@ class ReprojectionWorker {
   /// start_job(), failing the job if it throws.
   void start_or_fail(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
   void start_job(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
+  /// Fails a job that could not start (`why`), closing its round 0 if open.
+  void fail_start(const std::shared_ptr<Job>& job, const std::string& why) EPR_EXCLUDES(m_.mu_);
+  /// start_job()'s first part: the job's Render with its scene and camera; returns its checkpoint
+  /// (taken from Job::resume), null for a fresh job.
+  std::shared_ptr<const JobProgressRecord> prepare_job(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
+  /// Builds the job's frame (RoundDriver: deep framebuffer, accumulation) after prepare_job().
+  void build_frame(const std::shared_ptr<Job>& job) EPR_EXCLUDES(m_.mu_);
   /// A starting job runs (unless it was cancelled meanwhile): its leases and its first round in this
   /// master open (round 0 of a fresh job, before its frame exists; the next round of a resumed one,
   /// from its restored frame and `resume`, its checkpoint or null), and parked workers hear of it.
@@ -115,8 +123,12 @@ class ReprojectionWorker {
 
   // Frame windows (window_run.h), in reprojection_window.cpp.
   /// Starts a window run's frames (`frames`, in frame order) together: they continue from one round
-  /// (their checkpoints agree) or all start again from round 0.
+  /// (their checkpoints agree) or all start again from round 0. Fresh frames' rounds 0 all open
+  /// before any frame is built; their builds wait in `unbuilt_` (build_unbuilt).
   void start_run(const std::vector<std::shared_ptr<Job>>& frames) EPR_EXCLUDES(m_.mu_);
+  /// Builds a run's frame whose round 0 is open (from `unbuilt_`): `job`'s, or with null the first
+  /// still running. Failing the frame if the build throws. False if none was left to build.
+  bool build_unbuilt(const std::shared_ptr<Job>& job = nullptr) EPR_EXCLUDES(m_.mu_);
   /// `run`'s cuts (WindowRun::measured, share, cut): the views of each pair of neighbouring frames
   /// of the run (`first`'s) that this master has, against MasterOptions::window_cut_share. Returns
   /// the scene it loaded (null if it measured nothing).
@@ -146,6 +158,9 @@ class ReprojectionWorker {
   std::unique_ptr<GlContext> gl_;
   std::map<std::string, Render> renders_;       // by job id: the jobs this thread started and has not let go
   std::map<const WindowRun*, RunRounds> runs_;  // the window runs started, by their WindowRun
+  // Window frames running without a frame yet, in the order their runs started them (frame order):
+  // each is built when a batch of its commits comes up, or when the thread has nothing else to do.
+  std::deque<std::shared_ptr<Job>> unbuilt_;
   // apply_commits() calls and the tiles they applied (for the log).
   uint64_t batches_applied_ = 0, tiles_applied_ = 0;
 };

@@ -1,6 +1,6 @@
 // Whole renders on a JobManager in the test process: submit jobs, trace them with in-process workers
 // until they end, and read back each job's images and statistics file (window_run_test.cpp,
-// window_cut_test.cpp, window_pipeline_test.cpp).
+// window_cut_test.cpp, window_pipeline_test.cpp); a small window run's frames.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -22,6 +22,30 @@ struct RenderedJob {
   JobImages images;
   nlohmann::json stats;  // the job's statistics file (null when it has none)
 };
+
+/// Frame `frame` (1..3) of batch `batch`, one window run of K = `window`: the Cornell box at 32 x 32 in
+/// four tiles, 8 paths in rounds of 4, skip with the CPU reprojector, its eye moved `frame` tenths
+/// sideways, seed `seed0` + `frame` (window_lease_cameras_test.cpp, window_setup_test.cpp).
+inline JobRequest small_run_frame(const std::string& batch, uint32_t frame, uint32_t window, uint64_t seed0) {
+  JobRequest req;
+  req.options.width = req.options.height = 32;
+  req.options.spp = 8;
+  req.options.paths_per_round = 4;
+  req.options.mode = RenderMode::kSkip;
+  req.options.reproject = ReprojectMethod::kCpu;
+  req.options.tile_size = 16;
+  req.options.seed = seed0 + frame;
+  req.camera.eye.x += 0.1f * float(frame);
+  req.bundle.builtin = "builtin:cornell";
+  req.request_id = batch + "-" + std::to_string(frame);
+  req.batch.id = batch;
+  req.batch.frame = frame;
+  req.batch.frames = 3;
+  req.batch.window = window;
+  req.batch.window_first = 1;
+  req.batch.window_last = 3;
+  return req;
+}
 
 /// A master in `dir` without checkpoints whose budget holds every frame of a window run at once.
 inline MasterOptions all_frames_at_once(const std::filesystem::path& dir) {
