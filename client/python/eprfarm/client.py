@@ -193,6 +193,7 @@ class MasterClient:
         min_paths: int = 1,
         reprojected_weight: float = 0.5,
         combine: str = "fixed",
+        path_budget: bool = False,
         reproject_glossy: bool = False,
         joint_test: bool = True,
         rr: Optional[str] = None,
@@ -284,6 +285,7 @@ class MasterClient:
                 min_paths=min_paths,
                 reprojected_weight=reprojected_weight,
                 combine=combine_value,
+                path_budget=bool(path_budget),
                 reproject_glossy=reproject_glossy,
                 joint_test=joint_test,
             )
@@ -335,6 +337,8 @@ class MasterClient:
             reprojected_weight: W in (0, 1], what a reprojected sample counts for against a traced
                 path (0.5, as `epr`; `--reprojected-weight`).
             combine: "fixed" (default, W above) or "variance" (inverse-variance weights; `--combine`).
+            path_budget: with the fixed rule, a pixel traces only the paths its counts say it still
+                needs in a round (False, as `epr`; `--path-budget`, docs/DESIGN.md "Progressive rounds").
             rr: Russian roulette "auto", "reuse", "throughput", "albedo", "paper" or "off" (job_settings.ROULETTE);
                 None (default): the master's default, auto, as `epr`. max_depth overrides its cap.
             mis: MIS for direct light (True); False: next event estimation only.

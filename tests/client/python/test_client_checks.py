@@ -125,6 +125,11 @@ class ArgumentTest(unittest.TestCase):
         self.assert_refused(lambda: self.client.job_spec("builtin:cornell", rr="russian"),
                             "rr 'russian' is not one of paper, albedo, off, throughput, reuse, auto")  # fmt: skip
 
+    def test_path_budget_is_sent_as_asked(self):
+        """`path_budget` reaches the job's reprojection settings (`--path-budget`); off by default."""
+        self.assertFalse(self.client.job_spec("builtin:cornell").reprojection.path_budget)
+        self.assertTrue(self.client.job_spec("builtin:cornell", path_budget=True).reprojection.path_budget)
+
     def test_list_and_watch_arguments(self):
         self.assert_refused(lambda: self.client.list(limit=-1), "limit -1 must be 0 (all jobs) or more")
         self.assert_refused(lambda: self.client.list(limit=2.5), "limit must be a whole number, not 2.5")
