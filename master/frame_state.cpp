@@ -435,8 +435,7 @@ void FrameState::tile_inputs(int x0, int y0, int x1, int y1, std::vector<uint8_t
 int FrameState::path_budget(int x, int y) const {
   const int k = next_paths_per_pixel();
   const size_t p = pixel(x, y);
-  if (!opts_.path_budget || opts_.mode != RenderMode::kSkip || variance_rule() || !reprojects_ || skip_[p] || k <= 1)
-    return k;
+  if (!budgets_paths() || skip_[p] || k <= 1) return k;
   // The skip test of finish_round() with M + n paths: pixel_samples() grows by one per path.
   const double have = pixel_samples(p), target = double(opts_.spp);
   const int floor_paths = std::max(1, opts_.min_paths - int(path_count_[p]));
@@ -446,8 +445,13 @@ int FrameState::path_budget(int x, int y) const {
   return n;
 }
 
+bool FrameState::budgets_paths() const {
+  return opts_.path_budget && opts_.mode == RenderMode::kSkip && !variance_rule() && reprojects_;
+}
+
 void FrameState::tile_paths(int x0, int y0, int x1, int y1, std::vector<uint32_t>* paths) const {
   paths->clear();
+  if (!budgets_paths()) return;  // every pixel traces k: nothing to visit (the default)
   const int k = next_paths_per_pixel();
   bool fewer = false;
   for (int y = y0; y < y1; ++y)

@@ -192,6 +192,8 @@ class FrameState {
   int path_budget(int x, int y) const;
   /// path_budget() of every pixel of a tile, row-major; empty when each traces k (skipped ones aside).
   void tile_paths(int x0, int y0, int x1, int y1, std::vector<uint32_t>* paths) const;
+  /// True if path_budget() can give a pixel fewer than k paths (--path-budget, skip, the fixed rule).
+  bool budgets_paths() const;
   /// True if no pixel of the tile traces in the next round.
   bool tile_idle(int x0, int y0, int x1, int y1) const;
 
